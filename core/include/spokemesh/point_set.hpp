@@ -1,0 +1,62 @@
+// PointSet: n points in R^d, coordinates contiguous and row-major.
+//
+// A PointSet that passed validate() is what every other core module assumes:
+// d in [2, kMaxDimension], n >= d + 1, finite coordinates with |x| <= kMaxCoordinate,
+// no two equal points, and an affine span of full dimension d. It also carries the
+// lexicographic rank of each point, which keys the symbolic perturbation
+// (Devillers & Teillaud 2011): among tied points, the lexicographically larger
+// one counts as lifted higher, i.e. as outside.
+//
+// Ownership: owns its coordinates. Thread safety: immutable after validate();
+// concurrent reads are safe.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "spokemesh/status.hpp"
+
+namespace spokemesh {
+
+// Largest dimension for exact meshing. The predicates' subset tables are sized
+// 2^(d+1), and Delaunay stars beyond d = 8 are too large to enumerate anyway.
+inline constexpr int kMaxDimension = 8;
+// Largest accepted |coordinate|. Exact arithmetic (GMP) has no limit; this bound
+// keeps the floating-point candidate distances finite (d * (2e100)^2 < 1e300).
+inline constexpr double kMaxCoordinate = 1e100;
+
+class PointSet {
+ public:
+  PointSet() = default;
+  PointSet(int dimension, std::vector<double> coordinates);
+
+  int dimension() const { return d_; }
+  std::size_t size() const { return d_ == 0 ? 0 : coords_.size() / static_cast<std::size_t>(d_); }
+  const double* point(std::size_t i) const { return coords_.data() + i * static_cast<std::size_t>(d_); }
+  std::span<const double> coordinates() const { return coords_; }
+
+  // Lexicographic rank of point i (0 = smallest); valid after validate().
+  std::uint32_t lex_rank(std::size_t i) const { return rank_[i]; }
+
+  // Checks the preconditions above (duplicates are refused here; merge them first
+  // with merge_duplicates()). `source` names the input in messages ("file.txt").
+  Status validate(const std::string& source, int max_dimension = kMaxDimension);
+
+  // Removes exact duplicates, keeping each first occurrence. Returns for every
+  // input index the index it maps to in the reduced set.
+  std::vector<std::uint32_t> merge_duplicates();
+
+ private:
+  Status check_affine_span(const std::string& source) const;
+
+  int d_ = 0;
+  std::vector<double> coords_;
+  std::vector<std::uint32_t> rank_;
+};
+
+// Lexicographic comparison of two points of dimension d (exact on doubles).
+bool lex_less(const double* a, const double* b, int d);
+
+}  // namespace spokemesh

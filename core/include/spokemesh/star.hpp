@@ -1,0 +1,144 @@
+// StarWalker: the Delaunay star of one seed by Recursive Spoke Darts.
+//
+// Ebeida & Rushdi, "Recursive Spoke Darts", IMR 2016. The paper's operations read
+// exactly as gift wrapping on the lifted points p -> (p, |p|^2), which is how they
+// are decided here (see docs/algorithm.md):
+//   * a spoke from the seed x in direction u, trimmed by the nearest bisector, is the
+//     rotation of the hyperplane tangent to the paraboloid at x about a (d-1)-flat
+//     until it meets a lifted point (Sec. 3.1, "spoke trimming");
+//   * a spoke inside the Voronoi face found so far (Sec. 3.2, recursion) is the same
+//     rotation about a flat that also contains the lifted points found so far;
+//   * after d levels the hyperplane supports d + 1 lifted points: a Delaunay simplex,
+//     i.e. a Voronoi vertex of cell(x);
+//   * a ray along a Voronoi edge leaving that vertex away from s_k (Sec. 3.3, the
+//     walk) is the rotation about the lifted facet opposite s_k; no hit means the
+//     edge is unbounded, certified by KdTree::any_beyond.
+// Each rotation ("wrap") picks the first lifted point hit with the exact predicates
+// of predicates.hpp, so the star is exact and, through symbolic perturbation, a
+// function of the point set; the random spoke directions only choose where the walk
+// starts.
+//
+// Candidates come from the k-d tree sorted by distance and cached per seed. A wrap
+// whose winning sphere reaches beyond the certified candidate radius doubles the
+// candidate count and retries (the paper's alpha growth, in the shape of geogram's
+// security-radius loop): a point at distance >= 2r from x cannot lie inside a sphere
+// of radius r through x.
+//
+// Ownership: borrows the KdTree (and its PointSet), which must outlive the walker.
+// Thread safety: NOT thread-safe; use one StarWalker per thread. Different walkers
+// on the same tree are independent and give identical answers.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <vector>
+
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/predicates.hpp"
+#include "spokemesh/status.hpp"
+
+namespace spokemesh {
+
+struct StarOptions {
+  // Mixed with the seed index into every random spoke direction.
+  std::uint64_t random_seed = 0x5eed;
+  // Candidates loaded first; 0 picks a default for the dimension.
+  std::size_t initial_candidates = 0;
+  // Checked between wraps; a set flag makes compute() return CANCELLED.
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+// Counters summed over a walker's lifetime (for benchmarks and tuning).
+struct StarStats {
+  std::uint64_t seeds = 0;
+  std::uint64_t wraps = 0;
+  std::uint64_t candidate_tests = 0;
+  std::uint64_t exact_fallbacks = 0;
+  std::uint64_t regrowths = 0;
+  std::uint64_t hull_queries = 0;
+};
+
+// The Delaunay simplices incident to one seed.
+struct Star {
+  std::uint32_t seed = 0;
+  int dimension = 0;
+  // d + 1 vertex indices per simplex, ascending within a simplex; simplices in
+  // lexicographic order.
+  std::vector<std::uint32_t> simplices;
+  // Facets of the star that lie on the convex hull (unbounded Voronoi edges).
+  std::size_t hull_facets = 0;
+
+  std::size_t size() const {
+    return simplices.size() / static_cast<std::size_t>(dimension + 1);
+  }
+  const std::uint32_t* simplex(std::size_t i) const {
+    return simplices.data() + i * static_cast<std::size_t>(dimension + 1);
+  }
+  bool bounded_cell() const { return hull_facets == 0; }
+};
+
+class StarWalker {
+ public:
+  explicit StarWalker(const KdTree& tree, StarOptions options = {});
+
+  // Computes the star of `seed` into `out` (its buffers are reused).
+  // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set.
+  Status compute(std::uint32_t seed, Star& out);
+
+  const StarStats& stats() const { return stats_; }
+
+ private:
+  // A fixed-length tuple set (open addressing) that keeps its memory between seeds.
+  class TupleSet {
+   public:
+    void reset(int length);
+    bool insert(const std::uint32_t* sorted_key);  // true if it was new
+
+   private:
+    std::uint64_t hash(const std::uint32_t* key) const;
+    void grow();
+    int length_ = 0;
+    std::size_t count_ = 0;
+    std::vector<std::uint32_t> keys_;
+    std::vector<std::int32_t> slots_;
+  };
+
+  void load_candidates(std::size_t k);
+  void point_row(std::uint32_t p, Approx* out) const;
+  void direction_row(const double* w, Approx* out) const;
+  // Rotates the lifted hyperplane about pivot (d - 1 rows) towards side sigma of the
+  // pivot's spatial hyperplane; returns the point hit, or -1 when no point lies
+  // strictly on that side. If `opposite` >= 0, sigma is taken as the side opposite
+  // that point.
+  std::int64_t wrap(const Row* pivot, int sigma, std::int64_t opposite);
+  Status first_simplex(std::uint32_t* out);
+  void grow();
+
+  const KdTree& tree_;
+  const PointSet& ps_;
+  Predicates predicates_;
+  StarOptions options_;
+  StarStats stats_;
+  int d_;
+
+  // Per-seed state, kept across seeds to avoid allocation.
+  std::uint32_t x_ = 0;
+  std::size_t requested_ = 0;
+  std::vector<std::uint32_t> cand_id_;
+  std::vector<double> cand_q_;      // p - x, rounded, row-major
+  std::vector<double> cand_norm2_;  // |p - x|^2 as computed from cand_q_
+  std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or Approx::kUnsafe
+  std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
+  double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
+  std::vector<std::uint32_t> knn_ids_;
+  std::vector<double> knn_d2_;
+  std::vector<double> directions_;
+  std::vector<Approx> minors_;
+  TupleSet simplex_seen_, facet_seen_;
+  std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
+};
+
+// Default first candidate count for dimension d.
+std::size_t default_candidates(int d);
+
+}  // namespace spokemesh

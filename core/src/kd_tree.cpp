@@ -1,0 +1,14 @@
+#include "spokemesh/kd_tree.hpp"
+
+namespace spokemesh {
+
+KdTree::KdTree(const PointSet& points) : adaptor_{points} {
+  index_ = std::make_unique<Index>(points.dimension(), adaptor_,
+                                   nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/16));
+}
+
+std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2) const {
+  return index_->knnSearch(query, k, ids, dist2);
+}
+
+}  // namespace spokemesh

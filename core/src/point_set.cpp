@@ -1,0 +1,144 @@
+#include "spokemesh/point_set.hpp"
+
+#include <gmpxx.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+namespace spokemesh {
+
+bool lex_less(const double* a, const double* b, int d) {
+  for (int c = 0; c < d; ++c) {
+    if (a[c] < b[c]) return true;
+    if (a[c] > b[c]) return false;
+  }
+  return false;
+}
+
+PointSet::PointSet(int dimension, std::vector<double> coordinates)
+    : d_(dimension), coords_(std::move(coordinates)) {}
+
+namespace {
+
+std::vector<std::uint32_t> lex_order(const PointSet& ps) {
+  std::vector<std::uint32_t> order(ps.size());
+  std::iota(order.begin(), order.end(), 0u);
+  const int d = ps.dimension();
+  // Stable, so equal points keep input order and "first occurrence" is well defined.
+  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return lex_less(ps.point(a), ps.point(b), d);
+  });
+  return order;
+}
+
+bool equal_points(const double* a, const double* b, int d) {
+  return std::equal(a, a + d, b);
+}
+
+}  // namespace
+
+Status PointSet::validate(const std::string& source, int max_dimension) {
+  const std::size_t n = size();
+  if (d_ < 2 || d_ > max_dimension) {
+    return invalid_argument(source + ": dimension " + std::to_string(d_) +
+                            " is not supported for exact meshing (supported: 2.." +
+                            std::to_string(max_dimension) + ")");
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < d_; ++c) {
+      const double v = point(i)[c];
+      if (!std::isfinite(v)) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " +
+                                std::to_string(c) + " is not finite");
+      }
+      if (std::fabs(v) > kMaxCoordinate) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " +
+                                std::to_string(c) + " has magnitude above 1e100");
+      }
+    }
+  }
+  if (n < static_cast<std::size_t>(d_) + 1) {
+    return invalid_argument(source + ": " + std::to_string(n) + " points given; a " +
+                            std::to_string(d_) + "-d mesh needs at least " +
+                            std::to_string(d_ + 1));
+  }
+  if (n > 0xFFFFFFF0u) return invalid_argument(source + ": more than 2^32 - 16 points");
+
+  const std::vector<std::uint32_t> order = lex_order(*this);
+  for (std::size_t k = 1; k < n; ++k) {
+    if (equal_points(point(order[k - 1]), point(order[k]), d_)) {
+      const auto a = std::min(order[k - 1], order[k]);
+      const auto b = std::max(order[k - 1], order[k]);
+      return invalid_argument(source + ": points " + std::to_string(a) + " and " +
+                              std::to_string(b) +
+                              " are equal (use --merge-duplicates to map duplicates to their "
+                              "first occurrence)");
+    }
+  }
+  rank_.assign(n, 0);
+  for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
+  return check_affine_span(source);
+}
+
+// Exact rank of {p_i - p_0} by incremental row echelon over the rationals. For
+// non-degenerate inputs it reaches rank d after a few points and stops; only a
+// degenerate set is scanned whole, and that is an error path.
+Status PointSet::check_affine_span(const std::string& source) const {
+  const std::size_t n = size();
+  std::vector<std::vector<mpq_class>> basis;  // rows in echelon form
+  std::vector<int> pivot_col;
+  std::vector<mpq_class> v(static_cast<std::size_t>(d_));
+  for (std::size_t i = 1; i < n && static_cast<int>(basis.size()) < d_; ++i) {
+    for (int c = 0; c < d_; ++c) v[c] = mpq_class(point(i)[c]) - mpq_class(point(0)[c]);
+    for (std::size_t b = 0; b < basis.size(); ++b) {
+      const int pc = pivot_col[b];
+      if (sgn(v[pc]) == 0) continue;
+      const mpq_class f = v[pc] / basis[b][pc];
+      for (int c = 0; c < d_; ++c) v[c] -= f * basis[b][c];
+    }
+    int pc = -1;
+    for (int c = 0; c < d_; ++c) {
+      if (sgn(v[c]) != 0) { pc = c; break; }
+    }
+    if (pc >= 0) {
+      basis.push_back(v);
+      pivot_col.push_back(pc);
+    }
+  }
+  const int rank = static_cast<int>(basis.size());
+  if (rank < d_) {
+    return invalid_argument(source + ": the points span only a " + std::to_string(rank) +
+                            "-dimensional affine subspace of R^" + std::to_string(d_) +
+                            " (a " + std::to_string(d_) + "-d mesh needs full dimension)");
+  }
+  return Status::ok();
+}
+
+std::vector<std::uint32_t> PointSet::merge_duplicates() {
+  const std::size_t n = size();
+  const std::vector<std::uint32_t> order = lex_order(*this);
+  std::vector<std::uint32_t> first(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::uint32_t i = order[k];
+    // order is stable: the first of a run of equal points has the smallest index.
+    first[i] = (k > 0 && equal_points(point(order[k - 1]), point(i), d_)) ? first[order[k - 1]] : i;
+  }
+  std::vector<std::uint32_t> new_index(n);
+  std::vector<double> kept;
+  kept.reserve(coords_.size());
+  std::uint32_t next = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (first[i] == i) {
+      new_index[i] = next++;
+      kept.insert(kept.end(), point(i), point(i) + d_);
+    }
+  }
+  std::vector<std::uint32_t> map(n);
+  for (std::size_t i = 0; i < n; ++i) map[i] = new_index[first[i]];
+  coords_ = std::move(kept);
+  rank_.clear();
+  return map;
+}
+
+}  // namespace spokemesh

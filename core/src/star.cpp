@@ -1,0 +1,425 @@
+#include "spokemesh/star.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstring>
+#include <limits>
+#include <numeric>
+
+namespace spokemesh {
+namespace {
+
+constexpr int kMaxCols = kMaxDimension + 1;
+constexpr double kUnit = 0x1p-53;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Certified sign of v given the magnitude sum a and rounding depth, with an absolute
+// allowance of `terms` * 2^-1074 for products that may have underflowed in the last
+// (unmultiplied) step. Returns Approx::kUnknownSign when not certain.
+inline int certified(double v, double a, int depth, int terms) {
+  if (depth >= Approx::kUnsafe || !(a <= DBL_MAX)) return Approx::kUnknownSign;
+  const double err = a * (static_cast<double>(depth + 2) * kUnit) * 1.01 + terms * 0x1p-1074;
+  if (v > err) return 1;
+  if (v < -err) return -1;
+  if (a == 0) return 0;
+  return Approx::kUnknownSign;
+}
+
+// Deterministic, platform-independent random numbers (std distributions are
+// implementation-defined, and a replica must draw the same spokes anywhere).
+std::uint64_t splitmix64(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// Uniform in [-1, 1), exactly representable (53 random bits).
+double random_unit(std::uint64_t& state) {
+  return static_cast<double>(splitmix64(state) >> 11) * 0x1p-52 - 1.0;
+}
+
+// table[mask] = det(last popcount(mask) of `rows` rows of m, columns in mask), for
+// every mask over `cols` columns with popcount <= rows (Laplace expansion, memoised).
+void minors_table(const Approx* m, int rows, int cols, Approx* table) {
+  table[0] = Approx{1.0, 1.0, 0};
+  const unsigned full = (1u << cols) - 1u;
+  for (unsigned mask = 1; mask <= full; ++mask) {
+    const int j = __builtin_popcount(mask);
+    if (j > rows) continue;
+    const Approx* row = m + (rows - j) * cols;
+    Approx acc{};
+    int t = 0;
+    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
+      const int c = __builtin_ctz(rest);
+      const Approx term = row[c] * table[mask ^ (1u << c)];
+      if (t == 0) acc = term;
+      else acc = (t % 2 == 0) ? acc + term : acc - term;
+    }
+    table[mask] = acc;
+  }
+}
+
+}  // namespace
+
+std::size_t default_candidates(int d) {
+  static constexpr std::array<std::size_t, kMaxDimension + 1> kDefault = {0, 8, 16, 40, 80, 160, 320, 640, 1280};
+  return kDefault[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
+}
+
+// ---------------------------------------------------------------------------------
+// TupleSet
+
+void StarWalker::TupleSet::reset(int length) {
+  length_ = length;
+  count_ = 0;
+  keys_.clear();
+  if (slots_.empty()) slots_.assign(256, -1);
+  else std::fill(slots_.begin(), slots_.end(), -1);
+}
+
+std::uint64_t StarWalker::TupleSet::hash(const std::uint32_t* key) const {
+  std::uint64_t h = 0x84222325CBF29CE4ull;
+  for (int i = 0; i < length_; ++i) h = (h ^ key[i]) * 0x100000001B3ull + (h >> 29);
+  return h ^ (h >> 32);
+}
+
+void StarWalker::TupleSet::grow() {
+  slots_.assign(slots_.size() * 2, -1);
+  const std::size_t mask = slots_.size() - 1;
+  for (std::size_t i = 0; i < count_; ++i) {
+    std::size_t s = hash(&keys_[i * length_]) & mask;
+    while (slots_[s] >= 0) s = (s + 1) & mask;
+    slots_[s] = static_cast<std::int32_t>(i);
+  }
+}
+
+bool StarWalker::TupleSet::insert(const std::uint32_t* key) {
+  if (2 * (count_ + 1) > slots_.size()) grow();
+  const std::size_t mask = slots_.size() - 1;
+  std::size_t s = hash(key) & mask;
+  while (slots_[s] >= 0) {
+    if (std::equal(key, key + length_, &keys_[static_cast<std::size_t>(slots_[s]) * length_])) return false;
+    s = (s + 1) & mask;
+  }
+  slots_[s] = static_cast<std::int32_t>(count_++);
+  keys_.insert(keys_.end(), key, key + length_);
+  return true;
+}
+
+// ---------------------------------------------------------------------------------
+// StarWalker
+
+StarWalker::StarWalker(const KdTree& tree, StarOptions options)
+    : tree_(tree), ps_(tree.points()), predicates_(ps_), options_(options), d_(ps_.dimension()) {
+  minors_.resize(std::size_t{1} << (d_ + 1));
+  directions_.resize(static_cast<std::size_t>(d_ * d_));
+}
+
+void StarWalker::load_candidates(std::size_t k) {
+  const std::size_t n = ps_.size();
+  const std::size_t want = std::min(k + 1, n);  // +1: the seed finds itself
+  knn_ids_.resize(want);
+  knn_d2_.resize(want);
+  const double* x = ps_.point(x_);
+  const std::size_t got = tree_.knn(x, want, knn_ids_.data(), knn_d2_.data());
+  cand_id_.clear();
+  cand_q_.clear();
+  cand_norm2_.clear();
+  cand_depth_.clear();
+  cand_lower_.clear();
+  for (std::size_t i = 0; i < got; ++i) {
+    const std::uint32_t id = knn_ids_[i];
+    if (id == x_) continue;
+    const double* p = ps_.point(id);
+    double norm2 = 0;
+    int depth = d_ + 2;  // depth of a sum of d squares of rounded differences
+    for (int c = 0; c < d_; ++c) {
+      const double q = p[c] - x[c];
+      cand_q_.push_back(q);
+      norm2 += q * q;
+      if (q != 0 && std::fabs(q) < 0x1p-480) depth = Approx::kUnsafe;  // q^2 may underflow
+    }
+    cand_id_.push_back(id);
+    cand_norm2_.push_back(norm2);
+    cand_depth_.push_back(depth);
+    cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
+  }
+  r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
+  requested_ = k;
+}
+
+void StarWalker::grow() {
+  ++stats_.regrowths;
+  load_candidates(std::max<std::size_t>(2 * requested_, 8));
+}
+
+void StarWalker::point_row(std::uint32_t p, Approx* out) const {
+  const double* pp = ps_.point(p);
+  const double* x = ps_.point(x_);
+  Approx norm2{};
+  for (int c = 0; c < d_; ++c) {
+    out[c] = Approx::difference(pp[c], x[c]);
+    norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
+  }
+  out[d_] = norm2;
+}
+
+void StarWalker::direction_row(const double* w, Approx* out) const {
+  for (int c = 0; c < d_; ++c) out[c] = Approx::exact(w[c]);
+  out[d_] = Approx::exact(0.0);
+}
+
+std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite) {
+  ++stats_.wraps;
+  const int d = d_;
+  const int cols = d + 1;
+  const unsigned all = (1u << cols) - 1u;
+
+  // Minors of the pivot rows, shared by the spatial normal and every lifted plane.
+  std::array<Approx, kMaxCols * kMaxCols> pivot_rows;
+  for (int r = 0; r < d - 1; ++r) {
+    if (pivot[r].is_point()) point_row(static_cast<std::uint32_t>(pivot[r].point), &pivot_rows[r * cols]);
+    else direction_row(pivot[r].dir, &pivot_rows[r * cols]);
+  }
+  minors_table(pivot_rows.data(), d - 1, cols, minors_.data());
+
+  // Spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
+  std::array<Approx, kMaxDimension> normal;
+  int normal_depth = 0;
+  const unsigned spatial = (1u << d) - 1u;
+  for (int c = 0; c < d; ++c) {
+    const Approx& m = minors_[spatial ^ (1u << c)];
+    normal[c] = ((d - 1 + c) % 2 == 0) ? m : -m;
+    normal_depth = std::max(normal_depth, normal[c].n);
+  }
+  std::array<Row, kMaxCols> rows;  // scratch for the exact stage
+  std::copy(pivot, pivot + d - 1, rows.begin());
+
+  auto spatial_side = [&](const double* q, std::uint32_t id) {
+    double v = 0, a = 0;
+    for (int c = 0; c < d; ++c) {
+      v += normal[c].v * q[c];
+      a += normal[c].a * std::fabs(q[c]);
+    }
+    const int s = certified(v, a, normal_depth + d + 3, d);
+    if (s != Approx::kUnknownSign) return s;
+    ++stats_.exact_fallbacks;
+    rows[d - 1] = Row::of_point(id);
+    return predicates_.spatial_sign_exact(x_, std::span<const Row>(rows.data(), d));
+  };
+  auto is_pivot = [&](std::uint32_t id) {
+    for (int r = 0; r < d - 1; ++r) {
+      if (pivot[r].point == id) return true;
+    }
+    return false;
+  };
+
+  const double* x = ps_.point(x_);
+  if (opposite >= 0) {
+    std::array<double, kMaxDimension> q;
+    const double* o = ps_.point(static_cast<std::size_t>(opposite));
+    for (int c = 0; c < d; ++c) q[c] = o[c] - x[c];
+    sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(opposite));
+  }
+
+  for (;;) {
+    if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return -2;
+    const std::size_t count = cand_id_.size();
+    std::int64_t best = -1;
+    std::array<Approx, kMaxCols> plane;  // cofactors of the query row of det[pivot; best; query]
+    int plane_depth = 0;
+    double next_exit_test = kInf;
+
+    auto build_plane = [&](std::size_t j) {
+      std::array<Approx, kMaxCols> b;
+      const double* q = &cand_q_[j * d];
+      for (int c = 0; c < d; ++c) b[c] = Approx{q[c], std::fabs(q[c]), 1};
+      b[d] = Approx{cand_norm2_[j], cand_norm2_[j], cand_depth_[j]};
+      plane_depth = 0;
+      for (int c = 0; c < cols; ++c) {
+        // M_c = det[pivot; best] without column c, expanded along the best row.
+        Approx m{};
+        int t = 0;
+        for (int c2 = 0; c2 < cols; ++c2) {
+          if (c2 == c) continue;
+          const Approx term = b[c2] * minors_[all ^ (1u << c) ^ (1u << c2)];
+          const bool plus = ((d - 1 + t) % 2 == 0);
+          m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
+          ++t;
+        }
+        plane[c] = ((d + c) % 2 == 0) ? m : -m;
+        plane_depth = std::max(plane_depth, plane[c].n);
+      }
+      double s = 0;
+      for (int c = 0; c < d; ++c) s += plane[c].v * plane[c].v;
+      const double a2 = s / (plane[d].v * plane[d].v);  // |slope|^2 = (2 r)^2, estimate
+      next_exit_test = a2 * (1 + 1e-9);
+    };
+    // Certifies that every point with exact |q|^2 >= bound is strictly above the
+    // current plane: above holds where |q| > |slope| (the plane is h = slope . q).
+    auto certified_beyond = [&](double bound) {
+      if (bound == kInf) return true;
+      Approx e = Approx::exact(bound) * plane[d] * plane[d];
+      for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
+      return e.certified_sign() == 1;
+    };
+
+    bool exited = false;
+    for (std::size_t j = 0; j < count; ++j) {
+      if (best >= 0 && cand_lower_[j] > next_exit_test) {
+        if (certified_beyond(cand_lower_[j])) {
+          exited = true;
+          break;
+        }
+        next_exit_test = cand_lower_[j] * (1 + 1e-6);
+      }
+      const std::uint32_t id = cand_id_[j];
+      if (is_pivot(id)) continue;
+      ++stats_.candidate_tests;
+      const double* q = &cand_q_[j * d];
+      if (spatial_side(q, id) != sigma) continue;
+      if (best < 0) {
+        best = static_cast<std::int64_t>(j);
+        build_plane(j);
+        continue;
+      }
+      // Lifted side of q relative to the plane through pivot and best.
+      double v = plane[d].v * cand_norm2_[j], a = plane[d].a * cand_norm2_[j];
+      for (int c = 0; c < d; ++c) {
+        v += plane[c].v * q[c];
+        a += plane[c].a * std::fabs(q[c]);
+      }
+      const int depth = cand_depth_[j] >= Approx::kUnsafe ? Approx::kUnsafe : plane_depth + 2 * d + 6;
+      int s = certified(v, a, depth, d + 1);
+      if (s == Approx::kUnknownSign || s == 0) {
+        ++stats_.exact_fallbacks;
+        rows[d - 1] = Row::of_point(cand_id_[static_cast<std::size_t>(best)]);
+        rows[d] = Row::of_point(id);
+        s = predicates_.lifted_sign_exact(x_, std::span<const Row>(rows.data(), cols), true);
+      }
+      // Same side as "up" (sign of plane[d], which is sigma) means above: not hit first.
+      if (s * sigma < 0) {
+        best = static_cast<std::int64_t>(j);
+        build_plane(j);
+      }
+    }
+
+    if (best >= 0) {
+      if (exited || certified_beyond(r2_certified_)) return cand_id_[static_cast<std::size_t>(best)];
+      grow();
+      continue;
+    }
+    if (r2_certified_ == kInf) return -1;
+    ++stats_.hull_queries;
+    const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p) {
+      if (p == x_) return 0;
+      std::array<double, kMaxDimension> q;
+      const double* pp = ps_.point(p);
+      for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
+      return spatial_side(q.data(), p);
+    });
+    if (beyond < 0) return -1;
+    grow();
+  }
+}
+
+Status StarWalker::first_simplex(std::uint32_t* found) {
+  const int d = d_;
+  std::uint64_t state = options_.random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{x_} + 1));
+  std::array<Row, kMaxCols> rows;
+  for (int attempt = 0;; ++attempt) {
+    for (double& w : directions_) w = random_unit(state);
+    for (int r = 0; r < d; ++r) rows[r] = Row::of_direction(&directions_[r * d]);
+    if (predicates_.spatial_sign(x_, std::span<const Row>(rows.data(), d)) != 0) break;
+    if (attempt > 100) return internal_error("could not draw independent spoke directions");
+  }
+  for (int k = 0; k < d; ++k) {
+    // Pivot: the points found so far and all but one of the remaining directions.
+    int r = 0;
+    for (int i = 0; i < k; ++i) rows[r++] = Row::of_point(found[i]);
+    for (int i = 0; i < d - 1 - k; ++i) rows[r++] = Row::of_direction(&directions_[i * d]);
+    rows[r] = Row::of_direction(&directions_[(d - 1 - k) * d]);  // the spoke's side
+    const int sigma = predicates_.spatial_sign(x_, std::span<const Row>(rows.data(), d));
+    std::int64_t p = wrap(rows.data(), sigma, -1);
+    if (p == -1) p = wrap(rows.data(), -sigma, -1);
+    if (p == -2) return cancelled("star computation cancelled");
+    if (p < 0) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
+    found[k] = static_cast<std::uint32_t>(p);
+  }
+  return Status::ok();
+}
+
+Status StarWalker::compute(std::uint32_t seed, Star& out) {
+  const int d = d_;
+  if (seed >= ps_.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
+                        std::to_string(ps_.size()) + " points)");
+  }
+  ++stats_.seeds;
+  x_ = seed;
+  load_candidates(options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d));
+
+  std::array<std::uint32_t, kMaxCols> simplex{};
+  if (Status s = first_simplex(simplex.data()); !s.is_ok()) return s;
+
+  work_.clear();
+  simplex_seen_.reset(d);
+  facet_seen_.reset(d - 1);
+  std::array<std::uint32_t, kMaxCols> key{};
+  std::copy(simplex.begin(), simplex.begin() + d, key.begin());
+  std::sort(key.begin(), key.begin() + d);
+  simplex_seen_.insert(key.data());
+  work_.insert(work_.end(), simplex.begin(), simplex.begin() + d);
+
+  std::size_t hull = 0;
+  std::array<Row, kMaxCols> pivot;
+  for (std::size_t i = 0; i * d < work_.size(); ++i) {
+    std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * d),
+              work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), simplex.begin());
+    for (int k = 0; k < d; ++k) {
+      int r = 0;
+      for (int j = 0; j < d; ++j) {
+        if (j != k) key[r++] = simplex[j];
+      }
+      std::sort(key.begin(), key.begin() + d - 1);
+      if (!facet_seen_.insert(key.data())) continue;  // this Voronoi edge was walked from the other end
+      for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
+      const std::int64_t p = wrap(pivot.data(), 0, simplex[k]);
+      if (p == -2) return cancelled("star computation cancelled");
+      if (p < 0) {
+        ++hull;
+        continue;
+      }
+      key[d - 1] = static_cast<std::uint32_t>(p);
+      std::array<std::uint32_t, kMaxCols> sorted = key;
+      std::sort(sorted.begin(), sorted.begin() + d);
+      if (simplex_seen_.insert(sorted.data())) work_.insert(work_.end(), key.begin(), key.begin() + d);
+    }
+  }
+
+  // Canonical form: vertices ascending within a simplex, simplices lexicographic.
+  const std::size_t m = work_.size() / d;
+  const int w = d + 1;
+  std::vector<std::uint32_t> flat(m * w);
+  for (std::size_t i = 0; i < m; ++i) {
+    std::uint32_t* s = &flat[i * w];
+    s[0] = seed;
+    std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * d),
+              work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), s + 1);
+    std::sort(s, s + w);
+  }
+  std::vector<std::uint32_t> order(m);
+  std::iota(order.begin(), order.end(), 0u);
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);
+  });
+  out.seed = seed;
+  out.dimension = d;
+  out.hull_facets = hull;
+  out.simplices.resize(m * w);
+  for (std::size_t i = 0; i < m; ++i) std::copy(&flat[order[i] * w], &flat[order[i] * w] + w, &out.simplices[i * w]);
+  return Status::ok();
+}
+
+}  // namespace spokemesh
