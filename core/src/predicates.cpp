@@ -6,6 +6,26 @@
 #include <vector>
 
 namespace spokemesh {
+
+void minors_table(const Approx* m, int rows, int cols, Approx* table) {
+  table[0] = Approx{1.0, 1.0, 0};
+  const unsigned full = (1u << cols) - 1u;
+  for (unsigned mask = 1; mask <= full; ++mask) {
+    const int j = __builtin_popcount(mask);
+    if (j > rows) continue;
+    const Approx* row = m + (rows - j) * cols;
+    Approx acc{};
+    int t = 0;
+    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
+      const int c = __builtin_ctz(rest);
+      const Approx term = row[c] * table[mask ^ (1u << c)];
+      if (t == 0) acc = (t % 2 == 0) ? term : -term;
+      else acc = (t % 2 == 0) ? acc + term : acc - term;
+    }
+    table[mask] = acc;
+  }
+}
+
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
@@ -72,7 +92,8 @@ int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row>
   std::array<Approx, kMaxCols * kMaxCols> m;
   std::array<Approx, 1u << kMaxCols> table;
   for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k]);
-  return determinant_by_minors(m.data(), k, table.data()).certified_sign();
+  minors_table(m.data(), k, k, table.data());
+  return table[(1u << k) - 1u].certified_sign();
 }
 
 }  // namespace
@@ -157,6 +178,16 @@ int Predicates::orientation(std::span<const std::uint32_t> simplex) const {
   std::array<Row, kMaxCols> rows;
   for (int r = 0; r < d; ++r) rows[r] = Row::of_point(simplex[r + 1]);
   return spatial_sign(simplex[0], std::span<const Row>(rows.data(), d));
+}
+
+void Predicates::spatial_normal(std::uint32_t origin, std::span<const Row> rows, Approx* normal) const {
+  const int d = ps_.dimension();
+  std::array<Approx, kMaxCols * kMaxCols> m;
+  std::array<Approx, 1u << kMaxCols> table;
+  for (int r = 0; r < d - 1; ++r) approx_row(ps_, origin, rows[r], d, &m[r * d]);
+  minors_table(m.data(), d - 1, d, table.data());
+  const unsigned all = (1u << d) - 1u;
+  for (int c = 0; c < d; ++c) normal[c] = ((d - 1 + c) % 2 == 0) ? table[all ^ (1u << c)] : -table[all ^ (1u << c)];
 }
 
 int Predicates::side_of_sphere(std::span<const std::uint32_t> simplex, std::uint32_t q) const {

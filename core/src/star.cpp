@@ -39,27 +39,6 @@ double random_unit(std::uint64_t& state) {
   return static_cast<double>(splitmix64(state) >> 11) * 0x1p-52 - 1.0;
 }
 
-// table[mask] = det(last popcount(mask) of `rows` rows of m, columns in mask), for
-// every mask over `cols` columns with popcount <= rows (Laplace expansion, memoised).
-void minors_table(const Approx* m, int rows, int cols, Approx* table) {
-  table[0] = Approx{1.0, 1.0, 0};
-  const unsigned full = (1u << cols) - 1u;
-  for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = __builtin_popcount(mask);
-    if (j > rows) continue;
-    const Approx* row = m + (rows - j) * cols;
-    Approx acc{};
-    int t = 0;
-    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
-      const int c = __builtin_ctz(rest);
-      const Approx term = row[c] * table[mask ^ (1u << c)];
-      if (t == 0) acc = term;
-      else acc = (t % 2 == 0) ? acc + term : acc - term;
-    }
-    table[mask] = acc;
-  }
-}
-
 }  // namespace
 
 std::size_t default_candidates(int d) {

@@ -81,34 +81,12 @@ inline Approx operator*(const Approx& x, const Approx& y) {
   return {x.v * y.v, a, n};
 }
 
-// Determinant of the k x k row-major matrix m by Laplace expansion with memoised
-// minors over column subsets: table[mask] = det(last popcount(mask) rows, columns in
-// mask). O(k 2^k) operations, no division, so it is valid for Approx. `table` must
-// hold 2^k entries. Entry mask of the table is afterwards available to callers.
-template <class T>
-T determinant_by_minors(const T* m, int k, T* table) {
-  table[0] = T{1.0, 1.0, 0};
-  const unsigned full = (1u << k) - 1u;
-  for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = __builtin_popcount(mask);
-    const int row = k - j;
-    T acc{};
-    bool first = true;
-    int t = 0;
-    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
-      const int c = __builtin_ctz(rest);
-      const T term = m[row * k + c] * table[mask ^ (1u << c)];
-      if (first) {
-        acc = (t % 2 == 0) ? term : -term;
-        first = false;
-      } else {
-        acc = (t % 2 == 0) ? acc + term : acc - term;
-      }
-    }
-    table[mask] = acc;
-  }
-  return table[full];
-}
+// Minors by Laplace expansion memoised over column subsets: for every mask over
+// `cols` columns with popcount(mask) <= rows, table[mask] = det(last popcount(mask)
+// rows of the row-major rows x cols matrix m, columns in mask). O(cols 2^cols)
+// operations and no division, so the Approx error bound applies. `table` holds
+// 2^cols entries. With rows == cols, table[2^cols - 1] is det(m).
+void minors_table(const Approx* m, int rows, int cols, Approx* table);
 
 // One row of a predicate matrix: a point (index into the PointSet) or a direction.
 struct Row {
@@ -138,6 +116,9 @@ class Predicates {
 
   // Orientation of a simplex given as d + 1 point indices: sign of det[s_i - s_0].
   int orientation(std::span<const std::uint32_t> simplex) const;
+  // Normal of the hyperplane through origin spanned by d - 1 rows: for any q,
+  // sign(sum_c normal[c] (q - origin)_c) = sign det[rows; q - origin].
+  void spatial_normal(std::uint32_t origin, std::span<const Row> rows, Approx* normal) const;
   // +1 if q lies outside the perturbed circumsphere of the (non-degenerate) simplex,
   // -1 if inside. Never 0 for q not a vertex of the simplex.
   int side_of_sphere(std::span<const std::uint32_t> simplex, std::uint32_t q) const;

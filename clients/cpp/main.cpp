@@ -1,0 +1,338 @@
+// spokemesh: exact Delaunay meshes and Voronoi cells of point files.
+//
+// Exit codes: 0 success, 1 failure (including an invalid mesh for `check`),
+// 2 bad usage or bad input.
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include "spokemesh/io.hpp"
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/mesh.hpp"
+#include "spokemesh/star.hpp"
+#include "spokemesh/validate.hpp"
+#include "spokemesh/voronoi.hpp"
+
+namespace {
+
+using namespace spokemesh;
+using Clock = std::chrono::steady_clock;
+
+constexpr int kExitOk = 0, kExitFailure = 1, kExitUsage = 2;
+
+int report(const Status& status) {
+  std::cerr << "spokemesh: " << status.message() << "\n";
+  return (status.code() == Code::kInvalidArgument || status.code() == Code::kOutOfRange) ? kExitUsage : kExitFailure;
+}
+
+// A validated point set with its tree; `original` maps indices back when
+// duplicates were merged.
+struct Loaded {
+  PointSet points;
+  std::vector<std::uint32_t> original;  // empty: identity
+  std::unique_ptr<KdTree> tree;
+
+  std::uint32_t to_original(std::uint32_t i) const { return original.empty() ? i : original[i]; }
+};
+
+Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplicates) {
+  auto points = read_points(path);
+  if (!points.is_ok()) return points.status();
+  auto loaded = std::make_unique<Loaded>();
+  loaded->points = std::move(points).value();
+  if (merge_duplicates) {
+    const std::vector<std::uint32_t> map = loaded->points.merge_duplicates();
+    loaded->original.assign(loaded->points.size(), 0);
+    for (std::size_t i = map.size(); i-- > 0;) loaded->original[map[i]] = static_cast<std::uint32_t>(i);
+  }
+  if (Status s = loaded->points.validate(path); !s.is_ok()) return s;
+  loaded->tree = std::make_unique<KdTree>(loaded->points);
+  return loaded;
+}
+
+// Maps a user's seed (an input index) to the internal index.
+Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed, std::size_t input_count) {
+  if (seed < 0 || static_cast<std::size_t>(seed) >= input_count) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
+                        std::to_string(input_count) + " points)");
+  }
+  if (loaded.original.empty()) return static_cast<std::uint32_t>(seed);
+  // With merged duplicates, a seed maps to its first occurrence.
+  for (std::size_t i = 0; i < loaded.original.size(); ++i) {
+    if (loaded.original[i] == static_cast<std::uint32_t>(seed)) return static_cast<std::uint32_t>(i);
+  }
+  return invalid_argument("seed " + std::to_string(seed) + " duplicates an earlier point; use the first occurrence");
+}
+
+struct Common {
+  unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  bool quiet = false;
+  bool merge_duplicates = false;
+  std::uint64_t random_seed = 0x5eed;
+};
+
+class Progress {
+ public:
+  Progress(bool quiet, std::uint64_t total) : quiet_(quiet), total_(total), tty_(::isatty(2) != 0) {}
+
+  void update(std::uint64_t done, std::uint64_t simplices) {
+    if (quiet_) return;
+    const double elapsed = seconds();
+    if (elapsed < 2.0) return;
+    const double interval = tty_ ? 0.2 : 5.0;
+    if (elapsed - last_ < interval) return;
+    last_ = elapsed;
+    char line[160];
+    std::snprintf(line, sizeof line, "meshing: %llu/%llu seeds (%.0f%%), %llu simplices, %.1f s",
+                  static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_),
+                  total_ ? 100.0 * done / total_ : 100.0, static_cast<unsigned long long>(simplices), elapsed);
+    if (tty_) std::fprintf(stderr, "\r%s\033[K", line);
+    else std::fprintf(stderr, "%s\n", line);
+    drawn_ = tty_;
+  }
+  void finish() {
+    if (drawn_) std::fprintf(stderr, "\r\033[K");
+  }
+  double seconds() const { return std::chrono::duration<double>(Clock::now() - start_).count(); }
+
+ private:
+  bool quiet_;
+  std::uint64_t total_;
+  bool tty_;
+  bool drawn_ = false;
+  double last_ = 0;
+  Clock::time_point start_ = Clock::now();
+};
+
+int run_mesh(const Common& common, const std::string& input, const std::string& output, const std::string& seeds) {
+  auto loaded_or = load(input, common.merge_duplicates);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  const std::size_t n = loaded.points.size();
+
+  MeshOptions options;
+  options.threads = common.threads;
+  options.star.random_seed = common.random_seed;
+  if (!seeds.empty()) {
+    const auto colon = seeds.find(':');
+    try {
+      if (colon == std::string::npos) throw std::invalid_argument("no colon");
+      options.seed_begin = colon == 0 ? 0u : static_cast<std::uint32_t>(std::stoull(seeds.substr(0, colon)));
+      options.seed_end = colon + 1 == seeds.size() ? static_cast<std::uint32_t>(n)
+                                                   : static_cast<std::uint32_t>(std::stoull(seeds.substr(colon + 1)));
+    } catch (const std::exception&) {
+      return report(invalid_argument("--seeds: expected A:B (seeds A..B-1), got '" + seeds + "'"));
+    }
+    if (options.seed_begin > options.seed_end || options.seed_end > n) {
+      return report(invalid_argument("--seeds " + seeds + ": need 0 <= A <= B <= " + std::to_string(n)));
+    }
+    if (!loaded.original.empty()) return report(invalid_argument("--seeds cannot be combined with --merge-duplicates"));
+  }
+  auto writer_or = MeshWriter::open(output, loaded.points);
+  if (!writer_or.is_ok()) return report(writer_or.status());
+  MeshWriter& writer = *writer_or.value();
+
+  Progress progress(common.quiet, std::min<std::uint64_t>(options.seed_end, n) - options.seed_begin);
+  std::uint64_t written = 0;
+  std::vector<std::uint32_t> mapped;
+  auto result = mesh_seeds(*loaded.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t done) {
+    written += block.size() / (loaded.points.dimension() + 1);
+    progress.update(done, written);
+    if (loaded.original.empty()) return writer.write(block);
+    mapped.assign(block.begin(), block.end());
+    for (auto& v : mapped) v = loaded.to_original(v);
+    return writer.write(mapped);
+  });
+  progress.finish();
+  if (!result.is_ok()) return report(result.status());
+  if (Status s = writer.commit(); !s.is_ok()) return report(s);
+  if (!common.quiet) {
+    const double t = progress.seconds();
+    std::fprintf(stderr, "spokemesh: %zu points, %llu simplices, %.2f s, %.0f simplices/s -> %s\n", n,
+                 static_cast<unsigned long long>(result.value().simplices), t,
+                 t > 0 ? result.value().simplices / t : 0.0, output.c_str());
+  }
+  return kExitOk;
+}
+
+// Loads, computes the star of one seed, and hands it to `use`.
+template <class Use>
+int with_star(const Common& common, const std::string& input, std::int64_t seed, Use&& use) {
+  auto points = read_points(input);
+  if (!points.is_ok()) return report(points.status());
+  const std::size_t input_count = points.value().size();
+  auto loaded_or = load(input, common.merge_duplicates);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  auto internal = internal_seed(loaded, seed, input_count);
+  if (!internal.is_ok()) return report(internal.status());
+  StarOptions options;
+  options.random_seed = common.random_seed;
+  StarWalker walker(*loaded.tree, options);
+  Star star;
+  if (Status s = walker.compute(internal.value(), star); !s.is_ok()) return report(s);
+  if (!loaded.original.empty()) {
+    for (auto& v : star.simplices) v = loaded.to_original(v);
+  }
+  return use(loaded, star);
+}
+
+int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json) {
+  return with_star(common, input, seed, [&](const Loaded& loaded, Star& star) {
+    // The cell is computed on internal indices; map ids back for printing only.
+    Star internal = star;
+    if (!loaded.original.empty()) {
+      // Recompute with internal indices (cheap relative to I/O) by reversing the map.
+      std::unordered_map<std::uint32_t, std::uint32_t> back;
+      for (std::size_t i = 0; i < loaded.original.size(); ++i) back[loaded.original[i]] = static_cast<std::uint32_t>(i);
+      for (auto& v : internal.simplices) v = back[v];
+      internal.seed = back[star.seed];
+    }
+    const VoronoiCell cell = voronoi_cell(loaded.points, internal);
+    const int d = cell.dimension;
+    if (json) {
+      nlohmann::json j;
+      j["seed"] = seed;
+      j["dimension"] = d;
+      j["bounded"] = cell.bounded;
+      j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
+      j["vertices"] = nlohmann::json::array();
+      for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
+        std::vector<std::uint32_t> simplex(star.simplex(v), star.simplex(v) + d + 1);
+        j["vertices"].push_back({{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)},
+                                 {"simplex", simplex}});
+      }
+      j["facets"] = nlohmann::json::array();
+      for (const auto& f : cell.facets) {
+        j["facets"].push_back({{"neighbor", loaded.to_original(f.neighbor)}, {"vertices", f.vertices}});
+      }
+      std::cout << j.dump(2) << "\n";
+      return kExitOk;
+    }
+    std::printf("seed %lld\ndimension %d\nbounded %s\n", static_cast<long long>(seed), d, cell.bounded ? "yes" : "no");
+    if (cell.bounded) std::printf("volume %.17g\n", cell.volume);
+    else std::printf("volume inf\n");
+    std::printf("vertices %zu\n", cell.vertex_count());
+    for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
+      std::printf("v %zu", v);
+      for (int c = 0; c < d; ++c) std::printf(" %.17g", cell.vertices[v * d + c]);
+      std::printf("  simplex");
+      for (int c = 0; c <= d; ++c) std::printf(" %u", star.simplex(v)[c]);
+      std::printf("\n");
+    }
+    std::printf("facets %zu\n", cell.facets.size());
+    for (const auto& f : cell.facets) {
+      std::printf("f neighbor %u vertices", loaded.to_original(f.neighbor));
+      for (auto v : f.vertices) std::printf(" %u", v);
+      std::printf("\n");
+    }
+    return kExitOk;
+  });
+}
+
+int run_check(const std::string& input, const std::string& mesh_path) {
+  auto loaded_or = load(input, false);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  auto simplices = read_simplices(mesh_path, loaded.points.dimension() + 1);
+  if (!simplices.is_ok()) return report(simplices.status());
+  const MeshCheck check = check_mesh(*loaded.tree, simplices.value());
+  if (check.valid) {
+    std::printf("valid: %zu simplices, %zu interior facets, %zu hull facets\n", check.simplices, check.interior_facets,
+                check.hull_facets);
+    return kExitOk;
+  }
+  std::printf("INVALID: %zu simplices\n", check.simplices);
+  for (const auto& v : check.violations) std::printf("  %s\n", v.c_str());
+  return kExitFailure;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
+               "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "spokemesh 0.1.0");
+  Common common;
+  auto add_common = [&](CLI::App* cmd) {
+    cmd->add_flag("--merge-duplicates", common.merge_duplicates,
+                  "Map exact duplicate points to their first occurrence instead of refusing them");
+    cmd->add_option("--random-seed", common.random_seed, "Seed for the random spoke directions (the result does not depend on it)")
+        ->capture_default_str();
+  };
+
+  std::string input, output, seeds, mesh_path;
+  std::int64_t seed = -1;
+  bool json = false;
+
+  auto* mesh = app.add_subcommand("mesh", "Mesh a point file (the whole Delaunay mesh, or the simplices owned by --seeds)");
+  mesh->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
+  mesh->add_option("-o,--output", output,
+                   "Mesh file: .simplices/.txt (indices), .npy (int64), .vtu or .msh (2-d/3-d), .svg (2-d)")
+      ->required();
+  mesh->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
+  mesh->add_option("--seeds", seeds, "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index");
+  mesh->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
+  add_common(mesh);
+
+  auto* star = app.add_subcommand("star", "Print the Delaunay simplices incident to one seed, one per line");
+  star->add_option("INPUT", input, "Point file")->required();
+  star->add_option("--seed", seed, "Seed index (0-based)")->required();
+  add_common(star);
+
+  auto* neighbors = app.add_subcommand("neighbors", "Print the Delaunay neighbours of one seed, one per line");
+  neighbors->add_option("INPUT", input, "Point file")->required();
+  neighbors->add_option("--seed", seed, "Seed index (0-based)")->required();
+  add_common(neighbors);
+
+  auto* cell = app.add_subcommand("cell", "Print the Voronoi cell of one seed: vertices, facets, boundedness, volume");
+  cell->add_option("INPUT", input, "Point file")->required();
+  cell->add_option("--seed", seed, "Seed index (0-based)")->required();
+  cell->add_flag("--json", json, "Print JSON instead of text");
+  add_common(cell);
+
+  auto* check = app.add_subcommand("check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
+  check->add_option("INPUT", input, "Point file")->required();
+  check->add_option("MESH", mesh_path, "Mesh file (.simplices/.txt or .npy)")->required();
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return kExitUsage;
+  }
+
+  if (*mesh) return run_mesh(common, input, output, seeds);
+  if (*star) {
+    return with_star(common, input, seed, [](const Loaded&, Star& s) {
+      std::string out;
+      append_index_lines(out, s.simplices, s.dimension + 1);
+      std::fwrite(out.data(), 1, out.size(), stdout);
+      return kExitOk;
+    });
+  }
+  if (*neighbors) {
+    return with_star(common, input, seed, [](const Loaded&, Star& s) {
+      for (std::uint32_t v : star_neighbors(s)) std::printf("%u\n", v);
+      return kExitOk;
+    });
+  }
+  if (*cell) return run_cell(common, input, seed, json);
+  if (*check) return run_check(input, mesh_path);
+  return kExitUsage;
+}

@@ -1,0 +1,65 @@
+// Reading point files and writing mesh files.
+//
+// Points: text (one point per line, numbers separated by whitespace and/or commas,
+// '#' starts a comment, blank lines ignored) or NumPy .npy (float64 or float32,
+// C order, shape (n, d)). Errors name the file and the line or index.
+//
+// Meshes, chosen by extension: .simplices / .txt (one simplex per line, d + 1
+// zero-based indices), .npy (int64, shape (m, d + 1)), .vtu (VTK XML) and .msh
+// (Gmsh 2.2 ASCII) for d = 2, 3, .svg for d = 2. MeshWriter writes to a temporary
+// file beside the target and renames it into place on commit(), so an interrupted
+// run never leaves a partial mesh; destroying an uncommitted writer removes it.
+//
+// Thread safety: functions are reentrant; a MeshWriter is used by one thread.
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/status.hpp"
+
+namespace spokemesh {
+
+// Reads points by extension (.npy, else text). Does not validate geometry.
+Result<PointSet> read_points(const std::string& path);
+Result<PointSet> parse_text_points(const std::string& text, const std::string& source);
+Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& source);
+
+// Reads a mesh (.npy int64/int32, else text) of simplices with `width` indices each.
+Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int width);
+
+class MeshWriter {
+ public:
+  enum class Format { kText, kNpy, kVtu, kMsh, kSvg };
+
+  // Opens a writer for `path`; refuses formats that do not fit the dimension.
+  static Result<std::unique_ptr<MeshWriter>> open(const std::string& path, const PointSet& points);
+  static Result<Format> format_for(const std::string& path, int dimension);
+
+  virtual ~MeshWriter();
+  // Appends simplices ((d + 1) indices each).
+  virtual Status write(std::span<const std::uint32_t> simplices) = 0;
+  // Finishes the file and renames it into place.
+  Status commit();
+
+ protected:
+  MeshWriter(std::string path, const PointSet& points, std::FILE* file, std::string temp_path);
+  virtual Status finish() = 0;
+  Status check_stream(const char* what);
+
+  std::string path_;
+  const PointSet& points_;
+  std::FILE* file_;
+  std::string temp_path_;
+  bool committed_ = false;
+};
+
+// "i j k\n" lines for simplices (or any fixed-width index tuples).
+void append_index_lines(std::string& out, std::span<const std::uint32_t> tuples, int width);
+
+}  // namespace spokemesh

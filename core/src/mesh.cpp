@@ -1,0 +1,121 @@
+#include "spokemesh/mesh.hpp"
+
+#include <algorithm>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace spokemesh {
+
+std::span<const std::uint32_t> owned_simplices(const Star& star) {
+  const std::size_t w = static_cast<std::size_t>(star.dimension) + 1;
+  std::size_t first = 0;
+  while (first < star.size() && star.simplex(first)[0] != star.seed) ++first;
+  return std::span<const std::uint32_t>(star.simplices).subspan(first * w);
+}
+
+namespace {
+
+struct Block {
+  bool done = false;
+  Status status;
+  std::vector<std::uint32_t> simplices;
+};
+
+}  // namespace
+
+Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink) {
+  const std::uint64_t n = tree.points().size();
+  const std::uint64_t begin = std::min<std::uint64_t>(options.seed_begin, n);
+  const std::uint64_t end = std::clamp<std::uint64_t>(options.seed_end, begin, n);
+  const unsigned threads = std::max(1u, options.threads);
+  const int d = tree.points().dimension();
+  // Blocks small enough to balance and to show progress, large enough to amortise.
+  const std::uint64_t block =
+      options.block_size != 0 ? options.block_size : std::clamp<std::uint64_t>((end - begin) / (threads * 64) + 1, 1, d <= 3 ? 4096 : 256);
+  const std::uint64_t blocks = (end - begin + block - 1) / block;
+  const std::uint64_t window = 4ull * threads;  // blocks in flight beyond the next one to write
+
+  std::mutex mu;
+  std::condition_variable worker_cv, writer_cv;
+  std::deque<Block> ring;  // ring[i] is block (written + i)
+  std::uint64_t written = 0, next_block = 0;
+  bool stop = false;
+  MeshStats total;
+
+  auto worker = [&] {
+    StarWalker walker(tree, options.star);
+    Star star;
+    std::vector<std::uint32_t> out;
+    for (;;) {
+      std::uint64_t b;
+      {
+        std::unique_lock lock(mu);
+        worker_cv.wait(lock, [&] { return stop || next_block >= blocks || next_block < written + window; });
+        if (stop || next_block >= blocks) break;
+        b = next_block++;
+        if (ring.size() <= b - written) ring.resize(b - written + 1);
+      }
+      out.clear();
+      Status status;
+      const std::uint64_t lo = begin + b * block, hi = std::min(end, lo + block);
+      for (std::uint64_t s = lo; s < hi && status.is_ok(); ++s) {
+        status = walker.compute(static_cast<std::uint32_t>(s), star);
+        if (status.is_ok()) {
+          const auto owned = owned_simplices(star);
+          out.insert(out.end(), owned.begin(), owned.end());
+        }
+      }
+      std::lock_guard lock(mu);
+      Block& slot = ring[b - written];
+      slot.done = true;
+      slot.status = std::move(status);
+      slot.simplices.swap(out);
+      writer_cv.notify_one();
+    }
+    std::lock_guard lock(mu);
+    total.star.seeds += walker.stats().seeds;
+    total.star.wraps += walker.stats().wraps;
+    total.star.candidate_tests += walker.stats().candidate_tests;
+    total.star.exact_fallbacks += walker.stats().exact_fallbacks;
+    total.star.regrowths += walker.stats().regrowths;
+    total.star.hull_queries += walker.stats().hull_queries;
+  };
+
+  std::vector<std::thread> pool;
+  pool.reserve(threads);
+  for (unsigned t = 0; t < threads; ++t) pool.emplace_back(worker);
+
+  Status failure;
+  std::vector<std::uint32_t> current;
+  while (written < blocks) {
+    {
+      std::unique_lock lock(mu);
+      writer_cv.wait(lock, [&] { return !ring.empty() && ring.front().done; });
+      current.swap(ring.front().simplices);
+      failure = std::move(ring.front().status);
+      ring.pop_front();
+      ++written;
+      worker_cv.notify_all();
+    }
+    if (failure.is_ok()) {
+      total.simplices += current.size() / static_cast<std::size_t>(d + 1);
+      const std::uint64_t seeds_done = std::min<std::uint64_t>(written * block, end - begin);
+      failure = sink(current, seeds_done);
+    }
+    if (!failure.is_ok()) {
+      std::lock_guard lock(mu);
+      stop = true;
+      worker_cv.notify_all();
+      break;
+    }
+  }
+  for (auto& t : pool) t.join();
+  if (!failure.is_ok()) return failure;
+  total.seeds = end - begin;
+  return total;
+}
+
+}  // namespace spokemesh
