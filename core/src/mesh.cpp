@@ -80,7 +80,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     total.star.wraps += walker.stats().wraps;
     total.star.candidate_tests += walker.stats().candidate_tests;
     total.star.exact_fallbacks += walker.stats().exact_fallbacks;
-    total.star.regrowths += walker.stats().regrowths;
+    total.star.sphere_queries += walker.stats().sphere_queries;
     total.star.hull_queries += walker.stats().hull_queries;
   };
 

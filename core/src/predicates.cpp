@@ -3,6 +3,8 @@
 #include <gmpxx.h>
 
 #include <array>
+#include <cmath>
+#include <numeric>
 #include <vector>
 
 namespace spokemesh {
@@ -29,6 +31,7 @@ void minors_table(const Approx* m, int rows, int cols, Approx* table) {
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
+using i128 = __int128;
 
 // Sign of the determinant of a k x k rational matrix by Gaussian elimination.
 int sign_of_determinant(std::vector<mpq_class>& m, int k) {
@@ -53,23 +56,136 @@ int sign_of_determinant(std::vector<mpq_class>& m, int k) {
   return sign;
 }
 
-// Exact row (p - x, |p - x|^2) or (w, 0) with `cols` columns (d or d + 1).
-void exact_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, mpq_class* out) {
-  const int d = ps.dimension();
-  if (row.is_point()) {
-    const double* p = ps.point(static_cast<std::size_t>(row.point));
-    const double* x = ps.point(origin);
-    mpq_class norm2 = 0;
-    for (int c = 0; c < d; ++c) {
-      out[c] = mpq_class(p[c]) - mpq_class(x[c]);
-      norm2 += out[c] * out[c];
-    }
-    if (cols > d) out[d] = norm2;
-  } else {
-    for (int c = 0; c < d; ++c) out[c] = mpq_class(row.dir[c]);
-    if (cols > d) out[d] = 0;
+// Sign of the determinant of a k x k integer matrix by fraction-free (Bareiss)
+// elimination in 128-bit integers. Every intermediate is a minor of the matrix, so
+// with Hadamard's bound H (product of row norms) below 2^61, the products formed
+// (two minors) stay below 2^122 and nothing overflows. Returns kUnknownSign when the
+// bound does not hold.
+int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) {
+  long double bound = 1;
+  for (int r = 0; r < k; ++r) {
+    long double norm2 = 0;
+    for (int c = 0; c < k; ++c) norm2 += static_cast<long double>(m[r * k + c]) * static_cast<long double>(m[r * k + c]);
+    bound *= std::sqrt(norm2) * 1.0001L + 1;
   }
+  if (!(bound < 0x1p61L)) return Approx::kUnknownSign;
+  int sign = 1;
+  i128 previous = 1;
+  for (int col = 0; col < k; ++col) {
+    int pivot = -1;
+    for (int r = col; r < k; ++r) {
+      if (m[r * k + col] != 0) { pivot = r; break; }
+    }
+    if (pivot < 0) return 0;
+    if (pivot != col) {
+      for (int c = 0; c < k; ++c) std::swap(m[pivot * k + c], m[col * k + c]);
+      sign = -sign;
+    }
+    for (int r = col + 1; r < k; ++r) {
+      for (int c = col + 1; c < k; ++c) {
+        m[r * k + c] = (m[r * k + c] * m[col * k + col] - m[r * k + col] * m[col * k + c]) / previous;
+      }
+      m[r * k + col] = 0;
+    }
+    previous = m[col * k + col];
+  }
+  const i128 det = m[(k - 1) * k + (k - 1)];
+  return det > 0 ? sign : det < 0 ? -sign : 0;
 }
+
+// Exact entries of one predicate matrix: integers when every entry is an integer
+// that fits (the common case for degenerate inputs: grids and lattices), rationals
+// otherwise.
+class ExactMatrix {
+ public:
+  ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols)
+      : k_(static_cast<int>(rows.size())), cols_(cols) {
+    const int d = ps.dimension();
+    const double* x = ps.point(origin);
+    for (int r = 0; r < k_ && integral_; ++r) {
+      const Row& row = rows[r];
+      i128 norm2 = 0;
+      for (int c = 0; c < d && integral_; ++c) {
+        double v;
+        if (row.is_point()) {
+          const double a = ps.point(static_cast<std::size_t>(row.point))[c], b = x[c];
+          v = a - b;
+          const double z = v - a;  // TwoSum of a and -b: the rounding error is zero iff exact
+          if ((a - (v - z)) + (-b - z) != 0) integral_ = false;
+        } else {
+          v = row.dir[c];
+        }
+        if (v != std::trunc(v) || std::fabs(v) >= 0x1p40) integral_ = false;
+        if (!integral_) break;
+        ints_[r * cols_ + c] = static_cast<i128>(static_cast<std::int64_t>(v));
+        norm2 += ints_[r * cols_ + c] * ints_[r * cols_ + c];
+      }
+      if (cols_ > d) ints_[r * cols_ + d] = row.is_point() ? norm2 : 0;
+    }
+    if (integral_) return;
+    rats_.resize(static_cast<std::size_t>(k_ * cols_));
+    for (int r = 0; r < k_; ++r) exact_row(ps, origin, rows[r], &rats_[r * cols_]);
+  }
+
+  // Sign of the determinant of the square matrix formed by `row_ids` and `col_ids`,
+  // where a column id of -1 stands for the point-row indicator column.
+  int sign(std::span<const int> row_ids, std::span<const int> col_ids, std::span<const Row> rows) const {
+    const int k = static_cast<int>(row_ids.size());
+    auto indicator = [&](int r) { return rows[r].is_point() ? 1 : 0; };
+    if (integral_) {
+      std::array<i128, kMaxCols * kMaxCols> m;
+      for (int i = 0; i < k; ++i) {
+        for (int j = 0; j < k; ++j) {
+          m[i * k + j] = col_ids[j] < 0 ? i128{indicator(row_ids[i])} : ints_[row_ids[i] * cols_ + col_ids[j]];
+        }
+      }
+      const int s = sign_of_integer_determinant(m, k);
+      if (s != Approx::kUnknownSign) return s;
+    }
+    if (rats_.empty()) {  // integral but too large for 128 bits: convert
+      rats_.resize(static_cast<std::size_t>(k_ * cols_));
+      for (int i = 0; i < k_ * cols_; ++i) {
+        const i128 v = ints_[i];
+        const bool negative = v < 0;
+        unsigned __int128 u = negative ? -static_cast<unsigned __int128>(v) : static_cast<unsigned __int128>(v);
+        mpz_class z = static_cast<unsigned long>(static_cast<std::uint64_t>(u >> 64));
+        z <<= 64;
+        z += mpz_class(static_cast<unsigned long>(static_cast<std::uint64_t>(u)));
+        rats_[i] = negative ? mpq_class(-z) : mpq_class(z);
+      }
+    }
+    std::vector<mpq_class> m(static_cast<std::size_t>(k * k));
+    for (int i = 0; i < k; ++i) {
+      for (int j = 0; j < k; ++j) {
+        m[i * k + j] = col_ids[j] < 0 ? mpq_class(indicator(row_ids[i])) : rats_[row_ids[i] * cols_ + col_ids[j]];
+      }
+    }
+    return sign_of_determinant(m, k);
+  }
+
+ private:
+  void exact_row(const PointSet& ps, std::uint32_t origin, const Row& row, mpq_class* out) const {
+    const int d = ps.dimension();
+    if (row.is_point()) {
+      const double* p = ps.point(static_cast<std::size_t>(row.point));
+      const double* x = ps.point(origin);
+      mpq_class norm2 = 0;
+      for (int c = 0; c < d; ++c) {
+        out[c] = mpq_class(p[c]) - mpq_class(x[c]);
+        norm2 += out[c] * out[c];
+      }
+      if (cols_ > d) out[d] = norm2;
+    } else {
+      for (int c = 0; c < d; ++c) out[c] = mpq_class(row.dir[c]);
+      if (cols_ > d) out[d] = 0;
+    }
+  }
+
+  int k_, cols_;
+  bool integral_ = true;
+  std::array<i128, kMaxCols * kMaxCols> ints_{};
+  mutable std::vector<mpq_class> rats_;
+};
 
 void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out) {
   const int d = ps.dimension();
@@ -100,9 +216,10 @@ int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row>
 
 int Predicates::spatial_sign_exact(std::uint32_t origin, std::span<const Row> rows) const {
   const int d = ps_.dimension();
-  std::vector<mpq_class> m(static_cast<std::size_t>(d * d));
-  for (int r = 0; r < d; ++r) exact_row(ps_, origin, rows[r], d, &m[r * d]);
-  return sign_of_determinant(m, d);
+  const ExactMatrix m(ps_, origin, rows.first(d), d);
+  std::array<int, kMaxCols> ids;
+  std::iota(ids.begin(), ids.begin() + d, 0);
+  return m.sign(std::span<const int>(ids.data(), d), std::span<const int>(ids.data(), d), rows);
 }
 
 int Predicates::spatial_sign(std::uint32_t origin, std::span<const Row> rows) const {
@@ -120,13 +237,13 @@ int Predicates::spatial_sign(std::uint32_t origin, std::span<const Row> rows) co
 int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> rows, bool perturb) const {
   const int d = ps_.dimension();
   const int k = d + 1;
-  std::vector<mpq_class> full(static_cast<std::size_t>(k * k));
-  for (int r = 0; r < k; ++r) exact_row(ps_, origin, rows[r], k, &full[r * k]);
-  {
-    std::vector<mpq_class> m = full;
-    const int s = sign_of_determinant(m, k);
-    if (s != 0 || !perturb) return s;
-  }
+  const ExactMatrix m(ps_, origin, rows.first(k), k);
+  std::array<int, kMaxCols> all;
+  std::iota(all.begin(), all.begin() + k, 0);
+  const std::span<const int> every(all.data(), k);
+  const int s = m.sign(every, every, rows);
+  if (s != 0 || !perturb) return s;
+
   // Candidates for the dominant infinitesimal: the origin (-1) and every point row.
   std::array<int, kMaxCols + 1> who{};
   int count = 0;
@@ -143,18 +260,17 @@ int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> row
     const int w = who[i];
     int coefficient_sign = 0;
     if (w < 0) {
-      std::vector<mpq_class> m = full;
-      for (int r = 0; r < k; ++r) m[r * k + d] = rows[r].is_point() ? 1 : 0;
-      coefficient_sign = -sign_of_determinant(m, k);
+      std::array<int, kMaxCols> cols = all;
+      cols[d] = -1;  // the height column replaced by the indicator
+      coefficient_sign = -m.sign(every, std::span<const int>(cols.data(), k), rows);
     } else {
-      std::vector<mpq_class> m(static_cast<std::size_t>(d * d));
-      int out = 0;
-      for (int r = 0; r < k; ++r) {
-        if (r == w) continue;
-        for (int c = 0; c < d; ++c) m[out * d + c] = full[r * k + c];
-        ++out;
+      std::array<int, kMaxCols> others;
+      int r = 0;
+      for (int j = 0; j < k; ++j) {
+        if (j != w) others[r++] = j;
       }
-      coefficient_sign = sign_of_determinant(m, d) * (((w + d) % 2 == 0) ? 1 : -1);
+      coefficient_sign = m.sign(std::span<const int>(others.data(), d), std::span<const int>(all.data(), d), rows) *
+                         (((w + d) % 2 == 0) ? 1 : -1);
     }
     if (coefficient_sign != 0) return coefficient_sign;
   }

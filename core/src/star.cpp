@@ -13,15 +13,16 @@ constexpr int kMaxCols = kMaxDimension + 1;
 constexpr double kUnit = 0x1p-53;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Certified sign of v given the magnitude sum a and rounding depth, with an absolute
-// allowance of `terms` * 2^-1074 for products that may have underflowed in the last
-// (unmultiplied) step. Returns Approx::kUnknownSign when not certain.
-inline int certified(double v, double a, int depth, int terms) {
-  if (depth >= Approx::kUnsafe || !(a <= DBL_MAX)) return Approx::kUnknownSign;
-  const double err = a * (static_cast<double>(depth + 2) * kUnit) * 1.01 + terms * 0x1p-1074;
+// Certified sign of a dot product v whose monomial magnitudes sum to a, computed
+// with the given rounding depth; Approx::kUnknownSign when not certain. A product in
+// the last (unmultiplied) step may underflow with absolute error <= 2^-1075; for
+// a >= 2^-900 that is far below the relative bound, and smaller magnitudes go to the
+// exact stage (this also keeps subnormal arithmetic, which is slow, off the hot path).
+inline int certified(double v, double a, int depth) {
+  if (depth >= Approx::kUnsafe || !(a <= DBL_MAX) || !(a >= 0x1p-900)) return Approx::kUnknownSign;
+  const double err = a * (static_cast<double>(depth + 3) * kUnit) * 1.01;
   if (v > err) return 1;
   if (v < -err) return -1;
-  if (a == 0) return 0;
   return Approx::kUnknownSign;
 }
 
@@ -125,12 +126,6 @@ void StarWalker::load_candidates(std::size_t k) {
     cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
   }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
-  requested_ = k;
-}
-
-void StarWalker::grow() {
-  ++stats_.regrowths;
-  load_candidates(std::max<std::size_t>(2 * requested_, 8));
 }
 
 void StarWalker::point_row(std::uint32_t p, Approx* out) const {
@@ -181,7 +176,7 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
       v += normal[c].v * q[c];
       a += normal[c].a * std::fabs(q[c]);
     }
-    const int s = certified(v, a, normal_depth + d + 3, d);
+    const int s = certified(v, a, normal_depth + d + 3);
     if (s != Approx::kUnknownSign) return s;
     ++stats_.exact_fallbacks;
     rows[d - 1] = Row::of_point(id);
@@ -202,94 +197,99 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
     sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(opposite));
   }
 
-  for (;;) {
-    if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return -2;
-    const std::size_t count = cand_id_.size();
-    std::int64_t best = -1;
-    std::array<Approx, kMaxCols> plane;  // cofactors of the query row of det[pivot; best; query]
-    int plane_depth = 0;
-    double next_exit_test = kInf;
+  if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return -2;
 
-    auto build_plane = [&](std::size_t j) {
-      std::array<Approx, kMaxCols> b;
-      const double* q = &cand_q_[j * d];
-      for (int c = 0; c < d; ++c) b[c] = Approx{q[c], std::fabs(q[c]), 1};
-      b[d] = Approx{cand_norm2_[j], cand_norm2_[j], cand_depth_[j]};
-      plane_depth = 0;
-      for (int c = 0; c < cols; ++c) {
-        // M_c = det[pivot; best] without column c, expanded along the best row.
-        Approx m{};
-        int t = 0;
-        for (int c2 = 0; c2 < cols; ++c2) {
-          if (c2 == c) continue;
-          const Approx term = b[c2] * minors_[all ^ (1u << c) ^ (1u << c2)];
-          const bool plus = ((d - 1 + t) % 2 == 0);
-          m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
-          ++t;
-        }
-        plane[c] = ((d + c) % 2 == 0) ? m : -m;
-        plane_depth = std::max(plane_depth, plane[c].n);
+  // The lifted hyperplane through the pivot and the current best point, as the
+  // cofactors of the query row of det[pivot; best; query].
+  std::int64_t best_id = -1;
+  std::array<Approx, kMaxCols> plane;
+  int plane_depth = 0;
+  double next_exit_test = kInf;
+  auto build_plane = [&](std::uint32_t id, const Approx* b) {
+    best_id = id;
+    plane_depth = 0;
+    for (int c = 0; c < cols; ++c) {
+      // M_c = det[pivot; best] without column c, expanded along the best row.
+      Approx m{};
+      int t = 0;
+      for (int c2 = 0; c2 < cols; ++c2) {
+        if (c2 == c) continue;
+        const Approx term = b[c2] * minors_[all ^ (1u << c) ^ (1u << c2)];
+        const bool plus = ((d - 1 + t) % 2 == 0);
+        m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
+        ++t;
       }
-      double s = 0;
-      for (int c = 0; c < d; ++c) s += plane[c].v * plane[c].v;
-      const double a2 = s / (plane[d].v * plane[d].v);  // |slope|^2 = (2 r)^2, estimate
-      next_exit_test = a2 * (1 + 1e-9);
-    };
-    // Certifies that every point with exact |q|^2 >= bound is strictly above the
-    // current plane: above holds where |q| > |slope| (the plane is h = slope . q).
-    auto certified_beyond = [&](double bound) {
-      if (bound == kInf) return true;
-      Approx e = Approx::exact(bound) * plane[d] * plane[d];
-      for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
-      return e.certified_sign() == 1;
-    };
-
-    bool exited = false;
-    for (std::size_t j = 0; j < count; ++j) {
-      if (best >= 0 && cand_lower_[j] > next_exit_test) {
-        if (certified_beyond(cand_lower_[j])) {
-          exited = true;
-          break;
-        }
-        next_exit_test = cand_lower_[j] * (1 + 1e-6);
-      }
-      const std::uint32_t id = cand_id_[j];
-      if (is_pivot(id)) continue;
-      ++stats_.candidate_tests;
-      const double* q = &cand_q_[j * d];
-      if (spatial_side(q, id) != sigma) continue;
-      if (best < 0) {
-        best = static_cast<std::int64_t>(j);
-        build_plane(j);
-        continue;
-      }
-      // Lifted side of q relative to the plane through pivot and best.
-      double v = plane[d].v * cand_norm2_[j], a = plane[d].a * cand_norm2_[j];
-      for (int c = 0; c < d; ++c) {
-        v += plane[c].v * q[c];
-        a += plane[c].a * std::fabs(q[c]);
-      }
-      const int depth = cand_depth_[j] >= Approx::kUnsafe ? Approx::kUnsafe : plane_depth + 2 * d + 6;
-      int s = certified(v, a, depth, d + 1);
-      if (s == Approx::kUnknownSign || s == 0) {
-        ++stats_.exact_fallbacks;
-        rows[d - 1] = Row::of_point(cand_id_[static_cast<std::size_t>(best)]);
-        rows[d] = Row::of_point(id);
-        s = predicates_.lifted_sign_exact(x_, std::span<const Row>(rows.data(), cols), true);
-      }
-      // Same side as "up" (sign of plane[d], which is sigma) means above: not hit first.
-      if (s * sigma < 0) {
-        best = static_cast<std::int64_t>(j);
-        build_plane(j);
-      }
+      plane[c] = ((d + c) % 2 == 0) ? m : -m;
+      plane_depth = std::max(plane_depth, plane[c].n);
     }
-
-    if (best >= 0) {
-      if (exited || certified_beyond(r2_certified_)) return cand_id_[static_cast<std::size_t>(best)];
-      grow();
-      continue;
+    double s = 0;
+    for (int c = 0; c < d; ++c) s += plane[c].v * plane[c].v;
+    next_exit_test = s / (plane[d].v * plane[d].v) * (1 + 1e-9);  // |slope|^2 = (2r)^2, estimate
+  };
+  auto build_plane_from_candidate = [&](std::size_t j) {
+    std::array<Approx, kMaxCols> b;
+    const double* q = &cand_q_[j * d];
+    for (int c = 0; c < d; ++c) b[c] = Approx{q[c], std::fabs(q[c]), 1};
+    b[d] = Approx{cand_norm2_[j], cand_norm2_[j], cand_depth_[j]};
+    build_plane(cand_id_[j], b.data());
+  };
+  auto build_plane_from_point = [&](std::uint32_t id) {
+    std::array<Approx, kMaxCols> b;
+    point_row(id, b.data());
+    build_plane(id, b.data());
+  };
+  // Side of the lifted point (q, norm2) relative to the plane: > 0 above, < 0 below
+  // (the plane's "up" cofactor plane[d] has the sign sigma).
+  auto lifted_side = [&](const double* q, double norm2, int norm2_depth, std::uint32_t id) {
+    double v = plane[d].v * norm2, a = plane[d].a * norm2;
+    for (int c = 0; c < d; ++c) {
+      v += plane[c].v * q[c];
+      a += plane[c].a * std::fabs(q[c]);
     }
-    if (r2_certified_ == kInf) return -1;
+    const int depth = norm2_depth >= Approx::kUnsafe ? Approx::kUnsafe : plane_depth + norm2_depth + d + 4;
+    int s = certified(v, a, depth);
+    if (s == Approx::kUnknownSign || s == 0) {
+      ++stats_.exact_fallbacks;
+      rows[d - 1] = Row::of_point(static_cast<std::uint32_t>(best_id));
+      rows[d] = Row::of_point(id);
+      s = predicates_.lifted_sign_exact(x_, std::span<const Row>(rows.data(), cols), true);
+    }
+    return s * sigma;
+  };
+  // Certifies that every point with exact |q|^2 >= bound is strictly above the
+  // plane: above holds where |q| > |slope| (the plane is h = slope . q through x).
+  auto certified_beyond = [&](double bound) {
+    if (bound == kInf) return true;
+    Approx e = Approx::exact(bound) * plane[d] * plane[d];
+    for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
+    return e.certified_sign() == 1;
+  };
+
+  // 1. Scan the cached candidates nearest first; stop once the best sphere is
+  //    certified to lie within the distance scanned.
+  const std::size_t count = cand_id_.size();
+  bool exited = false;
+  for (std::size_t j = 0; j < count; ++j) {
+    if (best_id >= 0 && cand_lower_[j] > next_exit_test) {
+      if (certified_beyond(cand_lower_[j])) {
+        exited = true;
+        break;
+      }
+      next_exit_test = cand_lower_[j] * (1 + 1e-6);
+    }
+    const std::uint32_t id = cand_id_[j];
+    if (is_pivot(id)) continue;
+    ++stats_.candidate_tests;
+    const double* q = &cand_q_[j * d];
+    if (spatial_side(q, id) != sigma) continue;
+    if (best_id < 0 || lifted_side(q, cand_norm2_[j], cand_depth_[j], id) < 0) build_plane_from_candidate(j);
+  }
+  if (exited || (best_id >= 0 && certified_beyond(r2_certified_))) return best_id;
+  if (r2_certified_ == kInf) return best_id;  // every point was scanned
+
+  // 2. Beyond the candidates, ask the tree. With no eligible candidate, any point
+  //    strictly on side sigma (none: the facet is on the hull).
+  if (best_id < 0) {
     ++stats_.hull_queries;
     const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p) {
       if (p == x_) return 0;
@@ -299,7 +299,41 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
       return spatial_side(q.data(), p);
     });
     if (beyond < 0) return -1;
-    grow();
+    build_plane_from_point(static_cast<std::uint32_t>(beyond));
+  }
+  // 3. Any point below the plane is hit before the best: take it and ask again.
+  //    The lowered plane stays above everything already rejected (the planes about a
+  //    fixed pivot form a pencil), so this terminates with the first hit.
+  for (;;) {
+    ++stats_.sphere_queries;
+    // Lower bound over a box of f(q) = |P_d| |q|^2 + sigma sum_c P_c q_c, which is
+    // negative exactly below the plane; separable, so minimised per coordinate.
+    auto may_contain = [&](const double* lo, const double* hi) {
+      const double e_d = plane[d].a * (static_cast<double>(plane[d].n + 2) * kUnit) * 1.01;
+      const double A = std::fabs(plane[d].v) - e_d;
+      if (!(A > 0) || plane_depth >= Approx::kUnsafe) return true;
+      double bound = 0, magnitude = 0;
+      for (int c = 0; c < d; ++c) {
+        const double B = sigma * plane[c].v;
+        const double e_c = plane[c].a * (static_cast<double>(plane[c].n + 2) * kUnit) * 1.01;
+        const double l = lo[c] - x[c], h = hi[c] - x[c];
+        const double t = std::clamp(-B / (2 * A), l, h);
+        const double reach = std::max(std::fabs(l), std::fabs(h));
+        bound += A * t * t + B * t - e_c * reach;
+        magnitude += (A + e_d) * reach * reach + std::fabs(B) * reach + e_c * reach;
+      }
+      return bound - 1e-12 * magnitude <= 0;
+    };
+    const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p) {
+      if (p == x_ || p == best_id || is_pivot(p)) return false;
+      std::array<Approx, kMaxCols> row;
+      point_row(p, row.data());
+      std::array<double, kMaxDimension> q;
+      for (int c = 0; c < d; ++c) q[c] = row[c].v;
+      return lifted_side(q.data(), row[d].v, row[d].n, p) < 0;
+    });
+    if (below < 0) return best_id;
+    build_plane_from_point(static_cast<std::uint32_t>(below));
   }
 }
 

@@ -50,6 +50,12 @@ class KdTree {
   template <class ExactSide>
   std::int64_t any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const;
 
+  // First point p (in tree order) with accept(p), visiting only boxes for which
+  // may_contain(lo, hi) holds. may_contain must be conservative: false only when
+  // no point of the box can be accepted.
+  template <class MayContain, class Accept>
+  std::int64_t find_first(MayContain&& may_contain, Accept&& accept) const;
+
  private:
   struct Adaptor {
     const PointSet& ps;
@@ -62,70 +68,79 @@ class KdTree {
                                                     Adaptor, -1, std::uint32_t>;
   using Node = typename Index::Node;
 
-  template <class ExactSide>
-  std::int64_t search_beyond(const Node* node, std::vector<double>& lo, std::vector<double>& hi,
-                             const double* x, const Approx* normal, int sigma,
-                             ExactSide& exact_side) const;
-
   Adaptor adaptor_;
   std::unique_ptr<Index> index_;
 };
 
-template <class ExactSide>
-std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma,
-                                ExactSide&& exact_side) const {
+template <class MayContain, class Accept>
+std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const {
+  // Depth first with an explicit stack; each frame carries its box (nanoflann keeps
+  // only the split values), stored in a fixed pool: no allocation per query.
   const int d = points().dimension();
-  std::vector<double> lo(d), hi(d);
+  constexpr int kMaxDepth = 128;  // nanoflann's tree depth is O(log n)
+  const Node* nodes[kMaxDepth];
+  thread_local std::vector<double> pool;
+  if (pool.size() < static_cast<std::size_t>(kMaxDepth * 2 * d)) pool.resize(kMaxDepth * 2 * d);
+  auto boxes = [&](int i) { return pool.data() + static_cast<std::size_t>(i) * 2 * d; };
+  int top = 0;
+  nodes[0] = index_->root_node;
   for (int c = 0; c < d; ++c) {
-    lo[c] = index_->root_bbox[c].low;
-    hi[c] = index_->root_bbox[c].high;
+    boxes(0)[c] = index_->root_bbox[c].low;
+    boxes(0)[d + c] = index_->root_bbox[c].high;
   }
-  return search_beyond(index_->root_node, lo, hi, x, normal, sigma, exact_side);
+  while (top >= 0) {
+    const Node* node = nodes[top];
+    double* box = boxes(top);
+    if (!may_contain(box, box + d)) {
+      --top;
+      continue;
+    }
+    if (node->child1 == nullptr && node->child2 == nullptr) {
+      --top;
+      for (auto k = node->node_type.lr.left; k < node->node_type.lr.right; ++k) {
+        const std::uint32_t p = index_->vAcc[k];
+        if (accept(p)) return p;
+      }
+      continue;
+    }
+    if (top + 2 >= kMaxDepth) return -1;  // unreachable for trees of fewer than 2^100 points
+    const int feature = node->node_type.sub.divfeat;
+    // Replace this frame by its right child and push the left one (visited first).
+    std::copy(box, box + 2 * d, boxes(top + 1));
+    box[feature] = node->node_type.sub.divhigh;  // right child: lo[feature]
+    nodes[top] = node->child2;
+    boxes(top + 1)[d + feature] = node->node_type.sub.divlow;  // left child: hi[feature]
+    nodes[top + 1] = node->child1;
+    ++top;
+  }
+  return -1;
 }
 
 template <class ExactSide>
-std::int64_t KdTree::search_beyond(const Node* node, std::vector<double>& lo, std::vector<double>& hi,
-                                   const double* x, const Approx* normal, int sigma,
-                                   ExactSide& exact_side) const {
+std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const {
   const int d = points().dimension();
-  // Upper bound of sigma * n.(p - x) over the box. Each normal component is known
-  // to within e_c; box offsets are rounded once; the sum is rounded d times. The
-  // 1e-12 relative slack covers those roundings (<= (d + 3) 2^-53 relative).
-  double bound = 0, magnitude = 0;
   for (int c = 0; c < d; ++c) {
-    const double t = sigma * normal[c].v;
-    const double lo_off = lo[c] - x[c], hi_off = hi[c] - x[c];
-    const double reach = std::max(std::fabs(lo_off), std::fabs(hi_off));
-    const double e = normal[c].a * (static_cast<double>(normal[c].n + 2) * 0x1p-53) * 1.01;
-    bound += std::max(t * lo_off, t * hi_off) + e * reach;
-    magnitude += std::fabs(t) * reach + e * reach;
+    if (normal[c].n >= Approx::kUnsafe || !(normal[c].a <= DBL_MAX)) {
+      return find_first([](const double*, const double*) { return true; },
+                        [&](std::uint32_t p) { return exact_side(p) == sigma; });
+    }
   }
-  const bool unsafe = [&] {
+  // Upper bound of sigma * n.(p - x) over a box. Each normal component is known to
+  // within e_c; box offsets are rounded once; the sum is rounded d times. The 1e-12
+  // relative slack covers those roundings (<= (d + 3) 2^-53 relative).
+  auto may_contain = [&](const double* lo, const double* hi) {
+    double bound = 0, magnitude = 0;
     for (int c = 0; c < d; ++c) {
-      if (normal[c].n >= Approx::kUnsafe || !(normal[c].a <= DBL_MAX)) return true;
+      const double t = sigma * normal[c].v;
+      const double lo_off = lo[c] - x[c], hi_off = hi[c] - x[c];
+      const double reach = std::max(std::fabs(lo_off), std::fabs(hi_off));
+      const double e = normal[c].a * (static_cast<double>(normal[c].n + 2) * 0x1p-53) * 1.01;
+      bound += std::max(t * lo_off, t * hi_off) + e * reach;
+      magnitude += std::fabs(t) * reach + e * reach;
     }
-    return false;
-  }();
-  if (!unsafe && bound + 1e-12 * magnitude < 0) return -1;
-
-  if (node->child1 == nullptr && node->child2 == nullptr) {
-    for (auto k = node->node_type.lr.left; k < node->node_type.lr.right; ++k) {
-      const std::uint32_t p = index_->vAcc[k];
-      if (exact_side(p) == sigma) return p;
-    }
-    return -1;
-  }
-  const int f = node->node_type.sub.divfeat;
-  const double saved_hi = hi[f];
-  hi[f] = node->node_type.sub.divlow;
-  std::int64_t found = search_beyond(node->child1, lo, hi, x, normal, sigma, exact_side);
-  hi[f] = saved_hi;
-  if (found >= 0) return found;
-  const double saved_lo = lo[f];
-  lo[f] = node->node_type.sub.divhigh;
-  found = search_beyond(node->child2, lo, hi, x, normal, sigma, exact_side);
-  lo[f] = saved_lo;
-  return found;
+    return bound + 1e-12 * magnitude >= 0;
+  };
+  return find_first(may_contain, [&](std::uint32_t p) { return exact_side(p) == sigma; });
 }
 
 }  // namespace spokemesh

@@ -18,11 +18,13 @@
 // function of the point set; the random spoke directions only choose where the walk
 // starts.
 //
-// Candidates come from the k-d tree sorted by distance and cached per seed. A wrap
-// whose winning sphere reaches beyond the certified candidate radius doubles the
-// candidate count and retries (the paper's alpha growth, in the shape of geogram's
-// security-radius loop): a point at distance >= 2r from x cannot lie inside a sphere
-// of radius r through x.
+// Candidates come from the k-d tree sorted by distance and cached per seed. A sphere
+// of radius r through x holds no point farther than 2r from x, so a wrap whose sphere
+// lies within the certified candidate radius is decided by the candidates alone (the
+// security radius of geogram's clip_by_cell_SR; the paper's alpha). A larger sphere,
+// which only seeds near the hull meet, is certified by a k-d tree query for points
+// below the lifted plane instead of by growing the neighbourhood, so a near-hull
+// seed never drags in the whole point set.
 //
 // Ownership: borrows the KdTree (and its PointSet), which must outlive the walker.
 // Thread safety: NOT thread-safe; use one StarWalker per thread. Different walkers
@@ -54,8 +56,8 @@ struct StarStats {
   std::uint64_t wraps = 0;
   std::uint64_t candidate_tests = 0;
   std::uint64_t exact_fallbacks = 0;
-  std::uint64_t regrowths = 0;
-  std::uint64_t hull_queries = 0;
+  std::uint64_t hull_queries = 0;    // k-d tree halfspace queries (unbounded Voronoi edges)
+  std::uint64_t sphere_queries = 0;  // k-d tree queries certifying spheres beyond the candidates
 };
 
 // The Delaunay simplices incident to one seed.
@@ -97,7 +99,7 @@ class StarWalker {
    private:
     std::uint64_t hash(const std::uint32_t* key) const;
     void grow();
-    int length_ = 0;
+      int length_ = 0;
     std::size_t count_ = 0;
     std::vector<std::uint32_t> keys_;
     std::vector<std::int32_t> slots_;
@@ -112,7 +114,6 @@ class StarWalker {
   // that point.
   std::int64_t wrap(const Row* pivot, int sigma, std::int64_t opposite);
   Status first_simplex(std::uint32_t* out);
-  void grow();
 
   const KdTree& tree_;
   const PointSet& ps_;
@@ -123,7 +124,6 @@ class StarWalker {
 
   // Per-seed state, kept across seeds to avoid allocation.
   std::uint32_t x_ = 0;
-  std::size_t requested_ = 0;
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;      // p - x, rounded, row-major
   std::vector<double> cand_norm2_;  // |p - x|^2 as computed from cand_q_

@@ -1,0 +1,170 @@
+// The spokemesh command line as users run it: a real process on real files.
+#include <sys/wait.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "support.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Outcome {
+  int code = -1;
+  std::string out, err;
+};
+
+std::string slurp(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::path(::testing::TempDir()) / ("cli-" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  std::string write(const std::string& name, const std::string& text) const {
+    std::ofstream(path(name)) << text;
+    return path(name);
+  }
+  Outcome run(const std::string& args) const {
+    const std::string out = path(".run-1"), err = path(".run-2");
+    const std::string cmd = std::string(SPOKEMESH_CLI) + " " + args + " >" + out + " 2>" + err + " </dev/null";
+    const int status = std::system(cmd.c_str());
+    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out), slurp(err)};
+  }
+  std::string points(int d, std::size_t n, std::uint64_t seed) const {
+    const auto c = spokemesh::testing::uniform_points(d, n, seed);
+    std::ostringstream s;
+    s.precision(17);
+    for (std::size_t i = 0; i < n; ++i) {
+      for (int k = 0; k < d; ++k) s << c[i * d + k] << (k + 1 == d ? "\n" : " ");
+    }
+    return write("pts" + std::to_string(d) + ".txt", s.str());
+  }
+  // Output directory holds only the named files (no temporary left behind).
+  std::vector<std::string> listing() const {
+    std::vector<std::string> names;
+    for (const auto& e : fs::directory_iterator(dir_)) names.push_back(e.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return names;
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(Cli, HelpForEveryCommand) {
+  EXPECT_EQ(run("--help").code, 0);
+  for (const char* cmd : {"mesh", "star", "neighbors", "cell", "check"}) {
+    const Outcome r = run(std::string(cmd) + " --help");
+    EXPECT_EQ(r.code, 0) << cmd;
+    EXPECT_NE(r.out.find("INPUT"), std::string::npos) << cmd;
+  }
+  EXPECT_EQ(run("").code, 2);
+  EXPECT_EQ(run("frobnicate").code, 2);
+  EXPECT_EQ(run("mesh").code, 2);
+}
+
+TEST_F(Cli, MeshWritesEveryFormatAndCheckAcceptsIt) {
+  const std::string in = points(2, 500, 1);
+  for (const char* ext : {"simplices", "txt", "npy", "vtu", "msh", "svg"}) {
+    const Outcome r = run("mesh " + in + " -o " + path(std::string("m.") + ext) + " --threads 2");
+    ASSERT_EQ(r.code, 0) << ext << ": " << r.err;
+    EXPECT_NE(r.err.find("simplices/s"), std::string::npos) << "summary line: " << r.err;
+  }
+  EXPECT_EQ(slurp(path("m.simplices")), slurp(path("m.txt")));
+  EXPECT_NE(slurp(path("m.vtu")).find("NumberOfCells"), std::string::npos);
+  EXPECT_EQ(slurp(path("m.msh")).rfind("$MeshFormat\n2.2 0 8\n", 0), 0u);
+  const Outcome check = run("check " + in + " " + path("m.npy"));
+  EXPECT_EQ(check.code, 0) << check.out;
+  EXPECT_NE(check.out.find("valid"), std::string::npos);
+  EXPECT_EQ(run("mesh -q " + in + " -o " + path("q.simplices")).err, "");
+}
+
+TEST_F(Cli, OutputIsCanonicalAcrossThreadsAndSeedRanges) {
+  const std::string in = points(3, 400, 2);
+  ASSERT_EQ(run("mesh -q " + in + " -o " + path("a.simplices") + " --threads 1").code, 0);
+  ASSERT_EQ(run("mesh -q " + in + " -o " + path("b.simplices") + " --threads 2 --random-seed 77").code, 0);
+  ASSERT_EQ(run("mesh -q " + in + " -o " + path("c1.simplices") + " --seeds 0:150").code, 0);
+  ASSERT_EQ(run("mesh -q " + in + " -o " + path("c2.simplices") + " --seeds 150:400").code, 0);
+  const std::string whole = slurp(path("a.simplices"));
+  EXPECT_EQ(slurp(path("b.simplices")), whole);
+  EXPECT_EQ(slurp(path("c1.simplices")) + slurp(path("c2.simplices")), whole);
+}
+
+TEST_F(Cli, CheckRejectsACorruptedMesh) {
+  const std::string in = points(2, 300, 3);
+  ASSERT_EQ(run("mesh -q " + in + " -o " + path("m.simplices")).code, 0);
+  std::string mesh = slurp(path("m.simplices"));
+  mesh.erase(0, mesh.find('\n') + 1);  // drop the first simplex
+  write("broken.simplices", mesh);
+  const Outcome r = run("check " + in + " " + path("broken.simplices"));
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.out.find("INVALID"), std::string::npos) << r.out;
+}
+
+TEST_F(Cli, StarNeighborsAndCell) {
+  const std::string in = write("grid.txt", "0 0\n1 0\n2 0\n0 1\n1 1\n2 1\n0 2\n1 2\n2 2\n");
+  const Outcome star = run("star " + in + " --seed 4");
+  ASSERT_EQ(star.code, 0) << star.err;
+  EXPECT_EQ(std::count(star.out.begin(), star.out.end(), '\n'), 6)
+      << "the centre of a 3x3 grid: 4 squares, two of them split through the centre by the perturbation:\n" << star.out;
+  const Outcome nb = run("neighbors " + in + " --seed 4");
+  ASSERT_EQ(nb.code, 0);
+  const Outcome cell = run("cell " + in + " --seed 4");
+  ASSERT_EQ(cell.code, 0);
+  EXPECT_NE(cell.out.find("bounded yes"), std::string::npos) << cell.out;
+  EXPECT_NE(cell.out.find("volume 1\n"), std::string::npos) << cell.out;
+  const Outcome json = run("cell " + in + " --seed 0 --json");
+  ASSERT_EQ(json.code, 0);
+  EXPECT_NE(json.out.find("\"bounded\": false"), std::string::npos) << json.out;
+}
+
+TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
+  struct Bad {
+    std::string args, needle;
+  };
+  const std::string good = points(2, 50, 4);
+  const std::vector<Bad> cases = {
+      {"mesh " + path("missing.txt") + " -o OUT", "missing.txt: cannot open"},
+      {"mesh " + write("empty.txt", "") + " -o OUT", "empty.txt: no points"},
+      {"mesh " + write("nan.txt", "0 0\n1 0\nnan 1\n") + " -o OUT", "nan.txt:3: coordinate 0 is not finite"},
+      {"mesh " + write("ragged.txt", "0 0\n1 0 3\n") + " -o OUT", "ragged.txt:2: has 3 coordinates"},
+      {"mesh " + write("word.txt", "0 0\n1 zero\n") + " -o OUT", "word.txt:2: cannot parse 'zero'"},
+      {"mesh " + write("few.txt", "0 0\n1 0\n") + " -o OUT", "2 points given"},
+      {"mesh " + write("dup.txt", "0 0\n1 0\n0 1\n1 0\n") + " -o OUT", "points 1 and 3 are equal"},
+      {"mesh " + write("flat.txt", "0 0 0\n1 0 0\n0 1 0\n1 1 0\n") + " -o OUT", "span only a 2-dimensional"},
+      {"mesh " + write("huge.txt", "0 0\n1 0\n0 1e300\n") + " -o OUT", "huge.txt:3: coordinate 1 has magnitude"},
+      {"mesh " + good + " -o " + "OUT.unknown", "unknown output format"},
+      {"mesh " + good + " -o OUT --seeds 5", "--seeds: expected A:B"},
+      {"mesh " + good + " -o OUT --seeds 10:99", "need 0 <= A <= B <= 50"},
+      {"star " + good + " --seed 50", "seed 50 is out of range"},
+      {"star " + good + " --seed -1", "seed -1 is out of range"},
+      {"check " + good + " " + write("badmesh.txt", "0 1\n"), "badmesh.txt:1: has 2 indices, expected 3"},
+  };
+  for (Bad b : cases) {
+    const auto at = b.args.find("OUT");
+    if (at != std::string::npos) b.args.replace(at, 3, path("out"));
+    const Outcome r = run(b.args);
+    EXPECT_EQ(r.code, 2) << b.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(b.needle), std::string::npos) << b.args << "\nstderr: " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line: " << r.err;
+    for (const std::string& name : listing()) {
+      EXPECT_NE(name.rfind("out", 0), 0u) << "left behind: " << name;
+    }
+  }
+  // --merge-duplicates accepts the duplicate and maps it to its first occurrence.
+  const Outcome merged = run("mesh -q " + path("dup.txt") + " -o " + path("merged.simplices") + " --merge-duplicates");
+  EXPECT_EQ(merged.code, 0) << merged.err;
+  EXPECT_EQ(slurp(path("merged.simplices")), "0 1 2\n");
+}
+
+}  // namespace

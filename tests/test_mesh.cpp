@@ -1,0 +1,336 @@
+// Whole meshes: identical for any thread count and seed partition; equal simplex for
+// simplex to CGAL's Delaunay triangulations (random, grid, cospherical; d = 2..6)
+// and to Qhull's on random inputs; accepted by `check`, which rejects corruptions.
+#include <CGAL/Delaunay_triangulation.h>
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Epick_d.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Triangulation_vertex_base_with_info_2.h>
+#include <CGAL/Triangulation_vertex_base_with_info_3.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include "spokemesh/validate.hpp"
+#include "spokemesh/voronoi.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using namespace spokemesh::testing;
+using Tuples = std::set<std::vector<std::uint32_t>>;
+
+// --- CGAL oracles (test-only; never linked into shipped binaries) -----------------
+
+Tuples cgal_dd(const PointSet& ps) {
+  using K = CGAL::Epick_d<CGAL::Dynamic_dimension_tag>;
+  using Vb = CGAL::Triangulation_vertex<K, std::uint32_t>;
+  using Cb = CGAL::Triangulation_full_cell<K>;
+  using Tds = CGAL::Triangulation_data_structure<CGAL::Dynamic_dimension_tag, Vb, Cb>;
+  using DT = CGAL::Delaunay_triangulation<K, Tds>;
+  const int d = ps.dimension();
+  DT dt(d);
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    auto v = dt.insert(K::Point_d(d, ps.point(i), ps.point(i) + d));
+    v->data() = i;
+  }
+  Tuples out;
+  for (auto c = dt.finite_full_cells_begin(); c != dt.finite_full_cells_end(); ++c) {
+    std::vector<std::uint32_t> t;
+    for (int k = 0; k <= d; ++k) t.push_back(c->vertex(k)->data());
+    std::sort(t.begin(), t.end());
+    out.insert(t);
+  }
+  return out;
+}
+
+using Epick = CGAL::Exact_predicates_inexact_constructions_kernel;
+
+Tuples cgal_2(const PointSet& ps) {
+  using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::uint32_t, Epick>;
+  using Tds = CGAL::Triangulation_data_structure_2<Vb>;
+  CGAL::Delaunay_triangulation_2<Epick, Tds> dt;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) dt.insert(Epick::Point_2(ps.point(i)[0], ps.point(i)[1]))->info() = i;
+  Tuples out;
+  for (auto f = dt.finite_faces_begin(); f != dt.finite_faces_end(); ++f) {
+    std::vector<std::uint32_t> t = {f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()};
+    std::sort(t.begin(), t.end());
+    out.insert(t);
+  }
+  return out;
+}
+
+Tuples cgal_3(const PointSet& ps) {
+  using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::uint32_t, Epick>;
+  using Tds = CGAL::Triangulation_data_structure_3<Vb>;
+  CGAL::Delaunay_triangulation_3<Epick, Tds> dt;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    dt.insert(Epick::Point_3(ps.point(i)[0], ps.point(i)[1], ps.point(i)[2]))->info() = i;
+  }
+  Tuples out;
+  for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c) {
+    std::vector<std::uint32_t> t = {c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()};
+    std::sort(t.begin(), t.end());
+    out.insert(t);
+  }
+  return out;
+}
+
+struct Case {
+  std::string name;
+  int d;
+  std::vector<double> coords;
+};
+
+std::vector<Case> cgal_cases() {
+  std::vector<Case> cases = {
+      {"uniform-2d", 2, uniform_points(2, 3000, 21)},
+      {"uniform-3d", 3, uniform_points(3, 1500, 22)},
+      {"uniform-4d", 4, uniform_points(4, 400, 23)},
+      {"uniform-5d", 5, uniform_points(5, 120, 24)},
+      {"uniform-6d", 6, uniform_points(6, 60, 25)},
+      {"grid-2d", 2, grid_points(2, 30)},
+      {"grid-3d", 3, grid_points(3, 8)},
+      {"grid-4d", 4, grid_points(4, 4)},
+      {"grid-5d", 5, grid_points(5, 3)},
+      {"cube-6d", 6, grid_points(6, 2)},
+      {"circle-2d", 2, sphere_points(2, 325, true)},
+      {"sphere-3d", 3, sphere_points(3, 50, true)},
+      {"sphere-4d", 4, sphere_points(4, 12, false)},
+  };
+  // Grid with random points mixed in: degenerate and generic together.
+  auto mixed = grid_points(3, 5);
+  const auto extra = uniform_points(3, 40, 26);
+  for (double v : extra) mixed.push_back(v * 4);
+  cases.push_back({"grid+uniform-3d", 3, mixed});
+  return cases;
+}
+
+TEST(MeshVsCgal, SimplexForSimplex) {
+  for (const Case& c : cgal_cases()) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const Tuples ours = as_set(mesh_all(tree, 2), c.d + 1);
+    EXPECT_EQ(ours, cgal_dd(ps)) << "vs CGAL Delaunay_triangulation (dD)";
+    if (c.d == 2) EXPECT_EQ(ours, cgal_2(ps)) << "vs CGAL Delaunay_triangulation_2";
+    if (c.d == 3) EXPECT_EQ(ours, cgal_3(ps)) << "vs CGAL Delaunay_triangulation_3";
+  }
+}
+
+// --- Qhull ------------------------------------------------------------------------
+
+Tuples qhull_mesh(const PointSet& ps) {
+  const std::string in = ::testing::TempDir() + "/qhull_in.txt";
+  {
+    std::ofstream f(in);
+    f.precision(17);
+    f << ps.dimension() << "\n" << ps.size() << "\n";
+    for (std::size_t i = 0; i < ps.size(); ++i) {
+      for (int c = 0; c < ps.dimension(); ++c) f << ps.point(i)[c] << (c + 1 == ps.dimension() ? "\n" : " ");
+    }
+  }
+  Tuples out;
+  std::FILE* p = ::popen(("qdelaunay Qt i < " + in).c_str(), "r");
+  if (p == nullptr) return out;
+  char line[4096];
+  bool first = true;
+  while (std::fgets(line, sizeof line, p) != nullptr) {
+    if (first) {  // the simplex count
+      first = false;
+      continue;
+    }
+    std::vector<std::uint32_t> t;
+    for (char* s = line; *s;) {
+      char* end;
+      const unsigned long v = std::strtoul(s, &end, 10);
+      if (end == s) break;
+      t.push_back(static_cast<std::uint32_t>(v));
+      s = end;
+    }
+    std::sort(t.begin(), t.end());
+    out.insert(t);
+  }
+  ::pclose(p);
+  return out;
+}
+
+TEST(MeshVsQhull, RandomInputs) {
+  for (int d = 2; d <= 5; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const std::size_t n = d == 2 ? 2000 : d == 3 ? 800 : d == 4 ? 250 : 100;
+    const PointSet ps = make_points(d, uniform_points(d, n, 300 + d));
+    const KdTree tree(ps);
+    const Tuples q = qhull_mesh(ps);
+    ASSERT_FALSE(q.empty()) << "qdelaunay (qhull-bin) did not run";
+    EXPECT_EQ(as_set(mesh_all(tree), d + 1), q);
+  }
+}
+
+// --- Determinism and partitions ----------------------------------------------------
+
+TEST(Mesh, ByteIdenticalForAnyThreadCountAndCanonicallyOrdered) {
+  for (int d = 2; d <= 4; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const PointSet ps = make_points(d, uniform_points(d, d == 4 ? 300 : 1500, 40 + d));
+    const KdTree tree(ps);
+    const Simplices one = mesh_all(tree, 1);
+    EXPECT_EQ(mesh_all(tree, 2), one);
+    EXPECT_EQ(mesh_all(tree, 7), one);
+    EXPECT_EQ(mesh_all(tree, 3, 0, 0xFFFFFFFFu, /*random_seed=*/12345), one);
+    const int w = d + 1;
+    for (std::size_t i = 0; i + w < one.size(); i += w) {
+      ASSERT_TRUE(std::is_sorted(one.begin() + i, one.begin() + i + w));
+      ASSERT_TRUE(std::lexicographical_compare(one.begin() + i, one.begin() + i + w, one.begin() + i + w,
+                                               one.begin() + i + 2 * w));
+    }
+  }
+}
+
+TEST(Mesh, AnySeedPartitionUnitesToTheWholeMeshOnce) {
+  const PointSet ps = make_points(3, uniform_points(3, 700, 77));
+  const KdTree tree(ps);
+  const Simplices whole = mesh_all(tree, 2);
+  for (const std::vector<std::uint32_t>& cuts :
+       {std::vector<std::uint32_t>{0, 700}, {0, 1, 350, 351, 700}, {0, 100, 200, 333, 600, 699, 700}}) {
+    Simplices joined;
+    for (std::size_t k = 0; k + 1 < cuts.size(); ++k) {
+      const Simplices part = mesh_all(tree, 1 + k % 3, cuts[k], cuts[k + 1]);
+      for (std::size_t i = 0; i < part.size(); i += 4) {
+        ASSERT_GE(part[i], cuts[k]);  // owner = smallest vertex, inside the range
+        ASSERT_LT(part[i], cuts[k + 1]);
+      }
+      joined.insert(joined.end(), part.begin(), part.end());
+    }
+    EXPECT_EQ(joined, whole);
+  }
+}
+
+// --- Validation --------------------------------------------------------------------
+
+TEST(Check, AcceptsOurMeshes) {
+  for (const Case& c : cgal_cases()) {
+    if (c.coords.size() / c.d > 1000) continue;
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const MeshCheck check = check_mesh(tree, mesh_all(tree, 2));
+    EXPECT_TRUE(check.valid) << (check.violations.empty() ? "" : check.violations.front());
+  }
+}
+
+TEST(Check, RejectsCorruptedMeshes) {
+  const PointSet ps = make_points(2, uniform_points(2, 200, 5));
+  const KdTree tree(ps);
+  const Simplices good = mesh_all(tree);
+  auto expect_invalid = [&](Simplices bad, const std::string& what, const std::string& needle) {
+    const MeshCheck check = check_mesh(tree, bad);
+    EXPECT_FALSE(check.valid) << what;
+    ASSERT_FALSE(check.violations.empty()) << what;
+    EXPECT_NE(check.violations.front().find(needle), std::string::npos) << what << ": " << check.violations.front();
+  };
+  {  // a missing simplex leaves a hole: its facets become boundary facets inside the hull
+    Simplices bad = good;
+    bad.erase(bad.begin() + 3 * 50, bad.begin() + 3 * 51);
+    expect_invalid(bad, "dropped simplex", "not on the convex hull");
+  }
+  {  // a duplicated simplex
+    Simplices bad = good;
+    bad.insert(bad.end(), good.begin(), good.begin() + 3);
+    expect_invalid(bad, "duplicate", "shared by 3");
+  }
+  {  // an out-of-range index
+    Simplices bad = good;
+    bad[7] = 5000;
+    expect_invalid(bad, "index", "out of range");
+  }
+  {  // flip an interior edge: still a triangulation, no longer Delaunay
+    const Predicates pred(ps);
+    Simplices bad = good;
+    bool flipped = false;
+    const auto tuples = as_set(good, 3);
+    for (std::size_t i = 0; i < good.size() && !flipped; i += 3) {
+      for (std::size_t j = i + 3; j < good.size() && !flipped; j += 3) {
+        std::vector<std::uint32_t> a(good.begin() + i, good.begin() + i + 3), b(good.begin() + j, good.begin() + j + 3);
+        std::vector<std::uint32_t> shared;
+        std::set_intersection(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(shared));
+        if (shared.size() != 2) continue;
+        std::uint32_t pa = 0, pb = 0;
+        for (auto v : a) if (v != shared[0] && v != shared[1]) pa = v;
+        for (auto v : b) if (v != shared[0] && v != shared[1]) pb = v;
+        // Flip only a convex quadrilateral: the new diagonal separates the old one.
+        const std::array<std::uint32_t, 3> t1 = {pa, pb, shared[0]}, t2 = {pa, pb, shared[1]};
+        if (pred.orientation(t1) * pred.orientation(t2) >= 0) continue;
+        std::array<std::uint32_t, 3> n1 = t1, n2 = t2;
+        std::sort(n1.begin(), n1.end());
+        std::sort(n2.begin(), n2.end());
+        std::copy(n1.begin(), n1.end(), bad.begin() + i);
+        std::copy(n2.begin(), n2.end(), bad.begin() + j);
+        flipped = true;
+      }
+    }
+    ASSERT_TRUE(flipped);
+    expect_invalid(bad, "flipped edge", "not locally Delaunay");
+  }
+  {  // a degenerate simplex
+    const PointSet line = make_points(2, {0, 0, 1, 0, 2, 0, 0, 1});
+    const KdTree t(line);
+    const MeshCheck check = check_mesh(t, Simplices{0, 1, 2});
+    EXPECT_FALSE(check.valid);
+    EXPECT_NE(check.violations.front().find("degenerate"), std::string::npos);
+  }
+}
+
+// --- Voronoi cells -----------------------------------------------------------------
+
+TEST(Voronoi, GridCellsAreUnitCubes) {
+  for (int d = 2; d <= 4; ++d) {
+    const PointSet ps = make_points(d, grid_points(d, 4));
+    const KdTree tree(ps);
+    StarWalker walker(tree);
+    Star star;
+    // An interior grid point: all coordinates 1 -> index sum of 4^k.
+    std::uint32_t interior = 0;
+    for (int k = 0, p = 1; k < d; ++k, p *= 4) interior += p;
+    ASSERT_TRUE(walker.compute(interior, star).is_ok());
+    const VoronoiCell cell = voronoi_cell(ps, star);
+    EXPECT_TRUE(cell.bounded);
+    EXPECT_NEAR(cell.volume, 1.0, 1e-12) << "d " << d;
+    ASSERT_TRUE(walker.compute(0, star).is_ok());  // a corner: unbounded
+    EXPECT_FALSE(voronoi_cell(ps, star).bounded);
+  }
+}
+
+TEST(Voronoi, BoundedCellVolumesMatchPolygonAreas) {
+  const PointSet ps = make_points(2, uniform_points(2, 300, 9));
+  const KdTree tree(ps);
+  StarWalker walker(tree);
+  Star star;
+  int bounded = 0;
+  for (std::uint32_t s = 0; s < ps.size(); ++s) {
+    ASSERT_TRUE(walker.compute(s, star).is_ok());
+    const VoronoiCell cell = voronoi_cell(ps, star);
+    if (!cell.bounded) continue;
+    ++bounded;
+    // Shoelace over vertices sorted by angle around the seed.
+    std::vector<std::pair<double, std::size_t>> order;
+    for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
+      order.push_back({std::atan2(cell.vertices[2 * v + 1] - ps.point(s)[1], cell.vertices[2 * v] - ps.point(s)[0]), v});
+    }
+    std::sort(order.begin(), order.end());
+    double area = 0;
+    for (std::size_t k = 0; k < order.size(); ++k) {
+      const double* a = &cell.vertices[2 * order[k].second];
+      const double* b = &cell.vertices[2 * order[(k + 1) % order.size()].second];
+      area += a[0] * b[1] - a[1] * b[0];
+    }
+    EXPECT_NEAR(cell.volume, area / 2, 1e-9 * std::max(1.0, area)) << "seed " << s;
+    EXPECT_EQ(cell.facets.size(), cell.vertex_count()) << "a bounded polygon has as many edges as vertices";
+  }
+  EXPECT_GT(bounded, 200);
+}
+
+}  // namespace
+}  // namespace spokemesh

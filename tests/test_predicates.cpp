@@ -1,0 +1,161 @@
+// Predicates: the Approx filter's error bound holds, filtered signs equal exact
+// rational signs on near-degenerate inputs, and ties follow CGAL's perturbation rule.
+#include <gmpxx.h>
+
+#include <array>
+#include <cmath>
+
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using testing::make_points;
+
+// Exact rational determinant for comparison.
+mpq_class exact_det(std::vector<mpq_class> m, int k) {
+  mpq_class det = 1;
+  for (int col = 0; col < k; ++col) {
+    int pivot = -1;
+    for (int r = col; r < k; ++r) {
+      if (sgn(m[r * k + col]) != 0) { pivot = r; break; }
+    }
+    if (pivot < 0) return 0;
+    if (pivot != col) {
+      for (int c = 0; c < k; ++c) std::swap(m[pivot * k + c], m[col * k + c]);
+      det = -det;
+    }
+    det *= m[col * k + col];
+    for (int r = col + 1; r < k; ++r) {
+      const mpq_class f = m[r * k + col] / m[col * k + col];
+      for (int c = col; c < k; ++c) m[r * k + c] -= f * m[col * k + c];
+    }
+  }
+  return det;
+}
+
+TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
+  for (std::uint64_t seed = 1; seed <= 300; ++seed) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> u(-1, 1);
+    const int k = 2 + static_cast<int>(seed % 8);
+    // Last row = sum of two others plus a few ulps: the determinant nearly cancels.
+    std::vector<double> base(k * k);
+    for (double& v : base) v = u(rng);
+    for (int c = 0; c < k; ++c) base[(k - 1) * k + c] = base[c] + base[k + c] * 0.5 + (c == 0 ? std::ldexp(u(rng), -50) : 0.0);
+    std::vector<double> origin(k);
+    for (double& v : origin) v = u(rng) * 0.1;
+    std::vector<Approx> m(k * k);
+    std::vector<mpq_class> e(k * k);
+    for (int i = 0; i < k * k; ++i) {
+      m[i] = Approx::difference(base[i], origin[i % k]);
+      e[i] = mpq_class(base[i]) - mpq_class(origin[i % k]);
+    }
+    std::vector<Approx> table(1u << k);
+    minors_table(m.data(), k, k, table.data());
+    const Approx det = table[(1u << k) - 1];
+    const mpq_class exact = exact_det(e, k);
+    const mpq_class error = abs(mpq_class(det.v) - exact);
+    const double bound = det.a * ((det.n + 2) * 0x1p-53) * 1.01;
+    EXPECT_LE(error.get_d(), bound);
+    const int s = det.certified_sign();
+    if (s != Approx::kUnknownSign) EXPECT_EQ(s, sgn(exact));
+  }
+}
+
+TEST(Approx, UnderflowAndOverflowAreNeverCertified) {
+  const Approx tiny = Approx::exact(0x1p-600);
+  EXPECT_EQ((tiny * tiny).certified_sign(), Approx::kUnknownSign);
+  const Approx huge = Approx::exact(0x1p+600);
+  EXPECT_EQ((huge * huge).certified_sign(), Approx::kUnknownSign);
+  EXPECT_EQ((Approx::exact(0.0) * huge).certified_sign(), 0);
+}
+
+// Points nearly on a circle: filtered+exact lifted sign must equal the pure exact sign.
+TEST(Predicates, FilteredSignsEqualExactSignsNearDegeneracy) {
+  for (int d = 2; d <= 5; ++d) {
+    for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+      SCOPED_TRACE("d " + std::to_string(d) + " seed " + std::to_string(seed));
+      std::mt19937_64 rng(seed * 7919 + d);
+      std::normal_distribution<double> g(0, 1);
+      std::vector<double> c;
+      for (int i = 0; i < d + 2; ++i) {
+        std::vector<double> p(d);
+        double r = 0;
+        for (double& v : p) {
+          v = g(rng);
+          r += v * v;
+        }
+        for (double& v : p) v = v / std::sqrt(r) + 0.25;  // on a sphere, up to rounding
+        if (i == d + 1) p[0] = std::nextafter(p[0], 2.0);  // one ulp off
+        c.insert(c.end(), p.begin(), p.end());
+      }
+      const PointSet ps = make_points(d, c);
+      const Predicates pred(ps);
+      std::vector<Row> rows;
+      for (int i = 1; i <= d + 1; ++i) rows.push_back(Row::of_point(i));
+      EXPECT_EQ(pred.lifted_sign_unperturbed(0, rows), pred.lifted_sign_exact(0, rows, false));
+      rows.pop_back();
+      EXPECT_EQ(pred.spatial_sign(0, rows), pred.spatial_sign_exact(0, rows));
+    }
+  }
+}
+
+TEST(Predicates, SignsAreInvariantUnderPowerOfTwoScaling) {
+  // At 2^-500 the filter's products underflow and the exact stage must decide.
+  const std::vector<double> base = {0, 0, 1, 0, 0, 1, 1, 1, 0.5, 0.2};
+  for (int e : {-500, -100, 0, 100, 300}) {
+    std::vector<double> c = base;
+    for (double& v : c) v = std::ldexp(v, e);
+    const PointSet ps = make_points(2, c);
+    const Predicates pred(ps);
+    const std::array<std::uint32_t, 3> tri = {0, 1, 2};
+    EXPECT_EQ(pred.side_of_sphere(tri, 3), 1) << "scale 2^" << e;  // (1,1) is cocircular: perturbed
+    EXPECT_EQ(pred.side_of_sphere(tri, 4), -1) << "scale 2^" << e;
+    EXPECT_EQ(pred.orientation(tri), 1) << "scale 2^" << e;
+  }
+}
+
+// CGAL's Delaunay_triangulation_2::side_of_oriented_circle(..., perturb = true),
+// restated: for cocircular p0 p1 p2 q with (p0, p1, p2) positive, walk the points in
+// decreasing xy order; q first -> outside; p_i first -> the orientation with q in
+// p_i's place decides (positive = inside), unless it is collinear.
+int cgal_rule_2d(const PointSet& ps, std::array<std::uint32_t, 3> tri, std::uint32_t q) {
+  const Predicates pred(ps);
+  if (pred.orientation(tri) < 0) std::swap(tri[1], tri[2]);
+  std::array<std::uint32_t, 4> all = {tri[0], tri[1], tri[2], q};
+  std::sort(all.begin(), all.end(), [&](auto a, auto b) { return ps.lex_rank(a) > ps.lex_rank(b); });
+  for (std::uint32_t top : all) {
+    if (top == q) return 1;
+    std::array<std::uint32_t, 3> t = tri;
+    for (auto& v : t) {
+      if (v == top) v = q;
+    }
+    const int o = pred.orientation(t);
+    if (o != 0) return -o;  // inside (positive orientation) is -1 in our convention
+  }
+  return 0;
+}
+
+TEST(Predicates, CocircularTiesFollowCgalPerturbation) {
+  // Points on x^2 + y^2 = 25 with integer coordinates: every 4 of them are cocircular.
+  const std::vector<double> c = {5, 0, 4, 3, 3, 4, 0, 5, -3, 4, -4, 3, -5, 0, -4, -3, -3, -4, 0, -5, 3, -4, 4, -3};
+  const PointSet ps = make_points(2, c);
+  const Predicates pred(ps);
+  const std::uint32_t n = 12;
+  int checked = 0;
+  for (std::uint32_t a = 0; a < n; ++a)
+    for (std::uint32_t b = a + 1; b < n; ++b)
+      for (std::uint32_t e = b + 1; e < n; ++e)
+        for (std::uint32_t q = 0; q < n; ++q) {
+          if (q == a || q == b || q == e) continue;
+          const std::array<std::uint32_t, 3> tri = {a, b, e};
+          ASSERT_EQ(pred.side_of_sphere(tri, q), cgal_rule_2d(ps, tri, q)) << a << " " << b << " " << e << " q " << q;
+          ++checked;
+        }
+  EXPECT_EQ(checked, 220 * 9);
+}
+
+}  // namespace
+}  // namespace spokemesh

@@ -1,0 +1,126 @@
+// Stars: equal to the brute-force Delaunay star on random, grid and cospherical
+// inputs; consistent between seeds; independent of the random spoke directions.
+#include <gtest/gtest.h>
+#include <rapidcheck/gtest.h>
+
+#include <numeric>
+
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using namespace spokemesh::testing;
+
+std::set<std::vector<std::uint32_t>> star_set(StarWalker& walker, std::uint32_t seed, int d) {
+  Star star;
+  const Status s = walker.compute(seed, star);
+  EXPECT_TRUE(s.is_ok()) << s.message();
+  return as_set(star.simplices, d + 1);
+}
+
+struct Case {
+  std::string name;
+  int d;
+  std::vector<double> coords;
+};
+
+std::vector<Case> small_cases() {
+  return {
+      {"uniform-2d", 2, uniform_points(2, 40, 11)},
+      {"uniform-3d", 3, uniform_points(3, 30, 12)},
+      {"uniform-4d", 4, uniform_points(4, 22, 13)},
+      {"grid-2d", 2, grid_points(2, 6)},
+      {"grid-3d", 3, grid_points(3, 3)},
+      {"circle+centre-2d", 2, sphere_points(2, 25, true)},
+      {"sphere-3d", 3, sphere_points(3, 9, false)},
+      {"cube+centre-4d", 4, [] { auto c = grid_points(4, 2); c.insert(c.end(), {0.5, 0.5, 0.5, 0.5}); return c; }()},
+  };
+}
+
+TEST(Star, EqualsBruteForceOnEverySeed) {
+  for (const Case& c : small_cases()) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    StarWalker walker(tree);
+    for (std::uint32_t seed = 0; seed < ps.size(); ++seed) {
+      ASSERT_EQ(star_set(walker, seed, c.d), brute_force_star(ps, seed)) << "seed " << seed;
+    }
+  }
+}
+
+TEST(Star, SimplicesAppearInTheStarOfEachVertex) {
+  for (int d = 2; d <= 5; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const std::size_t n = d <= 3 ? 400 : 120;
+    const PointSet ps = make_points(d, uniform_points(d, n, 100 + d));
+    const KdTree tree(ps);
+    StarWalker walker(tree);
+    std::vector<std::set<std::vector<std::uint32_t>>> stars(n);
+    for (std::uint32_t s = 0; s < n; ++s) stars[s] = star_set(walker, s, d);
+    for (std::uint32_t s = 0; s < n; ++s) {
+      for (const auto& simplex : stars[s]) {
+        for (std::uint32_t v : simplex) ASSERT_TRUE(stars[v].count(simplex)) << "seed " << s << " vertex " << v;
+      }
+    }
+  }
+}
+
+TEST(Star, DoesNotDependOnTheRandomSpokes) {
+  const PointSet ps = make_points(3, uniform_points(3, 300, 7));
+  const KdTree tree(ps);
+  StarWalker a(tree, StarOptions{.random_seed = 1}), b(tree, StarOptions{.random_seed = 999});
+  StarWalker small(tree, StarOptions{.random_seed = 5, .initial_candidates = 4});
+  for (std::uint32_t s = 0; s < ps.size(); s += 7) {
+    const auto expected = star_set(a, s, 3);
+    EXPECT_EQ(star_set(b, s, 3), expected) << "seed " << s;
+    EXPECT_EQ(star_set(small, s, 3), expected) << "seed " << s << " (tiny first neighbourhood)";
+  }
+}
+
+TEST(Star, RefusesSeedsOutOfRange) {
+  const PointSet ps = make_points(2, uniform_points(2, 10, 1));
+  const KdTree tree(ps);
+  StarWalker walker(tree);
+  Star star;
+  const Status s = walker.compute(10, star);
+  EXPECT_EQ(s.code(), Code::kOutOfRange);
+  EXPECT_NE(s.message().find("seed 10"), std::string::npos);
+}
+
+TEST(Star, HonoursCancellation) {
+  const PointSet ps = make_points(3, uniform_points(3, 200, 3));
+  const KdTree tree(ps);
+  std::atomic<bool> cancel{true};
+  StarWalker walker(tree, StarOptions{.cancel = &cancel});
+  Star star;
+  EXPECT_EQ(walker.compute(0, star).code(), Code::kCancelled);
+}
+
+// Property: shuffling the input gives the same mesh, mapped back through the shuffle.
+RC_GTEST_PROP(MeshProperty, PermutationInvariant, ()) {
+  const int d = *rc::gen::inRange(2, 5);
+  const int n = *rc::gen::inRange(d + 2, d <= 3 ? 60 : 30);
+  const bool on_grid = *rc::gen::arbitrary<bool>();
+  const std::uint64_t seed = *rc::gen::arbitrary<std::uint64_t>();
+  std::vector<double> coords = on_grid ? grid_points(d, 3) : uniform_points(d, n, seed);
+  const std::size_t count = coords.size() / d;
+  std::vector<std::uint32_t> perm(count);
+  std::iota(perm.begin(), perm.end(), 0u);
+  std::shuffle(perm.begin(), perm.end(), std::mt19937_64(seed));
+  std::vector<double> shuffled(coords.size());
+  for (std::size_t i = 0; i < count; ++i) {
+    std::copy_n(&coords[perm[i] * d], d, &shuffled[i * d]);  // shuffled point i = original perm[i]
+  }
+  PointSet a(d, coords), b(d, shuffled);
+  RC_ASSERT(a.validate("a").is_ok());
+  RC_ASSERT(b.validate("b").is_ok());
+  const KdTree ta(a), tb(b);
+  Simplices mb = mesh_all(tb, 1, 0, 0xFFFFFFFFu, seed);
+  for (auto& v : mb) v = perm[v];
+  RC_ASSERT(as_set(mesh_all(ta), d + 1) == as_set(mb, d + 1));
+}
+
+}  // namespace
+}  // namespace spokemesh
