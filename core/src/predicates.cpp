@@ -9,11 +9,23 @@
 
 namespace spokemesh {
 
+namespace {
+// Population counts of column masks (the build targets baseline x86-64, where
+// __builtin_popcount is a library call).
+struct PopCounts {
+  std::array<std::uint8_t, 1u << (kMaxDimension + 1)> of{};
+  constexpr PopCounts() {
+    for (unsigned m = 1; m < of.size(); ++m) of[m] = static_cast<std::uint8_t>(of[m >> 1] + (m & 1u));
+  }
+};
+constexpr PopCounts kPopCounts;
+}  // namespace
+
 void minors_table(const Approx* m, int rows, int cols, Approx* table) {
   table[0] = Approx{1.0, 1.0, 0};
   const unsigned full = (1u << cols) - 1u;
   for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = __builtin_popcount(mask);
+    const int j = kPopCounts.of[mask];
     if (j > rows) continue;
     const Approx* row = m + (rows - j) * cols;
     Approx acc{};
@@ -298,7 +310,7 @@ int Predicates::orientation(std::span<const std::uint32_t> simplex) const {
 
 void Predicates::spatial_normal(std::uint32_t origin, std::span<const Row> rows, Approx* normal) const {
   const int d = ps_.dimension();
-  std::array<Approx, kMaxCols * kMaxCols> m;
+  std::array<Approx, kMaxCols * kMaxCols> m{};
   std::array<Approx, 1u << kMaxCols> table;
   for (int r = 0; r < d - 1; ++r) approx_row(ps_, origin, rows[r], d, &m[r * d]);
   minors_table(m.data(), d - 1, d, table.data());

@@ -19,7 +19,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // a >= 2^-900 that is far below the relative bound, and smaller magnitudes go to the
 // exact stage (this also keeps subnormal arithmetic, which is slow, off the hot path).
 inline int certified(double v, double a, int depth) {
-  if (depth >= Approx::kUnsafe || !(a <= DBL_MAX) || !(a >= 0x1p-900)) return Approx::kUnknownSign;
+  if (!(a >= 0x1p-900 && a <= DBL_MAX) || depth >= Approx::kUnsafe) return Approx::kUnknownSign;
   const double err = a * (static_cast<double>(depth + 3) * kUnit) * 1.01;
   if (v > err) return 1;
   if (v < -err) return -1;
@@ -101,31 +101,42 @@ void StarWalker::load_candidates(std::size_t k) {
   const std::size_t want = std::min(k + 1, n);  // +1: the seed finds itself
   knn_ids_.resize(want);
   knn_d2_.resize(want);
-  const double* x = ps_.point(x_);
-  const std::size_t got = tree_.knn(x, want, knn_ids_.data(), knn_d2_.data());
+  const std::size_t got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data());
   cand_id_.clear();
   cand_q_.clear();
   cand_norm2_.clear();
   cand_depth_.clear();
   cand_lower_.clear();
+  cand_q_.resize(got * d_);
+  std::size_t kept = 0;
   for (std::size_t i = 0; i < got; ++i) {
     const std::uint32_t id = knn_ids_[i];
     if (id == x_) continue;
-    const double* p = ps_.point(id);
-    double norm2 = 0;
-    int depth = d_ + 2;  // depth of a sum of d squares of rounded differences
-    for (int c = 0; c < d_; ++c) {
-      const double q = p[c] - x[c];
-      cand_q_.push_back(q);
-      norm2 += q * q;
-      if (q != 0 && std::fabs(q) < 0x1p-480) depth = Approx::kUnsafe;  // q^2 may underflow
-    }
+    double norm2;
+    int depth;
+    relative_row(id, &cand_q_[kept * d_], norm2, depth);
+    ++kept;
     cand_id_.push_back(id);
     cand_norm2_.push_back(norm2);
     cand_depth_.push_back(depth);
     cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
   }
+  cand_q_.resize(kept * d_);
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
+}
+
+void StarWalker::relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const {
+  const double* pp = ps_.point(p);
+  const double* x = ps_.point(x_);
+  norm2 = 0;
+  for (int c = 0; c < d_; ++c) {
+    q[c] = pp[c] - x[c];
+    norm2 += q[c] * q[c];
+  }
+  // A sum of d squares of rounded differences has depth d + 2; one more covers a
+  // square that underflowed (absolute error 2^-1075, relatively negligible once
+  // norm2 >= 2^-900). Below that, the exact stage decides.
+  depth = norm2 >= 0x1p-900 ? d_ + 3 : Approx::kUnsafe;
 }
 
 void StarWalker::point_row(std::uint32_t p, Approx* out) const {
@@ -292,7 +303,7 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
   if (best_id < 0) {
     ++stats_.hull_queries;
     const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p) {
-      if (p == x_) return 0;
+      if (p == x_ || is_pivot(p)) return 0;  // on the hyperplane
       std::array<double, kMaxDimension> q;
       const double* pp = ps_.point(p);
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
@@ -309,6 +320,14 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
     // Lower bound over a box of f(q) = |P_d| |q|^2 + sigma sum_c P_c q_c, which is
     // negative exactly below the plane; separable, so minimised per coordinate.
     auto may_contain = [&](const double* lo, const double* hi) {
+      // Boxes inside the certified ball hold only scanned candidates, all above the
+      // plane already (pencil argument above).
+      double far2 = 0;
+      for (int c = 0; c < d; ++c) {
+        const double reach = std::max(std::fabs(lo[c] - x[c]), std::fabs(hi[c] - x[c]));
+        far2 += reach * reach;
+      }
+      if (far2 * (1 + 1e-9) < r2_certified_) return false;
       const double e_d = plane[d].a * (static_cast<double>(plane[d].n + 2) * kUnit) * 1.01;
       const double A = std::fabs(plane[d].v) - e_d;
       if (!(A > 0) || plane_depth >= Approx::kUnsafe) return true;
@@ -326,11 +345,12 @@ std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite
     };
     const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p) {
       if (p == x_ || p == best_id || is_pivot(p)) return false;
-      std::array<Approx, kMaxCols> row;
-      point_row(p, row.data());
       std::array<double, kMaxDimension> q;
-      for (int c = 0; c < d; ++c) q[c] = row[c].v;
-      return lifted_side(q.data(), row[d].v, row[d].n, p) < 0;
+      double norm2;
+      int depth;
+      relative_row(p, q.data(), norm2, depth);
+      if (norm2 * (1 + 1e-9) < r2_certified_) return false;  // a scanned candidate
+      return lifted_side(q.data(), norm2, depth, p) < 0;
     });
     if (below < 0) return best_id;
     build_plane_from_point(static_cast<std::uint32_t>(below));
@@ -414,7 +434,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
   // Canonical form: vertices ascending within a simplex, simplices lexicographic.
   const std::size_t m = work_.size() / d;
   const int w = d + 1;
-  std::vector<std::uint32_t> flat(m * w);
+  std::vector<std::uint32_t>& flat = sort_flat_;
+  flat.resize(m * w);
   for (std::size_t i = 0; i < m; ++i) {
     std::uint32_t* s = &flat[i * w];
     s[0] = seed;
@@ -422,7 +443,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
               work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), s + 1);
     std::sort(s, s + w);
   }
-  std::vector<std::uint32_t> order(m);
+  std::vector<std::uint32_t>& order = sort_order_;
+  order.resize(m);
   std::iota(order.begin(), order.end(), 0u);
   std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
     return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);

@@ -40,10 +40,13 @@ namespace spokemesh {
 // doubles (n = 0) or rounded differences fl(p - x) (n = 1). A product that could
 // underflow (0 < a < 2^-960) loses the relative-error model and marks the value
 // unsafe; overflow shows as a non-finite `a`. Sums of doubles never underflow.
+//
+// Trivially constructible on purpose: predicate scratch arrays are large and must not
+// be zero-filled on every call. Approx{} is zero.
 struct Approx {
-  double v = 0;  // computed value
-  double a = 0;  // computed bound on the sum of magnitudes of the monomials
-  int n = 0;     // rounding depth (kUnsafe: no bound)
+  double v;  // computed value
+  double a;  // computed bound on the sum of magnitudes of the monomials
+  int n;     // rounding depth (kUnsafe: no bound)
 
   static constexpr int kUnsafe = 1 << 20;
 

@@ -107,6 +107,8 @@ class StarWalker {
 
   void load_candidates(std::size_t k);
   void point_row(std::uint32_t p, Approx* out) const;
+  // p - x rounded, |p - x|^2 from it, and that sum's rounding depth (or kUnsafe).
+  void relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const;
   void direction_row(const double* w, Approx* out) const;
   // Rotates the lifted hyperplane about pivot (d - 1 rows) towards side sigma of the
   // pivot's spatial hyperplane; returns the point hit, or -1 when no point lies
@@ -136,6 +138,7 @@ class StarWalker {
   std::vector<Approx> minors_;
   TupleSet simplex_seen_, facet_seen_;
   std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
+  std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
 };
 
 // Default first candidate count for dimension d.
