@@ -9,23 +9,11 @@
 
 namespace spokemesh {
 
-namespace {
-// Population counts of column masks (the build targets baseline x86-64, where
-// __builtin_popcount is a library call).
-struct PopCounts {
-  std::array<std::uint8_t, 1u << (kMaxDimension + 1)> of{};
-  constexpr PopCounts() {
-    for (unsigned m = 1; m < of.size(); ++m) of[m] = static_cast<std::uint8_t>(of[m >> 1] + (m & 1u));
-  }
-};
-constexpr PopCounts kPopCounts;
-}  // namespace
-
 void minors_table(const Approx* m, int rows, int cols, Approx* table) {
   table[0] = Approx{1.0, 1.0, 0};
   const unsigned full = (1u << cols) - 1u;
   for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = kPopCounts.of[mask];
+    const int j = detail::kPopCounts.of[mask];
     if (j > rows) continue;
     const Approx* row = m + (rows - j) * cols;
     Approx acc{};

@@ -43,7 +43,7 @@ double random_unit(std::uint64_t& state) {
 }  // namespace
 
 std::size_t default_candidates(int d) {
-  static constexpr std::array<std::size_t, kMaxDimension + 1> kDefault = {0, 8, 16, 40, 80, 160, 320, 640, 1280};
+  static constexpr std::array<std::size_t, kMaxDimension + 1> kDefault = {0, 8, 20, 64, 160, 320, 640, 1280, 2560};
   return kDefault[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
 }
 
@@ -155,19 +155,34 @@ void StarWalker::direction_row(const double* w, Approx* out) const {
   out[d_] = Approx::exact(0.0);
 }
 
+// The one dispatch point from the runtime dimension to the compiled kernels.
 std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite) {
+  switch (d_) {
+    case 2: return wrap_kernel<2>(pivot, sigma, opposite);
+    case 3: return wrap_kernel<3>(pivot, sigma, opposite);
+    case 4: return wrap_kernel<4>(pivot, sigma, opposite);
+    case 5: return wrap_kernel<5>(pivot, sigma, opposite);
+    case 6: return wrap_kernel<6>(pivot, sigma, opposite);
+    case 7: return wrap_kernel<7>(pivot, sigma, opposite);
+    default: return wrap_kernel<8>(pivot, sigma, opposite);
+  }
+}
+
+template <int D>
+std::int64_t StarWalker::wrap_kernel(const Row* pivot, int sigma, std::int64_t opposite) {
+  static_assert(D >= 2 && D <= kMaxDimension);
   ++stats_.wraps;
-  const int d = d_;
-  const int cols = d + 1;
-  const unsigned all = (1u << cols) - 1u;
+  constexpr int d = D;
+  constexpr int cols = d + 1;
+  constexpr unsigned all = (1u << cols) - 1u;
 
   // Minors of the pivot rows, shared by the spatial normal and every lifted plane.
-  std::array<Approx, kMaxCols * kMaxCols> pivot_rows;
+  std::array<Approx, (D - 1) * (D + 1)> pivot_rows;
   for (int r = 0; r < d - 1; ++r) {
     if (pivot[r].is_point()) point_row(static_cast<std::uint32_t>(pivot[r].point), &pivot_rows[r * cols]);
     else direction_row(pivot[r].dir, &pivot_rows[r * cols]);
   }
-  minors_table(pivot_rows.data(), d - 1, cols, minors_.data());
+  minors_table_fixed<D - 1, D + 1>(pivot_rows.data(), minors_.data());
 
   // Spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
   std::array<Approx, kMaxDimension> normal;

@@ -91,6 +91,40 @@ inline Approx operator*(const Approx& x, const Approx& y) {
 // 2^cols entries. With rows == cols, table[2^cols - 1] is det(m).
 void minors_table(const Approx* m, int rows, int cols, Approx* table);
 
+namespace detail {
+struct PopCounts {
+  std::uint8_t of[1u << (kMaxDimension + 1)] = {};
+  constexpr PopCounts() {
+    for (unsigned m = 1; m < sizeof of; ++m) of[m] = static_cast<std::uint8_t>(of[m >> 1] + (m & 1u));
+  }
+};
+// Population counts of column masks (the build targets baseline x86-64, where
+// __builtin_popcount is a library call).
+inline constexpr PopCounts kPopCounts;
+}  // namespace detail
+
+// minors_table for sizes known at compile time (the star walk's kernels).
+template <int Rows, int Cols>
+inline void minors_table_fixed(const Approx* m, Approx* table) {
+  table[0] = Approx{1.0, 1.0, 0};
+  constexpr unsigned kFull = (1u << Cols) - 1u;
+  for (unsigned mask = 1; mask <= kFull; ++mask) {
+    const int j = detail::kPopCounts.of[mask];
+    if (j > Rows) continue;
+    const Approx* row = m + (Rows - j) * Cols;
+    unsigned rest = mask;
+    int c = __builtin_ctz(rest);
+    Approx acc = row[c] * table[mask ^ (1u << c)];
+    rest &= rest - 1;
+    for (int t = 1; rest != 0; rest &= rest - 1, ++t) {
+      c = __builtin_ctz(rest);
+      const Approx term = row[c] * table[mask ^ (1u << c)];
+      acc = (t % 2 == 0) ? acc + term : acc - term;
+    }
+    table[mask] = acc;
+  }
+}
+
 // One row of a predicate matrix: a point (index into the PointSet) or a direction.
 struct Row {
   std::int64_t point = -1;        // >= 0: point index

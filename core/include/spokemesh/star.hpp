@@ -115,6 +115,8 @@ class StarWalker {
   // strictly on that side. If `opposite` >= 0, sigma is taken as the side opposite
   // that point.
   std::int64_t wrap(const Row* pivot, int sigma, std::int64_t opposite);
+  template <int D>
+  std::int64_t wrap_kernel(const Row* pivot, int sigma, std::int64_t opposite);
   Status first_simplex(std::uint32_t* out);
 
   const KdTree& tree_;
