@@ -156,20 +156,20 @@ void StarWalker::direction_row(const double* w, Approx* out) const {
 }
 
 // The one dispatch point from the runtime dimension to the compiled kernels.
-std::int64_t StarWalker::wrap(const Row* pivot, int sigma, std::int64_t opposite) {
+std::int64_t StarWalker::wrap(const Row* pivot, Side side) {
   switch (d_) {
-    case 2: return wrap_kernel<2>(pivot, sigma, opposite);
-    case 3: return wrap_kernel<3>(pivot, sigma, opposite);
-    case 4: return wrap_kernel<4>(pivot, sigma, opposite);
-    case 5: return wrap_kernel<5>(pivot, sigma, opposite);
-    case 6: return wrap_kernel<6>(pivot, sigma, opposite);
-    case 7: return wrap_kernel<7>(pivot, sigma, opposite);
-    default: return wrap_kernel<8>(pivot, sigma, opposite);
+    case 2: return wrap_kernel<2>(pivot, side);
+    case 3: return wrap_kernel<3>(pivot, side);
+    case 4: return wrap_kernel<4>(pivot, side);
+    case 5: return wrap_kernel<5>(pivot, side);
+    case 6: return wrap_kernel<6>(pivot, side);
+    case 7: return wrap_kernel<7>(pivot, side);
+    default: return wrap_kernel<8>(pivot, side);
   }
 }
 
 template <int D>
-std::int64_t StarWalker::wrap_kernel(const Row* pivot, int sigma, std::int64_t opposite) {
+std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
   static_assert(D >= 2 && D <= kMaxDimension);
   ++stats_.wraps;
   constexpr int d = D;
@@ -216,11 +216,25 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, int sigma, std::int64_t o
   };
 
   const double* x = ps_.point(x_);
-  if (opposite >= 0) {
+  int sigma = 0;
+  if (side.away_from >= 0) {
     std::array<double, kMaxDimension> q;
-    const double* o = ps_.point(static_cast<std::size_t>(opposite));
+    const double* o = ps_.point(static_cast<std::size_t>(side.away_from));
     for (int c = 0; c < d; ++c) q[c] = o[c] - x[c];
-    sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(opposite));
+    sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(side.away_from));
+  } else {
+    // Towards the spoke direction w (exact doubles, so one rounding less than q).
+    double v = 0, a = 0;
+    for (int c = 0; c < d; ++c) {
+      v += normal[c].v * side.toward[c];
+      a += normal[c].a * std::fabs(side.toward[c]);
+    }
+    sigma = certified(v, a, normal_depth + d + 2);
+    if (sigma == Approx::kUnknownSign) {
+      rows[d - 1] = Row::of_direction(side.toward);
+      sigma = predicates_.spatial_sign_exact(x_, std::span<const Row>(rows.data(), d));
+    }
+    sigma *= side.reverse ? -1 : 1;
   }
 
   if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return -2;
@@ -387,10 +401,9 @@ Status StarWalker::first_simplex(std::uint32_t* found) {
     int r = 0;
     for (int i = 0; i < k; ++i) rows[r++] = Row::of_point(found[i]);
     for (int i = 0; i < d - 1 - k; ++i) rows[r++] = Row::of_direction(&directions_[i * d]);
-    rows[r] = Row::of_direction(&directions_[(d - 1 - k) * d]);  // the spoke's side
-    const int sigma = predicates_.spatial_sign(x_, std::span<const Row>(rows.data(), d));
-    std::int64_t p = wrap(rows.data(), sigma, -1);
-    if (p == -1) p = wrap(rows.data(), -sigma, -1);
+    const double* spoke = &directions_[(d - 1 - k) * d];  // the side the spoke goes to
+    std::int64_t p = wrap(rows.data(), Side{.toward = spoke});
+    if (p == -1) p = wrap(rows.data(), Side{.toward = spoke, .reverse = true});
     if (p == -2) return cancelled("star computation cancelled");
     if (p < 0) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
     found[k] = static_cast<std::uint32_t>(p);
@@ -433,7 +446,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       std::sort(key.begin(), key.begin() + d - 1);
       if (!facet_seen_.insert(key.data())) continue;  // this Voronoi edge was walked from the other end
       for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
-      const std::int64_t p = wrap(pivot.data(), 0, simplex[k]);
+      const std::int64_t p = wrap(pivot.data(), Side{.away_from = simplex[k]});
       if (p == -2) return cancelled("star computation cancelled");
       if (p < 0) {
         ++hull;

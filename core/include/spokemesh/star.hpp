@@ -110,13 +110,19 @@ class StarWalker {
   // p - x rounded, |p - x|^2 from it, and that sum's rounding depth (or kUnsafe).
   void relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const;
   void direction_row(const double* w, Approx* out) const;
-  // Rotates the lifted hyperplane about pivot (d - 1 rows) towards side sigma of the
-  // pivot's spatial hyperplane; returns the point hit, or -1 when no point lies
-  // strictly on that side. If `opposite` >= 0, sigma is taken as the side opposite
-  // that point.
-  std::int64_t wrap(const Row* pivot, int sigma, std::int64_t opposite);
+  // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
+  // (the walk), or towards (or, reversed, away from) a spoke direction.
+  struct Side {
+    std::int64_t away_from = -1;
+    const double* toward = nullptr;
+    bool reverse = false;
+  };
+  // Rotates the lifted hyperplane about pivot (d - 1 rows) towards `side` of the
+  // pivot's spatial hyperplane; returns the point hit, -1 when no point lies strictly
+  // on that side, -2 when cancelled.
+  std::int64_t wrap(const Row* pivot, Side side);
   template <int D>
-  std::int64_t wrap_kernel(const Row* pivot, int sigma, std::int64_t opposite);
+  std::int64_t wrap_kernel(const Row* pivot, Side side);
   Status first_simplex(std::uint32_t* out);
 
   const KdTree& tree_;
