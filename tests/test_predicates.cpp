@@ -12,28 +12,6 @@ namespace {
 
 using testing::make_points;
 
-// Exact rational determinant for comparison.
-mpq_class exact_det(std::vector<mpq_class> m, int k) {
-  mpq_class det = 1;
-  for (int col = 0; col < k; ++col) {
-    int pivot = -1;
-    for (int r = col; r < k; ++r) {
-      if (sgn(m[r * k + col]) != 0) { pivot = r; break; }
-    }
-    if (pivot < 0) return 0;
-    if (pivot != col) {
-      for (int c = 0; c < k; ++c) std::swap(m[pivot * k + c], m[col * k + c]);
-      det = -det;
-    }
-    det *= m[col * k + col];
-    for (int r = col + 1; r < k; ++r) {
-      const mpq_class f = m[r * k + col] / m[col * k + col];
-      for (int c = col; c < k; ++c) m[r * k + c] -= f * m[col * k + c];
-    }
-  }
-  return det;
-}
-
 TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
   for (std::uint64_t seed = 1; seed <= 300; ++seed) {
     SCOPED_TRACE("seed " + std::to_string(seed));
@@ -55,7 +33,7 @@ TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
     std::vector<Approx> table(1u << k);
     minors_table(m.data(), k, k, table.data());
     const Approx det = table[(1u << k) - 1];
-    const mpq_class exact = exact_det(e, k);
+    const mpq_class exact = exact_determinant(e, k);
     const mpq_class error = abs(mpq_class(det.v) - exact);
     const double bound = det.a * ((det.n + 2) * 0x1p-53) * 1.01;
     EXPECT_LE(error.get_d(), bound);

@@ -9,33 +9,10 @@
 
 namespace spokemesh {
 
-void minors_table(const Approx* m, int rows, int cols, Approx* table) {
-  table[0] = Approx{1.0, 1.0, 0};
-  const unsigned full = (1u << cols) - 1u;
-  for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = detail::kPopCounts.of[mask];
-    if (j > rows) continue;
-    const Approx* row = m + (rows - j) * cols;
-    Approx acc{};
-    int t = 0;
-    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
-      const int c = __builtin_ctz(rest);
-      const Approx term = row[c] * table[mask ^ (1u << c)];
-      if (t == 0) acc = (t % 2 == 0) ? term : -term;
-      else acc = (t % 2 == 0) ? acc + term : acc - term;
-    }
-    table[mask] = acc;
-  }
-}
+void minors_table(const Approx* m, int rows, int cols, Approx* table) { minors_table_loop(m, rows, cols, table); }
 
-namespace {
-
-constexpr int kMaxCols = kMaxDimension + 1;
-using i128 = __int128;
-
-// Sign of the determinant of a k x k rational matrix by Gaussian elimination.
-int sign_of_determinant(std::vector<mpq_class>& m, int k) {
-  int sign = 1;
+mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
+  mpq_class det = 1;
   for (int col = 0; col < k; ++col) {
     int pivot = -1;
     for (int r = col; r < k; ++r) {
@@ -44,17 +21,22 @@ int sign_of_determinant(std::vector<mpq_class>& m, int k) {
     if (pivot < 0) return 0;
     if (pivot != col) {
       for (int c = 0; c < k; ++c) std::swap(m[pivot * k + c], m[col * k + c]);
-      sign = -sign;
+      det = -det;
     }
-    sign *= sgn(m[col * k + col]);
+    det *= m[col * k + col];
     for (int r = col + 1; r < k; ++r) {
       if (sgn(m[r * k + col]) == 0) continue;
       const mpq_class f = m[r * k + col] / m[col * k + col];
       for (int c = col; c < k; ++c) m[r * k + c] -= f * m[col * k + c];
     }
   }
-  return sign;
+  return det;
 }
+
+namespace {
+
+constexpr int kMaxCols = kMaxDimension + 1;
+using i128 = __int128;
 
 // Sign of the determinant of a k x k integer matrix by fraction-free (Bareiss)
 // elimination in 128-bit integers. Every intermediate is a minor of the matrix, so
@@ -160,7 +142,7 @@ class ExactMatrix {
         m[i * k + j] = col_ids[j] < 0 ? mpq_class(indicator(row_ids[i])) : rats_[row_ids[i] * cols_ + col_ids[j]];
       }
     }
-    return sign_of_determinant(m, k);
+    return sgn(exact_determinant(std::move(m), k));
   }
 
  private:

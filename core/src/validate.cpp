@@ -24,25 +24,7 @@ mpq_class exact_volume_det(const PointSet& ps, std::uint32_t origin, const std::
   for (int r = 0; r < d; ++r) {
     for (int c = 0; c < d; ++c) m[r * d + c] = mpq_class(ps.point(ids[r])[c]) - mpq_class(ps.point(origin)[c]);
   }
-  mpq_class det = 1;
-  for (int col = 0; col < d; ++col) {
-    int pivot = -1;
-    for (int r = col; r < d; ++r) {
-      if (sgn(m[r * d + col]) != 0) { pivot = r; break; }
-    }
-    if (pivot < 0) return 0;
-    if (pivot != col) {
-      for (int c = 0; c < d; ++c) std::swap(m[pivot * d + c], m[col * d + c]);
-      det = -det;
-    }
-    det *= m[col * d + col];
-    for (int r = col + 1; r < d; ++r) {
-      if (sgn(m[r * d + col]) == 0) continue;
-      const mpq_class f = m[r * d + col] / m[col * d + col];
-      for (int c = col; c < d; ++c) m[r * d + c] -= f * m[col * d + c];
-    }
-  }
-  return det;
+  return exact_determinant(std::move(m), d);
 }
 
 }  // namespace

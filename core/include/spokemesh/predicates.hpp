@@ -24,6 +24,9 @@
 #include <cmath>
 #include <cstdint>
 #include <span>
+#include <vector>
+
+#include <gmpxx.h>
 
 #include "spokemesh/point_set.hpp"
 
@@ -103,15 +106,15 @@ struct PopCounts {
 inline constexpr PopCounts kPopCounts;
 }  // namespace detail
 
-// minors_table for sizes known at compile time (the star walk's kernels).
-template <int Rows, int Cols>
-inline void minors_table_fixed(const Approx* m, Approx* table) {
+// The loop behind minors_table; inlined so that minors_table_fixed gets the sizes as
+// compile-time constants.
+[[gnu::always_inline]] inline void minors_table_loop(const Approx* m, int rows, int cols, Approx* table) {
   table[0] = Approx{1.0, 1.0, 0};
-  constexpr unsigned kFull = (1u << Cols) - 1u;
-  for (unsigned mask = 1; mask <= kFull; ++mask) {
+  const unsigned full = (1u << cols) - 1u;
+  for (unsigned mask = 1; mask <= full; ++mask) {
     const int j = detail::kPopCounts.of[mask];
-    if (j > Rows) continue;
-    const Approx* row = m + (Rows - j) * Cols;
+    if (j > rows) continue;
+    const Approx* row = m + (rows - j) * cols;
     unsigned rest = mask;
     int c = __builtin_ctz(rest);
     Approx acc = row[c] * table[mask ^ (1u << c)];
@@ -124,6 +127,15 @@ inline void minors_table_fixed(const Approx* m, Approx* table) {
     table[mask] = acc;
   }
 }
+
+// minors_table for sizes known at compile time (the star walk's kernels).
+template <int Rows, int Cols>
+inline void minors_table_fixed(const Approx* m, Approx* table) {
+  minors_table_loop(m, Rows, Cols, table);
+}
+
+// Exact determinant of a k x k rational matrix (Gaussian elimination; m is consumed).
+mpq_class exact_determinant(std::vector<mpq_class> m, int k);
 
 // One row of a predicate matrix: a point (index into the PointSet) or a direction.
 struct Row {
