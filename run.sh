@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 scripts/install-deps.sh
-scripts/build.sh -DSPOKEMESH_BUILD_TESTS=OFF -DSPOKEMESH_BUILD_BENCH=OFF
+scripts/build.sh spokemesh_cli
 mkdir -p out
 for example in examples/*.txt; do
   name=$(basename "$example" .txt)

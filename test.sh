@@ -3,6 +3,6 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 scripts/install-deps.sh
-scripts/build.sh -DSPOKEMESH_BUILD_TESTS=ON -DSPOKEMESH_BUILD_BENCH=ON
+scripts/build.sh
 cd build
 ctest --output-on-failure -j"$(nproc)"

@@ -120,6 +120,26 @@ TEST(MeshVsCgal, SimplexForSimplex) {
   }
 }
 
+TEST(StarVsCgal, EveryStarIsCgalsIncidentSimplices) {
+  for (const Case& c : cgal_cases()) {
+    if (c.coords.size() / c.d > 800) continue;
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const Tuples cgal = cgal_dd(ps);
+    std::vector<Tuples> incident(ps.size());
+    for (const auto& t : cgal) {
+      for (std::uint32_t v : t) incident[v].insert(t);
+    }
+    StarWalker walker(tree);
+    Star star;
+    for (std::uint32_t s = 0; s < ps.size(); s += 1 + static_cast<std::uint32_t>(ps.size() / 60)) {
+      ASSERT_TRUE(walker.compute(s, star).is_ok());
+      EXPECT_EQ(as_set(star.simplices, c.d + 1), incident[s]) << "seed " << s;
+    }
+  }
+}
+
 // --- Qhull ------------------------------------------------------------------------
 
 Tuples qhull_mesh(const PointSet& ps) {
