@@ -165,6 +165,11 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
   const Outcome merged = run("mesh -q " + path("dup.txt") + " -o " + path("merged.simplices") + " --merge-duplicates");
   EXPECT_EQ(merged.code, 0) << merged.err;
   EXPECT_EQ(slurp(path("merged.simplices")), "0 1 2\n");
+  // Per-seed commands print input indices too; a merged duplicate never appears.
+  const std::string dup2 = write("dup2.txt", "0 0\n1 0\n0 1\n1 0\n1 1\n0.4 0.6\n");
+  const Outcome star = run("star " + dup2 + " --seed 5 --merge-duplicates");
+  EXPECT_EQ(star.code, 0) << star.err;
+  EXPECT_EQ(star.out, "0 1 5\n0 2 5\n1 4 5\n2 4 5\n");
 }
 
 }  // namespace

@@ -37,6 +37,7 @@ int report(const Status& status) {
 // duplicates were merged.
 struct Loaded {
   PointSet points;
+  std::size_t input_count = 0;          // points in the file, before merging duplicates
   std::vector<std::uint32_t> original;  // empty: identity
   std::unique_ptr<KdTree> tree;
 
@@ -48,6 +49,7 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
   if (!points.is_ok()) return points.status();
   auto loaded = std::make_unique<Loaded>();
   loaded->points = std::move(points).value();
+  loaded->input_count = loaded->points.size();
   if (merge_duplicates) {
     const std::vector<std::uint32_t> map = loaded->points.merge_duplicates();
     loaded->original.assign(loaded->points.size(), 0);
@@ -59,10 +61,10 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
 }
 
 // Maps a user's seed (an input index) to the internal index.
-Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed, std::size_t input_count) {
-  if (seed < 0 || static_cast<std::size_t>(seed) >= input_count) {
+Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed) {
+  if (seed < 0 || static_cast<std::size_t>(seed) >= loaded.input_count) {
     return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
-                        std::to_string(input_count) + " points)");
+                        std::to_string(loaded.input_count) + " points)");
   }
   if (loaded.original.empty()) return static_cast<std::uint32_t>(seed);
   // With merged duplicates, a seed maps to its first occurrence.
@@ -166,37 +168,24 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
 // Loads, computes the star of one seed, and hands it to `use`.
 template <class Use>
 int with_star(const Common& common, const std::string& input, std::int64_t seed, Use&& use) {
-  auto points = read_points(input);
-  if (!points.is_ok()) return report(points.status());
-  const std::size_t input_count = points.value().size();
   auto loaded_or = load(input, common.merge_duplicates);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   const Loaded& loaded = *loaded_or.value();
-  auto internal = internal_seed(loaded, seed, input_count);
+  auto internal = internal_seed(loaded, seed);
   if (!internal.is_ok()) return report(internal.status());
   StarOptions options;
   options.random_seed = common.random_seed;
   StarWalker walker(*loaded.tree, options);
   Star star;
   if (Status s = walker.compute(internal.value(), star); !s.is_ok()) return report(s);
-  if (!loaded.original.empty()) {
-    for (auto& v : star.simplices) v = loaded.to_original(v);
-  }
-  return use(loaded, star);
+  return use(loaded, star);  // internal indices; printers map them with to_original()
 }
 
 int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json) {
   return with_star(common, input, seed, [&](const Loaded& loaded, Star& star) {
-    // The cell is computed on internal indices; map ids back for printing only.
-    Star internal = star;
-    if (!loaded.original.empty()) {
-      // Recompute with internal indices (cheap relative to I/O) by reversing the map.
-      std::unordered_map<std::uint32_t, std::uint32_t> back;
-      for (std::size_t i = 0; i < loaded.original.size(); ++i) back[loaded.original[i]] = static_cast<std::uint32_t>(i);
-      for (auto& v : internal.simplices) v = back[v];
-      internal.seed = back[star.seed];
-    }
-    const VoronoiCell cell = voronoi_cell(loaded.points, internal);
+    const VoronoiCell cell = voronoi_cell(loaded.points, star);
+    // Original indices from here on (duplicates merged away map to first occurrences).
+    for (auto& v : star.simplices) v = loaded.to_original(v);
     const int d = cell.dimension;
     if (json) {
       nlohmann::json j;
@@ -319,7 +308,8 @@ int main(int argc, char** argv) {
 
   if (*mesh) return run_mesh(common, input, output, seeds);
   if (*star) {
-    return with_star(common, input, seed, [](const Loaded&, Star& s) {
+    return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {
+      for (auto& v : s.simplices) v = loaded.to_original(v);
       std::string out;
       append_index_lines(out, s.simplices, s.dimension + 1);
       std::fwrite(out.data(), 1, out.size(), stdout);
@@ -327,8 +317,8 @@ int main(int argc, char** argv) {
     });
   }
   if (*neighbors) {
-    return with_star(common, input, seed, [](const Loaded&, Star& s) {
-      for (std::uint32_t v : star_neighbors(s)) std::printf("%u\n", v);
+    return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {
+      for (std::uint32_t v : star_neighbors(s)) std::printf("%u\n", loaded.to_original(v));
       return kExitOk;
     });
   }
