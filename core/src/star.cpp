@@ -140,14 +140,15 @@ void StarWalker::relative_row(std::uint32_t p, double* q, double& norm2, int& de
 }
 
 void StarWalker::point_row(std::uint32_t p, Approx* out) const {
-  const double* pp = ps_.point(p);
-  const double* x = ps_.point(x_);
-  Approx norm2{};
-  for (int c = 0; c < d_; ++c) {
-    out[c] = Approx::difference(pp[c], x[c]);
-    norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
-  }
-  out[d_] = norm2;
+  double q[kMaxDimension], norm2;
+  int depth;
+  relative_row(p, q, norm2, depth);
+  lifted_row(q, norm2, depth, out);
+}
+
+void StarWalker::lifted_row(const double* q, double norm2, int depth, Approx* out) const {
+  for (int c = 0; c < d_; ++c) out[c] = Approx{q[c], std::fabs(q[c]), 1};  // one rounding: p - x
+  out[d_] = Approx{norm2, norm2, depth};
 }
 
 void StarWalker::direction_row(const double* w, Approx* out) const {
@@ -268,9 +269,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
   };
   auto build_plane_from_candidate = [&](std::size_t j) {
     std::array<Approx, kMaxCols> b;
-    const double* q = &cand_q_[j * d];
-    for (int c = 0; c < d; ++c) b[c] = Approx{q[c], std::fabs(q[c]), 1};
-    b[d] = Approx{cand_norm2_[j], cand_norm2_[j], cand_depth_[j]};
+    lifted_row(&cand_q_[j * d], cand_norm2_[j], cand_depth_[j], b.data());
     build_plane(cand_id_[j], b.data());
   };
   auto build_plane_from_point = [&](std::uint32_t id) {

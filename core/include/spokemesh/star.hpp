@@ -109,6 +109,8 @@ class StarWalker {
   void point_row(std::uint32_t p, Approx* out) const;
   // p - x rounded, |p - x|^2 from it, and that sum's rounding depth (or kUnsafe).
   void relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const;
+  // The same as an Approx row (q, |q|^2) for the predicate matrices.
+  void lifted_row(const double* q, double norm2, int depth, Approx* out) const;
   void direction_row(const double* w, Approx* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
   // (the walk), or towards (or, reversed, away from) a spoke direction.
