@@ -49,6 +49,7 @@ TEST(TextPoints, RefusesBadInputNamingFileAndLine) {
            {"", "pts.txt: no points"},
            {"# only a comment\n\n", "pts.txt: no points"},
            {"0 0\n1 x\n", "pts.txt:2: cannot parse 'x'"},
+           {"0 0\n1 \x01\x02zz\n", "pts.txt:2: cannot parse '??zz'"},
            {"0 0\n1 0 0\n", "pts.txt:2: has 3 coordinates, but earlier lines have 2"},
            {"0 0\nnan 1\n", "pts.txt:2: coordinate 0 is not finite"},
            {"0 0\n1 inf\n", "pts.txt:2: coordinate 1 is not finite"},
@@ -120,6 +121,12 @@ TEST(NpyPoints, RefusesBadArrays) {
            {npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0})), "truncated .npy data"},
            {npy("<f8", "(3, 2)", doubles({0, 0, 1, NAN, 0, 1})), "element [1, 1] is not finite"},
            {npy("<f8", "(0, 2)", ""), "no points"},
+           {[] {  // a corrupted key: the message names the problem, not the raw header
+              std::string bytes = npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0, 1}));
+              bytes[bytes.find("shape")] = '\x87';
+              return bytes;
+            }(),
+            "malformed .npy header (no 'shape' entry)"},
        }) {
     const std::string path = temp_path("bad.npy");
     write_file(path, b.bytes);
@@ -127,6 +134,7 @@ TEST(NpyPoints, RefusesBadArrays) {
     ASSERT_FALSE(ps.is_ok()) << b.needle;
     EXPECT_NE(ps.status().message().find(b.needle), std::string::npos) << ps.status().message();
     EXPECT_NE(ps.status().message().find("bad.npy"), std::string::npos);
+    EXPECT_EQ(ps.status().message().find('\n'), std::string::npos) << "one line";
   }
 }
 

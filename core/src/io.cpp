@@ -29,6 +29,24 @@ bool ends_with(const std::string& s, const std::string& suffix) {
                     [](char a, char b) { return std::tolower(a) == std::tolower(b); });
 }
 
+// File content quoted in an error message: printable ASCII only, trimmed, at most 40
+// characters, so a message stays one readable line whatever the file holds.
+std::string printable(std::string_view raw) {
+  std::string out;
+  for (char ch : raw) {
+    if (out.size() >= 40) {
+      out += "...";
+      break;
+    }
+    const unsigned char u = static_cast<unsigned char>(ch);
+    if (u >= 0x20 && u < 0x7F) out.push_back(ch);
+    else if (ch == '\t' || ch == '\n' || ch == '\r') out.push_back(' ');
+    else out += "?";
+  }
+  while (!out.empty() && out.back() == ' ') out.pop_back();
+  return out;
+}
+
 bool is_separator(char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r' || c == '\v' || c == '\f'; }
 
 // Parses the numbers of one text line (comment already removed) into `out`.
@@ -46,7 +64,7 @@ bool parse_numbers(std::string_view line, std::vector<T>& out, std::string& bad_
     T value{};
     const auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
     if (ec != std::errc() || end != token.data() + token.size()) {
-      bad_token = std::string(line.substr(i, j - i));
+      bad_token = printable(line.substr(i, j - i));
       return false;
     }
     out.push_back(value);
@@ -116,14 +134,15 @@ Result<NpyHeader> parse_npy_header(const std::string& bytes, const std::string& 
   h.descr = value_of("descr");
   h.fortran = value_of("fortran_order").find("True") != std::string::npos;
   const std::string shape = value_of("shape");
-  if (shape.empty() || h.descr.empty()) return invalid_argument(source + ": malformed .npy header: " + header);
+  if (h.descr.empty()) return invalid_argument(source + ": malformed .npy header (no 'descr' entry)");
+  if (shape.empty()) return invalid_argument(source + ": malformed .npy header (no 'shape' entry)");
   std::vector<std::uint64_t> dims;
   for (std::size_t i = 1; i < shape.size();) {
     while (i < shape.size() && (shape[i] == ' ' || shape[i] == ',')) ++i;
     if (i >= shape.size() || shape[i] == ')') break;
     std::uint64_t v = 0;
     const auto [end, ec] = std::from_chars(shape.data() + i, shape.data() + shape.size(), v);
-    if (ec != std::errc()) return invalid_argument(source + ": malformed .npy shape " + shape);
+    if (ec != std::errc()) return invalid_argument(source + ": malformed .npy shape '" + printable(shape) + "'");
     dims.push_back(v);
     i = static_cast<std::size_t>(end - shape.data());
   }
@@ -169,7 +188,7 @@ Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& s
   const NpyHeader& h = header.value();
   const bool f8 = h.descr == "<f8" || h.descr == "=f8";
   const bool f4 = h.descr == "<f4" || h.descr == "=f4";
-  if (!f8 && !f4) return invalid_argument(source + ": .npy dtype '" + h.descr + "' is not supported (need float64 or float32)");
+  if (!f8 && !f4) return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
   if (h.fortran) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
   if (h.shape.size() != 2) return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) + " axes");
   const std::uint64_t n = h.shape[0], d = h.shape[1];
@@ -217,7 +236,7 @@ Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int w
     if (!header.is_ok()) return header.status();
     const NpyHeader& h = header.value();
     const bool i8 = h.descr == "<i8", i4 = h.descr == "<i4";
-    if (!i8 && !i4) return invalid_argument(path + ": .npy dtype '" + h.descr + "' is not supported for a mesh (need int64 or int32)");
+    if (!i8 && !i4) return invalid_argument(path + ": .npy dtype '" + printable(h.descr) + "' is not supported for a mesh (need int64 or int32)");
     if (h.shape.size() != 2 || h.shape[1] != static_cast<std::uint64_t>(width)) {
       return invalid_argument(path + ": mesh array must have shape (m, " + std::to_string(width) + ")");
     }
