@@ -4,7 +4,7 @@ namespace spokemesh {
 
 KdTree::KdTree(const PointSet& points) : adaptor_{points} {
   index_ = std::make_unique<Index>(points.dimension(), adaptor_,
-                                   nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/16));
+                                   nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/8));
 }
 
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2) const {
