@@ -105,6 +105,12 @@ std::vector<Case> cgal_cases() {
   const auto extra = uniform_points(3, 40, 26);
   for (double v : extra) mixed.push_back(v * 4);
   cases.push_back({"grid+uniform-3d", 3, mixed});
+  // Body-centred cubic lattice: every tetrahedron's circumsphere holds extra points.
+  std::vector<double> bcc = grid_points(3, 4);
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      for (int k = 0; k < 3; ++k) bcc.insert(bcc.end(), {i + 0.5, j + 0.5, k + 0.5});
+  cases.push_back({"bcc-3d", 3, bcc});
   return cases;
 }
 
@@ -320,6 +326,32 @@ TEST(Voronoi, GridCellsAreUnitCubes) {
     EXPECT_NEAR(cell.volume, 1.0, 1e-12) << "d " << d;
     ASSERT_TRUE(walker.compute(0, star).is_ok());  // a corner: unbounded
     EXPECT_FALSE(voronoi_cell(ps, star).bounded);
+  }
+}
+
+TEST(Voronoi, BodyCentredCubicCellsAreTruncatedOctahedraOfVolumeOneHalf) {
+  // Unit-cube corners 0..4 plus body centres: two points per unit cube, so every
+  // interior cell has volume 1/2 (a truncated octahedron with 8 hexagonal and 6 square
+  // faces); the lattice is cospherical throughout, so the perturbation is exercised.
+  std::vector<double> c;
+  for (int i = 0; i <= 4; ++i)
+    for (int j = 0; j <= 4; ++j)
+      for (int k = 0; k <= 4; ++k) c.insert(c.end(), {double(i), double(j), double(k)});
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      for (int k = 0; k < 4; ++k) c.insert(c.end(), {i + 0.5, j + 0.5, k + 0.5});
+  const PointSet ps = make_points(3, c);
+  const KdTree tree(ps);
+  StarWalker walker(tree);
+  Star star;
+  const std::uint32_t corner = (2 * 5 + 2) * 5 + 2;   // (2, 2, 2)
+  const std::uint32_t centre = 125 + (1 * 4 + 1) * 4 + 1;  // (1.5, 1.5, 1.5)
+  for (std::uint32_t seed : {corner, centre}) {
+    ASSERT_TRUE(walker.compute(seed, star).is_ok());
+    const VoronoiCell cell = voronoi_cell(ps, star);
+    EXPECT_TRUE(cell.bounded) << "seed " << seed;
+    EXPECT_NEAR(cell.volume, 0.5, 1e-12) << "seed " << seed;
+    EXPECT_EQ(cell.facets.size(), 14u) << "seed " << seed << ": 8 hexagons + 6 squares";
   }
 }
 
