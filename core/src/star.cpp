@@ -35,6 +35,17 @@ std::uint64_t splitmix64(std::uint64_t& state) {
   return z ^ (z >> 31);
 }
 
+// Insertion sort for the 1..9 indices of a simplex or facet key (std::sort's set-up
+// costs more than the sort at this size).
+inline void sort_small(std::uint32_t* a, int n) {
+  for (int i = 1; i < n; ++i) {
+    const std::uint32_t v = a[i];
+    int j = i;
+    for (; j > 0 && a[j - 1] > v; --j) a[j] = a[j - 1];
+    a[j] = v;
+  }
+}
+
 // Uniform in [-1, 1), exactly representable (53 random bits).
 double random_unit(std::uint64_t& state) {
   return static_cast<double>(splitmix64(state) >> 11) * 0x1p-52 - 1.0;
@@ -428,7 +439,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
   facet_seen_.reset(d - 1);
   std::array<std::uint32_t, kMaxCols> key{};
   std::copy(simplex.begin(), simplex.begin() + d, key.begin());
-  std::sort(key.begin(), key.begin() + d);
+  sort_small(key.data(), d);
   simplex_seen_.insert(key.data());
   work_.insert(work_.end(), simplex.begin(), simplex.begin() + d);
 
@@ -442,7 +453,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       for (int j = 0; j < d; ++j) {
         if (j != k) key[r++] = simplex[j];
       }
-      std::sort(key.begin(), key.begin() + d - 1);
+      sort_small(key.data(), d - 1);
       if (!facet_seen_.insert(key.data())) continue;  // this Voronoi edge was walked from the other end
       for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
       const std::int64_t p = wrap(pivot.data(), Side{.away_from = simplex[k]});
@@ -453,7 +464,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       }
       key[d - 1] = static_cast<std::uint32_t>(p);
       std::array<std::uint32_t, kMaxCols> sorted = key;
-      std::sort(sorted.begin(), sorted.begin() + d);
+      sort_small(sorted.data(), d);
       if (simplex_seen_.insert(sorted.data())) work_.insert(work_.end(), key.begin(), key.begin() + d);
     }
   }
@@ -468,7 +479,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
     s[0] = seed;
     std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * d),
               work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), s + 1);
-    std::sort(s, s + w);
+    sort_small(s, w);
   }
   std::vector<std::uint32_t>& order = sort_order_;
   order.resize(m);
