@@ -76,12 +76,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       writer_cv.notify_one();
     }
     std::lock_guard lock(mu);
-    total.star.seeds += walker.stats().seeds;
-    total.star.wraps += walker.stats().wraps;
-    total.star.candidate_tests += walker.stats().candidate_tests;
-    total.star.exact_fallbacks += walker.stats().exact_fallbacks;
-    total.star.sphere_queries += walker.stats().sphere_queries;
-    total.star.hull_queries += walker.stats().hull_queries;
+    total.star += walker.stats();
   };
 
   std::vector<std::thread> pool;

@@ -33,10 +33,28 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   return det;
 }
 
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out) {
+  const int d = ps.dimension();
+  if (row.is_point()) {
+    const double* p = ps.point(static_cast<std::size_t>(row.point));
+    const double* x = ps.point(origin);
+    Approx norm2{};
+    for (int c = 0; c < d; ++c) {
+      out[c] = Approx::difference(p[c], x[c]);
+      norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
+    }
+    if (cols > d) out[d] = norm2;
+  } else {
+    for (int c = 0; c < d; ++c) out[c] = Approx::exact(row.dir[c]);
+    if (cols > d) out[d] = Approx::exact(0.0);
+  }
+}
+
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
-using i128 = __int128;
+__extension__ using i128 = __int128;  // 128-bit integers are a GCC/Clang extension
+__extension__ using u128 = unsigned __int128;
 
 // Sign of the determinant of a k x k integer matrix by fraction-free (Bareiss)
 // elimination in 128-bit integers. Every intermediate is a minor of the matrix, so
@@ -129,7 +147,7 @@ class ExactMatrix {
       for (int i = 0; i < k_ * cols_; ++i) {
         const i128 v = ints_[i];
         const bool negative = v < 0;
-        unsigned __int128 u = negative ? -static_cast<unsigned __int128>(v) : static_cast<unsigned __int128>(v);
+        const u128 u = negative ? -static_cast<u128>(v) : static_cast<u128>(v);
         mpz_class z = static_cast<unsigned long>(static_cast<std::uint64_t>(u >> 64));
         z <<= 64;
         z += mpz_class(static_cast<unsigned long>(static_cast<std::uint64_t>(u)));
@@ -168,23 +186,6 @@ class ExactMatrix {
   std::array<i128, kMaxCols * kMaxCols> ints_{};
   mutable std::vector<mpq_class> rats_;
 };
-
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out) {
-  const int d = ps.dimension();
-  if (row.is_point()) {
-    const double* p = ps.point(static_cast<std::size_t>(row.point));
-    const double* x = ps.point(origin);
-    Approx norm2{};
-    for (int c = 0; c < d; ++c) {
-      out[c] = Approx::difference(p[c], x[c]);
-      norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
-    }
-    if (cols > d) out[d] = norm2;
-  } else {
-    for (int c = 0; c < d; ++c) out[c] = Approx::exact(row.dir[c]);
-    if (cols > d) out[d] = Approx::exact(0.0);
-  }
-}
 
 int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int k) {
   std::array<Approx, kMaxCols * kMaxCols> m;

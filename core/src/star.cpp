@@ -150,21 +150,9 @@ void StarWalker::relative_row(std::uint32_t p, double* q, double& norm2, int& de
   depth = norm2 >= 0x1p-900 ? d_ + 3 : Approx::kUnsafe;
 }
 
-void StarWalker::point_row(std::uint32_t p, Approx* out) const {
-  double q[kMaxDimension], norm2;
-  int depth;
-  relative_row(p, q, norm2, depth);
-  lifted_row(q, norm2, depth, out);
-}
-
 void StarWalker::lifted_row(const double* q, double norm2, int depth, Approx* out) const {
   for (int c = 0; c < d_; ++c) out[c] = Approx{q[c], std::fabs(q[c]), 1};  // one rounding: p - x
   out[d_] = Approx{norm2, norm2, depth};
-}
-
-void StarWalker::direction_row(const double* w, Approx* out) const {
-  for (int c = 0; c < d_; ++c) out[c] = Approx::exact(w[c]);
-  out[d_] = Approx::exact(0.0);
 }
 
 // The one dispatch point from the runtime dimension to the compiled kernels.
@@ -190,10 +178,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
 
   // Minors of the pivot rows, shared by the spatial normal and every lifted plane.
   std::array<Approx, (D - 1) * (D + 1)> pivot_rows;
-  for (int r = 0; r < d - 1; ++r) {
-    if (pivot[r].is_point()) point_row(static_cast<std::uint32_t>(pivot[r].point), &pivot_rows[r * cols]);
-    else direction_row(pivot[r].dir, &pivot_rows[r * cols]);
-  }
+  for (int r = 0; r < d - 1; ++r) approx_row(ps_, x_, pivot[r], cols, &pivot_rows[r * cols]);
   minors_table_fixed<D - 1, D + 1>(pivot_rows.data(), minors_.data());
 
   // Spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
@@ -285,7 +270,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
   };
   auto build_plane_from_point = [&](std::uint32_t id) {
     std::array<Approx, kMaxCols> b;
-    point_row(id, b.data());
+    approx_row(ps_, x_, Row::of_point(id), cols, b.data());
     build_plane(id, b.data());
   };
   // Side of the lifted point (q, norm2) relative to the plane: > 0 above, < 0 below

@@ -147,6 +147,10 @@ struct Row {
   bool is_point() const { return point >= 0; }
 };
 
+// The Approx entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
+// a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted).
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out);
+
 // Exact predicates over one PointSet (which must outlive this object).
 class Predicates {
  public:

@@ -58,6 +58,16 @@ struct StarStats {
   std::uint64_t exact_fallbacks = 0;
   std::uint64_t hull_queries = 0;    // k-d tree halfspace queries (unbounded Voronoi edges)
   std::uint64_t sphere_queries = 0;  // k-d tree queries certifying spheres beyond the candidates
+
+  StarStats& operator+=(const StarStats& o) {
+    seeds += o.seeds;
+    wraps += o.wraps;
+    candidate_tests += o.candidate_tests;
+    exact_fallbacks += o.exact_fallbacks;
+    hull_queries += o.hull_queries;
+    sphere_queries += o.sphere_queries;
+    return *this;
+  }
 };
 
 // The Delaunay simplices incident to one seed.
@@ -106,12 +116,10 @@ class StarWalker {
   };
 
   void load_candidates(std::size_t k);
-  void point_row(std::uint32_t p, Approx* out) const;
   // p - x rounded, |p - x|^2 from it, and that sum's rounding depth (or kUnsafe).
   void relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const;
-  // The same as an Approx row (q, |q|^2) for the predicate matrices.
+  // The same as an Approx row (q, |q|^2), for cached candidates.
   void lifted_row(const double* q, double norm2, int depth, Approx* out) const;
-  void direction_row(const double* w, Approx* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
   // (the walk), or towards (or, reversed, away from) a spoke direction.
   struct Side {
