@@ -121,8 +121,12 @@ TEST(MeshVsCgal, SimplexForSimplex) {
     const KdTree tree(ps);
     const Tuples ours = as_set(mesh_all(tree, 2), c.d + 1);
     EXPECT_EQ(ours, cgal_dd(ps)) << "vs CGAL Delaunay_triangulation (dD)";
-    if (c.d == 2) EXPECT_EQ(ours, cgal_2(ps)) << "vs CGAL Delaunay_triangulation_2";
-    if (c.d == 3) EXPECT_EQ(ours, cgal_3(ps)) << "vs CGAL Delaunay_triangulation_3";
+    if (c.d == 2) {
+      EXPECT_EQ(ours, cgal_2(ps)) << "vs CGAL Delaunay_triangulation_2";
+    }
+    if (c.d == 3) {
+      EXPECT_EQ(ours, cgal_3(ps)) << "vs CGAL Delaunay_triangulation_3";
+    }
   }
 }
 

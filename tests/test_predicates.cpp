@@ -38,7 +38,9 @@ TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
     const double bound = det.a * ((det.n + 2) * 0x1p-53) * 1.01;
     EXPECT_LE(error.get_d(), bound);
     const int s = det.certified_sign();
-    if (s != Approx::kUnknownSign) EXPECT_EQ(s, sgn(exact));
+    if (s != Approx::kUnknownSign) {
+      EXPECT_EQ(s, sgn(exact));
+    }
   }
 }
 
