@@ -7,8 +7,15 @@ packages=(
   build-essential cmake pkg-config
   libnanoflann-dev libeigen3-dev libgmp-dev
   libcli11-dev nlohmann-json3-dev
+  # the service: gRPC + Protobuf (C++ and the Python plugin), Beast/Asio, OpenSSL, metrics
+  libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+  libboost-dev libssl-dev openssl prometheus-cpp-dev
+  # the Python client and its tests (Debian's interpreter: /usr/bin/python3)
+  python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
+  # the replica test puts Debian's nginx in front of three servers
+  nginx
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
-  libgtest-dev librapidcheck-dev libcgal-dev libboost-dev libmpfr-dev qhull-bin
+  libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
 )
 
 missing=()

@@ -1,0 +1,285 @@
+#include "engine.hpp"
+
+#include <algorithm>
+#include <cstring>
+
+#include "spokemesh/mesh.hpp"
+
+namespace spokemesh::service {
+
+// ---- CallControl and Watchdog ----------------------------------------------------
+
+CallControl::CallControl(Clock::time_point deadline, std::function<bool()> client_gone)
+    : deadline_(deadline), start_(Clock::now()), client_gone_(std::move(client_gone)) {
+  Watchdog::instance().add(this);
+}
+
+CallControl::~CallControl() { Watchdog::instance().remove(this); }
+
+void CallControl::poll(Clock::time_point now) {
+  if (stop_.load(std::memory_order_relaxed)) return;
+  if (client_gone_ && client_gone_()) {
+    client_left_.store(true);
+    stop_.store(true);
+  } else if (now >= deadline_) {
+    stop_.store(true);
+  }
+}
+
+Status CallControl::stopped_status(const std::string& what) const {
+  if (client_left_.load()) return cancelled(what + " stopped: the client cancelled or disconnected");
+  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - start_).count();
+  return {Code::kDeadlineExceeded, what + " stopped at the request deadline (" + std::to_string(ms) +
+                                       " ms); ask with a longer deadline or raise --default-deadline"};
+}
+
+Watchdog& Watchdog::instance() {
+  static Watchdog w;
+  return w;
+}
+
+Watchdog::Watchdog() : thread_([this] { run(); }) {}
+
+Watchdog::~Watchdog() {
+  {
+    std::lock_guard lock(mutex_);
+    quit_ = true;
+  }
+  cv_.notify_all();
+  thread_.join();
+}
+
+void Watchdog::add(CallControl* c) {
+  std::lock_guard lock(mutex_);
+  controls_.push_back(c);
+}
+
+void Watchdog::remove(CallControl* c) {
+  std::lock_guard lock(mutex_);
+  controls_.erase(std::find(controls_.begin(), controls_.end(), c));
+}
+
+void Watchdog::run() {
+  std::unique_lock lock(mutex_);
+  while (!quit_) {
+    // 5 ms: the granularity of deadlines and of noticing a cancelled client.
+    cv_.wait_for(lock, std::chrono::milliseconds(5));
+    const auto now = Clock::now();
+    for (CallControl* c : controls_) c->poll(now);
+  }
+}
+
+// ---- uploads ----------------------------------------------------------------------
+
+Status UploadSession::append(const void* data, std::size_t size) {
+  if (size > expected_ - received_) {
+    return invalid_argument("coordinates: more than the " + std::to_string(expected_) + " bytes that dimension " +
+                            std::to_string(header_.dimension) + " x count " + std::to_string(header_.count) +
+                            " x 8 bytes allow");
+  }
+  std::memcpy(reinterpret_cast<char*>(coords_.data()) + received_, data, size);
+  sha_->update(data, size);
+  received_ += size;
+  return Status::ok();
+}
+
+ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count) {
+  return {static_cast<std::uint32_t>(n * shard_index / shard_count),
+          static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
+}
+
+Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits)
+    : store_(std::move(store)), limits_(limits) {}
+
+Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& h) const {
+  const std::string d = std::to_string(h.dimension), n = std::to_string(h.count);
+  if (h.dimension < 2) return invalid_argument("dimension: " + d + " is not supported; it must be at least 2");
+  if (h.dimension > limits_.max_dimension) {
+    return resource_exhausted("dimension: " + d + " exceeds this server's limit --max-dimension=" +
+                              std::to_string(limits_.max_dimension));
+  }
+  if (h.count < h.dimension + 1) {
+    return invalid_argument("count: " + n + " points cannot span " + d + " dimensions; at least " +
+                            std::to_string(h.dimension + 1) + " are needed");
+  }
+  if (static_cast<std::uint64_t>(h.count) > limits_.max_points) {
+    return resource_exhausted("count: " + n + " points exceed this server's limit --max-points=" +
+                              std::to_string(limits_.max_points));
+  }
+  const std::uint64_t memory = estimated_memory(static_cast<std::uint64_t>(h.count), static_cast<int>(h.dimension));
+  if (memory > limits_.max_memory) {
+    return resource_exhausted("count: " + n + " points in " + d + " dimensions need about " + std::to_string(memory) +
+                              " bytes, more than this server's --max-memory=" + std::to_string(limits_.max_memory));
+  }
+  if (h.display_name.size() > limits_.max_display_name) {
+    return invalid_argument("display_name: " + std::to_string(h.display_name.size()) + " bytes; at most " +
+                            std::to_string(limits_.max_display_name) + " are allowed");
+  }
+  auto s = std::make_unique<UploadSession>();
+  s->header_ = h;
+  s->expected_ = static_cast<std::uint64_t>(h.count) * static_cast<std::uint64_t>(h.dimension) * 8;
+  s->coords_.resize(static_cast<std::size_t>(h.count * h.dimension));
+  s->sha_ = std::make_unique<Sha256>();
+  const std::string header =
+      point_set_header_bytes(static_cast<std::uint32_t>(h.dimension), static_cast<std::uint64_t>(h.count));
+  s->sha_->update(header.data(), header.size());
+  return s;
+}
+
+Result<PointSetInfo> Engine::finish_upload(UploadSession& s) {
+  if (s.received_ != s.expected_) {
+    return invalid_argument("coordinates: received " + std::to_string(s.received_) + " bytes, but dimension " +
+                            std::to_string(s.header_.dimension) + " x count " + std::to_string(s.header_.count) +
+                            " x 8 bytes = " + std::to_string(s.expected_));
+  }
+  PointSetInfo info;
+  info.id = s.sha_->hex_digest();
+  info.dimension = static_cast<int>(s.header_.dimension);
+  info.count = static_cast<std::uint64_t>(s.header_.count);
+  info.display_name = s.header_.display_name;
+  // Same data as a stored set: no work (the id is a function of the bytes).
+  if (auto existing = store_->info(info.id); existing.is_ok()) {
+    existing->already_existed = true;
+    return existing;
+  }
+  PointSet points(info.dimension, std::move(s.coords_));
+  if (Status st = points.validate("coordinates", limits_.max_dimension); !st.is_ok()) return st;
+  return store_->put(info, std::move(points));
+}
+
+Result<PointSetInfo> Engine::get_point_set(const std::string& id) { return store_->info(id); }
+
+Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_size, const std::string& page_token,
+                                                          std::string* next_page_token) {
+  if (page_size == 0) page_size = 100;
+  if (page_size > 1000) {
+    return invalid_argument("page_size: " + std::to_string(page_size) + " is above the maximum 1000");
+  }
+  if (!page_token.empty() && !is_valid_id(page_token)) {
+    return invalid_argument("page_token: \"" + page_token.substr(0, 80) + "\" is not a token from a previous page");
+  }
+  bool more = false;
+  std::vector<PointSetInfo> page = store_->list(page_token, page_size, &more);
+  if (next_page_token != nullptr) *next_page_token = more ? page.back().id : "";
+  return page;
+}
+
+Status Engine::delete_point_set(const std::string& id) { return store_->remove(id); }
+
+Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_of(const std::string& id,
+                                                                                   std::uint64_t seed) {
+  auto set = store_->get(id);
+  if (!set.is_ok()) return set.status();
+  const std::uint64_t n = set.value()->info.count;
+  if (seed >= n) {
+    return out_of_range("seed: " + std::to_string(seed) + " is out of range; point set " + id + " has " +
+                        std::to_string(n) + " points (seeds 0.." + std::to_string(n - 1) + ")");
+  }
+  return std::make_pair(std::move(set).value(), static_cast<std::uint32_t>(seed));
+}
+
+Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control) {
+  StarOptions options;
+  options.cancel = control.stop_flag();
+  StarWalker walker(*set.tree, options);
+  Star star;
+  Status s = walker.compute(seed, star);
+  if (s.code() == Code::kCancelled) return control.stopped_status("the star of seed " + std::to_string(seed));
+  if (!s.is_ok()) return s;
+  return star;
+}
+
+Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const CallControl& control) {
+  auto target = seed_of(id, seed);
+  if (!target.is_ok()) return target.status();
+  const auto& [set, s] = target.value();
+  auto star = compute_star(*set, s, control);
+  if (!star.is_ok()) return star.status();
+  StarAnswer answer;
+  answer.star = std::move(star).value();
+  const int d = set->points.dimension();
+  answer.circumcentres.reserve(answer.star.size() * d);
+  for (std::size_t i = 0; i < answer.star.size(); ++i) {
+    const std::vector<double> c = circumcentre(set->points, answer.star.simplex(i), d + 1);
+    answer.circumcentres.insert(answer.circumcentres.end(), c.begin(), c.end());
+  }
+  return answer;
+}
+
+Result<std::vector<std::uint32_t>> Engine::neighbors(const std::string& id, std::uint64_t seed,
+                                                     const CallControl& control) {
+  auto target = seed_of(id, seed);
+  if (!target.is_ok()) return target.status();
+  auto star = compute_star(*target.value().first, target.value().second, control);
+  if (!star.is_ok()) return star.status();
+  return star_neighbors(star.value());
+}
+
+Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const CallControl& control) {
+  auto target = seed_of(id, seed);
+  if (!target.is_ok()) return target.status();
+  auto star = compute_star(*target.value().first, target.value().second, control);
+  if (!star.is_ok()) return star.status();
+  return voronoi_cell(target.value().first->points, star.value());
+}
+
+Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
+                                std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
+                                ShardRange* range_out, int* dimension_out) {
+  if (shard_count == 0) shard_count = 1;
+  if (shard_index >= shard_count) {
+    return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
+                            std::to_string(shard_count));
+  }
+  if (batch_size == 0) batch_size = 4096;
+  if (batch_size > 65536) {
+    return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum 65536");
+  }
+  auto set = store_->get(id);
+  if (!set.is_ok()) return set.status();
+  const StoredSet& s = *set.value();
+  const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
+  if (range_out != nullptr) *range_out = range;
+  if (dimension_out != nullptr) *dimension_out = s.info.dimension;
+  const std::size_t width = static_cast<std::size_t>(s.info.dimension) + 1;
+
+  MeshOptions options;
+  options.threads = std::max(1u, limits_.stream_threads);
+  options.seed_begin = range.begin;
+  options.seed_end = range.end;
+  options.star.cancel = control.stop_flag();
+
+  std::vector<std::uint32_t> pending;  // less than one batch, carried between blocks
+  pending.reserve(batch_size * width);
+  bool emitted = false;
+  std::uint64_t done = 0;
+  auto flush = [&](std::span<const std::uint32_t> batch) -> Status {
+    emitted = true;
+    return emit(batch, done);
+  };
+  auto sink = [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) -> Status {
+    done = seeds_done;
+    while (!block.empty()) {
+      const std::size_t take = std::min(block.size(), batch_size * width - pending.size());
+      pending.insert(pending.end(), block.begin(), block.begin() + static_cast<std::ptrdiff_t>(take));
+      block = block.subspan(take);
+      if (pending.size() == batch_size * width) {
+        if (Status st = flush(pending); !st.is_ok()) return st;
+        pending.clear();
+      }
+    }
+    return Status::ok();
+  };
+  auto result = mesh_seeds(*s.tree, options, sink);
+  if (!result.is_ok()) {
+    if (result.status().code() == Code::kCancelled && control.stopped()) {
+      return control.stopped_status("streaming shard " + std::to_string(shard_index) + " of " +
+                                    std::to_string(shard_count));
+    }
+    return result.status();
+  }
+  if (!pending.empty() || !emitted) return flush(pending);
+  return Status::ok();
+}
+
+}  // namespace spokemesh::service

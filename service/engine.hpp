@@ -1,0 +1,159 @@
+// Engine: the service's operations, independent of gRPC and HTTP.
+//
+// Both transports are thin adapters over this class: they decode a request, call
+// one Engine function, and encode its Result (status codes mapped once, in
+// status_map.hpp). The Engine owns the point-set store and the limits, and runs
+// every computation under a CallControl, which stops it at its deadline or when
+// the client goes away.
+//
+// Thread safety: all member functions are safe to call concurrently.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "spokemesh/star.hpp"
+#include "spokemesh/voronoi.hpp"
+#include "store.hpp"
+
+namespace spokemesh::service {
+
+using Clock = std::chrono::steady_clock;
+
+struct Limits {
+  std::uint64_t max_points = 10'000'000;
+  int max_dimension = kMaxDimension;          // exact meshing is defined up to kMaxDimension
+  std::uint64_t max_memory = 4ull << 30;      // bytes of point sets + trees kept in memory
+  std::chrono::milliseconds default_deadline{60'000};
+  unsigned stream_threads = 1;                // worker threads per StreamSimplices call
+  std::size_t max_display_name = 256;
+};
+
+// Stops one request's computation: at `deadline`, or once `client_gone()` says the
+// client cancelled or disconnected. The Watchdog polls registered controls and sets
+// the flag the core checks between wraps.
+class CallControl {
+ public:
+  explicit CallControl(Clock::time_point deadline, std::function<bool()> client_gone = {});
+  ~CallControl();
+  CallControl(const CallControl&) = delete;
+  CallControl& operator=(const CallControl&) = delete;
+
+  const std::atomic<bool>* stop_flag() const { return &stop_; }
+  bool stopped() const { return stop_.load(std::memory_order_relaxed); }
+  Clock::time_point deadline() const { return deadline_; }
+  // Called by the watchdog: sets the flag if the deadline passed or the client left.
+  void poll(Clock::time_point now);
+  // The status for a computation that was stopped: DEADLINE_EXCEEDED or CANCELLED.
+  Status stopped_status(const std::string& what) const;
+
+ private:
+  Clock::time_point deadline_;
+  Clock::time_point start_;
+  std::function<bool()> client_gone_;
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> client_left_{false};
+};
+
+// One thread that polls every live CallControl every few milliseconds.
+class Watchdog {
+ public:
+  static Watchdog& instance();
+  void add(CallControl* c);
+  void remove(CallControl* c);
+
+ private:
+  Watchdog();
+  ~Watchdog();
+  void run();
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::vector<CallControl*> controls_;
+  bool quit_ = false;
+  std::thread thread_;
+};
+
+struct UploadHeader {
+  std::int64_t dimension = 0;
+  std::int64_t count = 0;
+  std::string display_name;
+};
+
+// A point set arriving in chunks. The id's SHA-256 is computed as bytes arrive; a
+// chunk that would exceed dimension * count * 8 bytes is refused at once.
+class UploadSession {
+ public:
+  Status append(const void* data, std::size_t size);
+  std::uint64_t expected_bytes() const { return expected_; }
+  std::uint64_t received_bytes() const { return received_; }
+
+ private:
+  friend class Engine;
+  UploadHeader header_;
+  std::uint64_t expected_ = 0;
+  std::uint64_t received_ = 0;
+  std::vector<double> coords_;
+  std::unique_ptr<Sha256> sha_;
+};
+
+struct StarAnswer {
+  Star star;
+  std::vector<double> circumcentres;  // d per simplex
+};
+
+// Shard k of n owns seeds [floor(k N / n), floor((k + 1) N / n)).
+struct ShardRange {
+  std::uint32_t begin = 0, end = 0;
+};
+ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count);
+
+class Engine {
+ public:
+  Engine(std::unique_ptr<PointSetStore> store, Limits limits);
+
+  const Limits& limits() const { return limits_; }
+  PointSetStore& store() { return *store_; }
+
+  // Uploads: begin() checks the header against the limits; finish() checks the byte
+  // count, validates the points (NaN/Inf, range, duplicates, affine span) and stores
+  // them durably before returning.
+  Result<std::unique_ptr<UploadSession>> begin_upload(const UploadHeader& header) const;
+  Result<PointSetInfo> finish_upload(UploadSession& session);
+
+  Result<PointSetInfo> get_point_set(const std::string& id);
+  // page_token is the last id of the previous page ("" for the first).
+  Result<std::vector<PointSetInfo>> list_point_sets(std::uint32_t page_size, const std::string& page_token,
+                                                    std::string* next_page_token);
+  Status delete_point_set(const std::string& id);
+  Result<std::shared_ptr<const StoredSet>> point_set(const std::string& id) { return store_->get(id); }
+
+  Result<StarAnswer> star(const std::string& id, std::uint64_t seed, const CallControl& control);
+  Result<std::vector<std::uint32_t>> neighbors(const std::string& id, std::uint64_t seed, const CallControl& control);
+  Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const CallControl& control);
+
+  // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
+  // shard, lexicographic, on the calling thread. A non-OK status from emit stops the
+  // run (and is returned). Only a bounded window is computed ahead of emit.
+  using BatchSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;
+  Status stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
+                          std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
+                          ShardRange* range = nullptr, int* dimension = nullptr);
+
+ private:
+  Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
+  Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+
+  std::unique_ptr<PointSetStore> store_;
+  Limits limits_;
+};
+
+}  // namespace spokemesh::service

@@ -1,0 +1,226 @@
+#include "grpc_service.hpp"
+
+#include <openssl/crypto.h>
+
+#include <algorithm>
+#include <optional>
+
+namespace spokemesh::service {
+
+grpc::Status to_grpc(const Status& s) {
+  if (s.is_ok()) return grpc::Status::OK;
+  return {static_cast<grpc::StatusCode>(static_cast<int>(s.code())), s.message()};
+}
+
+void fill_point_set(const PointSetInfo& info, pb::PointSet* out) {
+  out->set_id(info.id);
+  out->set_dimension(static_cast<std::uint32_t>(info.dimension));
+  out->set_count(info.count);
+  out->set_display_name(info.display_name);
+  out->set_already_existed(info.already_existed);
+}
+
+// One RPC: authentication, the deadline, cancellation, and the log/metrics record.
+class MesherService::Call {
+ public:
+  Call(MesherService& service, grpc::ServerContext* ctx, const char* method, std::string point_set = {},
+       std::optional<std::uint64_t> seed = std::nullopt)
+      : service_(service),
+        control_(deadline_of(ctx, service.engine_.limits()), [ctx] { return ctx->IsCancelled(); }) {
+    record_.transport = "grpc";
+    record_.method = method;
+    record_.point_set = std::move(point_set);
+    record_.seed = seed;
+    if (!service.auth_token_.empty()) {
+      const auto& md = ctx->client_metadata();
+      const auto it = md.find("authorization");
+      const std::string expected = "Bearer " + service.auth_token_;
+      const bool ok = it != md.end() && it->second.size() == expected.size() &&
+                      CRYPTO_memcmp(it->second.data(), expected.data(), expected.size()) == 0;
+      if (!ok) auth_ = Status{Code::kUnauthenticated, "missing or wrong bearer token in 'authorization' metadata"};
+    }
+  }
+
+  const Status& auth() const { return auth_; }
+  const CallControl& control() const { return control_; }
+
+  grpc::Status finish(const Status& s) {
+    record_.code = s.code();
+    record_.message = s.message();
+    record_.seconds = timer_.seconds();
+    service_.telemetry_.record(record_);
+    return to_grpc(s);
+  }
+
+ private:
+  static Clock::time_point deadline_of(grpc::ServerContext* ctx, const Limits& limits) {
+    const auto fallback = Clock::now() + limits.default_deadline;
+    const auto client = ctx->deadline();
+    if (client == std::chrono::system_clock::time_point::max()) return fallback;
+    // The client's deadline, moved onto the steady clock.
+    const auto remaining = client - std::chrono::system_clock::now();
+    return Clock::now() + std::chrono::duration_cast<Clock::duration>(remaining);
+  }
+
+  MesherService& service_;
+  RequestTimer timer_;
+  CallControl control_;
+  Status auth_;
+  Telemetry::Request record_;
+};
+
+MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::string auth_token)
+    : engine_(engine), telemetry_(telemetry), auth_token_(std::move(auth_token)) {}
+
+grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
+                                           grpc::ServerReader<pb::UploadPointSetRequest>* reader,
+                                           pb::PointSet* response) {
+  Call call(*this, ctx, "UploadPointSet");
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  pb::UploadPointSetRequest message;
+  if (!reader->Read(&message)) return call.finish(invalid_argument("header: the stream ended before any message"));
+  if (!message.has_header()) return call.finish(invalid_argument("header: the first message must carry the header"));
+  UploadHeader header;
+  header.dimension = message.header().dimension();
+  header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(message.header().count(), INT64_MAX));
+  header.display_name = message.header().display_name();
+  auto session = engine_.begin_upload(header);
+  if (!session.is_ok()) return call.finish(session.status());
+  std::uint64_t index = 1;
+  while (reader->Read(&message)) {
+    if (message.has_header()) {
+      return call.finish(invalid_argument("message " + std::to_string(index) + ": a second header"));
+    }
+    const std::string& chunk = message.coordinates();
+    if (Status s = session.value()->append(chunk.data(), chunk.size()); !s.is_ok()) return call.finish(s);
+    ++index;
+  }
+  if (ctx->IsCancelled()) return call.finish(cancelled("upload cancelled by the client"));
+  auto info = engine_.finish_upload(*session.value());
+  if (!info.is_ok()) return call.finish(info.status());
+  if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
+  fill_point_set(info.value(), response);
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::GetPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                                        pb::PointSet* response) {
+  Call call(*this, ctx, "GetPointSet", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto info = engine_.get_point_set(request->point_set_id());
+  if (!info.is_ok()) return call.finish(info.status());
+  fill_point_set(info.value(), response);
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::ListPointSets(grpc::ServerContext* ctx, const pb::ListPointSetsRequest* request,
+                                          pb::ListPointSetsResponse* response) {
+  Call call(*this, ctx, "ListPointSets");
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  std::string next;
+  auto page = engine_.list_point_sets(request->page_size(), request->page_token(), &next);
+  if (!page.is_ok()) return call.finish(page.status());
+  for (const PointSetInfo& info : page.value()) fill_point_set(info, response->add_point_sets());
+  response->set_next_page_token(next);
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::DeletePointSet(grpc::ServerContext* ctx, const pb::DeletePointSetRequest* request,
+                                           pb::DeletePointSetResponse*) {
+  Call call(*this, ctx, "DeletePointSet", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  return call.finish(engine_.delete_point_set(request->point_set_id()));
+}
+
+grpc::Status MesherService::DownloadPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                                             grpc::ServerWriter<pb::CoordinateChunk>* writer) {
+  Call call(*this, ctx, "DownloadPointSet", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto set = engine_.point_set(request->point_set_id());
+  if (!set.is_ok()) return call.finish(set.status());
+  const auto coords = set.value()->points.coordinates();
+  const char* bytes = reinterpret_cast<const char*>(coords.data());
+  constexpr std::size_t kChunk = 1 << 20;
+  pb::CoordinateChunk chunk;
+  for (std::size_t at = 0; at < coords.size_bytes(); at += kChunk) {
+    chunk.set_coordinates(bytes + at, std::min(kChunk, coords.size_bytes() - at));
+    if (!writer->Write(chunk)) return call.finish(cancelled("download stopped: the client went away"));
+  }
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::GetStar(grpc::ServerContext* ctx, const pb::SeedRequest* request, pb::Star* response) {
+  Call call(*this, ctx, "GetStar", request->point_set_id(), request->seed());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto answer = engine_.star(request->point_set_id(), request->seed(), call.control());
+  if (!answer.is_ok()) return call.finish(answer.status());
+  const Star& star = answer->star;
+  response->set_point_set_id(request->point_set_id());
+  response->set_seed(request->seed());
+  response->set_dimension(static_cast<std::uint32_t>(star.dimension));
+  response->mutable_simplices()->Add(star.simplices.begin(), star.simplices.end());
+  response->mutable_circumcenters()->Add(answer->circumcentres.begin(), answer->circumcentres.end());
+  response->set_hull_facets(static_cast<std::uint32_t>(star.hull_facets));
+  telemetry_.add_simplices_served(star.size());
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+                                         pb::Neighbors* response) {
+  Call call(*this, ctx, "GetNeighbors", request->point_set_id(), request->seed());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto neighbors = engine_.neighbors(request->point_set_id(), request->seed(), call.control());
+  if (!neighbors.is_ok()) return call.finish(neighbors.status());
+  response->set_point_set_id(request->point_set_id());
+  response->set_seed(request->seed());
+  response->mutable_neighbors()->Add(neighbors->begin(), neighbors->end());
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+                                           pb::VoronoiCell* response) {
+  Call call(*this, ctx, "GetVoronoiCell", request->point_set_id(), request->seed());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto cell = engine_.cell(request->point_set_id(), request->seed(), call.control());
+  if (!cell.is_ok()) return call.finish(cell.status());
+  response->set_point_set_id(request->point_set_id());
+  response->set_seed(request->seed());
+  response->set_dimension(static_cast<std::uint32_t>(cell->dimension));
+  response->mutable_vertices()->Add(cell->vertices.begin(), cell->vertices.end());
+  response->mutable_vertex_simplices()->Add(cell->vertex_simplices.begin(), cell->vertex_simplices.end());
+  for (const VoronoiFacet& f : cell->facets) {
+    pb::VoronoiFacet* out = response->add_facets();
+    out->set_neighbor(f.neighbor);
+    out->mutable_vertices()->Add(f.vertices.begin(), f.vertices.end());
+  }
+  response->set_bounded(cell->bounded);
+  response->set_volume(cell->bounded ? cell->volume : 0.0);
+  return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::StreamSimplices(grpc::ServerContext* ctx, const pb::StreamSimplicesRequest* request,
+                                            grpc::ServerWriter<pb::SimplexBatch>* writer) {
+  Call call(*this, ctx, "StreamSimplices", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  pb::SimplexBatch batch;
+  ShardRange range;
+  int dimension = 0;
+  // Write() blocks while the client's flow-control window is full, and the engine
+  // computes only a bounded window ahead, so a slow reader holds memory bounded.
+  auto emit = [&](std::span<const std::uint32_t> simplices, std::uint64_t seeds_done) -> Status {
+    batch.Clear();
+    batch.set_dimension(static_cast<std::uint32_t>(dimension));
+    batch.set_seed_begin(range.begin);
+    batch.set_seed_end(range.end);
+    batch.set_seeds_done(seeds_done);
+    batch.mutable_simplices()->Add(simplices.begin(), simplices.end());
+    if (!writer->Write(batch)) return cancelled("streaming stopped: the client went away");
+    telemetry_.add_simplices_served(simplices.size() / static_cast<std::size_t>(dimension + 1));
+    return Status::ok();
+  };
+  return call.finish(engine_.stream_simplices(request->point_set_id(), request->shard_index(),
+                                              request->shard_count(), request->batch_size(), call.control(), emit,
+                                              &range, &dimension));
+}
+
+}  // namespace spokemesh::service

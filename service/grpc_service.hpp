@@ -1,0 +1,55 @@
+// MesherService: the gRPC adapter (sync API) over Engine. Each handler decodes the
+// request, calls one Engine function under a CallControl (deadline + cancellation),
+// and encodes the result; no geometry lives here.
+//
+// Thread safety: handlers run concurrently on gRPC's thread pool; the service is
+// stateless apart from the Engine, which is thread-safe.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <string>
+
+#include "engine.hpp"
+#include "spokemesh/v1/mesher.grpc.pb.h"
+#include "telemetry.hpp"
+
+namespace spokemesh::service {
+
+namespace pb = ::spokemesh::v1;
+
+grpc::Status to_grpc(const Status& s);
+
+class MesherService final : public pb::Mesher::Service {
+ public:
+  // auth_token: required bearer token ("" = no authentication).
+  MesherService(Engine& engine, Telemetry& telemetry, std::string auth_token);
+
+  grpc::Status UploadPointSet(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadPointSetRequest>* reader,
+                              pb::PointSet* response) override;
+  grpc::Status GetPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                           pb::PointSet* response) override;
+  grpc::Status ListPointSets(grpc::ServerContext* ctx, const pb::ListPointSetsRequest* request,
+                             pb::ListPointSetsResponse* response) override;
+  grpc::Status DeletePointSet(grpc::ServerContext* ctx, const pb::DeletePointSetRequest* request,
+                              pb::DeletePointSetResponse* response) override;
+  grpc::Status DownloadPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                                grpc::ServerWriter<pb::CoordinateChunk>* writer) override;
+  grpc::Status GetStar(grpc::ServerContext* ctx, const pb::SeedRequest* request, pb::Star* response) override;
+  grpc::Status GetNeighbors(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+                            pb::Neighbors* response) override;
+  grpc::Status GetVoronoiCell(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+                              pb::VoronoiCell* response) override;
+  grpc::Status StreamSimplices(grpc::ServerContext* ctx, const pb::StreamSimplicesRequest* request,
+                               grpc::ServerWriter<pb::SimplexBatch>* writer) override;
+
+ private:
+  class Call;
+  Engine& engine_;
+  Telemetry& telemetry_;
+  std::string auth_token_;
+};
+
+void fill_point_set(const PointSetInfo& info, pb::PointSet* out);
+
+}  // namespace spokemesh::service

@@ -1,0 +1,433 @@
+#include "http_api.hpp"
+
+#include <openssl/crypto.h>
+
+#include <cctype>
+#include <charconv>
+#include <cstring>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <optional>
+
+#include "status_map.hpp"
+
+namespace spokemesh::service {
+namespace {
+
+using json = nlohmann::json;
+
+std::string dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+
+std::string percent_decode(std::string_view s) {
+  std::string out;
+  out.reserve(s.size());
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (s[i] == '+') {
+      out += ' ';
+    } else if (s[i] == '%' && i + 2 < s.size() && std::isxdigit(static_cast<unsigned char>(s[i + 1])) &&
+               std::isxdigit(static_cast<unsigned char>(s[i + 2]))) {
+      out += static_cast<char>(std::stoi(std::string(s.substr(i + 1, 2)), nullptr, 16));
+      i += 2;
+    } else {
+      out += s[i];
+    }
+  }
+  return out;
+}
+
+std::vector<std::string> split_path(std::string_view path) {
+  std::vector<std::string> parts;
+  std::size_t at = 0;
+  while (at < path.size()) {
+    const std::size_t next = path.find('/', at);
+    const std::string_view part = path.substr(at, next == std::string_view::npos ? std::string_view::npos : next - at);
+    if (!part.empty()) parts.push_back(percent_decode(part));
+    if (next == std::string_view::npos) break;
+    at = next + 1;
+  }
+  return parts;
+}
+
+// A non-negative integer parameter; `what` names it in the error.
+Result<std::uint64_t> parse_uint(const std::string& text, const std::string& what) {
+  std::uint64_t v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (text.empty() || ec != std::errc() || end != text.data() + text.size()) {
+    return invalid_argument(what + ": \"" + text.substr(0, 40) + "\" is not a non-negative integer");
+  }
+  return v;
+}
+
+json point_set_json(const PointSetInfo& info) {
+  return {{"id", info.id},
+          {"dimension", info.dimension},
+          {"count", info.count},
+          {"display_name", info.display_name},
+          {"already_existed", info.already_existed}};
+}
+
+// Rows of `width` values as nested arrays.
+template <class T>
+json rows(const std::vector<T>& flat, std::size_t width) {
+  json out = json::array();
+  for (std::size_t i = 0; i + width <= flat.size(); i += width) {
+    out.push_back(std::vector<T>(flat.begin() + static_cast<std::ptrdiff_t>(i),
+                                 flat.begin() + static_cast<std::ptrdiff_t>(i + width)));
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string error_json(const Status& s) {
+  return dump({{"error", {{"code", http_status(s.code())}, {"status", code_name(s.code())}, {"message", s.message()}}}});
+}
+
+struct HttpApi::Context {
+  const http::request<http::string_body>& request;
+  std::map<std::string, std::string> query;
+  std::function<bool()> client_gone;
+  Clock::time_point deadline;
+  Telemetry::Request record;
+  RequestTimer timer;
+
+  HttpResponse fail(const Status& s) {
+    record.code = s.code();
+    record.message = s.message();
+    HttpResponse r;
+    r.status = static_cast<unsigned>(http_status(s.code()));
+    r.body = error_json(s);
+    return r;
+  }
+  HttpResponse ok(const json& body, unsigned status = 200) {
+    HttpResponse r;
+    r.status = status;
+    r.body = dump(body);
+    return r;
+  }
+  std::optional<std::string> param(const std::string& key) const {
+    const auto it = query.find(key);
+    if (it == query.end()) return std::nullopt;
+    return it->second;
+  }
+};
+
+HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::string auth_token, std::function<bool()> ready)
+    : engine_(engine), telemetry_(telemetry), auth_token_(std::move(auth_token)), ready_(std::move(ready)) {}
+
+HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
+                                     std::function<bool()> client_gone) {
+  Context c{request, {}, std::move(client_gone), Clock::now() + engine_.limits().default_deadline, {}, {}};
+  c.record.transport = "http";
+  const std::string_view target(request.target().data(), request.target().size());
+  const std::size_t q = target.find('?');
+  c.record.method = "Unrouted";  // each route names itself; never a raw path (metric label cardinality)
+  if (q != std::string_view::npos) {
+    std::string_view rest = target.substr(q + 1);
+    while (!rest.empty()) {
+      const std::size_t amp = rest.find('&');
+      const std::string_view pair = rest.substr(0, amp);
+      const std::size_t eq = pair.find('=');
+      if (!pair.empty()) {
+        c.query[percent_decode(pair.substr(0, eq))] =
+            eq == std::string_view::npos ? "" : percent_decode(pair.substr(eq + 1));
+      }
+      if (amp == std::string_view::npos) break;
+      rest = rest.substr(amp + 1);
+    }
+  }
+  if (const auto it = request.find("X-Timeout-Ms"); it != request.end()) {
+    auto ms = parse_uint(std::string(it->value()), "X-Timeout-Ms");
+    if (!ms.is_ok()) return c.fail(ms.status());
+    c.deadline = Clock::now() + std::chrono::milliseconds(std::min<std::uint64_t>(ms.value(), 1ull << 40));
+  }
+  HttpResponse response = route(c);
+  if (!response.stream) {
+    c.record.seconds = c.timer.seconds();
+    telemetry_.record(c.record);
+  }
+  return response;
+}
+
+HttpResponse HttpApi::route(Context& c) {
+  const auto& req = c.request;
+  const std::string_view target(req.target().data(), req.target().size());
+  const std::vector<std::string> p = split_path(target.substr(0, target.find('?')));
+  const auto method = req.method();
+  // Un-authenticated probes first.
+  if (p.size() == 1 && p[0] == "healthz" && method == http::verb::get) {
+    c.record.method = "Healthz";
+    return c.ok({{"status", "SERVING"}});
+  }
+  if (p.size() == 1 && p[0] == "readyz" && method == http::verb::get) {
+    c.record.method = "Readyz";
+    if (ready_ && !ready_()) return c.fail({Code::kUnavailable, "not ready: the server is starting or shutting down"});
+    return c.ok({{"status", "READY"}});
+  }
+  if (!auth_token_.empty()) {
+    const auto it = req.find(http::field::authorization);
+    const std::string expected = "Bearer " + auth_token_;
+    const bool ok = it != req.end() && it->value().size() == expected.size() &&
+                    CRYPTO_memcmp(it->value().data(), expected.data(), expected.size()) == 0;
+    if (!ok) return c.fail({Code::kUnauthenticated, "missing or wrong bearer token in the Authorization header"});
+  }
+  if (p.size() == 1 && p[0] == "metrics" && method == http::verb::get) {
+    c.record.method = "Metrics";
+    telemetry_.set_memory(engine_.store().memory_in_use(), engine_.store().loaded_count());
+    HttpResponse r;
+    r.content_type = "text/plain; version=0.0.4";
+    r.body = telemetry_.render_metrics();
+    return r;
+  }
+  if (p.size() < 2 || p[0] != "v1" || p[1] != "pointsets") {
+    return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
+  }
+  auto wrong_method = [&] {
+    return c.fail({Code::kUnimplemented, std::string(req.method_string()) + " is not supported on " +
+                                             std::string(target.substr(0, target.find('?')))});
+  };
+  if (p.size() == 2) {
+    if (method == http::verb::post) {
+      c.record.method = "UploadPointSet";
+      return upload(c);
+    }
+    if (method != http::verb::get) return wrong_method();
+    c.record.method = "ListPointSets";
+    std::uint32_t page_size = 0;
+    if (auto s = c.param("page_size")) {
+      auto v = parse_uint(*s, "page_size");
+      if (!v.is_ok()) return c.fail(v.status());
+      page_size = static_cast<std::uint32_t>(std::min<std::uint64_t>(v.value(), 1u << 30));
+    }
+    std::string next;
+    auto page = engine_.list_point_sets(page_size, c.param("page_token").value_or(""), &next);
+    if (!page.is_ok()) return c.fail(page.status());
+    json sets = json::array();
+    for (const PointSetInfo& info : page.value()) sets.push_back(point_set_json(info));
+    return c.ok({{"point_sets", sets}, {"next_page_token", next}});
+  }
+  const std::string& id = p[2];
+  if (p.size() <= 6) c.record.point_set = id.substr(0, 64);
+  if (p.size() == 3) {
+    if (method == http::verb::get) {
+      c.record.method = "GetPointSet";
+      auto info = engine_.get_point_set(id);
+      if (!info.is_ok()) return c.fail(info.status());
+      return c.ok(point_set_json(info.value()));
+    }
+    if (method == http::verb::delete_) {
+      c.record.method = "DeletePointSet";
+      if (Status s = engine_.delete_point_set(id); !s.is_ok()) return c.fail(s);
+      return c.ok(json::object());
+    }
+    return wrong_method();
+  }
+  if (p.size() == 4 && p[3] == "simplices") {
+    if (method != http::verb::get) return wrong_method();
+    c.record.method = "StreamSimplices";
+    return simplices(c, id);
+  }
+  if (p.size() == 6 && p[3] == "seeds" && (p[5] == "star" || p[5] == "neighbors" || p[5] == "cell")) {
+    if (method != http::verb::get) return wrong_method();
+    return seed_route(c, id, p[4], p[5]);
+  }
+  return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
+}
+
+HttpResponse HttpApi::upload(Context& c) {
+  const std::string& body = c.request.body();
+  const auto ctype = c.request.find(http::field::content_type);
+  const std::string content_type = ctype == c.request.end() ? "" : std::string(ctype->value());
+  UploadHeader header;
+  std::vector<double> coords;
+  if (content_type.rfind("application/octet-stream", 0) == 0) {
+    const auto d = c.param("dimension");
+    if (!d) return c.fail(invalid_argument("dimension: the query parameter is required for raw float64 uploads"));
+    auto dim = parse_uint(*d, "dimension");
+    if (!dim.is_ok()) return c.fail(dim.status());
+    if (dim.value() < 2 || dim.value() > 1000) {
+      return c.fail(invalid_argument("dimension: " + *d + " is not supported; it must be at least 2"));
+    }
+    const std::size_t row = 8 * dim.value();
+    if (body.size() % row != 0) {
+      return c.fail(invalid_argument("body: " + std::to_string(body.size()) + " bytes are not a whole number of " +
+                                     *d + "-dimensional float64 points (" + std::to_string(row) + " bytes each)"));
+    }
+    header.dimension = static_cast<std::int64_t>(dim.value());
+    header.count = static_cast<std::int64_t>(body.size() / row);
+    header.display_name = c.param("display_name").value_or("");
+    auto session = engine_.begin_upload(header);
+    if (!session.is_ok()) return c.fail(session.status());
+    if (Status s = session.value()->append(body.data(), body.size()); !s.is_ok()) return c.fail(s);
+    auto info = engine_.finish_upload(*session.value());
+    if (!info.is_ok()) return c.fail(info.status());
+    if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
+    c.record.point_set = info->id;
+    return c.ok(point_set_json(info.value()), info->already_existed ? 200 : 201);
+  }
+  // JSON also under curl -d's default type, so `curl -d '{...}'` just works.
+  if (!content_type.empty() && content_type.rfind("application/json", 0) != 0 &&
+      content_type.rfind("application/x-www-form-urlencoded", 0) != 0) {
+    return c.fail(invalid_argument("Content-Type: \"" + content_type.substr(0, 80) +
+                                   "\" is not supported; send application/json or application/octet-stream"));
+  }
+  json doc;
+  try {
+    doc = json::parse(body);
+  } catch (const json::parse_error& e) {
+    return c.fail(invalid_argument(std::string("body: invalid JSON: ") + e.what()));
+  }
+  if (!doc.is_object()) return c.fail(invalid_argument("body: expected a JSON object"));
+  if (auto it = doc.find("display_name"); it != doc.end()) {
+    if (!it->is_string()) return c.fail(invalid_argument("display_name: expected a string"));
+    header.display_name = it->get<std::string>();
+  }
+  auto number = [](const json& v, double& out) {
+    if (!v.is_number()) return false;
+    out = v.get<double>();
+    return true;
+  };
+  if (auto pts = doc.find("points"); pts != doc.end()) {
+    if (!pts->is_array() || pts->empty()) return c.fail(invalid_argument("points: expected a non-empty array of points"));
+    std::size_t d = 0;
+    for (std::size_t i = 0; i < pts->size(); ++i) {
+      const json& row = (*pts)[i];
+      const std::string where = "points[" + std::to_string(i) + "]";
+      if (!row.is_array()) return c.fail(invalid_argument(where + ": expected an array of coordinates"));
+      if (i == 0) d = row.size();
+      if (row.size() != d) {
+        return c.fail(invalid_argument(where + ": " + std::to_string(row.size()) + " coordinates, but points[0] has " +
+                                       std::to_string(d)));
+      }
+      for (std::size_t k = 0; k < row.size(); ++k) {
+        double v = 0;
+        if (!number(row[k], v)) {
+          return c.fail(invalid_argument(where + "[" + std::to_string(k) + "]: expected a number, got " +
+                                         dump(row[k]).substr(0, 40)));
+        }
+        coords.push_back(v);
+      }
+    }
+    header.dimension = static_cast<std::int64_t>(d);
+    header.count = static_cast<std::int64_t>(pts->size());
+  } else if (auto flat = doc.find("coordinates"); flat != doc.end()) {
+    const auto dim = doc.find("dimension");
+    if (dim == doc.end() || !dim->is_number_unsigned()) {
+      return c.fail(invalid_argument("dimension: a positive integer is required with \"coordinates\""));
+    }
+    if (!flat->is_array()) return c.fail(invalid_argument("coordinates: expected a flat array of numbers"));
+    const std::uint64_t d = dim->get<std::uint64_t>();
+    if (d < 2 || d > 1000) {
+      return c.fail(invalid_argument("dimension: " + std::to_string(d) + " is not supported; it must be at least 2"));
+    }
+    if (flat->size() % d != 0) {
+      return c.fail(invalid_argument("coordinates: " + std::to_string(flat->size()) +
+                                     " numbers are not a multiple of dimension " + std::to_string(d)));
+    }
+    coords.resize(flat->size());
+    for (std::size_t i = 0; i < flat->size(); ++i) {
+      if (!number((*flat)[i], coords[i])) {
+        return c.fail(invalid_argument("coordinates[" + std::to_string(i) + "]: expected a number, got " +
+                                       dump((*flat)[i]).substr(0, 40)));
+      }
+    }
+    header.dimension = static_cast<std::int64_t>(d);
+    header.count = static_cast<std::int64_t>(flat->size() / d);
+  } else {
+    return c.fail(invalid_argument("body: expected \"points\" or \"dimension\" and \"coordinates\""));
+  }
+  auto session = engine_.begin_upload(header);
+  if (!session.is_ok()) return c.fail(session.status());
+  if (Status s = session.value()->append(coords.data(), coords.size() * sizeof(double)); !s.is_ok()) return c.fail(s);
+  auto info = engine_.finish_upload(*session.value());
+  if (!info.is_ok()) return c.fail(info.status());
+  if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
+  c.record.point_set = info->id;
+  return c.ok(point_set_json(info.value()), info->already_existed ? 200 : 201);
+}
+
+HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::string& seed_text,
+                                 const std::string& what) {
+  c.record.method = what == "star" ? "GetStar" : what == "neighbors" ? "GetNeighbors" : "GetVoronoiCell";
+  auto seed = parse_uint(seed_text, "seed");
+  if (!seed.is_ok()) return c.fail(seed.status());
+  c.record.seed = seed.value();
+  CallControl control(c.deadline, c.client_gone);
+  if (what == "star") {
+    auto answer = engine_.star(id, seed.value(), control);
+    if (!answer.is_ok()) return c.fail(answer.status());
+    const Star& star = answer->star;
+    telemetry_.add_simplices_served(star.size());
+    return c.ok({{"point_set_id", id},
+                 {"seed", seed.value()},
+                 {"dimension", star.dimension},
+                 {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
+                 {"circumcenters", rows(answer->circumcentres, static_cast<std::size_t>(star.dimension))},
+                 {"hull_facets", star.hull_facets}});
+  }
+  if (what == "neighbors") {
+    auto neighbors = engine_.neighbors(id, seed.value(), control);
+    if (!neighbors.is_ok()) return c.fail(neighbors.status());
+    return c.ok({{"point_set_id", id}, {"seed", seed.value()}, {"neighbors", neighbors.value()}});
+  }
+  auto cell = engine_.cell(id, seed.value(), control);
+  if (!cell.is_ok()) return c.fail(cell.status());
+  json facets = json::array();
+  for (const VoronoiFacet& f : cell->facets) facets.push_back({{"neighbor", f.neighbor}, {"vertices", f.vertices}});
+  const auto d = static_cast<std::size_t>(cell->dimension);
+  return c.ok({{"point_set_id", id},
+               {"seed", seed.value()},
+               {"dimension", cell->dimension},
+               {"vertices", rows(cell->vertices, d)},
+               {"vertex_simplices", rows(cell->vertex_simplices, d + 1)},
+               {"facets", facets},
+               {"bounded", cell->bounded},
+               {"volume", cell->bounded ? json(cell->volume) : json(nullptr)}});
+}
+
+HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
+  std::uint64_t values[3] = {0, 1, 0};
+  const char* names[3] = {"shard", "shards", "batch_size"};
+  for (int i = 0; i < 3; ++i) {
+    if (auto s = c.param(names[i])) {
+      auto v = parse_uint(*s, names[i]);
+      if (!v.is_ok()) return c.fail(v.status());
+      if (v.value() > 0xFFFFFFFFull) return c.fail(invalid_argument(std::string(names[i]) + ": " + *s + " is too large"));
+      values[i] = v.value();
+    }
+  }
+  HttpResponse r;
+  r.content_type = "application/x-ndjson";
+  // The stream runs after the headers are decided; it records its own outcome.
+  r.stream = [this, id, values, deadline = c.deadline, gone = c.client_gone, record = c.record,
+              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+    CallControl control(deadline, gone);
+    std::string text;
+    int dimension = 0;
+    auto emit = [&](std::span<const std::uint32_t> batch, std::uint64_t) -> Status {
+      const std::size_t width = static_cast<std::size_t>(dimension) + 1;
+      text.clear();
+      for (std::size_t i = 0; i < batch.size(); i += width) {
+        text += '[';
+        for (std::size_t k = 0; k < width; ++k) {
+          if (k > 0) text += ',';
+          text += std::to_string(batch[i + k]);
+        }
+        text += "]\n";
+      }
+      if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
+      telemetry_.add_simplices_served(batch.size() / width);
+      return Status::ok();
+    };
+    Status s = engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
+                                        static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
+    record.code = s.code();
+    record.message = s.message();
+    record.seconds = timer.seconds();
+    telemetry_.record(record);
+    return s;
+  };
+  return r;
+}
+
+}  // namespace spokemesh::service

@@ -1,0 +1,71 @@
+// HttpApi: the REST mirror of the gRPC API, as a pure function from a parsed
+// request to a response. No sockets here: HttpServer owns the connections, and
+// tests call handle_request() directly.
+//
+// Routes (JSON; errors are {"error": {"code": <http>, "status": "<gRPC code>", "message": ...}}):
+//   POST   /v1/pointsets                       upload: JSON {"dimension", "coordinates"} or
+//                                              {"points": [[...], ...]}, optional "display_name";
+//                                              or application/octet-stream raw float64 LE with
+//                                              ?dimension=d[&display_name=...]. 201 new, 200 existing.
+//   GET    /v1/pointsets[?page_size=&page_token=]
+//   GET    /v1/pointsets/{id}
+//   DELETE /v1/pointsets/{id}
+//   GET    /v1/pointsets/{id}/seeds/{seed}/star | neighbors | cell
+//   GET    /v1/pointsets/{id}/simplices?shard=k&shards=n[&batch_size=b]
+//                                              NDJSON, one simplex per line, chunked
+//   GET    /healthz  /readyz  /metrics
+// A request may carry `X-Timeout-Ms: <ms>` to shorten its deadline (default
+// --default-deadline). With an auth token configured, every route but /healthz and
+// /readyz needs `Authorization: Bearer <token>`.
+//
+// Thread safety: handle_request() may be called concurrently.
+#pragma once
+
+#include <boost/beast/http.hpp>
+
+#include <functional>
+#include <string>
+#include <string_view>
+
+#include "engine.hpp"
+#include "telemetry.hpp"
+
+namespace spokemesh::service {
+
+namespace http = boost::beast::http;
+
+struct HttpResponse {
+  unsigned status = 200;
+  std::string content_type = "application/json";
+  std::string body;
+  // Streaming responses: called after handle_request() returns, with a function that
+  // sends one chunk (false once the client is gone). If it fails before the first
+  // chunk, `status`/`body` are replaced by the error it returns.
+  std::function<Status(const std::function<bool(std::string_view)>& write_chunk)> stream;
+};
+
+std::string error_json(const Status& s);
+
+class HttpApi {
+ public:
+  // ready(): false while starting or shutting down (/readyz answers 503).
+  HttpApi(Engine& engine, Telemetry& telemetry, std::string auth_token, std::function<bool()> ready);
+
+  // client_gone: polled during long computations to stop work for a closed connection.
+  HttpResponse handle_request(const http::request<http::string_body>& request,
+                              std::function<bool()> client_gone = {});
+
+ private:
+  struct Context;
+  HttpResponse route(Context& c);
+  HttpResponse upload(Context& c);
+  HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
+  HttpResponse simplices(Context& c, const std::string& id);
+
+  Engine& engine_;
+  Telemetry& telemetry_;
+  std::string auth_token_;
+  std::function<bool()> ready_;
+};
+
+}  // namespace spokemesh::service

@@ -1,0 +1,245 @@
+// spokemesh-server: the meshing service (gRPC + REST) over a durable point-set store.
+//
+// Exit codes: 0 after a clean shutdown (SIGTERM/SIGINT), 2 bad flags, 1 failure to start.
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/security/server_credentials.h>
+#include <signal.h>
+
+#include <CLI/CLI.hpp>
+#include <boost/asio/ssl/context.hpp>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <thread>
+
+#include "engine.hpp"
+#include "grpc_service.hpp"
+#include "http_api.hpp"
+#include "http_server.hpp"
+#include "telemetry.hpp"
+
+namespace {
+
+using namespace spokemesh;
+using namespace spokemesh::service;
+
+// "1500", "1500ms", "30s", "2m" -> milliseconds.
+Result<std::chrono::milliseconds> parse_duration(const std::string& text, const std::string& flag) {
+  std::size_t used = 0;
+  double v = 0;
+  try {
+    v = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  const std::string unit = text.substr(used);
+  double scale = 0;
+  if (unit.empty() || unit == "ms") scale = 1;
+  if (unit == "s") scale = 1e3;
+  if (unit == "m") scale = 60e3;
+  if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1e12) {
+    return invalid_argument(flag + ": \"" + text + "\" is not a duration like 500ms, 30s or 2m");
+  }
+  return std::chrono::milliseconds(static_cast<std::int64_t>(v * scale));
+}
+
+// "1048576", "512M", "4G" -> bytes.
+Result<std::uint64_t> parse_bytes(const std::string& text, const std::string& flag) {
+  std::size_t used = 0;
+  double v = 0;
+  try {
+    v = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  std::string unit = text.substr(used);
+  if (!unit.empty() && (unit.back() == 'B' || unit.back() == 'b')) unit.pop_back();
+  if (unit.size() == 2 && unit[1] == 'i') unit.pop_back();  // Ki, Mi, Gi
+  double scale = 0;
+  if (unit.empty()) scale = 1;
+  if (unit == "K" || unit == "k") scale = 1024.0;
+  if (unit == "M" || unit == "m") scale = 1024.0 * 1024;
+  if (unit == "G" || unit == "g") scale = 1024.0 * 1024 * 1024;
+  if (unit == "T" || unit == "t") scale = 1024.0 * 1024 * 1024 * 1024;
+  if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1.8e19) {
+    return invalid_argument(flag + ": \"" + text + "\" is not a size like 512M or 4G");
+  }
+  return static_cast<std::uint64_t>(v * scale);
+}
+
+Result<std::string> read_text_file(const std::string& path, const std::string& flag) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return invalid_argument(flag + ": cannot read " + path);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+int usage_error(const Status& s) {
+  std::cerr << "spokemesh-server: " << s.message() << "\n";
+  return 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"spokemesh-server: exact Delaunay/Voronoi meshing service (gRPC and REST).\n"
+               "Point sets are uploaded once, stored durably in --data-dir, and queried per seed."};
+  std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
+  unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  std::uint64_t max_points = 10'000'000;
+  int max_dimension = kMaxDimension;
+  std::string max_memory = "4G", default_deadline = "60s", grace = "10s", max_body = "256M";
+  std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
+  app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
+  app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
+  app.add_option("--data-dir", data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
+  app.add_option("--threads", threads, "Worker threads per streamed shard; gRPC uses up to 8x this")
+      ->check(CLI::Range(1u, 1024u))
+      ->capture_default_str();
+  app.add_option("--max-points", max_points, "Largest point set accepted")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--max-dimension", max_dimension, "Largest dimension accepted")
+      ->check(CLI::Range(2, kMaxDimension))
+      ->capture_default_str();
+  app.add_option("--max-memory", max_memory, "Memory for loaded point sets and trees; the least recently used are "
+                                             "dropped from memory (they stay on disk)")->capture_default_str();
+  app.add_option("--default-deadline", default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
+      ->capture_default_str();
+  app.add_option("--grace-period", grace, "On SIGTERM, how long in-flight requests may finish")->capture_default_str();
+  app.add_option("--max-body-bytes", max_body, "Largest REST request body")->capture_default_str();
+  app.add_option("--tls-cert", tls_cert, "PEM certificate chain: serve TLS on both ports");
+  app.add_option("--tls-key", tls_key, "PEM private key for --tls-cert");
+  app.add_option("--tls-client-ca", tls_client_ca, "PEM CA bundle: require client certificates signed by it (mTLS)");
+  app.add_option("--auth-token-file", auth_token_file,
+                 "File holding a bearer token that every request must carry (health and readiness exempt)");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+
+  Limits limits;
+  limits.max_points = max_points;
+  limits.max_dimension = max_dimension;
+  limits.stream_threads = threads;
+  auto memory = parse_bytes(max_memory, "--max-memory");
+  auto deadline = parse_duration(default_deadline, "--default-deadline");
+  auto grace_ms = parse_duration(grace, "--grace-period");
+  auto body = parse_bytes(max_body, "--max-body-bytes");
+  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &body.status()}) {
+    if (!s->is_ok()) return usage_error(*s);
+  }
+  limits.max_memory = memory.value();
+  limits.default_deadline = deadline.value();
+  if (tls_cert.empty() != tls_key.empty()) return usage_error(invalid_argument("--tls-cert and --tls-key go together"));
+  if (!tls_client_ca.empty() && tls_cert.empty()) {
+    return usage_error(invalid_argument("--tls-client-ca needs --tls-cert and --tls-key"));
+  }
+  std::string token;
+  if (!auth_token_file.empty()) {
+    auto text = read_text_file(auth_token_file, "--auth-token-file");
+    if (!text.is_ok()) return usage_error(text.status());
+    token = text.value();
+    while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) token.pop_back();
+    if (token.empty()) return usage_error(invalid_argument("--auth-token-file: " + auth_token_file + " is empty"));
+  }
+
+  // SIGTERM/SIGINT are taken by sigwait() below, so every thread must block them.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  signal(SIGPIPE, SIG_IGN);
+
+  Telemetry telemetry;
+  auto store = PointSetStore::open(data_dir, limits.max_memory,
+                                   [&telemetry](const std::string& level, const std::string& m) { telemetry.log(level, m); });
+  if (!store.is_ok()) return usage_error(store.status());
+  Engine engine(std::move(store).value(), limits);
+  const std::size_t loaded = engine.store().load_all();
+  telemetry.log("info", "data dir " + data_dir + ": " + std::to_string(loaded) + " point sets verified");
+
+  std::atomic<bool> ready{false};
+  HttpServerOptions http_options;
+  http_options.listen = http_listen;
+  http_options.max_body_bytes = body.value();
+  std::shared_ptr<grpc::ServerCredentials> grpc_credentials = grpc::InsecureServerCredentials();
+  if (!tls_cert.empty()) {
+    auto cert = read_text_file(tls_cert, "--tls-cert");
+    auto key = read_text_file(tls_key, "--tls-key");
+    if (!cert.is_ok()) return usage_error(cert.status());
+    if (!key.is_ok()) return usage_error(key.status());
+    grpc::SslServerCredentialsOptions ssl(tls_client_ca.empty()
+                                              ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                                              : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+    ssl.pem_key_cert_pairs.push_back({key.value(), cert.value()});
+    auto tls = std::make_shared<boost::asio::ssl::context>(boost::asio::ssl::context::tls_server);
+    try {
+      tls->set_options(boost::asio::ssl::context::default_workarounds | boost::asio::ssl::context::no_sslv2 |
+                       boost::asio::ssl::context::no_sslv3 | boost::asio::ssl::context::no_tlsv1 |
+                       boost::asio::ssl::context::no_tlsv1_1);
+      tls->use_certificate_chain_file(tls_cert);
+      tls->use_private_key_file(tls_key, boost::asio::ssl::context::pem);
+      if (!tls_client_ca.empty()) {
+        auto ca = read_text_file(tls_client_ca, "--tls-client-ca");
+        if (!ca.is_ok()) return usage_error(ca.status());
+        ssl.pem_root_certs = ca.value();
+        tls->load_verify_file(tls_client_ca);
+        tls->set_verify_mode(boost::asio::ssl::verify_peer | boost::asio::ssl::verify_fail_if_no_peer_cert);
+      }
+    } catch (const boost::system::system_error& e) {
+      return usage_error(invalid_argument(std::string("--tls-cert/--tls-key: ") + e.what()));
+    }
+    grpc_credentials = grpc::SslServerCredentials(ssl);
+    http_options.tls = tls;
+  }
+
+  MesherService mesher(engine, telemetry, token);
+  HttpApi api(engine, telemetry, token, [&ready] { return ready.load(); });
+  HttpServer http_server(api, telemetry, http_options);
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  int grpc_port = 0;
+  if (auto ep = parse_endpoint(grpc_listen, "--grpc-listen"); !ep.is_ok()) return usage_error(ep.status());
+  builder.AddListeningPort(grpc_listen, grpc_credentials, &grpc_port);
+  builder.RegisterService(&mesher);
+  grpc::ResourceQuota quota("spokemesh");
+  quota.SetMaxThreads(static_cast<int>(std::max(8u, 8 * threads)));
+  builder.SetResourceQuota(quota);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  if (!server || grpc_port == 0) {
+    telemetry.log("error", "--grpc-listen: cannot listen on " + grpc_listen);
+    return 1;
+  }
+  auto http_port = http_server.start();
+  if (!http_port.is_ok()) {
+    telemetry.log("error", http_port.status().message());
+    server->Shutdown();
+    return 1;
+  }
+  server->GetHealthCheckService()->SetServingStatus(true);
+  ready = true;
+  const std::string grpc_host = grpc_listen.substr(0, grpc_listen.rfind(':'));
+  const std::string http_host = http_listen.substr(0, http_listen.rfind(':'));
+  telemetry.log("info", "serving gRPC on " + grpc_host + ":" + std::to_string(grpc_port) + " and HTTP on " +
+                            http_host + ":" + std::to_string(http_port.value()) + (tls_cert.empty() ? "" : " (TLS)") +
+                            (token.empty() ? "" : " (bearer token required)"));
+
+  int signal_number = 0;
+  sigwait(&signals, &signal_number);
+  telemetry.log("info", std::string("received ") + (signal_number == SIGTERM ? "SIGTERM" : "SIGINT") +
+                            ": not serving; draining in-flight requests for up to " + grace);
+  ready = false;
+  server->GetHealthCheckService()->SetServingStatus(false);
+  const auto until = std::chrono::system_clock::now() + grace_ms.value();
+  std::thread grpc_stop([&] { server->Shutdown(until); });
+  http_server.stop(grace_ms.value());
+  grpc_stop.join();
+  telemetry.log("info", "stopped");
+  return 0;
+}

@@ -1,0 +1,30 @@
+// The one place where core/engine status codes become transport codes.
+#pragma once
+
+#include "spokemesh/status.hpp"
+
+namespace spokemesh::service {
+
+// spokemesh::Code values are gRPC's canonical codes, so gRPC needs only a cast
+// (grpc::StatusCode(static_cast<int>(code))). HTTP follows Google's published
+// mapping (google.rpc.Code).
+inline int http_status(Code code) {
+  switch (code) {
+    case Code::kOk: return 200;
+    case Code::kCancelled: return 499;
+    case Code::kInvalidArgument: return 400;
+    case Code::kFailedPrecondition: return 400;
+    case Code::kOutOfRange: return 400;
+    case Code::kDeadlineExceeded: return 504;
+    case Code::kNotFound: return 404;
+    case Code::kAlreadyExists: return 409;
+    case Code::kResourceExhausted: return 429;
+    case Code::kUnimplemented: return 501;
+    case Code::kUnavailable: return 503;
+    case Code::kUnauthenticated: return 401;
+    case Code::kInternal: return 500;
+  }
+  return 500;
+}
+
+}  // namespace spokemesh::service

@@ -1,0 +1,403 @@
+#include "store.hpp"
+
+#include <dirent.h>
+#include <fcntl.h>
+#include <openssl/evp.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <cerrno>
+#include <cstring>
+#include <ctime>
+#include <random>
+
+namespace spokemesh::service {
+namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "the stored format and the id hash are little-endian; a big-endian port must byte-swap");
+
+constexpr std::size_t kHeaderBytes = 12;
+
+std::string errno_text() { return std::strerror(errno); }
+
+// Writes all of `data` to fd; false on error.
+bool write_all(int fd, const char* data, std::size_t size) {
+  while (size > 0) {
+    const ssize_t w = ::write(fd, data, size);
+    if (w < 0) {
+      if (errno == EINTR) continue;
+      return false;
+    }
+    data += w;
+    size -= static_cast<std::size_t>(w);
+  }
+  return true;
+}
+
+bool read_file(const std::string& path, std::string& out) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return false;
+  struct stat st {};
+  bool ok = ::fstat(fd, &st) == 0;
+  if (ok) {
+    out.resize(static_cast<std::size_t>(st.st_size));
+    std::size_t done = 0;
+    while (ok && done < out.size()) {
+      const ssize_t r = ::read(fd, out.data() + done, out.size() - done);
+      if (r < 0 && errno == EINTR) continue;
+      if (r <= 0) {
+        ok = false;
+        break;
+      }
+      done += static_cast<std::size_t>(r);
+    }
+  }
+  ::close(fd);
+  return ok;
+}
+
+bool fsync_dir(const std::string& dir) {
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return false;
+  const bool ok = ::fsync(fd) == 0;
+  ::close(fd);
+  return ok;
+}
+
+std::string temp_name(const std::string& dir) {
+  static std::atomic<std::uint64_t> counter{0};
+  thread_local std::mt19937_64 rng{std::random_device{}()};
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "/.tmp-%d-%llu-%016llx", static_cast<int>(::getpid()),
+                static_cast<unsigned long long>(counter.fetch_add(1)), static_cast<unsigned long long>(rng()));
+  return dir + buf;
+}
+
+// Writes `parts` to `path` durably: temporary file, fsync, rename, fsync directory.
+Status write_durably(const std::string& dir, const std::string& path, std::initializer_list<std::pair<const char*, std::size_t>> parts) {
+  const std::string temp = temp_name(dir);
+  const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd < 0) return {Code::kInternal, "cannot create " + temp + ": " + errno_text()};
+  bool ok = true;
+  for (const auto& [data, size] : parts) ok = ok && write_all(fd, data, size);
+  ok = ok && ::fsync(fd) == 0;
+  const std::string why = ok ? "" : errno_text();
+  ok = (::close(fd) == 0) && ok;
+  if (ok && ::rename(temp.c_str(), path.c_str()) != 0) ok = false;
+  if (!ok) {
+    const std::string msg = "cannot store " + path + ": " + (why.empty() ? errno_text() : why);
+    ::unlink(temp.c_str());
+    return {Code::kInternal, msg};
+  }
+  if (!fsync_dir(dir)) return {Code::kInternal, "cannot fsync " + dir + ": " + errno_text()};
+  return Status::ok();
+}
+
+bool file_exists(const std::string& path) {
+  struct stat st {};
+  return ::stat(path.c_str(), &st) == 0;
+}
+
+}  // namespace
+
+Sha256::Sha256() : ctx_(EVP_MD_CTX_new()) {
+  EVP_DigestInit_ex(static_cast<EVP_MD_CTX*>(ctx_), EVP_sha256(), nullptr);
+}
+Sha256::~Sha256() { EVP_MD_CTX_free(static_cast<EVP_MD_CTX*>(ctx_)); }
+void Sha256::update(const void* data, std::size_t size) {
+  EVP_DigestUpdate(static_cast<EVP_MD_CTX*>(ctx_), data, size);
+}
+std::string Sha256::hex_digest() {
+  unsigned char md[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  EVP_DigestFinal_ex(static_cast<EVP_MD_CTX*>(ctx_), md, &len);
+  static const char* hex = "0123456789abcdef";
+  std::string out(2 * len, '0');
+  for (unsigned i = 0; i < len; ++i) {
+    out[2 * i] = hex[md[i] >> 4];
+    out[2 * i + 1] = hex[md[i] & 15];
+  }
+  return out;
+}
+
+std::string point_set_header_bytes(std::uint32_t dimension, std::uint64_t count) {
+  std::string h(kHeaderBytes, '\0');
+  std::memcpy(h.data(), &dimension, 4);
+  std::memcpy(h.data() + 4, &count, 8);
+  return h;
+}
+
+bool is_valid_id(const std::string& id) {
+  return id.size() == 64 &&
+         std::all_of(id.begin(), id.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
+}
+
+std::uint64_t estimated_memory(std::uint64_t n, int d) {
+  // coordinates, lexicographic ranks, nanoflann's index permutation and nodes.
+  return n * (8 * static_cast<std::uint64_t>(d) + 4 + 8 + 12);
+}
+
+PointSetStore::PointSetStore(std::string dir, std::uint64_t budget, LogFn log)
+    : dir_(std::move(dir)), budget_(budget), log_(std::move(log)) {}
+
+Result<std::unique_ptr<PointSetStore>> PointSetStore::open(const std::string& data_dir, std::uint64_t memory_budget,
+                                                           LogFn log) {
+  for (const std::string& d : {data_dir, data_dir + "/quarantine"}) {
+    if (::mkdir(d.c_str(), 0755) != 0 && errno != EEXIST) {
+      return Status{Code::kFailedPrecondition, "--data-dir: cannot create " + d + ": " + errno_text()};
+    }
+  }
+  if (::access(data_dir.c_str(), W_OK) != 0) {
+    return Status{Code::kFailedPrecondition, "--data-dir: " + data_dir + " is not writable"};
+  }
+  auto store = std::unique_ptr<PointSetStore>(new PointSetStore(data_dir, memory_budget, std::move(log)));
+  // Temporary files of uploads that never finished (a crash). With a shared data dir
+  // another server may be writing one right now, so only old ones are removed.
+  if (DIR* dir = ::opendir(data_dir.c_str())) {
+    const std::time_t now = std::time(nullptr);
+    while (const dirent* e = ::readdir(dir)) {
+      if (std::strncmp(e->d_name, ".tmp-", 5) != 0) continue;
+      const std::string path = data_dir + "/" + e->d_name;
+      struct stat st {};
+      if (::stat(path.c_str(), &st) == 0 && now - st.st_mtime > 600) ::unlink(path.c_str());
+    }
+    ::closedir(dir);
+  }
+  return store;
+}
+
+std::string PointSetStore::data_path(const std::string& id) const { return dir_ + "/" + id + ".points"; }
+std::string PointSetStore::name_path(const std::string& id) const { return dir_ + "/" + id + ".name"; }
+
+Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
+  const std::string path = data_path(info.id);
+  if (file_exists(path)) {
+    auto existing = this->info(info.id);
+    if (existing.is_ok()) {
+      existing->already_existed = true;
+      return existing;
+    }
+  }
+  const std::uint64_t bytes = estimated_memory(info.count, info.dimension);
+  if (!info.display_name.empty()) {
+    // The name first: the data file's rename is what makes the set exist.
+    Status s = write_durably(dir_, name_path(info.id), {{info.display_name.data(), info.display_name.size()}});
+    if (!s.is_ok()) return s;
+  }
+  const std::string header = point_set_header_bytes(static_cast<std::uint32_t>(info.dimension), info.count);
+  const auto coords = points.coordinates();
+  Status s = write_durably(dir_, path,
+                           {{header.data(), header.size()},
+                            {reinterpret_cast<const char*>(coords.data()), coords.size_bytes()}});
+  if (!s.is_ok()) {
+    ::unlink(name_path(info.id).c_str());
+    return s;
+  }
+  auto set = std::make_shared<StoredSet>();
+  set->info = info;
+  set->info.already_existed = false;
+  set->points = std::move(points);
+  set->tree = std::make_unique<KdTree>(set->points);
+  set->memory_bytes = bytes;
+  remember(std::move(set));
+  return info;
+}
+
+Result<PointSetInfo> PointSetStore::info(const std::string& id) {
+  if (!is_valid_id(id)) {
+    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+  }
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = index_.find(id); it != index_.end() && file_exists(data_path(id))) return (*it->second)->info;
+  }
+  const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
+  char header[kHeaderBytes];
+  const bool ok = ::read(fd, header, kHeaderBytes) == static_cast<ssize_t>(kHeaderBytes);
+  ::close(fd);
+  if (!ok) return Status{Code::kNotFound, "point set " + id + " not found (its file is truncated)"};
+  PointSetInfo info;
+  info.id = id;
+  std::uint32_t d = 0;
+  std::memcpy(&d, header, 4);
+  std::memcpy(&info.count, header + 4, 8);
+  info.dimension = static_cast<int>(d);
+  std::string name;
+  if (read_file(name_path(id), name)) info.display_name = name;
+  return info;
+}
+
+Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& id) {
+  if (!is_valid_id(id)) {
+    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+  }
+  const bool on_disk = file_exists(data_path(id));
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = index_.find(id); it != index_.end()) {
+      if (on_disk) {
+        lru_.splice(lru_.begin(), lru_, it->second);
+        return *it->second;
+      }
+    }
+  }
+  if (!on_disk) {
+    forget(id);  // deleted, possibly through another server sharing the data dir
+    return Status{Code::kNotFound, "point set " + id + " not found"};
+  }
+  auto loaded = load_from_disk(id);
+  if (!loaded.is_ok()) return loaded.status();
+  return remember(std::move(loaded).value());
+}
+
+Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std::string& id) {
+  std::string bytes;
+  if (!read_file(data_path(id), bytes)) return Status{Code::kNotFound, "point set " + id + " not found"};
+  Sha256 sha;
+  sha.update(bytes.data(), bytes.size());
+  if (sha.hex_digest() != id) {
+    quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(bytes.size()) + " bytes)");
+    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
+  }
+  std::uint32_t d = 0;
+  std::uint64_t n = 0;
+  if (bytes.size() >= kHeaderBytes) {
+    std::memcpy(&d, bytes.data(), 4);
+    std::memcpy(&n, bytes.data() + 4, 8);
+  }
+  if (bytes.size() < kHeaderBytes || d < 2 || d > kMaxDimension || n > (bytes.size() - kHeaderBytes) / 8 / d ||
+      bytes.size() != kHeaderBytes + n * d * 8) {
+    quarantine(id, "its header does not match its size");
+    return Status{Code::kNotFound, "point set " + id + " was malformed on disk and has been quarantined"};
+  }
+  std::vector<double> coords(n * d);
+  std::memcpy(coords.data(), bytes.data() + kHeaderBytes, coords.size() * 8);
+  bytes.clear();
+  bytes.shrink_to_fit();
+  auto set = std::make_shared<StoredSet>();
+  set->points = PointSet(static_cast<int>(d), std::move(coords));
+  if (Status s = set->points.validate("point set " + id); !s.is_ok()) {
+    quarantine(id, s.message());
+    return Status{Code::kNotFound, "point set " + id + " was invalid on disk and has been quarantined"};
+  }
+  set->info.id = id;
+  set->info.dimension = static_cast<int>(d);
+  set->info.count = n;
+  std::string name;
+  if (read_file(name_path(id), name)) set->info.display_name = name;
+  set->tree = std::make_unique<KdTree>(set->points);
+  set->memory_bytes = estimated_memory(n, static_cast<int>(d));
+  return std::shared_ptr<const StoredSet>(std::move(set));
+}
+
+void PointSetStore::quarantine(const std::string& id, const std::string& why) {
+  const std::string target = dir_ + "/quarantine/" + id + ".points." + std::to_string(std::time(nullptr));
+  const bool moved = ::rename(data_path(id).c_str(), target.c_str()) == 0;
+  if (moved) fsync_dir(dir_);
+  forget(id);
+  if (log_) {
+    log_("error", "point set " + id + " quarantined: " + why + (moved ? " (moved to " + target + ")" : " (move failed)"));
+  }
+}
+
+std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const StoredSet> set) {
+  std::lock_guard lock(mutex_);
+  if (auto it = index_.find(set->info.id); it != index_.end()) {
+    lru_.splice(lru_.begin(), lru_, it->second);
+    return *it->second;  // another request loaded it first
+  }
+  lru_.push_front(set);
+  index_[set->info.id] = lru_.begin();
+  in_use_ += set->memory_bytes;
+  // Drop least recently used sets from memory (they stay on disk); never the new one.
+  while (in_use_ > budget_ && lru_.size() > 1) {
+    const auto& victim = lru_.back();
+    in_use_ -= victim->memory_bytes;
+    index_.erase(victim->info.id);
+    lru_.pop_back();
+  }
+  return set;
+}
+
+void PointSetStore::forget(const std::string& id) {
+  std::lock_guard lock(mutex_);
+  if (auto it = index_.find(id); it != index_.end()) {
+    in_use_ -= (*it->second)->memory_bytes;
+    lru_.erase(it->second);
+    index_.erase(it);
+  }
+}
+
+std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::size_t limit, bool* more) {
+  std::vector<std::string> ids;
+  if (DIR* dir = ::opendir(dir_.c_str())) {
+    while (const dirent* e = ::readdir(dir)) {
+      const std::string name = e->d_name;
+      if (name.size() != 64 + 7 || name.compare(64, 7, ".points") != 0) continue;
+      std::string id = name.substr(0, 64);
+      if (is_valid_id(id) && id > after) ids.push_back(std::move(id));
+    }
+    ::closedir(dir);
+  }
+  std::sort(ids.begin(), ids.end());
+  std::vector<PointSetInfo> out;
+  for (const std::string& id : ids) {
+    if (out.size() == limit) break;
+    auto i = info(id);
+    if (i.is_ok()) out.push_back(std::move(i).value());
+  }
+  if (more != nullptr) *more = !out.empty() && out.back().id < ids.back();
+  return out;
+}
+
+Status PointSetStore::remove(const std::string& id) {
+  if (!is_valid_id(id)) {
+    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+  }
+  forget(id);
+  if (::unlink(data_path(id).c_str()) != 0) {
+    if (errno == ENOENT) return {Code::kNotFound, "point set " + id + " not found"};
+    return {Code::kInternal, "cannot delete point set " + id + ": " + errno_text()};
+  }
+  ::unlink(name_path(id).c_str());
+  fsync_dir(dir_);
+  return Status::ok();
+}
+
+std::size_t PointSetStore::load_all() {
+  std::size_t loaded = 0;
+  bool more = true;
+  std::string after;
+  while (more) {
+    const auto page = list(after, 1000, &more);
+    for (const PointSetInfo& info : page) {
+      after = info.id;
+      {
+        std::lock_guard lock(mutex_);
+        if (index_.count(info.id) != 0) continue;
+      }
+      auto set = load_from_disk(info.id);  // verifies; quarantines what fails
+      if (!set.is_ok()) continue;
+      ++loaded;
+      if (memory_in_use() + set.value()->memory_bytes <= budget_) remember(std::move(set).value());
+    }
+  }
+  return loaded;
+}
+
+std::uint64_t PointSetStore::memory_in_use() const {
+  std::lock_guard lock(mutex_);
+  return in_use_;
+}
+
+std::size_t PointSetStore::loaded_count() const {
+  std::lock_guard lock(mutex_);
+  return index_.size();
+}
+
+}  // namespace spokemesh::service

@@ -1,0 +1,128 @@
+// PointSetStore: uploaded point sets, durable on disk, cached in memory with their trees.
+//
+// On disk (--data-dir), one file per point set, `<id>.points`, holding exactly the
+// bytes the id hashes: dimension (uint32 LE), count (uint64 LE), coordinates (float64
+// LE, row-major). Verifying a file is recomputing its SHA-256, so the id doubles as a
+// checksum. An optional `<id>.name` holds the display name. A file is written to a
+// temporary name, fsynced, renamed into place and the directory fsynced before the
+// upload is acknowledged. A file that fails verification is moved to quarantine/ with
+// a log line; other point sets are unaffected.
+//
+// Several servers may share one data dir: an id that is not in memory is looked up
+// on disk on first use, and a point set deleted through one server disappears from
+// the others at their next request for it (each request checks the file still exists).
+//
+// In memory, loaded point sets (coordinates + k-d tree) are kept up to a byte budget;
+// the least recently used are dropped from memory (never from disk). Requests hold a
+// shared_ptr, so a set dropped mid-request stays alive until that request ends.
+//
+// Thread safety: all member functions are safe to call concurrently.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/status.hpp"
+
+namespace spokemesh::service {
+
+struct PointSetInfo {
+  std::string id;
+  int dimension = 0;
+  std::uint64_t count = 0;
+  std::string display_name;
+  bool already_existed = false;
+};
+
+// A point set ready for queries. Immutable; shared by concurrent requests.
+struct StoredSet {
+  PointSetInfo info;
+  PointSet points;
+  std::unique_ptr<KdTree> tree;
+  std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + tree
+};
+
+// Incremental SHA-256 (OpenSSL EVP).
+class Sha256 {
+ public:
+  Sha256();
+  ~Sha256();
+  Sha256(const Sha256&) = delete;
+  Sha256& operator=(const Sha256&) = delete;
+  void update(const void* data, std::size_t size);
+  std::string hex_digest();  // lowercase; ends the computation
+
+ private:
+  void* ctx_;  // EVP_MD_CTX
+};
+
+// Bytes of the hashed header: dimension (uint32 LE) + count (uint64 LE).
+std::string point_set_header_bytes(std::uint32_t dimension, std::uint64_t count);
+
+// True for 64 lowercase hex digits.
+bool is_valid_id(const std::string& id);
+
+// Estimated resident bytes of a loaded set of n points in d dimensions.
+std::uint64_t estimated_memory(std::uint64_t n, int d);
+
+using LogFn = std::function<void(const std::string& level, const std::string& message)>;
+
+class PointSetStore {
+ public:
+  // Creates data_dir (and quarantine/) if needed. memory_budget: bytes of loaded sets.
+  static Result<std::unique_ptr<PointSetStore>> open(const std::string& data_dir, std::uint64_t memory_budget,
+                                                     LogFn log);
+
+  // Stores a validated point set whose id is `info.id` (computed by the caller from
+  // the same bytes). Durable when this returns OK. If the file exists already,
+  // nothing is written and info.already_existed is set.
+  Result<PointSetInfo> put(PointSetInfo info, PointSet points);
+
+  // The loaded set, from memory or from disk. NOT_FOUND if unknown;
+  // INVALID_ARGUMENT for a malformed id.
+  Result<std::shared_ptr<const StoredSet>> get(const std::string& id);
+
+  // Metadata only (reads the 12-byte header, does not load or verify coordinates).
+  Result<PointSetInfo> info(const std::string& id);
+
+  // Ids on disk in ascending order, strictly after `after`, at most `limit`.
+  std::vector<PointSetInfo> list(const std::string& after, std::size_t limit, bool* more);
+
+  Status remove(const std::string& id);
+
+  // Loads and verifies every point set on disk (start-up). Returns how many loaded.
+  std::size_t load_all();
+
+  std::uint64_t memory_in_use() const;
+  std::size_t loaded_count() const;
+
+ private:
+  PointSetStore(std::string dir, std::uint64_t budget, LogFn log);
+  std::string data_path(const std::string& id) const;
+  std::string name_path(const std::string& id) const;
+  Result<std::shared_ptr<const StoredSet>> load_from_disk(const std::string& id);
+  void quarantine(const std::string& id, const std::string& why);
+  std::shared_ptr<const StoredSet> remember(std::shared_ptr<const StoredSet> set);
+  void forget(const std::string& id);
+
+  const std::string dir_;
+  const std::uint64_t budget_;
+  LogFn log_;
+
+  mutable std::mutex mutex_;
+  // Most recently used first.
+  std::list<std::shared_ptr<const StoredSet>> lru_;
+  std::unordered_map<std::string, std::list<std::shared_ptr<const StoredSet>>::iterator> index_;
+  std::uint64_t in_use_ = 0;
+};
+
+}  // namespace spokemesh::service

@@ -1,0 +1,95 @@
+#include "telemetry.hpp"
+
+#include <prometheus/text_serializer.h>
+
+#include <chrono>
+#include <cstdio>
+#include <ctime>
+#include <nlohmann/json.hpp>
+
+namespace spokemesh::service {
+namespace {
+
+std::string utc_now() {
+  const auto now = std::chrono::system_clock::now();
+  const std::time_t t = std::chrono::system_clock::to_time_t(now);
+  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000;
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[80];
+  std::snprintf(buf, sizeof buf, "%04d-%02d-%02dT%02d:%02d:%02d.%03dZ", tm.tm_year + 1900, tm.tm_mon + 1, tm.tm_mday,
+                tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(ms));
+  return buf;
+}
+
+}  // namespace
+
+Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
+  requests_ = &prometheus::BuildCounter()
+                   .Name("spokemesh_requests_total")
+                   .Help("Requests finished, by transport, method and status code")
+                   .Register(*registry_);
+  latency_ = &prometheus::BuildHistogram()
+                  .Name("spokemesh_request_duration_seconds")
+                  .Help("Request latency, by transport, method and status code")
+                  .Register(*registry_);
+  simplices_ = &prometheus::BuildCounter()
+                    .Name("spokemesh_simplices_served_total")
+                    .Help("Delaunay simplices sent in stars and streamed shards")
+                    .Register(*registry_)
+                    .Add({});
+  points_ = &prometheus::BuildCounter()
+                 .Name("spokemesh_points_uploaded_total")
+                 .Help("Points in newly stored point sets")
+                 .Register(*registry_)
+                 .Add({});
+  memory_ = &prometheus::BuildGauge()
+                 .Name("spokemesh_store_memory_bytes")
+                 .Help("Estimated bytes of point sets and k-d trees held in memory")
+                 .Register(*registry_)
+                 .Add({});
+  loaded_ = &prometheus::BuildGauge()
+                 .Name("spokemesh_store_loaded_point_sets")
+                 .Help("Point sets held in memory")
+                 .Register(*registry_)
+                 .Add({});
+}
+
+void Telemetry::log(const std::string& level, const std::string& message) {
+  nlohmann::json line = {{"time", utc_now()}, {"level", level}, {"message", message}};
+  const std::string text = line.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+  std::lock_guard lock(log_mutex_);
+  std::fwrite(text.data(), 1, text.size(), stderr);
+  std::fflush(stderr);
+}
+
+void Telemetry::record(const Request& r) {
+  const std::string status = code_name(r.code);
+  nlohmann::json line = {{"time", utc_now()},
+                         {"level", r.code == Code::kOk ? "info" : (r.code == Code::kInternal ? "error" : "warning")},
+                         {"transport", r.transport},
+                         {"method", r.method},
+                         {"status", status},
+                         {"duration_ms", r.seconds * 1e3}};
+  if (!r.point_set.empty()) line["point_set"] = r.point_set;
+  if (r.seed) line["seed"] = *r.seed;
+  if (!r.message.empty()) line["message"] = r.message;
+  const std::string text = line.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+  {
+    std::lock_guard lock(log_mutex_);
+    std::fwrite(text.data(), 1, text.size(), stderr);
+    std::fflush(stderr);
+  }
+  const prometheus::Labels labels{{"transport", r.transport}, {"method", r.method}, {"status", status}};
+  requests_->Add(labels).Increment();
+  static const prometheus::Histogram::BucketBoundaries buckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05,
+                                                               0.1,    0.25,  0.5,    1,     2.5,  5,     10, 30};
+  latency_->Add(labels, buckets).Observe(r.seconds);
+}
+
+std::string Telemetry::render_metrics() const {
+  prometheus::TextSerializer serializer;
+  return serializer.Serialize(registry_->Collect());
+}
+
+}  // namespace spokemesh::service
