@@ -20,6 +20,9 @@
 #include "spokemesh/star.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
+#ifdef SPOKEMESH_REMOTE
+#include "remote.hpp"
+#endif
 
 namespace {
 
@@ -250,6 +253,7 @@ int main(int argc, char** argv) {
   CLI::App app{"spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
                "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};
   app.require_subcommand(1);
+  app.fallthrough();  // global options (--server, --deadline, ...) may follow the command
   app.set_version_flag("--version", "spokemesh 0.1.0");
   Common common;
   auto add_common = [&](CLI::App* cmd) {
@@ -263,6 +267,21 @@ int main(int argc, char** argv) {
   std::int64_t seed = -1;
   bool json = false;
 
+  // Remote mode: --server HOST:PORT sends the commands to a spokemesh-server, and
+  // INPUT becomes a point-set id (from `upload`).
+  std::string server, deadline_text = "60s", token_file, tls_ca, tls_cert, tls_key, display_name;
+  unsigned shards = 4;
+  app.add_option("--server", server, "Run against a spokemesh-server at HOST:PORT (gRPC); INPUT is then a point-set id")
+      ->group("Remote mode");
+  app.add_option("--deadline", deadline_text, "Deadline of each remote call (e.g. 500ms, 30s, 5m)")
+      ->capture_default_str()
+      ->group("Remote mode");
+  app.add_option("--token-file", token_file, "File with the server's bearer token (or set SPOKEMESH_TOKEN)")
+      ->group("Remote mode");
+  app.add_option("--tls-ca", tls_ca, "Use TLS, trusting this PEM CA bundle")->group("Remote mode");
+  app.add_option("--tls-cert", tls_cert, "Client certificate (PEM) for mutual TLS")->group("Remote mode");
+  app.add_option("--tls-key", tls_key, "Client private key (PEM) for mutual TLS")->group("Remote mode");
+
   auto* mesh = app.add_subcommand("mesh", "Mesh a point file (the whole Delaunay mesh, or the simplices owned by --seeds)");
   mesh->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
   mesh->add_option("-o,--output", output,
@@ -271,6 +290,9 @@ int main(int argc, char** argv) {
   mesh->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
   mesh->add_option("--seeds", seeds, "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index");
   mesh->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
+  mesh->add_option("--shards", shards, "Remote mode: shards fetched in parallel")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 4096u));
   add_common(mesh);
 
   auto* star = app.add_subcommand("star", "Print the Delaunay simplices incident to one seed, one per line");
@@ -293,6 +315,15 @@ int main(int argc, char** argv) {
   check->add_option("INPUT", input, "Point file")->required();
   check->add_option("MESH", mesh_path, "Mesh file (.simplices/.txt or .npy)")->required();
 
+  auto* upload = app.add_subcommand("upload", "Remote mode: upload a point file; prints its id");
+  upload->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
+  upload->add_option("--name", display_name, "Display name stored with the point set");
+  upload->add_flag("-q,--quiet", common.quiet, "Print only the id");
+  auto* health = app.add_subcommand("health", "Remote mode: ask the server's gRPC health service (exit 0 if SERVING)");
+  auto* list = app.add_subcommand("list", "Remote mode: list the stored point sets");
+  auto* del = app.add_subcommand("delete", "Remote mode: delete a stored point set");
+  del->add_option("ID", input, "Point-set id")->required();
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -306,6 +337,64 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
 
+  const bool remote_only = *upload || *health || *list || *del;
+  if (!server.empty()) {
+#ifdef SPOKEMESH_REMOTE
+    remote::RemoteOptions o;
+    o.server = server;
+    o.tls_ca = tls_ca;
+    o.tls_cert = tls_cert;
+    o.tls_key = tls_key;
+    o.quiet = common.quiet;
+    if (tls_cert.empty() != tls_key.empty()) return report(invalid_argument("--tls-cert and --tls-key go together"));
+    if (!tls_cert.empty() && tls_ca.empty()) return report(invalid_argument("--tls-cert needs --tls-ca"));
+    {
+      std::size_t used = 0;
+      double v = 0;
+      try {
+        v = std::stod(deadline_text, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      const std::string unit = deadline_text.substr(used);
+      const double scale = unit == "ms" ? 1 : unit == "s" || unit.empty() ? 1e3 : unit == "m" ? 60e3 : unit == "h" ? 3600e3 : 0;
+      if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1e10) {
+        return report(invalid_argument("--deadline: \"" + deadline_text + "\" is not a duration like 500ms, 30s or 5m"));
+      }
+      o.deadline = std::chrono::milliseconds(static_cast<std::int64_t>(v * scale));
+    }
+    if (!token_file.empty()) {
+      std::FILE* f = std::fopen(token_file.c_str(), "rb");
+      if (f == nullptr) return report(invalid_argument("--token-file: cannot read " + token_file));
+      char buf[4096];
+      const std::size_t got = std::fread(buf, 1, sizeof buf, f);
+      std::fclose(f);
+      o.token.assign(buf, got);
+    } else if (const char* env = std::getenv("SPOKEMESH_TOKEN")) {
+      o.token = env;
+    }
+    while (!o.token.empty() && std::isspace(static_cast<unsigned char>(o.token.back()))) o.token.pop_back();
+    if (seed < -1) return report(out_of_range("--seed: " + std::to_string(seed) + " is negative"));
+    const auto s = static_cast<std::uint64_t>(seed);
+    if (*upload) return remote::upload(o, input, display_name);
+    if (*health) return remote::health(o);
+    if (*list) return remote::list(o);
+    if (*del) return remote::remove(o, input);
+    if (*star) return remote::star(o, input, s);
+    if (*neighbors) return remote::neighbors(o, input, s);
+    if (*cell) return remote::cell(o, input, s, json);
+    if (*mesh) {
+      if (!seeds.empty()) return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));
+      return remote::mesh(o, input, output, shards);
+    }
+#else
+    return report(invalid_argument("--server: this build has no remote mode (built without SPOKEMESH_BUILD_SERVICE)"));
+#endif
+  }
+  if (remote_only) {
+    return report(invalid_argument(std::string(app.get_subcommands().front()->get_name()) +
+                                   ": needs --server HOST:PORT (a spokemesh-server)"));
+  }
   if (*mesh) return run_mesh(common, input, output, seeds);
   if (*star) {
     return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {

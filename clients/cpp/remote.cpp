@@ -1,0 +1,329 @@
+#include "remote.hpp"
+
+#include <grpcpp/grpcpp.h>
+
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+#include <vector>
+
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "spokemesh/io.hpp"
+#include "spokemesh/v1/mesher.grpc.pb.h"
+
+namespace spokemesh::remote {
+namespace {
+
+namespace pb = ::spokemesh::v1;
+constexpr int kExitOk = 0, kExitFailure = 1, kExitUsage = 2;
+
+int report(const RemoteOptions& o, const grpc::Status& s) {
+  static const char* names[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED", "NOT_FOUND",
+                                "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED", "FAILED_PRECONDITION",
+                                "ABORTED", "OUT_OF_RANGE", "UNIMPLEMENTED", "INTERNAL", "UNAVAILABLE", "DATA_LOSS",
+                                "UNAUTHENTICATED"};
+  const int code = static_cast<int>(s.error_code());
+  std::cerr << "spokemesh: " << o.server << ": " << (code >= 0 && code <= 16 ? names[code] : "UNKNOWN") << ": "
+            << s.error_message() << "\n";
+  switch (s.error_code()) {
+    case grpc::StatusCode::INVALID_ARGUMENT:
+    case grpc::StatusCode::OUT_OF_RANGE:
+    case grpc::StatusCode::NOT_FOUND: return kExitUsage;
+    default: return kExitFailure;
+  }
+}
+
+int report(const Status& s) {
+  std::cerr << "spokemesh: " << s.message() << "\n";
+  return s.code() == Code::kInvalidArgument || s.code() == Code::kOutOfRange ? kExitUsage : kExitFailure;
+}
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::shared_ptr<grpc::Channel> channel(const RemoteOptions& o) {
+  std::shared_ptr<grpc::ChannelCredentials> creds = grpc::InsecureChannelCredentials();
+  if (!o.tls_ca.empty()) {
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs = slurp(o.tls_ca);
+    if (!o.tls_cert.empty()) {
+      ssl.pem_cert_chain = slurp(o.tls_cert);
+      ssl.pem_private_key = slurp(o.tls_key);
+    }
+    creds = grpc::SslCredentials(ssl);
+  }
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  return grpc::CreateCustomChannel(o.server, creds, args);
+}
+
+void prepare(const RemoteOptions& o, grpc::ClientContext& ctx) {
+  ctx.set_deadline(std::chrono::system_clock::now() + o.deadline);
+  if (!o.token.empty()) ctx.AddMetadata("authorization", "Bearer " + o.token);
+}
+
+}  // namespace
+
+int upload(const RemoteOptions& o, const std::string& input, const std::string& name) {
+  auto points = read_points(input);  // file:line errors for malformed files, before any network
+  if (!points.is_ok()) return report(points.status());
+  auto stub = pb::Mesher::NewStub(channel(o));
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::PointSet response;
+  auto writer = stub->UploadPointSet(&ctx, &response);
+  pb::UploadPointSetRequest message;
+  message.mutable_header()->set_dimension(static_cast<std::uint32_t>(points->dimension()));
+  message.mutable_header()->set_count(points->size());
+  message.mutable_header()->set_display_name(name);
+  bool ok = writer->Write(message);
+  const auto coords = points->coordinates();
+  const char* bytes = reinterpret_cast<const char*>(coords.data());
+  constexpr std::size_t kChunk = 1 << 20;
+  for (std::size_t at = 0; ok && at < coords.size_bytes(); at += kChunk) {
+    message.set_coordinates(bytes + at, std::min(kChunk, coords.size_bytes() - at));
+    ok = writer->Write(message);
+  }
+  writer->WritesDone();
+  const grpc::Status s = writer->Finish();
+  if (!s.ok()) return report(o, s);
+  std::cout << response.id() << "\n";
+  if (!o.quiet) {
+    std::cerr << "spokemesh: " << (response.already_existed() ? "already stored: " : "stored: ") << response.count()
+              << " points in " << response.dimension() << "-d\n";
+  }
+  return kExitOk;
+}
+
+namespace {
+
+template <class Response, class Call>
+int unary(const RemoteOptions& o, Call&& call, Response& response) {
+  auto stub = pb::Mesher::NewStub(channel(o));
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  const grpc::Status s = call(*stub, ctx, response);
+  return s.ok() ? kExitOk : report(o, s);
+}
+
+pb::SeedRequest seed_request(const std::string& id, std::uint64_t seed) {
+  pb::SeedRequest r;
+  r.set_point_set_id(id);
+  r.set_seed(seed);
+  return r;
+}
+
+}  // namespace
+
+int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
+  pb::Star response;
+  const int rc = unary(o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetStar(&ctx, seed_request(id, seed), &r); },
+                       response);
+  if (rc != kExitOk) return rc;
+  std::string out;
+  append_index_lines(out, {response.simplices().data(), static_cast<std::size_t>(response.simplices().size())},
+                     static_cast<int>(response.dimension()) + 1);
+  std::fwrite(out.data(), 1, out.size(), stdout);
+  return kExitOk;
+}
+
+int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
+  pb::Neighbors response;
+  const int rc = unary(
+      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, seed_request(id, seed), &r); }, response);
+  if (rc != kExitOk) return rc;
+  for (std::uint32_t v : response.neighbors()) std::printf("%u\n", v);
+  return kExitOk;
+}
+
+int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json) {
+  pb::VoronoiCell c;
+  const int rc = unary(
+      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetVoronoiCell(&ctx, seed_request(id, seed), &r); }, c);
+  if (rc != kExitOk) return rc;
+  const int d = static_cast<int>(c.dimension());
+  const std::size_t nv = d == 0 ? 0 : static_cast<std::size_t>(c.vertices_size()) / d;
+  // The same layout as the local `cell` command.
+  if (json) {
+    nlohmann::json j;
+    j["seed"] = seed;
+    j["dimension"] = d;
+    j["bounded"] = c.bounded();
+    j["volume"] = c.bounded() ? nlohmann::json(c.volume()) : nlohmann::json(nullptr);
+    j["vertices"] = nlohmann::json::array();
+    for (std::size_t v = 0; v < nv; ++v) {
+      j["vertices"].push_back(
+          {{"position", std::vector<double>(c.vertices().begin() + v * d, c.vertices().begin() + (v + 1) * d)},
+           {"simplex", std::vector<std::uint32_t>(c.vertex_simplices().begin() + v * (d + 1),
+                                                  c.vertex_simplices().begin() + (v + 1) * (d + 1))}});
+    }
+    j["facets"] = nlohmann::json::array();
+    for (const auto& f : c.facets()) {
+      j["facets"].push_back(
+          {{"neighbor", f.neighbor()}, {"vertices", std::vector<std::uint32_t>(f.vertices().begin(), f.vertices().end())}});
+    }
+    std::cout << j.dump(2) << "\n";
+    return kExitOk;
+  }
+  std::printf("seed %llu\ndimension %d\nbounded %s\n", static_cast<unsigned long long>(seed), d,
+              c.bounded() ? "yes" : "no");
+  if (c.bounded()) std::printf("volume %.17g\n", c.volume());
+  else std::printf("volume inf\n");
+  std::printf("vertices %zu\n", nv);
+  for (std::size_t v = 0; v < nv; ++v) {
+    std::printf("v %zu", v);
+    for (int k = 0; k < d; ++k) std::printf(" %.17g", c.vertices(static_cast<int>(v * d + k)));
+    std::printf("  simplex");
+    for (int k = 0; k <= d; ++k) std::printf(" %u", c.vertex_simplices(static_cast<int>(v * (d + 1) + k)));
+    std::printf("\n");
+  }
+  std::printf("facets %d\n", c.facets_size());
+  for (const auto& f : c.facets()) {
+    std::printf("f neighbor %u vertices", f.neighbor());
+    for (auto v : f.vertices()) std::printf(" %u", v);
+    std::printf("\n");
+  }
+  return kExitOk;
+}
+
+int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards) {
+  auto ch = channel(o);
+  auto stub = pb::Mesher::NewStub(ch);
+  pb::PointSet info;
+  {
+    grpc::ClientContext ctx;
+    prepare(o, ctx);
+    pb::GetPointSetRequest r;
+    r.set_point_set_id(id);
+    if (grpc::Status s = stub->GetPointSet(&ctx, r, &info); !s.ok()) return report(o, s);
+  }
+  const int d = static_cast<int>(info.dimension());
+  auto format = MeshWriter::format_for(output, d);
+  if (!format.is_ok()) return report(format.status());
+  // Coordinates are needed only by the formats that draw the mesh.
+  std::vector<double> coords;
+  if (format.value() != MeshWriter::Format::kText && format.value() != MeshWriter::Format::kNpy) {
+    grpc::ClientContext ctx;
+    prepare(o, ctx);
+    pb::GetPointSetRequest r;
+    r.set_point_set_id(id);
+    auto reader = stub->DownloadPointSet(&ctx, r);
+    pb::CoordinateChunk chunk;
+    std::string bytes;
+    while (reader->Read(&chunk)) bytes += chunk.coordinates();
+    if (grpc::Status s = reader->Finish(); !s.ok()) return report(o, s);
+    coords.resize(bytes.size() / 8);
+    std::memcpy(coords.data(), bytes.data(), coords.size() * 8);
+  }
+  const PointSet points(d, std::move(coords));
+  auto writer = MeshWriter::open(output, points);
+  if (!writer.is_ok()) return report(writer.status());
+
+  // One stream per shard, each spooled to an anonymous temporary file so memory stays
+  // bounded; shards are concatenated in order (shard k's seeds precede shard k+1's,
+  // so the result is lexicographic, as from the local command).
+  if (shards == 0) shards = 1;
+  struct Shard {
+    std::FILE* spool = nullptr;
+    grpc::Status status;
+    std::uint64_t simplices = 0;
+  };
+  std::vector<Shard> parts(shards);
+  std::vector<std::thread> threads;
+  const auto start = std::chrono::steady_clock::now();
+  for (unsigned k = 0; k < shards; ++k) {
+    threads.emplace_back([&, k] {
+      Shard& part = parts[k];
+      part.spool = std::tmpfile();
+      grpc::ClientContext ctx;
+      prepare(o, ctx);
+      pb::StreamSimplicesRequest r;
+      r.set_point_set_id(id);
+      r.set_shard_index(k);
+      r.set_shard_count(shards);
+      auto reader = stub->StreamSimplices(&ctx, r);
+      pb::SimplexBatch batch;
+      while (reader->Read(&batch)) {
+        std::fwrite(batch.simplices().data(), 4, static_cast<std::size_t>(batch.simplices_size()), part.spool);
+        part.simplices += static_cast<std::uint64_t>(batch.simplices_size()) / (d + 1);
+      }
+      part.status = reader->Finish();
+      if (part.spool == nullptr || std::ferror(part.spool)) {
+        part.status = grpc::Status(grpc::StatusCode::INTERNAL, "cannot spool shard " + std::to_string(k) + " to a temporary file");
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  std::uint64_t total = 0;
+  std::vector<std::uint32_t> buffer(1 << 16);
+  for (Shard& part : parts) {
+    if (!part.status.ok()) return report(o, part.status);
+    std::rewind(part.spool);
+    std::size_t got = 0;
+    const std::size_t width = static_cast<std::size_t>(d) + 1;
+    while ((got = std::fread(buffer.data(), 4, buffer.size() - buffer.size() % width, part.spool)) > 0) {
+      if (Status s = writer.value()->write({buffer.data(), got}); !s.is_ok()) return report(s);
+    }
+    std::fclose(part.spool);
+    total += part.simplices;
+  }
+  if (Status s = writer.value()->commit(); !s.is_ok()) return report(s);
+  if (!o.quiet) {
+    const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::fprintf(stderr, "spokemesh: %llu points, %llu simplices from %u shards, %.2f s -> %s\n",
+                 static_cast<unsigned long long>(info.count()), static_cast<unsigned long long>(total), shards, t,
+                 output.c_str());
+  }
+  return kExitOk;
+}
+
+int health(const RemoteOptions& o) {
+  auto stub = grpc::health::v1::Health::NewStub(channel(o));
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  grpc::health::v1::HealthCheckRequest request;
+  grpc::health::v1::HealthCheckResponse response;
+  const grpc::Status s = stub->Check(&ctx, request, &response);
+  if (!s.ok()) return report(o, s);
+  const bool serving = response.status() == grpc::health::v1::HealthCheckResponse::SERVING;
+  std::printf("%s\n", serving ? "SERVING" : "NOT_SERVING");
+  return serving ? kExitOk : kExitFailure;
+}
+
+int list(const RemoteOptions& o) {
+  auto stub = pb::Mesher::NewStub(channel(o));
+  std::string token;
+  do {
+    grpc::ClientContext ctx;
+    prepare(o, ctx);
+    pb::ListPointSetsRequest r;
+    r.set_page_token(token);
+    pb::ListPointSetsResponse page;
+    if (grpc::Status s = stub->ListPointSets(&ctx, r, &page); !s.ok()) return report(o, s);
+    for (const auto& p : page.point_sets()) {
+      std::printf("%s  %u-d  %llu points  %s\n", p.id().c_str(), p.dimension(),
+                  static_cast<unsigned long long>(p.count()), p.display_name().c_str());
+    }
+    token = page.next_page_token();
+  } while (!token.empty());
+  return kExitOk;
+}
+
+int remove(const RemoteOptions& o, const std::string& id) {
+  pb::DeletePointSetResponse response;
+  pb::DeletePointSetRequest r;
+  r.set_point_set_id(id);
+  return unary(o, [&](auto& stub, auto& ctx, auto& resp) { return stub.DeletePointSet(&ctx, r, &resp); }, response);
+}
+
+}  // namespace spokemesh::remote

@@ -1,0 +1,33 @@
+// Remote mode of the spokemesh CLI: the same commands against a spokemesh-server.
+//
+// Every call carries a deadline (--deadline). Exit codes as for local mode: 0 ok,
+// 2 bad input (INVALID_ARGUMENT, OUT_OF_RANGE, NOT_FOUND), 1 any other failure.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+
+namespace spokemesh::remote {
+
+struct RemoteOptions {
+  std::string server;                      // HOST:PORT
+  std::chrono::milliseconds deadline{60'000};
+  std::string token;                       // bearer token ("" = none)
+  std::string tls_ca;                      // PEM file: use TLS, trusting this CA
+  std::string tls_cert, tls_key;           // PEM files: client certificate (mTLS)
+  bool quiet = false;
+};
+
+int upload(const RemoteOptions& o, const std::string& input, const std::string& name);
+int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
+int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
+int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json);
+// Fetches all shards in parallel (one stream each) and writes OUTPUT in any format
+// of the local `mesh` command.
+int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards);
+int health(const RemoteOptions& o);
+int list(const RemoteOptions& o);
+int remove(const RemoteOptions& o, const std::string& id);
+
+}  // namespace spokemesh::remote
