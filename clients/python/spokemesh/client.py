@@ -1,0 +1,191 @@
+"""The spokemesh gRPC client. See the package docstring for an example."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+from typing import Iterator, List, Optional, Sequence
+
+import grpc
+import numpy as np
+
+from .v1 import mesher_pb2 as pb
+from .v1 import mesher_pb2_grpc as pb_grpc
+
+_CHUNK = 1 << 20  # bytes of coordinates per upload message (gRPC's limit is 4 MiB)
+
+
+class Error(Exception):
+    """A failed call. ``code`` is the grpc.StatusCode, ``details`` the server's message."""
+
+    def __init__(self, code: grpc.StatusCode, details: str):
+        super().__init__(f"{code.name}: {details}")
+        self.code = code
+        self.details = details
+
+
+@dataclasses.dataclass(frozen=True)
+class PointSet:
+    id: str
+    dimension: int
+    count: int
+    display_name: str = ""
+    already_existed: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Star:
+    seed: int
+    simplices: np.ndarray      # (m, d + 1) uint32, ascending rows, lexicographic
+    circumcenters: np.ndarray  # (m, d) float64: the Voronoi vertices of the seed's cell
+    hull_facets: int           # star facets on the convex hull (0 <=> bounded cell)
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    seed: int
+    vertices: np.ndarray          # (k, d) float64
+    vertex_simplices: np.ndarray  # (k, d + 1) uint32
+    facets: List[tuple]           # (neighbor, np.ndarray of vertex indices), by neighbour
+    bounded: bool
+    volume: float                 # inf when unbounded
+
+
+class Client:
+    """A connection to one spokemesh-server (or a load balancer in front of several).
+
+    target: "host:port". timeout: seconds allowed for each call (every call has a
+    deadline). token: bearer token, if the server requires one. root_certificates /
+    private_key / certificate_chain: PEM bytes for TLS / mutual TLS.
+    Thread safety: a Client may be shared by threads (gRPC channels are thread-safe).
+    """
+
+    def __init__(self, target: str, *, timeout: float = 60.0, token: Optional[str] = None,
+                 root_certificates: Optional[bytes] = None, private_key: Optional[bytes] = None,
+                 certificate_chain: Optional[bytes] = None):
+        options = [("grpc.max_receive_message_length", 64 << 20)]
+        if root_certificates is not None:
+            creds = grpc.ssl_channel_credentials(root_certificates, private_key, certificate_chain)
+            self._channel = grpc.secure_channel(target, creds, options=options)
+        else:
+            self._channel = grpc.insecure_channel(target, options=options)
+        self._stub = pb_grpc.MesherStub(self._channel)
+        self._timeout = timeout
+        self._metadata = [("authorization", f"Bearer {token}")] if token else []
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _call(self, method, request, timeout: Optional[float] = None):
+        try:
+            return method(request, timeout=timeout or self._timeout, metadata=self._metadata)
+        except grpc.RpcError as e:  # one exception type for callers, with the code kept
+            raise Error(e.code(), e.details()) from None
+
+    # ---- point sets -------------------------------------------------------------
+
+    def upload(self, points: np.ndarray, name: str = "", timeout: Optional[float] = None) -> PointSet:
+        """Uploads an (n, d) array (converted to float64). Idempotent: the id is the
+        SHA-256 of the data, and uploading the same data again does no work."""
+        array = np.ascontiguousarray(points, dtype="<f8")
+        if array.ndim != 2:
+            raise ValueError(f"points: expected a 2-d array (n, d), got shape {array.shape}")
+        data = array.tobytes()
+
+        def messages() -> Iterator[pb.UploadPointSetRequest]:
+            yield pb.UploadPointSetRequest(
+                header=pb.PointSetHeader(dimension=array.shape[1], count=array.shape[0], display_name=name))
+            for at in range(0, len(data), _CHUNK):
+                yield pb.UploadPointSetRequest(coordinates=data[at:at + _CHUNK])
+
+        r = self._call(self._stub.UploadPointSet, messages(), timeout)
+        return _point_set(r)
+
+    def get(self, point_set_id: str) -> PointSet:
+        return _point_set(self._call(self._stub.GetPointSet, pb.GetPointSetRequest(point_set_id=point_set_id)))
+
+    def list(self, page_size: int = 0) -> List[PointSet]:
+        out, token = [], ""
+        while True:
+            r = self._call(self._stub.ListPointSets, pb.ListPointSetsRequest(page_size=page_size, page_token=token))
+            out.extend(_point_set(p) for p in r.point_sets)
+            token = r.next_page_token
+            if not token:
+                return out
+
+    def delete(self, point_set_id: str) -> None:
+        self._call(self._stub.DeletePointSet, pb.DeletePointSetRequest(point_set_id=point_set_id))
+
+    def download(self, point_set_id: str) -> np.ndarray:
+        """The uploaded coordinates, (n, d) float64, in upload order."""
+        info = self.get(point_set_id)
+        try:
+            chunks = [c.coordinates for c in self._stub.DownloadPointSet(
+                pb.GetPointSetRequest(point_set_id=point_set_id), timeout=self._timeout, metadata=self._metadata)]
+        except grpc.RpcError as e:
+            raise Error(e.code(), e.details()) from None
+        return np.frombuffer(b"".join(chunks), dtype="<f8").reshape(info.count, info.dimension)
+
+    # ---- per-seed queries -------------------------------------------------------
+
+    def star(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Star:
+        r = self._call(self._stub.GetStar, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
+        d = r.dimension
+        return Star(seed=r.seed,
+                    simplices=np.array(r.simplices, dtype=np.uint32).reshape(-1, d + 1),
+                    circumcenters=np.array(r.circumcenters, dtype=np.float64).reshape(-1, d),
+                    hull_facets=r.hull_facets)
+
+    def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> np.ndarray:
+        r = self._call(self._stub.GetNeighbors, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
+        return np.array(r.neighbors, dtype=np.uint32)
+
+    def cell(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Cell:
+        r = self._call(self._stub.GetVoronoiCell, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
+        d = r.dimension
+        return Cell(seed=r.seed,
+                    vertices=np.array(r.vertices, dtype=np.float64).reshape(-1, d),
+                    vertex_simplices=np.array(r.vertex_simplices, dtype=np.uint32).reshape(-1, d + 1),
+                    facets=[(f.neighbor, np.array(f.vertices, dtype=np.uint32)) for f in r.facets],
+                    bounded=r.bounded,
+                    volume=r.volume if r.bounded else float("inf"))
+
+    # ---- the whole mesh ---------------------------------------------------------
+
+    def shard(self, point_set_id: str, shard_index: int, shard_count: int, batch_size: int = 0,
+              timeout: Optional[float] = None) -> np.ndarray:
+        """The simplices owned by one shard's seeds, (m, d + 1) uint32."""
+        request = pb.StreamSimplicesRequest(point_set_id=point_set_id, shard_index=shard_index,
+                                            shard_count=shard_count, batch_size=batch_size)
+        parts, width = [], None
+        try:
+            for batch in self._stub.StreamSimplices(request, timeout=timeout or self._timeout,
+                                                    metadata=self._metadata):
+                width = batch.dimension + 1
+                parts.append(np.array(batch.simplices, dtype=np.uint32))
+        except grpc.RpcError as e:
+            raise Error(e.code(), e.details()) from None
+        if width is None:
+            width = self.get(point_set_id).dimension + 1
+        flat = np.concatenate(parts) if parts else np.zeros(0, dtype=np.uint32)
+        return flat.reshape(-1, width)
+
+    def simplices(self, point_set_id: str, shards: int = 1, timeout: Optional[float] = None) -> np.ndarray:
+        """The whole Delaunay mesh, (m, d + 1) uint32 in lexicographic order, fetched as
+        `shards` parallel streams (shard k owns seeds [k N / shards, (k + 1) N / shards))."""
+        if shards < 1:
+            raise ValueError("shards: must be at least 1")
+        with concurrent.futures.ThreadPoolExecutor(max_workers=min(shards, 16)) as pool:
+            parts = list(pool.map(lambda k: self.shard(point_set_id, k, shards, timeout=timeout), range(shards)))
+        return np.concatenate(parts, axis=0)
+
+
+def _point_set(r: pb.PointSet) -> PointSet:
+    return PointSet(id=r.id, dimension=r.dimension, count=r.count, display_name=r.display_name,
+                    already_existed=r.already_existed)
