@@ -274,7 +274,7 @@ HttpResponse HttpApi::upload(Context& c) {
   json doc;
   try {
     doc = json::parse(body);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // syntax errors, and numbers beyond double's range
     return c.fail(invalid_argument(std::string("body: invalid JSON: ") + e.what()));
   }
   if (!doc.is_object()) return c.fail(invalid_argument("body: expected a JSON object"));

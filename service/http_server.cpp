@@ -174,7 +174,14 @@ void HttpServer::session(Stream& stream, int fd) {
       connections_[fd] = Clock::time_point::max();  // busy: never reaped as idle
     }
     const http::request<http::string_body> request = parser.release();
-    HttpResponse response = api_.handle_request(request, client_gone);
+    HttpResponse response;
+    try {
+      response = api_.handle_request(request, client_gone);
+    } catch (const std::exception& e) {  // e.g. bad_alloc: one failed request, not a dead server
+      response.status = 500;
+      response.body = error_json(internal_error(std::string("internal error: ") + e.what()));
+      telemetry_.log("error", std::string("request failed with an exception: ") + e.what());
+    }
     const bool keep_alive = request.keep_alive() && !stopping_.load();
     bool broken = false;
     if (response.stream) {

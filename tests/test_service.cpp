@@ -1,0 +1,662 @@
+// In-process tests of the service layer: the store (durability layout, verification,
+// quarantine, memory budget, a data dir shared by two stores), the Engine (limits,
+// every error, deadlines, cancellation, shards), the REST handler as a pure function,
+// and the gRPC service on a real server in this process.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+#include <openssl/sha.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "engine.hpp"
+#include "grpc/health/v1/health.grpc.pb.h"
+#include "grpc_service.hpp"
+#include "http_api.hpp"
+#include "spokemesh/mesh.hpp"
+#include "support.hpp"
+
+namespace spokemesh::service {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using spokemesh::testing::uniform_points;
+
+// A fresh data directory per test, removed afterwards.
+class TempDir {
+ public:
+  TempDir() {
+    char tmpl[] = "/tmp/spokemesh-test-XXXXXX";
+    path_ = ::mkdtemp(tmpl);
+  }
+  ~TempDir() { fs::remove_all(path_); }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+std::string sha256_hex(const std::string& bytes) {
+  unsigned char md[SHA256_DIGEST_LENGTH];
+  SHA256(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), md);
+  char hex[2 * SHA256_DIGEST_LENGTH + 1];
+  for (int i = 0; i < SHA256_DIGEST_LENGTH; ++i) std::snprintf(hex + 2 * i, 3, "%02x", md[i]);
+  return hex;
+}
+
+std::string raw_bytes(int d, const std::vector<double>& coords) {
+  return point_set_header_bytes(static_cast<std::uint32_t>(d), coords.size() / d) +
+         std::string(reinterpret_cast<const char*>(coords.data()), coords.size() * 8);
+}
+
+std::unique_ptr<Engine> make_engine(const std::string& dir, Limits limits = {}) {
+  auto store = PointSetStore::open(dir, limits.max_memory, {});
+  EXPECT_TRUE(store.is_ok()) << store.status().message();
+  return std::make_unique<Engine>(std::move(store).value(), limits);
+}
+
+Result<PointSetInfo> upload(Engine& engine, int d, const std::vector<double>& coords, const std::string& name = "") {
+  auto session = engine.begin_upload({d, static_cast<std::int64_t>(coords.size() / d), name});
+  if (!session.is_ok()) return session.status();
+  // In uneven chunks, as a client may send them.
+  const char* bytes = reinterpret_cast<const char*>(coords.data());
+  const std::size_t total = coords.size() * 8;
+  for (std::size_t at = 0; at < total; at += 1000) {
+    if (Status s = session.value()->append(bytes + at, std::min<std::size_t>(1000, total - at)); !s.is_ok()) return s;
+  }
+  return engine.finish_upload(*session.value());
+}
+
+CallControl no_deadline() { return CallControl(Clock::now() + std::chrono::hours(1)); }
+
+TEST(Store, Sha256MatchesOpenSslOneShot) {
+  Sha256 sha;
+  sha.update("ab", 2);
+  sha.update("c", 1);
+  EXPECT_EQ(sha.hex_digest(), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+}
+
+TEST(Store, UploadStoresExactlyTheHashedBytesAndIsIdempotent) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto coords = uniform_points(3, 500, 1);
+  auto first = upload(*engine, 3, coords, "ball");
+  ASSERT_TRUE(first.is_ok()) << first.status().message();
+  EXPECT_FALSE(first->already_existed);
+  EXPECT_EQ(first->id, sha256_hex(raw_bytes(3, coords)));
+  std::ifstream in(dir.path() + "/" + first->id + ".points", std::ios::binary);
+  const std::string stored((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(stored, raw_bytes(3, coords));
+  auto again = upload(*engine, 3, coords, "other name");
+  ASSERT_TRUE(again.is_ok());
+  EXPECT_TRUE(again->already_existed);
+  EXPECT_EQ(again->id, first->id);
+  EXPECT_EQ(again->display_name, "ball");  // the first upload's name stays
+  // No temporary files are left behind.
+  for (const auto& e : fs::directory_iterator(dir.path())) {
+    EXPECT_NE(e.path().filename().string().rfind(".tmp-", 0), 0u) << e.path();
+  }
+}
+
+TEST(Store, UploadErrorsNameTheFieldAndLeaveNothingBehind) {
+  TempDir dir;
+  Limits limits;
+  limits.max_points = 1000;
+  limits.max_dimension = 4;
+  auto engine = make_engine(dir.path(), limits);
+  auto expect = [&](Code code, const std::string& fragment, auto&& run) {
+    const Status s = run();
+    EXPECT_EQ(s.code(), code) << s.message();
+    EXPECT_NE(s.message().find(fragment), std::string::npos) << s.message();
+  };
+  expect(Code::kInvalidArgument, "dimension: 1", [&] { return engine->begin_upload({1, 10, ""}).status(); });
+  expect(Code::kResourceExhausted, "--max-dimension=4", [&] { return engine->begin_upload({5, 10, ""}).status(); });
+  expect(Code::kResourceExhausted, "--max-points=1000", [&] { return engine->begin_upload({2, 1001, ""}).status(); });
+  expect(Code::kInvalidArgument, "count: 2", [&] { return engine->begin_upload({2, 2, ""}).status(); });
+  expect(Code::kInvalidArgument, "display_name", [&] { return engine->begin_upload({2, 3, std::string(300, 'x')}).status(); });
+  // Byte counts: too many is refused at once, too few at the end.
+  {
+    auto s = engine->begin_upload({2, 3, ""});
+    ASSERT_TRUE(s.is_ok());
+    std::vector<double> seven(7, 0.5);
+    expect(Code::kInvalidArgument, "more than the 48 bytes", [&] { return s.value()->append(seven.data(), 56); });
+    auto t = engine->begin_upload({2, 3, ""});
+    ASSERT_TRUE(t.value()->append(seven.data(), 40).is_ok());
+    expect(Code::kInvalidArgument, "received 40 bytes", [&] { return engine->finish_upload(*t.value()).status(); });
+  }
+  std::vector<double> c = {0, 0, 1, 0, 0, 1, 1, 1};
+  c[5] = std::nan("");
+  expect(Code::kInvalidArgument, "point 2, coordinate 1", [&] { return upload(*engine, 2, c).status(); });
+  c[5] = INFINITY;
+  expect(Code::kInvalidArgument, "point 2, coordinate 1", [&] { return upload(*engine, 2, c).status(); });
+  expect(Code::kInvalidArgument, "points 0 and 3", [&] { return upload(*engine, 2, {0, 0, 1, 0, 0, 1, 0, 0}).status(); });
+  expect(Code::kInvalidArgument, "span only a 1", [&] { return upload(*engine, 2, {0, 0, 1, 1, 2, 2, 3, 3}).status(); });
+  for (const auto& e : fs::directory_iterator(dir.path())) EXPECT_TRUE(e.is_directory()) << e.path();
+}
+
+TEST(Store, CorruptFilesAreQuarantinedAndOthersKeepWorking) {
+  TempDir dir;
+  std::string good, bad;
+  {
+    auto engine = make_engine(dir.path());
+    good = upload(*engine, 2, uniform_points(2, 100, 1)).value().id;
+    bad = upload(*engine, 2, uniform_points(2, 100, 2)).value().id;
+  }
+  {  // Flip one byte of `bad`'s coordinates.
+    std::fstream f(dir.path() + "/" + bad + ".points", std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(40);
+    f.put('\x7f');
+  }
+  std::vector<std::string> logs;
+  auto store = PointSetStore::open(dir.path(), 1 << 30, [&](const std::string&, const std::string& m) { logs.push_back(m); });
+  ASSERT_TRUE(store.is_ok());
+  EXPECT_EQ(store.value()->load_all(), 1u);
+  ASSERT_EQ(logs.size(), 1u);
+  EXPECT_NE(logs[0].find(bad), std::string::npos);
+  EXPECT_NE(logs[0].find("quarantined"), std::string::npos);
+  EXPECT_EQ(store.value()->get(bad).status().code(), Code::kNotFound);
+  EXPECT_TRUE(store.value()->get(good).is_ok());
+  EXPECT_FALSE(fs::exists(dir.path() + "/" + bad + ".points"));
+  EXPECT_FALSE(fs::is_empty(dir.path() + "/quarantine"));
+}
+
+TEST(Store, TruncatedFileFoundLazilyIsQuarantined) {
+  TempDir dir;
+  std::string id;
+  {
+    auto engine = make_engine(dir.path());
+    id = upload(*engine, 3, uniform_points(3, 50, 3)).value().id;
+  }
+  fs::resize_file(dir.path() + "/" + id + ".points", 100);
+  auto engine = make_engine(dir.path());
+  const auto control = no_deadline();
+  const auto star = engine->star(id, 0, control);
+  EXPECT_EQ(star.status().code(), Code::kNotFound);
+  EXPECT_NE(star.status().message().find("quarantined"), std::string::npos);
+}
+
+TEST(Store, SharedDataDirServesUploadsAndDeletesOfOtherReplicas) {
+  TempDir dir;
+  auto a = make_engine(dir.path());
+  auto b = make_engine(dir.path());
+  const auto coords = uniform_points(2, 300, 4);
+  const std::string id = upload(*a, 2, coords).value().id;
+  const auto control = no_deadline();
+  auto sa = a->star(id, 7, control);
+  auto sb = b->star(id, 7, control);  // b loads it lazily from disk
+  ASSERT_TRUE(sa.is_ok() && sb.is_ok());
+  EXPECT_EQ(sa->star.simplices, sb->star.simplices);
+  EXPECT_EQ(sa->circumcentres, sb->circumcentres);
+  ASSERT_TRUE(b->delete_point_set(id).is_ok());
+  EXPECT_EQ(a->star(id, 7, control).status().code(), Code::kNotFound);
+  EXPECT_EQ(a->get_point_set(id).status().code(), Code::kNotFound);
+}
+
+TEST(Store, MemoryBudgetDropsLeastRecentlyUsedButKeepsThemOnDisk) {
+  TempDir dir;
+  Limits limits;
+  limits.max_memory = estimated_memory(1000, 2) * 2 + 10;  // room for two sets
+  auto engine = make_engine(dir.path(), limits);
+  std::vector<std::string> ids;
+  for (int k = 0; k < 4; ++k) ids.push_back(upload(*engine, 2, uniform_points(2, 1000, 10 + k)).value().id);
+  EXPECT_EQ(engine->store().loaded_count(), 2u);
+  EXPECT_LE(engine->store().memory_in_use(), limits.max_memory);
+  const auto control = no_deadline();
+  for (const auto& id : ids) EXPECT_TRUE(engine->star(id, 0, control).is_ok()) << id;
+  EXPECT_EQ(engine->store().loaded_count(), 2u);
+  EXPECT_EQ(engine->begin_upload({2, 1000000, ""}).status().code(), Code::kResourceExhausted);
+}
+
+TEST(Store, ListPaginatesInIdOrder) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  std::vector<std::string> ids;
+  for (int k = 0; k < 5; ++k) ids.push_back(upload(*engine, 2, uniform_points(2, 10, 100 + k)).value().id);
+  std::sort(ids.begin(), ids.end());
+  std::vector<std::string> seen;
+  std::string token;
+  int pages = 0;
+  do {
+    std::string next;
+    auto page = engine->list_point_sets(2, token, &next);
+    ASSERT_TRUE(page.is_ok());
+    for (const auto& p : page.value()) seen.push_back(p.id);
+    token = next;
+    ++pages;
+  } while (!token.empty());
+  EXPECT_EQ(seen, ids);
+  EXPECT_EQ(pages, 3);
+  EXPECT_EQ(engine->list_point_sets(5000, "", nullptr).status().code(), Code::kInvalidArgument);
+  EXPECT_EQ(engine->list_point_sets(2, "junk", nullptr).status().code(), Code::kInvalidArgument);
+}
+
+TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto coords = uniform_points(3, 2000, 5);
+  const std::string id = upload(*engine, 3, coords).value().id;
+  PointSet ps(3, coords);
+  ASSERT_TRUE(ps.validate("test").is_ok());
+  KdTree tree(ps);
+  StarWalker walker(tree);
+  const auto control = no_deadline();
+  for (std::uint32_t seed : {0u, 17u, 1999u}) {
+    Star expected;
+    ASSERT_TRUE(walker.compute(seed, expected).is_ok());
+    auto got = engine->star(id, seed, control);
+    ASSERT_TRUE(got.is_ok());
+    EXPECT_EQ(got->star.simplices, expected.simplices);
+    EXPECT_EQ(got->circumcentres.size(), expected.size() * 3);
+    EXPECT_EQ(engine->neighbors(id, seed, control).value(), star_neighbors(expected));
+    EXPECT_EQ(engine->cell(id, seed, control).value().facets.size(), star_neighbors(expected).size());
+  }
+  std::vector<std::uint32_t> whole;
+  ASSERT_TRUE(mesh_seeds(tree, {}, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+                whole.insert(whole.end(), b.begin(), b.end());
+                return Status::ok();
+              }).is_ok());
+  for (std::uint32_t shards : {1u, 3u, 7u}) {
+    std::vector<std::uint32_t> united;
+    std::uint32_t next_seed = 0;
+    for (std::uint32_t k = 0; k < shards; ++k) {
+      ShardRange range;
+      std::size_t batches = 0;
+      Status s = engine->stream_simplices(
+          id, k, shards, 100, control,
+          [&](std::span<const std::uint32_t> b, std::uint64_t) {
+            EXPECT_LE(b.size(), 400u);
+            ++batches;
+            united.insert(united.end(), b.begin(), b.end());
+            return Status::ok();
+          },
+          &range);
+      ASSERT_TRUE(s.is_ok()) << s.message();
+      EXPECT_EQ(range.begin, next_seed);
+      EXPECT_GE(batches, 1u);
+      next_seed = range.end;
+    }
+    EXPECT_EQ(next_seed, 2000u);
+    EXPECT_EQ(united, whole) << shards << " shards";
+  }
+  EXPECT_EQ(engine->stream_simplices(id, 3, 3, 0, control, {}).code(), Code::kInvalidArgument);
+  EXPECT_EQ(engine->stream_simplices(id, 0, 1, 70000, control, {}).code(), Code::kInvalidArgument);
+}
+
+TEST(Engine, SeedAndIdErrors) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const std::string id = upload(*engine, 2, uniform_points(2, 10, 6)).value().id;
+  const auto control = no_deadline();
+  const auto oor = engine->star(id, 10, control).status();
+  EXPECT_EQ(oor.code(), Code::kOutOfRange);
+  EXPECT_NE(oor.message().find("seed: 10"), std::string::npos);
+  EXPECT_EQ(engine->star(std::string(64, 'a'), 0, control).status().code(), Code::kNotFound);
+  EXPECT_EQ(engine->star("nope", 0, control).status().code(), Code::kInvalidArgument);
+  EXPECT_EQ(engine->delete_point_set(std::string(64, 'b')).code(), Code::kNotFound);
+}
+
+TEST(Engine, DeadlinesAndCancellationStopWork) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const std::string id = upload(*engine, 3, uniform_points(3, 30000, 7)).value().id;
+  auto ignore = [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); };
+  {
+    CallControl control(Clock::now() + std::chrono::milliseconds(20));
+    const auto start = Clock::now();
+    const Status s = engine->stream_simplices(id, 0, 1, 0, control, ignore);
+    EXPECT_EQ(s.code(), Code::kDeadlineExceeded) << s.message();
+    EXPECT_NE(s.message().find("deadline"), std::string::npos);
+    EXPECT_LT(Clock::now() - start, std::chrono::seconds(5));
+  }
+  {
+    std::atomic<bool> gone{false};
+    CallControl control(Clock::now() + std::chrono::hours(1), [&] { return gone.load(); });
+    std::thread canceller([&] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      gone = true;
+    });
+    const Status s = engine->stream_simplices(id, 0, 1, 0, control, ignore);
+    canceller.join();
+    EXPECT_EQ(s.code(), Code::kCancelled) << s.message();
+  }
+  {
+    // A deadline that has passed stops a single star too (checked between wraps).
+    CallControl control(Clock::now() - std::chrono::milliseconds(1));
+    std::this_thread::sleep_for(std::chrono::milliseconds(30));  // the watchdog has polled
+    EXPECT_EQ(engine->star(id, 0, control).status().code(), Code::kDeadlineExceeded);
+  }
+  // And the engine still answers.
+  EXPECT_TRUE(engine->star(id, 0, no_deadline()).is_ok());
+}
+
+// ---- REST as a pure function ----------------------------------------------------------
+
+struct Rest {
+  TempDir dir;
+  std::unique_ptr<Engine> engine = make_engine(dir.path());
+  Telemetry telemetry;
+  bool ready = true;
+  HttpApi api{*engine, telemetry, "", [this] { return ready; }};
+
+  HttpResponse call(http::verb verb, const std::string& target, const std::string& body = "",
+                    const std::string& type = "application/json") {
+    http::request<http::string_body> req{verb, target, 11};
+    if (!body.empty()) {
+      req.set(http::field::content_type, type);
+      req.body() = body;
+      req.prepare_payload();
+    }
+    return api.handle_request(req);
+  }
+  json get(const std::string& target, unsigned expect_status = 200) {
+    HttpResponse r = call(http::verb::get, target);
+    EXPECT_EQ(r.status, expect_status) << target << " -> " << r.body;
+    return json::parse(r.body);
+  }
+};
+
+void expect_error(const HttpResponse& r, unsigned status, const std::string& code, const std::string& fragment) {
+  EXPECT_EQ(r.status, status) << r.body;
+  const json j = json::parse(r.body);
+  EXPECT_EQ(j["error"]["code"], status);
+  EXPECT_EQ(j["error"]["status"], code);
+  EXPECT_NE(j["error"]["message"].get<std::string>().find(fragment), std::string::npos) << r.body;
+}
+
+TEST(Rest, EveryRoute) {
+  Rest rest;
+  const json pts = {{"points", {{0, 0}, {1, 0}, {0, 1}, {1, 1}, {0.5, 0.4}}}, {"display_name", "tiny"}};
+  HttpResponse up = rest.call(http::verb::post, "/v1/pointsets", pts.dump());
+  ASSERT_EQ(up.status, 201u) << up.body;
+  const std::string id = json::parse(up.body)["id"];
+  // The flat form and the raw form of the same data give the same id, and no work.
+  const json flat = {{"dimension", 2}, {"coordinates", {0, 0, 1, 0, 0, 1, 1, 1, 0.5, 0.4}}};
+  HttpResponse again = rest.call(http::verb::post, "/v1/pointsets", flat.dump());
+  EXPECT_EQ(again.status, 200u);
+  EXPECT_EQ(json::parse(again.body)["id"], id);
+  EXPECT_EQ(json::parse(again.body)["already_existed"], true);
+  const std::vector<double> raw = {0, 0, 1, 0, 0, 1, 1, 1, 0.5, 0.4};
+  HttpResponse binary = rest.call(http::verb::post, "/v1/pointsets?dimension=2",
+                                  std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8),
+                                  "application/octet-stream");
+  EXPECT_EQ(json::parse(binary.body)["id"], id);
+
+  EXPECT_EQ(rest.get("/v1/pointsets/" + id)["count"], 5);
+  EXPECT_EQ(rest.get("/v1/pointsets")["point_sets"].size(), 1u);
+  const json star = rest.get("/v1/pointsets/" + id + "/seeds/4/star");
+  EXPECT_EQ(star["simplices"], json({{0, 1, 4}, {0, 2, 4}, {1, 3, 4}, {2, 3, 4}}));
+  EXPECT_EQ(star["circumcenters"].size(), 4u);
+  EXPECT_EQ(rest.get("/v1/pointsets/" + id + "/seeds/0/neighbors")["neighbors"], json({1, 2, 4}));
+  const json cell = rest.get("/v1/pointsets/" + id + "/seeds/4/cell");
+  EXPECT_EQ(cell["bounded"], true);
+  EXPECT_GT(cell["volume"].get<double>(), 0.0);
+  EXPECT_TRUE(rest.get("/v1/pointsets/" + id + "/seeds/0/cell")["volume"].is_null());
+
+  HttpResponse stream = rest.call(http::verb::get, "/v1/pointsets/" + id + "/simplices?shard=0&shards=1");
+  ASSERT_TRUE(stream.stream);
+  EXPECT_EQ(stream.content_type, "application/x-ndjson");
+  std::string body;
+  EXPECT_TRUE(stream.stream([&](std::string_view chunk) {
+                body += chunk;
+                return true;
+              }).is_ok());
+  EXPECT_EQ(body, "[0,1,4]\n[0,2,4]\n[1,3,4]\n[2,3,4]\n");
+
+  EXPECT_EQ(rest.get("/healthz")["status"], "SERVING");
+  EXPECT_EQ(rest.get("/readyz")["status"], "READY");
+  rest.ready = false;
+  expect_error(rest.call(http::verb::get, "/readyz"), 503, "UNAVAILABLE", "not ready");
+  HttpResponse metrics = rest.call(http::verb::get, "/metrics");
+  EXPECT_NE(metrics.body.find("spokemesh_requests_total{method=\"GetStar\",status=\"OK\",transport=\"http\"} 1"),
+            std::string::npos)
+      << metrics.body;
+  EXPECT_NE(metrics.body.find("spokemesh_request_duration_seconds_bucket"), std::string::npos);
+  EXPECT_NE(metrics.body.find("spokemesh_points_uploaded_total 5"), std::string::npos);
+
+  EXPECT_EQ(rest.call(http::verb::delete_, "/v1/pointsets/" + id).status, 200u);
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id), 404, "NOT_FOUND", id);
+}
+
+TEST(Rest, ErrorsInOneShape) {
+  Rest rest;
+  const std::string id = json::parse(rest.call(http::verb::post, "/v1/pointsets",
+                                               json({{"points", {{0, 0}, {1, 0}, {0, 1}}}}).dump())
+                                         .body)["id"];
+  auto post = [&](const std::string& body) { return rest.call(http::verb::post, "/v1/pointsets", body); };
+  expect_error(post("{\"points\": [[0,0],[1,0,2]]}"), 400, "INVALID_ARGUMENT", "points[1]: 3 coordinates");
+  expect_error(post("{\"points\": [[0,0],[1,\"x\"],[2,2]]}"), 400, "INVALID_ARGUMENT", "points[1][1]");
+  expect_error(post("{\"points\": [[0,0],[1,1e999],[2,3]]}"), 400, "INVALID_ARGUMENT", "number overflow");
+  expect_error(post("{\"points\": [[0,0],[1,1e200],[2,3]]}"), 400, "INVALID_ARGUMENT", "point 1, coordinate 1");
+  expect_error(post("{\"dimension\": 2, \"coordinates\": [0,0,1]}"), 400, "INVALID_ARGUMENT", "not a multiple");
+  expect_error(post("{\"points\": [[0,0],[1,0],[0,0]]}"), 400, "INVALID_ARGUMENT", "points 0 and 2");
+  expect_error(post("{\"points\": [[0,0],[1,1],[2,2]]}"), 400, "INVALID_ARGUMENT", "span only");
+  expect_error(post("{\"points\": "), 400, "INVALID_ARGUMENT", "invalid JSON");
+  expect_error(post("[1,2]"), 400, "INVALID_ARGUMENT", "expected a JSON object");
+  expect_error(post("{\"points\": [[0,0,0,0,0,0,0,0,0,0]]}"), 429, "RESOURCE_EXHAUSTED", "--max-dimension");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets?dimension=2", std::string(20, '\0'), "application/octet-stream"),
+               400, "INVALID_ARGUMENT", "20 bytes");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets", "a", "text/plain"), 400, "INVALID_ARGUMENT", "Content-Type");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/3/star"), 400, "OUT_OF_RANGE", "seed: 3");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/-1/star"), 400, "INVALID_ARGUMENT", "seed");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + std::string(64, 'c') + "/seeds/0/star"), 404, "NOT_FOUND", "not found");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/xyz"), 400, "INVALID_ARGUMENT", "point_set_id");
+  expect_error(rest.call(http::verb::get, "/v1/nothing"), 404, "NOT_FOUND", "no route");
+  expect_error(rest.call(http::verb::put, "/v1/pointsets/" + id), 501, "UNIMPLEMENTED", "PUT");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets?page_size=abc"), 400, "INVALID_ARGUMENT", "page_size");
+  // A bad shard is an ordinary error: the stream fails before its first chunk.
+  HttpResponse bad_shard = rest.call(http::verb::get, "/v1/pointsets/" + id + "/simplices?shard=2&shards=2");
+  ASSERT_TRUE(bad_shard.stream);
+  const Status s = bad_shard.stream([](std::string_view) { return true; });
+  EXPECT_EQ(s.code(), Code::kInvalidArgument);
+  EXPECT_NE(s.message().find("shard_index: 2"), std::string::npos);
+}
+
+TEST(Rest, BearerTokenGuardsEverythingButProbes) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  Telemetry telemetry;
+  HttpApi api(*engine, telemetry, "s3cret", [] { return true; });
+  auto call = [&](const std::string& target, const std::string& auth) {
+    http::request<http::string_body> req{http::verb::get, target, 11};
+    if (!auth.empty()) req.set(http::field::authorization, auth);
+    return api.handle_request(req);
+  };
+  EXPECT_EQ(call("/healthz", "").status, 200u);
+  EXPECT_EQ(call("/readyz", "").status, 200u);
+  expect_error(call("/v1/pointsets", ""), 401, "UNAUTHENTICATED", "bearer token");
+  expect_error(call("/metrics", "Bearer wrong!"), 401, "UNAUTHENTICATED", "bearer token");
+  EXPECT_EQ(call("/v1/pointsets", "Bearer s3cret").status, 200u);
+}
+
+// ---- gRPC on a real in-process server -----------------------------------------------
+
+struct GrpcFixture {
+  TempDir dir;
+  std::unique_ptr<Engine> engine = make_engine(dir.path());
+  Telemetry telemetry;
+  MesherService service{*engine, telemetry, "tok"};
+  std::unique_ptr<grpc::Server> server;
+  std::unique_ptr<pb::Mesher::Stub> stub;
+  std::shared_ptr<grpc::Channel> channel;
+
+  GrpcFixture() {
+    grpc::EnableDefaultHealthCheckService(true);
+    grpc::ServerBuilder builder;
+    int port = 0;
+    builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+    builder.RegisterService(&service);
+    server = builder.BuildAndStart();
+    channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials());
+    stub = pb::Mesher::NewStub(channel);
+  }
+  ~GrpcFixture() { server->Shutdown(); }
+
+  std::unique_ptr<grpc::ClientContext> ctx(std::chrono::milliseconds deadline = std::chrono::seconds(30)) {
+    auto c = std::make_unique<grpc::ClientContext>();
+    c->AddMetadata("authorization", "Bearer tok");
+    c->set_deadline(std::chrono::system_clock::now() + deadline);
+    return c;
+  }
+
+  grpc::Status upload(int d, const std::vector<double>& coords, pb::PointSet* out) {
+    auto c = ctx();
+    auto writer = stub->UploadPointSet(c.get(), out);
+    pb::UploadPointSetRequest m;
+    m.mutable_header()->set_dimension(static_cast<std::uint32_t>(d));
+    m.mutable_header()->set_count(coords.size() / d);
+    writer->Write(m);
+    const char* bytes = reinterpret_cast<const char*>(coords.data());
+    for (std::size_t at = 0; at < coords.size() * 8; at += 4096) {
+      m.set_coordinates(bytes + at, std::min<std::size_t>(4096, coords.size() * 8 - at));
+      writer->Write(m);
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+};
+
+TEST(Grpc, EveryMethodAndItsErrors) {
+  GrpcFixture f;
+  const auto coords = uniform_points(3, 3000, 9);
+  pb::PointSet ps;
+  ASSERT_TRUE(f.upload(3, coords, &ps).ok());
+  EXPECT_EQ(ps.id(), sha256_hex(raw_bytes(3, coords)));
+  EXPECT_FALSE(ps.already_existed());
+  pb::PointSet again;
+  ASSERT_TRUE(f.upload(3, coords, &again).ok());
+  EXPECT_TRUE(again.already_existed());
+
+  pb::GetPointSetRequest get;
+  get.set_point_set_id(ps.id());
+  pb::PointSet info;
+  ASSERT_TRUE(f.stub->GetPointSet(f.ctx().get(), get, &info).ok());
+  EXPECT_EQ(info.count(), 3000u);
+  pb::ListPointSetsResponse listed;
+  ASSERT_TRUE(f.stub->ListPointSets(f.ctx().get(), {}, &listed).ok());
+  EXPECT_EQ(listed.point_sets_size(), 1);
+
+  pb::SeedRequest seed;
+  seed.set_point_set_id(ps.id());
+  seed.set_seed(42);
+  pb::Star star1, star2;
+  ASSERT_TRUE(f.stub->GetStar(f.ctx().get(), seed, &star1).ok());
+  ASSERT_TRUE(f.stub->GetStar(f.ctx().get(), seed, &star2).ok());
+  EXPECT_EQ(star1.SerializeAsString(), star2.SerializeAsString());  // byte-identical answers
+  EXPECT_EQ(star1.circumcenters_size(), star1.simplices_size() / 4 * 3);
+  pb::Neighbors neighbors;
+  ASSERT_TRUE(f.stub->GetNeighbors(f.ctx().get(), seed, &neighbors).ok());
+  EXPECT_GT(neighbors.neighbors_size(), 3);
+  pb::VoronoiCell cell;
+  ASSERT_TRUE(f.stub->GetVoronoiCell(f.ctx().get(), seed, &cell).ok());
+  EXPECT_EQ(cell.facets_size(), neighbors.neighbors_size());
+
+  // Download gives the upload back.
+  {
+    auto c = f.ctx();
+    auto reader = f.stub->DownloadPointSet(c.get(), get);
+    pb::CoordinateChunk chunk;
+    std::string bytes;
+    while (reader->Read(&chunk)) bytes += chunk.coordinates();
+    ASSERT_TRUE(reader->Finish().ok());
+    EXPECT_EQ(bytes, std::string(reinterpret_cast<const char*>(coords.data()), coords.size() * 8));
+  }
+  // Shards unite to the mesh.
+  std::uint64_t simplices = 0;
+  for (std::uint32_t k = 0; k < 2; ++k) {
+    pb::StreamSimplicesRequest r;
+    r.set_point_set_id(ps.id());
+    r.set_shard_index(k);
+    r.set_shard_count(2);
+    auto c = f.ctx();
+    auto reader = f.stub->StreamSimplices(c.get(), r);
+    pb::SimplexBatch batch;
+    while (reader->Read(&batch)) {
+      simplices += static_cast<std::uint64_t>(batch.simplices_size()) / 4;
+      EXPECT_EQ(batch.seed_begin(), k == 0 ? 0u : 1500u);
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+  }
+  PointSet points(3, coords);
+  ASSERT_TRUE(points.validate("t").is_ok());
+  KdTree tree(points);
+  EXPECT_EQ(simplices, mesh_seeds(tree, {}, [](auto, auto) { return Status::ok(); }).value().simplices);
+
+  // Errors.
+  seed.set_seed(3000);
+  EXPECT_EQ(f.stub->GetStar(f.ctx().get(), seed, &star1).error_code(), grpc::StatusCode::OUT_OF_RANGE);
+  seed.set_point_set_id(std::string(64, 'd'));
+  EXPECT_EQ(f.stub->GetStar(f.ctx().get(), seed, &star1).error_code(), grpc::StatusCode::NOT_FOUND);
+  {
+    grpc::ClientContext no_token;
+    EXPECT_EQ(f.stub->GetPointSet(&no_token, get, &info).error_code(), grpc::StatusCode::UNAUTHENTICATED);
+  }
+  {
+    pb::PointSet out;
+    auto c = f.ctx();
+    auto writer = f.stub->UploadPointSet(c.get(), &out);
+    pb::UploadPointSetRequest m;
+    m.set_coordinates("12345678");
+    writer->Write(m);
+    writer->WritesDone();
+    const grpc::Status s = writer->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("header"), std::string::npos);
+  }
+  {
+    std::vector<double> nan_points = {0, 0, 1, 0, 0, std::nan("")};
+    pb::PointSet out;
+    const grpc::Status s = f.upload(2, nan_points, &out);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("point 2, coordinate 1"), std::string::npos) << s.error_message();
+  }
+  pb::DeletePointSetRequest del;
+  del.set_point_set_id(ps.id());
+  pb::DeletePointSetResponse deleted;
+  EXPECT_TRUE(f.stub->DeletePointSet(f.ctx().get(), del, &deleted).ok());
+  EXPECT_EQ(f.stub->GetPointSet(f.ctx().get(), get, &info).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
+TEST(Grpc, DeadlineAndCancellationOfAStream) {
+  GrpcFixture f;
+  pb::PointSet ps;
+  ASSERT_TRUE(f.upload(3, uniform_points(3, 30000, 11), &ps).ok());
+  pb::StreamSimplicesRequest r;
+  r.set_point_set_id(ps.id());
+  {
+    auto c = f.ctx(std::chrono::milliseconds(50));
+    auto reader = f.stub->StreamSimplices(c.get(), r);
+    pb::SimplexBatch batch;
+    while (reader->Read(&batch)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  {
+    // Read one batch, then cancel: the server stops (its log records CANCELLED).
+    auto c = f.ctx();
+    auto reader = f.stub->StreamSimplices(c.get(), r);
+    pb::SimplexBatch batch;
+    ASSERT_TRUE(reader->Read(&batch));
+    c->TryCancel();
+    while (reader->Read(&batch)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  }
+  // The server is still healthy.
+  auto health = grpc::health::v1::Health::NewStub(f.channel);
+  grpc::ClientContext hc;
+  grpc::health::v1::HealthCheckResponse status;
+  ASSERT_TRUE(health->Check(&hc, {}, &status).ok());
+  EXPECT_EQ(status.status(), grpc::health::v1::HealthCheckResponse::SERVING);
+  pb::SeedRequest seed;
+  seed.set_point_set_id(ps.id());
+  pb::Star star;
+  EXPECT_TRUE(f.stub->GetStar(f.ctx().get(), seed, &star).ok());
+}
+
+}  // namespace
+}  // namespace spokemesh::service
