@@ -18,17 +18,18 @@ CallControl::~CallControl() { Watchdog::instance().remove(this); }
 
 void CallControl::poll(Clock::time_point now) {
   if (stop_.load(std::memory_order_relaxed)) return;
-  if (client_gone_ && client_gone_()) {
-    client_left_.store(true);
+  // The deadline first: a gRPC client whose deadline passed also reads as cancelled.
+  if (now >= deadline_) {
     stop_.store(true);
-  } else if (now >= deadline_) {
+  } else if (client_gone_ && client_gone_()) {
+    client_left_.store(true);
     stop_.store(true);
   }
 }
 
 Status CallControl::stopped_status(const std::string& what) const {
   if (client_left_.load()) return cancelled(what + " stopped: the client cancelled or disconnected");
-  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - start_).count();
+  const auto ms = std::chrono::round<std::chrono::milliseconds>(deadline_ - start_).count();
   return {Code::kDeadlineExceeded, what + " stopped at the request deadline (" + std::to_string(ms) +
                                        " ms); ask with a longer deadline or raise --default-deadline"};
 }

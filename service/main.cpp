@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   std::uint64_t max_points = 10'000'000;
   int max_dimension = kMaxDimension;
-  std::string max_memory = "4G", default_deadline = "60s", grace = "10s", max_body = "256M";
+  std::string max_memory = "4G", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
@@ -107,7 +107,12 @@ int main(int argc, char** argv) {
                                              "dropped from memory (they stay on disk)")->capture_default_str();
   app.add_option("--default-deadline", default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
       ->capture_default_str();
-  app.add_option("--grace-period", grace, "On SIGTERM, how long in-flight requests may finish")->capture_default_str();
+  app.add_option("--drain-delay", drain,
+                 "On SIGTERM, keep serving this long while health says NOT_SERVING (lets load balancers "
+                 "move traffic away), then stop accepting")
+      ->capture_default_str();
+  app.add_option("--grace-period", grace, "On SIGTERM, how long in-flight requests may then finish")
+      ->capture_default_str();
   app.add_option("--max-body-bytes", max_body, "Largest REST request body")->capture_default_str();
   app.add_option("--tls-cert", tls_cert, "PEM certificate chain: serve TLS on both ports");
   app.add_option("--tls-key", tls_key, "PEM private key for --tls-cert");
@@ -127,8 +132,10 @@ int main(int argc, char** argv) {
   auto memory = parse_bytes(max_memory, "--max-memory");
   auto deadline = parse_duration(default_deadline, "--default-deadline");
   auto grace_ms = parse_duration(grace, "--grace-period");
+  auto drain_ms = drain == "0" || drain == "0s" ? Result<std::chrono::milliseconds>(std::chrono::milliseconds(0))
+                                                : parse_duration(drain, "--drain-delay");
   auto body = parse_bytes(max_body, "--max-body-bytes");
-  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &body.status()}) {
+  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status()}) {
     if (!s->is_ok()) return usage_error(*s);
   }
   limits.max_memory = memory.value();
@@ -233,9 +240,11 @@ int main(int argc, char** argv) {
   int signal_number = 0;
   sigwait(&signals, &signal_number);
   telemetry.log("info", std::string("received ") + (signal_number == SIGTERM ? "SIGTERM" : "SIGINT") +
-                            ": not serving; draining in-flight requests for up to " + grace);
+                            ": health NOT_SERVING; stopping after --drain-delay " + drain +
+                            ", then in-flight requests have up to " + grace);
   ready = false;
   server->GetHealthCheckService()->SetServingStatus(false);
+  std::this_thread::sleep_for(drain_ms.value());
   const auto until = std::chrono::system_clock::now() + grace_ms.value();
   std::thread grpc_stop([&] { server->Shutdown(until); });
   http_server.stop(grace_ms.value());

@@ -1,0 +1,296 @@
+"""Every RPC and REST route of a real spokemesh-server process, their errors,
+deadlines, cancellation, TLS, bearer tokens, metrics, logs and graceful shutdown."""
+
+from __future__ import annotations
+
+import http.client as httplib
+import json
+import signal
+import ssl
+import subprocess
+import threading
+import time
+
+import grpc
+import numpy as np
+import pytest
+import spokemesh
+from spokemesh.v1 import mesher_pb2 as pb
+from spokemesh.v1 import mesher_pb2_grpc as pb_grpc
+
+from conftest import REPO, cli, http, http_json, local_mesh, uniform
+
+
+def ndjson_shard(base: str, pid: str, k: int, n: int) -> np.ndarray:
+    status, headers, body = http("GET", f"{base}/v1/pointsets/{pid}/simplices?shard={k}&shards={n}")
+    assert status == 200, body
+    assert headers["Content-Type"] == "application/x-ndjson"
+    assert headers.get("Transfer-Encoding") == "chunked"
+    rows = [json.loads(line) for line in body.decode().splitlines()]
+    return np.array(rows, dtype=np.int64).reshape(len(rows), -1)
+
+
+def test_rest_grpc_and_python_client_agree_with_the_local_mesh(server, tmp_path):
+    points = uniform(3000, 3, seed=1)
+    status, ps = http_json("POST", f"{server.http}/v1/pointsets", {"points": points.tolist(), "display_name": "cube"})
+    assert status == 201 and ps["count"] == 3000 and ps["dimension"] == 3 and not ps["already_existed"]
+    client = spokemesh.Client(server.grpc)
+    again = client.upload(points)
+    assert again.id == ps["id"] and again.already_existed and again.display_name == "cube"
+
+    reference = local_mesh(points, tmp_path)
+    # The whole mesh: REST NDJSON shards, gRPC shards, the Python client, the remote CLI.
+    rest = np.concatenate([ndjson_shard(server.http, ps["id"], k, 3) for k in range(3)])
+    assert np.array_equal(rest, reference)
+    assert np.array_equal(client.simplices(ps["id"], shards=4).astype(np.int64), reference)
+    out = tmp_path / "remote.simplices"
+    cli("--server", server.grpc, "mesh", ps["id"], "-o", str(out), "--shards", "5", "-q")
+    assert np.array_equal(np.loadtxt(out, dtype=np.int64), reference)
+
+    for seed in (0, 1234, 2999):
+        star_rest = http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/star")[1]
+        star_grpc = client.star(ps["id"], seed)
+        expected = reference[(reference == seed).any(axis=1)]
+        assert np.array_equal(np.array(star_rest["simplices"]), expected)
+        assert np.array_equal(star_grpc.simplices.astype(np.int64), expected)
+        assert np.allclose(np.array(star_rest["circumcenters"]), star_grpc.circumcenters, rtol=0, atol=0)
+        neighbors = sorted(set(expected.ravel()) - {seed})
+        assert http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/neighbors")[1]["neighbors"] == neighbors
+        assert list(client.neighbors(ps["id"], seed)) == neighbors
+        cell = client.cell(ps["id"], seed)
+        cell_rest = http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/cell")[1]
+        assert [f[0] for f in cell.facets] == neighbors == [f["neighbor"] for f in cell_rest["facets"]]
+        assert cell.bounded == cell_rest["bounded"]
+        assert (cell_rest["volume"] is None) == (not cell.bounded)
+        # Remote CLI answers are the local CLI's, byte for byte.
+        src = tmp_path / "points.npy"
+        np.save(src, points)
+        assert cli("--server", server.grpc, "star", ps["id"], "--seed", str(seed)).stdout == \
+            cli("star", str(src), "--seed", str(seed)).stdout
+        assert cli("--server", server.grpc, "cell", ps["id"], "--seed", str(seed), "--json").stdout == \
+            cli("cell", str(src), "--seed", str(seed), "--json").stdout
+
+    assert np.array_equal(client.download(ps["id"]), points)
+    assert [p.id for p in client.list()] == [ps["id"]]
+    assert http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}")[1]["display_name"] == "cube"
+    assert http_json("GET", f"{server.http}/v1/pointsets")[1]["point_sets"][0]["id"] == ps["id"]
+    client.delete(ps["id"])
+    assert http("GET", f"{server.http}/v1/pointsets/{ps['id']}")[0] == 404
+
+
+def test_cli_remote_mode_upload_health_list_delete(server, tmp_path):
+    example = REPO / "examples" / "disc-2d.txt"
+    up = cli("--server", server.grpc, "upload", str(example), "--name", "disc")
+    pid = up.stdout.strip()
+    assert len(pid) == 64 and "stored" in up.stderr
+    assert cli("--server", server.grpc, "upload", str(example)).stdout.strip() == pid
+    assert cli("health", "--server", server.grpc).stdout.strip() == "SERVING"
+    assert pid in cli("list", "--server", server.grpc).stdout
+    vtu = tmp_path / "disc.vtu"
+    cli("--server", server.grpc, "mesh", pid, "-o", str(vtu), "-q")
+    local = tmp_path / "local.vtu"
+    cli("mesh", str(example), "-o", str(local), "-q")
+    assert vtu.read_bytes() == local.read_bytes()
+    bad = cli("--server", server.grpc, "star", pid, "--seed", "100000", check=False)
+    assert bad.returncode == 2 and "OUT_OF_RANGE" in bad.stderr and "seed: 100000" in bad.stderr
+    assert cli("--server", server.grpc, "delete", pid).returncode == 0
+    gone = cli("--server", server.grpc, "star", pid, "--seed", "0", check=False)
+    assert gone.returncode == 2 and "NOT_FOUND" in gone.stderr
+    bad_file = tmp_path / "bad.txt"
+    bad_file.write_text("0 0\n1 x\n")
+    r = cli("--server", server.grpc, "upload", str(bad_file), check=False)
+    assert r.returncode == 2 and "bad.txt:2" in r.stderr
+    down = cli("health", "--server", "127.0.0.1:1", "--deadline", "2s", check=False)
+    assert down.returncode == 1 and "UNAVAILABLE" in down.stderr
+
+
+def test_errors_name_the_field_and_map_to_codes(start_server):
+    server = start_server("--max-points", "5000", "--max-dimension", "4", "--max-body-bytes", "64K")
+    client = spokemesh.Client(server.grpc)
+
+    def code_of(fn):
+        with pytest.raises(spokemesh.Error) as e:
+            fn()
+        return e.value.code, e.value.details
+
+    pts = uniform(10, 2, 3)
+    pts[7, 1] = np.nan
+    code, msg = code_of(lambda: client.upload(pts))
+    assert code == grpc.StatusCode.INVALID_ARGUMENT and "point 7, coordinate 1" in msg
+    code, msg = code_of(lambda: client.upload(np.vstack([uniform(5, 2, 4), uniform(5, 2, 4)[:1]])))
+    assert code == grpc.StatusCode.INVALID_ARGUMENT and "points 0 and 5" in msg
+    code, msg = code_of(lambda: client.upload(np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3.0]])))
+    assert code == grpc.StatusCode.INVALID_ARGUMENT and "span only a 1" in msg
+    code, msg = code_of(lambda: client.upload(uniform(6000, 2, 5)))
+    assert code == grpc.StatusCode.RESOURCE_EXHAUSTED and "--max-points=5000" in msg
+    code, msg = code_of(lambda: client.upload(uniform(50, 5, 5)))
+    assert code == grpc.StatusCode.RESOURCE_EXHAUSTED and "--max-dimension=4" in msg
+    # A header that disagrees with the bytes sent.
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    with pytest.raises(grpc.RpcError) as e:
+        stub.UploadPointSet(iter([pb.UploadPointSetRequest(header=pb.PointSetHeader(dimension=2, count=10)),
+                                  pb.UploadPointSetRequest(coordinates=b"\0" * 100)]), timeout=10)
+    assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT and "received 100 bytes" in e.value.details()
+    good = client.upload(uniform(100, 2, 6))
+    code, msg = code_of(lambda: client.star(good.id, 100))
+    assert code == grpc.StatusCode.OUT_OF_RANGE and "seed: 100" in msg
+    code, _ = code_of(lambda: client.star("0" * 64, 0))
+    assert code == grpc.StatusCode.NOT_FOUND
+    code, _ = code_of(lambda: client.star("not-an-id", 0))
+    assert code == grpc.StatusCode.INVALID_ARGUMENT
+    # REST: one error shape; an oversized body is refused from its Content-Length.
+    status, body = http_json("POST", f"{server.http}/v1/pointsets", {"points": uniform(3000, 2, 7).tolist()})
+    assert status == 413 and body["error"]["status"] == "RESOURCE_EXHAUSTED" and "--max-body-bytes" in body["error"]["message"]
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{good.id}/seeds/100/cell")
+    assert status == 400 and body == {"error": {"code": 400, "status": "OUT_OF_RANGE", "message": body["error"]["message"]}}
+    status, body = http_json("POST", f"{server.http}/v1/pointsets", {"points": [[0, 0], [1, 0], [0, 1], [1, 1e308 * 10]]})
+    assert status == 400 and body["error"]["status"] == "INVALID_ARGUMENT"
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{good.id}/simplices?shard=9&shards=2")
+    assert status == 400 and "shard_index: 9" in body["error"]["message"]
+    # Nothing half-written was left in the data dir by the failed uploads.
+    files = sorted(p.name for p in server.data_dir.iterdir() if p.is_file())
+    assert files == [f"{good.id}.points"]
+
+
+def test_deadlines_and_cancellation(start_server):
+    server = start_server("--default-deadline", "30s")
+    client = spokemesh.Client(server.grpc)
+    big = client.upload(uniform(40000, 3, 8))
+    with pytest.raises(spokemesh.Error) as e:
+        client.shard(big.id, 0, 1, timeout=0.05)
+    assert e.value.code == grpc.StatusCode.DEADLINE_EXCEEDED
+    # REST: 504 if the deadline passes before the first chunk; after it, the stream
+    # ends with an error line and no terminating chunk, so it cannot pass as complete.
+    conn = httplib.HTTPConnection(server.http.removeprefix("http://"), timeout=60)
+    conn.request("GET", f"/v1/pointsets/{big.id}/simplices", headers={"X-Timeout-Ms": "20"})
+    resp = conn.getresponse()
+    try:
+        body = resp.read()
+        assert resp.status == 504 and b"DEADLINE_EXCEEDED" in body and b"deadline" in body
+    except httplib.IncompleteRead as partial:
+        assert resp.status == 200
+        last = partial.partial.decode().splitlines()[-1]
+        assert json.loads(last)["error"]["status"] == "DEADLINE_EXCEEDED"
+    conn.close()
+    # Cancel a gRPC stream after one batch, and drop a REST stream after a few bytes.
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    stream = stub.StreamSimplices(pb.StreamSimplicesRequest(point_set_id=big.id, batch_size=64), timeout=60)
+    next(stream)
+    stream.cancel()
+    conn = httplib.HTTPConnection(server.http.removeprefix("http://"), timeout=60)
+    conn.request("GET", f"/v1/pointsets/{big.id}/simplices?batch_size=16")
+    resp = conn.getresponse()
+    resp.read(64)
+    conn.close()
+    deadline = time.time() + 20
+    while time.time() < deadline:
+        stopped = [r for r in server.log_records() if r.get("method") == "StreamSimplices" and r.get("status") == "CANCELLED"]
+        if len(stopped) >= 2:
+            break
+        time.sleep(0.05)
+    assert {r["transport"] for r in stopped} == {"grpc", "http"}, server.log()
+    assert all(r["duration_ms"] < 15000 for r in stopped)  # stopped early, not after the whole shard
+    # The server is healthy and answers.
+    assert cli("health", "--server", server.grpc).returncode == 0
+    assert client.star(big.id, 0).simplices.shape[1] == 4
+    # A default deadline applies to requests that carry none.
+    short = start_server("--default-deadline", "30ms", data_dir=server.data_dir, name="short")
+    status, body = http_json("GET", f"{short.http}/v1/pointsets/{big.id}/simplices?batch_size=65536")
+    assert status == 504 and "30 ms" in body["error"]["message"]
+
+
+def make_pki(d):
+    """A CA, a server certificate for 127.0.0.1/localhost and a client certificate."""
+    def run(*args):
+        subprocess.run(["openssl", *args], check=True, capture_output=True, cwd=d)
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem", "-days", "2",
+        "-subj", "/CN=spokemesh test CA")
+    for name, ext in (("server", "subjectAltName=IP:127.0.0.1,DNS:localhost"), ("client", "extendedKeyUsage=clientAuth")):
+        run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={name}")
+        (d / f"{name}.ext").write_text(ext + "\n")
+        run("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+            "-out", f"{name}.pem", "-days", "2", "-extfile", f"{name}.ext")
+
+
+def test_tls_mtls_and_bearer_token(start_server, tmp_path):
+    make_pki(tmp_path)
+    token = tmp_path / "token"
+    token.write_text("tok-123\n")
+    server = start_server("--tls-cert", str(tmp_path / "server.pem"), "--tls-key", str(tmp_path / "server.key"),
+                          "--tls-client-ca", str(tmp_path / "ca.pem"), "--auth-token-file", str(token))
+    https = server.http.replace("http://", "https://")
+    ctx = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
+    ctx.load_cert_chain(str(tmp_path / "client.pem"), str(tmp_path / "client.key"))
+    assert http_json("GET", f"{https}/healthz", context=ctx)[0] == 200
+    status, body = http_json("GET", f"{https}/v1/pointsets", context=ctx)
+    assert status == 401 and body["error"]["status"] == "UNAUTHENTICATED"
+    assert http_json("GET", f"{https}/v1/pointsets", headers={"Authorization": "Bearer tok-123"}, context=ctx)[0] == 200
+    assert http_json("GET", f"{https}/metrics", headers={"Authorization": "Bearer nope"}, context=ctx)[0] == 401
+    # Without a client certificate the TLS handshake is refused.
+    no_cert = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
+    with pytest.raises(Exception):
+        http("GET", f"{https}/healthz", context=no_cert, timeout=10)
+
+    pem = lambda name: (tmp_path / name).read_bytes()
+    client = spokemesh.Client(server.grpc, token="tok-123", root_certificates=pem("ca.pem"),
+                              private_key=pem("client.key"), certificate_chain=pem("client.pem"))
+    ps = client.upload(uniform(200, 2, 9))
+    assert client.star(ps.id, 3).simplices.shape[1] == 3
+    anonymous = spokemesh.Client(server.grpc, root_certificates=pem("ca.pem"), private_key=pem("client.key"),
+                                 certificate_chain=pem("client.pem"))
+    with pytest.raises(spokemesh.Error) as e:
+        anonymous.star(ps.id, 3)
+    assert e.value.code == grpc.StatusCode.UNAUTHENTICATED
+    r = cli("--server", server.grpc, "--tls-ca", str(tmp_path / "ca.pem"), "--tls-cert", str(tmp_path / "client.pem"),
+            "--tls-key", str(tmp_path / "client.key"), "--token-file", str(token), "neighbors", ps.id, "--seed", "3")
+    assert [int(v) for v in r.stdout.split()] == list(client.neighbors(ps.id, 3))
+    assert cli("--server", server.grpc, "--tls-ca", str(tmp_path / "ca.pem"), "--tls-cert", str(tmp_path / "client.pem"),
+               "--tls-key", str(tmp_path / "client.key"), "health").stdout.strip() == "SERVING"
+
+
+def test_metrics_and_structured_logs(server):
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(uniform(500, 2, 10))
+    client.star(ps.id, 1)
+    http("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/2/star")
+    http("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/999/star")
+    status, headers, body = http("GET", f"{server.http}/metrics")
+    text = body.decode()
+    assert status == 200 and headers["Content-Type"].startswith("text/plain")
+    assert 'spokemesh_requests_total{method="GetStar",status="OK",transport="grpc"} 1' in text
+    assert 'spokemesh_requests_total{method="GetStar",status="OUT_OF_RANGE",transport="http"} 1' in text
+    assert 'spokemesh_request_duration_seconds_count{method="UploadPointSet",status="OK",transport="grpc"} 1' in text
+    assert "spokemesh_points_uploaded_total 500" in text
+    assert "spokemesh_simplices_served_total" in text
+    records = server.log_records()  # every line is one JSON object
+    assert len(records) == len(server.log().splitlines())
+    star = [r for r in records if r.get("method") == "GetStar" and r.get("transport") == "grpc"][0]
+    assert star["point_set"] == ps.id and star["seed"] == 1 and star["status"] == "OK"
+    assert {"time", "level", "duration_ms"} <= set(star)
+    bad = [r for r in records if r.get("status") == "OUT_OF_RANGE"][0]
+    assert bad["level"] == "warning" and "seed: 999" in bad["message"]
+
+
+def test_graceful_shutdown_drains_in_flight_requests(start_server):
+    server = start_server("--drain-delay", "1s", "--grace-period", "30s")
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(uniform(30000, 3, 11))
+    result = {}
+
+    def fetch():
+        result["mesh"] = client.shard(ps.id, 0, 1, batch_size=256)
+
+    t = threading.Thread(target=fetch)
+    t.start()
+    time.sleep(0.2)
+    server.proc.send_signal(signal.SIGTERM)
+    time.sleep(0.3)
+    # During the drain delay: not ready, health NOT_SERVING, still answering.
+    assert http("GET", f"{server.http}/readyz")[0] == 503
+    assert http("GET", f"{server.http}/healthz")[0] == 200
+    r = cli("health", "--server", server.grpc, check=False)
+    assert r.returncode == 1 and r.stdout.strip() == "NOT_SERVING"
+    t.join(60)
+    assert server.proc.wait(60) == 0
+    assert result["mesh"].shape[0] > 100000  # the in-flight stream finished whole
+    assert "stopped" in server.log()
