@@ -1,16 +1,15 @@
 #!/usr/bin/env bash
-# The main job: install what is missing, build, and mesh the bundled examples.
+# The main job: install what is missing, build, and run spokemesh-server on localhost
+# (gRPC 127.0.0.1:50051, REST 127.0.0.1:8080, point sets stored in ./spokemesh-data).
+# Stop it with Ctrl-C. Extra arguments go to the server (see --help).
 set -euo pipefail
 cd "$(dirname "$0")"
 scripts/install-deps.sh
-scripts/build.sh spokemesh_cli
-mkdir -p out
-for example in examples/*.txt; do
-  name=$(basename "$example" .txt)
-  ext=vtu
-  case "$name" in *-2d*) ext=svg ;; *-4d*|*-5d*|*-6d*) ext=simplices ;; esac
-  build/bin/spokemesh mesh "$example" -o "out/$name.$ext"
-  build/bin/spokemesh mesh -q "$example" -o "out/$name.simplices"
-  build/bin/spokemesh check "$example" "out/$name.simplices"
-done
-echo "Meshes are in out/ (open the .vtu files in ParaView, the .svg in a browser)."
+scripts/build.sh spokemesh_server spokemesh_cli spokemesh_python
+cat >&2 <<'HINT'
+spokemesh-server is starting. In another terminal, for example:
+  build/bin/spokemesh --server 127.0.0.1:50051 upload examples/ball-3d.txt      # prints the id
+  build/bin/spokemesh --server 127.0.0.1:50051 star ID --seed 0
+  curl -s 127.0.0.1:8080/v1/pointsets
+HINT
+exec build/bin/spokemesh-server --data-dir ./spokemesh-data "$@"

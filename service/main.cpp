@@ -91,15 +91,20 @@ int main(int argc, char** argv) {
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   std::uint64_t max_points = 10'000'000;
   int max_dimension = kMaxDimension;
+  int max_concurrent = 64;
   std::string max_memory = "4G", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--data-dir", data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
-  app.add_option("--threads", threads, "Worker threads per streamed shard; gRPC uses up to 8x this")
+  app.add_option("--threads", threads, "Worker threads per streamed shard")
       ->check(CLI::Range(1u, 1024u))
       ->capture_default_str();
   app.add_option("--max-points", max_points, "Largest point set accepted")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--max-concurrent-rpcs", max_concurrent,
+                 "gRPC calls served at once; beyond it gRPC answers RESOURCE_EXHAUSTED (load shedding)")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
   app.add_option("--max-dimension", max_dimension, "Largest dimension accepted")
       ->check(CLI::Range(2, kMaxDimension))
       ->capture_default_str();
@@ -216,7 +221,8 @@ int main(int argc, char** argv) {
   builder.AddListeningPort(grpc_listen, grpc_credentials, &grpc_port);
   builder.RegisterService(&mesher);
   grpc::ResourceQuota quota("spokemesh");
-  quota.SetMaxThreads(static_cast<int>(std::max(8u, 8 * threads)));
+  // Sync gRPC runs one thread per call, plus a few pollers per completion queue.
+  quota.SetMaxThreads(max_concurrent + 4 * static_cast<int>(std::max(2u, std::thread::hardware_concurrency())));
   builder.SetResourceQuota(quota);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (!server || grpc_port == 0) {
