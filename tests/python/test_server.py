@@ -294,3 +294,16 @@ def test_graceful_shutdown_drains_in_flight_requests(start_server):
     assert server.proc.wait(60) == 0
     assert result["mesh"].shape[0] > 100000  # the in-flight stream finished whole
     assert "stopped" in server.log()
+
+
+def test_health_and_reflection_services(server):
+    # Raw calls with hand-encoded messages: the Python side has no stubs for these.
+    channel = grpc.insecure_channel(server.grpc)
+    identity = lambda b: b  # noqa: E731
+    check = channel.unary_unary("/grpc.health.v1.Health/Check", request_serializer=identity,
+                                response_deserializer=identity)
+    assert check(b"", timeout=10) == b"\x08\x01"  # status: SERVING
+    reflect = channel.stream_stream("/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+                                    request_serializer=identity, response_deserializer=identity)
+    answer = b"".join(reflect(iter([b"\x3a\x00"]), timeout=10))  # list_services: ""
+    assert b"spokemesh.v1.Mesher" in answer and b"grpc.health.v1.Health" in answer
