@@ -131,6 +131,11 @@ def test_errors_name_the_field_and_map_to_codes(start_server):
         stub.UploadPointSet(iter([pb.UploadPointSetRequest(header=pb.PointSetHeader(dimension=2, count=10)),
                                   pb.UploadPointSetRequest(coordinates=b"\0" * 100)]), timeout=10)
     assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT and "received 100 bytes" in e.value.details()
+    # A message over gRPC's 4 MiB limit is refused, not buffered.
+    with pytest.raises(grpc.RpcError) as e:
+        stub.UploadPointSet(iter([pb.UploadPointSetRequest(header=pb.PointSetHeader(dimension=2, count=400000)),
+                                  pb.UploadPointSetRequest(coordinates=b"\0" * (5 << 20))]), timeout=10)
+    assert e.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
     good = client.upload(uniform(100, 2, 6))
     code, msg = code_of(lambda: client.star(good.id, 100))
     assert code == grpc.StatusCode.OUT_OF_RANGE and "seed: 100" in msg
@@ -193,6 +198,14 @@ def test_deadlines_and_cancellation(start_server):
     # The server is healthy and answers.
     assert cli("health", "--server", server.grpc).returncode == 0
     assert client.star(big.id, 0).simplices.shape[1] == 4
+    # A star in 8-d is large work: it ends at the deadline, and says which limit it hit.
+    eight = client.upload(uniform(3000, 8, 9))
+    with pytest.raises(spokemesh.Error) as e:
+        client.star(eight.id, 0, timeout=0.3)
+    assert e.value.code == grpc.StatusCode.DEADLINE_EXCEEDED
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{eight.id}/seeds/0/star", headers={"X-Timeout-Ms": "300"})
+    assert status == 504 and "stopped at the request deadline (300 ms)" in body["error"]["message"]
+    assert client.star(big.id, 1).simplices.shape[1] == 4
     # A default deadline applies to requests that carry none.
     short = start_server("--default-deadline", "30ms", data_dir=server.data_dir, name="short")
     status, body = http_json("GET", f"{short.http}/v1/pointsets/{big.id}/simplices?batch_size=65536")
