@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import http.client as httplib
 import json
+import os
 import signal
 import ssl
 import subprocess
@@ -320,3 +321,26 @@ def test_health_and_reflection_services(server):
                                     request_serializer=identity, response_deserializer=identity)
     answer = b"".join(reflect(iter([b"\x3a\x00"]), timeout=10))  # list_services: ""
     assert b"spokemesh.v1.Mesher" in answer and b"grpc.health.v1.Health" in answer
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+
+
+def test_a_stalled_reader_stalls_the_shard(server):
+    """Flow control: a client that stops reading stops the server's work once the
+    transport's windows and the engine's bounded window are full (a few MB here),
+    instead of the server computing and buffering the rest of the shard."""
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(uniform(200000, 3, 12))  # about 20 CPU-seconds of meshing
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    stream = stub.StreamSimplices(pb.StreamSimplicesRequest(point_set_id=ps.id, batch_size=256), timeout=300)
+    first = next(stream)
+    time.sleep(3.0)  # the windows fill within about 1.5 s on this machine
+    before = cpu_seconds(server.proc.pid)
+    time.sleep(1.0)
+    stalled = cpu_seconds(server.proc.pid) - before
+    assert stalled < 0.25, f"the server used {stalled:.2f} CPU-s in 1 s while its client read nothing"
+    total = (len(first.simplices) + sum(len(b.simplices) for b in stream)) // 4
+    assert total > 1_300_000  # the stream then completed (1,346,109 simplices for this set)
