@@ -16,6 +16,8 @@ packages=(
   nginx
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
+  # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
+  libglpk-dev
 )
 
 missing=()

@@ -11,4 +11,9 @@ std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, 
   return index_->knnSearch(query, k, ids, dist2);
 }
 
+void KdTree::within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const {
+  out.clear();
+  index_->radiusSearch(query, r2, out, nanoflann::SearchParams(32, 0, /*sorted=*/false));
+}
+
 }  // namespace spokemesh

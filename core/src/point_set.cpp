@@ -38,11 +38,11 @@ bool equal_points(const double* a, const double* b, int d) {
 
 }  // namespace
 
-Status PointSet::validate(const std::string& source, int max_dimension) {
+Status PointSet::validate(const std::string& source, int max_dimension, bool check_span) {
   const std::size_t n = size();
   if (d_ < 2 || d_ > max_dimension) {
     return invalid_argument(source + ": dimension " + std::to_string(d_) +
-                            " is not supported for exact meshing (supported: 2.." +
+                            " is not supported (supported: 2.." +
                             std::to_string(max_dimension) + ")");
   }
   for (std::size_t i = 0; i < n; ++i) {
@@ -78,7 +78,7 @@ Status PointSet::validate(const std::string& source, int max_dimension) {
   }
   rank_.assign(n, 0);
   for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
-  return check_affine_span(source);
+  return check_span ? check_affine_span(source) : Status::ok();
 }
 
 // Exact rank of {p_i - p_0} by incremental row echelon over the rationals. For

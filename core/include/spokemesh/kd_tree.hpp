@@ -44,6 +44,9 @@ class KdTree {
   // is then returned first at distance 0). Returns the count written.
   std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2) const;
 
+  // Every point p with nanoflann's squared distance to `query` <= r2 (unsorted).
+  void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
+
   // First point p found (in tree order) with `exact_side(p) == sigma`, or -1 if
   // none. `normal` approximates the hyperplane's normal with certified error
   // bounds; it prunes boxes only where no point can be strictly on side sigma.

@@ -42,7 +42,9 @@ class PointSet {
 
   // Checks the preconditions above (duplicates are refused here; merge them first
   // with merge_duplicates()). `source` names the input in messages ("file.txt").
-  Status validate(const std::string& source, int max_dimension = kMaxDimension);
+  // check_span = false skips the exact affine-rank check (approximate neighbour
+  // graphs do not need full dimension, and in high d that check is the costly part).
+  Status validate(const std::string& source, int max_dimension = kMaxDimension, bool check_span = true);
 
   // Removes exact duplicates, keeping each first occurrence. Returns for every
   // input index the index it maps to in the reduced set.

@@ -1,0 +1,382 @@
+#include "spokemesh/approx.hpp"
+
+#include <Eigen/Dense>
+#include <gmpxx.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <queue>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "spokemesh/predicates.hpp"
+
+namespace spokemesh {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+std::uint64_t splitmix64(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// A standard normal variate from 53-bit uniforms (Box-Muller): random directions
+// uniform on the sphere, reproducible on every platform (std distributions are not).
+double normal_variate(std::uint64_t& state) {
+  const double u1 = (static_cast<double>(splitmix64(state) >> 11) + 0.5) * 0x1p-53;
+  const double u2 = static_cast<double>(splitmix64(state) >> 11) * 0x1p-53;
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(6.283185307179586 * u2);
+}
+
+double dot(const double* a, const double* b, int d) {
+  double s = 0;
+  for (int c = 0; c < d; ++c) s += a[c] * b[c];
+  return s;
+}
+
+// A hash for sorted index tuples (Voronoi vertices are keyed by their equidistant set).
+struct TupleHash {
+  std::size_t operator()(const std::vector<std::uint32_t>& v) const {
+    std::uint64_t h = 0x84222325CBF29CE4ull;
+    for (std::uint32_t x : v) h = (h ^ x) * 0x100000001B3ull + (h >> 29);
+    return static_cast<std::size_t>(h ^ (h >> 32));
+  }
+};
+
+}  // namespace
+
+ApproxWalker::ApproxWalker(const KdTree& tree, ApproxOptions options)
+    : tree_(tree), ps_(tree.points()), options_(options), d_(ps_.dimension()) {}
+
+void ApproxWalker::load_candidates() {
+  const std::size_t n = ps_.size();
+  // Enough neighbours that most rays end inside the list (a point at distance r from
+  // x cannot be hit before the ray is r / 2 from x); the rest fall back to a scan.
+  const std::size_t k = std::min(n, std::max<std::size_t>(256, 256 * static_cast<std::size_t>(d_)) + 1);
+  std::vector<std::uint32_t> ids(k);
+  std::vector<double> d2(k);
+  const std::size_t got = tree_.knn(ps_.point(x_), k, ids.data(), d2.data());
+  cand_id_.clear();
+  cand_q_.clear();
+  cand_norm_.clear();
+  const double* x = ps_.point(x_);
+  for (std::size_t i = 0; i < got; ++i) {
+    if (ids[i] == x_) continue;
+    const double* p = ps_.point(ids[i]);
+    double s = 0;
+    for (int c = 0; c < d_; ++c) {
+      const double q = p[c] - x[c];
+      cand_q_.push_back(q);
+      s += q * q;
+    }
+    cand_id_.push_back(ids[i]);
+    cand_norm_.push_back(std::sqrt(s));
+  }
+  cand_radius_ = got == n ? kInf : std::sqrt(d2[got - 1]) * (1 - 1e-9);
+  cand_radius2_ = cand_radius_ * cand_radius_;
+}
+
+std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
+                                 double& t_out) {
+  ++rays_;
+  const int d = d_;
+  std::int64_t best = -1;
+  double t_best = kInf, reach = kInf;  // reach: 2 |z_best| (z = y + t e), beyond which no hit can come
+  auto is_excluded = [&](std::uint32_t id) {
+    if (id == x_) return true;
+    for (int i = 0; i < excluded; ++i) {
+      if (exclude[i] == id) return true;
+    }
+    return false;
+  };
+  auto consider = [&](std::uint32_t id, const double* q, double q2) {
+    const double eq = dot(e, q, d);
+    if (!(eq > 0)) return;
+    const double t = (q2 - 2 * dot(y, q, d)) / (2 * eq);
+    if (!(t > 0) || t >= t_best || is_excluded(id)) return;
+    t_best = t;
+    best = id;
+    double z2 = 0;
+    for (int c = 0; c < d; ++c) {
+      const double z = y[c] + t * e[c];
+      z2 += z * z;
+    }
+    reach = 2 * std::sqrt(z2) * (1 + 1e-9);
+  };
+  const std::size_t count = cand_id_.size();
+  std::size_t j = 0;
+  for (; j < count && cand_norm_[j] <= reach; ++j) {
+    consider(cand_id_[j], &cand_q_[j * d], cand_norm_[j] * cand_norm_[j]);
+  }
+  if (j == count && reach > cand_radius_) {
+    // The hit (or its absence) is not decided by the list: scan every point.
+    scratch_.resize(static_cast<std::size_t>(d));
+    const double* x = ps_.point(x_);
+    const std::size_t n = ps_.size();
+    for (std::size_t i = 0; i < n; ++i) {
+      const double* p = ps_.point(i);
+      double q2 = 0;
+      for (int c = 0; c < d; ++c) {
+        scratch_[c] = p[c] - x[c];
+        q2 += scratch_[c] * scratch_[c];
+      }
+      if (q2 < cand_radius2_) continue;  // listed, already considered
+      consider(static_cast<std::uint32_t>(i), scratch_.data(), q2);
+    }
+  }
+  t_out = t_best;
+  return best;
+}
+
+bool ApproxWalker::certify(std::uint32_t s, const double* w) {
+  const int d = d_;
+  const double* x = ps_.point(x_);
+  const double* sp = ps_.point(s);
+  // The witness W* = x + w - (N / D) a, with a = s - x, D = 2|a|^2, N = 2 w.a - |a|^2:
+  // the projection of x + w onto the bisector of x and s. For another point q, with
+  // q' = q - x, |W* - q|^2 - |W* - x|^2 = G_q / D where
+  //   G_q = D |q'|^2 - 2 D (w . q') + 2 N (a . q'),
+  // a polynomial in the input doubles and w: its sign is decided by the Approx filter
+  // (a proven error bound), else exactly with GMP. D > 0 since s != x.
+  std::vector<Approx> a(static_cast<std::size_t>(d));
+  Approx a2{0, 0, 0}, wa{0, 0, 0};
+  for (int c = 0; c < d; ++c) {
+    a[c] = Approx::difference(sp[c], x[c]);
+    a2 = a2 + a[c] * a[c];
+    wa = wa + Approx::exact(w[c]) * a[c];
+  }
+  const Approx D = Approx::exact(2) * a2;
+  const Approx N = Approx::exact(2) * wa - a2;
+  // Candidates: points near the witness (a k-d tree ball query with a margin that
+  // covers every rounding in locating it); all others are certainly farther.
+  const double alpha = N.v / D.v;
+  std::vector<double> centre(static_cast<std::size_t>(d));
+  double r2 = 0, xmax = 0;
+  for (int c = 0; c < d; ++c) {
+    const double ws = w[c] - alpha * a[c].v;
+    r2 += ws * ws;
+    centre[c] = x[c] + ws;
+    xmax = std::max(xmax, std::fabs(x[c]));
+  }
+  const double r = std::sqrt(r2) * (1 + 1e-6) + 1e-12 * xmax * std::sqrt(static_cast<double>(d)) + 1e-300;
+  thread_local std::vector<std::pair<std::uint32_t, double>> near;
+  tree_.within(centre.data(), r * r * (1 + 1e-9), near);
+  for (const auto& [q, dist2] : near) {
+    if (q == x_ || q == s) continue;
+    const double* qp = ps_.point(q);
+    Approx q2{0, 0, 0}, wq{0, 0, 0}, aq{0, 0, 0};
+    for (int c = 0; c < d; ++c) {
+      const Approx qc = Approx::difference(qp[c], x[c]);
+      q2 = q2 + qc * qc;
+      wq = wq + Approx::exact(w[c]) * qc;
+      aq = aq + a[c] * qc;
+    }
+    const Approx g = D * q2 - Approx::exact(2) * D * wq + Approx::exact(2) * N * aq;
+    int sign = g.certified_sign();
+    if (sign == Approx::kUnknownSign) {
+      mpq_class A2 = 0, WA = 0, Q2 = 0, WQ = 0, AQ = 0;
+      std::vector<mpq_class> ac(static_cast<std::size_t>(d));
+      for (int c = 0; c < d; ++c) {
+        ac[c] = mpq_class(sp[c]) - mpq_class(x[c]);
+        const mpq_class qc = mpq_class(qp[c]) - mpq_class(x[c]);
+        const mpq_class wc(w[c]);
+        A2 += ac[c] * ac[c];
+        WA += wc * ac[c];
+        Q2 += qc * qc;
+        WQ += wc * qc;
+        AQ += ac[c] * qc;
+      }
+      const mpq_class De = 2 * A2, Ne = 2 * WA - A2;
+      sign = sgn(De * Q2 - 2 * De * WQ + 2 * Ne * AQ);
+    }
+    if (sign <= 0) return false;  // q is as close to the witness as x and s (or closer)
+  }
+  return true;
+}
+
+Status ApproxWalker::compute(std::uint32_t seed, ApproxNeighbors& out) {
+  if (seed >= ps_.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
+                        std::to_string(ps_.size()) + " points)");
+  }
+  x_ = seed;
+  rays_ = 0;
+  // Every direction is drawn from the seed index and the options: replicas and thread
+  // counts agree.
+  rng_ = options_.random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{seed} + 1)) ^
+         (static_cast<std::uint64_t>(options_.mode) << 56) ^ (std::uint64_t{options_.max_misses} << 32);
+  out = ApproxNeighbors{};
+  out.seed = seed;
+  load_candidates();
+  Status s = options_.mode == ApproxOptions::Mode::kSpokes ? compute_spokes(out) : compute_rsd(out);
+  out.rays = rays_;
+  std::sort(out.neighbors.begin(), out.neighbors.end());
+  return s;
+}
+
+Status ApproxWalker::compute_spokes(ApproxNeighbors& out) {
+  const int d = d_;
+  std::vector<double> u(static_cast<std::size_t>(d)), y(static_cast<std::size_t>(d), 0.0), w(static_cast<std::size_t>(d));
+  std::unordered_set<std::uint32_t> found;
+  std::uint64_t misses = 0;
+  while (misses < options_.max_misses && out.vertices < options_.max_vertices) {
+    if (stop_requested()) return cancelled("neighbour walk cancelled");
+    for (double& v : u) v = normal_variate(rng_);
+    ++out.vertices;
+    double t = 0;
+    const std::int64_t p = shoot(y.data(), u.data(), nullptr, 0, t);
+    bool fresh = false;
+    if (p >= 0 && found.count(static_cast<std::uint32_t>(p)) == 0) {
+      // The trimmed spoke's end lies on the Voronoi facet of (x, p): the witness.
+      for (int c = 0; c < d; ++c) w[c] = t * u[c];
+      if (certify(static_cast<std::uint32_t>(p), w.data())) {
+        found.insert(static_cast<std::uint32_t>(p));
+        out.neighbors.push_back(static_cast<std::uint32_t>(p));
+        fresh = true;
+      } else {
+        ++out.uncertified;
+      }
+    }
+    misses = fresh ? 0 : misses + 1;
+  }
+  out.misses = misses;
+  return Status::ok();
+}
+
+Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
+  using Eigen::MatrixXd;
+  using Eigen::VectorXd;
+  const int d = d_;
+  // 1. Recursive spokes down to a first Voronoi vertex (Sec. 3.2): at level k the
+  //    spoke lies in the flat equidistant to x and the k points found, i.e. orthogonal
+  //    to their offsets (Gram-Schmidt), and starts where the previous spoke ended.
+  std::vector<std::uint32_t> S;
+  std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
+  VectorXd y = VectorXd::Zero(d), u(d);
+  for (int attempt = 0; static_cast<int>(S.size()) < d; ++attempt) {
+    if (attempt > 64 * d) return internal_error("recursive spokes found no Voronoi vertex (degenerate input?)");
+    if (stop_requested()) return cancelled("neighbour walk cancelled");
+    for (int c = 0; c < d; ++c) u[c] = normal_variate(rng_);
+    for (std::size_t b = 0; b * d < basis.size(); ++b) {
+      const Eigen::Map<const VectorXd> row(&basis[b * d], d);
+      u -= row.dot(u) * row;
+    }
+    if (!(u.norm() > 1e-9)) continue;
+    u.normalize();
+    double t = 0;
+    std::int64_t p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+    if (p < 0) {  // unbounded that way: the face reaches the hull; try the other way
+      u = -u;
+      p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+    }
+    if (p < 0) continue;
+    y += t * u;
+    S.push_back(static_cast<std::uint32_t>(p));
+    // Extend the basis with the new offset (modified Gram-Schmidt).
+    VectorXd q(d);
+    const double* pp = ps_.point(static_cast<std::size_t>(p));
+    const double* x = ps_.point(x_);
+    for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
+    for (std::size_t b = 0; b * d < basis.size(); ++b) {
+      const Eigen::Map<const VectorXd> row(&basis[b * d], d);
+      q -= row.dot(q) * row;
+    }
+    if (!(q.norm() > 0)) return internal_error("recursive spokes met dependent offsets (degenerate input?)");
+    q.normalize();
+    basis.insert(basis.end(), q.data(), q.data() + d);
+  }
+
+  // 2. The walk (Sec. 3.3 and 4.4). Vertices whose equidistant points include points
+  //    not yet certified go first (then first come, first served): the budget of
+  //    misses is spent where new neighbours are, not on re-walking known ones.
+  struct Vertex {
+    std::vector<std::uint32_t> S;  // the d points equidistant with x, sorted
+    VectorXd v;                    // relative to x
+  };
+  std::vector<Vertex> vertices;
+  using Entry = std::pair<int, std::int64_t>;  // (unfound points, -arrival)
+  std::priority_queue<Entry> queue;
+  std::unordered_set<std::vector<std::uint32_t>, TupleHash> seen;
+  std::unordered_set<std::uint32_t> found;
+  auto unfound = [&](const std::vector<std::uint32_t>& set) {
+    int k = 0;
+    for (std::uint32_t p : set) k += found.count(p) == 0 ? 1 : 0;
+    return k;
+  };
+  std::sort(S.begin(), S.end());
+  seen.insert(S);
+  vertices.push_back({S, y});
+  queue.push({unfound(S), 0});
+  std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
+  MatrixXd B(d, d);
+  VectorXd f(d), e(d), w(d);
+  std::uint64_t misses = 0;
+  const double* x = ps_.point(x_);
+  while (!queue.empty()) {
+    if (misses >= options_.max_misses || out.vertices >= options_.max_vertices) break;
+    if (stop_requested()) return cancelled("neighbour walk cancelled");
+    Vertex vertex = std::move(vertices[static_cast<std::size_t>(-queue.top().second)]);
+    queue.pop();
+    ++out.vertices;
+    // Edge directions: E = -B^{-1} with rows B_m = s_m - x. Column k is orthogonal to
+    // every offset but the k-th and points away from s_k: the Voronoi edge that drops s_k.
+    for (int m = 0; m < d; ++m) {
+      const double* sp = ps_.point(vertex.S[m]);
+      for (int c = 0; c < d; ++c) B(m, c) = sp[c] - x[c];
+    }
+    Eigen::PartialPivLU<MatrixXd> lu(B);
+    const MatrixXd E = -lu.inverse();
+    if (!E.allFinite()) continue;
+    // Re-solve the vertex from its equidistant set (B v = |s_m - x|^2 / 2) rather than
+    // trust the sum of rays that reached it: errors do not accumulate along the walk.
+    VectorXd rhs(d);
+    for (int m = 0; m < d; ++m) rhs[m] = B.row(m).squaredNorm() / 2;
+    vertex.v = lu.solve(rhs);
+    if (!vertex.v.allFinite()) continue;
+    // Certify the new neighbours of this vertex: for s = S_i, the direction
+    // sum_{k != i} E_k keeps x and s equidistant and moves away from the others, into
+    // the facet of (x, s); the witness is halfway to the first point met that way.
+    bool fresh = false;
+    const VectorXd total = E.rowwise().sum();
+    for (int i = 0; i < d; ++i) {
+      const std::uint32_t s = vertex.S[i];
+      if (found.count(s) != 0 || attempts[s] >= 3) continue;
+      f = total - E.col(i);
+      double t = 0;
+      const std::int64_t hit = shoot(vertex.v.data(), f.data(), &s, 1, t);
+      if (hit < 0) t = 2 * std::max(vertex.v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
+      w = vertex.v + (t / 2) * f;
+      if (certify(s, w.data())) {
+        found.insert(s);
+        out.neighbors.push_back(s);
+        fresh = true;
+      } else {
+        ++attempts[s];
+        ++out.uncertified;
+      }
+    }
+    misses = fresh ? 0 : misses + 1;
+    // Walk every Voronoi edge leaving this vertex.
+    for (int k = 0; k < d; ++k) {
+      e = E.col(k);
+      double t = 0;
+      const std::int64_t q = shoot(vertex.v.data(), e.data(), vertex.S.data(), d, t);
+      if (q < 0) continue;  // an unbounded Voronoi edge
+      std::vector<std::uint32_t> next = vertex.S;
+      next[k] = static_cast<std::uint32_t>(q);
+      std::sort(next.begin(), next.end());
+      if (!seen.insert(next).second) continue;
+      queue.push({unfound(next), -static_cast<std::int64_t>(vertices.size())});
+      vertices.push_back({std::move(next), vertex.v + t * e});
+    }
+  }
+  out.misses = misses;
+  out.exhausted = queue.empty();
+  return Status::ok();
+}
+
+}  // namespace spokemesh
