@@ -14,6 +14,8 @@
 #include <string>
 #include <thread>
 
+#include "spokemesh/approx.hpp"
+#include "spokemesh/graph.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
@@ -47,7 +49,9 @@ struct Loaded {
   std::uint32_t to_original(std::uint32_t i) const { return original.empty() ? i : original[i]; }
 };
 
-Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplicates) {
+// approximate: accepts any dimension up to kMaxApproxDimension (the exact affine-span
+// check runs only where exact meshing is defined, d <= kMaxDimension).
+Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplicates, bool approximate = false) {
   auto points = read_points(path);
   if (!points.is_ok()) return points.status();
   auto loaded = std::make_unique<Loaded>();
@@ -58,7 +62,14 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
     loaded->original.assign(loaded->points.size(), 0);
     for (std::size_t i = map.size(); i-- > 0;) loaded->original[map[i]] = static_cast<std::uint32_t>(i);
   }
-  if (Status s = loaded->points.validate(path); !s.is_ok()) return s;
+  const int d = loaded->points.dimension();
+  if (!approximate && d > kMaxDimension) {
+    return invalid_argument(path + ": dimension " + std::to_string(d) + " is above the exact limit " +
+                            std::to_string(kMaxDimension) + "; use --approx for a certified approximate Delaunay graph");
+  }
+  Status valid = approximate ? loaded->points.validate(path, kMaxApproxDimension, d <= kMaxDimension)
+                             : loaded->points.validate(path);
+  if (!valid.is_ok()) return valid;
   loaded->tree = std::make_unique<KdTree>(loaded->points);
   return loaded;
 }
@@ -77,6 +88,36 @@ Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed) {
   return invalid_argument("seed " + std::to_string(seed) + " duplicates an earlier point; use the first occurrence");
 }
 
+struct ApproxFlags {
+  bool enabled = false;
+  std::uint32_t misses = 100;
+  std::uint32_t max_vertices = 20000;
+  std::string mode = "rsd";
+
+  ApproxOptions options(std::uint64_t random_seed) const {
+    ApproxOptions o;
+    o.mode = mode == "spokes" ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+    o.max_misses = misses;
+    o.max_vertices = max_vertices;
+    o.random_seed = random_seed;
+    return o;
+  }
+};
+
+void add_approx_flags(CLI::App* cmd, ApproxFlags& f) {
+  cmd->add_flag("--approx", f.enabled,
+                "Certified approximate neighbours (any dimension): every edge is a true Delaunay edge, some may be missed");
+  cmd->add_option("--misses", f.misses, "With --approx: stop after this many consecutive misses (the paper's M)")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 1000000u));
+  cmd->add_option("--mode", f.mode, "With --approx: rsd (Recursive Spoke Darts walk) or spokes (plain Spoke Darts)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"rsd", "spokes"}));
+  cmd->add_option("--max-vertices", f.max_vertices, "With --approx: at most this many Voronoi vertices (or rays) per seed")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 100000000u));
+}
+
 struct Common {
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   bool quiet = false;
@@ -86,7 +127,8 @@ struct Common {
 
 class Progress {
  public:
-  Progress(bool quiet, std::uint64_t total) : quiet_(quiet), total_(total), tty_(::isatty(2) != 0) {}
+  Progress(bool quiet, std::uint64_t total, const char* what = "meshing")
+      : quiet_(quiet), total_(total), tty_(::isatty(2) != 0), what_(what) {}
 
   void update(std::uint64_t done, std::uint64_t simplices) {
     if (quiet_) return;
@@ -96,9 +138,14 @@ class Progress {
     if (elapsed - last_ < interval) return;
     last_ = elapsed;
     char line[160];
-    std::snprintf(line, sizeof line, "meshing: %llu/%llu seeds (%.0f%%), %llu simplices, %.1f s",
+    std::snprintf(line, sizeof line, "%s: %llu/%llu seeds (%.0f%%), %llu simplices, %.1f s", what_,
                   static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_),
                   total_ ? 100.0 * done / total_ : 100.0, static_cast<unsigned long long>(simplices), elapsed);
+    if (simplices == 0) {  // the graph command counts seeds only
+      std::snprintf(line, sizeof line, "%s: %llu/%llu seeds (%.0f%%), %.1f s", what_,
+                    static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_),
+                    total_ ? 100.0 * done / total_ : 100.0, elapsed);
+    }
     if (tty_) std::fprintf(stderr, "\r%s\033[K", line);
     else std::fprintf(stderr, "%s\n", line);
     drawn_ = tty_;
@@ -112,6 +159,7 @@ class Progress {
   bool quiet_;
   std::uint64_t total_;
   bool tty_;
+  const char* what_;
   bool drawn_ = false;
   double last_ = 0;
   Clock::time_point start_ = Clock::now();
@@ -247,6 +295,64 @@ int run_check(const std::string& input, const std::string& mesh_path) {
   return kExitFailure;
 }
 
+int run_approx_neighbors(const Common& common, const ApproxFlags& flags, const std::string& input, std::int64_t seed) {
+  auto loaded_or = load(input, common.merge_duplicates, true);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  auto internal = internal_seed(loaded, seed);
+  if (!internal.is_ok()) return report(internal.status());
+  ApproxWalker walker(*loaded.tree, flags.options(common.random_seed));
+  ApproxNeighbors result;
+  const auto start = Clock::now();
+  if (Status s = walker.compute(internal.value(), result); !s.is_ok()) return report(s);
+  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  for (std::uint32_t v : result.neighbors) std::printf("%u\n", loaded.to_original(v));
+  std::fprintf(stderr,
+               "spokemesh: %zu certified neighbours (approximate, %s): %llu %s visited, %llu consecutive misses at "
+               "the end%s, %.1f ms\n",
+               result.neighbors.size(), flags.mode.c_str(), static_cast<unsigned long long>(result.vertices),
+               flags.mode == "spokes" ? "rays" : "Voronoi vertices", static_cast<unsigned long long>(result.misses),
+               result.exhausted ? " (every reachable vertex visited)" : "", ms);
+  return kExitOk;
+}
+
+int run_graph(const Common& common, const ApproxFlags& flags, const std::string& input, const std::string& output) {
+  auto loaded_or = load(input, common.merge_duplicates, flags.enabled);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  const PointSet edge_shape(1, {});  // width 2
+  auto writer = MeshWriter::open_tuples(output, edge_shape);
+  if (!writer.is_ok()) return report(writer.status());
+  GraphOptions options;
+  options.approximate = flags.enabled;
+  options.approx = flags.options(common.random_seed);
+  options.star.random_seed = common.random_seed;
+  options.threads = common.threads;
+  Progress progress(common.quiet, loaded.points.size(), "graph");
+  options.progress = [&](std::uint64_t done) { progress.update(done, 0); };
+  GraphStats stats;
+  auto edges = delaunay_graph(*loaded.tree, options, &stats);
+  progress.finish();
+  if (!edges.is_ok()) return report(edges.status());
+  std::vector<std::uint32_t> flat;
+  flat.reserve(edges->size() * 2);
+  for (auto [i, j] : edges.value()) {
+    std::uint32_t a = loaded.to_original(i), b = loaded.to_original(j);
+    flat.push_back(std::min(a, b));
+    flat.push_back(std::max(a, b));
+  }
+  if (Status s = writer.value()->write(flat); !s.is_ok()) return report(s);
+  if (Status s = writer.value()->commit(); !s.is_ok()) return report(s);
+  if (!common.quiet) {
+    const double t = progress.seconds();
+    std::fprintf(stderr, "spokemesh: %zu points, %zu %s edges, mean degree %.2f, %.2f s -> %s\n", loaded.points.size(),
+                 edges->size(), flags.enabled ? "certified (approximate)" : "exact",
+                 2.0 * static_cast<double>(edges->size()) / static_cast<double>(loaded.points.size()), t,
+                 output.c_str());
+  }
+  return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -300,10 +406,20 @@ int main(int argc, char** argv) {
   star->add_option("--seed", seed, "Seed index (0-based)")->required();
   add_common(star);
 
+  ApproxFlags approx_flags;
   auto* neighbors = app.add_subcommand("neighbors", "Print the Delaunay neighbours of one seed, one per line");
   neighbors->add_option("INPUT", input, "Point file")->required();
   neighbors->add_option("--seed", seed, "Seed index (0-based)")->required();
+  add_approx_flags(neighbors, approx_flags);
   add_common(neighbors);
+
+  auto* graph = app.add_subcommand("graph", "Write the Delaunay graph: one edge \"i j\" per line (i < j, sorted), or .npy");
+  graph->add_option("INPUT", input, "Point file")->required();
+  graph->add_option("-o,--output", output, "Edge file: .edges/.txt (text) or .npy (int64, shape (m, 2))")->required();
+  graph->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
+  graph->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
+  add_approx_flags(graph, approx_flags);
+  add_common(graph);
 
   auto* cell = app.add_subcommand("cell", "Print the Voronoi cell of one seed: vertices, facets, boundedness, volume");
   cell->add_option("INPUT", input, "Point file")->required();
@@ -405,6 +521,8 @@ int main(int argc, char** argv) {
       return kExitOk;
     });
   }
+  if (*graph) return run_graph(common, approx_flags, input, output);
+  if (*neighbors && approx_flags.enabled) return run_approx_neighbors(common, approx_flags, input, seed);
   if (*neighbors) {
     return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {
       for (std::uint32_t v : star_neighbors(s)) std::printf("%u\n", loaded.to_original(v));

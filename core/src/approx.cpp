@@ -16,6 +16,9 @@ namespace spokemesh {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+// Candidates per dimension whose dot products with all rays of a vertex come from one
+// matrix product (the rest, rarely reached, are computed on the fly).
+constexpr std::size_t kDottedPerDimension = 512;
 
 std::uint64_t splitmix64(std::uint64_t& state) {
   std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
@@ -56,13 +59,14 @@ void ApproxWalker::load_candidates() {
   const std::size_t n = ps_.size();
   // Enough neighbours that most rays end inside the list (a point at distance r from
   // x cannot be hit before the ray is r / 2 from x); the rest fall back to a scan.
-  const std::size_t k = std::min(n, std::max<std::size_t>(256, 256 * static_cast<std::size_t>(d_)) + 1);
+  const std::size_t k = std::min(n, std::max<std::size_t>(256, 512 * static_cast<std::size_t>(d_)) + 1);
   std::vector<std::uint32_t> ids(k);
   std::vector<double> d2(k);
   const std::size_t got = tree_.knn(ps_.point(x_), k, ids.data(), d2.data());
   cand_id_.clear();
   cand_q_.clear();
   cand_norm_.clear();
+  cand_norm2_.clear();
   const double* x = ps_.point(x_);
   for (std::size_t i = 0; i < got; ++i) {
     if (ids[i] == x_) continue;
@@ -75,13 +79,14 @@ void ApproxWalker::load_candidates() {
     }
     cand_id_.push_back(ids[i]);
     cand_norm_.push_back(std::sqrt(s));
+    cand_norm2_.push_back(s);
   }
   cand_radius_ = got == n ? kInf : std::sqrt(d2[got - 1]) * (1 - 1e-9);
   cand_radius2_ = cand_radius_ * cand_radius_;
 }
 
 std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
-                                 double& t_out) {
+                                 double& t_out, const double* yq, const double* eq_list, std::size_t dotted) {
   ++rays_;
   const int d = d_;
   std::int64_t best = -1;
@@ -93,10 +98,11 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     }
     return false;
   };
-  auto consider = [&](std::uint32_t id, const double* q, double q2) {
-    const double eq = dot(e, q, d);
-    if (!(eq > 0)) return;
-    const double t = (q2 - 2 * dot(y, q, d)) / (2 * eq);
+  // A point q (relative to x) becomes as close to y + t e as x is when
+  // |q|^2 - 2 y.q = 2 t e.q; only points with e.q > 0 are ever reached.
+  auto consider_dots = [&](std::uint32_t id, double q2, double yqv, double eqv) {
+    if (!(eqv > 0)) return;
+    const double t = (q2 - 2 * yqv) / (2 * eqv);
     if (!(t > 0) || t >= t_best || is_excluded(id)) return;
     t_best = t;
     best = id;
@@ -107,26 +113,46 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     }
     reach = 2 * std::sqrt(z2) * (1 + 1e-9);
   };
+  auto consider = [&](std::uint32_t id, const double* q, double q2) {
+    consider_dots(id, q2, dot(y, q, d), dot(e, q, d));
+  };
   const std::size_t count = cand_id_.size();
   std::size_t j = 0;
-  for (; j < count && cand_norm_[j] <= reach; ++j) {
-    consider(cand_id_[j], &cand_q_[j * d], cand_norm_[j] * cand_norm_[j]);
+  if (yq != nullptr) {
+    for (; j < dotted && cand_norm_[j] <= reach; ++j) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
   }
+  for (; j < count && cand_norm_[j] <= reach; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
   if (j == count && reach > cand_radius_) {
-    // The hit (or its absence) is not decided by the list: scan every point.
-    scratch_.resize(static_cast<std::size_t>(d));
+    // The hit (or its absence) is not decided by the list: branch and bound over the
+    // k-d tree. A box can hold a point hit before t_best only if
+    //   t >= max(0, dist(x + y, box)^2 - |y|^2) / (2 max_{q in box} e . (q - x))
+    // is smaller (numerator: |q - y|^2 - |y|^2; denominator: 2 e . (q - x)).
     const double* x = ps_.point(x_);
-    const std::size_t n = ps_.size();
-    for (std::size_t i = 0; i < n; ++i) {
-      const double* p = ps_.point(i);
-      double q2 = 0;
-      for (int c = 0; c < d; ++c) {
-        scratch_[c] = p[c] - x[c];
-        q2 += scratch_[c] * scratch_[c];
-      }
-      if (q2 < cand_radius2_) continue;  // listed, already considered
-      consider(static_cast<std::uint32_t>(i), scratch_.data(), q2);
-    }
+    const double y2 = dot(y, y, d);
+    scratch_.resize(static_cast<std::size_t>(d));
+    tree_.find_first(
+        [&](const double* lo, const double* hi) {
+          double dist2 = 0, reach_e = 0;
+          for (int c = 0; c < d; ++c) {
+            const double yc = x[c] + y[c];
+            const double gap = yc < lo[c] ? lo[c] - yc : (yc > hi[c] ? yc - hi[c] : 0.0);
+            dist2 += gap * gap;
+            reach_e += std::max(e[c] * (lo[c] - x[c]), e[c] * (hi[c] - x[c]));
+          }
+          if (!(reach_e > 0)) return false;
+          const double lower = std::max(0.0, dist2 - y2) / (2 * reach_e);
+          return lower < t_best * (1 + 1e-9);
+        },
+        [&](std::uint32_t id) {
+          const double* p = ps_.point(id);
+          double q2 = 0;
+          for (int c = 0; c < d; ++c) {
+            scratch_[c] = p[c] - x[c];
+            q2 += scratch_[c] * scratch_[c];
+          }
+          if (q2 >= cand_radius2_) consider(id, scratch_.data(), q2);  // listed points were considered
+          return false;  // visit every box that may still improve the hit
+        });
   }
   t_out = t_best;
   return best;
@@ -337,6 +363,19 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     for (int m = 0; m < d; ++m) rhs[m] = B.row(m).squaredNorm() / 2;
     vertex.v = lu.solve(rhs);
     if (!vertex.v.allFinite()) continue;
+    // Every ray from this vertex starts at v and goes along a combination of E's
+    // columns: one matrix product gives all their dot products with the candidates.
+    // Only the nearest part of the list: most rays end there (the rest of the list is
+    // scanned with dot products on the fly, then the tree).
+    const auto listed = static_cast<Eigen::Index>(std::min<std::size_t>(cand_id_.size(), kDottedPerDimension * static_cast<std::size_t>(d)));
+    const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
+    MatrixXd R(d, d + 2);
+    R.col(0) = vertex.v;
+    R.middleCols(1, d) = E;
+    R.col(d + 1) = E.rowwise().sum();
+    MatrixXd P(listed, d + 2);  // column-major; noalias: no zero-fill before the product
+    P.noalias() = Q.transpose() * R;
+    VectorXd certify_dots(listed);
     // Certify the new neighbours of this vertex: for s = S_i, the direction
     // sum_{k != i} E_k keeps x and s equidistant and moves away from the others, into
     // the facet of (x, s); the witness is halfway to the first point met that way.
@@ -346,8 +385,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       const std::uint32_t s = vertex.S[i];
       if (found.count(s) != 0 || attempts[s] >= 3) continue;
       f = total - E.col(i);
+      certify_dots = P.col(d + 1) - P.col(1 + i);
       double t = 0;
-      const std::int64_t hit = shoot(vertex.v.data(), f.data(), &s, 1, t);
+      const std::int64_t hit = shoot(vertex.v.data(), f.data(), &s, 1, t, P.col(0).data(), certify_dots.data(),
+                                     static_cast<std::size_t>(listed));
       if (hit < 0) t = 2 * std::max(vertex.v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
       w = vertex.v + (t / 2) * f;
       if (certify(s, w.data())) {
@@ -364,7 +405,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     for (int k = 0; k < d; ++k) {
       e = E.col(k);
       double t = 0;
-      const std::int64_t q = shoot(vertex.v.data(), e.data(), vertex.S.data(), d, t);
+      const std::int64_t q = shoot(vertex.v.data(), e.data(), vertex.S.data(), d, t, P.col(0).data(),
+                                   P.col(1 + k).data(), static_cast<std::size_t>(listed));
       if (q < 0) continue;  // an unbounded Voronoi edge
       std::vector<std::uint32_t> next = vertex.S;
       next[k] = static_cast<std::uint32_t>(q);

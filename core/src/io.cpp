@@ -507,7 +507,7 @@ class SpooledWriter final : public MeshWriter {
 }  // namespace
 
 Result<MeshWriter::Format> MeshWriter::format_for(const std::string& path, int dimension) {
-  if (ends_with(path, ".simplices") || ends_with(path, ".txt")) return Format::kText;
+  if (ends_with(path, ".simplices") || ends_with(path, ".txt") || ends_with(path, ".edges")) return Format::kText;
   if (ends_with(path, ".npy")) return Format::kNpy;
   if (ends_with(path, ".vtu") || ends_with(path, ".msh")) {
     if (dimension != 2 && dimension != 3) {
@@ -536,6 +536,15 @@ Result<std::unique_ptr<MeshWriter>> MeshWriter::open(const std::string& path, co
     default: writer.reset(new SpooledWriter(path, points, file, temp, format.value())); break;
   }
   return writer;
+}
+
+Result<std::unique_ptr<MeshWriter>> MeshWriter::open_tuples(const std::string& path, const PointSet& shape) {
+  auto format = format_for(path, shape.dimension());
+  if (!format.is_ok()) return format.status();
+  if (format.value() != Format::kText && format.value() != Format::kNpy) {
+    return invalid_argument(path + ": index tuples are written as text (.edges, .txt) or .npy");
+  }
+  return open(path, shape);
 }
 
 MeshWriter::MeshWriter(std::string path, const PointSet& points, std::FILE* file, std::string temp_path)

@@ -65,7 +65,9 @@ class ApproxWalker {
   void load_candidates();
   // First point (not x, not excluded) that becomes equidistant with x along
   // y + t e, t > 0 (relative coordinates: y, e relative to x). Returns -1 if none.
-  std::int64_t shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded, double& t);
+  // yq / eq, when given, are y . q and e . q for the first `dotted` listed candidates.
+  std::int64_t shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded, double& t,
+                     const double* yq = nullptr, const double* eq = nullptr, std::size_t dotted = 0);
   // Is w' (relative to x) a witness for the edge (x, s)? Projects it exactly onto the
   // bisector and checks every point with the filtered exact predicate.
   bool certify(std::uint32_t s, const double* w);
@@ -84,6 +86,7 @@ class ApproxWalker {
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;
   std::vector<double> cand_norm_;
+  std::vector<double> cand_norm2_;
   double cand_radius_ = 0;  // every unlisted point is at least this far from x (up to rounding)
   double cand_radius2_ = 0;
   std::vector<double> scratch_;

@@ -39,6 +39,9 @@ class MeshWriter {
 
   // Opens a writer for `path`; refuses formats that do not fit the dimension.
   static Result<std::unique_ptr<MeshWriter>> open(const std::string& path, const PointSet& points);
+  // Index tuples of a fixed width (e.g. graph edges: width 2), as text or .npy.
+  // `shape` only carries the width: a PointSet of dimension width - 1, no points.
+  static Result<std::unique_ptr<MeshWriter>> open_tuples(const std::string& path, const PointSet& shape);
   static Result<Format> format_for(const std::string& path, int dimension);
 
   virtual ~MeshWriter();
