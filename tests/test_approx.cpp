@@ -1,0 +1,181 @@
+// Approximate Delaunay neighbours (ApproxWalker, delaunay_graph): precision is 1 always
+// (against exact stars in low d, and against the LP oracle in high d), recall is 1 on
+// small 2-d/3-d inputs with a generous budget, and answers do not depend on threads.
+#include <atomic>
+#include <set>
+
+#include "lp_oracle.hpp"
+#include "spokemesh/approx.hpp"
+#include "spokemesh/graph.hpp"
+#include "spokemesh/voronoi.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using testing::grid_points;
+using testing::lp_delaunay_neighbors;
+using testing::uniform_points;
+
+struct Set {
+  PointSet points;
+  std::unique_ptr<KdTree> tree;
+  Set(int d, std::vector<double> coords) : points(d, std::move(coords)) {
+    const Status s = points.validate("test", kMaxApproxDimension, d <= kMaxDimension);
+    EXPECT_TRUE(s.is_ok()) << s.message();
+    tree = std::make_unique<KdTree>(points);
+  }
+};
+
+std::vector<std::uint32_t> exact_neighbors(const KdTree& tree, std::uint32_t seed) {
+  StarWalker walker(tree);
+  Star star;
+  EXPECT_TRUE(walker.compute(seed, star).is_ok());
+  return star_neighbors(star);
+}
+
+bool subset(const std::vector<std::uint32_t>& a, const std::vector<std::uint32_t>& b) {
+  return std::includes(b.begin(), b.end(), a.begin(), a.end());
+}
+
+TEST(LpOracle, AgreesWithExactStars) {
+  const auto c = uniform_points(3, 150, 1);
+  Set s(3, c);
+  for (std::uint32_t seed : {0u, 7u, 42u, 149u}) {
+    EXPECT_EQ(lp_delaunay_neighbors(c, 3, seed), exact_neighbors(*s.tree, seed)) << "seed " << seed;
+  }
+}
+
+TEST(Approx, RecallOneAndPrecisionOneIn2dAnd3d) {
+  for (int d : {2, 3}) {
+    Set s(d, uniform_points(d, 600, 10 + d));
+    for (auto mode : {ApproxOptions::Mode::kRsd}) {
+      ApproxOptions o;
+      o.mode = mode;
+      o.max_misses = 1000;
+      ApproxWalker walker(*s.tree, o);
+      for (std::uint32_t seed = 0; seed < 600; seed += 7) {
+        ApproxNeighbors a;
+        ASSERT_TRUE(walker.compute(seed, a).is_ok());
+        EXPECT_EQ(a.neighbors, exact_neighbors(*s.tree, seed)) << "d=" << d << " seed " << seed << " (points seed " << 10 + d << ")";
+        EXPECT_EQ(a.uncertified, 0u);
+      }
+    }
+  }
+}
+
+TEST(Approx, PrecisionOneOnGridsWithTies) {
+  // Cospherical everywhere: walks meet ties, certification must still never accept a
+  // non-edge (exact neighbours here are those of the perturbed triangulation).
+  for (int d : {2, 3}) {
+    Set s(d, grid_points(d, d == 2 ? 9 : 5));
+    for (auto mode : {ApproxOptions::Mode::kRsd, ApproxOptions::Mode::kSpokes}) {
+      ApproxOptions o;
+      o.mode = mode;
+      o.max_misses = 200;
+      ApproxWalker walker(*s.tree, o);
+      for (std::uint32_t seed = 0; seed < s.points.size(); seed += 3) {
+        ApproxNeighbors a;
+        ASSERT_TRUE(walker.compute(seed, a).is_ok());
+        EXPECT_TRUE(subset(a.neighbors, exact_neighbors(*s.tree, seed))) << "d=" << d << " seed " << seed;
+        EXPECT_GE(a.neighbors.size(), 1u) << "d=" << d << " seed " << seed;
+      }
+    }
+  }
+}
+
+TEST(Approx, PrecisionOneInHighDimensionsAgainstTheLpOracle) {
+  for (int d : {5, 8, 12}) {
+    const std::size_t n = 160;
+    const auto c = uniform_points(d, n, 20 + d);
+    Set s(d, c);
+    for (std::uint32_t seed : {0u, 77u}) {
+      const auto truth = lp_delaunay_neighbors(c, d, seed);
+      for (auto mode : {ApproxOptions::Mode::kRsd, ApproxOptions::Mode::kSpokes}) {
+        ApproxOptions o;
+        o.mode = mode;
+        o.max_misses = 100;
+        ApproxWalker walker(*s.tree, o);
+        ApproxNeighbors a;
+        ASSERT_TRUE(walker.compute(seed, a).is_ok());
+        EXPECT_TRUE(subset(a.neighbors, truth)) << "d=" << d << " seed " << seed << " mode " << static_cast<int>(mode)
+                                                << " (points seed " << 20 + d << ")";
+        EXPECT_FALSE(a.neighbors.empty());
+        RecordProperty("recall_d" + std::to_string(d) + "_seed" + std::to_string(seed) + "_mode" +
+                           std::to_string(static_cast<int>(mode)),
+                       std::to_string(double(a.neighbors.size()) / double(truth.size())));
+      }
+    }
+  }
+}
+
+TEST(Approx, RsdBeatsPlainSpokesForTheSameBudget) {
+  Set s(6, uniform_points(6, 1500, 31));
+  std::size_t rsd = 0, spokes = 0;
+  for (auto mode : {ApproxOptions::Mode::kRsd, ApproxOptions::Mode::kSpokes}) {
+    ApproxOptions o;
+    o.mode = mode;
+    o.max_misses = 50;
+    ApproxWalker walker(*s.tree, o);
+    for (std::uint32_t seed = 0; seed < 10; ++seed) {
+      ApproxNeighbors a;
+      ASSERT_TRUE(walker.compute(seed, a).is_ok());
+      (mode == ApproxOptions::Mode::kRsd ? rsd : spokes) += a.neighbors.size();
+    }
+  }
+  EXPECT_GT(rsd, spokes);
+}
+
+TEST(Graph, ExactGraphIsTheMeshEdgesAndApproximateIsASubsetForAnyThreads) {
+  Set s(4, uniform_points(4, 400, 41));
+  GraphOptions exact;
+  auto g1 = delaunay_graph(*s.tree, exact);
+  ASSERT_TRUE(g1.is_ok());
+  std::set<std::pair<std::uint32_t, std::uint32_t>> mesh_edges;
+  ASSERT_TRUE(mesh_seeds(*s.tree, {}, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+                for (std::size_t i = 0; i < b.size(); i += 5) {
+                  for (int p = 0; p < 5; ++p) {
+                    for (int q = p + 1; q < 5; ++q) mesh_edges.emplace(b[i + p], b[i + q]);
+                  }
+                }
+                return Status::ok();
+              }).is_ok());
+  EXPECT_EQ(Edges(mesh_edges.begin(), mesh_edges.end()), g1.value());
+  GraphOptions approx;
+  approx.approximate = true;
+  approx.approx.max_misses = 30;
+  auto a1 = delaunay_graph(*s.tree, approx);
+  approx.threads = 3;
+  auto a3 = delaunay_graph(*s.tree, approx);
+  ASSERT_TRUE(a1.is_ok() && a3.is_ok());
+  EXPECT_EQ(a1.value(), a3.value());
+  for (const auto& e : a1.value()) EXPECT_TRUE(mesh_edges.count(e)) << e.first << " " << e.second;
+  EXPECT_GT(a1->size() * 10, g1->size() * 9);
+}
+
+TEST(Graph, ExactRefusesHighDimensionsAndPointsToApproximate) {
+  Set s(10, uniform_points(10, 50, 51));
+  auto g = delaunay_graph(*s.tree, GraphOptions{});
+  EXPECT_EQ(g.status().code(), Code::kInvalidArgument);
+  EXPECT_NE(g.status().message().find("approximate"), std::string::npos);
+}
+
+TEST(Approx, DeterministicAndCancellable) {
+  Set s(7, uniform_points(7, 800, 61));
+  ApproxWalker a(*s.tree, {}), b(*s.tree, {});
+  ApproxNeighbors x, y;
+  ASSERT_TRUE(a.compute(5, x).is_ok());
+  ASSERT_TRUE(b.compute(9, y).is_ok());
+  ASSERT_TRUE(b.compute(5, y).is_ok());  // a walker's history does not matter
+  EXPECT_EQ(x.neighbors, y.neighbors);
+  EXPECT_EQ(x.vertices, y.vertices);
+  std::atomic<bool> stop{true};
+  ApproxOptions o;
+  o.cancel = &stop;
+  ApproxWalker c(*s.tree, o);
+  EXPECT_EQ(c.compute(5, x).code(), Code::kCancelled);
+  EXPECT_EQ(c.compute(800, x).code(), Code::kOutOfRange);
+}
+
+}  // namespace
+}  // namespace spokemesh
