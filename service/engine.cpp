@@ -144,7 +144,9 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s) {
     return existing;
   }
   PointSet points(info.dimension, std::move(s.coords_));
-  if (Status st = points.validate("coordinates", limits_.max_dimension); !st.is_ok()) return st;
+  if (Status st = points.validate("coordinates", limits_.max_dimension, info.dimension <= kMaxDimension); !st.is_ok()) {
+    return st;
+  }
   return store_->put(info, std::move(points));
 }
 
@@ -179,7 +181,16 @@ Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_
   return std::make_pair(std::move(set).value(), static_cast<std::uint32_t>(seed));
 }
 
+Status Engine::exact_allowed(const StoredSet& set, const char* what) {
+  if (set.info.dimension <= kMaxDimension) return Status::ok();
+  return resource_exhausted(std::string(what) + " is exact and limited to d <= " + std::to_string(kMaxDimension) +
+                            " (point set " + set.info.id + " is " + std::to_string(set.info.dimension) +
+                            "-d, where exact Delaunay work is unbounded); ask GetNeighbors with mode APPROXIMATE "
+                            "(REST: /neighbors?mode=approximate) for certified neighbours");
+}
+
 Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control) {
+  if (Status s = exact_allowed(set, "this request"); !s.is_ok()) return s;
   StarOptions options;
   options.cancel = control.stop_flag();
   StarWalker walker(*set.tree, options);
@@ -207,13 +218,31 @@ Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const
   return answer;
 }
 
-Result<std::vector<std::uint32_t>> Engine::neighbors(const std::string& id, std::uint64_t seed,
-                                                     const CallControl& control) {
+Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
+                                         const CallControl& control) {
   auto target = seed_of(id, seed);
   if (!target.is_ok()) return target.status();
-  auto star = compute_star(*target.value().first, target.value().second, control);
-  if (!star.is_ok()) return star.status();
-  return star_neighbors(star.value());
+  const StoredSet& set = *target.value().first;
+  NeighborAnswer answer;
+  if (query.mode == NeighborQuery::Mode::kExact) {
+    if (Status s = exact_allowed(set, "GetNeighbors with mode EXACT"); !s.is_ok()) return s;
+    auto star = compute_star(set, target.value().second, control);
+    if (!star.is_ok()) return star.status();
+    answer.neighbors = star_neighbors(star.value());
+    return answer;
+  }
+  ApproxOptions options;
+  options.mode = query.mode == NeighborQuery::Mode::kSpokes ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+  options.max_misses = query.max_consecutive_misses == 0 ? 100 : query.max_consecutive_misses;
+  options.max_vertices = query.max_vertices == 0 ? 20000 : query.max_vertices;
+  options.cancel = control.stop_flag();
+  ApproxWalker walker(*set.tree, options);
+  Status s = walker.compute(target.value().second, answer.walk);
+  if (s.code() == Code::kCancelled) return control.stopped_status("the neighbour walk of seed " + std::to_string(seed));
+  if (!s.is_ok()) return s;
+  answer.exact = false;
+  answer.neighbors = answer.walk.neighbors;
+  return answer;
 }
 
 Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const CallControl& control) {
@@ -239,6 +268,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();
   const StoredSet& s = *set.value();
+  if (Status allowed = exact_allowed(s, "StreamSimplices"); !allowed.is_ok()) return allowed;
   const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
   if (dimension_out != nullptr) *dimension_out = s.info.dimension;

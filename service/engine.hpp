@@ -21,6 +21,7 @@
 #include <thread>
 #include <vector>
 
+#include "spokemesh/approx.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "store.hpp"
@@ -31,7 +32,7 @@ using Clock = std::chrono::steady_clock;
 
 struct Limits {
   std::uint64_t max_points = 10'000'000;
-  int max_dimension = kMaxDimension;          // exact meshing is defined up to kMaxDimension
+  int max_dimension = 128;  // uploads; exact answers are defined up to kMaxDimension
   std::uint64_t max_memory = 4ull << 30;      // bytes of point sets + trees kept in memory
   std::chrono::milliseconds default_deadline{60'000};
   unsigned stream_threads = 1;                // worker threads per StreamSimplices call
@@ -105,6 +106,19 @@ class UploadSession {
   std::unique_ptr<Sha256> sha_;
 };
 
+struct NeighborQuery {
+  enum class Mode { kExact, kApproximate, kSpokes };
+  Mode mode = Mode::kExact;
+  std::uint32_t max_consecutive_misses = 0;  // 0 = 100
+  std::uint32_t max_vertices = 0;            // 0 = 20000
+};
+
+struct NeighborAnswer {
+  std::vector<std::uint32_t> neighbors;
+  bool exact = true;
+  ApproxNeighbors walk;  // approximate modes: the walk's statistics
+};
+
 struct StarAnswer {
   Star star;
   std::vector<double> circumcentres;  // d per simplex
@@ -137,7 +151,8 @@ class Engine {
   Result<std::shared_ptr<const StoredSet>> point_set(const std::string& id) { return store_->get(id); }
 
   Result<StarAnswer> star(const std::string& id, std::uint64_t seed, const CallControl& control);
-  Result<std::vector<std::uint32_t>> neighbors(const std::string& id, std::uint64_t seed, const CallControl& control);
+  Result<NeighborAnswer> neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
+                                   const CallControl& control);
   Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const CallControl& control);
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
@@ -151,6 +166,8 @@ class Engine {
  private:
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  // RESOURCE_EXHAUSTED for exact work on a set above the exact dimension limit.
+  static Status exact_allowed(const StoredSet& set, const char* what);
 
   std::unique_ptr<PointSetStore> store_;
   Limits limits_;

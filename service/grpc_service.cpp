@@ -165,15 +165,32 @@ grpc::Status MesherService::GetStar(grpc::ServerContext* ctx, const pb::SeedRequ
   return call.finish(Status::ok());
 }
 
-grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::GetNeighborsRequest* request,
                                          pb::Neighbors* response) {
   Call call(*this, ctx, "GetNeighbors", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
-  auto neighbors = engine_.neighbors(request->point_set_id(), request->seed(), call.control());
-  if (!neighbors.is_ok()) return call.finish(neighbors.status());
+  NeighborQuery query;
+  switch (request->mode()) {
+    case pb::NEIGHBOR_MODE_EXACT: query.mode = NeighborQuery::Mode::kExact; break;
+    case pb::NEIGHBOR_MODE_APPROXIMATE: query.mode = NeighborQuery::Mode::kApproximate; break;
+    case pb::NEIGHBOR_MODE_SPOKES: query.mode = NeighborQuery::Mode::kSpokes; break;
+    default: return call.finish(invalid_argument("mode: " + std::to_string(request->mode()) + " is not a NeighborMode"));
+  }
+  query.max_consecutive_misses = request->max_consecutive_misses();
+  query.max_vertices = request->max_vertices();
+  auto answer = engine_.neighbors(request->point_set_id(), request->seed(), query, call.control());
+  if (!answer.is_ok()) return call.finish(answer.status());
   response->set_point_set_id(request->point_set_id());
   response->set_seed(request->seed());
-  response->mutable_neighbors()->Add(neighbors->begin(), neighbors->end());
+  response->mutable_neighbors()->Add(answer->neighbors.begin(), answer->neighbors.end());
+  response->set_exact(answer->exact);
+  response->set_mode(request->mode());
+  if (!answer->exact) {
+    response->set_vertices_visited(answer->walk.vertices);
+    response->set_consecutive_misses(answer->walk.misses);
+    response->set_rays(answer->walk.rays);
+    response->set_walk_exhausted(answer->walk.exhausted);
+  }
   return call.finish(Status::ok());
 }
 

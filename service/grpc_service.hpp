@@ -36,7 +36,7 @@ class MesherService final : public pb::Mesher::Service {
   grpc::Status DownloadPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
                                 grpc::ServerWriter<pb::CoordinateChunk>* writer) override;
   grpc::Status GetStar(grpc::ServerContext* ctx, const pb::SeedRequest* request, pb::Star* response) override;
-  grpc::Status GetNeighbors(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+  grpc::Status GetNeighbors(grpc::ServerContext* ctx, const pb::GetNeighborsRequest* request,
                             pb::Neighbors* response) override;
   grpc::Status GetVoronoiCell(grpc::ServerContext* ctx, const pb::SeedRequest* request,
                               pb::VoronoiCell* response) override;

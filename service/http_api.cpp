@@ -366,9 +366,32 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
                  {"hull_facets", star.hull_facets}});
   }
   if (what == "neighbors") {
-    auto neighbors = engine_.neighbors(id, seed.value(), control);
-    if (!neighbors.is_ok()) return c.fail(neighbors.status());
-    return c.ok({{"point_set_id", id}, {"seed", seed.value()}, {"neighbors", neighbors.value()}});
+    NeighborQuery query;
+    const std::string mode = c.param("mode").value_or("exact");
+    if (mode == "exact") query.mode = NeighborQuery::Mode::kExact;
+    else if (mode == "approximate") query.mode = NeighborQuery::Mode::kApproximate;
+    else if (mode == "spokes") query.mode = NeighborQuery::Mode::kSpokes;
+    else return c.fail(invalid_argument("mode: \"" + mode.substr(0, 40) + "\" is not exact, approximate or spokes"));
+    for (const char* name : {"max_consecutive_misses", "max_vertices"}) {
+      if (auto text = c.param(name)) {
+        auto v = parse_uint(*text, name);
+        if (!v.is_ok()) return c.fail(v.status());
+        if (v.value() > 100000000) return c.fail(invalid_argument(std::string(name) + ": " + *text + " is too large"));
+        (std::string(name) == "max_vertices" ? query.max_vertices : query.max_consecutive_misses) =
+            static_cast<std::uint32_t>(v.value());
+      }
+    }
+    auto answer = engine_.neighbors(id, seed.value(), query, control);
+    if (!answer.is_ok()) return c.fail(answer.status());
+    json body = {{"point_set_id", id}, {"seed", seed.value()}, {"neighbors", answer->neighbors},
+                 {"exact", answer->exact}, {"mode", mode}};
+    if (!answer->exact) {
+      body["vertices_visited"] = answer->walk.vertices;
+      body["consecutive_misses"] = answer->walk.misses;
+      body["rays"] = answer->walk.rays;
+      body["walk_exhausted"] = answer->walk.exhausted;
+    }
+    return c.ok(body);
   }
   auto cell = engine_.cell(id, seed.value(), control);
   if (!cell.is_ok()) return c.fail(cell.status());

@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "engine.hpp"
+#include "spokemesh/approx.hpp"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "http_server.hpp"
@@ -90,7 +91,7 @@ int main(int argc, char** argv) {
   std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   std::uint64_t max_points = 10'000'000;
-  int max_dimension = kMaxDimension;
+  int max_dimension = 128;
   int max_concurrent = 64;
   std::string max_memory = "4G", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
@@ -105,8 +106,9 @@ int main(int argc, char** argv) {
                  "gRPC calls served at once; beyond it gRPC answers RESOURCE_EXHAUSTED (load shedding)")
       ->check(CLI::Range(1, 100000))
       ->capture_default_str();
-  app.add_option("--max-dimension", max_dimension, "Largest dimension accepted")
-      ->check(CLI::Range(2, kMaxDimension))
+  app.add_option("--max-dimension", max_dimension,
+                 "Largest dimension accepted (exact answers need d <= 8; above, approximate neighbours only)")
+      ->check(CLI::Range(2, kMaxApproxDimension))
       ->capture_default_str();
   app.add_option("--max-memory", max_memory, "Memory for loaded point sets and trees; the least recently used are "
                                              "dropped from memory (they stay on disk)")->capture_default_str();

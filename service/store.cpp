@@ -1,5 +1,7 @@
 #include "store.hpp"
 
+#include "spokemesh/approx.hpp"
+
 #include <dirent.h>
 #include <fcntl.h>
 #include <openssl/evp.h>
@@ -270,7 +272,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
     std::memcpy(&d, bytes.data(), 4);
     std::memcpy(&n, bytes.data() + 4, 8);
   }
-  if (bytes.size() < kHeaderBytes || d < 2 || d > kMaxDimension || n > (bytes.size() - kHeaderBytes) / 8 / d ||
+  if (bytes.size() < kHeaderBytes || d < 2 || d > kMaxApproxDimension || n > (bytes.size() - kHeaderBytes) / 8 / d ||
       bytes.size() != kHeaderBytes + n * d * 8) {
     quarantine(id, "its header does not match its size");
     return Status{Code::kNotFound, "point set " + id + " was malformed on disk and has been quarantined"};
@@ -281,7 +283,8 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   bytes.shrink_to_fit();
   auto set = std::make_shared<StoredSet>();
   set->points = PointSet(static_cast<int>(d), std::move(coords));
-  if (Status s = set->points.validate("point set " + id); !s.is_ok()) {
+  if (Status s = set->points.validate("point set " + id, kMaxApproxDimension, static_cast<int>(d) <= kMaxDimension);
+      !s.is_ok()) {
     quarantine(id, s.message());
     return Status{Code::kNotFound, "point set " + id + " was invalid on disk and has been quarantined"};
   }

@@ -252,7 +252,7 @@ TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
     ASSERT_TRUE(got.is_ok());
     EXPECT_EQ(got->star.simplices, expected.simplices);
     EXPECT_EQ(got->circumcentres.size(), expected.size() * 3);
-    EXPECT_EQ(engine->neighbors(id, seed, control).value(), star_neighbors(expected));
+    EXPECT_EQ(engine->neighbors(id, seed, {}, control).value().neighbors, star_neighbors(expected));
     EXPECT_EQ(engine->cell(id, seed, control).value().facets.size(), star_neighbors(expected).size());
   }
   std::vector<std::uint32_t> whole;
@@ -285,6 +285,30 @@ TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
   }
   EXPECT_EQ(engine->stream_simplices(id, 3, 3, 0, control, {}).code(), Code::kInvalidArgument);
   EXPECT_EQ(engine->stream_simplices(id, 0, 1, 70000, control, {}).code(), Code::kInvalidArgument);
+}
+
+TEST(Engine, HighDimensionalSetsServeApproximateNeighboursAndRefuseExactWork) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto coords = uniform_points(12, 300, 8);
+  auto info = upload(*engine, 12, coords);
+  ASSERT_TRUE(info.is_ok()) << info.status().message();
+  const auto control = no_deadline();
+  const Status star = engine->star(info->id, 0, control).status();
+  EXPECT_EQ(star.code(), Code::kResourceExhausted);
+  EXPECT_NE(star.message().find("APPROXIMATE"), std::string::npos) << star.message();
+  EXPECT_EQ(engine->neighbors(info->id, 0, {}, control).status().code(), Code::kResourceExhausted);
+  EXPECT_EQ(engine->stream_simplices(info->id, 0, 1, 0, control, {}).code(), Code::kResourceExhausted);
+  NeighborQuery q;
+  q.mode = NeighborQuery::Mode::kApproximate;
+  q.max_consecutive_misses = 20;
+  auto a = engine->neighbors(info->id, 0, q, control);
+  ASSERT_TRUE(a.is_ok()) << a.status().message();
+  EXPECT_FALSE(a->exact);
+  EXPECT_FALSE(a->neighbors.empty());
+  // A second engine on the same data dir (a replica) gives the same answer.
+  auto replica = make_engine(dir.path());
+  EXPECT_EQ(replica->neighbors(info->id, 0, q, control).value().neighbors, a->neighbors);
 }
 
 TEST(Engine, SeedAndIdErrors) {
@@ -437,7 +461,8 @@ TEST(Rest, ErrorsInOneShape) {
   expect_error(post("{\"points\": [[0,0],[1,1],[2,2]]}"), 400, "INVALID_ARGUMENT", "span only");
   expect_error(post("{\"points\": "), 400, "INVALID_ARGUMENT", "invalid JSON");
   expect_error(post("[1,2]"), 400, "INVALID_ARGUMENT", "expected a JSON object");
-  expect_error(post("{\"points\": [[0,0,0,0,0,0,0,0,0,0]]}"), 429, "RESOURCE_EXHAUSTED", "--max-dimension");
+  expect_error(post(json({{"points", {std::vector<double>(200, 0.0)}}}).dump()), 429, "RESOURCE_EXHAUSTED",
+               "--max-dimension");
   expect_error(rest.call(http::verb::post, "/v1/pointsets?dimension=2", std::string(20, '\0'), "application/octet-stream"),
                400, "INVALID_ARGUMENT", "20 bytes");
   expect_error(rest.call(http::verb::post, "/v1/pointsets", "a", "text/plain"), 400, "INVALID_ARGUMENT", "Content-Type");
@@ -549,7 +574,19 @@ TEST(Grpc, EveryMethodAndItsErrors) {
   EXPECT_EQ(star1.SerializeAsString(), star2.SerializeAsString());  // byte-identical answers
   EXPECT_EQ(star1.circumcenters_size(), star1.simplices_size() / 4 * 3);
   pb::Neighbors neighbors;
-  ASSERT_TRUE(f.stub->GetNeighbors(f.ctx().get(), seed, &neighbors).ok());
+  pb::GetNeighborsRequest neighbors_request;
+  neighbors_request.set_point_set_id(seed.point_set_id());
+  neighbors_request.set_seed(seed.seed());
+  ASSERT_TRUE(f.stub->GetNeighbors(f.ctx().get(), neighbors_request, &neighbors).ok());
+  EXPECT_TRUE(neighbors.exact());
+  // Approximate on the same set: a subset, flagged as such, with the walk's statistics.
+  neighbors_request.set_mode(pb::NEIGHBOR_MODE_APPROXIMATE);
+  pb::Neighbors approx;
+  ASSERT_TRUE(f.stub->GetNeighbors(f.ctx().get(), neighbors_request, &approx).ok());
+  EXPECT_FALSE(approx.exact());
+  EXPECT_GT(approx.vertices_visited(), 0u);
+  EXPECT_TRUE(std::includes(neighbors.neighbors().begin(), neighbors.neighbors().end(), approx.neighbors().begin(),
+                            approx.neighbors().end()));
   EXPECT_GT(neighbors.neighbors_size(), 3);
   pb::VoronoiCell cell;
   ASSERT_TRUE(f.stub->GetVoronoiCell(f.ctx().get(), seed, &cell).ok());

@@ -497,7 +497,11 @@ int main(int argc, char** argv) {
     if (*list) return remote::list(o);
     if (*del) return remote::remove(o, input);
     if (*star) return remote::star(o, input, s);
-    if (*neighbors) return remote::neighbors(o, input, s);
+    if (*neighbors) {
+      const std::string mode = !approx_flags.enabled ? "exact" : approx_flags.mode == "spokes" ? "spokes" : "approximate";
+      return remote::neighbors(o, input, s, mode, approx_flags.enabled ? approx_flags.misses : 0,
+                               approx_flags.enabled ? approx_flags.max_vertices : 0);
+    }
     if (*cell) return remote::cell(o, input, s, json);
     if (*mesh) {
       if (!seeds.empty()) return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));

@@ -137,12 +137,25 @@ int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
   return kExitOk;
 }
 
-int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
+int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed, const std::string& mode,
+              std::uint32_t misses, std::uint32_t max_vertices) {
+  pb::GetNeighborsRequest request;
+  request.set_point_set_id(id);
+  request.set_seed(seed);
+  request.set_mode(mode == "approximate" ? pb::NEIGHBOR_MODE_APPROXIMATE
+                   : mode == "spokes"    ? pb::NEIGHBOR_MODE_SPOKES
+                                         : pb::NEIGHBOR_MODE_EXACT);
+  request.set_max_consecutive_misses(misses);
+  request.set_max_vertices(max_vertices);
   pb::Neighbors response;
-  const int rc = unary(
-      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, seed_request(id, seed), &r); }, response);
+  const int rc = unary(o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, request, &r); }, response);
   if (rc != kExitOk) return rc;
   for (std::uint32_t v : response.neighbors()) std::printf("%u\n", v);
+  if (!response.exact() && !o.quiet) {
+    std::fprintf(stderr, "spokemesh: %d certified neighbours (approximate): %llu vertices visited, %llu consecutive misses\n",
+                 response.neighbors_size(), static_cast<unsigned long long>(response.vertices_visited()),
+                 static_cast<unsigned long long>(response.consecutive_misses()));
+  }
   return kExitOk;
 }
 

@@ -21,7 +21,9 @@ struct RemoteOptions {
 
 int upload(const RemoteOptions& o, const std::string& input, const std::string& name);
 int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
-int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
+// mode: "exact", "approximate" or "spokes"; misses / max_vertices: 0 = server default.
+int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed, const std::string& mode = "exact",
+              std::uint32_t misses = 0, std::uint32_t max_vertices = 0);
 int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json);
 // Fetches all shards in parallel (one stream each) and writes OUTPUT in any format
 // of the local `mesh` command.

@@ -344,3 +344,34 @@ def test_a_stalled_reader_stalls_the_shard(server):
     assert stalled < 0.25, f"the server used {stalled:.2f} CPU-s in 1 s while its client read nothing"
     total = (len(first.simplices) + sum(len(b.simplices) for b in stream)) // 4
     assert total > 1_300_000  # the stream then completed (1,346,109 simplices for this set)
+
+
+def test_approximate_neighbors_in_high_dimensions(start_server, tmp_path):
+    server = start_server()
+    other = start_server(data_dir=server.data_dir, name="replica")
+    points = uniform(400, 16, 13)
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(points)
+    # Exact work above d = 8 is refused, pointing to the approximate mode.
+    for call in (lambda: client.star(ps.id, 0), lambda: client.neighbors(ps.id, 0), lambda: client.shard(ps.id, 0, 1)):
+        with pytest.raises(spokemesh.Error) as e:
+            call()
+        assert e.value.code == grpc.StatusCode.RESOURCE_EXHAUSTED and "APPROXIMATE" in e.value.details
+    walk = client.neighbor_walk(ps.id, 3, mode="approximate", max_consecutive_misses=40)
+    assert not walk.exact and walk.vertices_visited > 0 and len(walk.neighbors) > 0
+    # The same request on another replica, through REST, and from the local CLI: identical.
+    again = spokemesh.Client(other.grpc).neighbors(ps.id, 3, mode="approximate", max_consecutive_misses=40)
+    assert np.array_equal(again, walk.neighbors)
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/3/neighbors"
+                                    "?mode=approximate&max_consecutive_misses=40")
+    assert status == 200 and body["neighbors"] == walk.neighbors.tolist() and body["exact"] is False
+    src = tmp_path / "p16.npy"
+    np.save(src, points)
+    local = cli("neighbors", str(src), "--seed", "3", "--approx", "--misses", "40")
+    assert [int(v) for v in local.stdout.split()] == walk.neighbors.tolist()
+    remote = cli("--server", server.grpc, "neighbors", ps.id, "--seed", "3", "--approx", "--misses", "40")
+    assert remote.stdout == local.stdout
+    spokes = client.neighbor_walk(ps.id, 3, mode="spokes", max_consecutive_misses=40)
+    assert len(spokes.neighbors) > 0 and not spokes.exact
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/3/neighbors?mode=fuzzy")
+    assert status == 400 and "mode" in body["error"]["message"]

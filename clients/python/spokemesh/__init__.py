@@ -11,6 +11,6 @@ Needs Debian's python3-grpcio, python3-protobuf and python3-numpy; the stubs
 (spokemesh.v1.mesher_pb2*) are generated at build time into build/python.
 """
 
-from .client import Cell, Client, Error, PointSet, Star
+from .client import Cell, Client, Error, Neighbors, PointSet, Star
 
-__all__ = ["Client", "Error", "PointSet", "Star", "Cell"]
+__all__ = ["Client", "Error", "PointSet", "Star", "Cell", "Neighbors"]

@@ -42,6 +42,16 @@ class Star:
 
 
 @dataclasses.dataclass(frozen=True)
+class Neighbors:
+    seed: int
+    neighbors: np.ndarray       # uint32, ascending
+    exact: bool                 # True: the complete set; False: certified but possibly partial
+    vertices_visited: int = 0   # approximate: Voronoi vertices (or rays) visited
+    consecutive_misses: int = 0
+    rays: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
 class Cell:
     seed: int
     vertices: np.ndarray          # (k, d) float64
@@ -142,9 +152,27 @@ class Client:
                     circumcenters=np.array(r.circumcenters, dtype=np.float64).reshape(-1, d),
                     hull_facets=r.hull_facets)
 
-    def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> np.ndarray:
-        r = self._call(self._stub.GetNeighbors, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
-        return np.array(r.neighbors, dtype=np.uint32)
+    def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
+                  max_consecutive_misses: int = 0, max_vertices: int = 0) -> np.ndarray:
+        """Delaunay neighbours, ascending. mode: "exact" (d <= 8), "approximate" (RSD walk with a
+        miss budget) or "spokes"; approximate neighbours are all true neighbours, some may be
+        missed. neighbor_walk() also returns the walk's statistics."""
+        return self.neighbor_walk(point_set_id, seed, timeout, mode=mode, max_consecutive_misses=max_consecutive_misses,
+                                  max_vertices=max_vertices).neighbors
+
+    def neighbor_walk(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
+                      max_consecutive_misses: int = 0, max_vertices: int = 0) -> "Neighbors":
+        modes = {"exact": pb.NEIGHBOR_MODE_EXACT, "approximate": pb.NEIGHBOR_MODE_APPROXIMATE,
+                 "spokes": pb.NEIGHBOR_MODE_SPOKES}
+        if mode not in modes:
+            raise ValueError(f"mode: {mode!r} is not one of {sorted(modes)}")
+        r = self._call(self._stub.GetNeighbors,
+                       pb.GetNeighborsRequest(point_set_id=point_set_id, seed=seed, mode=modes[mode],
+                                              max_consecutive_misses=max_consecutive_misses,
+                                              max_vertices=max_vertices), timeout)
+        return Neighbors(seed=r.seed, neighbors=np.array(r.neighbors, dtype=np.uint32), exact=r.exact,
+                         vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
+                         rays=r.rays)
 
     def cell(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Cell:
         r = self._call(self._stub.GetVoronoiCell, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
