@@ -97,11 +97,15 @@ std::vector<std::uint32_t> oracle(const Dataset& s, std::uint32_t i) {
   for (std::uint32_t j = 0; j < n; ++j) {
     if (j == i) continue;
     std::vector<std::uint32_t> rows;
+    std::vector<char> in_rows(n, 0);
     for (std::size_t t = 0; t < std::min<std::size_t>(n, 4 * d + 40); ++t) {
-      if (by_distance[t] != i && by_distance[t] != j) rows.push_back(by_distance[t]);
+      if (by_distance[t] != i && by_distance[t] != j) {
+        rows.push_back(by_distance[t]);
+        in_rows[by_distance[t]] = 1;
+      }
     }
     bool neighbour = false;
-    for (int round = 0; round < 50; ++round) {
+    for (int round = 0;; ++round) {
       glp_prob* lp = glp_create_prob();
       glp_set_obj_dir(lp, GLP_MAX);
       glp_add_cols(lp, d + 1);
@@ -141,20 +145,28 @@ std::vector<std::uint32_t> oracle(const Dataset& s, std::uint32_t i) {
       for (int c = 0; c < d; ++c) w[c] = solved ? glp_get_col_prim(lp, c + 1) : 0;
       glp_delete_prob(lp);
       if (!(delta > 1e-9 * r[j])) break;  // infeasible on a subset: not a neighbour
+      if (round > 200) {
+        std::fprintf(stderr, "oracle: row generation for (%u, %u) did not converge\n", i, j);
+        std::exit(1);
+      }
       // Rows the optimum violates (or meets with less than its slack), most violated first.
       std::vector<std::pair<double, std::uint32_t>> violated;
       for (std::size_t k = 0; k < n; ++k) {
         if (k == i || k == j) continue;
         double lhs = delta;
         for (int c = 0; c < d; ++c) lhs += 2 * w[c] * q[k * d + c];
-        if (lhs > r[k] * (1 + 1e-12)) violated.emplace_back(lhs - r[k], static_cast<std::uint32_t>(k));
+        // Rows already in the working set are met up to GLPK's tolerance: not new.
+        if (!in_rows[k] && lhs > r[k]) violated.emplace_back(lhs - r[k], static_cast<std::uint32_t>(k));
       }
       if (violated.empty()) {
         neighbour = true;
         break;
       }
       std::sort(violated.rbegin(), violated.rend());
-      for (std::size_t t = 0; t < std::min<std::size_t>(violated.size(), 2 * d + 10); ++t) rows.push_back(violated[t].second);
+      for (std::size_t t = 0; t < std::min<std::size_t>(violated.size(), 4 * d + 20); ++t) {
+        rows.push_back(violated[t].second);
+        in_rows[violated[t].second] = 1;
+      }
     }
     if (neighbour) out.push_back(j);
   }
@@ -236,7 +248,13 @@ int main(int argc, char** argv) {
             return 1;
           }
           ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
-          row.precise = row.precise && std::includes(truth[k].begin(), truth[k].end(), a.neighbors.begin(), a.neighbors.end());
+          for (std::uint32_t v : a.neighbors) {
+            if (!std::binary_search(truth[k].begin(), truth[k].end(), v)) {
+              row.precise = false;
+              std::fprintf(stderr, "%s: seed %u: reported neighbour %u is not in the oracle's set\n", label.c_str(),
+                           sample[k], v);
+            }
+          }
           found += static_cast<double>(a.neighbors.size());
           total += static_cast<double>(truth[k].size());
           row.degree += static_cast<double>(a.neighbors.size()) / sample.size();

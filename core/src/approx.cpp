@@ -277,43 +277,52 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   using Eigen::MatrixXd;
   using Eigen::VectorXd;
   const int d = d_;
-  // 1. Recursive spokes down to a first Voronoi vertex (Sec. 3.2): at level k the
-  //    spoke lies in the flat equidistant to x and the k points found, i.e. orthogonal
-  //    to their offsets (Gram-Schmidt), and starts where the previous spoke ended.
+  // 1. Recursive spokes down to a Voronoi vertex (Sec. 3.2): at level k the spoke
+  //    lies in the flat equidistant to x and the k points found, i.e. orthogonal to
+  //    their offsets (Gram-Schmidt), and starts where the previous spoke ended.
+  //    Returns false if no vertex was reached within the attempts.
   std::vector<std::uint32_t> S;
-  std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
-  VectorXd y = VectorXd::Zero(d), u(d);
-  for (int attempt = 0; static_cast<int>(S.size()) < d; ++attempt) {
-    if (attempt > 64 * d) return internal_error("recursive spokes found no Voronoi vertex (degenerate input?)");
-    if (stop_requested()) return cancelled("neighbour walk cancelled");
-    for (int c = 0; c < d; ++c) u[c] = normal_variate(rng_);
-    for (std::size_t b = 0; b * d < basis.size(); ++b) {
-      const Eigen::Map<const VectorXd> row(&basis[b * d], d);
-      u -= row.dot(u) * row;
-    }
-    if (!(u.norm() > 1e-9)) continue;
-    u.normalize();
-    double t = 0;
-    std::int64_t p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
-    if (p < 0) {  // unbounded that way: the face reaches the hull; try the other way
-      u = -u;
-      p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
-    }
-    if (p < 0) continue;
-    y += t * u;
-    S.push_back(static_cast<std::uint32_t>(p));
-    // Extend the basis with the new offset (modified Gram-Schmidt).
-    VectorXd q(d);
-    const double* pp = ps_.point(static_cast<std::size_t>(p));
+  VectorXd y(d);
+  auto descend = [&]() -> bool {
+    S.clear();
+    y.setZero();
+    std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
+    VectorXd u(d), q(d);
     const double* x = ps_.point(x_);
-    for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
-    for (std::size_t b = 0; b * d < basis.size(); ++b) {
-      const Eigen::Map<const VectorXd> row(&basis[b * d], d);
-      q -= row.dot(q) * row;
+    for (int attempt = 0; static_cast<int>(S.size()) < d; ++attempt) {
+      if (attempt > 64 * d || stop_requested()) return false;
+      for (int c = 0; c < d; ++c) u[c] = normal_variate(rng_);
+      for (std::size_t b = 0; b * d < basis.size(); ++b) {
+        const Eigen::Map<const VectorXd> row(&basis[b * d], d);
+        u -= row.dot(u) * row;
+      }
+      if (!(u.norm() > 1e-9)) continue;
+      u.normalize();
+      double t = 0;
+      std::int64_t p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+      if (p < 0) {  // unbounded that way: the face reaches the hull; try the other way
+        u = -u;
+        p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+      }
+      if (p < 0) continue;
+      const double* pp = ps_.point(static_cast<std::size_t>(p));
+      for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
+      for (std::size_t b = 0; b * d < basis.size(); ++b) {
+        const Eigen::Map<const VectorXd> row(&basis[b * d], d);
+        q -= row.dot(q) * row;
+      }
+      if (!(q.norm() > 0)) continue;  // dependent offsets (degenerate): another direction
+      y += t * u;
+      S.push_back(static_cast<std::uint32_t>(p));
+      q.normalize();
+      basis.insert(basis.end(), q.data(), q.data() + d);
     }
-    if (!(q.norm() > 0)) return internal_error("recursive spokes met dependent offsets (degenerate input?)");
-    q.normalize();
-    basis.insert(basis.end(), q.data(), q.data() + d);
+    std::sort(S.begin(), S.end());
+    return true;
+  };
+  if (!descend()) {
+    if (stop_requested()) return cancelled("neighbour walk cancelled");
+    return internal_error("recursive spokes found no Voronoi vertex (degenerate input?)");
   }
 
   // 2. The walk (Sec. 3.3 and 4.4). Vertices whose equidistant points include points
@@ -333,7 +342,6 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     for (std::uint32_t p : set) k += found.count(p) == 0 ? 1 : 0;
     return k;
   };
-  std::sort(S.begin(), S.end());
   seen.insert(S);
   vertices.push_back({S, y});
   queue.push({unfound(S), 0});
@@ -414,6 +422,13 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       if (!seen.insert(next).second) continue;
       queue.push({unfound(next), -static_cast<std::int64_t>(vertices.size())});
       vertices.push_back({std::move(next), vertex.v + t * e});
+    }
+    // Restarts: when this vertex was a miss and nothing queued promises a new point,
+    // new recursive spokes reach a vertex next to a random facet (as plain spokes
+    // would) and the walk continues from there.
+    if (!fresh && (queue.empty() || queue.top().first == 0) && descend() && seen.insert(S).second) {
+      queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
+      vertices.push_back({S, y});
     }
   }
   out.misses = misses;
