@@ -173,3 +173,59 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST_F(Cli, GraphExactIsTheMeshEdgesAndApproximateWorksInAnyDimension) {
+  const std::string pts = points(3, 400, 71);
+  ASSERT_EQ(run("mesh " + pts + " -o " + path("m.simplices") + " -q").code, 0);
+  ASSERT_EQ(run("graph " + pts + " -o " + path("g.edges") + " -q").code, 0);
+  std::set<std::pair<int, int>> mesh_edges;
+  {
+    std::istringstream in(slurp(path("m.simplices")));
+    int a, b, c, d;
+    while (in >> a >> b >> c >> d) {
+      const int v[4] = {a, b, c, d};
+      for (int i = 0; i < 4; ++i) {
+        for (int j = i + 1; j < 4; ++j) mesh_edges.emplace(v[i], v[j]);
+      }
+    }
+  }
+  std::string expected;
+  for (auto [a, b] : mesh_edges) expected += std::to_string(a) + " " + std::to_string(b) + "\n";
+  EXPECT_EQ(slurp(path("g.edges")), expected);
+  // Approximate: a subset, identical for 1 and 2 threads, as text and .npy.
+  ASSERT_EQ(run("graph " + pts + " -o " + path("a1.edges") + " --approx --misses 50 --threads 1 -q").code, 0);
+  ASSERT_EQ(run("graph " + pts + " -o " + path("a2.edges") + " --approx --misses 50 --threads 2 -q").code, 0);
+  EXPECT_EQ(slurp(path("a1.edges")), slurp(path("a2.edges")));
+  std::istringstream in(slurp(path("a1.edges")));
+  int a, b, count = 0;
+  while (in >> a >> b) {
+    EXPECT_TRUE(mesh_edges.count({a, b})) << a << " " << b;
+    ++count;
+  }
+  EXPECT_GT(count, static_cast<int>(mesh_edges.size()) * 9 / 10);
+  const Outcome npy = run("graph " + pts + " -o " + path("a.npy") + " --approx --misses 50");
+  EXPECT_EQ(npy.code, 0);
+  EXPECT_NE(npy.err.find("certified (approximate) edges"), std::string::npos) << npy.err;
+}
+
+TEST_F(Cli, HighDimensionsNeedApproxAndSaySo) {
+  const std::string pts = points(10, 120, 72);
+  const Outcome exact = run("graph " + pts + " -o " + path("g.edges"));
+  EXPECT_EQ(exact.code, 2);
+  EXPECT_NE(exact.err.find("--approx"), std::string::npos) << exact.err;
+  EXPECT_EQ(std::count(exact.err.begin(), exact.err.end(), '\n'), 1);
+  EXPECT_FALSE(fs::exists(path("g.edges")));
+  const Outcome star = run("star " + pts + " --seed 0");
+  EXPECT_EQ(star.code, 2);
+  EXPECT_NE(star.err.find("--approx"), std::string::npos) << star.err;
+  const Outcome approx = run("neighbors " + pts + " --seed 0 --approx --misses 30");
+  EXPECT_EQ(approx.code, 0) << approx.err;
+  EXPECT_FALSE(approx.out.empty());
+  EXPECT_NE(approx.err.find("certified neighbours"), std::string::npos);
+  EXPECT_EQ(run("neighbors " + pts + " --seed 0 --approx --mode spokes --misses 30").code, 0);
+  EXPECT_EQ(run("neighbors " + pts + " --seed 0 --approx --mode nope").code, 2);
+}
+
+}  // namespace
