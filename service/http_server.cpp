@@ -130,6 +130,22 @@ void HttpServer::serve(tcp::socket socket) {
   cv_.notify_all();
 }
 
+namespace {
+
+// A one-off JSON error response, then the connection closes.
+template <class Stream>
+void write_error(Stream& stream, http::status status, const Status& error) {
+  http::response<http::string_body> res{status, 11};
+  res.set(http::field::content_type, "application/json");
+  res.keep_alive(false);
+  res.body() = error_json(error);
+  res.prepare_payload();
+  boost::system::error_code ec;
+  http::write(stream, res, ec);
+}
+
+}  // namespace
+
 template <class Stream>
 void HttpServer::session(Stream& stream, int fd) {
   namespace beast = boost::beast;
@@ -147,24 +163,13 @@ void HttpServer::session(Stream& stream, int fd) {
     http::read(stream, buffer, parser, ec);
     if (ec) {
       if (ec == http::error::body_limit) {
-        const Status s = resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
-                                            std::to_string(options_.max_body_bytes));
-        http::response<http::string_body> res{http::status::payload_too_large, 11};
-        res.set(http::field::content_type, "application/json");
-        res.keep_alive(false);
-        res.body() = error_json(s);
-        res.prepare_payload();
-        http::write(stream, res, ec);
+        write_error(stream, http::status::payload_too_large,
+                    resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
+                                       std::to_string(options_.max_body_bytes)));
       } else if (ec != http::error::end_of_stream && ec != net::error::eof && ec != net::error::connection_reset &&
                  ec != net::ssl::error::stream_truncated && ec != net::error::operation_aborted &&
                  ec != net::error::bad_descriptor && parser.got_some()) {
-        const Status s = invalid_argument("malformed HTTP request: " + ec.message());
-        http::response<http::string_body> res{http::status::bad_request, 11};
-        res.set(http::field::content_type, "application/json");
-        res.keep_alive(false);
-        res.body() = error_json(s);
-        res.prepare_payload();
-        http::write(stream, res, ec);
+        write_error(stream, http::status::bad_request, invalid_argument("malformed HTTP request: " + ec.message()));
       }
       return;
     }

@@ -19,56 +19,13 @@
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "http_server.hpp"
+#include "spokemesh/units.hpp"
 #include "telemetry.hpp"
 
 namespace {
 
 using namespace spokemesh;
 using namespace spokemesh::service;
-
-// "1500", "1500ms", "30s", "2m" -> milliseconds.
-Result<std::chrono::milliseconds> parse_duration(const std::string& text, const std::string& flag) {
-  std::size_t used = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  const std::string unit = text.substr(used);
-  double scale = 0;
-  if (unit.empty() || unit == "ms") scale = 1;
-  if (unit == "s") scale = 1e3;
-  if (unit == "m") scale = 60e3;
-  if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1e12) {
-    return invalid_argument(flag + ": \"" + text + "\" is not a duration like 500ms, 30s or 2m");
-  }
-  return std::chrono::milliseconds(static_cast<std::int64_t>(v * scale));
-}
-
-// "1048576", "512M", "4G" -> bytes.
-Result<std::uint64_t> parse_bytes(const std::string& text, const std::string& flag) {
-  std::size_t used = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  std::string unit = text.substr(used);
-  if (!unit.empty() && (unit.back() == 'B' || unit.back() == 'b')) unit.pop_back();
-  if (unit.size() == 2 && unit[1] == 'i') unit.pop_back();  // Ki, Mi, Gi
-  double scale = 0;
-  if (unit.empty()) scale = 1;
-  if (unit == "K" || unit == "k") scale = 1024.0;
-  if (unit == "M" || unit == "m") scale = 1024.0 * 1024;
-  if (unit == "G" || unit == "g") scale = 1024.0 * 1024 * 1024;
-  if (unit == "T" || unit == "t") scale = 1024.0 * 1024 * 1024 * 1024;
-  if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1.8e19) {
-    return invalid_argument(flag + ": \"" + text + "\" is not a size like 512M or 4G");
-  }
-  return static_cast<std::uint64_t>(v * scale);
-}
 
 Result<std::string> read_text_file(const std::string& path, const std::string& flag) {
   std::ifstream in(path, std::ios::binary);

@@ -20,6 +20,7 @@
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/star.hpp"
+#include "spokemesh/units.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
 #ifdef SPOKEMESH_REMOTE
@@ -465,19 +466,9 @@ int main(int argc, char** argv) {
     if (tls_cert.empty() != tls_key.empty()) return report(invalid_argument("--tls-cert and --tls-key go together"));
     if (!tls_cert.empty() && tls_ca.empty()) return report(invalid_argument("--tls-cert needs --tls-ca"));
     {
-      std::size_t used = 0;
-      double v = 0;
-      try {
-        v = std::stod(deadline_text, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      const std::string unit = deadline_text.substr(used);
-      const double scale = unit == "ms" ? 1 : unit == "s" || unit.empty() ? 1e3 : unit == "m" ? 60e3 : unit == "h" ? 3600e3 : 0;
-      if (used == 0 || scale == 0 || !(v > 0) || v * scale > 1e10) {
-        return report(invalid_argument("--deadline: \"" + deadline_text + "\" is not a duration like 500ms, 30s or 5m"));
-      }
-      o.deadline = std::chrono::milliseconds(static_cast<std::int64_t>(v * scale));
+      auto deadline = parse_duration(deadline_text, "--deadline");
+      if (!deadline.is_ok()) return report(deadline.status());
+      o.deadline = deadline.value();
     }
     if (!token_file.empty()) {
       std::FILE* f = std::fopen(token_file.c_str(), "rb");
