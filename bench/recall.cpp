@@ -1,7 +1,7 @@
 // Recall of certified approximate Delaunay neighbours (RSD walk with a miss budget,
 // and plain Spoke Darts) against an exact LP oracle, as a function of the budget M.
 //
-//   build/bin/spokemesh_recall [--large] [--seeds K] [--only NAME] [--svg FILE]
+//   build/bin/spokemesh_recall [--large] [--seeds K] [--only NAME[,NAME...]] [--svg FILE]
 //
 // Data: uniform points in d = 4, 6, 8, 12, and points near a random smooth k-manifold
 // (k = 2..4) in D = 16, 32, 64 with small noise; n = 1,000 (and 10,000 with --large).
@@ -212,7 +212,16 @@ int main(int argc, char** argv) {
               "mean ms", "p99 ms");
   for (const Dataset& s : sets) {
     const std::string label = s.name + " n=" + std::to_string(s.n);
-    if (!only.empty() && label.find(only) == std::string::npos) continue;
+    if (!only.empty()) {  // comma-separated substrings of "<set> n=<n>"
+      bool wanted = false;
+      std::size_t at = 0;
+      while (at <= only.size()) {
+        const std::size_t comma = std::min(only.find(',', at), only.size());
+        wanted = wanted || label.find(only.substr(at, comma - at)) != std::string::npos;
+        at = comma + 1;
+      }
+      if (!wanted) continue;
+    }
     PointSet ps(s.d, s.coords);
     if (Status st = ps.validate(s.name, kMaxApproxDimension, s.d <= kMaxDimension); !st.is_ok()) {
       std::fprintf(stderr, "%s\n", st.message().c_str());

@@ -23,7 +23,8 @@ Result<Edges> delaunay_graph(const KdTree& tree, const GraphOptions& options, Gr
   std::atomic<std::uint32_t> next{0};
   std::atomic<std::uint64_t> done{0};
   std::vector<Edges> parts(threads);
-  std::vector<Status> failures(threads);
+  std::vector<Status> failures(threads);  // each written by its worker only
+  std::atomic<bool> failed{false};        // what the progress loop may read
   std::vector<GraphStats> part_stats(threads);
   auto stop = [&] { return options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed); };
   auto work = [&](unsigned w) {
@@ -46,6 +47,7 @@ Result<Edges> delaunay_graph(const KdTree& tree, const GraphOptions& options, Gr
         if (options.approximate) {
           if (Status s = approx->compute(seed, neighbors); !s.is_ok()) {
             failures[w] = s;
+            failed = true;
             return;
           }
           part_stats[w].vertices += neighbors.vertices;
@@ -54,6 +56,7 @@ Result<Edges> delaunay_graph(const KdTree& tree, const GraphOptions& options, Gr
         } else {
           if (Status s = exact->compute(seed, star); !s.is_ok()) {
             failures[w] = s;
+            failed = true;
             return;
           }
           // Exact edges are symmetric: keep each once, from its smaller endpoint.
@@ -69,10 +72,7 @@ Result<Edges> delaunay_graph(const KdTree& tree, const GraphOptions& options, Gr
   for (unsigned w = 1; w < threads; ++w) pool.emplace_back(work, w);
   std::thread main_worker(work, 0u);
   if (options.progress) {
-    while (done.load() < n && !stop()) {
-      bool all_failed = false;
-      for (const Status& f : failures) all_failed = all_failed || !f.is_ok();
-      if (all_failed) break;
+    while (done.load() < n && !stop() && !failed.load()) {
       options.progress(done.load());
       std::this_thread::sleep_for(std::chrono::milliseconds(200));
     }
