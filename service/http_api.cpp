@@ -256,14 +256,7 @@ HttpResponse HttpApi::upload(Context& c) {
     header.dimension = static_cast<std::int64_t>(dim.value());
     header.count = static_cast<std::int64_t>(body.size() / row);
     header.display_name = c.param("display_name").value_or("");
-    auto session = engine_.begin_upload(header);
-    if (!session.is_ok()) return c.fail(session.status());
-    if (Status s = session.value()->append(body.data(), body.size()); !s.is_ok()) return c.fail(s);
-    auto info = engine_.finish_upload(*session.value());
-    if (!info.is_ok()) return c.fail(info.status());
-    if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
-    c.record.point_set = info->id;
-    return c.ok(point_set_json(info.value()), info->already_existed ? 200 : 201);
+    return store_upload(c, header, body.data(), body.size());
   }
   // JSON also under curl -d's default type, so `curl -d '{...}'` just works.
   if (!content_type.empty() && content_type.rfind("application/json", 0) != 0 &&
@@ -336,9 +329,13 @@ HttpResponse HttpApi::upload(Context& c) {
   } else {
     return c.fail(invalid_argument("body: expected \"points\" or \"dimension\" and \"coordinates\""));
   }
+  return store_upload(c, header, coords.data(), coords.size() * sizeof(double));
+}
+
+HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, const void* data, std::size_t size) {
   auto session = engine_.begin_upload(header);
   if (!session.is_ok()) return c.fail(session.status());
-  if (Status s = session.value()->append(coords.data(), coords.size() * sizeof(double)); !s.is_ok()) return c.fail(s);
+  if (Status s = session.value()->append(data, size); !s.is_ok()) return c.fail(s);
   auto info = engine_.finish_upload(*session.value());
   if (!info.is_ok()) return c.fail(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);

@@ -59,6 +59,8 @@ class HttpApi {
   struct Context;
   HttpResponse route(Context& c);
   HttpResponse upload(Context& c);
+  // Coordinates decoded from any body form -> stored point set (201, or 200 if it existed).
+  HttpResponse store_upload(Context& c, const UploadHeader& header, const void* data, std::size_t size);
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
 
