@@ -188,7 +188,14 @@ bool ApproxWalker::certify(std::uint32_t s, const double* w) {
     centre[c] = x[c] + ws;
     xmax = std::max(xmax, std::fabs(x[c]));
   }
-  const double r = std::sqrt(r2) * (1 + 1e-6) + 1e-12 * xmax * std::sqrt(static_cast<double>(d)) + 1e-300;
+  // Margins: relative rounding of the radius, absolute rounding of x + w* (|x|), and
+  // of w* itself (|w| + |alpha| |a|, should the projection cancel), all far above the
+  // few-ulp errors they cover.
+  double w2 = 0;
+  for (int c = 0; c < d; ++c) w2 += w[c] * w[c];
+  const double slack = 1e-12 * (xmax * std::sqrt(static_cast<double>(d)) + std::sqrt(w2) +
+                                std::fabs(alpha) * std::sqrt(std::fabs(a2.v)));
+  const double r = std::sqrt(r2) * (1 + 1e-6) + slack + 1e-300;
   thread_local std::vector<std::pair<std::uint32_t, double>> near;
   tree_.within(centre.data(), r * r * (1 + 1e-9), near);
   for (const auto& [q, dist2] : near) {
