@@ -109,6 +109,34 @@ TEST(Approx, PrecisionOneInHighDimensionsAgainstTheLpOracle) {
   }
 }
 
+TEST(Approx, PointsInALowerDimensionalSubspaceStillGetCertifiedNeighbours) {
+  // 4-d data placed exactly in a 4-d coordinate subspace of R^10 (the other coordinates
+  // are 0, so the embedding is exact and isometric): Voronoi cells have no vertices,
+  // only facets, and the Delaunay neighbours are those of the 4-d points. RSD falls back
+  // on its spokes' facet witnesses; nothing uncertified is reported. (A subspace reached
+  // through a rounded linear map is not exact: the points then span R^10 by tiny
+  // amounts, and far witnesses certify edges that the idealised data would not have.)
+  const int d = 10, k = 4;
+  const std::size_t n = 120;
+  const auto low = uniform_points(k, n, 81);
+  const int axes[k] = {7, 2, 9, 4};
+  std::vector<double> c(n * d, 0.0);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int t = 0; t < k; ++t) c[i * d + axes[t]] = low[i * k + t];
+  }
+  Set s(d, c);
+  Set flat(k, low);
+  ApproxOptions o;
+  o.max_misses = 40;
+  ApproxWalker walker(*s.tree, o);
+  for (std::uint32_t seed : {3u, 50u}) {
+    ApproxNeighbors a;
+    ASSERT_TRUE(walker.compute(seed, a).is_ok());
+    EXPECT_GE(a.neighbors.size(), 3u) << "seed " << seed;
+    EXPECT_TRUE(subset(a.neighbors, exact_neighbors(*flat.tree, seed))) << "seed " << seed;
+  }
+}
+
 TEST(Approx, RsdBeatsPlainSpokesForTheSameBudget) {
   Set s(6, uniform_points(6, 1500, 31));
   std::size_t rsd = 0, spokes = 0;

@@ -290,14 +290,19 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    Returns false if no vertex was reached within the attempts.
   std::vector<std::uint32_t> S;
   VectorXd y(d);
+  std::unordered_set<std::uint32_t> found;           // certified neighbours
+  std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
+  bool descent_found = false;                       // the last descent certified a new neighbour
   auto descend = [&]() -> bool {
     S.clear();
     y.setZero();
     std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
     VectorXd u(d), q(d);
     const double* x = ps_.point(x_);
-    for (int attempt = 0; static_cast<int>(S.size()) < d; ++attempt) {
-      if (attempt > 64 * d || stop_requested()) return false;
+    // A level whose spokes keep missing (an unbounded face, or a cell without vertices
+    // when the points lie in a subspace) ends the descent after a few tries.
+    for (int misses_here = 0; static_cast<int>(S.size()) < d; ++misses_here) {
+      if (misses_here >= 8 || stop_requested()) return false;
       for (int c = 0; c < d; ++c) u[c] = normal_variate(rng_);
       for (std::size_t b = 0; b * d < basis.size(); ++b) {
         const Eigen::Map<const VectorXd> row(&basis[b * d], d);
@@ -319,18 +324,34 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         q -= row.dot(q) * row;
       }
       if (!(q.norm() > 0)) continue;  // dependent offsets (degenerate): another direction
+      if (S.empty()) {
+        // The first spoke's end is on the facet of (x, p): a witness as in plain Spoke
+        // Darts, so RSD never finds less than the spokes it shoots (and still works
+        // where the cell has no vertices, e.g. points in a lower-dimensional subspace).
+        const std::uint32_t s1 = static_cast<std::uint32_t>(p);
+        if (found.count(s1) == 0 && attempts[s1] < 3) {
+          const VectorXd w1 = t * u;
+          if (certify(s1, w1.data())) {
+            found.insert(s1);
+            out.neighbors.push_back(s1);
+            descent_found = true;
+          } else {
+            ++attempts[s1];
+            ++out.uncertified;
+          }
+        }
+      }
       y += t * u;
       S.push_back(static_cast<std::uint32_t>(p));
       q.normalize();
       basis.insert(basis.end(), q.data(), q.data() + d);
+      misses_here = -1;  // a new level
     }
     std::sort(S.begin(), S.end());
     return true;
   };
-  if (!descend()) {
-    if (stop_requested()) return cancelled("neighbour walk cancelled");
-    return internal_error("recursive spokes found no Voronoi vertex (degenerate input?)");
-  }
+  const bool reached_first = descend();
+  if (stop_requested()) return cancelled("neighbour walk cancelled");
 
   // 2. The walk (Sec. 3.3 and 4.4). Vertices whose equidistant points include points
   //    not yet certified go first (then first come, first served): the budget of
@@ -343,23 +364,41 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   using Entry = std::pair<int, std::int64_t>;  // (unfound points, -arrival)
   std::priority_queue<Entry> queue;
   std::unordered_set<std::vector<std::uint32_t>, TupleHash> seen;
-  std::unordered_set<std::uint32_t> found;
   auto unfound = [&](const std::vector<std::uint32_t>& set) {
     int k = 0;
     for (std::uint32_t p : set) k += found.count(p) == 0 ? 1 : 0;
     return k;
   };
-  seen.insert(S);
-  vertices.push_back({S, y});
-  queue.push({unfound(S), 0});
-  std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
+  if (reached_first) {
+    seen.insert(S);
+    vertices.push_back({S, y});
+    queue.push({unfound(S), 0});
+  }
   MatrixXd B(d, d);
   VectorXd f(d), e(d), w(d);
   std::uint64_t misses = 0;
+  bool degenerate = false;  // a vertex whose offsets do not span R^d (points in a subspace)
   const double* x = ps_.point(x_);
-  while (!queue.empty()) {
+  for (;;) {
     if (misses >= options_.max_misses || out.vertices >= options_.max_vertices) break;
     if (stop_requested()) return cancelled("neighbour walk cancelled");
+    if (queue.empty()) {
+      // Every vertex reachable from the first is walked. With every proposal certified,
+      // that is the whole cell: done. Otherwise (no vertex was reachable, as for points
+      // in a lower-dimensional subspace, or a proposal failed) new recursive spokes,
+      // each certifying the facet its first spoke ends on, until M misses.
+      out.exhausted = reached_first;
+      if (reached_first && out.uncertified == 0 && !degenerate) break;
+      ++out.vertices;
+      descent_found = false;
+      const bool reached = descend();
+      misses = descent_found ? 0 : misses + 1;
+      if (reached && seen.insert(S).second) {
+        queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
+        vertices.push_back({S, y});
+      }
+      continue;
+    }
     Vertex vertex = std::move(vertices[static_cast<std::size_t>(-queue.top().second)]);
     queue.pop();
     ++out.vertices;
@@ -371,13 +410,19 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
     Eigen::PartialPivLU<MatrixXd> lu(B);
     const MatrixXd E = -lu.inverse();
-    if (!E.allFinite()) continue;
+    if (!E.allFinite()) {
+      degenerate = true;
+      continue;
+    }
     // Re-solve the vertex from its equidistant set (B v = |s_m - x|^2 / 2) rather than
     // trust the sum of rays that reached it: errors do not accumulate along the walk.
     VectorXd rhs(d);
     for (int m = 0; m < d; ++m) rhs[m] = B.row(m).squaredNorm() / 2;
     vertex.v = lu.solve(rhs);
-    if (!vertex.v.allFinite()) continue;
+    if (!vertex.v.allFinite()) {
+      degenerate = true;
+      continue;
+    }
     // Every ray from this vertex starts at v and goes along a combination of E's
     // columns: one matrix product gives all their dot products with the candidates.
     // Only the nearest part of the list: most rays end there (the rest of the list is
@@ -394,7 +439,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     // Certify the new neighbours of this vertex: for s = S_i, the direction
     // sum_{k != i} E_k keeps x and s equidistant and moves away from the others, into
     // the facet of (x, s); the witness is halfway to the first point met that way.
-    bool fresh = false;
+    bool fresh = false, failed_here = false;
     const VectorXd total = E.rowwise().sum();
     for (int i = 0; i < d; ++i) {
       const std::uint32_t s = vertex.S[i];
@@ -413,6 +458,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       } else {
         ++attempts[s];
         ++out.uncertified;
+        failed_here = true;
       }
     }
     misses = fresh ? 0 : misses + 1;
@@ -430,16 +476,21 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       queue.push({unfound(next), -static_cast<std::int64_t>(vertices.size())});
       vertices.push_back({std::move(next), vertex.v + t * e});
     }
-    // Restarts: when this vertex was a miss and nothing queued promises a new point,
-    // new recursive spokes reach a vertex next to a random facet (as plain spokes
-    // would) and the walk continues from there.
-    if (!fresh && (queue.empty() || queue.top().first == 0) && descend() && seen.insert(S).second) {
-      queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
-      vertices.push_back({S, y});
+    // Restarts: when this vertex was a miss and nothing queued promises a new point (or
+    // its proposals failed certification, as at the spurious vertices of points in a
+    // lower-dimensional subspace), new recursive spokes reach a vertex next to a random
+    // facet (as plain spokes would) and the walk continues from there.
+    if (!fresh && (queue.empty() || queue.top().first == 0 || failed_here)) {
+      descent_found = false;
+      const bool reached = descend();
+      if (descent_found) misses = 0;
+      if (reached && seen.insert(S).second) {
+        queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
+        vertices.push_back({S, y});
+      }
     }
   }
   out.misses = misses;
-  out.exhausted = queue.empty();
   return Status::ok();
 }
 
