@@ -293,6 +293,19 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   std::unordered_set<std::uint32_t> found;           // certified neighbours
   std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
   bool descent_found = false;                       // the last descent certified a new neighbour
+  // Certifies s with witness w (relative to x) unless already known or tried too often;
+  // true if s is a new certified neighbour.
+  auto try_certify = [&](std::uint32_t s, const double* w) {
+    if (found.count(s) != 0 || attempts[s] >= 3) return false;
+    if (certify(s, w)) {
+      found.insert(s);
+      out.neighbors.push_back(s);
+      return true;
+    }
+    ++attempts[s];
+    ++out.uncertified;
+    return false;
+  };
   auto descend = [&]() -> bool {
     S.clear();
     y.setZero();
@@ -328,18 +341,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         // The first spoke's end is on the facet of (x, p): a witness as in plain Spoke
         // Darts, so RSD never finds less than the spokes it shoots (and still works
         // where the cell has no vertices, e.g. points in a lower-dimensional subspace).
-        const std::uint32_t s1 = static_cast<std::uint32_t>(p);
-        if (found.count(s1) == 0 && attempts[s1] < 3) {
-          const VectorXd w1 = t * u;
-          if (certify(s1, w1.data())) {
-            found.insert(s1);
-            out.neighbors.push_back(s1);
-            descent_found = true;
-          } else {
-            ++attempts[s1];
-            ++out.uncertified;
-          }
-        }
+        const VectorXd w1 = t * u;
+        descent_found = try_certify(static_cast<std::uint32_t>(p), w1.data()) || descent_found;
       }
       y += t * u;
       S.push_back(static_cast<std::uint32_t>(p));
@@ -451,13 +454,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
                                      static_cast<std::size_t>(listed));
       if (hit < 0) t = 2 * std::max(vertex.v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
       w = vertex.v + (t / 2) * f;
-      if (certify(s, w.data())) {
-        found.insert(s);
-        out.neighbors.push_back(s);
+      if (try_certify(s, w.data())) {
         fresh = true;
       } else {
-        ++attempts[s];
-        ++out.uncertified;
         failed_here = true;
       }
     }
