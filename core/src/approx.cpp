@@ -10,6 +10,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
+#include "mixing.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
@@ -20,18 +21,11 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // matrix product (the rest, rarely reached, are computed on the fly).
 constexpr std::size_t kDottedPerDimension = 512;
 
-std::uint64_t splitmix64(std::uint64_t& state) {
-  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
 // A standard normal variate from 53-bit uniforms (Box-Muller): random directions
 // uniform on the sphere, reproducible on every platform (std distributions are not).
 double normal_variate(std::uint64_t& state) {
-  const double u1 = (static_cast<double>(splitmix64(state) >> 11) + 0.5) * 0x1p-53;
-  const double u2 = static_cast<double>(splitmix64(state) >> 11) * 0x1p-53;
+  const double u1 = (static_cast<double>(detail::splitmix64(state) >> 11) + 0.5) * 0x1p-53;
+  const double u2 = static_cast<double>(detail::splitmix64(state) >> 11) * 0x1p-53;
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(6.283185307179586 * u2);
 }
 
@@ -44,9 +38,7 @@ double dot(const double* a, const double* b, int d) {
 // A hash for sorted index tuples (Voronoi vertices are keyed by their equidistant set).
 struct TupleHash {
   std::size_t operator()(const std::vector<std::uint32_t>& v) const {
-    std::uint64_t h = 0x84222325CBF29CE4ull;
-    for (std::uint32_t x : v) h = (h ^ x) * 0x100000001B3ull + (h >> 29);
-    return static_cast<std::size_t>(h ^ (h >> 32));
+    return static_cast<std::size_t>(detail::hash_indices(v.data(), v.size()));
   }
 };
 
@@ -240,7 +232,7 @@ Status ApproxWalker::compute(std::uint32_t seed, ApproxNeighbors& out) {
   rays_ = 0;
   // Every direction is drawn from the seed index and the options: replicas and thread
   // counts agree.
-  rng_ = options_.random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{seed} + 1)) ^
+  rng_ = detail::seed_state(options_.random_seed, seed) ^
          (static_cast<std::uint64_t>(options_.mode) << 56) ^ (std::uint64_t{options_.max_misses} << 32);
   out = ApproxNeighbors{};
   out.seed = seed;

@@ -6,6 +6,8 @@
 #include <limits>
 #include <numeric>
 
+#include "mixing.hpp"
+
 namespace spokemesh {
 namespace {
 
@@ -26,15 +28,6 @@ inline int certified(double v, double a, int depth) {
   return Approx::kUnknownSign;
 }
 
-// Deterministic, platform-independent random numbers (std distributions are
-// implementation-defined, and a replica must draw the same spokes anywhere).
-std::uint64_t splitmix64(std::uint64_t& state) {
-  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
 // Insertion sort for the 1..9 indices of a simplex or facet key (std::sort's set-up
 // costs more than the sort at this size).
 inline void sort_small(std::uint32_t* a, int n) {
@@ -48,7 +41,7 @@ inline void sort_small(std::uint32_t* a, int n) {
 
 // Uniform in [-1, 1), exactly representable (53 random bits).
 double random_unit(std::uint64_t& state) {
-  return static_cast<double>(splitmix64(state) >> 11) * 0x1p-52 - 1.0;
+  return static_cast<double>(detail::splitmix64(state) >> 11) * 0x1p-52 - 1.0;
 }
 
 }  // namespace
@@ -70,9 +63,7 @@ void StarWalker::TupleSet::reset(int length) {
 }
 
 std::uint64_t StarWalker::TupleSet::hash(const std::uint32_t* key) const {
-  std::uint64_t h = 0x84222325CBF29CE4ull;
-  for (int i = 0; i < length_; ++i) h = (h ^ key[i]) * 0x100000001B3ull + (h >> 29);
-  return h ^ (h >> 32);
+  return detail::hash_indices(key, static_cast<std::size_t>(length_));
 }
 
 void StarWalker::TupleSet::grow() {
@@ -383,7 +374,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
 
 Status StarWalker::first_simplex(std::uint32_t* found) {
   const int d = d_;
-  std::uint64_t state = options_.random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{x_} + 1));
+  std::uint64_t state = detail::seed_state(options_.random_seed, x_);
   std::array<Row, kMaxCols> rows;
   for (int attempt = 0;; ++attempt) {
     for (double& w : directions_) w = random_unit(state);

@@ -1,0 +1,31 @@
+// Internal to core: the deterministic random numbers and the index-tuple hash shared by
+// the exact star walk and the approximate neighbour walk.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+namespace spokemesh::detail {
+
+// splitmix64: platform-independent random numbers (std distributions are
+// implementation-defined, and a replica must draw the same spokes anywhere).
+inline std::uint64_t splitmix64(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// The per-seed random state: the caller's seed mixed with the seed index.
+inline std::uint64_t seed_state(std::uint64_t random_seed, std::uint32_t seed) {
+  return random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{seed} + 1));
+}
+
+// Hash of a tuple of point indices (FNV-style with a shift-add mix).
+inline std::uint64_t hash_indices(const std::uint32_t* key, std::size_t length) {
+  std::uint64_t h = 0x84222325CBF29CE4ull;
+  for (std::size_t i = 0; i < length; ++i) h = (h ^ key[i]) * 0x100000001B3ull + (h >> 29);
+  return h ^ (h >> 32);
+}
+
+}  // namespace spokemesh::detail
