@@ -99,6 +99,10 @@ Status write_durably(const std::string& dir, const std::string& path, std::initi
   return Status::ok();
 }
 
+Status not_an_id(const std::string& id) {
+  return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+}
+
 bool file_exists(const std::string& path) {
   struct stat st {};
   return ::stat(path.c_str(), &st) == 0;
@@ -211,7 +215,7 @@ Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
 
 Result<PointSetInfo> PointSetStore::info(const std::string& id) {
   if (!is_valid_id(id)) {
-    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+    return not_an_id(id);
   }
   {
     std::lock_guard lock(mutex_);
@@ -236,7 +240,7 @@ Result<PointSetInfo> PointSetStore::info(const std::string& id) {
 
 Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& id) {
   if (!is_valid_id(id)) {
-    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+    return not_an_id(id);
   }
   const bool on_disk = file_exists(data_path(id));
   {
@@ -360,7 +364,7 @@ std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::siz
 
 Status PointSetStore::remove(const std::string& id) {
   if (!is_valid_id(id)) {
-    return invalid_argument("point_set_id: \"" + id.substr(0, 80) + "\" is not a point-set id (64 lowercase hex digits)");
+    return not_an_id(id);
   }
   forget(id);
   if (::unlink(data_path(id).c_str()) != 0) {

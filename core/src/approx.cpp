@@ -57,7 +57,6 @@ void ApproxWalker::load_candidates() {
   const std::size_t got = tree_.knn(ps_.point(x_), k, ids.data(), d2.data());
   cand_id_.clear();
   cand_q_.clear();
-  cand_norm_.clear();
   cand_norm2_.clear();
   const double* x = ps_.point(x_);
   for (std::size_t i = 0; i < got; ++i) {
@@ -70,11 +69,9 @@ void ApproxWalker::load_candidates() {
       s += q * q;
     }
     cand_id_.push_back(ids[i]);
-    cand_norm_.push_back(std::sqrt(s));
     cand_norm2_.push_back(s);
   }
-  cand_radius_ = got == n ? kInf : std::sqrt(d2[got - 1]) * (1 - 1e-9);
-  cand_radius2_ = cand_radius_ * cand_radius_;
+  cand_radius2_ = got == n ? kInf : d2[got - 1] * (1 - 2e-9);
 }
 
 std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
@@ -82,7 +79,9 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
   ++rays_;
   const int d = d_;
   std::int64_t best = -1;
-  double t_best = kInf, reach = kInf;  // reach: 2 |z_best| (z = y + t e), beyond which no hit can come
+  // reach2: (2 |z_best|)^2 (z = y + t e); no point farther than 2 |z_best| from x can
+  // be hit first.
+  double t_best = kInf, reach2 = kInf;
   auto is_excluded = [&](std::uint32_t id) {
     if (id == x_) return true;
     for (int i = 0; i < excluded; ++i) {
@@ -103,7 +102,7 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
       const double z = y[c] + t * e[c];
       z2 += z * z;
     }
-    reach = 2 * std::sqrt(z2) * (1 + 1e-9);
+    reach2 = 4 * z2 * (1 + 2e-9);
   };
   auto consider = [&](std::uint32_t id, const double* q, double q2) {
     consider_dots(id, q2, dot(y, q, d), dot(e, q, d));
@@ -111,10 +110,10 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
   const std::size_t count = cand_id_.size();
   std::size_t j = 0;
   if (yq != nullptr) {
-    for (; j < dotted && cand_norm_[j] <= reach; ++j) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
+    for (; j < dotted && cand_norm2_[j] <= reach2; ++j) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
   }
-  for (; j < count && cand_norm_[j] <= reach; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
-  if (j == count && reach > cand_radius_) {
+  for (; j < count && cand_norm2_[j] <= reach2; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
+  if (j == count && reach2 > cand_radius2_) {
     // The hit (or its absence) is not decided by the list: branch and bound over the
     // k-d tree. A box can hold a point hit before t_best only if
     //   t >= max(0, dist(x + y, box)^2 - |y|^2) / (2 max_{q in box} e . (q - x))

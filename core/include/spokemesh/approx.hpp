@@ -82,13 +82,11 @@ class ApproxWalker {
   std::uint32_t x_ = 0;
   std::uint64_t rng_ = 0;
   std::uint64_t rays_ = 0;
-  // Candidates nearest first: ids, coordinates relative to x, |p - x|.
+  // Candidates nearest first: ids, coordinates relative to x, |p - x|^2.
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;
-  std::vector<double> cand_norm_;
   std::vector<double> cand_norm2_;
-  double cand_radius_ = 0;  // every unlisted point is at least this far from x (up to rounding)
-  double cand_radius2_ = 0;
+  double cand_radius2_ = 0;  // every unlisted point has |p - x|^2 at least this (up to rounding)
   std::vector<double> scratch_;
 };
 
