@@ -14,6 +14,10 @@ namespace {
 constexpr int kMaxCols = kMaxDimension + 1;
 constexpr double kUnit = 0x1p-53;
 constexpr double kInf = std::numeric_limits<double>::infinity();
+// Sphere queries that found a point missing from the candidates before the walk
+// loads a neighbourhood four times larger (once per seed: a seed on the hull can
+// have spheres of any size, and the tree answers those).
+constexpr int kGrowAfterMisses = 2;
 
 // Certified sign of a dot product v whose monomial magnitudes sum to a, computed
 // with the given rounding depth; Approx::kUnknownSign when not certain. A product in
@@ -103,10 +107,12 @@ void StarWalker::load_candidates(std::size_t k) {
   const std::size_t want = std::min(k + 1, n);  // +1: the seed finds itself
   knn_ids_.resize(want);
   knn_d2_.resize(want);
-  const std::size_t got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data());
+  knn_coords_.resize(want);
+  const std::size_t got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data(), knn_coords_.data());
   cand_id_.clear();
   cand_q_.clear();
   cand_norm2_.clear();
+  cand_norm_.clear();
   cand_depth_.clear();
   cand_lower_.clear();
   cand_q_.resize(got * d_);
@@ -116,10 +122,11 @@ void StarWalker::load_candidates(std::size_t k) {
     if (id == x_) continue;
     double norm2;
     int depth;
-    relative_row(id, &cand_q_[kept * d_], norm2, depth);
+    relative_row(knn_coords_[i], &cand_q_[kept * d_], norm2, depth);
     ++kept;
     cand_id_.push_back(id);
     cand_norm2_.push_back(norm2);
+    cand_norm_.push_back(std::sqrt(norm2));
     cand_depth_.push_back(depth);
     cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
   }
@@ -127,8 +134,7 @@ void StarWalker::load_candidates(std::size_t k) {
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
 }
 
-void StarWalker::relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const {
-  const double* pp = ps_.point(p);
+void StarWalker::relative_row(const double* pp, double* q, double& norm2, int& depth) const {
   const double* x = ps_.point(x_);
   norm2 = 0;
   for (int c = 0; c < d_; ++c) {
@@ -147,20 +153,20 @@ void StarWalker::lifted_row(const double* q, double norm2, int depth, Approx* ou
 }
 
 // The one dispatch point from the runtime dimension to the compiled kernels.
-std::int64_t StarWalker::wrap(const Row* pivot, Side side) {
+std::int64_t StarWalker::wrap(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane) {
   switch (d_) {
-    case 2: return wrap_kernel<2>(pivot, side);
-    case 3: return wrap_kernel<3>(pivot, side);
-    case 4: return wrap_kernel<4>(pivot, side);
-    case 5: return wrap_kernel<5>(pivot, side);
-    case 6: return wrap_kernel<6>(pivot, side);
-    case 7: return wrap_kernel<7>(pivot, side);
-    default: return wrap_kernel<8>(pivot, side);
+    case 2: return wrap_kernel<2>(pivot, side, reference, hit_plane);
+    case 3: return wrap_kernel<3>(pivot, side, reference, hit_plane);
+    case 4: return wrap_kernel<4>(pivot, side, reference, hit_plane);
+    case 5: return wrap_kernel<5>(pivot, side, reference, hit_plane);
+    case 6: return wrap_kernel<6>(pivot, side, reference, hit_plane);
+    case 7: return wrap_kernel<7>(pivot, side, reference, hit_plane);
+    default: return wrap_kernel<8>(pivot, side, reference, hit_plane);
   }
 }
 
 template <int D>
-std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
+std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane) {
   static_assert(D >= 2 && D <= kMaxDimension);
   ++stats_.wraps;
   constexpr int d = D;
@@ -233,9 +239,10 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
   std::array<Approx, kMaxCols> plane;
   int plane_depth = 0;
   double next_exit_test = kInf;
-  auto build_plane = [&](std::uint32_t id, const Approx* b) {
-    best_id = id;
-    plane_depth = 0;
+  // The cofactors of the query row of det[pivot; b; query]: the plane through the
+  // lifted pivot, x and b.
+  auto plane_through = [&](const Approx* b, Approx* out, int& depth) {
+    depth = 0;
     for (int c = 0; c < cols; ++c) {
       // M_c = det[pivot; best] without column c, expanded along the best row.
       Approx m{};
@@ -247,9 +254,13 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
         m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
         ++t;
       }
-      plane[c] = ((d + c) % 2 == 0) ? m : -m;
-      plane_depth = std::max(plane_depth, plane[c].n);
+      out[c] = ((d + c) % 2 == 0) ? m : -m;
+      depth = std::max(depth, out[c].n);
     }
+  };
+  auto build_plane = [&](std::uint32_t id, const Approx* b) {
+    best_id = id;
+    plane_through(b, plane.data(), plane_depth);
     double s = 0;
     for (int c = 0; c < d; ++c) s += plane[c].v * plane[c].v;
     next_exit_test = s / (plane[d].v * plane[d].v) * (1 + 1e-9);  // |slope|^2 = (2r)^2, estimate
@@ -291,11 +302,110 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
     return e.certified_sign() == 1;
   };
 
-  // 1. Scan the cached candidates nearest first; stop once the best sphere is
-  //    certified to lie within the distance scanned.
   const std::size_t count = cand_id_.size();
   bool exited = false;
-  for (std::size_t j = 0; j < count; ++j) {
+  std::size_t j = 0;  // the next candidate the certified scan (1b) looks at
+
+  // 1a. The pencil scan. Every hyperplane through the lifted pivot (and x) is
+  //     h - lambda (n, 0): h the plane through the pivot and a reference row that
+  //     every point is on or above (the simplex being left, or for a spoke the
+  //     previous level's plane through the spoke direction; the tangent plane at x
+  //     at level 0), n = sigma * normal the vertical one. Rotating towards side sigma
+  //     meets candidate c at lambda_c = h(c) / n(c), so the first hit is the least
+  //     lambda_c: one floating-point key per candidate, bracketed by certified error
+  //     bounds, instead of a plane rebuilt at every improvement. Only candidates whose
+  //     brackets reach below the best upper bound are compared exactly afterwards.
+  //     Sums of |coefficient| * |q_c| are bounded by Cauchy-Schwarz, ||coeff|| |q|.
+  {
+    int h_depth = 0;
+    for (int c = 0; c < cols; ++c) h_depth = std::max(h_depth, reference[c].n);
+    const Approx* h_plane = reference;
+    const int up = h_plane[d].certified_sign();
+    if ((up == 1 || up == -1) && h_depth < Approx::kUnsafe && normal_depth < Approx::kUnsafe) {
+      std::array<double, kMaxCols> h;
+      std::array<double, kMaxDimension> nn;
+      double h_mag2 = 0, n_mag2 = 0;
+      for (int c = 0; c < d; ++c) {
+        h[c] = up * h_plane[c].v;
+        nn[c] = sigma * normal[c].v;
+        h_mag2 += h_plane[c].a * h_plane[c].a;
+        n_mag2 += normal[c].a * normal[c].a;
+      }
+      h[d] = up * h_plane[d].v;
+      const double h_mag_d = h_plane[d].a;
+      const double h_mag = std::sqrt(h_mag2) * (1 + 1e-12), n_mag = std::sqrt(n_mag2) * (1 + 1e-12);
+      // certified()'s error factors for the two dot products (see spatial_side and
+      // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
+      const double n_eps = static_cast<double>(normal_depth + d + 3 + 3) * kUnit * 1.01;
+      const double h_eps = static_cast<double>(h_depth + (d + 3) + d + 4 + 3) * kUnit * 1.01;
+      double u_best = kInf;
+      std::int64_t best_j = -1;
+      contenders_.clear();
+      for (; j < count; ++j) {
+        if (best_j >= 0 && cand_lower_[j] > next_exit_test) break;  // estimate; certified below
+        if (cand_depth_[j] >= Approx::kUnsafe) break;
+        const std::uint32_t id = cand_id_[j];
+        if (is_pivot(id)) continue;
+        ++stats_.candidate_tests;
+        const double* q = &cand_q_[j * d];
+        const double norm2 = cand_norm2_[j], norm = cand_norm_[j];
+        double nv = 0;
+        for (int c = 0; c < d; ++c) nv += nn[c] * q[c];
+        const double n_bound = n_mag * norm;
+        const double en = n_bound * n_eps;
+        bool n_certain = n_bound >= 0x1p-900 && n_bound <= DBL_MAX;
+        if (n_certain && nv < -en) continue;
+        if (!n_certain || !(nv > en)) {
+          if (spatial_side(q, id) != sigma) continue;  // decided exactly
+          n_certain = false;
+        }
+        double hv = h[d] * norm2;
+        for (int c = 0; c < d; ++c) hv += h[c] * q[c];
+        const double h_bound = h_mag_d * norm2 + h_mag * norm;
+        double lo = 0, hi = kInf;
+        if (h_bound >= 0x1p-900 && h_bound <= DBL_MAX) {
+          const double eh = h_bound * h_eps;
+          if (n_certain) {
+            lo = std::max(0.0, hv - eh) / (nv + en) * (1 - 1e-12);
+            hi = (hv + eh) / (nv - en) * (1 + 1e-12);
+          } else if (nv + en > 0) {
+            lo = std::max(0.0, hv - eh) / (nv + en) * (1 - 1e-12);
+          }
+        }
+        if (lo > u_best) continue;
+        contenders_.push_back({static_cast<std::uint32_t>(j), lo});
+        if (hi < u_best) {
+          u_best = hi;
+          best_j = static_cast<std::int64_t>(j);
+          // (2r)^2 of the plane through this candidate, estimated from lambda_c.
+          const double lambda = hv / nv;
+          double slope2 = 0;
+          for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
+          next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
+        }
+      }
+      // The exact winner among the contenders still in reach of the best bracket
+      // (planes about one pivot are ordered, so one pass keeps the lowest).
+      if (!contenders_.empty()) {
+        const std::uint32_t first = best_j >= 0 ? static_cast<std::uint32_t>(best_j) : contenders_.front().index;
+        build_plane_from_candidate(first);
+        for (const Contender& k : contenders_) {
+          if (k.index == first || k.lower > u_best) continue;
+          const std::size_t kj = k.index;
+          if (lifted_side(&cand_q_[kj * d], cand_norm2_[kj], cand_depth_[kj], cand_id_[kj]) < 0) {
+            build_plane_from_candidate(kj);
+          }
+        }
+        if (j < count && cand_lower_[j] > next_exit_test && certified_beyond(cand_lower_[j])) exited = true;
+      }
+    }
+  }
+
+  // 1b. The certified scan: what remains of the cached candidates (all of them when
+  //     the pencil scan could not run), nearest first, rebuilding the plane at each
+  //     improvement; stop once the best sphere is certified to lie within the
+  //     distance scanned.
+  for (; j < count && !exited; ++j) {
     if (best_id >= 0 && cand_lower_[j] > next_exit_test) {
       if (certified_beyond(cand_lower_[j])) {
         exited = true;
@@ -310,17 +420,24 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
     if (spatial_side(q, id) != sigma) continue;
     if (best_id < 0 || lifted_side(q, cand_norm2_[j], cand_depth_[j], id) < 0) build_plane_from_candidate(j);
   }
-  if (exited || (best_id >= 0 && certified_beyond(r2_certified_))) return best_id;
-  if (r2_certified_ == kInf) return best_id;  // every point was scanned
+  // The hit's plane, oriented so that every point is on or above it: the next
+  // wraps' reference.
+  auto hit = [&] {
+    if (best_id >= 0) {
+      for (int c = 0; c < cols; ++c) hit_plane[c] = sigma > 0 ? plane[c] : -plane[c];
+    }
+    return best_id;
+  };
+  if (exited || (best_id >= 0 && certified_beyond(r2_certified_))) return hit();
+  if (r2_certified_ == kInf) return hit();  // every point was scanned
 
   // 2. Beyond the candidates, ask the tree. With no eligible candidate, any point
   //    strictly on side sigma (none: the facet is on the hull).
   if (best_id < 0) {
     ++stats_.hull_queries;
-    const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p) {
+    const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
       if (p == x_ || is_pivot(p)) return 0;  // on the hyperplane
       std::array<double, kMaxDimension> q;
-      const double* pp = ps_.point(p);
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       return spatial_side(q.data(), p);
     });
@@ -358,22 +475,28 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side) {
       }
       return bound - 1e-12 * magnitude <= 0;
     };
-    const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p) {
+    const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
       if (p == x_ || p == best_id || is_pivot(p)) return false;
       std::array<double, kMaxDimension> q;
       double norm2;
       int depth;
-      relative_row(p, q.data(), norm2, depth);
+      relative_row(pp, q.data(), norm2, depth);
       if (norm2 * (1 + 1e-9) < r2_certified_) return false;  // a scanned candidate
       return lifted_side(q.data(), norm2, depth, p) < 0;
     });
-    if (below < 0) return best_id;
+    if (below < 0) return hit();
+    ++missed_candidates_;
     build_plane_from_point(static_cast<std::uint32_t>(below));
   }
 }
 
-Status StarWalker::first_simplex(std::uint32_t* found) {
+Status StarWalker::first_simplex(std::uint32_t* found, Approx* plane) {
   const int d = d_;
+  // Level 0's reference is the plane tangent to the paraboloid at x (h = 0), which
+  // holds every direction row; each later level's is the previous level's hit.
+  std::array<Approx, kMaxCols> reference;
+  for (int c = 0; c < d; ++c) reference[c] = Approx::exact(0.0);
+  reference[d] = Approx::exact(1.0);
   std::uint64_t state = detail::seed_state(options_.random_seed, x_);
   std::array<Row, kMaxCols> rows;
   for (int attempt = 0;; ++attempt) {
@@ -388,11 +511,12 @@ Status StarWalker::first_simplex(std::uint32_t* found) {
     for (int i = 0; i < k; ++i) rows[r++] = Row::of_point(found[i]);
     for (int i = 0; i < d - 1 - k; ++i) rows[r++] = Row::of_direction(&directions_[i * d]);
     const double* spoke = &directions_[(d - 1 - k) * d];  // the side the spoke goes to
-    std::int64_t p = wrap(rows.data(), Side{.toward = spoke});
-    if (p == -1) p = wrap(rows.data(), Side{.toward = spoke, .reverse = true});
+    std::int64_t p = wrap(rows.data(), Side{.toward = spoke}, reference.data(), plane);
+    if (p == -1) p = wrap(rows.data(), Side{.toward = spoke, .reverse = true}, reference.data(), plane);
     if (p == -2) return cancelled("star computation cancelled");
     if (p < 0) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
     found[k] = static_cast<std::uint32_t>(p);
+    std::copy(plane, plane + d + 1, reference.begin());
   }
   return Status::ok();
 }
@@ -405,10 +529,14 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
   }
   ++stats_.seeds;
   x_ = seed;
-  load_candidates(options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d));
+  cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d);
+  load_candidates(cand_k_);
+  missed_candidates_ = 0;
+  grown_ = false;
 
   std::array<std::uint32_t, kMaxCols> simplex{};
-  if (Status s = first_simplex(simplex.data()); !s.is_ok()) return s;
+  std::array<Approx, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
+  if (Status s = first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
 
   work_.clear();
   simplex_seen_.reset(d);
@@ -418,6 +546,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
   sort_small(key.data(), d);
   simplex_seen_.insert(key.data());
   work_.insert(work_.end(), simplex.begin(), simplex.begin() + d);
+  work_planes_.assign(plane.begin(), plane.begin() + d + 1);
 
   std::size_t hull = 0;
   std::array<Row, kMaxCols> pivot;
@@ -432,7 +561,15 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       sort_small(key.data(), d - 1);
       if (!facet_seen_.insert(key.data())) continue;  // this Voronoi edge was walked from the other end
       for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
-      const std::int64_t p = wrap(pivot.data(), Side{.away_from = simplex[k]});
+      if (missed_candidates_ >= kGrowAfterMisses && !grown_ && cand_id_.size() + 1 < ps_.size()) {
+        // The tree keeps finding points the candidates lack: typical of seeds near
+        // the hull, whose Delaunay spheres are large. One larger neighbourhood is
+        // cheaper than a tree query per remaining wrap.
+        cand_k_ *= 4;
+        load_candidates(cand_k_);
+        grown_ = true;
+      }
+      const std::int64_t p = wrap(pivot.data(), Side{.away_from = simplex[k]}, &work_planes_[i * (d + 1)], plane.data());
       if (p == -2) return cancelled("star computation cancelled");
       if (p < 0) {
         ++hull;
@@ -441,7 +578,10 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       key[d - 1] = static_cast<std::uint32_t>(p);
       std::array<std::uint32_t, kMaxCols> sorted = key;
       sort_small(sorted.data(), d);
-      if (simplex_seen_.insert(sorted.data())) work_.insert(work_.end(), key.begin(), key.begin() + d);
+      if (simplex_seen_.insert(sorted.data())) {
+        work_.insert(work_.end(), key.begin(), key.begin() + d);
+        work_planes_.insert(work_planes_.end(), plane.begin(), plane.begin() + d + 1);
+      }
     }
   }
 

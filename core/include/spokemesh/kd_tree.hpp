@@ -10,8 +10,14 @@
 // RSD uses it to certify hull facets (unbounded Voronoi edges) globally instead of
 // by growing the neighbourhood.
 //
-// Ownership: the PointSet must outlive the tree. Thread safety: immutable after
-// construction; concurrent queries are safe.
+// Layout: after nanoflann builds its tree, the coordinates are copied in the tree's
+// leaf order and nanoflann's index permutation is reset to the identity, so every
+// leaf's points are contiguous in memory (the tree itself is unchanged). Queries
+// speak original point indices.
+//
+// Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
+// (n * d doubles). Thread safety: immutable after construction; concurrent queries
+// are safe.
 #pragma once
 
 #include <nanoflann.hpp>
@@ -19,6 +25,7 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
 #include "spokemesh/point_set.hpp"
@@ -38,16 +45,20 @@ class KdTree {
   KdTree(const KdTree&) = delete;
   KdTree& operator=(const KdTree&) = delete;
 
-  const PointSet& points() const { return adaptor_.ps; }
+  const PointSet& points() const { return points_; }
 
   // Up to k nearest points to `query` (which may itself be a point of the set, and
-  // is then returned first at distance 0). Returns the count written.
-  std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2) const;
+  // is then returned first at distance 0). Returns the count written. With `coords`,
+  // also each point's coordinates (pointers into the tree's leaf-ordered copy, equal
+  // to the PointSet's values, valid for the tree's lifetime).
+  std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
+                  const double** coords = nullptr) const;
 
   // Every point p with nanoflann's squared distance to `query` <= r2 (unsorted).
   void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
 
-  // First point p found (in tree order) with `exact_side(p) == sigma`, or -1 if
+  // First point p found (in tree order) with `exact_side(p) == sigma` (or
+  // `exact_side(p, coordinates of p)`), or -1 if
   // none. `normal` approximates the hyperplane's normal with certified error
   // bounds; it prunes boxes only where no point can be strictly on side sigma.
   template <class ExactSide>
@@ -55,15 +66,19 @@ class KdTree {
 
   // First point p (in tree order) with accept(p), visiting only boxes for which
   // may_contain(lo, hi) holds. may_contain must be conservative: false only when
-  // no point of the box can be accepted.
+  // no point of the box can be accepted. `accept` may also take (p, coordinates of
+  // p), read from the leaf-ordered copy.
   template <class MayContain, class Accept>
   std::int64_t find_first(MayContain&& may_contain, Accept&& accept) const;
 
  private:
+  // Reads the PointSet while nanoflann builds, the leaf-ordered copy afterwards.
   struct Adaptor {
-    const PointSet& ps;
-    std::size_t kdtree_get_point_count() const { return ps.size(); }
-    double kdtree_get_pt(std::size_t i, std::size_t c) const { return ps.point(i)[c]; }
+    const double* coords;
+    std::size_t n;
+    std::size_t d;
+    std::size_t kdtree_get_point_count() const { return n; }
+    double kdtree_get_pt(std::size_t i, std::size_t c) const { return coords[i * d + c]; }
     template <class Box>
     bool kdtree_get_bbox(Box&) const { return false; }
   };
@@ -71,8 +86,11 @@ class KdTree {
                                                     Adaptor, -1, std::uint32_t>;
   using Node = typename Index::Node;
 
+  const PointSet& points_;
   Adaptor adaptor_;
   std::unique_ptr<Index> index_;
+  std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
+  std::vector<std::uint32_t> id_of_;  // leaf position -> original index
 };
 
 template <class MayContain, class Accept>
@@ -101,8 +119,12 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
     if (node->child1 == nullptr && node->child2 == nullptr) {
       --top;
       for (auto k = node->node_type.lr.left; k < node->node_type.lr.right; ++k) {
-        const std::uint32_t p = index_->vAcc[k];
-        if (accept(p)) return p;
+        const std::uint32_t p = id_of_[k];
+        if constexpr (std::is_invocable_v<Accept&, std::uint32_t, const double*>) {
+          if (accept(p, &leaf_coords_[k * static_cast<std::size_t>(d)])) return p;
+        } else {
+          if (accept(p)) return p;
+        }
       }
       continue;
     }
@@ -122,10 +144,17 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
 template <class ExactSide>
 std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const {
   const int d = points().dimension();
+  auto on_side = [&](std::uint32_t p, const double* coords) {
+    if constexpr (std::is_invocable_v<ExactSide&, std::uint32_t, const double*>) {
+      return exact_side(p, coords) == sigma;
+    } else {
+      (void)coords;
+      return exact_side(p) == sigma;
+    }
+  };
   for (int c = 0; c < d; ++c) {
     if (normal[c].n >= Approx::kUnsafe || !(normal[c].a <= DBL_MAX)) {
-      return find_first([](const double*, const double*) { return true; },
-                        [&](std::uint32_t p) { return exact_side(p) == sigma; });
+      return find_first([](const double*, const double*) { return true; }, on_side);
     }
   }
   // Upper bound of sigma * n.(p - x) over a box. Each normal component is known to
@@ -143,7 +172,7 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
     }
     return bound + 1e-12 * magnitude >= 0;
   };
-  return find_first(may_contain, [&](std::uint32_t p) { return exact_side(p) == sigma; });
+  return find_first(may_contain, on_side);
 }
 
 }  // namespace spokemesh

@@ -116,8 +116,9 @@ class StarWalker {
   };
 
   void load_candidates(std::size_t k);
-  // p - x rounded, |p - x|^2 from it, and that sum's rounding depth (or kUnsafe).
-  void relative_row(std::uint32_t p, double* q, double& norm2, int& depth) const;
+  // p - x rounded (p given by its coordinates), |p - x|^2 from it, and that sum's
+  // rounding depth (or kUnsafe).
+  void relative_row(const double* p, double* q, double& norm2, int& depth) const;
   // The same as an Approx row (q, |q|^2), for cached candidates.
   void lifted_row(const double* q, double norm2, int depth, Approx* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
@@ -128,12 +129,15 @@ class StarWalker {
     bool reverse = false;
   };
   // Rotates the lifted hyperplane about pivot (d - 1 rows) towards `side` of the
-  // pivot's spatial hyperplane; returns the point hit, -1 when no point lies strictly
-  // on that side, -2 when cancelled.
-  std::int64_t wrap(const Row* pivot, Side side);
+  // pivot's spatial hyperplane, starting from `reference` (d + 1 coefficients of a
+  // plane through the lifted pivot and x with every point on or above it); returns
+  // the point hit and writes its plane, oriented the same way, to `hit_plane`; -1
+  // when no point lies strictly on that side, -2 when cancelled.
+  std::int64_t wrap(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane);
   template <int D>
-  std::int64_t wrap_kernel(const Row* pivot, Side side);
-  Status first_simplex(std::uint32_t* out);
+  std::int64_t wrap_kernel(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane);
+  // The first simplex by recursive spokes (d ids, without x) and its plane.
+  Status first_simplex(std::uint32_t* out, Approx* plane);
 
   const KdTree& tree_;
   const PointSet& ps_;
@@ -147,15 +151,26 @@ class StarWalker {
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;      // p - x, rounded, row-major
   std::vector<double> cand_norm2_;  // |p - x|^2 as computed from cand_q_
+  std::vector<double> cand_norm_;   // sqrt(cand_norm2_), for error bounds
   std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or Approx::kUnsafe
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
-  double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
+  double r2_certified_ = 0;
+  std::size_t cand_k_ = 0;        // candidates requested from the tree for this seed
+  int missed_candidates_ = 0;     // sphere queries that found a point beyond them
+  bool grown_ = false;            // the neighbourhood was enlarged for this seed         // every unlisted point has exact |p - x|^2 >= this
   std::vector<std::uint32_t> knn_ids_;
   std::vector<double> knn_d2_;
+  std::vector<const double*> knn_coords_;
   std::vector<double> directions_;
   std::vector<Approx> minors_;
   TupleSet simplex_seen_, facet_seen_;
+  struct Contender {
+    std::uint32_t index;  // into the candidate arrays
+    double lower;         // certified lower bound of its pencil parameter
+  };
+  std::vector<Contender> contenders_;  // a wrap's pencil-scan contenders
   std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
+  std::vector<Approx> work_planes_;  // their lifted planes, d + 1 coefficients each
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
 };
 
