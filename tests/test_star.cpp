@@ -50,6 +50,32 @@ TEST(Star, EqualsBruteForceOnEverySeed) {
   }
 }
 
+// A two-point neighbourhood sends nearly every wrap to the k-d tree's sphere and
+// hull queries and triggers the neighbourhood growth; coordinates far from the
+// origin stress the certified error terms of the pencil keys and of the sphere
+// pruning (the centre's rounding grows with |x|).
+TEST(Star, EqualsBruteForceWithTinyNeighbourhoodsAndFarCoordinates) {
+  for (const Case& c : small_cases()) {
+    // Far away only for the random cases: rounding there turns grids and spheres
+    // into near-degenerate inputs that the brute force can only decide exactly.
+    for (const double offset : {0.0, 1e6}) {
+      if (offset != 0.0 && c.name.rfind("uniform", 0) != 0) continue;
+      SCOPED_TRACE(c.name + " offset " + std::to_string(offset));
+      std::vector<double> coords = c.coords;
+      if (offset != 0.0) {
+        for (double& v : coords) v = offset + v * 0x1p-10;
+      }
+      const PointSet ps = make_points(c.d, coords);
+      const KdTree tree(ps);
+      StarWalker walker(tree, StarOptions{.initial_candidates = 2});
+      for (std::uint32_t seed = 0; seed < ps.size(); ++seed) {
+        ASSERT_EQ(star_set(walker, seed, c.d), brute_force_star(ps, seed)) << "seed " << seed;
+      }
+      EXPECT_GT(walker.stats().sphere_queries, 0u);
+    }
+  }
+}
+
 TEST(Star, SimplicesAppearInTheStarOfEachVertex) {
   for (int d = 2; d <= 5; ++d) {
     SCOPED_TRACE("d " + std::to_string(d));

@@ -15,9 +15,9 @@ constexpr int kMaxCols = kMaxDimension + 1;
 constexpr double kUnit = 0x1p-53;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Sphere queries that found a point missing from the candidates before the walk
-// loads a neighbourhood four times larger (once per seed: a seed on the hull can
+// loads a neighbourhood twice as large (once per seed: a seed on the hull can
 // have spheres of any size, and the tree answers those).
-constexpr int kGrowAfterMisses = 2;
+constexpr int kGrowAfterMisses = 3;
 
 // Certified sign of a dot product v whose monomial magnitudes sum to a, computed
 // with the given rounding depth; Approx::kUnknownSign when not certain. A product in
@@ -449,31 +449,45 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
   //    fixed pivot form a pencil), so this terminates with the first hit.
   for (;;) {
     ++stats_.sphere_queries;
-    // Lower bound over a box of f(q) = |P_d| |q|^2 + sigma sum_c P_c q_c, which is
-    // negative exactly below the plane; separable, so minimised per coordinate.
+    // The points below the plane are those inside its sphere: with O = sigma * plane
+    // (O_d > 0), centre m = -O / (2 O_d) relative to x and radius |m|. Boxes are
+    // pruned by their distance from the computed centre, against a radius enlarged
+    // by delta, a certified bound on |computed centre - true centre|: with
+    // |O_c - true| <= e_c, |O_d - true| <= e_d and A = O_d - e_d > 0,
+    // |dm_c| <= (e_c / A + |O_c| e_d / (A O_d)) / 2, plus the roundings of m and x + m.
+    std::array<double, kMaxDimension> centre{};  // absolute coordinates
+    double r2_outer = kInf;                    // prune beyond this; kInf: no pruning
+    {
+      const double o_d = std::fabs(plane[d].v);
+      const double e_d = plane[d].a * (static_cast<double>(plane[d].n + 2) * kUnit) * 1.01;
+      const double A = o_d - e_d;
+      if (A > 0 && plane_depth < Approx::kUnsafe) {
+        double m2 = 0, delta = 0, c_max = 0;
+        for (int c = 0; c < d; ++c) {
+          const double o_c = sigma * plane[c].v;
+          const double e_c = plane[c].a * (static_cast<double>(plane[c].n + 2) * kUnit) * 1.01;
+          const double m = -o_c / (2 * o_d);
+          m2 += m * m;
+          delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * kUnit;
+          centre[c] = x[c] + m;
+          c_max = std::max(c_max, std::fabs(centre[c]));
+        }
+        delta += c_max * 2 * kUnit * d;
+        const double r = std::sqrt(m2) * (1 + 1e-12) + 2 * delta;
+        if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
+      }
+    }
     auto may_contain = [&](const double* lo, const double* hi) {
       // Boxes inside the certified ball hold only scanned candidates, all above the
       // plane already (pencil argument above).
-      double far2 = 0;
+      double far2 = 0, near2 = 0;
       for (int c = 0; c < d; ++c) {
         const double reach = std::max(std::fabs(lo[c] - x[c]), std::fabs(hi[c] - x[c]));
         far2 += reach * reach;
+        const double gap = std::max({lo[c] - centre[c], 0.0, centre[c] - hi[c]});
+        near2 += gap * gap;
       }
-      if (far2 * (1 + 1e-9) < r2_certified_) return false;
-      const double e_d = plane[d].a * (static_cast<double>(plane[d].n + 2) * kUnit) * 1.01;
-      const double A = std::fabs(plane[d].v) - e_d;
-      if (!(A > 0) || plane_depth >= Approx::kUnsafe) return true;
-      double bound = 0, magnitude = 0;
-      for (int c = 0; c < d; ++c) {
-        const double B = sigma * plane[c].v;
-        const double e_c = plane[c].a * (static_cast<double>(plane[c].n + 2) * kUnit) * 1.01;
-        const double l = lo[c] - x[c], h = hi[c] - x[c];
-        const double t = std::clamp(-B / (2 * A), l, h);
-        const double reach = std::max(std::fabs(l), std::fabs(h));
-        bound += A * t * t + B * t - e_c * reach;
-        magnitude += (A + e_d) * reach * reach + std::fabs(B) * reach + e_c * reach;
-      }
-      return bound - 1e-12 * magnitude <= 0;
+      return far2 * (1 + 1e-9) >= r2_certified_ && (r2_outer == kInf || near2 <= r2_outer);
     };
     const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
       if (p == x_ || p == best_id || is_pivot(p)) return false;
@@ -565,7 +579,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
         // The tree keeps finding points the candidates lack: typical of seeds near
         // the hull, whose Delaunay spheres are large. One larger neighbourhood is
         // cheaper than a tree query per remaining wrap.
-        cand_k_ *= 4;
+        cand_k_ *= 2;
         load_candidates(cand_k_);
         grown_ = true;
       }
