@@ -491,6 +491,12 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
     };
     const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
       if (p == x_ || p == best_id || is_pivot(p)) return false;
+      if (r2_outer != kInf) {
+        // A point is a box of its own: outside the enlarged sphere, certainly above.
+        double near2 = 0;
+        for (int c = 0; c < d; ++c) near2 += (pp[c] - centre[c]) * (pp[c] - centre[c]);
+        if (near2 > r2_outer) return false;
+      }
       std::array<double, kMaxDimension> q;
       double norm2;
       int depth;
