@@ -345,10 +345,11 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
         if (best_j >= 0 && cand_lower_[j] > next_exit_test) break;  // estimate; certified below
         if (cand_depth_[j] >= Approx::kUnsafe) break;
         const std::uint32_t id = cand_id_[j];
-        if (is_pivot(id)) continue;
         ++stats_.candidate_tests;
         const double* q = &cand_q_[j * d];
         const double norm2 = cand_norm2_[j], norm = cand_norm_[j];
+        // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
+        // uncertain branch has to skip the pivot explicitly.
         double nv = 0;
         for (int c = 0; c < d; ++c) nv += nn[c] * q[c];
         const double n_bound = n_mag * norm;
@@ -356,7 +357,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
         bool n_certain = n_bound >= 0x1p-900 && n_bound <= DBL_MAX;
         if (n_certain && nv < -en) continue;
         if (!n_certain || !(nv > en)) {
-          if (spatial_side(q, id) != sigma) continue;  // decided exactly
+          if (is_pivot(id) || spatial_side(q, id) != sigma) continue;  // decided exactly
           n_certain = false;
         }
         double hv = h[d] * norm2;
