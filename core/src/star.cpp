@@ -319,20 +319,19 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
   {
     int h_depth = 0;
     for (int c = 0; c < cols; ++c) h_depth = std::max(h_depth, reference[c].n);
-    const Approx* h_plane = reference;
-    const int up = h_plane[d].certified_sign();
+    const int up = reference[d].certified_sign();
     if ((up == 1 || up == -1) && h_depth < Approx::kUnsafe && normal_depth < Approx::kUnsafe) {
       std::array<double, kMaxCols> h;
       std::array<double, kMaxDimension> nn;
       double h_mag2 = 0, n_mag2 = 0;
       for (int c = 0; c < d; ++c) {
-        h[c] = up * h_plane[c].v;
+        h[c] = up * reference[c].v;
         nn[c] = sigma * normal[c].v;
-        h_mag2 += h_plane[c].a * h_plane[c].a;
+        h_mag2 += reference[c].a * reference[c].a;
         n_mag2 += normal[c].a * normal[c].a;
       }
-      h[d] = up * h_plane[d].v;
-      const double h_mag_d = h_plane[d].a;
+      h[d] = up * reference[d].v;
+      const double h_mag_d = reference[d].a;
       const double h_mag = std::sqrt(h_mag2) * (1 + 1e-12), n_mag = std::sqrt(n_mag2) * (1 + 1e-12);
       // certified()'s error factors for the two dot products (see spatial_side and
       // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
@@ -397,15 +396,14 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
             build_plane_from_candidate(kj);
           }
         }
-        if (j < count && cand_lower_[j] > next_exit_test && certified_beyond(cand_lower_[j])) exited = true;
       }
     }
   }
 
-  // 1b. The certified scan: what remains of the cached candidates (all of them when
-  //     the pencil scan could not run), nearest first, rebuilding the plane at each
-  //     improvement; stop once the best sphere is certified to lie within the
-  //     distance scanned.
+  // 1b. The certified scan: certifies the pencil scan's exit, then scans what
+  //     remains of the cached candidates (all of them when the pencil scan could not
+  //     run), nearest first, rebuilding the plane at each improvement; stops once the
+  //     best sphere is certified to lie within the distance scanned.
   for (; j < count && !exited; ++j) {
     if (best_id >= 0 && cand_lower_[j] > next_exit_test) {
       if (certified_beyond(cand_lower_[j])) {
