@@ -16,7 +16,8 @@ constexpr double kUnit = 0x1p-53;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Sphere queries that found a point missing from the candidates before the walk
 // loads a neighbourhood twice as large (once per seed: a seed on the hull can
-// have spheres of any size, and the tree answers those).
+// have spheres of any size, and the tree answers those; growing a second time cost
+// 3-d, 4-d and 5-d seeds 0-11% more instructions).
 constexpr int kGrowAfterMisses = 3;
 
 // Certified sign of a dot product v whose monomial magnitudes sum to a, computed
@@ -582,7 +583,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
       for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
       if (missed_candidates_ >= kGrowAfterMisses && !grown_ && cand_id_.size() + 1 < ps_.size()) {
         // The tree keeps finding points the candidates lack: typical of seeds near
-        // the hull, whose Delaunay spheres are large. One larger neighbourhood is
+        // the hull, whose Delaunay spheres are large. A larger neighbourhood is
         // cheaper than a tree query per remaining wrap.
         cand_k_ *= 2;
         load_candidates(cand_k_);
