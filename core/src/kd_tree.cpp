@@ -22,9 +22,25 @@ KdTree::KdTree(const PointSet& points)
   adaptor_.coords = leaf_coords_.data();
 }
 
+// nanoflann's findNeighbors, minus its one allocation per query: with a runtime
+// dimension it builds a fresh std::vector of per-dimension box offsets each time.
+// The same two public steps (initial box distances, then searchLevel with eps = 0)
+// run here on a per-thread buffer, so the results, ties included, are nanoflann's.
+template <class ResultSet>
+void KdTree::search(const double* query, ResultSet& result) const {
+  if (index_->root_node == nullptr) return;  // no points
+  thread_local Index::distance_vector_t offsets;
+  offsets.assign(adaptor_.d, 0.0);  // allocates only when a thread first sees this d
+  const double distsq = index_->computeInitialDistances(*index_, query, offsets);
+  index_->searchLevel(result, query, index_->root_node, distsq, offsets, /*epsError=*/1.0f);
+}
+
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
                         const double** coords) const {
-  const std::size_t got = index_->knnSearch(query, k, ids, dist2);
+  nanoflann::KNNResultSet<double, std::uint32_t> result(k);
+  result.init(ids, dist2);
+  search(query, result);
+  const std::size_t got = result.size();
   for (std::size_t i = 0; i < got; ++i) {
     if (coords != nullptr) coords[i] = &leaf_coords_[ids[i] * adaptor_.d];
     ids[i] = id_of_[ids[i]];
@@ -33,8 +49,8 @@ std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, 
 }
 
 void KdTree::within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const {
-  out.clear();
-  index_->radiusSearch(query, r2, out, nanoflann::SearchParams(32, 0, /*sorted=*/false));
+  nanoflann::RadiusResultSet<double, std::uint32_t> result(r2, out);  // clears out
+  search(query, result);
   for (auto& [id, dist2] : out) id = id_of_[id];
 }
 

@@ -86,6 +86,9 @@ class KdTree {
                                                     Adaptor, -1, std::uint32_t>;
   using Node = typename Index::Node;
 
+  template <class ResultSet>
+  void search(const double* query, ResultSet& result) const;
+
   const PointSet& points_;
   Adaptor adaptor_;
   std::unique_ptr<Index> index_;
