@@ -58,9 +58,9 @@ class KdTree {
   void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
 
   // First point p found (in tree order) with `exact_side(p) == sigma` (or
-  // `exact_side(p, coordinates of p)`), or -1 if
-  // none. `normal` approximates the hyperplane's normal with certified error
-  // bounds; it prunes boxes only where no point can be strictly on side sigma.
+  // `exact_side(p, coordinates of p)`), or -1 if none. `normal` approximates the
+  // hyperplane's normal with certified error bounds; it prunes boxes only where no
+  // point can be strictly on side sigma.
   template <class ExactSide>
   std::int64_t any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const;
 

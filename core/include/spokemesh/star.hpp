@@ -154,7 +154,7 @@ class StarWalker {
   std::vector<double> cand_norm_;   // sqrt(cand_norm2_), for error bounds
   std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or Approx::kUnsafe
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
-  double r2_certified_ = 0;          // every unlisted point has exact |p - x|^2 >= this
+  double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
   int missed_candidates_ = 0;       // sphere queries that found a point beyond them
   bool grown_ = false;              // the neighbourhood was enlarged for this seed
