@@ -337,7 +337,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
       // certified()'s error factors for the two dot products (see spatial_side and
       // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
       const double n_eps = static_cast<double>(normal_depth + d + 3 + 3) * kUnit * 1.01;
-      const double h_eps = static_cast<double>(h_depth + (d + 3) + d + 4 + 3) * kUnit * 1.01;
+      const int h_depth_base = h_depth + d + 4 + 3;  // plus the candidate's |q|^2 depth
       double u_best = kInf;
       std::int64_t best_j = -1;
       contenders_.clear();
@@ -365,7 +365,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
         const double h_bound = h_mag_d * norm2 + h_mag * norm;
         double lo = 0, hi = kInf;
         if (h_bound >= 0x1p-900 && h_bound <= DBL_MAX) {
-          const double eh = h_bound * h_eps;
+          const double eh = h_bound * (static_cast<double>(h_depth_base + cand_depth_[j]) * kUnit * 1.01);
           if (n_certain) {
             lo = std::max(0.0, hv - eh) / (nv + en) * (1 - 1e-12);
             hi = (hv + eh) / (nv - en) * (1 + 1e-12);
