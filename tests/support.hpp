@@ -70,8 +70,10 @@ inline PointSet make_points(int d, std::vector<double> coords) {
 }
 
 inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_t begin = 0,
-                          std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed) {
+                          std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed,
+                          std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes) {
   MeshOptions options;
+  options.facet_cache_bytes = facet_cache_bytes;
   options.threads = threads;
   options.seed_begin = begin;
   options.seed_end = end;

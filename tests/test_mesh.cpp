@@ -9,9 +9,13 @@
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <fstream>
+#include <thread>
 
+#include "spokemesh/facet_cache.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "support.hpp"
@@ -21,6 +25,13 @@ namespace {
 
 using namespace spokemesh::testing;
 using Tuples = std::set<std::vector<std::uint32_t>>;
+
+std::uint64_t next_random(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
 
 // --- CGAL oracles (test-only; never linked into shipped binaries) -----------------
 
@@ -216,6 +227,94 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountAndCanonicallyOrdered) {
       ASSERT_TRUE(std::lexicographical_compare(one.begin() + i, one.begin() + i + w, one.begin() + i + w,
                                                one.begin() + i + 2 * w));
     }
+  }
+}
+
+// The FacetCache only saves work: with it, without it, and with a table so small that
+// it fills up early, every mesh (degenerate inputs included) is the same, for any
+// thread count.
+TEST(Mesh, FacetCacheChangesNoSimplex) {
+  for (const Case& c : cgal_cases()) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const Simplices without = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, /*facet_cache_bytes=*/0);
+    const std::size_t tiny = ps.size() * 4 + 1024 * (c.d + 3) * 4;  // the smallest table: 1,024 slots
+    EXPECT_EQ(mesh_all(tree, 1), without);
+    EXPECT_EQ(mesh_all(tree, 7), without);
+    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, tiny), without);
+    // A partial run shares only among its own seeds.
+    const auto third = static_cast<std::uint32_t>(ps.size() / 3);
+    EXPECT_EQ(mesh_all(tree, 2, third, 2 * third), mesh_all(tree, 2, third, 2 * third, 0x5eed, 0));
+  }
+}
+
+TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
+  // 3-d: facets are triples. Seeds [10, 100) are meshed.
+  FacetCache cache(3, 200, 10, 100, 1 << 20);
+  ASSERT_TRUE(cache.enabled());
+  const std::uint32_t f[3] = {12, 40, 150};
+  std::uint32_t across = 0;
+  cache.insert(40, f, cache.hash(f), 7, 9);  // no later vertex below 100: not kept
+  EXPECT_FALSE(cache.lookup(150, f, cache.hash(f), 7, across));
+  cache.insert(12, f, cache.hash(f), 7, FacetCache::kHull);  // 40 comes later: kept
+  EXPECT_FALSE(cache.lookup(12, f, cache.hash(f), 7, across)) << "no vertex before 12 can have recorded it";
+  ASSERT_TRUE(cache.lookup(40, f, cache.hash(f), 7, across));
+  EXPECT_EQ(across, FacetCache::kHull);
+  const std::uint32_t g[3] = {12, 40, 60};
+  cache.insert(12, g, cache.hash(g), 5, 6);
+  ASSERT_TRUE(cache.lookup(60, g, cache.hash(g), 6, across));
+  EXPECT_EQ(across, 5u);
+  EXPECT_FALSE(cache.lookup(60, g, cache.hash(g), 99, across)) << "an apex the facet does not have";
+  // Starts: 40 and 60 have one; 12 (the inserting seed) and 150 (not meshed) none.
+  std::uint32_t facet[3], a = 0, b = 0;
+  ASSERT_TRUE(cache.start(60, facet, a, b));
+  EXPECT_EQ(std::vector<std::uint32_t>(facet, facet + 3), std::vector<std::uint32_t>(g, g + 3));
+  EXPECT_EQ(std::make_pair(a, b), std::make_pair(5u, 6u));
+  EXPECT_TRUE(cache.start(40, facet, a, b));
+  EXPECT_FALSE(cache.start(12, facet, a, b));
+  EXPECT_FALSE(cache.start(150, facet, a, b));
+  // Too little memory for a table: disabled, every call a no-op.
+  FacetCache none(3, 200, 0, 200, 1000);
+  EXPECT_FALSE(none.enabled());
+  none.insert(0, g, none.hash(g), 5, 6);
+  EXPECT_FALSE(none.lookup(60, g, none.hash(g), 6, across));
+}
+
+TEST(FacetCache, ConcurrentWritersAndReadersSeeOnlyWholeEntries) {
+  // Four threads insert overlapping sets of 4-d facets (apexes derived from the key)
+  // while reading each other's; a table of 1,024 slots also overflows on purpose.
+  constexpr std::uint32_t kPoints = 4000;
+  for (std::size_t bytes : {std::size_t{8} << 20, std::size_t{kPoints} * 4 + 1024 * 7 * 4}) {
+    FacetCache cache(4, kPoints, 0, kPoints, bytes);
+    ASSERT_TRUE(cache.enabled());
+    std::atomic<std::uint64_t> found{0}, wrong{0};
+    auto work = [&](std::uint32_t t) {
+      std::uint64_t state = 1234 + t;
+      for (int i = 0; i < 20000; ++i) {
+        std::uint32_t f[4];
+        std::uint64_t r = next_random(state);
+        f[0] = static_cast<std::uint32_t>(r % 1000);
+        for (int c = 1; c < 4; ++c) f[c] = f[c - 1] + 1 + static_cast<std::uint32_t>((r >> (12 * c)) % 900);
+        const std::uint32_t a = f[3] + 1, b = (f[0] * 7 + f[3]) % 2 == 0 ? FacetCache::kHull : f[3] + 2;
+        cache.insert(f[0], f, cache.hash(f), a, b);
+        std::uint32_t across = 0;
+        if (cache.lookup(f[3], f, cache.hash(f), a, across)) {
+          ++found;
+          if (across != b) ++wrong;
+        }
+        std::uint32_t facet[4], sa = 0, sb = 0;
+        if (cache.start(f[2], facet, sa, sb)) {
+          const bool contains = std::find(facet, facet + 4, f[2]) != facet + 4;
+          if (!contains || sa != facet[3] + 1) ++wrong;
+        }
+      }
+    };
+    std::vector<std::thread> pool;
+    for (std::uint32_t t = 0; t < 4; ++t) pool.emplace_back(work, t % 2);  // two pairs race on the same keys
+    for (auto& th : pool) th.join();
+    EXPECT_EQ(wrong.load(), 0u);
+    EXPECT_GT(found.load(), 0u);
   }
 }
 

@@ -124,6 +124,7 @@ struct Common {
   bool quiet = false;
   bool merge_duplicates = false;
   std::uint64_t random_seed = 0x5eed;
+  std::size_t cache_mb = 1024;  // FacetCache cap for whole meshes
 };
 
 class Progress {
@@ -175,6 +176,7 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   MeshOptions options;
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
+  options.facet_cache_bytes = common.cache_mb << 20;
   if (!seeds.empty()) {
     const auto colon = seeds.find(':');
     try {
@@ -396,6 +398,10 @@ int main(int argc, char** argv) {
       ->required();
   mesh->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
   mesh->add_option("--seeds", seeds, "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index");
+  mesh->add_option("--cache-mb", common.cache_mb,
+                   "Memory cap (MiB) for sharing facets between the seeds' stars; 0 = none (same output, slower)")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
   mesh->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
   mesh->add_option("--shards", shards, "Remote mode: shards fetched in parallel")
       ->capture_default_str()

@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <deque>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -38,6 +39,16 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   const std::uint64_t blocks = (end - begin + block - 1) / block;
   const std::uint64_t window = 4ull * threads;  // blocks in flight beyond the next one to write
 
+  // Shared by every worker's walker: a facet wrapped in one star answers the same
+  // wrap in the stars of its other vertices.
+  std::optional<FacetCache> facets;
+  if (options.facet_cache_bytes != 0) {
+    facets.emplace(d, static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end),
+                   options.facet_cache_bytes);
+  }
+  StarOptions star_options = options.star;
+  if (facets && facets->enabled()) star_options.facets = &*facets;
+
   std::mutex mu;
   std::condition_variable worker_cv, writer_cv;
   std::deque<Block> ring;  // ring[i] is block (written + i)
@@ -46,7 +57,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   MeshStats total;
 
   auto worker = [&] {
-    StarWalker walker(tree, options.star);
+    StarWalker walker(tree, star_options);
     Star star;
     std::vector<std::uint32_t> out;
     for (;;) {
@@ -110,6 +121,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   for (auto& t : pool) t.join();
   if (!failure.is_ok()) return failure;
   total.seeds = end - begin;
+  total.facet_cache_bytes = facets ? facets->reserved_bytes() : 0;
   return total;
 }
 

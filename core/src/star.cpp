@@ -541,6 +541,38 @@ Status StarWalker::first_simplex(std::uint32_t* found, Approx* plane) {
   return Status::ok();
 }
 
+void StarWalker::ensure_candidates() {
+  if (loaded_) return;
+  load_candidates(cand_k_);
+  loaded_ = true;
+}
+
+void StarWalker::simplex_plane(const std::uint32_t* ids, Approx* out) {
+  switch (d_) {
+    case 2: return simplex_plane_kernel<2>(ids, out);
+    case 3: return simplex_plane_kernel<3>(ids, out);
+    case 4: return simplex_plane_kernel<4>(ids, out);
+    case 5: return simplex_plane_kernel<5>(ids, out);
+    case 6: return simplex_plane_kernel<6>(ids, out);
+    case 7: return simplex_plane_kernel<7>(ids, out);
+    default: return simplex_plane_kernel<8>(ids, out);
+  }
+}
+
+template <int D>
+void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, Approx* out) {
+  // The cofactors of the query row of det[ids; query], as plane_through in the wrap.
+  constexpr int cols = D + 1;
+  constexpr unsigned all = (1u << cols) - 1u;
+  std::array<Approx, D * cols> rows;
+  for (int r = 0; r < D; ++r) approx_row(ps_, x_, Row::of_point(ids[r]), cols, &rows[r * cols]);
+  minors_table_fixed<D, cols>(rows.data(), minors_.data());
+  for (int c = 0; c < cols; ++c) {
+    const Approx& m = minors_[all ^ (1u << c)];
+    out[c] = ((D + c) % 2 == 0) ? m : -m;
+  }
+}
+
 Status StarWalker::compute(std::uint32_t seed, Star& out) {
   const int d = d_;
   if (seed >= ps_.size()) {
@@ -550,58 +582,138 @@ Status StarWalker::compute(std::uint32_t seed, Star& out) {
   ++stats_.seeds;
   x_ = seed;
   cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d);
-  load_candidates(cand_k_);
+  loaded_ = false;
   missed_candidates_ = 0;
   grown_ = false;
-
-  std::array<std::uint32_t, kMaxCols> simplex{};
-  std::array<Approx, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
-  if (Status s = first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
+  FacetCache* const cache = options_.facets;
 
   work_.clear();
+  work_planes_.clear();
+  plane_known_.clear();
   simplex_seen_.reset(d);
   facet_seen_.reset(d - 1);
+  std::array<std::uint32_t, kMaxCols> simplex{};
   std::array<std::uint32_t, kMaxCols> key{};
-  std::copy(simplex.begin(), simplex.begin() + d, key.begin());
-  sort_small(key.data(), d);
-  simplex_seen_.insert(key.data());
-  work_.insert(work_.end(), simplex.begin(), simplex.begin() + d);
-  work_planes_.assign(plane.begin(), plane.begin() + d + 1);
-
+  std::array<Approx, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
   std::size_t hull = 0;
+  // Adds a simplex (d ids without x) to the star unless known; its plane if given.
+  auto add_simplex = [&](const std::uint32_t* ids, const Approx* with_plane) {
+    std::array<std::uint32_t, kMaxCols> sorted;
+    std::copy(ids, ids + d, sorted.begin());
+    sort_small(sorted.data(), d);
+    if (!simplex_seen_.insert(sorted.data())) return;
+    work_.insert(work_.end(), ids, ids + d);
+    if (with_plane != nullptr) {
+      work_planes_.insert(work_planes_.end(), with_plane, with_plane + d + 1);
+    } else {
+      work_planes_.resize(work_planes_.size() + static_cast<std::size_t>(d) + 1);
+    }
+    plane_known_.push_back(with_plane != nullptr ? 1 : 0);
+  };
+
+  // The facet key of x's star: the d - 1 other vertices of a facet, ascending; the
+  // cache's key is the whole facet, x included.
+  auto whole_facet = [&](const std::uint32_t* others, std::uint32_t* facet) {
+    int r = 0, i = 0;
+    for (; i < d - 1 && others[i] < x_; ++i) facet[r++] = others[i];
+    facet[r++] = x_;
+    for (; i < d - 1; ++i) facet[r++] = others[i];
+  };
+
+  // A start: a facet of x's star found by an earlier star, or recursive spokes.
+  std::uint32_t apex_a = 0, apex_b = 0;
+  std::array<std::uint32_t, kMaxCols> facet{};
+  if (cache != nullptr && cache->start(x_, facet.data(), apex_a, apex_b)) {
+    ++stats_.cached_starts;
+    int r = 0;
+    for (int i = 0; i < d; ++i) {
+      if (facet[i] != x_) key[r++] = facet[i];
+    }
+    facet_seen_.insert(key.data());  // the facet's wrap is known: a on one side, b on the other
+    key[d - 1] = apex_a;
+    add_simplex(key.data(), nullptr);
+    if (apex_b == FacetCache::kHull) {
+      ++hull;
+    } else {
+      key[d - 1] = apex_b;
+      add_simplex(key.data(), nullptr);
+    }
+  } else {
+    ensure_candidates();
+    if (Status s = first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
+    add_simplex(simplex.data(), plane.data());
+  }
+
   std::array<Row, kMaxCols> pivot;
+  // The facets of one simplex still to walk: the apex dropped, the other vertices
+  // (ascending, x excluded) and, with a cache, the whole facet and its hash.
+  struct Pending {
+    std::uint32_t apex;
+    std::array<std::uint32_t, kMaxCols> others;
+    std::array<std::uint32_t, kMaxCols> facet;
+    std::uint64_t hash;
+  };
+  std::array<Pending, kMaxCols> pending;
   for (std::size_t i = 0; i * d < work_.size(); ++i) {
     std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * d),
               work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), simplex.begin());
+    int count = 0;
     for (int k = 0; k < d; ++k) {
+      Pending& f = pending[count];
       int r = 0;
       for (int j = 0; j < d; ++j) {
-        if (j != k) key[r++] = simplex[j];
+        if (j != k) f.others[r++] = simplex[j];
       }
-      sort_small(key.data(), d - 1);
-      if (!facet_seen_.insert(key.data())) continue;  // this Voronoi edge was walked from the other end
-      for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(key[j]);
-      if (missed_candidates_ >= kGrowAfterMisses && !grown_ && cand_id_.size() + 1 < ps_.size()) {
-        // The tree keeps finding points the candidates lack: typical of seeds near
-        // the hull, whose Delaunay spheres are large. A larger neighbourhood is
-        // cheaper than a tree query per remaining wrap.
-        cand_k_ *= 2;
-        load_candidates(cand_k_);
-        grown_ = true;
+      sort_small(f.others.data(), d - 1);
+      if (!facet_seen_.insert(f.others.data())) continue;  // this Voronoi edge was walked from the other end
+      f.apex = simplex[k];
+      if (cache != nullptr) {
+        whole_facet(f.others.data(), f.facet.data());
+        f.hash = cache->hash(f.facet.data());
+        cache->prefetch(f.hash);  // the lookups below then overlap their cache misses
       }
-      const std::int64_t p = wrap(pivot.data(), Side{.away_from = simplex[k]}, &work_planes_[i * (d + 1)], plane.data());
-      if (p == -2) return cancelled("star computation cancelled");
+      ++count;
+    }
+    for (int t = 0; t < count; ++t) {
+      Pending& f = pending[t];
+      std::int64_t p = -1;
+      std::uint32_t across = 0;
+      if (cache != nullptr && cache->lookup(x_, f.facet.data(), f.hash, f.apex, across)) {
+        ++stats_.cached_wraps;
+        p = across == FacetCache::kHull ? -1 : static_cast<std::int64_t>(across);
+      } else {
+        ensure_candidates();
+        if (missed_candidates_ >= kGrowAfterMisses && !grown_ && cand_id_.size() + 1 < ps_.size()) {
+          // The tree keeps finding points the candidates lack: typical of seeds near
+          // the hull, whose Delaunay spheres are large. A larger neighbourhood is
+          // cheaper than a tree query per remaining wrap.
+          cand_k_ *= 2;
+          load_candidates(cand_k_);
+          grown_ = true;
+        }
+        Approx* reference = &work_planes_[i * (d + 1)];
+        if (plane_known_[i] == 0) {
+          simplex_plane(simplex.data(), reference);
+          plane_known_[i] = 1;
+        }
+        for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(f.others[j]);
+        p = wrap(pivot.data(), Side{.away_from = f.apex}, reference, plane.data());
+        if (p == -2) return cancelled("star computation cancelled");
+        if (cache != nullptr) {
+          cache->insert(x_, f.facet.data(), f.hash, f.apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
+        }
+        if (p >= 0) {
+          f.others[d - 1] = static_cast<std::uint32_t>(p);
+          add_simplex(f.others.data(), plane.data());
+          continue;
+        }
+      }
       if (p < 0) {
         ++hull;
         continue;
       }
-      key[d - 1] = static_cast<std::uint32_t>(p);
-      std::array<std::uint32_t, kMaxCols> sorted = key;
-      sort_small(sorted.data(), d);
-      if (simplex_seen_.insert(sorted.data())) {
-        work_.insert(work_.end(), key.begin(), key.begin() + d);
-        work_planes_.insert(work_planes_.end(), plane.begin(), plane.begin() + d + 1);
-      }
+      f.others[d - 1] = static_cast<std::uint32_t>(p);
+      add_simplex(f.others.data(), nullptr);
     }
   }
 

@@ -29,12 +29,16 @@ struct MeshOptions {
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
   std::uint32_t block_size = 0;     // seeds per block; 0 = automatic
+  // Cap on the FacetCache that lets the stars of this run share their wraps (see
+  // facet_cache.hpp): bytes, 0 to mesh without it. The output is the same either way.
+  std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
 };
 
 struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
+  std::size_t facet_cache_bytes = 0;  // reserved by the run's FacetCache
   StarStats star;
 };
 

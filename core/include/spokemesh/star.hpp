@@ -35,6 +35,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "spokemesh/facet_cache.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/status.hpp"
@@ -48,6 +49,9 @@ struct StarOptions {
   std::size_t initial_candidates = 0;
   // Checked between wraps; a set flag makes compute() return CANCELLED.
   const std::atomic<bool>* cancel = nullptr;
+  // Facets found by other stars of the same run (not owned; may be shared by many
+  // walkers). Only saves work: every star is the same with or without it.
+  FacetCache* facets = nullptr;
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).
@@ -58,6 +62,8 @@ struct StarStats {
   std::uint64_t exact_fallbacks = 0;
   std::uint64_t hull_queries = 0;    // k-d tree halfspace queries (unbounded Voronoi edges)
   std::uint64_t sphere_queries = 0;  // k-d tree queries certifying spheres beyond the candidates
+  std::uint64_t cached_wraps = 0;    // wraps answered by the FacetCache
+  std::uint64_t cached_starts = 0;   // stars begun at a FacetCache facet instead of by spokes
 
   StarStats& operator+=(const StarStats& o) {
     seeds += o.seeds;
@@ -66,6 +72,8 @@ struct StarStats {
     exact_fallbacks += o.exact_fallbacks;
     hull_queries += o.hull_queries;
     sphere_queries += o.sphere_queries;
+    cached_wraps += o.cached_wraps;
+    cached_starts += o.cached_starts;
     return *this;
   }
 };
@@ -116,6 +124,14 @@ class StarWalker {
   };
 
   void load_candidates(std::size_t k);
+  // Loads the seed's first candidates unless done (a star answered wholly by the
+  // FacetCache never needs them).
+  void ensure_candidates();
+  // The lifted plane through x and the d points `ids` (its orientation is arbitrary:
+  // a wrap's reference only needs every point on one side of it).
+  void simplex_plane(const std::uint32_t* ids, Approx* out);
+  template <int D>
+  void simplex_plane_kernel(const std::uint32_t* ids, Approx* out);
   // p - x rounded (p given by its coordinates), |p - x|^2 from it, and that sum's
   // rounding depth (or kUnsafe).
   void relative_row(const double* p, double* q, double& norm2, int& depth) const;
@@ -156,6 +172,7 @@ class StarWalker {
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
   double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
+  bool loaded_ = false;             // the candidates are loaded for this seed
   int missed_candidates_ = 0;       // sphere queries that found a point beyond them
   bool grown_ = false;              // the neighbourhood was enlarged for this seed
   std::vector<std::uint32_t> knn_ids_;
@@ -171,6 +188,7 @@ class StarWalker {
   std::vector<Contender> contenders_;  // a wrap's pencil-scan contenders
   std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
   std::vector<Approx> work_planes_;  // their lifted planes, d + 1 coefficients each
+  std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
 };
 

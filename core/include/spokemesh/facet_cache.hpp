@@ -1,0 +1,89 @@
+// FacetCache: the Delaunay facets found during one whole-mesh run, shared by its
+// workers, so that each facet's wrap is computed once instead of once per vertex.
+//
+// In the star walk a seed x rotates about every facet F of its star (d vertices, x
+// among them) to find the simplex on the far side; each of F's d vertices does so in
+// its own star, so a whole mesh computes every wrap d times. The answer, the apex b
+// across F from apex a, is an exact function of the point set (the predicates decide
+// it, with symbolic perturbation), so any star may take it from another's work: the
+// walk only runs fewer wraps, and every star, and so the mesh, is unchanged.
+//
+// The cache also remembers, per point, one facet that contains it ("a start"): a
+// seed with a start begins its walk at a known simplex instead of d levels of spokes.
+//
+// Memory: a fixed open-addressing table of d + 3 words per slot, sized from the
+// expected facet count and capped at `max_bytes`, plus 4 bytes per point. When the
+// table reaches its load limit it stops taking entries and the walk simply computes
+// what it cannot find: memory stays bounded whatever the point count. Pages are
+// zero-filled by the OS on first touch, so an unused part of the table costs nothing.
+//
+// Entries are never removed, so a slot, once published, is immutable.
+// Thread safety: all methods are safe to call concurrently and lock-free (a slot is
+// claimed with a compare-and-swap, filled, then published with a release store; a
+// reader that sees it acquires its contents). A reader that races a writer may miss
+// the entry and compute the wrap itself; it never sees a partial one.
+#pragma once
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+
+namespace spokemesh {
+
+class FacetCache {
+ public:
+  // The apex of a hull facet's missing side.
+  static constexpr std::uint32_t kHull = 0xFFFFFFFFu;
+
+  // d: dimension (2..8); n: point count; the run meshes seeds [begin, end);
+  // max_bytes caps the table and the per-point starts. A cap too small for a useful
+  // table gives a disabled cache (every call a no-op).
+  FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes);
+  ~FacetCache();
+  FacetCache(const FacetCache&) = delete;
+  FacetCache& operator=(const FacetCache&) = delete;
+
+  bool enabled() const { return capacity_ != 0; }
+  // Bytes reserved (address space; pages are committed as they are touched).
+  std::size_t reserved_bytes() const;
+
+  // A facet's hash (d ascending indices), for the calls below.
+  std::uint64_t hash(const std::uint32_t* facet) const;
+  // Starts loading the facet's first slot into the CPU cache: a walker announces a
+  // simplex's facets before it looks them up, so their memory latencies overlap.
+  void prefetch(std::uint64_t hash) const;
+  // The apex across `facet` (d ascending indices, x among them) from apex `from`, as
+  // found by an earlier star; kHull when the facet is on the convex hull. False when
+  // unknown (then the caller wraps and inserts the answer).
+  bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
+              std::uint32_t& across) const;
+  // Records the wrap from x's star: across `facet`, apexes a and b (b may be kHull).
+  // Only kept if another vertex of the facet is a seed still to come in this run.
+  void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
+  // A facet recorded by another star that contains x, with its two apexes: the
+  // simplices facet + a and facet + b (unless b is kHull) are in x's star.
+  bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const;
+
+ private:
+  struct Free {
+    void operator()(std::uint32_t* p) const;
+  };
+  std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
+  bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
+
+  int d_;
+  std::uint32_t n_, begin_, end_;
+  std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
+  std::size_t capacity_ = 0;  // slots (a power of two), 0 when disabled
+  std::size_t max_entries_ = 0;
+  std::unique_ptr<std::uint32_t[], Free> table_;
+  std::unique_ptr<std::uint32_t[], Free> starts_;  // per point: slot + 1, or 0
+  mutable std::atomic<std::size_t> entries_{0};
+};
+
+// Expected Delaunay facets per point for uniform points in dimension d (the table is
+// sized from it).
+double expected_facets_per_point(int d);
+
+}  // namespace spokemesh

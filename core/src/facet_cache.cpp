@@ -1,0 +1,160 @@
+#include "spokemesh/facet_cache.hpp"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cstdlib>
+
+#include "mixing.hpp"
+#include "spokemesh/point_set.hpp"
+
+namespace spokemesh {
+namespace {
+
+// Slot states (word 0): empty, being written, or a published entry's tag (>= 2).
+constexpr std::uint32_t kEmpty = 0, kWriting = 1;
+// Linear probing with at most this load, and at most this many probes per call, so
+// every call is bounded even when the table is full of colliding entries.
+constexpr double kMaxLoad = 0.7;
+constexpr std::size_t kMaxProbes = 64;
+// Below this many slots the cache is not worth its probes.
+constexpr std::size_t kMinSlots = 1024;
+
+using Word = std::atomic_ref<std::uint32_t>;
+
+std::uint32_t tag_of(std::uint64_t hash) {
+  const auto t = static_cast<std::uint32_t>(hash >> 32);
+  return t < 2 ? t + 2 : t;
+}
+
+}  // namespace
+
+double expected_facets_per_point(int d) {
+  // Delaunay simplices per point of uniform random points in the unit cube, as
+  // meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to 8-d: rough, they rise
+  // with n as the hull's share falls), times (d + 1) / 2 facets per simplex. An
+  // underestimate only fills the table sooner; then the walk computes the rest.
+  static constexpr std::array<double, kMaxDimension + 1> kSimplicesPerPoint = {0, 0, 2.0, 6.8, 31, 160, 900, 6000, 40000};
+  const int c = std::clamp(d, 2, kMaxDimension);
+  return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
+}
+
+void FacetCache::Free::operator()(std::uint32_t* p) const { std::free(p); }
+
+FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes)
+    : d_(d), n_(n), begin_(begin), end_(std::min(end, n)), stride_(static_cast<std::size_t>(d) + 3) {
+  const std::size_t starts_bytes = std::size_t{n} * sizeof(std::uint32_t);
+  if (d < 2 || d > kMaxDimension || begin_ >= end_ || max_bytes <= starts_bytes) return;
+  const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
+  const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
+  std::size_t slots = kMinSlots;
+  while (slots < wanted && slots * 2 <= affordable) slots *= 2;
+  if (slots > affordable) return;
+  // calloc: zero pages come from the OS as they are touched.
+  table_.reset(static_cast<std::uint32_t*>(std::calloc(slots * stride_, sizeof(std::uint32_t))));
+  starts_.reset(static_cast<std::uint32_t*>(std::calloc(std::max<std::size_t>(n, 1), sizeof(std::uint32_t))));
+  if (!table_ || !starts_) {
+    table_.reset();
+    starts_.reset();
+    return;
+  }
+  capacity_ = slots;
+  max_entries_ = static_cast<std::size_t>(static_cast<double>(slots) * kMaxLoad);
+}
+
+FacetCache::~FacetCache() = default;
+
+std::size_t FacetCache::reserved_bytes() const {
+  return enabled() ? (capacity_ * stride_ + n_) * sizeof(std::uint32_t) : 0;
+}
+
+bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const {
+  const std::uint32_t tag = tag_of(hash);
+  const std::size_t mask = capacity_ - 1;
+  s = static_cast<std::size_t>(hash) & mask;
+  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = (s + 1) & mask) {
+    std::uint32_t* w = slot(s);
+    const std::uint32_t state = Word(w[0]).load(std::memory_order_acquire);
+    if (state == kEmpty) return false;
+    if (state == tag && std::equal(facet, facet + d_, w + 1)) return true;
+  }
+  return false;
+}
+
+std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
+  return detail::hash_indices(facet, static_cast<std::size_t>(d_));
+}
+
+void FacetCache::prefetch(std::uint64_t hash) const {
+  if (enabled()) __builtin_prefetch(slot(static_cast<std::size_t>(hash) & (capacity_ - 1)));
+}
+
+bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
+                        std::uint32_t& across) const {
+  if (!enabled()) return false;
+  // Only a vertex meshed before x can have recorded the facet.
+  bool earlier = false;
+  for (int i = 0; i < d_; ++i) earlier |= facet[i] != x && facet[i] >= begin_ && facet[i] < x;
+  if (!earlier) return false;
+  std::size_t s;
+  if (!find(facet, hash, s)) return false;
+  const std::uint32_t* w = slot(s);
+  const std::uint32_t a = w[1 + d_], b = w[2 + d_];
+  if (from == a) {
+    across = b;
+    return true;
+  }
+  if (from == b) {
+    across = a;
+    return true;
+  }
+  return false;  // cannot happen for exact answers; compute rather than trust it
+}
+
+void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
+                        std::uint32_t b) {
+  if (!enabled()) return;
+  // Worth keeping only for a vertex still to be meshed in this run.
+  bool later = false;
+  for (int i = 0; i < d_; ++i) later |= facet[i] > x && facet[i] < end_;
+  if (!later) return;
+  if (entries_.fetch_add(1, std::memory_order_relaxed) >= max_entries_) return;  // full: compute from now on
+  const std::uint32_t tag = tag_of(hash);
+  const std::size_t mask = capacity_ - 1;
+  std::size_t s = static_cast<std::size_t>(hash) & mask;
+  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = (s + 1) & mask) {
+    std::uint32_t* w = slot(s);
+    std::uint32_t state = Word(w[0]).load(std::memory_order_acquire);
+    if (state == kEmpty && Word(w[0]).compare_exchange_strong(state, kWriting, std::memory_order_acquire)) {
+      std::copy(facet, facet + d_, w + 1);
+      w[1 + d_] = a;
+      w[2 + d_] = b;
+      Word(w[0]).store(tag, std::memory_order_release);
+      // Starts for the later vertices that have none yet (a lost race only replaces
+      // one valid start with another).
+      for (int i = 0; i < d_; ++i) {
+        if (facet[i] > x && facet[i] < end_) {
+          Word start(starts_[facet[i]]);
+          if (start.load(std::memory_order_relaxed) == 0) start.store(static_cast<std::uint32_t>(s + 1), std::memory_order_release);
+        }
+      }
+      return;
+    }
+    if (state == tag && std::equal(facet, facet + d_, w + 1)) return;  // another star got there first
+  }
+}
+
+bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const {
+  if (!enabled() || x >= n_) return false;
+  const std::uint32_t s1 = Word(starts_[x]).load(std::memory_order_acquire);
+  if (s1 == 0) return false;
+  std::uint32_t* w = slot(s1 - 1);
+  // Published before the start was stored; the acquire above makes it visible.
+  if (Word(w[0]).load(std::memory_order_acquire) < 2) return false;
+  std::copy(w + 1, w + 1 + d_, facet);
+  a = w[1 + d_];
+  b = w[2 + d_];
+  return true;
+}
+
+}  // namespace spokemesh
