@@ -22,17 +22,64 @@ KdTree::KdTree(const PointSet& points)
   adaptor_.coords = leaf_coords_.data();
 }
 
+// nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor) with the dimension a
+// compile-time constant. The index is built with a runtime dimension (one type for
+// every d), so its own search cannot unroll its distance loops or index the leaf
+// copy without a multiplication by d; in 2-d that made up half of a seed's time.
+// Same tree, same visiting order, same arithmetic in the same order, so the results,
+// ties included, are exactly nanoflann's.
+template <int D, class ResultSet>
+bool KdTree::search_level(const Node* node, ResultSet& result, const double* query, double mindistsq,
+                          double* offsets) const {
+  if (node->child1 == nullptr && node->child2 == nullptr) {
+    const double worst = result.worstDist();  // read once per leaf, as nanoflann does
+    for (auto i = node->node_type.lr.left; i < node->node_type.lr.right; ++i) {
+      const double* p = &leaf_coords_[i * static_cast<std::size_t>(D)];
+      double dist = 0;
+      for (int c = 0; c < D; ++c) {
+        const double diff = query[c] - p[c];
+        dist += diff * diff;
+      }
+      if (dist < worst && !result.addPoint(dist, static_cast<std::uint32_t>(i))) return false;
+    }
+    return true;
+  }
+  const auto feature = node->node_type.sub.divfeat;
+  const double value = query[feature];
+  const double low = node->node_type.sub.divlow, high = node->node_type.sub.divhigh;
+  const bool left_first = (value - low) + (value - high) < 0;
+  const Node* near = left_first ? node->child1 : node->child2;
+  const Node* far = left_first ? node->child2 : node->child1;
+  const double cut = left_first ? (value - high) * (value - high) : (value - low) * (value - low);
+  if (!search_level<D>(near, result, query, mindistsq, offsets)) return false;
+  const double saved = offsets[feature];
+  mindistsq = mindistsq + cut - saved;
+  offsets[feature] = cut;
+  if (mindistsq <= result.worstDist() && !search_level<D>(far, result, query, mindistsq, offsets)) return false;
+  offsets[feature] = saved;
+  return true;
+}
+
 // nanoflann's findNeighbors, minus its one allocation per query: with a runtime
 // dimension it builds a fresh std::vector of per-dimension box offsets each time.
-// The same two public steps (initial box distances, then searchLevel with eps = 0)
-// run here on a per-thread buffer, so the results, ties included, are nanoflann's.
+// The same two steps (initial box distances, then the search) run here on a
+// per-thread buffer, so the results, ties included, are nanoflann's.
 template <class ResultSet>
 void KdTree::search(const double* query, ResultSet& result) const {
   if (index_->root_node == nullptr) return;  // no points
   thread_local Index::distance_vector_t offsets;
   offsets.assign(adaptor_.d, 0.0);  // allocates only when a thread first sees this d
   const double distsq = index_->computeInitialDistances(*index_, query, offsets);
-  index_->searchLevel(result, query, index_->root_node, distsq, offsets, /*epsError=*/1.0f);
+  switch (adaptor_.d) {  // the one dispatch from the runtime dimension to compiled searches
+    case 2: search_level<2>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 3: search_level<3>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 4: search_level<4>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 5: search_level<5>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 6: search_level<6>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 7: search_level<7>(index_->root_node, result, query, distsq, offsets.data()); return;
+    case 8: search_level<8>(index_->root_node, result, query, distsq, offsets.data()); return;
+    default: index_->searchLevel(result, query, index_->root_node, distsq, offsets, /*epsError=*/1.0f);
+  }
 }
 
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,

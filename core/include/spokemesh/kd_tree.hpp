@@ -88,6 +88,8 @@ class KdTree {
 
   template <class ResultSet>
   void search(const double* query, ResultSet& result) const;
+  template <int D, class ResultSet>
+  bool search_level(const Node* node, ResultSet& result, const double* query, double mindistsq, double* offsets) const;
 
   const PointSet& points_;
   Adaptor adaptor_;
