@@ -5,6 +5,8 @@
 #include <atomic>
 #include <cstdlib>
 
+#include <sys/mman.h>
+
 #include "mixing.hpp"
 #include "spokemesh/point_set.hpp"
 
@@ -39,7 +41,22 @@ double expected_facets_per_point(int d) {
   return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
 }
 
-void FacetCache::Free::operator()(std::uint32_t* p) const { std::free(p); }
+namespace {
+
+// Zeroed memory straight from the OS: pages are committed on first touch, and huge
+// pages are requested because lookups land at random all over the table (with 4 KiB
+// pages nearly every lookup also missed the TLB). Null on failure.
+std::uint32_t* allocate_zeroed(std::size_t words, std::size_t& bytes) {
+  bytes = words * sizeof(std::uint32_t);
+  void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (p == MAP_FAILED) return nullptr;
+  ::madvise(p, bytes, MADV_HUGEPAGE);  // advice only: ignored where unsupported
+  return static_cast<std::uint32_t*>(p);
+}
+
+}  // namespace
+
+void FacetCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes)
     : d_(d), n_(n), begin_(begin), end_(std::min(end, n)), stride_(static_cast<std::size_t>(d) + 3) {
@@ -50,9 +67,9 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   std::size_t slots = kMinSlots;
   while (slots < wanted && slots * 2 <= affordable) slots *= 2;
   if (slots > affordable) return;
-  // calloc: zero pages come from the OS as they are touched.
-  table_.reset(static_cast<std::uint32_t*>(std::calloc(slots * stride_, sizeof(std::uint32_t))));
-  starts_.reset(static_cast<std::uint32_t*>(std::calloc(std::max<std::size_t>(n, 1), sizeof(std::uint32_t))));
+  std::size_t table_bytes = 0, starts_bytes_mapped = 0;
+  table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), Free{table_bytes});
+  starts_ = decltype(starts_)(allocate_zeroed(std::max<std::size_t>(n, 1), starts_bytes_mapped), Free{starts_bytes_mapped});
   if (!table_ || !starts_) {
     table_.reset();
     starts_.reset();

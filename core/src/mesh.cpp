@@ -4,6 +4,7 @@
 #include <condition_variable>
 #include <deque>
 #include <mutex>
+#include <numeric>
 #include <optional>
 #include <thread>
 #include <vector>
@@ -59,7 +60,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   auto worker = [&] {
     StarWalker walker(tree, star_options);
     Star star;
-    std::vector<std::uint32_t> out;
+    std::vector<std::uint32_t> out, found, order;
+    std::vector<std::pair<std::size_t, std::size_t>> extent;  // per seed of the block: its simplices in `found`
     for (;;) {
       std::uint64_t b;
       {
@@ -69,14 +71,29 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
         b = next_block++;
         if (ring.size() <= b - written) ring.resize(b - written + 1);
       }
-      out.clear();
-      Status status;
+      // The block's seeds in the tree's leaf order, so that consecutive stars query
+      // nearby parts of the tree and the point set (memory latency, not arithmetic,
+      // bounds a 2-d star); their owned simplices are then put back in seed order.
       const std::uint64_t lo = begin + b * block, hi = std::min(end, lo + block);
-      for (std::uint64_t s = lo; s < hi && status.is_ok(); ++s) {
-        status = walker.compute(static_cast<std::uint32_t>(s), star);
-        if (status.is_ok()) {
-          const auto owned = owned_simplices(star);
-          out.insert(out.end(), owned.begin(), owned.end());
+      order.resize(hi - lo);
+      std::iota(order.begin(), order.end(), static_cast<std::uint32_t>(lo));
+      std::sort(order.begin(), order.end(),
+                [&](std::uint32_t s, std::uint32_t t) { return tree.leaf_rank(s) < tree.leaf_rank(t); });
+      found.clear();
+      extent.resize(hi - lo);
+      Status status;
+      for (std::uint32_t s : order) {
+        status = walker.compute(s, star);
+        if (!status.is_ok()) break;
+        const auto owned = owned_simplices(star);
+        extent[s - lo] = {found.size(), owned.size()};
+        found.insert(found.end(), owned.begin(), owned.end());
+      }
+      out.clear();
+      if (status.is_ok()) {
+        for (const auto& [at, size] : extent) {
+          out.insert(out.end(), found.begin() + static_cast<std::ptrdiff_t>(at),
+                     found.begin() + static_cast<std::ptrdiff_t>(at + size));
         }
       }
       std::lock_guard lock(mu);

@@ -14,8 +14,9 @@
 // Memory: a fixed open-addressing table of d + 3 words per slot, sized from the
 // expected facet count and capped at `max_bytes`, plus 4 bytes per point. When the
 // table reaches its load limit it stops taking entries and the walk simply computes
-// what it cannot find: memory stays bounded whatever the point count. Pages are
-// zero-filled by the OS on first touch, so an unused part of the table costs nothing.
+// what it cannot find: memory stays bounded whatever the point count. The memory is
+// mapped from the OS (huge pages where available) and committed on first touch, so an
+// unused part of the table costs nothing.
 //
 // Entries are never removed, so a slot, once published, is immutable.
 // Thread safety: all methods are safe to call concurrently and lock-free (a slot is
@@ -67,6 +68,7 @@ class FacetCache {
 
  private:
   struct Free {
+    std::size_t bytes;  // of the mapping
     void operator()(std::uint32_t* p) const;
   };
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }

@@ -16,7 +16,7 @@
 // speak original point indices.
 //
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
-// (n * d doubles). Thread safety: immutable after construction; concurrent queries
+// (n * d doubles) and the permutation both ways (2 n indices). Thread safety: immutable after construction; concurrent queries
 // are safe.
 #pragma once
 
@@ -53,6 +53,10 @@ class KdTree {
   // to the PointSet's values, valid for the tree's lifetime).
   std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
                   const double** coords = nullptr) const;
+
+  // Position of point `id` in the tree's leaf order: points close in this order are
+  // close in space (for visiting seeds in a cache-friendly order).
+  std::uint32_t leaf_rank(std::uint32_t id) const { return rank_of_[id]; }
 
   // Every point p with nanoflann's squared distance to `query` <= r2 (unsorted).
   void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
@@ -96,6 +100,7 @@ class KdTree {
   std::unique_ptr<Index> index_;
   std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
   std::vector<std::uint32_t> id_of_;  // leaf position -> original index
+  std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
 };
 
 template <class MayContain, class Accept>
