@@ -83,7 +83,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       extent.resize(hi - lo);
       Status status;
       for (std::uint32_t s : order) {
-        status = walker.compute(s, star);
+        status = walker.compute(s, star, StarPart::kOwned);
         if (!status.is_ok()) break;
         const auto owned = owned_simplices(star);
         extent[s - lo] = {found.size(), owned.size()};

@@ -97,13 +97,18 @@ struct Star {
   bool bounded_cell() const { return hull_facets == 0; }
 };
 
+// Which simplices of a star compute() returns: all, or only those the seed owns (its
+// other vertices all have larger indices), which is all a whole mesh needs.
+enum class StarPart { kAll, kOwned };
+
 class StarWalker {
  public:
   explicit StarWalker(const KdTree& tree, StarOptions options = {});
 
-  // Computes the star of `seed` into `out` (its buffers are reused).
+  // Computes the star of `seed` into `out` (its buffers are reused); with kOwned,
+  // out.simplices keeps only the owned simplices (hull_facets still counts the star's).
   // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set.
-  Status compute(std::uint32_t seed, Star& out);
+  Status compute(std::uint32_t seed, Star& out, StarPart part = StarPart::kAll);
 
   const StarStats& stats() const { return stats_; }
 
