@@ -276,6 +276,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
 
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);
+  options.facet_cache_bytes = limits_.stream_cache_bytes;
   options.seed_begin = range.begin;
   options.seed_end = range.end;
   options.star.cancel = control.stop_flag();

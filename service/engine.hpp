@@ -36,6 +36,7 @@ struct Limits {
   std::uint64_t max_memory = 4ull << 30;      // bytes of point sets + trees kept in memory
   std::chrono::milliseconds default_deadline{60'000};
   unsigned stream_threads = 1;                // worker threads per StreamSimplices call
+  std::size_t stream_cache_bytes = 256u << 20;  // FacetCache cap per StreamSimplices call (0: none)
   std::size_t max_display_name = 256;
 };
 

@@ -50,7 +50,7 @@ int main(int argc, char** argv) {
   std::uint64_t max_points = 10'000'000;
   int max_dimension = 128;
   int max_concurrent = 64;
-  std::string max_memory = "4G", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
+  std::string max_memory = "4G", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
@@ -69,6 +69,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-memory", max_memory, "Memory for loaded point sets and trees; the least recently used are "
                                              "dropped from memory (they stay on disk)")->capture_default_str();
+  app.add_option("--stream-cache", stream_cache,
+                 "Memory per streamed shard for sharing facets between its seeds' stars (0 = none: same "
+                 "simplices, slower)")
+      ->capture_default_str();
   app.add_option("--default-deadline", default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
       ->capture_default_str();
   app.add_option("--drain-delay", drain,
@@ -99,10 +103,13 @@ int main(int argc, char** argv) {
   auto drain_ms = drain == "0" || drain == "0s" ? Result<std::chrono::milliseconds>(std::chrono::milliseconds(0))
                                                 : parse_duration(drain, "--drain-delay");
   auto body = parse_bytes(max_body, "--max-body-bytes");
-  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status()}) {
+  auto cache = stream_cache == "0" ? Result<std::uint64_t>(std::uint64_t{0}) : parse_bytes(stream_cache, "--stream-cache");
+  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status(),
+                          &cache.status()}) {
     if (!s->is_ok()) return usage_error(*s);
   }
   limits.max_memory = memory.value();
+  limits.stream_cache_bytes = static_cast<std::size_t>(cache.value());
   limits.default_deadline = deadline.value();
   if (tls_cert.empty() != tls_key.empty()) return usage_error(invalid_argument("--tls-cert and --tls-key go together"));
   if (!tls_client_ca.empty() && tls_cert.empty()) {

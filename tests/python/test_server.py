@@ -161,7 +161,9 @@ def test_errors_name_the_field_and_map_to_codes(start_server):
 def test_deadlines_and_cancellation(start_server):
     server = start_server("--default-deadline", "30s")
     client = spokemesh.Client(server.grpc)
-    big = client.upload(uniform(40000, 3, 8))
+    # Large enough that a whole shard takes seconds (with the facet cache, 40,000 points
+    # could finish before the dropped REST client was noticed).
+    big = client.upload(uniform(150000, 3, 8))
     with pytest.raises(spokemesh.Error) as e:
         client.shard(big.id, 0, 1, timeout=0.05)
     assert e.value.code == grpc.StatusCode.DEADLINE_EXCEEDED
