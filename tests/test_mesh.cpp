@@ -255,9 +255,10 @@ TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
   ASSERT_TRUE(cache.enabled());
   const std::uint32_t f[3] = {12, 40, 150};
   std::uint32_t across = 0;
-  cache.insert(40, f, cache.hash(f), 7, 9);  // no later vertex below 100: not kept
-  EXPECT_FALSE(cache.lookup(150, f, cache.hash(f), 7, across));
-  cache.insert(12, f, cache.hash(f), 7, FacetCache::kHull);  // 40 comes later: kept
+  EXPECT_FALSE(cache.wanted(40, f)) << "no later vertex below 100";
+  EXPECT_TRUE(cache.wanted(12, f)) << "40 comes later";
+  ASSERT_EQ(cache.reserve(2), 2u);
+  cache.insert(12, f, cache.hash(f), 7, FacetCache::kHull);
   EXPECT_FALSE(cache.lookup(12, f, cache.hash(f), 7, across)) << "no vertex before 12 can have recorded it";
   ASSERT_TRUE(cache.lookup(40, f, cache.hash(f), 7, across));
   EXPECT_EQ(across, FacetCache::kHull);
@@ -277,7 +278,14 @@ TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
   // Too little memory for a table: disabled, every call a no-op.
   FacetCache none(3, 200, 0, 200, 1000);
   EXPECT_FALSE(none.enabled());
-  none.insert(0, g, none.hash(g), 5, 6);
+  EXPECT_EQ(none.reserve(10), 0u);
+  // The smallest table, 1,024 slots, takes 716 entries (load 0.7), then no more.
+  FacetCache small(3, 200, 0, 200, 200 * 4 + 1024 * 6 * 4);
+  ASSERT_TRUE(small.enabled());
+  EXPECT_EQ(small.reserve(500), 500u);
+  EXPECT_EQ(small.reserve(500), 216u);
+  EXPECT_EQ(small.reserve(1), 0u);
+  EXPECT_FALSE(none.wanted(0, g));
   EXPECT_FALSE(none.lookup(60, g, none.hash(g), 6, across));
 }
 
@@ -297,7 +305,7 @@ TEST(FacetCache, ConcurrentWritersAndReadersSeeOnlyWholeEntries) {
         f[0] = static_cast<std::uint32_t>(r % 1000);
         for (int c = 1; c < 4; ++c) f[c] = f[c - 1] + 1 + static_cast<std::uint32_t>((r >> (12 * c)) % 900);
         const std::uint32_t a = f[3] + 1, b = (f[0] * 7 + f[3]) % 2 == 0 ? FacetCache::kHull : f[3] + 2;
-        cache.insert(f[0], f, cache.hash(f), a, b);
+        if (cache.wanted(f[0], f) && cache.reserve(1) == 1) cache.insert(f[0], f, cache.hash(f), a, b);
         std::uint32_t across = 0;
         if (cache.lookup(f[3], f, cache.hash(f), a, across)) {
           ++found;

@@ -136,14 +136,22 @@ bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64
   return false;  // cannot happen for exact answers; compute rather than trust it
 }
 
+std::size_t FacetCache::reserve(std::size_t count) {
+  if (!enabled()) return 0;
+  const std::size_t before = entries_.fetch_add(count, std::memory_order_relaxed);
+  return before >= max_entries_ ? 0 : std::min(count, max_entries_ - before);
+}
+
+bool FacetCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
+  if (!enabled()) return false;
+  bool later = false;
+  for (int i = 0; i < d_; ++i) later |= facet[i] > x && facet[i] < end_;
+  return later;
+}
+
 void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
                         std::uint32_t b) {
   if (!enabled()) return;
-  // Worth keeping only for a vertex still to be meshed in this run.
-  bool later = false;
-  for (int i = 0; i < d_; ++i) later |= facet[i] > x && facet[i] < end_;
-  if (!later) return;
-  if (entries_.fetch_add(1, std::memory_order_relaxed) >= max_entries_) return;  // full: compute from now on
   const std::uint32_t tag = tag_of(hash);
   const std::size_t mask = capacity_ - 1;
   std::size_t s = static_cast<std::size_t>(hash) & mask;

@@ -19,6 +19,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // have spheres of any size, and the tree answers those; growing a second time cost
 // 3-d, 4-d and 5-d seeds 0-11% more instructions).
 constexpr int kGrowAfterMisses = 3;
+// FacetCache entries a walker reserves at a time (one shared counter update per batch).
+constexpr std::size_t kCacheBatch = 256;
 
 // Certified sign of a dot product v whose monomial magnitudes sum to a, computed
 // with the given rounding depth; Approx::kUnknownSign when not certain. A product in
@@ -705,8 +707,12 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
         for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(f.others[j]);
         p = wrap(pivot.data(), Side{.away_from = f.apex}, reference, plane.data());
         if (p == -2) return cancelled("star computation cancelled");
-        if (cache != nullptr) {
-          cache->insert(x_, f.facet.data(), f.hash, f.apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
+        if (cache != nullptr && cache->wanted(x_, f.facet.data())) {
+          if (cache_credit_ == 0) cache_credit_ = cache->reserve(kCacheBatch);
+          if (cache_credit_ != 0) {
+            --cache_credit_;
+            cache->insert(x_, f.facet.data(), f.hash, f.apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
+          }
         }
         if (p >= 0) {
           f.others[d - 1] = static_cast<std::uint32_t>(p);

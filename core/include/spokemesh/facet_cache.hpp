@@ -59,8 +59,15 @@ class FacetCache {
   // unknown (then the caller wraps and inserts the answer).
   bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
               std::uint32_t& across) const;
-  // Records the wrap from x's star: across `facet`, apexes a and b (b may be kHull).
-  // Only kept if another vertex of the facet is a seed still to come in this run.
+  // Reserves up to `count` entries for the caller's inserts (fewer, or none, once the
+  // table is full). Callers reserve in batches so that threads do not contend for one
+  // shared counter on every insert.
+  std::size_t reserve(std::size_t count);
+  // Whether the wrap from x's star across `facet` is worth recording: some other
+  // vertex of the facet is a seed still to come in this run.
+  bool wanted(std::uint32_t x, const std::uint32_t* facet) const;
+  // Records that wrap: across `facet`, apexes a and b (b may be kHull). Uses one
+  // reserved entry; only call it when wanted().
   void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
   // A facet recorded by another star that contains x, with its two apexes: the
   // simplices facet + a and facet + b (unless b is kHull) are in x's star.

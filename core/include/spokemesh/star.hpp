@@ -178,6 +178,7 @@ class StarWalker {
   double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
   bool loaded_ = false;             // the candidates are loaded for this seed
+  std::size_t cache_credit_ = 0;    // FacetCache entries reserved and not yet used
   int missed_candidates_ = 0;       // sphere queries that found a point beyond them
   bool grown_ = false;              // the neighbourhood was enlarged for this seed
   std::vector<std::uint32_t> knn_ids_;
