@@ -21,6 +21,8 @@ constexpr double kMaxLoad = 0.7;
 constexpr std::size_t kMaxProbes = 64;
 // Below this many slots the cache is not worth its probes.
 constexpr std::size_t kMinSlots = 1024;
+// Starts store slot + 1 in 32 bits.
+constexpr std::size_t kMaxSlots = std::size_t{1} << 31;
 
 using Word = std::atomic_ref<std::uint32_t>;
 
@@ -73,7 +75,7 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
   const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
   std::size_t slots = kMinSlots;
-  while (slots < wanted && slots * 2 <= affordable) slots *= 2;
+  while (slots < wanted && slots * 2 <= affordable && slots * 2 <= kMaxSlots) slots *= 2;
   if (slots > affordable) return;
   std::size_t table_bytes = 0, starts_bytes_mapped = 0;
   table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), Free{table_bytes});
