@@ -8,7 +8,9 @@
 //
 // mesh_seeds() runs worker threads over blocks of seeds and hands finished blocks to
 // `sink` in seed order, on the calling thread. At most a fixed window of blocks is in
-// flight, so memory is the point set, the tree and a bounded buffer, never the mesh.
+// flight, so memory is the point set, the tree, a bounded buffer and the FacetCache
+// (capped by facet_cache_bytes), never the mesh. The workers' stars share their wraps
+// through that cache; each star, and so the output, is the same without it.
 //
 // Thread safety: mesh_seeds() is safe to call concurrently on the same tree.
 #pragma once
