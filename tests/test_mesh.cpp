@@ -26,12 +26,6 @@ namespace {
 using namespace spokemesh::testing;
 using Tuples = std::set<std::vector<std::uint32_t>>;
 
-std::uint64_t next_random(std::uint64_t& state) {
-  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
 
 // --- CGAL oracles (test-only; never linked into shipped binaries) -----------------
 
@@ -298,10 +292,10 @@ TEST(FacetCache, ConcurrentWritersAndReadersSeeOnlyWholeEntries) {
     ASSERT_TRUE(cache.enabled());
     std::atomic<std::uint64_t> found{0}, wrong{0};
     auto work = [&](std::uint32_t t) {
-      std::uint64_t state = 1234 + t;
+      std::mt19937_64 rng(1234 + t);
       for (int i = 0; i < 20000; ++i) {
         std::uint32_t f[4];
-        std::uint64_t r = next_random(state);
+        const std::uint64_t r = rng();
         f[0] = static_cast<std::uint32_t>(r % 1000);
         for (int c = 1; c < 4; ++c) f[c] = f[c - 1] + 1 + static_cast<std::uint32_t>((r >> (12 * c)) % 900);
         const std::uint32_t a = f[3] + 1, b = (f[0] * 7 + f[3]) % 2 == 0 ? FacetCache::kHull : f[3] + 2;

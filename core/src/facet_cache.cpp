@@ -26,14 +26,6 @@ constexpr std::size_t kMaxSlots = std::size_t{1} << 31;
 
 using Word = std::atomic_ref<std::uint32_t>;
 
-// Ids compared inline: std::equal becomes a memcmp call, slow for 2-8 ids.
-bool same_ids(const std::uint32_t* a, const std::uint32_t* b, int n) {
-  for (int i = 0; i < n; ++i) {
-    if (a[i] != b[i]) return false;
-  }
-  return true;
-}
-
 std::uint32_t tag_of(std::uint64_t hash) {
   const auto t = static_cast<std::uint32_t>(hash >> 32);
   return t < 2 ? t + 2 : t;
@@ -103,7 +95,7 @@ bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_
     std::uint32_t* w = slot(s);
     const std::uint32_t state = Word(w[0]).load(std::memory_order_acquire);
     if (state == kEmpty) return false;
-    if (state == tag && same_ids(facet, w + 1, d_)) return true;
+    if (state == tag && detail::same_indices(facet, w + 1, static_cast<std::size_t>(d_))) return true;
   }
   return false;
 }
@@ -175,7 +167,7 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
       }
       return;
     }
-    if (state == tag && same_ids(facet, w + 1, d_)) return;  // another star got there first
+    if (state == tag && detail::same_indices(facet, w + 1, static_cast<std::size_t>(d_))) return;  // another star got there first
   }
 }
 

@@ -28,4 +28,13 @@ inline std::uint64_t hash_indices(const std::uint32_t* key, std::size_t length) 
   return h ^ (h >> 32);
 }
 
+// Equality of two index tuples of length n, compared inline: std::equal becomes a
+// memcmp call, which is slower for the 1-9 ids of a simplex or facet key.
+inline bool same_indices(const std::uint32_t* a, const std::uint32_t* b, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) {
+    if (a[i] != b[i]) return false;
+  }
+  return true;
+}
+
 }  // namespace spokemesh::detail

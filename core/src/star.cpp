@@ -92,9 +92,7 @@ bool StarWalker::TupleSet::insert(const std::uint32_t* key) {
   std::size_t s = hash(key) & mask;
   while (slots_[s] >= 0) {
     const std::uint32_t* other = &keys_[static_cast<std::size_t>(slots_[s]) * length_];
-    int i = 0;
-    while (i < length_ && key[i] == other[i]) ++i;  // (std::equal calls memcmp: slower at 1-8 ids)
-    if (i == length_) return false;
+    if (detail::same_indices(key, other, static_cast<std::size_t>(length_))) return false;
     s = (s + 1) & mask;
   }
   slots_[s] = static_cast<std::int32_t>(count_++);
