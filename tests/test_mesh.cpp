@@ -269,6 +269,17 @@ TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
   EXPECT_TRUE(cache.start(40, facet, a, b));
   EXPECT_FALSE(cache.start(12, facet, a, b));
   EXPECT_FALSE(cache.start(150, facet, a, b));
+  // Blocks of 10 seeds whose insides run in any order: within a block, a lower index
+  // may come later (and record for a higher one), and is looked up too.
+  FacetCache blocks(3, 200, 0, 200, 1 << 20, /*block=*/10);
+  const std::uint32_t h[3] = {5, 12, 15};
+  EXPECT_TRUE(blocks.wanted(15, h)) << "12 shares 15's block, so it may come later";
+  EXPECT_FALSE(FacetCache(3, 200, 0, 200, 1 << 20).wanted(15, h)) << "in index order 5 and 12 came before";
+  ASSERT_EQ(blocks.reserve(1), 1u);
+  blocks.insert(15, h, blocks.hash(h), 3, 4);
+  ASSERT_TRUE(blocks.lookup(12, h, blocks.hash(h), 4, across)) << "15 shares 12's block";
+  EXPECT_EQ(across, 3u);
+  EXPECT_TRUE(blocks.start(12, facet, a, b));
   // Too little memory for a table: disabled, every call a no-op.
   FacetCache none(3, 200, 0, 200, 1000);
   EXPECT_FALSE(none.enabled());

@@ -60,8 +60,10 @@ std::uint32_t* allocate_zeroed(std::size_t words, std::size_t& bytes) {
 
 void FacetCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
 
-FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes)
-    : d_(d), n_(n), begin_(begin), end_(std::min(end, n)), stride_(static_cast<std::size_t>(d) + 3) {
+FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+                       std::uint32_t block)
+    : d_(d), n_(n), begin_(begin), end_(std::min(end, n)), block_(std::max(block, 1u)),
+      stride_(static_cast<std::size_t>(d) + 3) {
   const std::size_t starts_bytes = std::size_t{n} * sizeof(std::uint32_t);
   if (d < 2 || d > kMaxDimension || begin_ >= end_ || max_bytes <= starts_bytes) return;
   const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
@@ -100,6 +102,16 @@ bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_
   return false;
 }
 
+bool FacetCache::maybe_before(std::uint32_t v, std::uint32_t x) const {
+  if (v == x || v < begin_ || v >= end_) return false;
+  return v < x || (v - begin_) / block_ == (x - begin_) / block_;
+}
+
+bool FacetCache::maybe_after(std::uint32_t v, std::uint32_t x) const {
+  if (v == x || v < begin_ || v >= end_) return false;
+  return v > x || (v - begin_) / block_ == (x - begin_) / block_;
+}
+
 std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
   return detail::hash_indices(facet, static_cast<std::size_t>(d_));
 }
@@ -113,7 +125,7 @@ bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64
   if (!enabled()) return false;
   // Only a vertex meshed before x can have recorded the facet.
   bool earlier = false;
-  for (int i = 0; i < d_; ++i) earlier |= facet[i] != x && facet[i] >= begin_ && facet[i] < x;
+  for (int i = 0; i < d_; ++i) earlier |= maybe_before(facet[i], x);
   if (!earlier) return false;
   std::size_t s;
   if (!find(facet, hash, s)) return false;
@@ -139,7 +151,7 @@ std::size_t FacetCache::reserve(std::size_t count) {
 bool FacetCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
   if (!enabled()) return false;
   bool later = false;
-  for (int i = 0; i < d_; ++i) later |= facet[i] > x && facet[i] < end_;
+  for (int i = 0; i < d_; ++i) later |= maybe_after(facet[i], x);
   return later;
 }
 
@@ -160,7 +172,7 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
       // Starts for the later vertices that have none yet (a lost race only replaces
       // one valid start with another).
       for (int i = 0; i < d_; ++i) {
-        if (facet[i] > x && facet[i] < end_) {
+        if (maybe_after(facet[i], x)) {
           Word start(starts_[facet[i]]);
           if (start.load(std::memory_order_relaxed) == 0) start.store(static_cast<std::uint32_t>(s + 1), std::memory_order_release);
         }

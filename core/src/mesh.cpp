@@ -34,9 +34,15 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   const std::uint64_t end = std::clamp<std::uint64_t>(options.seed_end, begin, n);
   const unsigned threads = std::max(1u, options.threads);
   const int d = tree.points().dimension();
-  // Blocks small enough to balance and to show progress, large enough to amortise.
-  const std::uint64_t block =
-      options.block_size != 0 ? options.block_size : std::clamp<std::uint64_t>((end - begin) / (threads * 64) + 1, 1, d <= 3 ? 4096 : 256);
+  // Blocks small enough to balance, to show progress and to bound the work a stalled
+  // reader leaves buffered, large enough to amortise. In 2-d, whose stars are cheapest,
+  // larger blocks also keep the leaf order below dense (1M points: blocks of 31,250
+  // seeds instead of 4,096 took 11% off); in 3-d they gained nothing measurable.
+  const std::uint64_t per_thread = d == 2 ? 16 : 64;
+  const std::uint64_t block = options.block_size != 0
+                                  ? options.block_size
+                                  : std::clamp<std::uint64_t>((end - begin) / (threads * per_thread) + 1, 1,
+                                                              d == 2 ? 32768 : d == 3 ? 4096 : 256);
   const std::uint64_t blocks = (end - begin + block - 1) / block;
   const std::uint64_t window = 4ull * threads;  // blocks in flight beyond the next one to write
 
@@ -45,7 +51,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   std::optional<FacetCache> facets;
   if (options.facet_cache_bytes != 0) {
     facets.emplace(d, static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end),
-                   options.facet_cache_bytes);
+                   options.facet_cache_bytes, static_cast<std::uint32_t>(block));
   }
   StarOptions star_options = options.star;
   if (facets && facets->enabled()) star_options.facets = &*facets;

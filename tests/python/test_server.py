@@ -337,7 +337,7 @@ def test_a_stalled_reader_stalls_the_shard(server):
     transport's windows and the engine's bounded window are full (a few MB here),
     instead of the server computing and buffering the rest of the shard."""
     client = spokemesh.Client(server.grpc)
-    ps = client.upload(uniform(200000, 3, 12))  # about 20 CPU-seconds of meshing
+    ps = client.upload(uniform(200000, 3, 12))  # about 6 CPU-seconds of meshing
     stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
     start = cpu_seconds(server.proc.pid)
     stream = stub.StreamSimplices(pb.StreamSimplicesRequest(point_set_id=ps.id, batch_size=256), timeout=600)

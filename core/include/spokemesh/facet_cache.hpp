@@ -37,10 +37,12 @@ class FacetCache {
   // The apex of a hull facet's missing side.
   static constexpr std::uint32_t kHull = 0xFFFFFFFFu;
 
-  // d: dimension (2..8); n: point count; the run meshes seeds [begin, end);
-  // max_bytes caps the table and the per-point starts. A cap too small for a useful
-  // table gives a disabled cache (every call a no-op).
-  FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes);
+  // d: dimension (2..8); n: point count; the run meshes seeds [begin, end) in blocks
+  // of `block` seeds, in block order, each block's seeds in any order; max_bytes caps
+  // the table and the per-point starts. A cap too small for a useful table gives a
+  // disabled cache (every call a no-op).
+  FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+             std::uint32_t block = 1);
   ~FacetCache();
   FacetCache(const FacetCache&) = delete;
   FacetCache& operator=(const FacetCache&) = delete;
@@ -80,9 +82,13 @@ class FacetCache {
   };
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
   bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
+  // Seeds v != x of this run that may be meshed before (after) x: in an earlier
+  // (later) block, or in x's own block, whose order is unknown.
+  bool maybe_before(std::uint32_t v, std::uint32_t x) const;
+  bool maybe_after(std::uint32_t v, std::uint32_t x) const;
 
   int d_;
-  std::uint32_t n_, begin_, end_;
+  std::uint32_t n_, begin_, end_, block_;
   std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
   std::size_t capacity_ = 0;  // slots (a power of two), 0 when disabled
   std::size_t max_entries_ = 0;
