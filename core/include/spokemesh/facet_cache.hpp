@@ -66,7 +66,7 @@ class FacetCache {
   // shared counter on every insert.
   std::size_t reserve(std::size_t count);
   // Whether the wrap from x's star across `facet` is worth recording: some other
-  // vertex of the facet is a seed still to come in this run.
+  // vertex of the facet is a seed that may come later in this run.
   bool wanted(std::uint32_t x, const std::uint32_t* facet) const;
   // Records that wrap: across `facet`, apexes a and b (b may be kHull). Uses one
   // reserved entry; only call it when wanted().
