@@ -28,22 +28,8 @@ using Word = std::atomic_ref<std::uint32_t>;
 
 std::uint32_t tag_of(std::uint64_t hash) {
   const auto t = static_cast<std::uint32_t>(hash >> 32);
-  return t < 2 ? t + 2 : t;
+  return t <= kWriting ? t + 2 : t;  // never empty or being written
 }
-
-}  // namespace
-
-double expected_facets_per_point(int d) {
-  // Delaunay simplices per point of uniform random points in the unit cube, as
-  // meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to 8-d: rough, they rise
-  // with n as the hull's share falls), times (d + 1) / 2 facets per simplex. An
-  // underestimate only fills the table sooner; then the walk computes the rest.
-  static constexpr std::array<double, kMaxDimension + 1> kSimplicesPerPoint = {0, 0, 2.0, 6.8, 31, 160, 900, 6000, 40000};
-  const int c = std::clamp(d, 2, kMaxDimension);
-  return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
-}
-
-namespace {
 
 // Zeroed memory straight from the OS: pages are committed on first touch, and huge
 // pages are requested because lookups land at random all over the table (with 4 KiB
@@ -54,6 +40,18 @@ std::uint32_t* allocate_zeroed(std::size_t words, std::size_t& bytes) {
   if (p == MAP_FAILED) return nullptr;
   ::madvise(p, bytes, MADV_HUGEPAGE);  // advice only: ignored where unsupported
   return static_cast<std::uint32_t*>(p);
+}
+
+// Expected Delaunay facets per point for uniform points in dimension d (the table is
+// sized from it).
+double expected_facets_per_point(int d) {
+  // Delaunay simplices per point of uniform random points in the unit cube, as
+  // meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to 8-d: rough, they rise
+  // with n as the hull's share falls), times (d + 1) / 2 facets per simplex. An
+  // underestimate only fills the table sooner; then the walk computes the rest.
+  static constexpr std::array<double, kMaxDimension + 1> kSimplicesPerPoint = {0, 0, 2.0, 6.8, 31, 160, 900, 6000, 40000};
+  const int c = std::clamp(d, 2, kMaxDimension);
+  return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
 }
 
 }  // namespace
@@ -189,7 +187,7 @@ bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, 
   if (s1 == 0) return false;
   std::uint32_t* w = slot(s1 - 1);
   // Published before the start was stored; the acquire above makes it visible.
-  if (Word(w[0]).load(std::memory_order_acquire) < 2) return false;
+  if (Word(w[0]).load(std::memory_order_acquire) <= kWriting) return false;
   std::copy(w + 1, w + 1 + d_, facet);
   a = w[1 + d_];
   b = w[2 + d_];

@@ -97,8 +97,4 @@ class FacetCache {
   mutable std::atomic<std::size_t> entries_{0};
 };
 
-// Expected Delaunay facets per point for uniform points in dimension d (the table is
-// sized from it).
-double expected_facets_per_point(int d);
-
 }  // namespace spokemesh
