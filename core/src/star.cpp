@@ -21,6 +21,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr int kGrowAfterMisses = 3;
 // FacetCache entries a walker reserves at a time (one shared counter update per batch).
 constexpr std::size_t kCacheBatch = 256;
+// Candidates per chunk of the pencil scan's vectorized dot products.
+constexpr std::size_t kPencilChunk = 16;
 
 // Certified sign of a dot product v whose monomial magnitudes sum to a, computed
 // with the given rounding depth; Approx::kUnknownSign when not certain. A product in
@@ -44,6 +46,74 @@ inline void sort_small(std::uint32_t* a, int n) {
     for (; j > 0 && a[j - 1] > v; --j) a[j] = a[j - 1];
     a[j] = v;
   }
+}
+
+// One wrap's pencil (see wrap_kernel, step 1a): the rotation's vertical normal nn
+// and reference plane h, with the magnitudes and depths of their error bounds.
+struct Pencil {
+  const double* nn;    // d coefficients
+  const double* h;     // d + 1 coefficients
+  double n_mag, h_mag, h_mag_d;
+  double n_eps;        // relative error factor of nn . q
+  double h_depth_base; // rounding depth of h(q), less the candidate's |q|^2 depth
+};
+
+// Two doubles and two 64-bit lane masks: GCC/Clang vector extensions, which lower to
+// SSE2 on any x86-64 (plain loops with comparisons are not vectorized by GCC 12).
+using Double2 = double __attribute__((vector_size(16)));
+using Mask2 = std::int64_t __attribute__((vector_size(16)));
+inline Double2 load2(const double* p) {
+  Double2 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void store2(double* p, Double2 v) { std::memcpy(p, &v, sizeof v); }
+
+// The pencil scan's filter for kPencilChunk candidates stored column-major in
+// `block` (d coordinate rows, then |q|^2, |q| and the |q|^2 depth; rows `stride`
+// apart). Writes nv_j = nn . q_j and hv_j = h_d |q_j|^2 + h . q_j, summed in the
+// same order as a row-by-row loop, and the offsets of the first `limit` candidates
+// that can still be the first hit to `keep`; returns their number. Rejected are only
+// candidates certainly on the wrong side (nn . q < 0) or certainly met after u_best
+// (certified lambda_c > u_best), with the bounds of the scalar scan in wrap_kernel;
+// anything uncertain is kept for it. Branch-free, two candidates per operation.
+template <int D>
+std::size_t pencil_filter(const double* block, std::size_t stride, const Pencil& pencil, double u_best,
+                          std::size_t limit, double* nv, double* hv, std::uint8_t* keep) {
+  const double* norm2 = block + D * stride;
+  const double* norm = norm2 + stride;
+  const double* depth = norm + stride;
+  std::array<std::int64_t, kPencilChunk> reject;
+  for (std::size_t i = 0; i < kPencilChunk; i += 2) {
+    Double2 n = pencil.nn[0] * load2(block + i);
+    Double2 h = pencil.h[D] * load2(norm2 + i) + pencil.h[0] * load2(block + i);
+    for (int c = 1; c < D; ++c) {
+      const Double2 q = load2(block + static_cast<std::size_t>(c) * stride + i);
+      n += pencil.nn[c] * q;
+      h += pencil.h[c] * q;
+    }
+    store2(nv + i, n);
+    store2(hv + i, h);
+    const Double2 n_bound = pencil.n_mag * load2(norm + i);
+    const Double2 en = n_bound * pencil.n_eps;
+    const Double2 h_bound = pencil.h_mag_d * load2(norm2 + i) + pencil.h_mag * load2(norm + i);
+    const Double2 eh = h_bound * ((pencil.h_depth_base + load2(depth + i)) * (kUnit * 1.01));
+    const Double2 h_low = h - eh;
+    const Double2 lo_num = (h_low > 0 ? h_low : 0.0) * (1 - 1e-12), lo_den = n + en;
+    const Mask2 n_safe = (n_bound >= 0x1p-900) & (n_bound <= DBL_MAX);
+    const Mask2 h_safe = (h_bound >= 0x1p-900) & (h_bound <= DBL_MAX);
+    const Mask2 wrong_side = n < -en;
+    const Mask2 after_best = h_safe & (lo_den > 0) & (lo_num > u_best * lo_den * (1 + 1e-15));
+    const Mask2 r = n_safe & (wrong_side | after_best);
+    reject[i] = r[0];
+    reject[i + 1] = r[1];
+  }
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < limit; ++i) {
+    keep[kept] = static_cast<std::uint8_t>(i);
+    kept += reject[i] == 0 ? 1 : 0;
+  }
+  return kept;
 }
 
 // Uniform in [-1, 1), exactly representable (53 random bits).
@@ -138,6 +208,18 @@ void StarWalker::load_candidates(std::size_t k) {
     cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
   }
   cand_q_.resize(kept * d_);
+  // Column-major copy for the pencil scan's filter (d coordinate rows, |q|^2, |q|,
+  // the |q|^2 depth with kUnsafe as +inf), zero-padded to whole chunks (padding is
+  // never a candidate: the scan stops at `kept`).
+  cand_stride_ = (kept + kPencilChunk - 1) / kPencilChunk * kPencilChunk;
+  cand_block_.assign(cand_stride_ * static_cast<std::size_t>(d_ + 3), 0.0);
+  for (std::size_t i = 0; i < kept; ++i) {
+    for (int c = 0; c < d_; ++c) cand_block_[static_cast<std::size_t>(c) * cand_stride_ + i] = cand_q_[i * d_ + c];
+    double* extra = &cand_block_[static_cast<std::size_t>(d_) * cand_stride_ + i];
+    extra[0] = cand_norm2_[i];
+    extra[cand_stride_] = cand_norm_[i];
+    extra[2 * cand_stride_] = cand_depth_[i] >= Approx::kUnsafe ? kInf : cand_depth_[i];
+  }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
 }
 
@@ -347,48 +429,63 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
       double u_best = kInf;
       std::int64_t best_j = -1;
       contenders_.clear();
-      for (; j < count; ++j) {
+      const Pencil pencil{nn.data(), h.data(), n_mag, h_mag, h_mag_d, n_eps, static_cast<double>(h_depth_base)};
+      std::array<double, kPencilChunk> nvs, hvs;
+      std::array<std::uint8_t, kPencilChunk> keep;
+      // Chunk by chunk: the filter rejects most candidates branch-free; the rest are
+      // bracketed one by one. Every candidate before j is a contender or certainly
+      // not the first hit, which is all step 1b relies on.
+      bool stopped = false;
+      while (j < count && !stopped) {
         if (best_j >= 0 && cand_lower_[j] > next_exit_test) break;  // estimate; certified below
-        if (cand_depth_[j] >= Approx::kUnsafe) break;
-        const std::uint32_t id = cand_id_[j];
-        ++stats_.candidate_tests;
-        const double* q = &cand_q_[j * d];
-        const double norm2 = cand_norm2_[j], norm = cand_norm_[j];
-        // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
-        // uncertain branch has to skip the pivot explicitly.
-        double nv = 0;
-        for (int c = 0; c < d; ++c) nv += nn[c] * q[c];
-        const double n_bound = n_mag * norm;
-        const double en = n_bound * n_eps;
-        bool n_certain = n_bound >= 0x1p-900 && n_bound <= DBL_MAX;
-        if (n_certain && nv < -en) continue;
-        if (!n_certain || !(nv > en)) {
-          if (is_pivot(id) || spatial_side(q, id) != sigma) continue;  // decided exactly
-          n_certain = false;
-        }
-        double hv = h[d] * norm2;
-        for (int c = 0; c < d; ++c) hv += h[c] * q[c];
-        const double h_bound = h_mag_d * norm2 + h_mag * norm;
-        double lo = 0, hi = kInf;
-        if (h_bound >= 0x1p-900 && h_bound <= DBL_MAX) {
-          const double eh = h_bound * (static_cast<double>(h_depth_base + cand_depth_[j]) * kUnit * 1.01);
-          if (n_certain) {
-            lo = std::max(0.0, hv - eh) / (nv + en) * (1 - 1e-12);
-            hi = (hv + eh) / (nv - en) * (1 + 1e-12);
-          } else if (nv + en > 0) {
-            lo = std::max(0.0, hv - eh) / (nv + en) * (1 - 1e-12);
+        const std::size_t chunk = j, limit = std::min(kPencilChunk, count - j);
+        const std::size_t kept =
+            pencil_filter<D>(&cand_block_[chunk], cand_stride_, pencil, u_best, limit, nvs.data(), hvs.data(), keep.data());
+        stats_.candidate_tests += limit;
+        j = chunk + limit;
+        for (std::size_t k = 0; k < kept; ++k) {
+          const std::size_t i = chunk + keep[k];
+          if ((best_j >= 0 && cand_lower_[i] > next_exit_test) || cand_depth_[i] >= Approx::kUnsafe) {
+            j = i;  // step 1b goes on from here
+            stopped = true;
+            break;
           }
-        }
-        if (lo > u_best) continue;
-        contenders_.push_back({static_cast<std::uint32_t>(j), lo});
-        if (hi < u_best) {
-          u_best = hi;
-          best_j = static_cast<std::int64_t>(j);
-          // (2r)^2 of the plane through this candidate, estimated from lambda_c.
-          const double lambda = hv / nv;
-          double slope2 = 0;
-          for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
-          next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
+          const std::uint32_t id = cand_id_[i];
+          const double norm2 = cand_norm2_[i], norm = cand_norm_[i];
+          const double nv = nvs[keep[k]], hv = hvs[keep[k]];
+          // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
+          // uncertain branch has to skip the pivot explicitly.
+          const double n_bound = n_mag * norm;
+          const double en = n_bound * n_eps;
+          bool n_certain = n_bound >= 0x1p-900 && n_bound <= DBL_MAX;
+          if (n_certain && nv < -en) continue;
+          if (!n_certain || !(nv > en)) {
+            if (is_pivot(id) || spatial_side(&cand_q_[i * d], id) != sigma) continue;  // decided exactly
+            n_certain = false;
+          }
+          const double h_bound = h_mag_d * norm2 + h_mag * norm;
+          double lo = 0, hi = kInf;
+          if (h_bound >= 0x1p-900 && h_bound <= DBL_MAX && (n_certain || nv + en > 0)) {
+            const double eh = h_bound * (static_cast<double>(h_depth_base + cand_depth_[i]) * kUnit * 1.01);
+            const double lo_den = nv + en;  // > 0
+            // As in pencil_filter: lo > u_best without a division (the 1e-15 covers
+            // the product's rounding; u_best = inf never rejects).
+            const double lo_num = std::max(0.0, hv - eh) * (1 - 1e-12);
+            if (lo_num > u_best * lo_den * (1 + 1e-15)) continue;
+            lo = lo_num / lo_den;
+            if (n_certain) hi = (hv + eh) / (nv - en) * (1 + 1e-12);
+          }
+          if (lo > u_best) continue;
+          contenders_.push_back({static_cast<std::uint32_t>(i), lo});
+          if (hi < u_best) {
+            u_best = hi;
+            best_j = static_cast<std::int64_t>(i);
+            // (2r)^2 of the plane through this candidate, estimated from lambda_c.
+            const double lambda = hv / nv;
+            double slope2 = 0;
+            for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
+            next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
+          }
         }
       }
       // The exact winner among the contenders still in reach of the best bracket

@@ -172,6 +172,8 @@ class StarWalker {
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;      // p - x, rounded, row-major
   std::vector<double> cand_norm2_;  // |p - x|^2 as computed from cand_q_
+  std::vector<double> cand_block_;  // the pencil scan's column-major copy (see load_candidates)
+  std::size_t cand_stride_ = 0;     // candidate count rounded up to whole pencil-scan chunks
   std::vector<double> cand_norm_;   // sqrt(cand_norm2_), for error bounds
   std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or Approx::kUnsafe
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
