@@ -1,5 +1,6 @@
 #include "spokemesh/kd_tree.hpp"
 
+#include <algorithm>
 #include <numeric>
 
 namespace spokemesh {
@@ -22,6 +23,41 @@ KdTree::KdTree(const PointSet& points)
   }
   std::iota(index_->vAcc.begin(), index_->vAcc.end(), std::uint32_t{0});
   adaptor_.coords = leaf_coords_.data();
+  if (index_->root_node != nullptr) add_box_nodes(index_->root_node);
+}
+
+std::size_t KdTree::add_box_nodes(const Node* node) {
+  const std::size_t d = adaptor_.d;
+  const std::size_t at = box_nodes_.size();
+  box_nodes_.push_back({});
+  box_bounds_.resize(box_bounds_.size() + 2 * d);
+  BoxNode box{};
+  if (node->child1 == nullptr && node->child2 == nullptr) {
+    box.begin = static_cast<std::uint32_t>(node->node_type.lr.left);
+    box.end = static_cast<std::uint32_t>(node->node_type.lr.right);
+    double* lo = &box_bounds_[at * 2 * d];
+    double* hi = lo + d;
+    std::copy_n(&leaf_coords_[box.begin * d], d, lo);
+    std::copy_n(&leaf_coords_[box.begin * d], d, hi);
+    for (std::uint32_t k = box.begin + 1; k < box.end; ++k) {
+      for (std::size_t c = 0; c < d; ++c) {
+        lo[c] = std::min(lo[c], leaf_coords_[k * d + c]);
+        hi[c] = std::max(hi[c], leaf_coords_[k * d + c]);
+      }
+    }
+  } else {
+    const std::size_t left = add_box_nodes(node->child1);
+    const std::size_t right = add_box_nodes(node->child2);
+    box.begin = box_nodes_[left].begin;
+    box.end = box_nodes_[right].end;
+    double* lo = &box_bounds_[at * 2 * d];
+    const double* a = &box_bounds_[left * 2 * d];
+    const double* b = &box_bounds_[right * 2 * d];
+    for (std::size_t c = 0; c < 2 * d; ++c) lo[c] = c < d ? std::min(a[c], b[c]) : std::max(a[c], b[c]);
+  }
+  box.skip = static_cast<std::uint32_t>(box_nodes_.size());
+  box_nodes_[at] = box;
+  return at;
 }
 
 // nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor) with the dimension a

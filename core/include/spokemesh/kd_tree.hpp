@@ -5,7 +5,7 @@
 // conservative bounds: see kDistanceMargin.
 //
 // any_beyond() answers "is there a point strictly on side sigma of the hyperplane
-// through x with normal n?", pruning boxes of nanoflann's tree by a conservative
+// through x with normal n?", pruning the tree's tight boxes by a conservative
 // floating-point bound and deciding each surviving point with an exact predicate.
 // RSD uses it to certify hull facets (unbounded Voronoi edges) globally instead of
 // by growing the neighbourhood.
@@ -13,10 +13,12 @@
 // Layout: after nanoflann builds its tree, the coordinates are copied in the tree's
 // leaf order and nanoflann's index permutation is reset to the identity, so every
 // leaf's points are contiguous in memory (the tree itself is unchanged). Queries
-// speak original point indices.
+// speak original point indices. find_first and any_beyond walk a flattened copy
+// of the tree with each node's tight bounding box.
 //
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
-// (n * d doubles) and the permutation both ways (2 n indices). Thread safety: immutable after construction; concurrent queries
+// (n * d doubles), the permutation both ways (2 n indices) and the box tree (about
+// n / 4 nodes of 2 d doubles and 3 indices). Thread safety: immutable after construction; concurrent queries
 // are safe.
 #pragma once
 
@@ -94,6 +96,17 @@ class KdTree {
   void search(const double* query, ResultSet& result) const;
   template <int D, class ResultSet>
   bool search_level(const Node* node, ResultSet& result, const double* query, double mindistsq, double* offsets) const;
+  // Appends `node`'s subtree to the box tree; returns the node's position.
+  std::size_t add_box_nodes(const Node* node);
+
+  // nanoflann's tree again, flattened in preorder (left child first) with each
+  // node's tight bounding box, for find_first: a subtree is the leaf-order range
+  // [begin, end), and `skip` is the position just past it (a leaf: its own + 1).
+  // Tight boxes prune far better than the split planes nanoflann keeps, most of all
+  // for the large spheres of seeds near the hull (5-d: 3x fewer nodes visited).
+  struct BoxNode {
+    std::uint32_t begin, end, skip;
+  };
 
   const PointSet& points_;
   Adaptor adaptor_;
@@ -101,52 +114,33 @@ class KdTree {
   std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
   std::vector<std::uint32_t> id_of_;  // leaf position -> original index
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
+  std::vector<BoxNode> box_nodes_;
+  std::vector<double> box_bounds_;  // per box node: d lows, then d highs
 };
 
 template <class MayContain, class Accept>
 std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const {
-  // Depth first with an explicit stack; each frame carries its box (nanoflann keeps
-  // only the split values), stored in a fixed pool: no allocation per query.
-  const int d = points().dimension();
-  constexpr int kMaxDepth = 128;  // nanoflann's tree depth is O(log n)
-  const Node* nodes[kMaxDepth];
-  thread_local std::vector<double> pool;
-  if (pool.size() < static_cast<std::size_t>(kMaxDepth * 2 * d)) pool.resize(kMaxDepth * 2 * d);
-  auto boxes = [&](int i) { return pool.data() + static_cast<std::size_t>(i) * 2 * d; };
-  int top = 0;
-  nodes[0] = index_->root_node;
-  for (int c = 0; c < d; ++c) {
-    boxes(0)[c] = index_->root_bbox[c].low;
-    boxes(0)[d + c] = index_->root_bbox[c].high;
-  }
-  while (top >= 0) {
-    const Node* node = nodes[top];
-    double* box = boxes(top);
-    if (!may_contain(box, box + d)) {
-      --top;
+  // Stackless preorder walk of the box tree: a rejected box jumps past its subtree.
+  const std::size_t d = static_cast<std::size_t>(points().dimension());
+  const std::size_t count = box_nodes_.size();
+  for (std::size_t i = 0; i < count;) {
+    const BoxNode& node = box_nodes_[i];
+    const double* lo = &box_bounds_[i * 2 * d];
+    if (!may_contain(lo, lo + d)) {
+      i = node.skip;
       continue;
     }
-    if (node->child1 == nullptr && node->child2 == nullptr) {
-      --top;
-      for (auto k = node->node_type.lr.left; k < node->node_type.lr.right; ++k) {
+    if (node.skip == i + 1) {  // a leaf
+      for (std::uint32_t k = node.begin; k < node.end; ++k) {
         const std::uint32_t p = id_of_[k];
         if constexpr (std::is_invocable_v<Accept&, std::uint32_t, const double*>) {
-          if (accept(p, &leaf_coords_[k * static_cast<std::size_t>(d)])) return p;
+          if (accept(p, &leaf_coords_[k * d])) return p;
         } else {
           if (accept(p)) return p;
         }
       }
-      continue;
     }
-    if (top + 2 >= kMaxDepth) return -1;  // unreachable for trees of fewer than 2^100 points
-    const int feature = node->node_type.sub.divfeat;
-    // Replace this frame by its right child and push the left one (visited first).
-    std::copy(box, box + 2 * d, boxes(top + 1));
-    box[feature] = node->node_type.sub.divhigh;  // right child: lo[feature]
-    nodes[top] = node->child2;
-    boxes(top + 1)[d + feature] = node->node_type.sub.divlow;  // left child: hi[feature]
-    nodes[top + 1] = node->child1;
-    ++top;
+    ++i;
   }
   return -1;
 }
