@@ -737,6 +737,9 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     std::copy(ids, ids + d, sorted.begin());
     sort_small(sorted.data(), d);
     if (!simplex_seen_.insert(sorted.data())) return;
+    // Its walk will read these points' coordinates, scattered in input order: start
+    // the loads now so they overlap the work queued before it.
+    for (int k = 0; k < d; ++k) __builtin_prefetch(ps_.point(ids[k]));
     work_.insert(work_.end(), ids, ids + d);
     if (with_plane != nullptr) {
       work_planes_.insert(work_planes_.end(), with_plane, with_plane + d + 1);
