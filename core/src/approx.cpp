@@ -4,6 +4,8 @@
 #include <gmpxx.h>
 
 #include <algorithm>
+#include <array>
+#include <cstring>
 #include <cmath>
 #include <limits>
 #include <queue>
@@ -11,6 +13,7 @@
 #include <unordered_set>
 
 #include "mixing.hpp"
+#include "simd.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
@@ -41,6 +44,38 @@ struct TupleHash {
     return static_cast<std::size_t>(detail::hash_indices(v.data(), v.size()));
   }
 };
+
+// Candidates per chunk of shoot()'s vectorized prefilter.
+constexpr std::size_t kRayChunk = 16;
+
+// shoot()'s prefilter over kRayChunk candidates with precomputed dot products: marks
+// (keep[i] = 1) those that may be met before t_best, i.e. e.q > 0 and
+// 0 < t = (|q|^2 - 2 y.q) / (2 e.q) < t_best, tested without dividing and with a
+// 1e-12 margin, so it keeps every candidate the scalar test (which then decides)
+// would accept. Branch-free, V's lanes at a time.
+template <class V, class M>
+[[gnu::always_inline]] inline void ray_prefilter_lanes(const double* q2, const double* yq, const double* eq,
+                                                       double t_best, std::uint8_t* keep) {
+  constexpr std::size_t kLanes = sizeof(V) / sizeof(double);
+  for (std::size_t i = 0; i < kRayChunk; i += kLanes) {
+    V a, b, c;
+    std::memcpy(&a, q2 + i, sizeof a);
+    std::memcpy(&b, yq + i, sizeof b);
+    std::memcpy(&c, eq + i, sizeof c);
+    const V num = a - 2 * b, den = 2 * c;
+    const M m = (c > 0) & (num > 0) & (num < t_best * den * (1 + 1e-12));
+    for (std::size_t k = 0; k < kLanes; ++k) keep[i + k] = m[k] != 0 ? 1 : 0;
+  }
+}
+
+void ray_prefilter_sse2(const double* q2, const double* yq, const double* eq, double t_best, std::uint8_t* keep) {
+  ray_prefilter_lanes<detail::Double2, detail::Mask2>(q2, yq, eq, t_best, keep);
+}
+
+__attribute__((target("avx2"))) void ray_prefilter_avx2(const double* q2, const double* yq, const double* eq,
+                                                         double t_best, std::uint8_t* keep) {
+  ray_prefilter_lanes<detail::Double4, detail::Mask4>(q2, yq, eq, t_best, keep);
+}
 
 }  // namespace
 
@@ -110,7 +145,24 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
   const std::size_t count = cand_id_.size();
   std::size_t j = 0;
   if (yq != nullptr) {
-    for (; j < dotted && cand_norm2_[j] <= reach2; ++j) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
+    // Whole chunks through the prefilter; each candidate still goes through the same
+    // reach test and, if kept, consider_dots, in order: the same result as without.
+    const auto prefilter = detail::has_avx2() ? &ray_prefilter_avx2 : &ray_prefilter_sse2;
+    std::array<std::uint8_t, kRayChunk> keep;
+    bool reached = false;
+    for (; j + kRayChunk <= dotted && !reached; ) {
+      prefilter(&cand_norm2_[j], &yq[j], &eq_list[j], t_best, keep.data());
+      for (std::size_t i = 0; i < kRayChunk; ++i, ++j) {
+        if (!(cand_norm2_[j] <= reach2)) {
+          reached = true;
+          break;
+        }
+        if (keep[i] != 0) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
+      }
+    }
+    for (; !reached && j < dotted && cand_norm2_[j] <= reach2; ++j) {
+      consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
+    }
   }
   for (; j < count && cand_norm2_[j] <= reach2; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
   if (j == count && reach2 > cand_radius2_) {
@@ -134,8 +186,7 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
           const double lower = std::max(0.0, dist2 - y2) / (2 * reach_e);
           return lower < t_best * (1 + 1e-9);
         },
-        [&](std::uint32_t id) {
-          const double* p = ps_.point(id);
+        [&](std::uint32_t id, const double* p) {  // p: the tree's leaf-ordered copy
           double q2 = 0;
           for (int c = 0; c < d; ++c) {
             scratch_[c] = p[c] - x[c];

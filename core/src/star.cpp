@@ -7,6 +7,7 @@
 #include <numeric>
 
 #include "mixing.hpp"
+#include "simd.hpp"
 
 namespace spokemesh {
 namespace {
@@ -58,13 +59,10 @@ struct Pencil {
   double h_depth_base; // rounding depth of h(q), less the candidate's |q|^2 depth
 };
 
-// Doubles and 64-bit lane masks, two or four at a time: GCC/Clang vector extensions
-// (plain loops with comparisons are not vectorized by GCC 12). Two lanes are SSE2,
-// which every x86-64 has; four are used when the CPU has AVX2 (see pencil_filter).
-using Double2 = double __attribute__((vector_size(16)));
-using Mask2 = std::int64_t __attribute__((vector_size(16)));
-using Double4 = double __attribute__((vector_size(32)));
-using Mask4 = std::int64_t __attribute__((vector_size(32)));
+using detail::Double2;
+using detail::Double4;
+using detail::Mask2;
+using detail::Mask4;
 
 // The pencil scan's filter for kPencilChunk candidates stored column-major in
 // `block` (d coordinate rows, then |q|^2, |q| and the |q|^2 depth; rows `stride`
@@ -137,12 +135,10 @@ __attribute__((target("avx2"))) std::size_t pencil_filter_avx2(const double* blo
 using PencilFilter = std::size_t (*)(const double*, std::size_t, const Pencil&, double, std::size_t, double*, double*,
                                      std::uint8_t*);
 
-// The widest filter this CPU runs (AVX2 has no FMA, and -ffp-contract=off keeps
-// products and sums separate, so every variant computes the same bits).
+// The widest filter this CPU runs (same bits either way: simd.hpp).
 template <int D>
 PencilFilter pencil_filter() {
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  return avx2 ? &pencil_filter_avx2<D> : &pencil_filter_sse2<D>;
+  return detail::has_avx2() ? &pencil_filter_avx2<D> : &pencil_filter_sse2<D>;
 }
 
 // Uniform in [-1, 1), exactly representable (53 random bits).
