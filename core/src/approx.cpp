@@ -169,20 +169,35 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     // The hit (or its absence) is not decided by the list: branch and bound over the
     // k-d tree. A box can hold a point hit before t_best only if
     //   t >= max(0, dist(x + y, box)^2 - |y|^2) / (2 max_{q in box} e . (q - x))
-    // is smaller (numerator: |q - y|^2 - |y|^2; denominator: 2 e . (q - x)).
+    // is smaller (numerator: |q - y|^2 - |y|^2; denominator: 2 e . (q - x)); only if
+    // it reaches beyond the listed radius (listed points were considered); and, once
+    // a hit is known, only if it meets the ball through x centred at the hit's end
+    // z = y + t_best e: along the ray, |q - z(t)|^2 - |z(t)|^2 is affine in t and not
+    // negative at t = 0 (y is on the boundary of x's cell), so a point met before
+    // t_best is strictly inside that ball.
     const double* x = ps_.point(x_);
     const double y2 = dot(y, y, d);
     scratch_.resize(static_cast<std::size_t>(d));
     tree_.find_first(
         [&](const double* lo, const double* hi) {
-          double dist2 = 0, reach_e = 0;
+          double dist2 = 0, reach_e = 0, far2 = 0, ball_gap2 = 0, z2 = 0;
+          const bool hit = t_best < kInf;
           for (int c = 0; c < d; ++c) {
             const double yc = x[c] + y[c];
             const double gap = yc < lo[c] ? lo[c] - yc : (yc > hi[c] ? yc - hi[c] : 0.0);
             dist2 += gap * gap;
             reach_e += std::max(e[c] * (lo[c] - x[c]), e[c] * (hi[c] - x[c]));
+            const double far = std::max(std::fabs(lo[c] - x[c]), std::fabs(hi[c] - x[c]));
+            far2 += far * far;
+            if (hit) {
+              const double z = y[c] + t_best * e[c], zc = x[c] + z;
+              const double zgap = zc < lo[c] ? lo[c] - zc : (zc > hi[c] ? zc - hi[c] : 0.0);
+              ball_gap2 += zgap * zgap;
+              z2 += z * z;
+            }
           }
-          if (!(reach_e > 0)) return false;
+          if (!(reach_e > 0) || far2 * (1 + 1e-9) < cand_radius2_) return false;
+          if (hit && ball_gap2 > z2 * (1 + 1e-9)) return false;
           const double lower = std::max(0.0, dist2 - y2) / (2 * reach_e);
           return lower < t_best * (1 + 1e-9);
         },
