@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <rapidcheck/gtest.h>
 
+#include <cmath>
 #include <numeric>
 
 #include "support.hpp"
@@ -72,6 +73,31 @@ TEST(Star, EqualsBruteForceWithTinyNeighbourhoodsAndFarCoordinates) {
         ASSERT_EQ(star_set(walker, seed, c.d), brute_force_star(ps, seed)) << "seed " << seed;
       }
       EXPECT_GT(walker.stats().sphere_queries, 0u);
+    }
+  }
+}
+
+// Scaling by a power of two changes no predicate, so the stars must not change. At
+// 2^250 the coordinates are beyond float's range and at 2^-250 below its smallest
+// value: the k-d tree keeps its boxes as floats rounded outwards, and the tiny
+// neighbourhood sends most wraps to those boxes.
+TEST(Star, UnchangedByPowerOfTwoScalingBeyondFloatRange) {
+  for (const int d : {2, 3}) {
+    const std::vector<double> base = uniform_points(d, 24, 31 + d);
+    const PointSet ps = make_points(d, base);
+    const KdTree tree(ps);
+    StarWalker walker(tree, StarOptions{.initial_candidates = 2});
+    for (const int e : {250, -250}) {
+      SCOPED_TRACE("d " + std::to_string(d) + " scale 2^" + std::to_string(e));
+      std::vector<double> scaled = base;
+      for (double& v : scaled) v = std::ldexp(v, e);
+      const PointSet ps_scaled = make_points(d, scaled);
+      const KdTree tree_scaled(ps_scaled);
+      StarWalker walker_scaled(tree_scaled, StarOptions{.initial_candidates = 2});
+      for (std::uint32_t seed = 0; seed < ps.size(); ++seed) {
+        ASSERT_EQ(star_set(walker_scaled, seed, d), star_set(walker, seed, d)) << "seed " << seed;
+      }
+      EXPECT_GT(walker_scaled.stats().sphere_queries, 0u);
     }
   }
 }

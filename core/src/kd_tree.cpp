@@ -1,6 +1,8 @@
 #include "spokemesh/kd_tree.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace spokemesh {
@@ -26,6 +28,28 @@ KdTree::KdTree(const PointSet& points)
   if (index_->root_node != nullptr) add_box_nodes(index_->root_node);
 }
 
+namespace {
+
+// The float nearest to v on the side away from the box's inside (boxes stay
+// conservative after rounding). Coordinates reach 1e100, beyond float's range: those
+// are clamped before the conversion (a double outside it has no float value).
+constexpr double kFloatMax = std::numeric_limits<float>::max();
+constexpr float kFloatInf = std::numeric_limits<float>::infinity();
+float float_down(double v) {
+  if (v > kFloatMax) return std::numeric_limits<float>::max();
+  if (v < -kFloatMax) return -kFloatInf;
+  const float f = static_cast<float>(v);
+  return static_cast<double>(f) > v ? std::nextafter(f, -kFloatInf) : f;
+}
+float float_up(double v) {
+  if (v < -kFloatMax) return -std::numeric_limits<float>::max();
+  if (v > kFloatMax) return kFloatInf;
+  const float f = static_cast<float>(v);
+  return static_cast<double>(f) < v ? std::nextafter(f, kFloatInf) : f;
+}
+
+}  // namespace
+
 std::size_t KdTree::add_box_nodes(const Node* node) {
   const std::size_t d = adaptor_.d;
   const std::size_t at = box_nodes_.size();
@@ -35,24 +59,25 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
   if (node->child1 == nullptr && node->child2 == nullptr) {
     box.begin = static_cast<std::uint32_t>(node->node_type.lr.left);
     box.end = static_cast<std::uint32_t>(node->node_type.lr.right);
-    double* lo = &box_bounds_[at * 2 * d];
-    double* hi = lo + d;
-    std::copy_n(&leaf_coords_[box.begin * d], d, lo);
-    std::copy_n(&leaf_coords_[box.begin * d], d, hi);
-    for (std::uint32_t k = box.begin + 1; k < box.end; ++k) {
-      for (std::size_t c = 0; c < d; ++c) {
-        lo[c] = std::min(lo[c], leaf_coords_[k * d + c]);
-        hi[c] = std::max(hi[c], leaf_coords_[k * d + c]);
+    float* lo = &box_bounds_[at * 2 * d];
+    float* hi = lo + d;
+    for (std::size_t c = 0; c < d; ++c) {
+      double low = std::numeric_limits<double>::infinity(), high = -low;  // an empty leaf: an empty box
+      for (std::uint32_t k = box.begin; k < box.end; ++k) {
+        low = std::min(low, leaf_coords_[k * d + c]);
+        high = std::max(high, leaf_coords_[k * d + c]);
       }
+      lo[c] = float_down(low);
+      hi[c] = float_up(high);
     }
   } else {
     const std::size_t left = add_box_nodes(node->child1);
     const std::size_t right = add_box_nodes(node->child2);
     box.begin = box_nodes_[left].begin;
     box.end = box_nodes_[right].end;
-    double* lo = &box_bounds_[at * 2 * d];
-    const double* a = &box_bounds_[left * 2 * d];
-    const double* b = &box_bounds_[right * 2 * d];
+    float* lo = &box_bounds_[at * 2 * d];
+    const float* a = &box_bounds_[left * 2 * d];
+    const float* b = &box_bounds_[right * 2 * d];
     for (std::size_t c = 0; c < 2 * d; ++c) lo[c] = c < d ? std::min(a[c], b[c]) : std::max(a[c], b[c]);
   }
   box.skip = static_cast<std::uint32_t>(box_nodes_.size());

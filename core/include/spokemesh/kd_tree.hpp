@@ -18,12 +18,13 @@
 //
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
 // (n * d doubles), the permutation both ways (2 n indices) and the box tree (about
-// n / 4 nodes of 2 d doubles and 3 indices). Thread safety: immutable after construction; concurrent queries
+// 0.36 n nodes of 2 d floats and 3 indices). Thread safety: immutable after construction; concurrent queries
 // are safe.
 #pragma once
 
 #include <nanoflann.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -103,7 +104,9 @@ class KdTree {
   // node's tight bounding box, for find_first: a subtree is the leaf-order range
   // [begin, end), and `skip` is the position just past it (a leaf: its own + 1).
   // Tight boxes prune far better than the split planes nanoflann keeps, most of all
-  // for the large spheres of seeds near the hull (5-d: 3x fewer nodes visited).
+  // for the large spheres of seeds near the hull (5-d: 3x fewer points tested). The
+  // bounds are floats rounded outwards (still conservative): about 0.36 nodes per
+  // point, so 2.9 d + 4.3 bytes per point where doubles would take 5.8 d + 4.3.
   struct BoxNode {
     std::uint32_t begin, end, skip;
   };
@@ -115,7 +118,7 @@ class KdTree {
   std::vector<std::uint32_t> id_of_;  // leaf position -> original index
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
   std::vector<BoxNode> box_nodes_;
-  std::vector<double> box_bounds_;  // per box node: d lows, then d highs
+  std::vector<float> box_bounds_;  // per box node: d lows, then d highs, rounded outwards
 };
 
 template <class MayContain, class Accept>
@@ -123,9 +126,12 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
   // Stackless preorder walk of the box tree: a rejected box jumps past its subtree.
   const std::size_t d = static_cast<std::size_t>(points().dimension());
   const std::size_t count = box_nodes_.size();
+  thread_local std::vector<double> box;  // one node's box as doubles (grows once per thread)
+  if (box.size() < 2 * d) box.resize(2 * d);
+  double* lo = box.data();
   for (std::size_t i = 0; i < count;) {
     const BoxNode& node = box_nodes_[i];
-    const double* lo = &box_bounds_[i * 2 * d];
+    std::copy_n(&box_bounds_[i * 2 * d], 2 * d, lo);
     if (!may_contain(lo, lo + d)) {
       i = node.skip;
       continue;
