@@ -118,14 +118,18 @@ class StarWalker {
    public:
     void reset(int length);
     bool insert(const std::uint32_t* sorted_key);  // true if it was new
+    bool insert(const std::uint32_t* sorted_key, std::uint64_t hash);  // hash: hash(sorted_key)
+    std::uint64_t hash(const std::uint32_t* key) const;
+    void prefetch(std::uint64_t hash) const;  // the key's first slot (a hint only)
 
    private:
-    std::uint64_t hash(const std::uint32_t* key) const;
     void grow();
-      int length_ = 0;
+    int length_ = 0;
     std::size_t count_ = 0;
     std::vector<std::uint32_t> keys_;
-    std::vector<std::int32_t> slots_;
+    // 0: empty; else the key's hash tag (high 32 bits) and its position + 1 (low).
+    std::vector<std::uint64_t> slots_;
+    static constexpr std::uint64_t kTagMask = 0xFFFFFFFF00000000ull;
   };
 
   void load_candidates(std::size_t k);
