@@ -5,8 +5,8 @@
 
 #include <algorithm>
 #include <array>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <queue>
 #include <unordered_map>
@@ -150,7 +150,7 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     const auto prefilter = detail::has_avx2() ? &ray_prefilter_avx2 : &ray_prefilter_sse2;
     std::array<std::uint8_t, kRayChunk> keep;
     bool reached = false;
-    for (; j + kRayChunk <= dotted && !reached; ) {
+    while (!reached && j + kRayChunk <= dotted) {
       prefilter(&cand_norm2_[j], &yq[j], &eq_list[j], t_best, keep.data());
       for (std::size_t i = 0; i < kRayChunk; ++i, ++j) {
         if (!(cand_norm2_[j] <= reach2)) {
