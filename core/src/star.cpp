@@ -166,7 +166,12 @@ void StarWalker::TupleSet::reset(int length) {
   count_ = 0;
   keys_.clear();
   if (slots_.empty()) slots_.assign(256, 0);
-  else std::fill(slots_.begin(), slots_.end(), 0);
+  // A new generation empties every slot at once; only when the counter wraps (every
+  // 65,535 seeds) are the slots cleared.
+  if (++generation_ == (std::uint64_t{1} << (64 - kGenerationShift))) {
+    std::fill(slots_.begin(), slots_.end(), 0);
+    generation_ = 1;
+  }
 }
 
 std::uint64_t StarWalker::TupleSet::hash(const std::uint32_t* key) const {
@@ -176,11 +181,12 @@ std::uint64_t StarWalker::TupleSet::hash(const std::uint32_t* key) const {
 void StarWalker::TupleSet::grow() {
   slots_.assign(slots_.size() * 2, 0);
   const std::size_t mask = slots_.size() - 1;
+  const std::uint64_t live = generation_ << kGenerationShift;
   for (std::size_t i = 0; i < count_; ++i) {
     const std::uint64_t h = hash(&keys_[i * length_]);
     std::size_t s = h & mask;
-    while (slots_[s] != 0) s = (s + 1) & mask;
-    slots_[s] = (h & kTagMask) | (i + 1);
+    while ((slots_[s] >> kGenerationShift) == generation_) s = (s + 1) & mask;
+    slots_[s] = live | (h & kTagMask) | (i + 1);
   }
 }
 
@@ -191,19 +197,20 @@ bool StarWalker::TupleSet::insert(const std::uint32_t* key) { return insert(key,
 bool StarWalker::TupleSet::insert(const std::uint32_t* key, std::uint64_t h) {
   if (2 * (count_ + 1) > slots_.size()) grow();
   const std::size_t mask = slots_.size() - 1;
+  const std::uint64_t live = generation_ << kGenerationShift;
   const std::uint64_t tag = h & kTagMask;
   std::size_t s = h & mask;
-  // A slot holds the key's hash tag beside its position: only a matching tag (a
-  // duplicate, or one chance in 2^32) reads the key itself, which in 6-d stars of
-  // 30,000 facets is a cache miss.
-  while (slots_[s] != 0) {
-    if ((slots_[s] & kTagMask) == tag) {
-      const std::uint32_t* other = &keys_[((slots_[s] & ~kTagMask) - 1) * length_];
+  // A slot holds a tag from the key's hash beside its position: only a matching tag
+  // (a duplicate, or one chance in 65,536) reads the key itself, which in 6-d stars
+  // of 30,000 facets is a cache miss.
+  for (std::uint64_t slot = slots_[s]; (slot >> kGenerationShift) == generation_; slot = slots_[s]) {
+    if ((slot & kTagMask) == tag) {
+      const std::uint32_t* other = &keys_[((slot & kPositionMask) - 1) * length_];
       if (detail::same_indices(key, other, static_cast<std::size_t>(length_))) return false;
     }
     s = (s + 1) & mask;
   }
-  slots_[s] = tag | (count_ + 1);
+  slots_[s] = live | tag | (count_ + 1);
   ++count_;
   keys_.insert(keys_.end(), key, key + length_);
   return true;

@@ -127,9 +127,14 @@ class StarWalker {
     int length_ = 0;
     std::size_t count_ = 0;
     std::vector<std::uint32_t> keys_;
-    // 0: empty; else the key's hash tag (high 32 bits) and its position + 1 (low).
+    // A slot is in use when its top 16 bits equal generation_ (reset() only bumps
+    // it: no clearing per seed); then bits 32-47 are a tag from the key's hash and
+    // the low 32 bits its position + 1.
     std::vector<std::uint64_t> slots_;
-    static constexpr std::uint64_t kTagMask = 0xFFFFFFFF00000000ull;
+    std::uint64_t generation_ = 1;
+    static constexpr std::uint64_t kGenerationShift = 48;
+    static constexpr std::uint64_t kTagMask = 0x0000FFFF00000000ull;
+    static constexpr std::uint64_t kPositionMask = 0x00000000FFFFFFFFull;
   };
 
   void load_candidates(std::size_t k);
