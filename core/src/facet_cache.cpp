@@ -66,9 +66,12 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   if (d < 2 || d > kMaxDimension || begin_ >= end_ || max_bytes <= starts_bytes) return;
   const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
   const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
-  std::size_t slots = kMinSlots;
-  while (slots < wanted && slots * 2 <= affordable && slots * 2 <= kMaxSlots) slots *= 2;
-  if (slots > affordable) return;
+  // Any slot count (home slots come from a multiply, not a mask), 10% above the
+  // estimate: a power of two would waste up to half the table, and every page of it
+  // is zeroed by the kernel when first touched (7% of a 2-d run with 8M slots).
+  const auto estimate = static_cast<std::size_t>(std::min(wanted * 1.1, static_cast<double>(kMaxSlots)));
+  const std::size_t slots = std::min({std::max(estimate, kMinSlots), affordable, kMaxSlots});
+  if (slots < kMinSlots) return;  // too little memory for a useful table
   std::size_t table_bytes = 0, starts_bytes_mapped = 0;
   table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), Free{table_bytes});
   starts_ = decltype(starts_)(allocate_zeroed(std::max<std::size_t>(n, 1), starts_bytes_mapped), Free{starts_bytes_mapped});
@@ -89,9 +92,8 @@ std::size_t FacetCache::reserved_bytes() const {
 
 bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const {
   const std::uint32_t tag = tag_of(hash);
-  const std::size_t mask = capacity_ - 1;
-  s = static_cast<std::size_t>(hash) & mask;
-  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = (s + 1) & mask) {
+  s = home(hash);
+  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = next(s)) {
     std::uint32_t* w = slot(s);
     const std::uint32_t state = Word(w[0]).load(std::memory_order_acquire);
     if (state == kEmpty) return false;
@@ -115,7 +117,7 @@ std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
 }
 
 void FacetCache::prefetch(std::uint64_t hash) const {
-  if (enabled()) __builtin_prefetch(slot(static_cast<std::size_t>(hash) & (capacity_ - 1)));
+  if (enabled()) __builtin_prefetch(slot(home(hash)));
 }
 
 bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
@@ -157,9 +159,8 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
                         std::uint32_t b) {
   if (!enabled()) return;
   const std::uint32_t tag = tag_of(hash);
-  const std::size_t mask = capacity_ - 1;
-  std::size_t s = static_cast<std::size_t>(hash) & mask;
-  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = (s + 1) & mask) {
+  std::size_t s = home(hash);
+  for (std::size_t probe = 0; probe < kMaxProbes; ++probe, s = next(s)) {
     std::uint32_t* w = slot(s);
     std::uint32_t state = Word(w[0]).load(std::memory_order_acquire);
     if (state == kEmpty && Word(w[0]).compare_exchange_strong(state, kWriting, std::memory_order_acquire)) {

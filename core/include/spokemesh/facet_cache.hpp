@@ -81,6 +81,10 @@ class FacetCache {
     void operator()(std::uint32_t* p) const;
   };
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
+  // A hash's first slot: its low 32 bits scaled to [0, capacity) (the tag uses the
+  // high 32); probing goes on linearly, wrapping at the end.
+  std::size_t home(std::uint64_t hash) const { return static_cast<std::size_t>(((hash & 0xFFFFFFFFull) * capacity_) >> 32); }
+  std::size_t next(std::size_t s) const { return s + 1 == capacity_ ? 0 : s + 1; }
   bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
   // Seeds v != x of this run that may be meshed before (after) x: in an earlier
   // (later) block, or in x's own block, whose order is unknown.
@@ -90,7 +94,7 @@ class FacetCache {
   int d_;
   std::uint32_t n_, begin_, end_, block_;
   std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
-  std::size_t capacity_ = 0;  // slots (a power of two), 0 when disabled
+  std::size_t capacity_ = 0;  // slots (at most 2^31), 0 when disabled
   std::size_t max_entries_ = 0;
   std::unique_ptr<std::uint32_t[], Free> table_;
   std::unique_ptr<std::uint32_t[], Free> starts_;  // per point: slot + 1, or 0
