@@ -210,6 +210,24 @@ TEST_F(Cli, GraphExactIsTheMeshEdgesAndApproximateWorksInAnyDimension) {
   EXPECT_NE(npy.err.find("certified (approximate) edges"), std::string::npos) << npy.err;
 }
 
+// The vectorized filters run four lanes where the CPU has AVX2 and two otherwise;
+// forcing two must change nothing in the output (exact mesh in 5-d, where wraps scan
+// hundreds of candidates, and an 8-d approximate graph).
+TEST_F(Cli, SameOutputWithTwoLaneSimd) {
+  const std::string pts5 = points(5, 300, 73), pts8 = points(8, 150, 74);
+  for (const std::string simd : {"", "SPOKEMESH_SIMD=sse2 "}) {
+    const std::string tag = simd.empty() ? "default" : "sse2";
+    SCOPED_TRACE(tag);
+    const std::string mesh = "mesh " + pts5 + " -o " + path(tag + ".simplices") + " -q";
+    const std::string graph = "graph " + pts8 + " -o " + path(tag + ".edges") + " --approx --misses 30 -q";
+    ASSERT_EQ(std::system(("env " + simd + std::string(SPOKEMESH_CLI) + " " + mesh).c_str()), 0);
+    ASSERT_EQ(std::system(("env " + simd + std::string(SPOKEMESH_CLI) + " " + graph).c_str()), 0);
+  }
+  EXPECT_EQ(slurp(path("default.simplices")), slurp(path("sse2.simplices")));
+  EXPECT_EQ(slurp(path("default.edges")), slurp(path("sse2.edges")));
+  EXPECT_FALSE(slurp(path("sse2.edges")).empty());
+}
+
 TEST_F(Cli, HighDimensionsNeedApproxAndSaySo) {
   const std::string pts = points(10, 120, 72);
   const Outcome exact = run("graph " + pts + " -o " + path("g.edges"));
