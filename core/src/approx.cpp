@@ -72,7 +72,7 @@ void ray_prefilter_sse2(const double* q2, const double* yq, const double* eq, do
   ray_prefilter_lanes<detail::Double2, detail::Mask2>(q2, yq, eq, t_best, keep);
 }
 
-__attribute__((target("avx2"))) void ray_prefilter_avx2(const double* q2, const double* yq, const double* eq,
+SPOKEMESH_TARGET_AVX2 void ray_prefilter_avx2(const double* q2, const double* yq, const double* eq,
                                                          double t_best, std::uint8_t* keep) {
   ray_prefilter_lanes<detail::Double4, detail::Mask4>(q2, yq, eq, t_best, keep);
 }

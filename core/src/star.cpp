@@ -126,7 +126,7 @@ std::size_t pencil_filter_sse2(const double* block, std::size_t stride, const Pe
 }
 
 template <int D>
-__attribute__((target("avx2"))) std::size_t pencil_filter_avx2(const double* block, std::size_t stride,
+SPOKEMESH_TARGET_AVX2 std::size_t pencil_filter_avx2(const double* block, std::size_t stride,
                                                                 const Pencil& pencil, double u_best, std::size_t limit,
                                                                 double* nv, double* hv, std::uint8_t* keep) {
   return pencil_filter_lanes<D, Double4, Mask4>(block, stride, pencil, u_best, limit, nv, hv, keep);
