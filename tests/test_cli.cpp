@@ -35,9 +35,11 @@ class Cli : public ::testing::Test {
     std::ofstream(path(name)) << text;
     return path(name);
   }
-  Outcome run(const std::string& args) const {
+  // `env`: NAME=value assignments for the CLI's environment, if any.
+  Outcome run(const std::string& args, const std::string& env = "") const {
     const std::string out = path(".run-1"), err = path(".run-2");
-    const std::string cmd = std::string(SPOKEMESH_CLI) + " " + args + " >" + out + " 2>" + err + " </dev/null";
+    const std::string cmd =
+        "env " + env + " " + std::string(SPOKEMESH_CLI) + " " + args + " >" + out + " 2>" + err + " </dev/null";
     const int status = std::system(cmd.c_str());
     return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out), slurp(err)};
   }
@@ -215,13 +217,13 @@ TEST_F(Cli, GraphExactIsTheMeshEdgesAndApproximateWorksInAnyDimension) {
 // hundreds of candidates, and an 8-d approximate graph).
 TEST_F(Cli, SameOutputWithTwoLaneSimd) {
   const std::string pts5 = points(5, 300, 73), pts8 = points(8, 150, 74);
-  for (const std::string simd : {"", "SPOKEMESH_SIMD=sse2 "}) {
+  for (const std::string simd : {"", "SPOKEMESH_SIMD=sse2"}) {
     const std::string tag = simd.empty() ? "default" : "sse2";
     SCOPED_TRACE(tag);
-    const std::string mesh = "mesh " + pts5 + " -o " + path(tag + ".simplices") + " -q";
-    const std::string graph = "graph " + pts8 + " -o " + path(tag + ".edges") + " --approx --misses 30 -q";
-    ASSERT_EQ(std::system(("env " + simd + std::string(SPOKEMESH_CLI) + " " + mesh).c_str()), 0);
-    ASSERT_EQ(std::system(("env " + simd + std::string(SPOKEMESH_CLI) + " " + graph).c_str()), 0);
+    const Outcome mesh = run("mesh " + pts5 + " -o " + path(tag + ".simplices") + " -q", simd);
+    ASSERT_EQ(mesh.code, 0) << mesh.err;
+    const Outcome graph = run("graph " + pts8 + " -o " + path(tag + ".edges") + " --approx --misses 30 -q", simd);
+    ASSERT_EQ(graph.code, 0) << graph.err;
   }
   EXPECT_EQ(slurp(path("default.simplices")), slurp(path("sse2.simplices")));
   EXPECT_EQ(slurp(path("default.edges")), slurp(path("sse2.edges")));

@@ -83,7 +83,9 @@ class FacetCache {
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
   // A hash's first slot: its low 32 bits scaled to [0, capacity) (the tag uses the
   // high 32); probing goes on linearly, wrapping at the end.
-  std::size_t home(std::uint64_t hash) const { return static_cast<std::size_t>(((hash & 0xFFFFFFFFull) * capacity_) >> 32); }
+  std::size_t home(std::uint64_t hash) const {
+    return static_cast<std::size_t>(((hash & 0xFFFFFFFFull) * capacity_) >> 32);
+  }
   std::size_t next(std::size_t s) const { return s + 1 == capacity_ ? 0 : s + 1; }
   bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
   // Seeds v != x of this run that may be meshed before (after) x: in an earlier

@@ -18,8 +18,8 @@
 //
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
 // (n * d doubles), the permutation both ways (2 n indices) and the box tree (about
-// 0.36 n nodes of 2 d floats and 3 indices). Thread safety: immutable after construction; concurrent queries
-// are safe.
+// 0.36 n nodes of 2 d floats and 3 indices).
+// Thread safety: immutable after construction; concurrent queries are safe.
 #pragma once
 
 #include <nanoflann.hpp>
