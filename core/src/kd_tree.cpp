@@ -7,21 +7,75 @@
 
 namespace spokemesh {
 
+namespace {
+
+// The points' order along a Z-order (Morton) curve over a grid of at most 2^20 cells
+// spanning their bounding box, by one counting sort. Only a memory layout: nanoflann's
+// build partitions the index array over and over, reading each point's coordinates,
+// and in this order those reads stay local (a shuffled 2-d million: 0.45 s -> 0.25 s).
+// The tree's splits come from the subsets' bounding boxes, whatever their order.
+std::vector<std::uint32_t> z_order(const PointSet& points) {
+  const std::size_t n = points.size(), d = static_cast<std::size_t>(points.dimension());
+  int total_bits = 0;
+  while (total_bits < 20 && (std::size_t{1} << total_bits) < n) ++total_bits;
+  const int bits = std::max(1, total_bits / static_cast<int>(d));  // per coordinate
+  const std::size_t used = std::min(d, static_cast<std::size_t>(std::max(total_bits, 1)));  // coordinates keyed
+  std::vector<double> lo(used, std::numeric_limits<double>::infinity()), scale(used, 0.0);
+  std::vector<double> hi(used, -std::numeric_limits<double>::infinity());
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t c = 0; c < used; ++c) {
+      lo[c] = std::min(lo[c], points.point(i)[c]);
+      hi[c] = std::max(hi[c], points.point(i)[c]);
+    }
+  }
+  const double cells = std::ldexp(1.0, bits);
+  for (std::size_t c = 0; c < used; ++c) {
+    // Halved first: the span of coordinates near the documented range may overflow.
+    const double half_span = hi[c] / 2 - lo[c] / 2;
+    scale[c] = half_span > 0 ? cells / 2 / half_span : 0.0;
+  }
+  std::vector<std::uint32_t> code(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::uint32_t z = 0;
+    for (std::size_t c = 0; c < used; ++c) {
+      const double t = (points.point(i)[c] / 2 - lo[c] / 2) * scale[c];
+      const auto cell = static_cast<std::uint32_t>(t >= 0 ? std::min(t, cells - 1) : 0.0);  // NaN: 0 * inf
+      for (int b = 0; b < bits; ++b) z |= ((cell >> b) & 1u) << (b * static_cast<int>(used) + static_cast<int>(c));
+    }
+    code[i] = z;
+  }
+  const std::size_t buckets = std::size_t{1} << (static_cast<std::size_t>(bits) * used);
+  std::vector<std::uint32_t> start(buckets + 1, 0);
+  for (std::uint32_t z : code) ++start[z + 1];
+  std::partial_sum(start.begin(), start.end(), start.begin());
+  std::vector<std::uint32_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[start[code[i]]++] = static_cast<std::uint32_t>(i);
+  return order;
+}
+
+}  // namespace
+
 KdTree::KdTree(const PointSet& points)
-    : points_(points), adaptor_{points.point(0), points.size(), static_cast<std::size_t>(points.dimension())} {
+    : points_(points), adaptor_{nullptr, points.size(), static_cast<std::size_t>(points.dimension())} {
+  const std::size_t n = points.size(), d = adaptor_.d;
+  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more.
+  const std::vector<std::uint32_t> order = z_order(points);
+  std::vector<double> z_coords(n * d);
+  for (std::size_t k = 0; k < n; ++k) std::copy_n(points.point(order[k]), d, &z_coords[k * d]);
+  adaptor_.coords = z_coords.data();
   index_ = std::make_unique<Index>(points.dimension(), adaptor_,
                                    nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/8));
   // Copy the coordinates in leaf order and make nanoflann's permutation the identity:
   // the same tree, but a query now reads each leaf's points from consecutive memory
   // instead of from n random places (about 40% of a 3-d 64-NN query's time).
-  const std::size_t n = points.size(), d = adaptor_.d;
-  id_of_.assign(index_->vAcc.begin(), index_->vAcc.end());
+  id_of_.resize(n);
   rank_of_.resize(n);
   leaf_coords_.resize(n * d);
   for (std::size_t k = 0; k < n; ++k) {
-    rank_of_[id_of_[k]] = static_cast<std::uint32_t>(k);
-    const double* p = points.point(id_of_[k]);
-    std::copy(p, p + d, &leaf_coords_[k * d]);
+    const std::uint32_t z = index_->vAcc[k];
+    id_of_[k] = order[z];
+    rank_of_[order[z]] = static_cast<std::uint32_t>(k);
+    std::copy_n(&z_coords[z * d], d, &leaf_coords_[k * d]);
   }
   std::iota(index_->vAcc.begin(), index_->vAcc.end(), std::uint32_t{0});
   adaptor_.coords = leaf_coords_.data();

@@ -740,6 +740,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   work_.clear();
   work_planes_.clear();
   plane_known_.clear();
+  work_hashes_.clear();
   simplex_seen_.reset(d);
   facet_seen_.reset(d - 1);
   std::array<std::uint32_t, kMaxCols> simplex{};
@@ -762,6 +763,28 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
       work_planes_.resize(work_planes_.size() + static_cast<std::size_t>(d) + 1);
     }
     plane_known_.push_back(with_plane != nullptr ? 1 : 0);
+    if (cache != nullptr) {
+      // The cache entries of its facets (facet k: without ids[k], x included) are
+      // lookups at random in a large table: hash them and start their loads now, a
+      // few simplices before the walk reaches them, so the misses are over by then.
+      for (int k = 0; k < d; ++k) {
+        std::array<std::uint32_t, kMaxCols> whole;
+        int r = 0;
+        bool placed = false;
+        for (int j = 0; j < d; ++j) {
+          if (sorted[static_cast<std::size_t>(j)] == ids[k]) continue;
+          if (!placed && x_ < sorted[static_cast<std::size_t>(j)]) {
+            whole[r++] = x_;
+            placed = true;
+          }
+          whole[r++] = sorted[static_cast<std::size_t>(j)];
+        }
+        if (!placed) whole[r++] = x_;
+        const std::uint64_t h = cache->hash(whole.data());
+        cache->prefetch(h);
+        work_hashes_.push_back(h);
+      }
+    }
   };
 
   // The facet key of x's star: the d - 1 other vertices of a facet, ascending; the
@@ -831,8 +854,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
       f.apex = simplex[k];
       if (cache != nullptr) {
         whole_facet(f.others.data(), f.facet.data());
-        f.hash = cache->hash(f.facet.data());
-        cache->prefetch(f.hash);  // the lookups below then overlap their cache misses
+        f.hash = work_hashes_[i * static_cast<std::size_t>(d) + static_cast<std::size_t>(k)];  // prefetched in add_simplex
       }
       ++count;
     }

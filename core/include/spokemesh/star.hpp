@@ -206,6 +206,7 @@ class StarWalker {
   std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
   std::vector<Approx> work_planes_;  // their lifted planes, d + 1 coefficients each
   std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
+  std::vector<std::uint64_t> work_hashes_;  // per work_ simplex, with a facet cache: its d facets' hashes
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
 };
 
