@@ -783,6 +783,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
         const std::uint64_t h = cache->hash(whole.data());
         cache->prefetch(h);
         work_hashes_.push_back(h);
+        if (ids[k] > x_) cache->prefetch_start(ids[k]);  // inserts set later vertices' starts
       }
     }
   };
