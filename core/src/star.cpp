@@ -723,6 +723,16 @@ void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, Approx* out) {
   }
 }
 
+void StarWalker::prefetch(std::uint32_t seed) const {
+  if (seed >= ps_.size()) return;
+  __builtin_prefetch(ps_.point(seed));
+  if (options_.facets != nullptr) options_.facets->prefetch_start(seed);
+}
+
+void StarWalker::prefetch_start(std::uint32_t seed) const {
+  if (options_.facets != nullptr) options_.facets->prefetch_start_entry(seed);
+}
+
 Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   const int d = d_;
   if (seed >= ps_.size()) {

@@ -56,10 +56,13 @@ class FacetCache {
   // Starts loading the facet's first slot into the CPU cache: a walker announces a
   // simplex's facets before it looks them up, so their memory latencies overlap.
   void prefetch(std::uint64_t hash) const;
-  // Starts loading point v's start (insert() may set it, start() reads it).
+  // Starts loading point v's start index (insert() may set it, start() reads it).
   void prefetch_start(std::uint32_t v) const {
     if (enabled() && v < n_) __builtin_prefetch(starts_.get() + v);
   }
+  // Starts loading the entry v's start index points to, if set (best read after
+  // prefetch_start(v) has had time to land).
+  void prefetch_start_entry(std::uint32_t v) const;
   // The apex across `facet` (d ascending indices, x among them) from apex `from`, as
   // found by an earlier star; kHull when the facet is on the convex hull. False when
   // unknown (then the caller wraps and inserts the answer).
