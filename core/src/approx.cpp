@@ -179,7 +179,7 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     const double y2 = dot(y, y, d);
     scratch_.resize(static_cast<std::size_t>(d));
     tree_.find_first(
-        [&](const double* lo, const double* hi) {
+        [&](const float* lo, const float* hi) {
           double dist2 = 0, reach_e = 0, far2 = 0, ball_gap2 = 0, z2 = 0;
           const bool hit = t_best < kInf;
           for (int c = 0; c < d; ++c) {

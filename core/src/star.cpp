@@ -232,39 +232,44 @@ void StarWalker::load_candidates(std::size_t k) {
   knn_d2_.resize(want);
   knn_coords_.resize(want);
   const std::size_t got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data(), knn_coords_.data());
-  cand_id_.clear();
-  cand_q_.clear();
-  cand_norm2_.clear();
-  cand_norm_.clear();
-  cand_depth_.clear();
-  cand_lower_.clear();
-  cand_q_.resize(got * d_);
   std::size_t kept = 0;
+  for (std::size_t i = 0; i < got; ++i) kept += knn_ids_[i] != x_ ? 1 : 0;
+  // Sized once, then written in place (this runs for nearly every seed).
+  cand_id_.resize(kept);
+  cand_q_.resize(kept * d_);
+  cand_norm2_.resize(kept);
+  cand_norm_.resize(kept);
+  cand_depth_.resize(kept);
+  cand_lower_.resize(kept);
+  // Column-major copy for the pencil scan's filter (d coordinate rows, |q|^2, |q|,
+  // the |q|^2 depth with kUnsafe as +inf), zero-padded to whole chunks (padding is
+  // never a candidate: the scan stops at `kept`).
+  cand_stride_ = (kept + kPencilChunk - 1) / kPencilChunk * kPencilChunk;
+  const std::size_t rows = static_cast<std::size_t>(d_) + 3;
+  cand_block_.resize(cand_stride_ * rows);
+  for (std::size_t r = 0; r < rows; ++r) {
+    std::fill(cand_block_.begin() + static_cast<std::ptrdiff_t>(r * cand_stride_ + kept),
+              cand_block_.begin() + static_cast<std::ptrdiff_t>((r + 1) * cand_stride_), 0.0);
+  }
+  std::size_t j = 0;
   for (std::size_t i = 0; i < got; ++i) {
     const std::uint32_t id = knn_ids_[i];
     if (id == x_) continue;
     double norm2;
     int depth;
-    relative_row(knn_coords_[i], &cand_q_[kept * d_], norm2, depth);
-    ++kept;
-    cand_id_.push_back(id);
-    cand_norm2_.push_back(norm2);
-    cand_norm_.push_back(std::sqrt(norm2));
-    cand_depth_.push_back(depth);
-    cand_lower_.push_back(knn_d2_[i] * (1 - kDistanceMargin));
-  }
-  cand_q_.resize(kept * d_);
-  // Column-major copy for the pencil scan's filter (d coordinate rows, |q|^2, |q|,
-  // the |q|^2 depth with kUnsafe as +inf), zero-padded to whole chunks (padding is
-  // never a candidate: the scan stops at `kept`).
-  cand_stride_ = (kept + kPencilChunk - 1) / kPencilChunk * kPencilChunk;
-  cand_block_.assign(cand_stride_ * static_cast<std::size_t>(d_ + 3), 0.0);
-  for (std::size_t i = 0; i < kept; ++i) {
-    for (int c = 0; c < d_; ++c) cand_block_[static_cast<std::size_t>(c) * cand_stride_ + i] = cand_q_[i * d_ + c];
-    double* extra = &cand_block_[static_cast<std::size_t>(d_) * cand_stride_ + i];
-    extra[0] = cand_norm2_[i];
-    extra[cand_stride_] = cand_norm_[i];
-    extra[2 * cand_stride_] = cand_depth_[i] >= Approx::kUnsafe ? kInf : cand_depth_[i];
+    double* q = &cand_q_[j * d_];
+    relative_row(knn_coords_[i], q, norm2, depth);
+    cand_id_[j] = id;
+    cand_norm2_[j] = norm2;
+    cand_norm_[j] = std::sqrt(norm2);
+    cand_depth_[j] = depth;
+    cand_lower_[j] = knn_d2_[i] * (1 - kDistanceMargin);
+    double* column = &cand_block_[j];
+    for (int c = 0; c < d_; ++c) column[static_cast<std::size_t>(c) * cand_stride_] = q[c];
+    column[static_cast<std::size_t>(d_) * cand_stride_] = norm2;
+    column[static_cast<std::size_t>(d_ + 1) * cand_stride_] = cand_norm_[j];
+    column[static_cast<std::size_t>(d_ + 2) * cand_stride_] = depth >= Approx::kUnsafe ? kInf : depth;
+    ++j;
   }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
 }
@@ -627,7 +632,7 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
         if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
       }
     }
-    auto may_contain = [&](const double* lo, const double* hi) {
+    auto may_contain = [&](const float* lo, const float* hi) {
       // Boxes inside the certified ball hold only scanned candidates, all above the
       // plane already (pencil argument above).
       double far2 = 0, near2 = 0;

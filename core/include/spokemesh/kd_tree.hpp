@@ -72,7 +72,8 @@ class KdTree {
   std::int64_t any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const;
 
   // First point p (in tree order) with accept(p), visiting only boxes for which
-  // may_contain(lo, hi) holds. may_contain must be conservative: false only when
+  // may_contain(lo, hi) holds (d lows, d highs: floats rounded outwards, read in
+  // place; widened to double, they are exact). may_contain must be conservative: false only when
   // no point of the box can be accepted. `accept` may also take (p, coordinates of
   // p), read from the leaf-ordered copy.
   template <class MayContain, class Accept>
@@ -126,12 +127,9 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
   // Stackless preorder walk of the box tree: a rejected box jumps past its subtree.
   const std::size_t d = static_cast<std::size_t>(points().dimension());
   const std::size_t count = box_nodes_.size();
-  thread_local std::vector<double> box;  // one node's box as doubles (grows once per thread)
-  if (box.size() < 2 * d) box.resize(2 * d);
-  double* lo = box.data();
   for (std::size_t i = 0; i < count;) {
     const BoxNode& node = box_nodes_[i];
-    std::copy_n(&box_bounds_[i * 2 * d], 2 * d, lo);
+    const float* lo = &box_bounds_[i * 2 * d];
     if (!may_contain(lo, lo + d)) {
       i = node.skip;
       continue;
@@ -164,13 +162,13 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
   };
   for (int c = 0; c < d; ++c) {
     if (normal[c].n >= Approx::kUnsafe || !(normal[c].a <= DBL_MAX)) {
-      return find_first([](const double*, const double*) { return true; }, on_side);
+      return find_first([](const float*, const float*) { return true; }, on_side);
     }
   }
   // Upper bound of sigma * n.(p - x) over a box. Each normal component is known to
   // within e_c; box offsets are rounded once; the sum is rounded d times. The 1e-12
   // relative slack covers those roundings (<= (d + 3) 2^-53 relative).
-  auto may_contain = [&](const double* lo, const double* hi) {
+  auto may_contain = [&](const float* lo, const float* hi) {
     double bound = 0, magnitude = 0;
     for (int c = 0; c < d; ++c) {
       const double t = sigma * normal[c].v;
