@@ -59,26 +59,44 @@ KdTree::KdTree(const PointSet& points)
     : points_(points), adaptor_{nullptr, points.size(), static_cast<std::size_t>(points.dimension())} {
   const std::size_t n = points.size(), d = adaptor_.d;
   // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more.
-  const std::vector<std::uint32_t> order = z_order(points);
-  std::vector<double> z_coords(n * d);
-  for (std::size_t k = 0; k < n; ++k) std::copy_n(points.point(order[k]), d, &z_coords[k * d]);
-  adaptor_.coords = z_coords.data();
+  // The copy is the tree's own coordinate array, put in leaf order afterwards, so
+  // building costs no second copy of the points.
+  std::vector<std::uint32_t> order = z_order(points);
+  leaf_coords_.resize(n * d);
+  for (std::size_t k = 0; k < n; ++k) std::copy_n(points.point(order[k]), d, &leaf_coords_[k * d]);
+  adaptor_.coords = leaf_coords_.data();
   index_ = std::make_unique<Index>(points.dimension(), adaptor_,
                                    nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/8));
-  // Copy the coordinates in leaf order and make nanoflann's permutation the identity:
-  // the same tree, but a query now reads each leaf's points from consecutive memory
-  // instead of from n random places (about 40% of a 3-d 64-NN query's time).
+  // Now the leaf order: leaf position k holds what was at Z position vAcc[k], and
+  // nanoflann's permutation becomes the identity. The same tree, but a query reads
+  // each leaf's points from consecutive memory (about 40% of a 3-d 64-NN query's time
+  // was reading them from n random places).
+  const auto& z_of = index_->vAcc;
   id_of_.resize(n);
   rank_of_.resize(n);
-  leaf_coords_.resize(n * d);
   for (std::size_t k = 0; k < n; ++k) {
-    const std::uint32_t z = index_->vAcc[k];
-    id_of_[k] = order[z];
-    rank_of_[order[z]] = static_cast<std::uint32_t>(k);
-    std::copy_n(&z_coords[z * d], d, &leaf_coords_[k * d]);
+    id_of_[k] = order[z_of[k]];
+    rank_of_[id_of_[k]] = static_cast<std::uint32_t>(k);
+  }
+  order = {};
+  // In place, cycle by cycle: position k takes Z position z_of[k]'s coordinates.
+  std::vector<bool> placed(n, false);
+  std::vector<double> saved(d);
+  for (std::size_t first = 0; first < n; ++first) {
+    if (placed[first]) continue;
+    std::copy_n(&leaf_coords_[first * d], d, saved.data());
+    for (std::size_t k = first;;) {
+      placed[k] = true;
+      const std::size_t from = z_of[k];
+      if (from == first) {
+        std::copy_n(saved.data(), d, &leaf_coords_[k * d]);
+        break;
+      }
+      std::copy_n(&leaf_coords_[from * d], d, &leaf_coords_[k * d]);
+      k = from;
+    }
   }
   std::iota(index_->vAcc.begin(), index_->vAcc.end(), std::uint32_t{0});
-  adaptor_.coords = leaf_coords_.data();
   if (index_->root_node != nullptr) add_box_nodes(index_->root_node);
 }
 
