@@ -10,8 +10,9 @@
 // RSD uses it to certify hull facets (unbounded Voronoi edges) globally instead of
 // by growing the neighbourhood.
 //
-// Layout: after nanoflann builds its tree, the coordinates are copied in the tree's
-// leaf order and nanoflann's index permutation is reset to the identity, so every
+// Layout: nanoflann builds its tree over a copy of the coordinates in Z-order (its
+// partitioning then reads nearby memory), and that copy is then permuted into the
+// tree's leaf order, with nanoflann's index permutation reset to the identity: every
 // leaf's points are contiguous in memory (the tree itself is unchanged). Queries
 // speak original point indices. find_first and any_beyond walk a flattened copy
 // of the tree with each node's tight bounding box.
@@ -61,7 +62,8 @@ class KdTree {
   // close in space (for visiting seeds in a cache-friendly order).
   std::uint32_t leaf_rank(std::uint32_t id) const { return rank_of_[id]; }
 
-  // Every point p with nanoflann's squared distance to `query` <= r2 (unsorted).
+  // Every point p with nanoflann's squared distance to `query` < r2 (strictly, as
+  // nanoflann's radius search; unsorted).
   void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
 
   // First point p found (in tree order) with `exact_side(p) == sigma` (or

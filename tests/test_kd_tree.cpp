@@ -1,0 +1,106 @@
+// KdTree against brute force (as nanoflann tests itself): k nearest and radius
+// queries on random, tied (grid) and awkwardly scaled inputs, including those that
+// stress the Z-order pre-sort of the build (a flat coordinate, a huge span, tiny
+// coordinates, one point).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "spokemesh/approx.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using namespace spokemesh::testing;
+
+double dist2(const PointSet& ps, std::size_t i, std::size_t j) {
+  double s = 0;
+  for (int c = 0; c < ps.dimension(); ++c) {
+    const double e = ps.point(i)[c] - ps.point(j)[c];
+    s += e * e;
+  }
+  return s;
+}
+
+// Every point's k nearest: ascending, the brute-force distances, and every point
+// strictly nearer than the k-th among them (ties at the k-th may go either way).
+void expect_knn_matches_brute_force(const std::string& name, int d, std::vector<double> coords, std::size_t k) {
+  // Validated as the approximate path does (no span check: flat inputs are allowed).
+  PointSet ps(d, std::move(coords));
+  const Status valid = ps.validate(name, kMaxApproxDimension, /*check_span=*/false);
+  ASSERT_TRUE(valid.is_ok()) << valid.message();
+  const KdTree tree(ps);
+  const std::size_t n = ps.size();
+  std::vector<bool> seen_rank(n, false);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint32_t r = tree.leaf_rank(static_cast<std::uint32_t>(i));
+    ASSERT_LT(r, n) << name;
+    ASSERT_FALSE(seen_rank[r]) << name << ": leaf ranks are not a permutation";
+    seen_rank[r] = true;
+  }
+  std::vector<std::uint32_t> ids(k);
+  std::vector<double> d2(k);
+  std::vector<const double*> coords_of(k);
+  for (std::size_t q = 0; q < n; ++q) {
+    const std::size_t got = tree.knn(ps.point(q), k, ids.data(), d2.data(), coords_of.data());
+    ASSERT_EQ(got, std::min(k, n)) << name << " query " << q;
+    std::vector<double> all(n);
+    for (std::size_t j = 0; j < n; ++j) all[j] = dist2(ps, q, j);
+    std::vector<double> sorted = all;
+    std::sort(sorted.begin(), sorted.end());
+    for (std::size_t i = 0; i < got; ++i) {
+      ASSERT_EQ(d2[i], all[ids[i]]) << name << " query " << q << " rank " << i;
+      ASSERT_EQ(d2[i], sorted[i]) << name << " query " << q << " rank " << i;
+      for (int c = 0; c < d; ++c) ASSERT_EQ(coords_of[i][c], ps.point(ids[i])[c]) << name;
+    }
+    const double kth = d2[got - 1];
+    for (std::size_t j = 0; j < n; ++j) {
+      if (all[j] < kth) {
+        ASSERT_NE(std::find(ids.begin(), ids.begin() + static_cast<std::ptrdiff_t>(got), j),
+                  ids.begin() + static_cast<std::ptrdiff_t>(got))
+            << name << " query " << q << " misses point " << j;
+      }
+    }
+    // within(): exactly the points strictly nearer than the k-th.
+    std::vector<std::pair<std::uint32_t, double>> near;
+    tree.within(ps.point(q), kth, near);
+    std::size_t expected = 0;
+    for (std::size_t j = 0; j < n; ++j) expected += all[j] < kth ? 1 : 0;
+    ASSERT_EQ(near.size(), expected) << name << " query " << q;
+    for (const auto& [j, e] : near) ASSERT_LT(all[j], kth) << name;
+  }
+}
+
+TEST(KdTree, NearestMatchBruteForce) {
+  expect_knn_matches_brute_force("uniform-2d", 2, uniform_points(2, 300, 1), 17);
+  expect_knn_matches_brute_force("uniform-3d", 3, uniform_points(3, 300, 2), 49);
+  expect_knn_matches_brute_force("uniform-5d", 5, uniform_points(5, 200, 3), 60);
+  expect_knn_matches_brute_force("uniform-9d", 9, uniform_points(9, 120, 4), 30);  // the generic search
+}
+
+TEST(KdTree, NearestMatchBruteForceWithTies) {
+  expect_knn_matches_brute_force("grid-2d", 2, grid_points(2, 12), 13);
+  expect_knn_matches_brute_force("grid-3d", 3, grid_points(3, 5), 27);
+}
+
+TEST(KdTree, NearestMatchBruteForceOnAwkwardInputs) {
+  // One coordinate the same everywhere (its Z-order cell is always 0).
+  std::vector<double> flat = uniform_points(3, 150, 5);
+  for (std::size_t i = 0; i < flat.size(); i += 3) flat[i + 1] = 0.25;
+  expect_knn_matches_brute_force("flat-y", 3, flat, 20);
+  // A span near the largest accepted coordinates, and tiny coordinates.
+  std::vector<double> huge = uniform_points(2, 150, 6), tiny = huge;
+  for (double& v : huge) v = (v - 0.5) * 1.9e100;
+  for (double& v : tiny) v = std::ldexp(v, -250);
+  expect_knn_matches_brute_force("huge", 2, huge, 16);
+  expect_knn_matches_brute_force("tiny", 2, tiny, 16);
+  // Fewer points than asked for, down to the fewest accepted.
+  expect_knn_matches_brute_force("three", 2, {0, 0, 1, 0, 0, 1}, 8);
+  expect_knn_matches_brute_force("five-4d", 4, uniform_points(4, 5, 7), 9);
+}
+
+}  // namespace
+}  // namespace spokemesh
