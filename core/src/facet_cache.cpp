@@ -113,7 +113,19 @@ bool FacetCache::maybe_after(std::uint32_t v, std::uint32_t x) const {
 }
 
 std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
-  return detail::hash_indices(facet, static_cast<std::size_t>(d_));
+  std::uint64_t sum = 0;
+  for (int i = 0; i < d_; ++i) sum += detail::set_hash_term(facet[i]);
+  return detail::set_hash_finish(sum);
+}
+
+void FacetCache::facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const {
+  std::array<std::uint64_t, kMaxDimension> terms;
+  std::uint64_t sum = detail::set_hash_term(x);
+  for (int k = 0; k < d_; ++k) {
+    terms[static_cast<std::size_t>(k)] = detail::set_hash_term(others[k]);
+    sum += terms[static_cast<std::size_t>(k)];
+  }
+  for (int k = 0; k < d_; ++k) out[k] = detail::set_hash_finish(sum - terms[static_cast<std::size_t>(k)]);
 }
 
 void FacetCache::prefetch(std::uint64_t hash) const {

@@ -28,6 +28,22 @@ inline std::uint64_t hash_indices(const std::uint32_t* key, std::size_t length) 
   return h ^ (h >> 32);
 }
 
+// A hash of a set of point indices that can drop a member in O(1): the sum (mod 2^64)
+// of each index mixed by splitmix64's finalizer, mixed once more. A facet's hash is
+// set_hash_finish(sum of set_hash_term over its indices); the facets of a simplex
+// are its sum minus one term each.
+inline std::uint64_t set_hash_term(std::uint32_t v) {
+  std::uint64_t z = std::uint64_t{v} + 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+inline std::uint64_t set_hash_finish(std::uint64_t sum) {
+  sum = (sum ^ (sum >> 32)) * 0xD6E8FEB86659FD93ull;
+  sum = (sum ^ (sum >> 32)) * 0xD6E8FEB86659FD93ull;
+  return sum ^ (sum >> 32);
+}
+
 // Equality of two index tuples of length n, compared inline: std::equal becomes a
 // memcmp call, which is slower for the 1-9 ids of a simplex or facet key.
 inline bool same_indices(const std::uint32_t* a, const std::uint32_t* b, std::size_t n) {

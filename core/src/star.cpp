@@ -782,20 +782,10 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
       // The cache entries of its facets (facet k: without ids[k], x included) are
       // lookups at random in a large table: hash them and start their loads now, a
       // few simplices before the walk reaches them, so the misses are over by then.
+      std::array<std::uint64_t, kMaxCols> hashes;
+      cache->facet_hashes(x_, ids, hashes.data());
       for (int k = 0; k < d; ++k) {
-        std::array<std::uint32_t, kMaxCols> whole;
-        int r = 0;
-        bool placed = false;
-        for (int j = 0; j < d; ++j) {
-          if (sorted[static_cast<std::size_t>(j)] == ids[k]) continue;
-          if (!placed && x_ < sorted[static_cast<std::size_t>(j)]) {
-            whole[r++] = x_;
-            placed = true;
-          }
-          whole[r++] = sorted[static_cast<std::size_t>(j)];
-        }
-        if (!placed) whole[r++] = x_;
-        const std::uint64_t h = cache->hash(whole.data());
+        const std::uint64_t h = hashes[static_cast<std::size_t>(k)];
         cache->prefetch(h);
         work_hashes_.push_back(h);
         if (ids[k] > x_) cache->prefetch_start(ids[k]);  // inserts set later vertices' starts

@@ -53,6 +53,10 @@ class FacetCache {
 
   // A facet's hash (d ascending indices), for the calls below.
   std::uint64_t hash(const std::uint32_t* facet) const;
+  // The same hashes for the d facets through x of the simplex x + others (d indices,
+  // any order, x not among them): out[k] is the hash of the facet without others[k].
+  // O(d) for all d (a set hash: a member is dropped by one subtraction).
+  void facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const;
   // Starts loading the facet's first slot into the CPU cache: a walker announces a
   // simplex's facets before it looks them up, so their memory latencies overlap.
   void prefetch(std::uint64_t hash) const;
