@@ -779,16 +779,27 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     }
     plane_known_.push_back(with_plane != nullptr ? 1 : 0);
     if (cache != nullptr) {
-      // The cache entries of its facets (facet k: without ids[k], x included) are
-      // lookups at random in a large table: hash them and start their loads now, a
-      // few simplices before the walk reaches them, so the misses are over by then.
-      std::array<std::uint64_t, kMaxCols> hashes;
-      cache->facet_hashes(x_, ids, hashes.data());
+      // Its facets' hashes (facet k: without ids[k], x included), for the prefetch
+      // below and the lookups.
+      const std::size_t at = work_hashes_.size();
+      work_hashes_.resize(at + static_cast<std::size_t>(d));
+      cache->facet_hashes(x_, ids, &work_hashes_[at]);
+    }
+  };
+  // The cache entries of a queued simplex's facets are lookups at random in a large
+  // table: their loads start kCacheLookahead simplices before the walk reaches it, so
+  // the misses are over by then (when queued would be too early in high dimensions,
+  // where thousands of simplices wait: the lines were evicted again before use).
+  constexpr std::size_t kCacheLookahead = 4;
+  std::size_t prefetched = 0;  // simplices of work_ whose entries are being loaded
+  auto prefetch_ahead = [&](std::size_t i) {
+    if (cache == nullptr) return;
+    const std::size_t queued = work_.size() / static_cast<std::size_t>(d);
+    for (; prefetched < queued && prefetched <= i + kCacheLookahead; ++prefetched) {
       for (int k = 0; k < d; ++k) {
-        const std::uint64_t h = hashes[static_cast<std::size_t>(k)];
-        cache->prefetch(h);
-        work_hashes_.push_back(h);
-        if (ids[k] > x_) cache->prefetch_start(ids[k]);  // inserts set later vertices' starts
+        const std::size_t at = prefetched * static_cast<std::size_t>(d) + static_cast<std::size_t>(k);
+        cache->prefetch(work_hashes_[at]);
+        if (work_[at] > x_) cache->prefetch_start(work_[at]);  // inserts set later vertices' starts
       }
     }
   };
@@ -837,6 +848,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   };
   std::array<Pending, kMaxCols> pending;
   for (std::size_t i = 0; i * d < work_.size(); ++i) {
+    prefetch_ahead(i);
     std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * d),
               work_.begin() + static_cast<std::ptrdiff_t>(i * d + d), simplex.begin());
     // The simplex's d facets (each without x): keys first, with their set slots
@@ -860,7 +872,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
       f.apex = simplex[k];
       if (cache != nullptr) {
         whole_facet(f.others.data(), f.facet.data());
-        f.hash = work_hashes_[i * static_cast<std::size_t>(d) + static_cast<std::size_t>(k)];  // prefetched in add_simplex
+        f.hash = work_hashes_[i * static_cast<std::size_t>(d) + static_cast<std::size_t>(k)];  // prefetched ahead
       }
       ++count;
     }
