@@ -48,7 +48,11 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
                                   : std::clamp<std::uint64_t>((end - begin) / (threads * per_thread) + 1, 1,
                                                               d == 2 ? 131072 : d == 3 ? 4096 : 256);
   const std::uint64_t blocks = (end - begin + block - 1) / block;
-  const std::uint64_t window = 4ull * threads;  // blocks in flight beyond the next one to write
+  // Blocks in flight beyond the next one to write: 4 per worker, but no more seeds
+  // than 4 per worker blocks of 32,768 would hold (the large 2-d blocks), so that a
+  // slow reader leaves at most a few MB of simplices buffered.
+  const std::uint64_t window =
+      std::max<std::uint64_t>(threads, std::min<std::uint64_t>(4ull * threads, 4ull * threads * 32768 / block));
 
   // Shared by every worker's walker: a facet wrapped in one star answers the same
   // wrap in the stars of its other vertices.
@@ -106,6 +110,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       }
       out.clear();
       if (status.is_ok()) {
+        out.reserve(found.size());  // exactly: a large block's doubling would overshoot by MBs
         for (const auto& [at, size] : extent) {
           out.insert(out.end(), found.begin() + static_cast<std::ptrdiff_t>(at),
                      found.begin() + static_cast<std::ptrdiff_t>(at + size));
