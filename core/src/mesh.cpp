@@ -48,8 +48,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
                                   : std::clamp<std::uint64_t>((end - begin) / (threads * per_thread) + 1, 1,
                                                               d == 2 ? 131072 : d == 3 ? 4096 : 256);
   const std::uint64_t blocks = (end - begin + block - 1) / block;
-  // Blocks in flight beyond the next one to write: 4 per worker, but no more seeds
-  // than 4 per worker blocks of 32,768 would hold (the large 2-d blocks), so that a
+  // Blocks in flight beyond the next one to write: 4 per worker, and no more seeds
+  // than 4 blocks of 32,768 per worker (this caps the large 2-d blocks), so that a
   // slow reader leaves at most a few MB of simplices buffered.
   const std::uint64_t window =
       std::max<std::uint64_t>(threads, std::min<std::uint64_t>(4ull * threads, 4ull * threads * 32768 / block));

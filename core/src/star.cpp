@@ -788,8 +788,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   };
   // The cache entries of a queued simplex's facets are lookups at random in a large
   // table: their loads start kCacheLookahead simplices before the walk reaches it, so
-  // the misses are over by then (when queued would be too early in high dimensions,
-  // where thousands of simplices wait: the lines were evicted again before use).
+  // the misses are over by then. (Loading them when the simplex is queued is too
+  // early in 5-d and 6-d, where thousands wait: the lines were evicted before use.)
   constexpr std::size_t kCacheLookahead = 4;
   std::size_t prefetched = 0;  // simplices of work_ whose entries are being loaded
   auto prefetch_ahead = [&](std::size_t i) {

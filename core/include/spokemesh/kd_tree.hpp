@@ -75,9 +75,9 @@ class KdTree {
 
   // First point p (in tree order) with accept(p), visiting only boxes for which
   // may_contain(lo, hi) holds (d lows, d highs: floats rounded outwards, read in
-  // place; widened to double, they are exact). may_contain must be conservative: false only when
-  // no point of the box can be accepted. `accept` may also take (p, coordinates of
-  // p), read from the leaf-ordered copy.
+  // place; widened to double, they are exact). may_contain must be conservative:
+  // false only when no point of the box can be accepted. `accept` may also take (p,
+  // coordinates of p), read from the leaf-ordered copy.
   template <class MayContain, class Accept>
   std::int64_t find_first(MayContain&& may_contain, Accept&& accept) const;
 
