@@ -294,6 +294,24 @@ TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
   EXPECT_FALSE(none.lookup(60, g, none.hash(g), 6, across));
 }
 
+TEST(FacetCache, FacetHashesOfASimplexEqualEachFacetsHash) {
+  // The walker hashes a queued simplex's facets through x in one go and looks them up
+  // with those hashes; whatever inserted them used the same: both must equal hash().
+  FacetCache cache(4, 1000, 0, 1000, 1 << 22);
+  const std::uint32_t x = 500, others[4] = {912, 3, 77, 501};  // any order, x excluded
+  std::uint64_t hashes[4];
+  cache.facet_hashes(x, others, hashes);
+  for (int k = 0; k < 4; ++k) {
+    std::vector<std::uint32_t> facet{x};
+    for (int j = 0; j < 4; ++j) {
+      if (j != k) facet.push_back(others[j]);
+    }
+    std::sort(facet.begin(), facet.end());
+    EXPECT_EQ(hashes[k], cache.hash(facet.data())) << "facet without " << others[k];
+    for (int j = 0; j < k; ++j) EXPECT_NE(hashes[k], hashes[j]);
+  }
+}
+
 TEST(FacetCache, ConcurrentWritersAndReadersSeeOnlyWholeEntries) {
   // Four threads insert overlapping sets of 4-d facets (apexes derived from the key)
   // while reading each other's; a table of 1,024 slots also overflows on purpose.
