@@ -125,6 +125,8 @@ class StarWalker {
     void reset(int length);
     bool insert(const std::uint32_t* sorted_key);  // true if it was new
     bool insert(const std::uint32_t* sorted_key, std::uint64_t hash);  // hash: hash(sorted_key)
+    // The key's position (0, 1, ... in order of first insertion), inserting it if new.
+    std::uint32_t position(const std::uint32_t* sorted_key, std::uint64_t hash, bool& inserted);
     std::uint64_t hash(const std::uint32_t* key) const;
     void prefetch(std::uint64_t hash) const;  // the key's first slot (a hint only)
 
@@ -209,7 +211,11 @@ class StarWalker {
     double lower;         // certified lower bound of its pencil parameter
   };
   std::vector<Contender> contenders_;  // a wrap's pencil-scan contenders
-  std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x)
+  std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x), ascending
+  std::vector<std::uint32_t> work_facets_;  // per work_ simplex: facet_seen_ position of facet k (without id k)
+  std::vector<std::uint8_t> facet_open_;  // per facet_seen_ position: one side known, not yet walked
+  std::vector<std::uint32_t> facet_apex_;  // per facet_seen_ position: the apex of its first simplex
+  std::vector<std::uint32_t> deferred_;  // facets (simplex * d + k) the cache could not answer, to wrap
   std::vector<Approx> work_planes_;  // their lifted planes, d + 1 coefficients each
   std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
   std::vector<std::uint64_t> work_hashes_;  // per work_ simplex, with a facet cache: its d facets' hashes
