@@ -1,7 +1,7 @@
-// KdTree against brute force (as nanoflann tests itself): k nearest and radius
-// queries on random, tied (grid) and awkwardly scaled inputs, including those that
-// stress the Z-order pre-sort of the build (a flat coordinate, a huge span, tiny
-// coordinates, one point).
+// KdTree against brute force (as nanoflann tests itself): k nearest (also cut at a
+// distance bound) and radius queries on random, tied (grid) and awkwardly scaled
+// inputs, including those that stress the Z-order pre-sort of the build (a flat
+// coordinate, a huge span, tiny coordinates, one point).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -71,6 +71,20 @@ void expect_knn_matches_brute_force(const std::string& name, int d, std::vector<
     for (std::size_t j = 0; j < n; ++j) expected += all[j] < kth ? 1 : 0;
     ASSERT_EQ(near.size(), expected) << name << " query " << q;
     for (const auto& [j, e] : near) ASSERT_LT(all[j], kth) << name;
+    // knn() with a bound: the same nearest, cut at the bound (strictly closer only),
+    // for bounds below, at and above the k-th distance.
+    for (const double bound : {sorted[std::min(got, n) / 2], kth, kth * 1.5}) {
+      std::vector<std::uint32_t> bounded_ids(k);
+      std::vector<double> bounded_d2(k);
+      const std::size_t cut = tree.knn(ps.point(q), k, bounded_ids.data(), bounded_d2.data(), nullptr, bound);
+      std::size_t closer = 0;
+      for (std::size_t j = 0; j < n; ++j) closer += all[j] < bound ? 1 : 0;
+      ASSERT_EQ(cut, std::min(closer, got)) << name << " query " << q << " bound " << bound;
+      for (std::size_t i = 0; i < cut; ++i) {
+        ASSERT_EQ(bounded_d2[i], sorted[i]) << name << " query " << q << " bound " << bound << " rank " << i;
+        ASSERT_LT(bounded_d2[i], bound) << name;
+      }
+    }
   }
 }
 

@@ -224,9 +224,12 @@ void KdTree::search(const double* query, ResultSet& result) const {
 }
 
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
-                        const double** coords) const {
+                        const double** coords, double bound2) const {
   nanoflann::KNNResultSet<double, std::uint32_t> result(k);
   result.init(ids, dist2);
+  // The set's worst distance starts at "infinity" in its last slot and only falls:
+  // starting it at bound2 instead keeps exactly the points closer than bound2.
+  if (k != 0 && bound2 < dist2[k - 1]) dist2[k - 1] = bound2;
   search(query, result);
   const std::size_t got = result.size();
   for (std::size_t i = 0; i < got; ++i) {

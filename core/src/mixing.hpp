@@ -1,5 +1,5 @@
-// Internal to core: the deterministic random numbers and the index-tuple hash shared by
-// the exact star walk and the approximate neighbour walk.
+// Internal to core: the deterministic random numbers, the index-tuple hash and sort
+// shared by the exact star walk, the approximate neighbour walk and the validator.
 #pragma once
 
 #include <cstddef>
@@ -19,6 +19,18 @@ inline std::uint64_t splitmix64(std::uint64_t& state) {
 // The per-seed random state: the caller's seed mixed with the seed index.
 inline std::uint64_t seed_state(std::uint64_t random_seed, std::uint32_t seed) {
   return random_seed ^ (0xD1B54A32D192ED03ull * (std::uint64_t{seed} + 1));
+}
+
+// Insertion sort for the 1..9 indices of a simplex or facet key (std::sort's set-up
+// costs more than the sort at this size, and GCC 12 warns falsely about its heap
+// code on a std::array of 9).
+inline void sort_small(std::uint32_t* a, int n) {
+  for (int i = 1; i < n; ++i) {
+    const std::uint32_t v = a[i];
+    int j = i;
+    for (; j > 0 && a[j - 1] > v; --j) a[j] = a[j - 1];
+    a[j] = v;
+  }
 }
 
 // Hash of a tuple of point indices (FNV-style with a shift-add mix).

@@ -6,6 +6,8 @@
 #include <array>
 #include <numeric>
 
+#include "mixing.hpp"
+
 namespace spokemesh {
 namespace {
 
@@ -13,8 +15,12 @@ constexpr int kMaxCols = kMaxDimension + 1;
 
 std::string tuple_text(const std::uint32_t* ids, int count) {
   std::string s = "(";
-  for (int i = 0; i < count; ++i) s += (i ? " " : "") + std::to_string(ids[i]);
-  return s + ")";
+  for (int i = 0; i < count; ++i) {
+    if (i != 0) s += ' ';
+    s += std::to_string(ids[i]);
+  }
+  s += ')';
+  return s;
 }
 
 // Exact determinant of rows (p_i - origin) for d points.
@@ -53,7 +59,7 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
         ok = false;
       }
     }
-    std::sort(s.begin(), s.begin() + w);
+    detail::sort_small(s.data(), w);
     if (ok && std::adjacent_find(s.begin(), s.begin() + w) != s.begin() + w) {
       fail("simplex " + std::to_string(i) + " " + tuple_text(s.data(), w) + " repeats a vertex");
       ok = false;
@@ -79,7 +85,7 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
     for (int k = 0; k < w; ++k) {
       if (k != f.opposite) key[r++] = s[k];
     }
-    std::sort(key.begin(), key.begin() + d);
+    detail::sort_small(key.data(), d);
   };
   std::vector<FacetRef> facets(m * w);
   for (std::size_t i = 0; i < m; ++i) {

@@ -28,6 +28,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <type_traits>
 #include <vector>
@@ -55,8 +56,11 @@ class KdTree {
   // is then returned first at distance 0). Returns the count written. With `coords`,
   // also each point's coordinates (pointers into the tree's leaf-ordered copy, equal
   // to the PointSet's values, valid for the tree's lifetime).
+  // With `bound2`, only points at squared distance < bound2 are reported (fewer than
+  // k when fewer lie that close): a good bound prunes most of the search.
   std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
-                  const double** coords = nullptr) const;
+                  const double** coords = nullptr,
+                  double bound2 = std::numeric_limits<double>::infinity()) const;
 
   // Position of point `id` in the tree's leaf order: points close in this order are
   // close in space (for visiting seeds in a cache-friendly order).

@@ -64,6 +64,7 @@ struct StarStats {
   std::uint64_t sphere_queries = 0;  // k-d tree queries certifying spheres beyond the candidates
   std::uint64_t cached_wraps = 0;    // wraps answered by the FacetCache
   std::uint64_t cached_starts = 0;   // stars begun at a FacetCache facet instead of by spokes
+  std::uint64_t candidate_loads = 0;  // k-d tree neighbourhoods loaded (a star wholly cached needs none)
 
   StarStats& operator+=(const StarStats& o) {
     seeds += o.seeds;
@@ -74,6 +75,7 @@ struct StarStats {
     sphere_queries += o.sphere_queries;
     cached_wraps += o.cached_wraps;
     cached_starts += o.cached_starts;
+    candidate_loads += o.candidate_loads;
     return *this;
   }
 };
@@ -196,6 +198,7 @@ class StarWalker {
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
   double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
+  double knn_guess2_ = std::numeric_limits<double>::infinity();  // the last full load's k-th |p - x|^2
   bool loaded_ = false;             // the candidates are loaded for this seed
   std::size_t cache_credit_ = 0;    // FacetCache entries reserved and not yet used
   int missed_candidates_ = 0;       // sphere queries that found a point beyond them
