@@ -95,6 +95,31 @@ TEST(KdTree, NearestMatchBruteForce) {
   expect_knn_matches_brute_force("uniform-9d", 9, uniform_points(9, 120, 4), 30);  // the generic search
 }
 
+// A set large enough for the two halves to be built on two threads: a sample of
+// queries (some of them not points of the set) against brute force.
+TEST(KdTree, LargeSetBuiltInParallelMatchesBruteForce) {
+  const int d = 2;
+  PointSet ps(d, uniform_points(d, 70000, 11));
+  ASSERT_TRUE(ps.validate("large").is_ok());
+  const KdTree tree(ps);
+  const std::size_t n = ps.size(), k = 17;
+  std::vector<std::uint32_t> ids(k);
+  std::vector<double> d2(k);
+  for (std::size_t q = 0; q < n; q += 350) {
+    for (const double shift : {0.0, 0.37}) {  // a point of the set, or beside it
+      const double query[2] = {ps.point(q)[0] + shift * 1e-3, ps.point(q)[1] - shift * 1e-3};
+      std::vector<double> all(n);
+      for (std::size_t j = 0; j < n; ++j) {
+        const double a = query[0] - ps.point(j)[0], b = query[1] - ps.point(j)[1];
+        all[j] = a * a + b * b;
+      }
+      std::partial_sort(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(k), all.end());
+      ASSERT_EQ(tree.knn(query, k, ids.data(), d2.data()), k);
+      for (std::size_t i = 0; i < k; ++i) ASSERT_EQ(d2[i], all[i]) << "query " << q << " shift " << shift << " rank " << i;
+    }
+  }
+}
+
 TEST(KdTree, NearestMatchBruteForceWithTies) {
   expect_knn_matches_brute_force("grid-2d", 2, grid_points(2, 12), 13);
   expect_knn_matches_brute_force("grid-3d", 3, grid_points(3, 5), 27);

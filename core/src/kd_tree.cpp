@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <system_error>
+#include <thread>
 
 namespace spokemesh {
 
@@ -53,56 +55,143 @@ std::vector<std::uint32_t> z_order(const PointSet& points) {
   return order;
 }
 
+// Runs fn(begin, end) over [0, n) in two halves, one on another thread when n is
+// large enough for that to pay (and a thread is to be had).
+template <class Fn>
+void in_two_halves(std::size_t n, std::size_t parallel_from, Fn&& fn) {
+  std::thread other;
+  if (n >= parallel_from) {
+    try {
+      other = std::thread([&] { fn(n / 2, n); });
+    } catch (const std::system_error&) {
+    }
+  }
+  fn(0, other.joinable() ? n / 2 : n);
+  if (other.joinable()) other.join();
+}
+
 }  // namespace
 
-KdTree::KdTree(const PointSet& points)
-    : points_(points), adaptor_{nullptr, points.size(), static_cast<std::size_t>(points.dimension())} {
-  const std::size_t n = points.size(), d = adaptor_.d;
+KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
+  const std::size_t n = points.size(), d = d_;
   // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more.
   // The copy is the tree's own coordinate array, put in leaf order afterwards, so
   // building costs no second copy of the points.
   std::vector<std::uint32_t> order = z_order(points);
+
+  // The bounding box (the search's initial distances) and the top split: the
+  // widest side, at the median point along it. The two halves are separate nanoflann
+  // trees under one root of our own, built concurrently for large sets (nanoflann
+  // 1.4.3 builds on one thread: 10% of a 2-d million's whole mesh). The split does
+  // not depend on the thread count, so neither does the tree.
+  bbox_.assign(2 * d, 0.0);
+  for (std::size_t c = 0; c < d; ++c) {
+    bbox_[c] = std::numeric_limits<double>::infinity();
+    bbox_[d + c] = -std::numeric_limits<double>::infinity();
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t c = 0; c < d; ++c) {
+      bbox_[c] = std::min(bbox_[c], points.point(i)[c]);
+      bbox_[d + c] = std::max(bbox_[d + c], points.point(i)[c]);
+    }
+  }
+  std::size_t split_dim = 0;
+  for (std::size_t c = 1; c < d; ++c) {
+    if (bbox_[d + c] - bbox_[c] > bbox_[d + split_dim] - bbox_[split_dim]) split_dim = c;
+  }
+  std::size_t n_left = n;
+  if (n >= kSplitAtLeast && bbox_[d + split_dim] > bbox_[split_dim]) {
+    std::vector<double> along(n);
+    for (std::size_t i = 0; i < n; ++i) along[i] = points.point(i)[split_dim];
+    std::nth_element(along.begin(), along.begin() + static_cast<std::ptrdiff_t>(n / 2), along.end());
+    double median = along[n / 2];
+    // Left: below the median; if nothing is (the median is the minimum), at most it.
+    // Both sides are non-empty either way, since the side has positive length.
+    const bool at_most = median == bbox_[split_dim];
+    auto left = [&](std::uint32_t i) {
+      const double v = points.point(i)[split_dim];
+      return at_most ? v <= median : v < median;
+    };
+    // Stable: each half keeps the Z order.
+    n_left = static_cast<std::size_t>(std::stable_partition(order.begin(), order.end(), left) - order.begin());
+  }
   leaf_coords_.resize(n * d);
   // Points are copied coordinate by coordinate: a std::copy_n of a runtime d is a
   // memmove call per point (16% of a 2-d build).
   auto copy_point = [d](const double* from, double* to) {
     for (std::size_t c = 0; c < d; ++c) to[c] = from[c];
   };
-  for (std::size_t k = 0; k < n; ++k) copy_point(points.point(order[k]), &leaf_coords_[k * d]);
-  adaptor_.coords = leaf_coords_.data();
-  index_ = std::make_unique<Index>(points.dimension(), adaptor_,
-                                   nanoflann::KDTreeSingleIndexAdaptorParams(/*leaf_max_size=*/8));
-  // Now the leaf order: leaf position k holds what was at Z position vAcc[k], and
-  // nanoflann's permutation becomes the identity. The same tree, but a query reads
-  // each leaf's points from consecutive memory (about 40% of a 3-d 64-NN query's time
-  // was reading them from n random places).
-  const auto& z_of = index_->vAcc;
+  in_two_halves(n, kBuildInParallelAtLeast, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t k = begin; k < end; ++k) copy_point(points.point(order[k]), &leaf_coords_[k * d]);
+  });
+  const std::size_t counts[2] = {n_left, n - n_left};
+  const nanoflann::KDTreeSingleIndexAdaptorParams params(/*leaf_max_size=*/8);
+  auto build = [&](int h) {
+    adaptors_[h] = Adaptor{leaf_coords_.data() + (h == 0 ? 0 : n_left * d), counts[h], d};
+    halves_[h] = std::make_unique<Index>(static_cast<int>(d), adaptors_[h], params);
+  };
+  if (counts[1] == 0) {
+    build(0);
+  } else {  // the halves on two threads (large sets) or one after the other
+    in_two_halves(2, n >= kBuildInParallelAtLeast ? 2 : 3, [&](std::size_t begin, std::size_t end) {
+      for (std::size_t h = begin; h < end; ++h) build(static_cast<int>(h));
+    });
+  }
+  // Now the leaf order: leaf position k holds what was at Z position z_of(k) (each
+  // half's vAcc, the right half's shifted past the left). The same trees, but a query
+  // reads each leaf's points from consecutive memory (about 40% of a 3-d 64-NN
+  // query's time was reading them from n random places).
+  auto z_of = [&](std::size_t k) -> std::size_t {
+    return k < n_left ? halves_[0]->vAcc[k] : n_left + halves_[1]->vAcc[k - n_left];
+  };
   id_of_.resize(n);
   rank_of_.resize(n);
   for (std::size_t k = 0; k < n; ++k) {
-    id_of_[k] = order[z_of[k]];
+    id_of_[k] = order[z_of(k)];
     rank_of_[id_of_[k]] = static_cast<std::uint32_t>(k);
   }
+  // Gathered into a new array (position k takes Z position z_of(k)'s coordinates):
+  // the build briefly holds two copies, but both threads can fill it.
+  std::vector<double> gathered(n * d);
+  in_two_halves(n, kBuildInParallelAtLeast, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t k = begin; k < end; ++k) copy_point(&leaf_coords_[z_of(k) * d], &gathered[k * d]);
+  });
+  leaf_coords_.swap(gathered);
+  gathered = {};
   order = {};
-  // In place, cycle by cycle: position k takes Z position z_of[k]'s coordinates.
-  std::vector<bool> placed(n, false);
-  std::vector<double> saved(d);
-  for (std::size_t first = 0; first < n; ++first) {
-    if (placed[first]) continue;
-    copy_point(&leaf_coords_[first * d], saved.data());
-    for (std::size_t k = first;;) {
-      placed[k] = true;
-      const std::size_t from = z_of[k];
-      if (from == first) {
-        copy_point(saved.data(), &leaf_coords_[k * d]);
-        break;
+  // Leaves name ranges of leaf positions: the right half's start past the left's.
+  // (nanoflann's own searches, which would read vAcc, are never used.)
+  root_ = halves_[0]->root_node;
+  if (counts[1] != 0) {
+    shift_leaves(halves_[1]->root_node, static_cast<std::uint32_t>(n_left));
+    top_.node_type.sub.divfeat = static_cast<int>(split_dim);
+    double left_high = -std::numeric_limits<double>::infinity(), right_low = -left_high;
+    for (std::size_t k = 0; k < n; ++k) {
+      const double v = leaf_coords_[k * d + split_dim];
+      if (k < n_left) {
+        left_high = std::max(left_high, v);
+      } else {
+        right_low = std::min(right_low, v);
       }
-      copy_point(&leaf_coords_[from * d], &leaf_coords_[k * d]);
-      k = from;
     }
+    top_.node_type.sub.divlow = left_high;  // as nanoflann: the left box's high side
+    top_.node_type.sub.divhigh = right_low;  // and the right box's low side
+    top_.child1 = halves_[0]->root_node;
+    top_.child2 = halves_[1]->root_node;
+    root_ = &top_;
   }
-  std::iota(index_->vAcc.begin(), index_->vAcc.end(), std::uint32_t{0});
-  if (index_->root_node != nullptr) add_box_nodes(index_->root_node);
+  if (root_ != nullptr) add_box_nodes(root_);
+}
+
+void KdTree::shift_leaves(Node* node, std::uint32_t by) {
+  if (node == nullptr) return;
+  if (node->child1 == nullptr && node->child2 == nullptr) {
+    node->node_type.lr.left += by;
+    node->node_type.lr.right += by;
+    return;
+  }
+  shift_leaves(node->child1, by);
+  shift_leaves(node->child2, by);
 }
 
 namespace {
@@ -128,7 +217,7 @@ float float_up(double v) {
 }  // namespace
 
 std::size_t KdTree::add_box_nodes(const Node* node) {
-  const std::size_t d = adaptor_.d;
+  const std::size_t d = d_;
   const std::size_t at = box_nodes_.size();
   box_nodes_.push_back({});
   box_bounds_.resize(box_bounds_.size() + 2 * d);
@@ -162,22 +251,23 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
   return at;
 }
 
-// nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor) with the dimension a
-// compile-time constant. The index is built with a runtime dimension (one type for
-// every d), so its own search cannot unroll its distance loops or index the leaf
-// copy without a multiplication by d (11% of a 2-d search's instructions, where the
-// k-NN search is the largest part of a seed).
-// Same tree, same visiting order, same arithmetic in the same order, so the results,
-// ties included, are exactly nanoflann's.
+// nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor), with the dimension a
+// compile-time constant for d <= 8 (D = 0: the runtime d). The index is built with a
+// runtime dimension (one type for every d), so its own search cannot unroll its
+// distance loops or index the leaf copy without a multiplication by d (11% of a 2-d
+// search's instructions, where the k-NN search is the largest part of a seed); and
+// ours reads the leaf-ordered copy, which spans both halves of the tree.
+// Same visiting order, same arithmetic in the same order as nanoflann's.
 template <int D, class ResultSet>
 bool KdTree::search_level(const Node* node, ResultSet& result, const double* query, double mindistsq,
                           double* offsets) const {
+  const std::size_t dim = D > 0 ? static_cast<std::size_t>(D) : d_;
   if (node->child1 == nullptr && node->child2 == nullptr) {
     const double worst = result.worstDist();  // read once per leaf, as nanoflann does
     for (auto i = node->node_type.lr.left; i < node->node_type.lr.right; ++i) {
-      const double* p = &leaf_coords_[i * static_cast<std::size_t>(D)];
+      const double* p = &leaf_coords_[i * dim];
       double dist = 0;
-      for (int c = 0; c < D; ++c) {
+      for (std::size_t c = 0; c < dim; ++c) {
         const double diff = query[c] - p[c];
         dist += diff * diff;
       }
@@ -201,25 +291,34 @@ bool KdTree::search_level(const Node* node, ResultSet& result, const double* que
   return true;
 }
 
-// nanoflann's findNeighbors, minus its one allocation per query: with a runtime
-// dimension it builds a fresh std::vector of per-dimension box offsets each time.
-// The same two steps (initial box distances, then the search) run here on a
-// per-thread buffer, so the results, ties included, are nanoflann's.
+// nanoflann's findNeighbors (initial box distances, then the search), minus its one
+// allocation per query: with a runtime dimension it builds a fresh std::vector of
+// per-dimension box offsets each time; here they live in a per-thread buffer.
 template <class ResultSet>
 void KdTree::search(const double* query, ResultSet& result) const {
-  if (index_->root_node == nullptr) return;  // no points
-  thread_local Index::distance_vector_t offsets;
-  offsets.assign(adaptor_.d, 0.0);  // allocates only when a thread first sees this d
-  const double distsq = index_->computeInitialDistances(*index_, query, offsets);
-  switch (adaptor_.d) {  // the one dispatch from the runtime dimension to compiled searches
-    case 2: search_level<2>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 3: search_level<3>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 4: search_level<4>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 5: search_level<5>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 6: search_level<6>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 7: search_level<7>(index_->root_node, result, query, distsq, offsets.data()); return;
-    case 8: search_level<8>(index_->root_node, result, query, distsq, offsets.data()); return;
-    default: index_->searchLevel(result, query, index_->root_node, distsq, offsets, /*epsError=*/1.0f);
+  if (root_ == nullptr) return;  // no points
+  thread_local std::vector<double> offsets;
+  offsets.assign(d_, 0.0);  // allocates only when a thread first sees this d
+  double distsq = 0;
+  for (std::size_t c = 0; c < d_; ++c) {  // as nanoflann's computeInitialDistances
+    if (query[c] < bbox_[c]) {
+      offsets[c] = (query[c] - bbox_[c]) * (query[c] - bbox_[c]);
+      distsq += offsets[c];
+    }
+    if (query[c] > bbox_[d_ + c]) {
+      offsets[c] = (query[c] - bbox_[d_ + c]) * (query[c] - bbox_[d_ + c]);
+      distsq += offsets[c];
+    }
+  }
+  switch (d_) {  // the one dispatch from the runtime dimension to compiled searches
+    case 2: search_level<2>(root_, result, query, distsq, offsets.data()); return;
+    case 3: search_level<3>(root_, result, query, distsq, offsets.data()); return;
+    case 4: search_level<4>(root_, result, query, distsq, offsets.data()); return;
+    case 5: search_level<5>(root_, result, query, distsq, offsets.data()); return;
+    case 6: search_level<6>(root_, result, query, distsq, offsets.data()); return;
+    case 7: search_level<7>(root_, result, query, distsq, offsets.data()); return;
+    case 8: search_level<8>(root_, result, query, distsq, offsets.data()); return;
+    default: search_level<0>(root_, result, query, distsq, offsets.data());
   }
 }
 
@@ -233,7 +332,7 @@ std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, 
   search(query, result);
   const std::size_t got = result.size();
   for (std::size_t i = 0; i < got; ++i) {
-    if (coords != nullptr) coords[i] = &leaf_coords_[ids[i] * adaptor_.d];
+    if (coords != nullptr) coords[i] = &leaf_coords_[ids[i] * d_];
     ids[i] = id_of_[ids[i]];
   }
   return got;

@@ -10,17 +10,20 @@
 // RSD uses it to certify hull facets (unbounded Voronoi edges) globally instead of
 // by growing the neighbourhood.
 //
-// Layout: nanoflann builds its tree over a copy of the coordinates in Z-order (its
-// partitioning then reads nearby memory), and that copy is then permuted into the
-// tree's leaf order, with nanoflann's index permutation reset to the identity: every
-// leaf's points are contiguous in memory (the tree itself is unchanged). Queries
-// speak original point indices. find_first and any_beyond walk a flattened copy
-// of the tree with each node's tight bounding box.
+// Layout: the set is split at the top (its bounding box's widest side, at the median)
+// into two nanoflann trees under one root of our own, built concurrently for large
+// sets. nanoflann builds over a copy of the coordinates in Z-order (its partitioning
+// then reads nearby memory), and that copy is then gathered into the trees' leaf
+// order: every leaf's points are contiguous in memory, and leaves name ranges of it.
+// Queries speak original point indices; the searches are our own copies of
+// nanoflann's (see search_level). find_first and any_beyond walk a flattened copy of
+// the tree with each node's tight bounding box.
 //
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
-// (n * d doubles), the permutation both ways (2 n indices) and the box tree (about
-// 0.36 n nodes of 2 d floats and 3 indices).
-// Thread safety: immutable after construction; concurrent queries are safe.
+// (n * d doubles; twice that briefly while it is built), the permutation both ways
+// (2 n indices) and the box tree (about 0.36 n nodes of 2 d floats and 3 indices).
+// Thread safety: immutable after construction; concurrent queries are safe. The
+// constructor itself uses one extra thread for sets of 65,536 points or more.
 #pragma once
 
 #include <nanoflann.hpp>
@@ -118,9 +121,20 @@ class KdTree {
     std::uint32_t begin, end, skip;
   };
 
+  // Sets at least this large are split at the top into two nanoflann trees (see the
+  // constructor), built concurrently from this size on.
+  static constexpr std::size_t kSplitAtLeast = 64;
+  static constexpr std::size_t kBuildInParallelAtLeast = 65536;
+  // Adds `by` to the point ranges of the leaves under node.
+  static void shift_leaves(Node* node, std::uint32_t by);
+
   const PointSet& points_;
-  Adaptor adaptor_;
-  std::unique_ptr<Index> index_;
+  std::size_t d_;
+  Adaptor adaptors_[2];  // each half's coordinates, while nanoflann builds
+  std::unique_ptr<Index> halves_[2];
+  Node top_{};  // the root above the two halves
+  const Node* root_ = nullptr;
+  std::vector<double> bbox_;  // d lows, then d highs
   std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
   std::vector<std::uint32_t> id_of_;  // leaf position -> original index
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
@@ -131,7 +145,7 @@ class KdTree {
 template <class MayContain, class Accept>
 std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const {
   // Stackless preorder walk of the box tree: a rejected box jumps past its subtree.
-  const std::size_t d = static_cast<std::size_t>(points().dimension());
+  const std::size_t d = d_;
   const std::size_t count = box_nodes_.size();
   for (std::size_t i = 0; i < count;) {
     const BoxNode& node = box_nodes_[i];
