@@ -21,14 +21,31 @@ PointSet::PointSet(int dimension, std::vector<double> coordinates)
 
 namespace {
 
+// Point indices in lexicographic order of their coordinates, equal points in input
+// order. Sorted as (first coordinate, index) records: the first coordinate nearly
+// always decides, so a comparison rarely reads the points themselves (a stable sort
+// of indices that read both points at random per comparison took 0.39 s for a 2-d
+// million, 2.6x this). Coordinates must be finite (no NaN).
 std::vector<std::uint32_t> lex_order(const PointSet& ps) {
-  std::vector<std::uint32_t> order(ps.size());
-  std::iota(order.begin(), order.end(), 0u);
+  struct Entry {
+    double first;
+    std::uint32_t index;
+  };
+  const std::size_t n = ps.size();
   const int d = ps.dimension();
-  // Stable, so equal points keep input order and "first occurrence" is well defined.
-  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return lex_less(ps.point(a), ps.point(b), d);
+  std::vector<Entry> entries(n);
+  for (std::size_t i = 0; i < n; ++i) entries[i] = {ps.point(i)[0], static_cast<std::uint32_t>(i)};
+  std::sort(entries.begin(), entries.end(), [&](const Entry& a, const Entry& b) {
+    if (a.first != b.first) return a.first < b.first;
+    const double* p = ps.point(a.index);
+    const double* q = ps.point(b.index);
+    for (int c = 1; c < d; ++c) {
+      if (p[c] != q[c]) return p[c] < q[c];
+    }
+    return a.index < b.index;  // equal points: input order, so "first occurrence" is defined
   });
+  std::vector<std::uint32_t> order(n);
+  for (std::size_t k = 0; k < n; ++k) order[k] = entries[k].index;
   return order;
 }
 

@@ -47,7 +47,8 @@ class PointSet {
   Status validate(const std::string& source, int max_dimension = kMaxDimension, bool check_span = true);
 
   // Removes exact duplicates, keeping each first occurrence. Returns for every
-  // input index the index it maps to in the reduced set.
+  // input index the index it maps to in the reduced set. Precondition: finite
+  // coordinates (the readers refuse others).
   std::vector<std::uint32_t> merge_duplicates();
 
  private:
