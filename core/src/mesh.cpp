@@ -4,7 +4,6 @@
 #include <condition_variable>
 #include <deque>
 #include <mutex>
-#include <numeric>
 #include <optional>
 #include <thread>
 #include <vector>
@@ -75,6 +74,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     StarWalker walker(tree, star_options);
     Star star;
     std::vector<std::uint32_t> out, found, order;
+    std::vector<std::uint64_t> keys;
     std::vector<std::pair<std::size_t, std::size_t>> extent;  // per seed of the block: its simplices in `found`
     for (;;) {
       std::uint64_t b;
@@ -89,10 +89,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       // nearby parts of the tree and the point set (memory latency, not arithmetic,
       // bounds a 2-d star); their owned simplices are then put back in seed order.
       const std::uint64_t lo = begin + b * block, hi = std::min(end, lo + block);
+      // Sorted as (rank, seed) words: a comparator that looked the ranks up cost a
+      // random read per comparison.
+      keys.resize(hi - lo);
+      for (std::uint64_t s = lo; s < hi; ++s) keys[s - lo] = std::uint64_t{tree.leaf_rank(static_cast<std::uint32_t>(s))} << 32 | s;
+      std::sort(keys.begin(), keys.end());
       order.resize(hi - lo);
-      std::iota(order.begin(), order.end(), static_cast<std::uint32_t>(lo));
-      std::sort(order.begin(), order.end(),
-                [&](std::uint32_t s, std::uint32_t t) { return tree.leaf_rank(s) < tree.leaf_rank(t); });
+      for (std::size_t i = 0; i < keys.size(); ++i) order[i] = static_cast<std::uint32_t>(keys[i]);
       found.clear();
       extent.resize(hi - lo);
       Status status;
