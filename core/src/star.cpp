@@ -1,7 +1,6 @@
 #include "spokemesh/star.hpp"
 
 #include <algorithm>
-#include <cstdlib>
 #include <array>
 #include <cstring>
 #include <limits>
@@ -792,9 +791,9 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   // Its d facets through x are registered: a facet met for the second time has both
   // of its simplices known, so it needs no wrap (in a triangulation a facet lies in at
   // most two simplices). Walking only the facets still open visits the star's
-  // simplices breadth first along a spanning tree of their adjacency: m - 1 wraps for
-  // m simplices, where walking every facet once took m d / 2 (3-d: a third fewer,
-  // 6-d: two thirds).
+  // simplices along a spanning tree of their adjacency: m - 1 wraps or lookups for m
+  // simplices, where walking every facet once took m d / 2 (3-d: a third fewer, 6-d:
+  // two thirds).
   auto add_simplex = [&](const std::uint32_t* ids, const Approx* with_plane) {
     std::array<std::uint32_t, kMaxCols> sorted;
     std::copy(ids, ids + d, sorted.begin());
@@ -873,13 +872,14 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     }
     key[d - 1] = apex_a;
     add_simplex(key.data(), nullptr);
+    // The start facet is answered (by the cache, so not recorded again): closed.
+    bool first = false;
+    facet_open_[facet_seen_.position(key.data(), facet_seen_.hash(key.data()), first)] = 0;
     if (apex_b == FacetCache::kHull) {
       ++hull;
-      bool first = false;  // known to be a hull facet: nothing to walk
-      facet_open_[facet_seen_.position(key.data(), facet_seen_.hash(key.data()), first)] = 0;
     } else {
       key[d - 1] = apex_b;
-      add_simplex(key.data(), nullptr);  // closes the facet: both sides known
+      add_simplex(key.data(), nullptr);
     }
   } else {
     ensure_candidates();
