@@ -74,9 +74,8 @@ void in_two_halves(std::size_t n, std::size_t parallel_from, Fn&& fn) {
 
 KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
   const std::size_t n = points.size(), d = d_;
-  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more.
-  // The copy is the tree's own coordinate array, put in leaf order afterwards, so
-  // building costs no second copy of the points.
+  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more;
+  // the copy is gathered into leaf order afterwards and becomes the tree's own array.
   std::vector<std::uint32_t> order = z_order(points);
 
   // The bounding box (the search's initial distances) and the top split: the
@@ -104,7 +103,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
     std::vector<double> along(n);
     for (std::size_t i = 0; i < n; ++i) along[i] = points.point(i)[split_dim];
     std::nth_element(along.begin(), along.begin() + static_cast<std::ptrdiff_t>(n / 2), along.end());
-    double median = along[n / 2];
+    const double median = along[n / 2];
     // Left: below the median; if nothing is (the median is the minimum), at most it.
     // Both sides are non-empty either way, since the side has positive length.
     const bool at_most = median == bbox_[split_dim];

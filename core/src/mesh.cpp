@@ -92,7 +92,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       // Sorted as (rank, seed) words: a comparator that looked the ranks up cost a
       // random read per comparison.
       keys.resize(hi - lo);
-      for (std::uint64_t s = lo; s < hi; ++s) keys[s - lo] = std::uint64_t{tree.leaf_rank(static_cast<std::uint32_t>(s))} << 32 | s;
+      for (std::uint64_t s = lo; s < hi; ++s) {
+        keys[s - lo] = std::uint64_t{tree.leaf_rank(static_cast<std::uint32_t>(s))} << 32 | s;
+      }
       std::sort(keys.begin(), keys.end());
       order.resize(hi - lo);
       for (std::size_t i = 0; i < keys.size(); ++i) order[i] = static_cast<std::uint32_t>(keys[i]);
