@@ -16,20 +16,14 @@ namespace {
 // build partitions the index array over and over, reading each point's coordinates,
 // and in this order those reads stay local (a shuffled 2-d million: 0.45 s -> 0.25 s).
 // The tree's splits come from the subsets' bounding boxes, whatever their order.
-std::vector<std::uint32_t> z_order(const PointSet& points) {
+// lo, hi: the points' bounding box (d lows, d highs).
+std::vector<std::uint32_t> z_order(const PointSet& points, const double* lo, const double* hi) {
   const std::size_t n = points.size(), d = static_cast<std::size_t>(points.dimension());
   int total_bits = 0;
   while (total_bits < 20 && (std::size_t{1} << total_bits) < n) ++total_bits;
   const int bits = std::max(1, total_bits / static_cast<int>(d));  // per coordinate
   const std::size_t used = std::min(d, static_cast<std::size_t>(std::max(total_bits, 1)));  // coordinates keyed
-  std::vector<double> lo(used, std::numeric_limits<double>::infinity()), scale(used, 0.0);
-  std::vector<double> hi(used, -std::numeric_limits<double>::infinity());
-  for (std::size_t i = 0; i < n; ++i) {
-    for (std::size_t c = 0; c < used; ++c) {
-      lo[c] = std::min(lo[c], points.point(i)[c]);
-      hi[c] = std::max(hi[c], points.point(i)[c]);
-    }
-  }
+  std::vector<double> scale(used, 0.0);
   const double cells = std::ldexp(1.0, bits);
   for (std::size_t c = 0; c < used; ++c) {
     // Halved first: the span of coordinates near the documented range may overflow.
@@ -55,12 +49,12 @@ std::vector<std::uint32_t> z_order(const PointSet& points) {
   return order;
 }
 
-// Runs fn(begin, end) over [0, n) in two halves, one on another thread when n is
-// large enough for that to pay (and a thread is to be had).
+// Runs fn(begin, end) over [0, n): in two halves, one on another thread, when
+// `parallel` (and a thread is to be had); otherwise as one range here.
 template <class Fn>
-void in_two_halves(std::size_t n, std::size_t parallel_from, Fn&& fn) {
+void in_two_halves(std::size_t n, bool parallel, Fn&& fn) {
   std::thread other;
-  if (n >= parallel_from) {
+  if (parallel) {
     try {
       other = std::thread([&] { fn(n / 2, n); });
     } catch (const std::system_error&) {
@@ -74,15 +68,11 @@ void in_two_halves(std::size_t n, std::size_t parallel_from, Fn&& fn) {
 
 KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
   const std::size_t n = points.size(), d = d_;
-  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more;
-  // the copy is gathered into leaf order afterwards and becomes the tree's own array.
-  std::vector<std::uint32_t> order = z_order(points);
-
-  // The bounding box (the search's initial distances) and the top split: the
-  // widest side, at the median point along it. The two halves are separate nanoflann
-  // trees under one root of our own, built concurrently for large sets (nanoflann
-  // 1.4.3 builds on one thread: 10% of a 2-d million's whole mesh). The split does
-  // not depend on the thread count, so neither does the tree.
+  // The bounding box (the Z order's grid, the search's initial distances) and the
+  // top split: the widest side, at the median point along it. The two halves are
+  // separate nanoflann trees under one root of our own, built concurrently for large
+  // sets (nanoflann 1.4.3 builds on one thread: 10% of a 2-d million's whole mesh).
+  // The split does not depend on the thread count, so neither does the tree.
   bbox_.assign(2 * d, 0.0);
   for (std::size_t c = 0; c < d; ++c) {
     bbox_[c] = std::numeric_limits<double>::infinity();
@@ -94,6 +84,9 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
       bbox_[d + c] = std::max(bbox_[d + c], points.point(i)[c]);
     }
   }
+  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more;
+  // the copy is gathered into leaf order afterwards and becomes the tree's own array.
+  std::vector<std::uint32_t> order = z_order(points, bbox_.data(), bbox_.data() + d);
   std::size_t split_dim = 0;
   for (std::size_t c = 1; c < d; ++c) {
     if (bbox_[d + c] - bbox_[c] > bbox_[d + split_dim] - bbox_[split_dim]) split_dim = c;
@@ -120,7 +113,8 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   auto copy_point = [d](const double* from, double* to) {
     for (std::size_t c = 0; c < d; ++c) to[c] = from[c];
   };
-  in_two_halves(n, kBuildInParallelAtLeast, [&](std::size_t begin, std::size_t end) {
+  const bool parallel = n >= kBuildInParallelAtLeast;
+  in_two_halves(n, parallel, [&](std::size_t begin, std::size_t end) {
     for (std::size_t k = begin; k < end; ++k) copy_point(points.point(order[k]), &leaf_coords_[k * d]);
   });
   const std::size_t counts[2] = {n_left, n - n_left};
@@ -132,7 +126,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   if (counts[1] == 0) {
     build(0);
   } else {  // the halves on two threads (large sets) or one after the other
-    in_two_halves(2, n >= kBuildInParallelAtLeast ? 2 : 3, [&](std::size_t begin, std::size_t end) {
+    in_two_halves(2, parallel, [&](std::size_t begin, std::size_t end) {
       for (std::size_t h = begin; h < end; ++h) build(static_cast<int>(h));
     });
   }
@@ -152,7 +146,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   // Gathered into a new array (position k takes Z position z_of(k)'s coordinates):
   // the build briefly holds two copies, but both threads can fill it.
   std::vector<double> gathered(n * d);
-  in_two_halves(n, kBuildInParallelAtLeast, [&](std::size_t begin, std::size_t end) {
+  in_two_halves(n, parallel, [&](std::size_t begin, std::size_t end) {
     for (std::size_t k = begin; k < end; ++k) copy_point(&leaf_coords_[z_of(k) * d], &gathered[k * d]);
   });
   leaf_coords_.swap(gathered);

@@ -37,11 +37,10 @@ std::vector<std::uint32_t> lex_order(const PointSet& ps) {
   for (std::size_t i = 0; i < n; ++i) entries[i] = {ps.point(i)[0], static_cast<std::uint32_t>(i)};
   std::sort(entries.begin(), entries.end(), [&](const Entry& a, const Entry& b) {
     if (a.first != b.first) return a.first < b.first;
-    const double* p = ps.point(a.index);
-    const double* q = ps.point(b.index);
-    for (int c = 1; c < d; ++c) {
-      if (p[c] != q[c]) return p[c] < q[c];
-    }
+    const double* p = ps.point(a.index) + 1;
+    const double* q = ps.point(b.index) + 1;
+    if (lex_less(p, q, d - 1)) return true;
+    if (lex_less(q, p, d - 1)) return false;
     return a.index < b.index;  // equal points: input order, so "first occurrence" is defined
   });
   std::vector<std::uint32_t> order(n);

@@ -786,6 +786,22 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     facet[r++] = x_;
     for (; i < d - 1; ++i) facet[r++] = others[i];
   };
+  // The d - 1 ids of a sorted simplex (d ids) without its k-th: still ascending.
+  auto drop = [&](const std::uint32_t* ids, int k, std::uint32_t* others) {
+    std::copy(ids, ids + k, others);
+    std::copy(ids + k + 1, ids + d, others + k);
+  };
+  // With a cache: records the two apexes a and b across the facet x + others (hash:
+  // its cache hash; b may be kHull), if another vertex of it may still come.
+  auto record = [&](const std::uint32_t* others, std::uint64_t hash, std::uint32_t a, std::uint32_t b) {
+    std::array<std::uint32_t, kMaxCols> whole;
+    whole_facet(others, whole.data());
+    if (!cache->wanted(x_, whole.data())) return;
+    if (cache_credit_ == 0) cache_credit_ = cache->reserve(kCacheBatch);
+    if (cache_credit_ == 0) return;
+    --cache_credit_;
+    cache->insert(x_, whole.data(), hash, a, b);
+  };
 
   // Adds a simplex (d ids without x) to the star unless known; its plane if given.
   // Its d facets through x are registered: a facet met for the second time has both
@@ -817,9 +833,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
       cache->facet_hashes(x_, sorted.data(), &work_hashes_[hashes_at]);
     }
     for (int k = 0; k < d; ++k) {
-      std::array<std::uint32_t, kMaxCols> others;  // ascending, as `sorted` is
-      std::copy(sorted.begin(), sorted.begin() + k, others.begin());
-      std::copy(sorted.begin() + k + 1, sorted.begin() + d, others.begin() + k);
+      std::array<std::uint32_t, kMaxCols> others;
+      drop(sorted.data(), k, others.data());
       bool first = false;
       const std::uint32_t at = facet_seen_.position(others.data(), facet_seen_.hash(others.data()), first);
       if (first) {
@@ -829,14 +844,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
         // Closed without a wrap: its answer is known, so record it for the facet's
         // other vertices as a walked wrap would have.
         facet_open_[at] = 0;
-        std::array<std::uint32_t, kMaxCols> whole;
-        whole_facet(others.data(), whole.data());
-        if (cache != nullptr && cache->wanted(x_, whole.data())) {
-          if (cache_credit_ == 0) cache_credit_ = cache->reserve(kCacheBatch);
-          if (cache_credit_ != 0) {
-            --cache_credit_;
-            cache->insert(x_, whole.data(), work_hashes_[hashes_at + static_cast<std::size_t>(k)], facet_apex_[at], sorted[k]);
-          }
+        if (cache != nullptr) {
+          record(others.data(), work_hashes_[hashes_at + static_cast<std::size_t>(k)], facet_apex_[at], sorted[k]);
         }
       }
       work_facets_.push_back(at);
@@ -909,8 +918,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
         if (open == 0) continue;  // both sides known, or walked from the other side
         std::uint32_t across = 0;
         if (cache != nullptr) {
-          std::copy(simplex.begin(), simplex.begin() + k, others.begin());
-          std::copy(simplex.begin() + k + 1, simplex.begin() + d, others.begin() + k);
+          drop(simplex.data(), k, others.data());
           whole_facet(others.data(), whole.data());
           if (cache->lookup(x_, whole.data(), work_hashes_[at], simplex[k], across)) {
             ++stats_.cached_wraps;
@@ -939,8 +947,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     const int k = static_cast<int>(at % sd);
     const std::uint32_t* ids = &work_[owner * sd];
     const std::uint32_t apex = ids[k];
-    std::copy(ids, ids + k, others.begin());
-    std::copy(ids + k + 1, ids + d, others.begin() + k);
+    drop(ids, k, others.data());
     ensure_candidates();
     if (missed_candidates_ >= kGrowAfterMisses && !grown_ && cand_id_.size() + 1 < ps_.size()) {
       // The tree keeps finding points the candidates lack: typical of seeds near the
@@ -959,14 +966,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     const std::int64_t p = wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
     if (p == -2) return cancelled("star computation cancelled");
     if (cache != nullptr) {
-      whole_facet(others.data(), whole.data());
-      if (cache->wanted(x_, whole.data())) {
-        if (cache_credit_ == 0) cache_credit_ = cache->reserve(kCacheBatch);
-        if (cache_credit_ != 0) {
-          --cache_credit_;
-          cache->insert(x_, whole.data(), work_hashes_[at], apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
-        }
-      }
+      record(others.data(), work_hashes_[at], apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
     }
     if (p < 0) {
       ++hull;
