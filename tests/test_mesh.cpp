@@ -10,9 +10,11 @@
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cstdio>
 #include <fstream>
+#include <random>
 #include <thread>
 
 #include "spokemesh/facet_cache.hpp"
@@ -224,9 +226,10 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountAndCanonicallyOrdered) {
   }
 }
 
-// The FacetCache only saves work: with it, without it, and with a table so small that
-// it fills up early, every mesh (degenerate inputs included) is the same, for any
-// thread count.
+// The FacetCache (and in 2-d the EdgeCache) only saves work: with it, without it, and
+// with a table so small that it fills up early, every mesh (degenerate inputs
+// included) is the same, for any thread count. circle-2d's centre has 325 neighbours,
+// far more posts than an EdgeCache point keeps.
 TEST(Mesh, FacetCacheChangesNoSimplex) {
   for (const Case& c : cgal_cases()) {
     SCOPED_TRACE(c.name);
@@ -347,6 +350,97 @@ TEST(FacetCache, ConcurrentWritersAndReadersSeeOnlyWholeEntries) {
     EXPECT_EQ(wrong.load(), 0u);
     EXPECT_GT(found.load(), 0u);
   }
+}
+
+// In 2-d the posts of earlier stars answer most wraps: every triangle but those in
+// the gaps between posts is read, not computed.
+TEST(Mesh, EdgeCacheAnswersMostWrapsIn2d) {
+  const PointSet ps = make_points(2, uniform_points(2, 3000, 31));
+  const KdTree tree(ps);
+  auto run = [&](std::size_t bytes, Simplices& out) {
+    MeshOptions options;
+    options.threads = 2;
+    options.facet_cache_bytes = bytes;
+    auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+      out.insert(out.end(), block.begin(), block.end());
+      return Status::ok();
+    });
+    EXPECT_TRUE(r.is_ok());
+    return r.value();
+  };
+  Simplices with, without;
+  const MeshStats cached = run(MeshOptions{}.facet_cache_bytes, with), plain = run(0, without);
+  EXPECT_EQ(with, without);
+  EXPECT_EQ(cached.facet_cache_bytes, 3000u * 64u);
+  EXPECT_EQ(plain.star.cached_wraps, 0u);
+  EXPECT_GT(cached.star.cached_starts, 3000u / 2) << "most stars begin at an earlier star's posts";
+  EXPECT_LT(cached.star.wraps * 10, plain.star.wraps * 6) << "posts answer the wraps of earlier stars";
+}
+
+TEST(EdgeCache, KeepsPostsForLaterSeedsInOrderUntilFull) {
+  // Seeds [10, 100) are meshed.
+  EdgeCache cache(200, 10, 100, 1 << 20);
+  ASSERT_TRUE(cache.enabled());
+  EXPECT_EQ(cache.reserved_bytes(), 200u * 64u);
+  EXPECT_TRUE(cache.wanted(12, 40)) << "40 comes after 12";
+  EXPECT_FALSE(cache.wanted(40, 12)) << "12 came before 40";
+  EXPECT_FALSE(cache.wanted(12, 150)) << "150 is not meshed";
+  EXPECT_FALSE(cache.wanted(12, 12));
+  std::array<EdgeCache::Post, EdgeCache::kPostsPerPoint> posts{};
+  EXPECT_EQ(cache.read(40, posts.data()), 0);
+  cache.post(40, {12, 7, EdgeCache::kHull});
+  ASSERT_EQ(cache.read(40, posts.data()), 1);
+  EXPECT_EQ(posts[0].from, 12u);
+  EXPECT_EQ(posts[0].a, 7u);
+  EXPECT_EQ(posts[0].b, EdgeCache::kHull);
+  // More posts than fit: the first kPostsPerPoint are kept, in order.
+  for (std::uint32_t from = 20; from < 28; ++from) cache.post(50, {from, from + 100, from + 101});
+  ASSERT_EQ(cache.read(50, posts.data()), EdgeCache::kPostsPerPoint);
+  for (int i = 0; i < EdgeCache::kPostsPerPoint; ++i) {
+    EXPECT_EQ(posts[static_cast<std::size_t>(i)].from, 20u + static_cast<std::uint32_t>(i));
+    EXPECT_EQ(posts[static_cast<std::size_t>(i)].b, 121u + static_cast<std::uint32_t>(i));
+  }
+  // Blocks of 10 seeds whose insides run in any order: a lower index in the same block
+  // may come later.
+  EdgeCache blocks(200, 0, 200, 1 << 20, /*block=*/10);
+  EXPECT_TRUE(blocks.wanted(15, 12));
+  EXPECT_FALSE(blocks.wanted(25, 12));
+  // Too little memory for 64 bytes per point: disabled, every call a no-op.
+  EdgeCache none(200, 0, 200, 200 * 64 - 1);
+  EXPECT_FALSE(none.enabled());
+  EXPECT_FALSE(none.wanted(0, 5));
+  none.post(5, {0, 1, 2});
+  EXPECT_EQ(none.read(5, posts.data()), 0);
+  EXPECT_EQ(none.reserved_bytes(), 0u);
+}
+
+TEST(EdgeCache, ConcurrentPostersAndReadersSeeOnlyWholePosts) {
+  // Four threads post to random points (the apexes derived from the sender) while
+  // reading each other's; most points overflow on purpose.
+  constexpr std::uint32_t kPoints = 2000;
+  EdgeCache cache(kPoints, 0, kPoints, 1 << 20);
+  ASSERT_TRUE(cache.enabled());
+  std::atomic<std::uint64_t> found{0}, wrong{0};
+  auto work = [&](std::uint32_t t) {
+    std::mt19937_64 rng(4321 + t);
+    std::array<EdgeCache::Post, EdgeCache::kPostsPerPoint> posts{};
+    for (int i = 0; i < 20000; ++i) {
+      const std::uint64_t r = rng();
+      const auto from = static_cast<std::uint32_t>(r % kPoints), to = static_cast<std::uint32_t>((r >> 20) % kPoints);
+      cache.post(to, {from, from * 3 + 1, from % 2 == 0 ? EdgeCache::kHull : from * 3 + 2});
+      const int got = cache.read(static_cast<std::uint32_t>((r >> 40) % kPoints), posts.data());
+      for (int k = 0; k < got; ++k) {
+        const EdgeCache::Post& p = posts[static_cast<std::size_t>(k)];
+        ++found;
+        if (p.a != p.from * 3 + 1 || p.b != (p.from % 2 == 0 ? EdgeCache::kHull : p.from * 3 + 2)) ++wrong;
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (std::uint32_t t = 0; t < 4; ++t) pool.emplace_back(work, t);
+  for (auto& th : pool) th.join();
+  EXPECT_EQ(wrong.load(), 0u);
+  EXPECT_GT(found.load(), 0u);
 }
 
 TEST(Mesh, AnySeedPartitionUnitesToTheWholeMeshOnce) {

@@ -60,10 +60,9 @@ void FacetCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); 
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                        std::uint32_t block)
-    : d_(d), n_(n), begin_(begin), end_(std::min(end, n)), block_(std::max(block, 1u)),
-      stride_(static_cast<std::size_t>(d) + 3) {
+    : d_(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
   const std::size_t starts_bytes = std::size_t{n} * sizeof(std::uint32_t);
-  if (d < 2 || d > kMaxDimension || begin_ >= end_ || max_bytes <= starts_bytes) return;
+  if (d < 2 || d > kMaxDimension || order_.begin >= order_.end || max_bytes <= starts_bytes) return;
   const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
   const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
   // Any slot count (home slots come from a multiply, not a mask), 10% above the
@@ -102,16 +101,6 @@ bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_
   return false;
 }
 
-bool FacetCache::maybe_before(std::uint32_t v, std::uint32_t x) const {
-  if (v == x || v < begin_ || v >= end_) return false;
-  return v < x || (v - begin_) / block_ == (x - begin_) / block_;
-}
-
-bool FacetCache::maybe_after(std::uint32_t v, std::uint32_t x) const {
-  if (v == x || v < begin_ || v >= end_) return false;
-  return v > x || (v - begin_) / block_ == (x - begin_) / block_;
-}
-
 std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
   std::uint64_t sum = 0;
   for (int i = 0; i < d_; ++i) sum += detail::set_hash_term(facet[i]);
@@ -137,7 +126,7 @@ bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64
   if (!enabled()) return false;
   // Only a vertex meshed before x can have recorded the facet.
   bool earlier = false;
-  for (int i = 0; i < d_; ++i) earlier |= maybe_before(facet[i], x);
+  for (int i = 0; i < d_; ++i) earlier |= order_.maybe_before(facet[i], x);
   if (!earlier) return false;
   std::size_t s;
   if (!find(facet, hash, s)) return false;
@@ -163,7 +152,7 @@ std::size_t FacetCache::reserve(std::size_t count) {
 bool FacetCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
   if (!enabled()) return false;
   bool later = false;
-  for (int i = 0; i < d_; ++i) later |= maybe_after(facet[i], x);
+  for (int i = 0; i < d_; ++i) later |= order_.maybe_after(facet[i], x);
   return later;
 }
 
@@ -183,7 +172,7 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
       // Starts for the later vertices that have none yet (a lost race only replaces
       // one valid start with another).
       for (int i = 0; i < d_; ++i) {
-        if (maybe_after(facet[i], x)) {
+        if (order_.maybe_after(facet[i], x)) {
           Word start(starts_[facet[i]]);
           if (start.load(std::memory_order_relaxed) == 0) start.store(static_cast<std::uint32_t>(s + 1), std::memory_order_release);
         }
@@ -211,6 +200,46 @@ bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, 
   a = w[1 + d_];
   b = w[2 + d_];
   return true;
+}
+
+// ---------------------------------------------------------------------------------
+// EdgeCache
+
+void EdgeCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
+
+EdgeCache::EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+                     std::uint32_t block)
+    : n_(n), order_{begin, std::min(end, n), std::max(block, 1u)} {
+  const std::size_t bytes = std::size_t{n} * kBoxWords * sizeof(std::uint32_t);
+  if (order_.begin >= order_.end || bytes > max_bytes) return;
+  std::size_t mapped = 0;
+  boxes_ = decltype(boxes_)(allocate_zeroed(std::size_t{n} * kBoxWords, mapped), Free{mapped});
+}
+
+void EdgeCache::post(std::uint32_t t, const Post& p) {
+  if (!enabled() || t >= n_) return;
+  std::uint32_t* w = box(t);
+  const std::uint32_t i = Word(w[0]).fetch_add(1, std::memory_order_relaxed);
+  if (i >= static_cast<std::uint32_t>(kPostsPerPoint)) return;  // full (the count only grows)
+  std::uint32_t* slot = w + 1 + 3 * i;
+  slot[1] = p.a;
+  slot[2] = p.b;
+  Word(slot[0]).store(p.from + 1, std::memory_order_release);
+}
+
+int EdgeCache::read(std::uint32_t t, Post* out) const {
+  if (!enabled() || t >= n_) return 0;
+  std::uint32_t* w = box(t);
+  const std::uint32_t claimed = Word(w[0]).load(std::memory_order_relaxed);
+  const int count = static_cast<int>(std::min<std::uint32_t>(claimed, kPostsPerPoint));
+  int got = 0;
+  for (int i = 0; i < count; ++i) {
+    std::uint32_t* slot = w + 1 + 3 * i;
+    const std::uint32_t from = Word(slot[0]).load(std::memory_order_acquire);
+    if (from == 0) continue;  // claimed, still being written
+    out[got++] = Post{from - 1, slot[1], slot[2]};
+  }
+  return got;
 }
 
 }  // namespace spokemesh

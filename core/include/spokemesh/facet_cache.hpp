@@ -32,6 +32,22 @@
 
 namespace spokemesh {
 
+// The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
+// `block`, blocks in order, a block's seeds in any order.
+struct RunOrder {
+  std::uint32_t begin = 0, end = 0, block = 1;
+  // Seeds v != x of this run that may be meshed before (after) x: in an earlier
+  // (later) block, or in x's own block, whose order is unknown.
+  bool maybe_before(std::uint32_t v, std::uint32_t x) const {
+    if (v == x || v < begin || v >= end) return false;
+    return v < x || (v - begin) / block == (x - begin) / block;
+  }
+  bool maybe_after(std::uint32_t v, std::uint32_t x) const {
+    if (v == x || v < begin || v >= end) return false;
+    return v > x || (v - begin) / block == (x - begin) / block;
+  }
+};
+
 class FacetCache {
  public:
   // The apex of a hull facet's missing side.
@@ -99,19 +115,85 @@ class FacetCache {
   }
   std::size_t next(std::size_t s) const { return s + 1 == capacity_ ? 0 : s + 1; }
   bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
-  // Seeds v != x of this run that may be meshed before (after) x: in an earlier
-  // (later) block, or in x's own block, whose order is unknown.
-  bool maybe_before(std::uint32_t v, std::uint32_t x) const;
-  bool maybe_after(std::uint32_t v, std::uint32_t x) const;
 
   int d_;
-  std::uint32_t n_, begin_, end_, block_;
+  std::uint32_t n_;
+  RunOrder order_;
   std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
   std::size_t capacity_ = 0;  // slots (at most 2^31), 0 when disabled
   std::size_t max_entries_ = 0;
   std::unique_ptr<std::uint32_t[], Free> table_;
   std::unique_ptr<std::uint32_t[], Free> starts_;  // per point: slot + 1, or 0
   mutable std::atomic<std::size_t> entries_{0};
+};
+
+// EdgeCache: what a 2-d run's stars share, kept per point instead of per facet.
+//
+// In 2-d a facet through x is an edge xt and x's star is a ring of triangles about x
+// (a path when x is on the convex hull). When x's ring is done, x posts to each
+// neighbour t that may come later in the run the two triangles on the edge xt: (x, a,
+// b), with a and b the neighbours of t in x's ring (kHull for a side on the hull).
+// Those are consecutive triangles of t's own ring, so when t's turn comes, it reads
+// every post at once and wraps only across the gaps between them. One read per seed,
+// from one cache line that the caller can prefetch seeds ahead, takes the place of
+// the FacetCache's chains of lookups at random in a large table, each waiting for the
+// one before. Posts only save work: every star is the same with or without them.
+//
+// Memory: 64 bytes per point (a count and kPostsPerPoint posts), mapped from the OS
+// and committed on first touch; the cache is disabled when that exceeds max_bytes.
+// A point with more earlier neighbours than fit keeps the first posts; its walk
+// computes the rest.
+// Thread safety: post() and read() are safe to call concurrently and lock-free: a
+// post claims its place with an atomic increment, fills it, then publishes it with a
+// release store of its sender; a reader sees only whole posts, and may miss one
+// being written (the walk then computes that wrap itself).
+class EdgeCache {
+ public:
+  static constexpr std::uint32_t kHull = FacetCache::kHull;
+  static constexpr int kPostsPerPoint = 5;
+  struct Post {
+    std::uint32_t from;  // the earlier star's seed
+    std::uint32_t a, b;  // the triangles (to, from, a) and (to, from, b); kHull: none
+  };
+
+  // n: point count; the run meshes seeds [begin, end) in blocks of `block` seeds (see
+  // RunOrder); max_bytes caps the memory (too small a cap disables the cache).
+  EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+            std::uint32_t block = 1);
+
+  bool enabled() const { return static_cast<bool>(boxes_); }
+  std::size_t reserved_bytes() const { return enabled() ? std::size_t{n_} * kBoxWords * sizeof(std::uint32_t) : 0; }
+
+  // Whether a post from x's star to its neighbour t may be read: t may come later.
+  bool wanted(std::uint32_t x, std::uint32_t t) const { return enabled() && order_.maybe_after(t, x); }
+  // Posts (x, a, b) to t (see above); dropped when t's posts are full.
+  void post(std::uint32_t t, const Post& p);
+  // t's posts, at most kPostsPerPoint, into `out`; returns their number.
+  int read(std::uint32_t t, Post* out) const;
+  // Start loading t's posts into the CPU cache, to read them or (for_post) to add one.
+  void prefetch(std::uint32_t t, bool for_post = false) const {
+    if (!enabled() || t >= n_) return;
+    if (for_post) {
+      __builtin_prefetch(box(t), 1);
+    } else {
+      __builtin_prefetch(box(t), 0);
+    }
+  }
+
+ private:
+  // Per point: word 0 counts the posts claimed, then 3 words per post (from + 1,
+  // published last; a, b).
+  static constexpr std::size_t kBoxWords = 16;
+  static_assert(1 + 3 * kPostsPerPoint <= kBoxWords);
+  struct Free {
+    std::size_t bytes;
+    void operator()(std::uint32_t* p) const;
+  };
+  std::uint32_t* box(std::uint32_t t) const { return boxes_.get() + std::size_t{t} * kBoxWords; }
+
+  std::uint32_t n_;
+  RunOrder order_;
+  std::unique_ptr<std::uint32_t[], Free> boxes_;
 };
 
 }  // namespace spokemesh

@@ -52,6 +52,8 @@ struct StarOptions {
   // Facets found by other stars of the same run (not owned; may be shared by many
   // walkers). Only saves work: every star is the same with or without it.
   FacetCache* facets = nullptr;
+  // The same for 2-d runs (see EdgeCache; `facets` is not used in 2-d).
+  EdgeCache* edges = nullptr;
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).
@@ -178,6 +180,11 @@ class StarWalker {
   std::int64_t wrap_kernel(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane);
   // The first simplex by recursive spokes (d ids, without x) and its plane.
   Status first_simplex(std::uint32_t* out, Approx* plane);
+  // Loads the candidates before a wrap, or a larger neighbourhood once sphere queries
+  // keep finding points they lack.
+  void prepare_wrap();
+  // compute() for d = 2: the star as a ring of neighbours (see the definition).
+  Status compute_ring(Star& out, StarPart part);
 
   const KdTree& tree_;
   const PointSet& ps_;
@@ -223,6 +230,17 @@ class StarWalker {
   std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
   std::vector<std::uint64_t> work_hashes_;  // per work_ simplex, with a facet cache: its d facets' hashes
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
+  // compute_ring's state: x's neighbours with their neighbours on either side in the
+  // ring (ids, or kHull / kUnknown), the ones open when the walk began, and the
+  // triangles found (as the two ids besides x).
+  struct RingNode {
+    std::uint32_t id;
+    std::uint32_t side[2];
+    bool sender;  // posted its edge with x, so came earlier
+  };
+  std::vector<RingNode> ring_;
+  std::vector<std::uint32_t> ring_open_;
+  std::vector<std::uint64_t> ring_triangles_;  // (low id << 32) | high id
 };
 
 // Default first candidate count for dimension d.
