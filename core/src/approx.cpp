@@ -8,21 +8,16 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
-#include <queue>
 #include <unordered_map>
 #include <unordered_set>
 
 #include "mixing.hpp"
-#include "simd.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
-// Candidates per dimension whose dot products with all rays of a vertex come from one
-// matrix product (the rest, rarely reached, are computed on the fly).
-constexpr std::size_t kDottedPerDimension = 512;
 
 // A standard normal variate from 53-bit uniforms (Box-Muller): random directions
 // uniform on the sphere, reproducible on every platform (std distributions are not).
@@ -38,44 +33,8 @@ double dot(const double* a, const double* b, int d) {
   return s;
 }
 
-// A hash for sorted index tuples (Voronoi vertices are keyed by their equidistant set).
-struct TupleHash {
-  std::size_t operator()(const std::vector<std::uint32_t>& v) const {
-    return static_cast<std::size_t>(detail::hash_indices(v.data(), v.size()));
-  }
-};
-
-// Candidates per chunk of shoot()'s vectorized prefilter.
-constexpr std::size_t kRayChunk = 16;
-
-// shoot()'s prefilter over kRayChunk candidates with precomputed dot products: marks
-// (keep[i] = 1) those that may be met before t_best, i.e. e.q > 0 and
-// 0 < t = (|q|^2 - 2 y.q) / (2 e.q) < t_best, tested without dividing and with a
-// 1e-12 margin, so it keeps every candidate the scalar test (which then decides)
-// would accept. Branch-free, V's lanes at a time.
-template <class V, class M>
-[[gnu::always_inline]] inline void ray_prefilter_lanes(const double* q2, const double* yq, const double* eq,
-                                                       double t_best, std::uint8_t* keep) {
-  constexpr std::size_t kLanes = sizeof(V) / sizeof(double);
-  for (std::size_t i = 0; i < kRayChunk; i += kLanes) {
-    V a, b, c;
-    std::memcpy(&a, q2 + i, sizeof a);
-    std::memcpy(&b, yq + i, sizeof b);
-    std::memcpy(&c, eq + i, sizeof c);
-    const V num = a - 2 * b, den = 2 * c;
-    const M m = (c > 0) & (num > 0) & (num < t_best * den * (1 + 1e-12));
-    for (std::size_t k = 0; k < kLanes; ++k) keep[i + k] = m[k] != 0 ? 1 : 0;
-  }
-}
-
-void ray_prefilter_sse2(const double* q2, const double* yq, const double* eq, double t_best, std::uint8_t* keep) {
-  ray_prefilter_lanes<detail::Double2, detail::Mask2>(q2, yq, eq, t_best, keep);
-}
-
-SPOKEMESH_TARGET_AVX2 void ray_prefilter_avx2(const double* q2, const double* yq, const double* eq,
-                                                         double t_best, std::uint8_t* keep) {
-  ray_prefilter_lanes<detail::Double4, detail::Mask4>(q2, yq, eq, t_best, keep);
-}
+// Nearest candidates a ray tests before its ball query (see shoot()).
+constexpr std::size_t kHeadCandidates = 32;
 
 }  // namespace
 
@@ -110,7 +69,7 @@ void ApproxWalker::load_candidates() {
 }
 
 std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
-                                 double& t_out, const double* yq, const double* eq_list, std::size_t dotted) {
+                                 double& t_out, bool head_only) {
   ++rays_;
   const int d = d_;
   std::int64_t best = -1;
@@ -126,9 +85,10 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
   };
   // A point q (relative to x) becomes as close to y + t e as x is when
   // |q|^2 - 2 y.q = 2 t e.q; only points with e.q > 0 are ever reached.
-  auto consider_dots = [&](std::uint32_t id, double q2, double yqv, double eqv) {
-    if (!(eqv > 0)) return;
-    const double t = (q2 - 2 * yqv) / (2 * eqv);
+  auto consider = [&](std::uint32_t id, const double* q, double q2) {
+    const double eq = dot(e, q, d);
+    if (!(eq > 0)) return;
+    const double t = (q2 - 2 * dot(y, q, d)) / (2 * eq);
     if (!(t > 0) || t >= t_best || is_excluded(id)) return;
     t_best = t;
     best = id;
@@ -139,34 +99,45 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     }
     reach2 = 4 * z2 * (1 + 2e-9);
   };
-  auto consider = [&](std::uint32_t id, const double* q, double q2) {
-    consider_dots(id, q2, dot(y, q, d), dot(e, q, d));
-  };
+  const double* x = ps_.point(x_);
   const std::size_t count = cand_id_.size();
+  // 1. The nearest candidates give a first hit at t_best. Along the ray,
+  //    |q - z(t)|^2 - |z(t)|^2 is affine in t and not negative at t = 0 (y is on the
+  //    boundary of x's cell), so every point met before t_best lies strictly inside the
+  //    ball through x centred at z(t_best): one ball query then finds them all. That
+  //    ball is far smaller than the one of radius 2 |z| around x that a scan of the
+  //    sorted list must cover (in 8-d, 2^8 times by volume).
+  const std::size_t head = std::min(count, kHeadCandidates);
   std::size_t j = 0;
-  if (yq != nullptr) {
-    // Whole chunks through the prefilter; each candidate still goes through the same
-    // reach test and, if kept, consider_dots, in order: the same result as without.
-    const auto prefilter = detail::has_avx2() ? &ray_prefilter_avx2 : &ray_prefilter_sse2;
-    std::array<std::uint8_t, kRayChunk> keep;
-    bool reached = false;
-    while (!reached && j + kRayChunk <= dotted) {
-      prefilter(&cand_norm2_[j], &yq[j], &eq_list[j], t_best, keep.data());
-      for (std::size_t i = 0; i < kRayChunk; ++i, ++j) {
-        if (!(cand_norm2_[j] <= reach2)) {
-          reached = true;
-          break;
-        }
-        if (keep[i] != 0) consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
-      }
-    }
-    for (; !reached && j < dotted && cand_norm2_[j] <= reach2; ++j) {
-      consider_dots(cand_id_[j], cand_norm2_[j], yq[j], eq_list[j]);
-    }
+  for (; j < head && cand_norm2_[j] <= reach2; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
+  if (head_only) {
+    t_out = t_best;
+    return best;
   }
+  if (best >= 0) {
+    double z2 = 0;
+    scratch_.resize(static_cast<std::size_t>(2 * d));
+    for (int c = 0; c < d; ++c) {
+      const double z = y[c] + t_best * e[c];
+      z2 += z * z;
+      scratch_[static_cast<std::size_t>(d + c)] = x[c] + z;
+    }
+    tree_.within(&scratch_[static_cast<std::size_t>(d)], z2 * (1 + 1e-9) + 1e-300, near_);
+    for (const auto& [id, dist2] : near_) {
+      const double* p = ps_.point(id);
+      double q2 = 0;
+      for (int c = 0; c < d; ++c) {
+        scratch_[static_cast<std::size_t>(c)] = p[c] - x[c];
+        q2 += scratch_[static_cast<std::size_t>(c)] * scratch_[static_cast<std::size_t>(c)];
+      }
+      consider(id, scratch_.data(), q2);
+    }
+    t_out = t_best;
+    return best;
+  }
+  // 2. No hit among them: the rest of the list, nearest first, then the tree.
   for (; j < count && cand_norm2_[j] <= reach2; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
-  if (j == count && reach2 > cand_radius2_) {
-    // The hit (or its absence) is not decided by the list: branch and bound over the
+  if (j == count && reach2 > cand_radius2_) {    // The hit (or its absence) is not decided by the list: branch and bound over the
     // k-d tree. A box can hold a point hit before t_best only if
     //   t >= max(0, dist(x + y, box)^2 - |y|^2) / (2 max_{q in box} e . (q - x))
     // is smaller (numerator: |q - y|^2 - |y|^2; denominator: 2 e . (q - x)); only if
@@ -175,7 +146,6 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     // z = y + t_best e: along the ray, |q - z(t)|^2 - |z(t)|^2 is affine in t and not
     // negative at t = 0 (y is on the boundary of x's cell), so a point met before
     // t_best is strictly inside that ball.
-    const double* x = ps_.point(x_);
     const double y2 = dot(y, y, d);
     scratch_.resize(static_cast<std::size_t>(d));
     tree_.find_first(
@@ -352,13 +322,27 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   bool descent_found = false;                       // the last descent certified a new neighbour
   // Certifies s with witness w (relative to x) unless already known or tried too often;
   // true if s is a new certified neighbour.
-  auto try_certify = [&](std::uint32_t s, const double* w) {
-    if (found.count(s) != 0 || attempts[s] >= 3) return false;
-    if (certify(s, w)) {
+  std::vector<double> found_q;  // the found neighbours' offsets s - x, d per point
+  std::vector<double> found_q2;  // and their |s - x|^2
+  std::unordered_map<std::uint32_t, std::uint32_t> found_at;  // id -> index in found_q
+  // Records s, certified, as a neighbour.
+  auto accept = [&](std::uint32_t s) {
       found.insert(s);
       out.neighbors.push_back(s);
+      const double* sp = ps_.point(s);
+      const double* xp = ps_.point(x_);
+      double q2 = 0;
+      for (int c = 0; c < d; ++c) {
+        found_q.push_back(sp[c] - xp[c]);
+        q2 += found_q.back() * found_q.back();
+      }
+      found_at.emplace(s, static_cast<std::uint32_t>(found_q2.size()));
+      found_q2.push_back(q2);
       return true;
-    }
+  };
+  auto try_certify = [&](std::uint32_t s, const double* w) {
+    if (found.count(s) != 0 || attempts[s] >= 3) return false;
+    if (certify(s, w)) return accept(s);
     ++attempts[s];
     ++out.uncertified;
     return false;
@@ -413,138 +397,252 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   const bool reached_first = descend();
   if (stop_requested()) return cancelled("neighbour walk cancelled");
 
-  // 2. The walk (Sec. 3.3 and 4.4). Vertices whose equidistant points include points
-  //    not yet certified go first (then first come, first served): the budget of
-  //    misses is spent where new neighbours are, not on re-walking known ones.
-  struct Vertex {
-    std::vector<std::uint32_t> S;  // the d points equidistant with x, sorted
-    VectorXd v;                    // relative to x
+  // 2. The walk (Sec. 3.3 and 4.4), directed. A Voronoi vertex v of cell(x) is where x
+  //    and d points S are equidistant; dropping s_k from S leaves a Voronoi edge, and
+  //    a ray along it meets the next vertex. Which edges to walk is the walk's choice:
+  //    here each leg heads for one target, a listed point q not yet found, by the
+  //    simplex method. g(w) = |w - q|^2 - |w - x|^2 is linear in w and >= 0 on cell(x),
+  //    and 0 exactly on the facet of (x, q): so (x, q) is a Delaunay edge iff the
+  //    minimum of g over the cell is 0. From the current vertex the walk takes the edge
+  //    along which g falls fastest (the steepest edge) to the next vertex, until q is
+  //    among the equidistant points (found, and certified like every new point met on
+  //    the way), or no edge lowers g (q is not a neighbour: refuted, in floating point,
+  //    which can only cost recall). Targets are taken nearest to the current vertex
+  //    first (least g there), so consecutive legs stay short and the walk sweeps the
+  //    cell's surface instead of re-walking known parts of it, as an undirected walk
+  //    does once most of its neighbours are found. Every vertex reached counts, as in
+  //    the paper, as a miss when it certifies no new neighbour; M misses in a row stop
+  //    the walk.
+  const auto listed = static_cast<Eigen::Index>(cand_id_.size());
+  const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
+  const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
+  // Per listed candidate: still a target (0), found or given up (1), refuted (2).
+  std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
+  auto settle = [&](std::uint32_t id, std::uint8_t to) {
+    // Candidates are few thousand and sorted by distance; a point is settled once.
+    for (Eigen::Index j = 0; j < listed; ++j) {
+      if (cand_id_[static_cast<std::size_t>(j)] == id) {
+        if (state[static_cast<std::size_t>(j)] == 0) state[static_cast<std::size_t>(j)] = to;
+        return;
+      }
+    }
   };
-  std::vector<Vertex> vertices;
-  using Entry = std::pair<int, std::int64_t>;  // (unfound points, -arrival)
-  std::priority_queue<Entry> queue;
-  std::unordered_set<std::vector<std::uint32_t>, TupleHash> seen;
-  auto unfound = [&](const std::vector<std::uint32_t>& set) {
-    int k = 0;
-    for (std::uint32_t p : set) k += found.count(p) == 0 ? 1 : 0;
-    return k;
-  };
-  if (reached_first) {
-    seen.insert(S);
-    vertices.push_back({S, y});
-    queue.push({unfound(S), 0});
-  }
-  MatrixXd B(d, d);
-  VectorXd f(d), e(d), w(d);
+  MatrixXd B(d, d), E(d, d);
+  VectorXd v(d), f(d), e(d), w(d), rhs(d), slack(listed);
   std::uint64_t misses = 0;
-  bool degenerate = false;  // a vertex whose offsets do not span R^d (points in a subspace)
   const double* x = ps_.point(x_);
+  // Visits vertex S (sorted; `guess` where the ray ended): solves it again from S (errors do
+  // not accumulate along the walk), its edge directions E = -B^{-1} with rows
+  // B_m = s_m - x (column k is orthogonal to every offset but the k-th and points away
+  // from s_k), and certifies its new points: for s = S_i, the direction sum_{k != i} E_k
+  // keeps x and s equidistant and moves away from the others, into the facet of (x, s);
+  // the witness is halfway to the first point met that way. False when S is degenerate.
+  auto visit = [&](const std::vector<std::uint32_t>& vertex) {
+    ++out.vertices;
+    for (int m = 0; m < d; ++m) {
+      const double* sp = ps_.point(vertex[m]);
+      for (int c = 0; c < d; ++c) B(m, c) = sp[c] - x[c];
+      rhs[m] = B.row(m).squaredNorm() / 2;
+    }
+    Eigen::PartialPivLU<MatrixXd> lu(B);
+    E = -lu.inverse();
+    v = lu.solve(rhs);
+    if (!E.allFinite() || !v.allFinite()) return false;
+    bool fresh = false;
+    const VectorXd total = E.rowwise().sum();
+    for (int i = 0; i < d; ++i) {
+      const std::uint32_t s = vertex[i];
+      if (found.count(s) != 0 || attempts[s] >= 3) continue;
+      f = total - E.col(i);
+      // The nearest candidates usually give the first point met already (a witness
+      // halfway there is then certified by certify()'s own ball query); the full ray
+      // is shot only when that fails.
+      double t = 0;
+      if (shoot(v.data(), f.data(), &s, 1, t, /*head_only=*/true) < 0) t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
+      w = v + (t / 2) * f;
+      bool certified = certify(s, w.data());
+      if (!certified) {
+        if (shoot(v.data(), f.data(), &s, 1, t) < 0) t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
+        w = v + (t / 2) * f;
+      }
+      if (certified ? accept(s) : try_certify(s, w.data())) {
+        fresh = true;
+        settle(s, 1);
+      } else if (attempts[s] >= 3) {
+        settle(s, 1);
+      }
+    }
+    misses = fresh ? 0 : misses + 1;
+    return true;
+  };
+  // The first vertex, by recursive spokes (again if the spokes miss, or the vertex is
+  // degenerate, as for points in a lower-dimensional subspace: each descent still
+  // certifies the facet its first spoke ends on).
+  bool at_vertex = reached_first && visit(S);
+  if (reached_first && !at_vertex) misses = 1;
+  std::vector<std::uint32_t> next;
+  constexpr int kStepsPerTarget = 64;
+  std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
+  // Whether the listed candidate `target` is certainly (in floating point) not a
+  // neighbour: the same steepest-edge walk, over the polytope cut by the bisectors of the
+  // found neighbours and of the current vertex's points only. That polytope contains
+  // the cell, so if g stays positive on it, it does on the cell. Its vertices are not
+  // Voronoi vertices of x (none is visited or counted); it only spares the walk legs
+  // towards points that cannot be reached.
+  std::vector<std::uint32_t> rs;    // the relaxed vertex: indices into found_q
+  std::vector<std::uint8_t> in_rs;   // per found point: one of rs
+  std::vector<double> r_vq, r_eq;    // per found point: rv . q and re . q
+  MatrixXd rBinv(d, d);              // the inverse of the matrix of rs's offsets (rows)
+  VectorXd rv(d), re(d), r_row(d), r_col(d);
+  auto relaxed_refutes = [&](Eigen::Index target) {
+    const Eigen::Map<const VectorXd> gq(&cand_q_[static_cast<std::size_t>(target) * d], d);
+    const double gq2 = cand_norm2_[static_cast<std::size_t>(target)];
+    const std::size_t nf = found_q2.size();
+    const auto sd = static_cast<std::size_t>(d);
+    rs.resize(sd);
+    for (int m = 0; m < d; ++m) {
+      const auto it = found_at.find(S[static_cast<std::size_t>(m)]);
+      if (it == found_at.end()) return false;  // an uncertified point: no relaxation
+      rs[static_cast<std::size_t>(m)] = it->second;
+    }
+    in_rs.assign(nf, 0);
+    for (const std::uint32_t i : rs) in_rs[i] = 1;
+    rBinv = -E;  // E = -B^{-1}
+    rv = v;
+    const Eigen::Map<const MatrixXd> F(found_q.data(), d, static_cast<Eigen::Index>(nf));
+    r_vq.resize(nf);
+    Eigen::Map<VectorXd>(r_vq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * rv;
+    double g_vq = gq.dot(rv);
+    r_eq.resize(nf);
+    for (int step = 0; step < kStepsPerTarget; ++step) {
+      // Edge k leaves along -B^{-1} e_k: the steepest one towards the goal.
+      int best = -1;
+      double best_rate = 0;
+      for (int k = 0; k < d; ++k) {
+        const double norm = rBinv.col(k).norm();
+        const double rate = norm > 0 ? -rBinv.col(k).dot(gq) / norm : 0;
+        if (rate > best_rate) {
+          best_rate = rate;
+          best = k;
+        }
+      }
+      if (best < 0) return true;  // optimal with g > 0
+      re = -rBinv.col(best);
+      // The first bisector met along rv + t re: the goal's, a found neighbour's, or none.
+      Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * re;
+      const double g_eq = gq.dot(re);
+      double t_best = kInf;
+      std::int64_t hit = -1;  // index into found_q; -2: the goal
+      if (g_eq > 0) {
+        const double t = (gq2 - 2 * g_vq) / (2 * g_eq);
+        if (t > 0) {
+          t_best = t;
+          hit = -2;
+        }
+      }
+      for (std::size_t i = 0; i < nf; ++i) {
+        if (!(r_eq[i] > 0) || in_rs[i] != 0) continue;
+        const double t = (found_q2[i] - 2 * r_vq[i]) / (2 * r_eq[i]);
+        if (t > 0 && t < t_best) {
+          t_best = t;
+          hit = static_cast<std::int64_t>(i);
+        }
+      }
+      if (hit < 0) return false;  // reaches the goal's bisector, or unbounded
+      // Move, and swap row `best` of B for the point hit (Sherman-Morrison):
+      // B'^{-1} = B^{-1} - (B^{-1} e_k)(delta^T B^{-1}) / (1 + delta^T B^{-1} e_k).
+      rv += t_best * re;
+      for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];
+      g_vq += t_best * g_eq;
+      const std::uint32_t out_i = rs[static_cast<std::size_t>(best)], in_i = static_cast<std::uint32_t>(hit);
+      r_row = Eigen::Map<const VectorXd>(&found_q[in_i * sd], d) - Eigen::Map<const VectorXd>(&found_q[out_i * sd], d);
+      r_col = rBinv.col(best);
+      const double denom = 1 + r_row.dot(r_col);
+      if (!(std::fabs(denom) > 1e-300)) return false;
+      rBinv.noalias() -= (r_col / denom) * (r_row.transpose() * rBinv);
+      in_rs[out_i] = 0;
+      in_rs[in_i] = 1;
+      rs[static_cast<std::size_t>(best)] = in_i;
+      if (!rBinv.allFinite()) return false;
+    }
+    return false;
+  };
   for (;;) {
     if (misses >= options_.max_misses || out.vertices >= options_.max_vertices) break;
     if (stop_requested()) return cancelled("neighbour walk cancelled");
-    if (queue.empty()) {
-      // Every vertex reachable from the first is walked. With every proposal certified,
-      // that is the whole cell: done. Otherwise (no vertex was reachable, as for points
-      // in a lower-dimensional subspace, or a proposal failed) new recursive spokes,
-      // each certifying the facet its first spoke ends on, until M misses.
-      out.exhausted = reached_first;
-      if (reached_first && out.uncertified == 0 && !degenerate) break;
+    if (!at_vertex) {
       ++out.vertices;
       descent_found = false;
       const bool reached = descend();
       misses = descent_found ? 0 : misses + 1;
-      if (reached && seen.insert(S).second) {
-        queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
-        vertices.push_back({S, y});
+      if (reached) {
+        --out.vertices;  // visit() counts it
+        const std::uint64_t kept = misses;
+        at_vertex = visit(S);
+        misses = std::min(misses, kept);
       }
       continue;
     }
-    Vertex vertex = std::move(vertices[static_cast<std::size_t>(-queue.top().second)]);
-    queue.pop();
-    ++out.vertices;
-    // Edge directions: E = -B^{-1} with rows B_m = s_m - x. Column k is orthogonal to
-    // every offset but the k-th and points away from s_k: the Voronoi edge that drops s_k.
-    for (int m = 0; m < d; ++m) {
-      const double* sp = ps_.point(vertex.S[m]);
-      for (int c = 0; c < d; ++c) B(m, c) = sp[c] - x[c];
+    // The target: the open candidate whose bisector is nearest to the current vertex,
+    // (|q|^2 - 2 v.q) / (2 |q|) (the constant 2 dropped; recomputed only when the walk
+    // has moved).
+    if (slack_at != out.vertices) {
+      slack.noalias() = Q2 - 2 * (Q.transpose() * v);
+      slack.array() /= Q2.array().sqrt();
+      slack_at = out.vertices;
     }
-    Eigen::PartialPivLU<MatrixXd> lu(B);
-    const MatrixXd E = -lu.inverse();
-    if (!E.allFinite()) {
-      degenerate = true;
+    Eigen::Index target = -1;
+    for (Eigen::Index j = 0; j < listed; ++j) {
+      if (state[static_cast<std::size_t>(j)] == 0 && (target < 0 || slack[j] < slack[target])) target = j;
+    }
+    if (target < 0) {
+      // Every listed point is found, given up or refuted: the cell is done as far as
+      // the list reaches (the whole cell when every point is listed).
+      out.exhausted = cand_radius2_ == kInf;
+      break;
+    }
+    const std::uint32_t goal = cand_id_[static_cast<std::size_t>(target)];
+    const Eigen::Map<const VectorXd> q(&cand_q_[static_cast<std::size_t>(target) * d], d);
+    const bool refuted_now = relaxed_refutes(target);
+    if (refuted_now) {
+      // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
+      state[static_cast<std::size_t>(target)] = 2;
+      ++misses;
       continue;
     }
-    // Re-solve the vertex from its equidistant set (B v = |s_m - x|^2 / 2) rather than
-    // trust the sum of rays that reached it: errors do not accumulate along the walk.
-    VectorXd rhs(d);
-    for (int m = 0; m < d; ++m) rhs[m] = B.row(m).squaredNorm() / 2;
-    vertex.v = lu.solve(rhs);
-    if (!vertex.v.allFinite()) {
-      degenerate = true;
-      continue;
-    }
-    // Every ray from this vertex starts at v and goes along a combination of E's
-    // columns: one matrix product gives all their dot products with the candidates.
-    // Only the nearest part of the list: most rays end there (the rest of the list is
-    // scanned with dot products on the fly, then the tree).
-    const auto listed = static_cast<Eigen::Index>(std::min<std::size_t>(cand_id_.size(), kDottedPerDimension * static_cast<std::size_t>(d)));
-    const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
-    MatrixXd R(d, d + 2);
-    R.col(0) = vertex.v;
-    R.middleCols(1, d) = E;
-    R.col(d + 1) = E.rowwise().sum();
-    MatrixXd P(listed, d + 2);  // column-major; noalias: no zero-fill before the product
-    P.noalias() = Q.transpose() * R;
-    VectorXd certify_dots(listed);
-    // Certify the new neighbours of this vertex: for s = S_i, the direction
-    // sum_{k != i} E_k keeps x and s equidistant and moves away from the others, into
-    // the facet of (x, s); the witness is halfway to the first point met that way.
-    bool fresh = false, failed_here = false;
-    const VectorXd total = E.rowwise().sum();
-    for (int i = 0; i < d; ++i) {
-      const std::uint32_t s = vertex.S[i];
-      if (found.count(s) != 0 || attempts[s] >= 3) continue;
-      f = total - E.col(i);
-      certify_dots = P.col(d + 1) - P.col(1 + i);
-      double t = 0;
-      const std::int64_t hit = shoot(vertex.v.data(), f.data(), &s, 1, t, P.col(0).data(), certify_dots.data(),
-                                     static_cast<std::size_t>(listed));
-      if (hit < 0) t = 2 * std::max(vertex.v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
-      w = vertex.v + (t / 2) * f;
-      if (try_certify(s, w.data())) {
-        fresh = true;
-      } else {
-        failed_here = true;
+    bool reached_goal = false;
+    int step = 0;
+    for (; step < kStepsPerTarget && !reached_goal; ++step) {
+      if (misses >= options_.max_misses || out.vertices >= options_.max_vertices || stop_requested()) break;
+      // The steepest edge towards the goal: g falls along E_k at the rate -2 E_k . q.
+      int best = -1;
+      double best_rate = 0;
+      for (int k = 0; k < d; ++k) {
+        const double norm = E.col(k).norm();
+        const double rate = norm > 0 ? E.col(k).dot(q) / norm : 0;
+        if (rate > best_rate) {
+          best_rate = rate;
+          best = k;
+        }
       }
-    }
-    misses = fresh ? 0 : misses + 1;
-    // Walk every Voronoi edge leaving this vertex.
-    for (int k = 0; k < d; ++k) {
-      e = E.col(k);
+      if (best < 0) break;  // no edge lowers g: the goal is not a neighbour
+      e = E.col(best);
       double t = 0;
-      const std::int64_t q = shoot(vertex.v.data(), e.data(), vertex.S.data(), d, t, P.col(0).data(),
-                                   P.col(1 + k).data(), static_cast<std::size_t>(listed));
-      if (q < 0) continue;  // an unbounded Voronoi edge
-      std::vector<std::uint32_t> next = vertex.S;
-      next[k] = static_cast<std::uint32_t>(q);
+      const std::int64_t hit = shoot(v.data(), e.data(), S.data(), d, t);
+      if (hit < 0) break;  // unbounded: cannot happen with the goal listed
+      next = S;
+      next[static_cast<std::size_t>(best)] = static_cast<std::uint32_t>(hit);
       std::sort(next.begin(), next.end());
-      if (!seen.insert(next).second) continue;
-      queue.push({unfound(next), -static_cast<std::int64_t>(vertices.size())});
-      vertices.push_back({std::move(next), vertex.v + t * e});
+      S.swap(next);
+      at_vertex = visit(S);
+      if (!at_vertex) break;
+      reached_goal = static_cast<std::uint32_t>(hit) == goal;
     }
-    // Restarts: when this vertex was a miss and nothing queued promises a new point (or
-    // its proposals failed certification, as at the spurious vertices of points in a
-    // lower-dimensional subspace), new recursive spokes reach a vertex next to a random
-    // facet (as plain spokes would) and the walk continues from there.
-    if (!fresh && (queue.empty() || queue.top().first == 0 || failed_here)) {
-      descent_found = false;
-      const bool reached = descend();
-      if (descent_found) misses = 0;
-      if (reached && seen.insert(S).second) {
-        queue.push({unfound(S), -static_cast<std::int64_t>(vertices.size())});
-        vertices.push_back({S, y});
-      }
+    if (!reached_goal && at_vertex && state[static_cast<std::size_t>(target)] == 0 &&
+        misses < options_.max_misses && out.vertices < options_.max_vertices) {
+      state[static_cast<std::size_t>(target)] = 2;
     }
+    if (reached_goal) settle(goal, 1);
   }
   out.misses = misses;
   return Status::ok();

@@ -65,9 +65,9 @@ class ApproxWalker {
   void load_candidates();
   // First point (not x, not excluded) that becomes equidistant with x along
   // y + t e, t > 0 (relative coordinates: y, e relative to x). Returns -1 if none.
-  // yq / eq, when given, are y . q and e . q for the first `dotted` listed candidates.
+  // head_only: among the nearest few candidates only (a guess, no tree query).
   std::int64_t shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded, double& t,
-                     const double* yq = nullptr, const double* eq = nullptr, std::size_t dotted = 0);
+                     bool head_only = false);
   // Is w' (relative to x) a witness for the edge (x, s)? Projects it exactly onto the
   // bisector and checks every point with the filtered exact predicate.
   bool certify(std::uint32_t s, const double* w);
@@ -88,6 +88,7 @@ class ApproxWalker {
   std::vector<double> cand_norm2_;
   double cand_radius2_ = 0;  // every unlisted point has |p - x|^2 at least this (up to rounding)
   std::vector<double> scratch_;
+  std::vector<std::pair<std::uint32_t, double>> near_;  // a ray's ball query
 };
 
 }  // namespace spokemesh
