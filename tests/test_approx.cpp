@@ -137,15 +137,13 @@ TEST(Approx, PointsInALowerDimensionalSubspaceStillGetCertifiedNeighbours) {
   }
 }
 
-// At the paper's budget, M = 100. (Below about M = 50 the directed walk can spend its
-// whole budget refuting non-neighbours near its start; see docs/algorithm.md, section 7.)
 TEST(Approx, RsdBeatsPlainSpokesForTheSameBudget) {
   Set s(6, uniform_points(6, 1500, 31));
   std::size_t rsd = 0, spokes = 0;
   for (auto mode : {ApproxOptions::Mode::kRsd, ApproxOptions::Mode::kSpokes}) {
     ApproxOptions o;
     o.mode = mode;
-    o.max_misses = 100;
+    o.max_misses = 10;
     ApproxWalker walker(*s.tree, o);
     for (std::uint32_t seed = 0; seed < 10; ++seed) {
       ApproxNeighbors a;

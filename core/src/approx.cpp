@@ -418,6 +418,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
   // Per listed candidate: still a target (0), found or given up (1), refuted (2).
   std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
+  for (Eigen::Index j = 0; j < listed; ++j) {
+    if (found.count(cand_id_[static_cast<std::size_t>(j)]) != 0) state[static_cast<std::size_t>(j)] = 1;
+  }
   auto settle = [&](std::uint32_t id, std::uint8_t to) {
     // Candidates are few thousand and sorted by distance; a point is settled once.
     for (Eigen::Index j = 0; j < listed; ++j) {
@@ -483,6 +486,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   std::vector<std::uint32_t> next;
   constexpr int kStepsPerTarget = 64;
   std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
+  int refuted_in_a_row = 0;
+  constexpr int kRefutedBeforeNearest = 4;  // 6-d n=1,000, M=100: recall 0.956 -> 0.992 (vs 2, 8: 0.992, 0.997 at more time)
   // Whether the listed candidate `target` is certainly (in floating point) not a
   // neighbour: the same steepest-edge walk, over the polytope cut by the bisectors of the
   // found neighbours and of the current vertex's points only. That polytope contains
@@ -591,9 +596,17 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       slack.array() /= Q2.array().sqrt();
       slack_at = out.vertices;
     }
+    // After a few refutations in a row the points about v are spent: the nearest open
+    // point to x instead (the likeliest neighbour left), wherever its facet is.
     Eigen::Index target = -1;
-    for (Eigen::Index j = 0; j < listed; ++j) {
-      if (state[static_cast<std::size_t>(j)] == 0 && (target < 0 || slack[j] < slack[target])) target = j;
+    if (refuted_in_a_row >= kRefutedBeforeNearest) {
+      for (Eigen::Index j = 0; j < listed && target < 0; ++j) {
+        if (state[static_cast<std::size_t>(j)] == 0) target = j;
+      }
+    } else {
+      for (Eigen::Index j = 0; j < listed; ++j) {
+        if (state[static_cast<std::size_t>(j)] == 0 && (target < 0 || slack[j] < slack[target])) target = j;
+      }
     }
     if (target < 0) {
       // Every listed point is found, given up or refuted: the cell is done as far as
@@ -603,12 +616,22 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
     const std::uint32_t goal = cand_id_[static_cast<std::size_t>(target)];
     const Eigen::Map<const VectorXd> q(&cand_q_[static_cast<std::size_t>(target) * d], d);
+    if (std::find(S.begin(), S.end(), goal) != S.end()) {
+      // Equidistant at this vertex already, so visit() has tried to certify it (it
+      // failed; it may be tried again from another vertex): no leg can reach it.
+      state[static_cast<std::size_t>(target)] = 1;
+      continue;
+    }
     const bool refuted_now = relaxed_refutes(target);
     if (refuted_now) {
       // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
       state[static_cast<std::size_t>(target)] = 2;
       ++misses;
+      ++refuted_in_a_row;
       continue;
+    }
+    refuted_in_a_row = 0;
+    {
     }
     bool reached_goal = false;
     int step = 0;
