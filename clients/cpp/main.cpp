@@ -315,7 +315,7 @@ int run_approx_neighbors(const Common& common, const ApproxFlags& flags, const s
                "the end%s, %.1f ms\n",
                result.neighbors.size(), flags.mode.c_str(), static_cast<unsigned long long>(result.vertices),
                flags.mode == "spokes" ? "rays" : "Voronoi vertices", static_cast<unsigned long long>(result.misses),
-               result.exhausted ? " (every reachable vertex visited)" : "", ms);
+               result.exhausted ? " (complete: every point found or refuted)" : "", ms);
   return kExitOk;
 }
 

@@ -3,9 +3,11 @@
 //
 // RSD mode: recursive spokes find a first Voronoi vertex of cell(x) (a spoke from x
 // trimmed by the nearest bisector, then a spoke inside that Voronoi facet, ... d
-// levels); then the walk shoots a ray along each Voronoi edge leaving every vertex
-// found. A vertex whose equidistant points add no new neighbour is a miss; the walk
-// stops after `max_misses` consecutive misses (or `max_vertices`, or cancellation).
+// levels); then the walk goes from vertex to vertex along Voronoi edges, each leg
+// heading for one nearby point not yet found by the simplex method (docs/algorithm.md,
+// section 7). A vertex whose equidistant points add no new neighbour is a miss, and so
+// is a target refuted without a leg; the walk stops after `max_misses` consecutive
+// misses (or `max_vertices`, or cancellation).
 // Spokes mode: random rays from x only, each finding one Voronoi facet (one
 // neighbour); a ray that finds no new neighbour is a miss.
 //
@@ -50,7 +52,7 @@ struct ApproxNeighbors {
   std::uint64_t rays = 0;                // rays shot in all (walk, spokes and witnesses)
   std::uint64_t misses = 0;              // consecutive misses when the walk stopped
   std::uint64_t uncertified = 0;         // proposed neighbours whose witness failed (retried later)
-  bool exhausted = false;                // RSD: every reachable vertex was visited
+  bool exhausted = false;                // RSD: the walk ran out of targets (every point found or refuted)
 };
 
 class ApproxWalker {
