@@ -137,7 +137,8 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
   }
   // 2. No hit among them: the rest of the list, nearest first, then the tree.
   for (; j < count && cand_norm2_[j] <= reach2; ++j) consider(cand_id_[j], &cand_q_[j * d], cand_norm2_[j]);
-  if (j == count && reach2 > cand_radius2_) {    // The hit (or its absence) is not decided by the list: branch and bound over the
+  if (j == count && reach2 > cand_radius2_) {
+    // The hit (or its absence) is not decided by the list: branch and bound over the
     // k-d tree. A box can hold a point hit before t_best only if
     //   t >= max(0, dist(x + y, box)^2 - |y|^2) / (2 max_{q in box} e . (q - x))
     // is smaller (numerator: |q - y|^2 - |y|^2; denominator: 2 e . (q - x)); only if
@@ -327,18 +328,18 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   std::unordered_map<std::uint32_t, std::uint32_t> found_at;  // id -> index in found_q
   // Records s, certified, as a neighbour.
   auto accept = [&](std::uint32_t s) {
-      found.insert(s);
-      out.neighbors.push_back(s);
-      const double* sp = ps_.point(s);
-      const double* xp = ps_.point(x_);
-      double q2 = 0;
-      for (int c = 0; c < d; ++c) {
-        found_q.push_back(sp[c] - xp[c]);
-        q2 += found_q.back() * found_q.back();
-      }
-      found_at.emplace(s, static_cast<std::uint32_t>(found_q2.size()));
-      found_q2.push_back(q2);
-      return true;
+    found.insert(s);
+    out.neighbors.push_back(s);
+    const double* sp = ps_.point(s);
+    const double* xp = ps_.point(x_);
+    double q2 = 0;
+    for (int c = 0; c < d; ++c) {
+      found_q.push_back(sp[c] - xp[c]);
+      q2 += found_q.back() * found_q.back();
+    }
+    found_at.emplace(s, static_cast<std::uint32_t>(found_q2.size()));
+    found_q2.push_back(q2);
+    return true;
   };
   auto try_certify = [&](std::uint32_t s, const double* w) {
     if (found.count(s) != 0 || attempts[s] >= 3) return false;
@@ -407,12 +408,14 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    along which g falls fastest (the steepest edge) to the next vertex, until q is
   //    among the equidistant points (found, and certified like every new point met on
   //    the way), or no edge lowers g (q is not a neighbour: refuted, in floating point,
-  //    which can only cost recall). Targets are taken nearest to the current vertex
-  //    first (least g there), so consecutive legs stay short and the walk sweeps the
-  //    cell's surface instead of re-walking known parts of it, as an undirected walk
-  //    does once most of its neighbours are found. Every vertex reached counts, as in
-  //    the paper, as a miss when it certifies no new neighbour; M misses in a row stop
-  //    the walk.
+  //    which can only cost recall). The next target is the point whose bisector is
+  //    nearest to the current vertex, so consecutive legs stay short and the walk
+  //    sweeps the cell's surface instead of re-walking known parts of it, as an
+  //    undirected walk does once most of its neighbours are found. A target is first
+  //    walked to on a relaxed polytope (relaxed_refutes below), and only walked for
+  //    real if that cannot refute it. Every vertex reached counts, as in the paper, as
+  //    a miss when it certifies no new neighbour, and so does a target refuted
+  //    without a leg; M misses in a row stop the walk.
   const auto listed = static_cast<Eigen::Index>(cand_id_.size());
   const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
   const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
@@ -434,8 +437,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   VectorXd v(d), f(d), e(d), w(d), rhs(d), slack(listed);
   std::uint64_t misses = 0;
   const double* x = ps_.point(x_);
-  // Visits vertex S (sorted; `guess` where the ray ended): solves it again from S (errors do
-  // not accumulate along the walk), its edge directions E = -B^{-1} with rows
+  // Visits vertex S (sorted): solves it again from S (errors do not accumulate along
+  // the walk), its edge directions E = -B^{-1} with rows
   // B_m = s_m - x (column k is orthogonal to every offset but the k-th and points away
   // from s_k), and certifies its new points: for s = S_i, the direction sum_{k != i} E_k
   // keeps x and s equidistant and moves away from the others, into the facet of (x, s);
@@ -492,11 +495,12 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // 0.995 after 4, 0.997 after 8; 8-d n=10,000 0.974, 0.981, 0.994 (16: 0.991).
   constexpr int kRefutedBeforeNearest = 8;
   // Whether the listed candidate `target` is certainly (in floating point) not a
-  // neighbour: the same steepest-edge walk, over the polytope cut by the bisectors of the
-  // found neighbours and of the current vertex's points only. That polytope contains
-  // the cell, so if g stays positive on it, it does on the cell. Its vertices are not
-  // Voronoi vertices of x (none is visited or counted); it only spares the walk legs
-  // towards points that cannot be reached.
+  // neighbour: the same steepest-edge walk, from the current vertex, over the polytope
+  // cut by the bisectors of the found neighbours only (B^{-1} updated by
+  // Sherman-Morrison at each step, no tree queries). That polytope contains the cell,
+  // so if g stays positive on it, it does on the cell. Its vertices are not Voronoi
+  // vertices of x (none is visited or counted); it only spares the walk legs towards
+  // points that cannot be reached.
   std::vector<std::uint32_t> rs;    // the relaxed vertex: indices into found_q
   std::vector<std::uint8_t> in_rs;   // per found point: one of rs
   std::vector<double> r_vq, r_eq;    // per found point: rv . q and re . q
@@ -625,8 +629,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       state[static_cast<std::size_t>(target)] = 1;
       continue;
     }
-    const bool refuted_now = relaxed_refutes(target);
-    if (refuted_now) {
+    if (relaxed_refutes(target)) {
       // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
       state[static_cast<std::size_t>(target)] = 2;
       ++misses;
@@ -634,11 +637,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       continue;
     }
     refuted_in_a_row = 0;
-    {
-    }
     bool reached_goal = false;
-    int step = 0;
-    for (; step < kStepsPerTarget && !reached_goal; ++step) {
+    for (int step = 0; step < kStepsPerTarget && !reached_goal; ++step) {
       if (misses >= options_.max_misses || out.vertices >= options_.max_vertices || stop_requested()) break;
       // The steepest edge towards the goal: g falls along E_k at the rate -2 E_k . q.
       int best = -1;
