@@ -9,7 +9,7 @@
 // mesh_seeds() runs worker threads over blocks of seeds and hands finished blocks to
 // `sink` in seed order, on the calling thread. At most a fixed window of blocks is in
 // flight, so memory is the point set, the tree, a bounded buffer and the FacetCache
-// (capped by facet_cache_bytes), never the mesh. The workers' stars share their wraps
+// (in 2-d the EdgeCache; capped by facet_cache_bytes), never the mesh. The workers' stars share their wraps
 // through that cache; each star, and so the output, is the same without it.
 //
 // Thread safety: mesh_seeds() is safe to call concurrently on the same tree.
@@ -31,8 +31,9 @@ struct MeshOptions {
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
   std::uint32_t block_size = 0;     // seeds per block; 0 = automatic
-  // Cap on the FacetCache that lets the stars of this run share their wraps (see
-  // facet_cache.hpp): bytes, 0 to mesh without it. The output is the same either way.
+  // Cap on the FacetCache (in 2-d the EdgeCache) that lets the stars of this run share
+  // their wraps (see facet_cache.hpp): bytes, 0 to mesh without it. The output is the
+  // same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
 };
@@ -40,7 +41,7 @@ struct MeshOptions {
 struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
-  std::size_t facet_cache_bytes = 0;  // reserved by the run's FacetCache
+  std::size_t facet_cache_bytes = 0;  // reserved by the run's FacetCache or EdgeCache
   StarStats star;
 };
 
