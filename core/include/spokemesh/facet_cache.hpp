@@ -10,6 +10,7 @@
 //
 // The cache also remembers, per point, one facet that contains it ("a start"): a
 // seed with a start begins its walk at a known simplex instead of d levels of spokes.
+// Whole meshes use it for d >= 3; 2-d runs use the EdgeCache below instead.
 //
 // Memory: a fixed open-addressing table of d + 3 words per slot, sized from the
 // expected facet count and capped at `max_bytes`, plus 4 bytes per point. When the
