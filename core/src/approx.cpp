@@ -318,17 +318,15 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    Returns false if no vertex was reached within the attempts.
   std::vector<std::uint32_t> S;
   VectorXd y(d);
-  std::unordered_set<std::uint32_t> found;           // certified neighbours
   std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
   bool descent_found = false;                       // the last descent certified a new neighbour
-  // Certifies s with witness w (relative to x) unless already known or tried too often;
-  // true if s is a new certified neighbour.
-  std::vector<double> found_q;  // the found neighbours' offsets s - x, d per point
-  std::vector<double> found_q2;  // and their |s - x|^2
-  std::unordered_map<std::uint32_t, std::uint32_t> found_at;  // id -> index in found_q
+  // The certified neighbours: id -> index in found_q, their offsets s - x (d per point),
+  // and found_q2, their |s - x|^2.
+  std::unordered_map<std::uint32_t, std::uint32_t> found_at;
+  std::vector<double> found_q, found_q2;
+  auto found = [&](std::uint32_t s) { return found_at.count(s) != 0; };
   // Records s, certified, as a neighbour.
   auto accept = [&](std::uint32_t s) {
-    found.insert(s);
     out.neighbors.push_back(s);
     const double* sp = ps_.point(s);
     const double* xp = ps_.point(x_);
@@ -341,8 +339,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     found_q2.push_back(q2);
     return true;
   };
+  // Certifies s with witness w (relative to x) unless already known or tried too often;
+  // true if s is a new certified neighbour.
   auto try_certify = [&](std::uint32_t s, const double* w) {
-    if (found.count(s) != 0 || attempts[s] >= 3) return false;
+    if (found(s) || attempts[s] >= 3) return false;
     if (certify(s, w)) return accept(s);
     ++attempts[s];
     ++out.uncertified;
@@ -422,7 +422,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // Per listed candidate: still a target (0), found or given up (1), refuted (2).
   std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
   for (Eigen::Index j = 0; j < listed; ++j) {
-    if (found.count(cand_id_[static_cast<std::size_t>(j)]) != 0) state[static_cast<std::size_t>(j)] = 1;
+    if (found(cand_id_[static_cast<std::size_t>(j)])) state[static_cast<std::size_t>(j)] = 1;
   }
   auto settle = [&](std::uint32_t id, std::uint8_t to) {
     // Candidates are few thousand and sorted by distance; a point is settled once.
@@ -458,19 +458,22 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     const VectorXd total = E.rowwise().sum();
     for (int i = 0; i < d; ++i) {
       const std::uint32_t s = vertex[i];
-      if (found.count(s) != 0 || attempts[s] >= 3) continue;
+      if (found(s) || attempts[s] >= 3) continue;
       f = total - E.col(i);
-      // The nearest candidates usually give the first point met already (a witness
-      // halfway there is then certified by certify()'s own ball query); the full ray
-      // is shot only when that fails.
-      double t = 0;
-      if (shoot(v.data(), f.data(), &s, 1, t, /*head_only=*/true) < 0) t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
-      w = v + (t / 2) * f;
-      bool certified = certify(s, w.data());
-      if (!certified) {
-        if (shoot(v.data(), f.data(), &s, 1, t) < 0) t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
+      // The witness: halfway to the first point met along f (without a hit, as far
+      // again as v is from x). The nearest candidates usually give that point already
+      // (the witness is then certified by certify()'s own ball query); the full ray is
+      // shot only when that fails.
+      auto witness = [&](bool head_only) {
+        double t = 0;
+        if (shoot(v.data(), f.data(), &s, 1, t, head_only) < 0) {
+          t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
+        }
         w = v + (t / 2) * f;
-      }
+      };
+      witness(/*head_only=*/true);
+      const bool certified = certify(s, w.data());
+      if (!certified) witness(/*head_only=*/false);
       if (certified ? accept(s) : try_certify(s, w.data())) {
         fresh = true;
         settle(s, 1);
@@ -501,10 +504,25 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // so if g stays positive on it, it does on the cell. Its vertices are not Voronoi
   // vertices of x (none is visited or counted); it only spares the walk legs towards
   // points that cannot be reached.
+  // The edge (a column of `edges`, which leave a vertex) along which g falls fastest
+  // for the target with offset q: rate E_k . q / |E_k|; -1 when none lowers g.
+  auto steepest_edge = [&](const MatrixXd& edges, const auto& q) {
+    int best = -1;
+    double best_rate = 0;
+    for (int k = 0; k < d; ++k) {
+      const double norm = edges.col(k).norm();
+      const double rate = norm > 0 ? edges.col(k).dot(q) / norm : 0;
+      if (rate > best_rate) {
+        best_rate = rate;
+        best = k;
+      }
+    }
+    return best;
+  };
   std::vector<std::uint32_t> rs;    // the relaxed vertex: indices into found_q
   std::vector<std::uint8_t> in_rs;   // per found point: one of rs
   std::vector<double> r_vq, r_eq;    // per found point: rv . q and re . q
-  MatrixXd rBinv(d, d);              // the inverse of the matrix of rs's offsets (rows)
+  MatrixXd rE(d, d);                 // its edges: -(the matrix of rs's offsets, as rows)^{-1}
   VectorXd rv(d), re(d), r_row(d), r_col(d);
   auto relaxed_refutes = [&](Eigen::Index target) {
     const Eigen::Map<const VectorXd> gq(&cand_q_[static_cast<std::size_t>(target) * d], d);
@@ -519,7 +537,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
     in_rs.assign(nf, 0);
     for (const std::uint32_t i : rs) in_rs[i] = 1;
-    rBinv = -E;  // E = -B^{-1}
+    rE = E;
     rv = v;
     const Eigen::Map<const MatrixXd> F(found_q.data(), d, static_cast<Eigen::Index>(nf));
     r_vq.resize(nf);
@@ -527,19 +545,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     double g_vq = gq.dot(rv);
     r_eq.resize(nf);
     for (int step = 0; step < kStepsPerTarget; ++step) {
-      // Edge k leaves along -B^{-1} e_k: the steepest one towards the goal.
-      int best = -1;
-      double best_rate = 0;
-      for (int k = 0; k < d; ++k) {
-        const double norm = rBinv.col(k).norm();
-        const double rate = norm > 0 ? -rBinv.col(k).dot(gq) / norm : 0;
-        if (rate > best_rate) {
-          best_rate = rate;
-          best = k;
-        }
-      }
+      const int best = steepest_edge(rE, gq);
       if (best < 0) return true;  // optimal with g > 0
-      re = -rBinv.col(best);
+      re = rE.col(best);
       // The first bisector met along rv + t re: the goal's, a found neighbour's, or none.
       Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * re;
       const double g_eq = gq.dot(re);
@@ -562,20 +570,21 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       }
       if (hit < 0) return false;  // reaches the goal's bisector, or unbounded
       // Move, and swap row `best` of B for the point hit (Sherman-Morrison):
-      // B'^{-1} = B^{-1} - (B^{-1} e_k)(delta^T B^{-1}) / (1 + delta^T B^{-1} e_k).
+      // B'^{-1} = B^{-1} - (B^{-1} e_k)(delta^T B^{-1}) / (1 + delta^T B^{-1} e_k), so
+      // with E = -B^{-1}: E' = E + (E e_k)(delta^T E) / (1 - delta^T E e_k).
       rv += t_best * re;
       for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];
       g_vq += t_best * g_eq;
       const std::uint32_t out_i = rs[static_cast<std::size_t>(best)], in_i = static_cast<std::uint32_t>(hit);
       r_row = Eigen::Map<const VectorXd>(&found_q[in_i * sd], d) - Eigen::Map<const VectorXd>(&found_q[out_i * sd], d);
-      r_col = rBinv.col(best);
-      const double denom = 1 + r_row.dot(r_col);
+      r_col = rE.col(best);
+      const double denom = 1 - r_row.dot(r_col);
       if (!(std::fabs(denom) > 1e-300)) return false;
-      rBinv.noalias() -= (r_col / denom) * (r_row.transpose() * rBinv);
+      rE.noalias() += (r_col / denom) * (r_row.transpose() * rE);
       in_rs[out_i] = 0;
       in_rs[in_i] = 1;
       rs[static_cast<std::size_t>(best)] = in_i;
-      if (!rBinv.allFinite()) return false;
+      if (!rE.allFinite()) return false;
     }
     return false;
   };
@@ -640,17 +649,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     bool reached_goal = false;
     for (int step = 0; step < kStepsPerTarget && !reached_goal; ++step) {
       if (misses >= options_.max_misses || out.vertices >= options_.max_vertices || stop_requested()) break;
-      // The steepest edge towards the goal: g falls along E_k at the rate -2 E_k . q.
-      int best = -1;
-      double best_rate = 0;
-      for (int k = 0; k < d; ++k) {
-        const double norm = E.col(k).norm();
-        const double rate = norm > 0 ? E.col(k).dot(q) / norm : 0;
-        if (rate > best_rate) {
-          best_rate = rate;
-          best = k;
-        }
-      }
+      // The steepest edge towards the goal (g falls along E_k at the rate -2 E_k . q).
+      const int best = steepest_edge(E, q);
       if (best < 0) break;  // no edge lowers g: the goal is not a neighbour
       e = E.col(best);
       double t = 0;
