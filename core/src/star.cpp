@@ -985,16 +985,22 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     add_simplex(others.data(), plane.data());
   }
 
+  emit_canonical(hull, part, out);
+  return Status::ok();
+}
+
+void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   // Canonical form: vertices ascending within a simplex, simplices lexicographic.
+  const int d = d_;
   const int w = d + 1;
   std::vector<std::uint32_t>& flat = sort_flat_;
   flat.resize(work_.size() / d * w);
   std::size_t m = 0;
   for (std::size_t i = 0; i * d < work_.size(); ++i) {
     const std::uint32_t* ids = &work_[i * d];
-    if (part == StarPart::kOwned && *std::min_element(ids, ids + d) < seed) continue;
+    if (part == StarPart::kOwned && *std::min_element(ids, ids + d) < x_) continue;
     std::uint32_t* s = &flat[m++ * w];
-    s[0] = seed;
+    s[0] = x_;
     std::copy(ids, ids + d, s + 1);
     detail::sort_small(s, w);
   }
@@ -1004,12 +1010,11 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
     return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);
   });
-  out.seed = seed;
+  out.seed = x_;
   out.dimension = d;
   out.hull_facets = hull;
   out.simplices.resize(m * w);
   for (std::size_t i = 0; i < m; ++i) std::copy(&flat[order[i] * w], &flat[order[i] * w] + w, &out.simplices[i * w]);
-  return Status::ok();
 }
 
 // The star in 2-d. x's star is a ring of triangles about x, each two consecutive
@@ -1140,8 +1145,18 @@ Status StarWalker::compute_ring(Star& out, StarPart part) {
     }
   }
 
-  // Canonical output. The owned triangles are x, low, high with x < low: in order of
-  // (low, high).
+  // Canonical output. The whole star as any star's; the owned triangles (the whole
+  // mesh's hot path) are x, low, high with x < low, so sorting (low, high) words orders
+  // them.
+  if (part == StarPart::kAll) {
+    work_.clear();
+    for (const std::uint64_t t : ring_triangles_) {
+      work_.push_back(static_cast<std::uint32_t>(t >> 32));
+      work_.push_back(static_cast<std::uint32_t>(t));
+    }
+    emit_canonical(hull, part, out);
+    return Status::ok();
+  }
   std::sort(ring_triangles_.begin(), ring_triangles_.end());
   out.seed = x_;
   out.dimension = 2;
@@ -1149,24 +1164,8 @@ Status StarWalker::compute_ring(Star& out, StarPart part) {
   out.simplices.clear();
   for (const std::uint64_t t : ring_triangles_) {
     const auto low = static_cast<std::uint32_t>(t >> 32), high = static_cast<std::uint32_t>(t);
-    if (part == StarPart::kOwned && low < x_) continue;
-    std::array<std::uint32_t, 3> s{x_, low, high};
-    detail::sort_small(s.data(), 3);
-    out.simplices.insert(out.simplices.end(), s.begin(), s.end());
-  }
-  if (part == StarPart::kAll) {
-    // x in the middle or last sorts differently from (low, high): reorder by whole triple.
-    const std::size_t m = out.simplices.size() / 3;
-    sort_order_.resize(m);
-    std::iota(sort_order_.begin(), sort_order_.end(), 0u);
-    const std::uint32_t* f = out.simplices.data();
-    std::sort(sort_order_.begin(), sort_order_.end(), [&](std::uint32_t a, std::uint32_t b) {
-      return std::lexicographical_compare(f + 3 * a, f + 3 * a + 3, f + 3 * b, f + 3 * b + 3);
-    });
-    sort_flat_.assign(out.simplices.begin(), out.simplices.end());
-    for (std::size_t i = 0; i < m; ++i) {
-      std::copy(&sort_flat_[3 * sort_order_[i]], &sort_flat_[3 * sort_order_[i]] + 3, &out.simplices[3 * i]);
-    }
+    if (low < x_) continue;
+    out.simplices.insert(out.simplices.end(), {x_, low, high});
   }
   return Status::ok();
 }

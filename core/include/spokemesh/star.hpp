@@ -185,6 +185,8 @@ class StarWalker {
   void prepare_wrap();
   // compute() for d = 2: the star as a ring of neighbours (see the definition).
   Status compute_ring(Star& out, StarPart part);
+  // Writes the simplices in work_ (d ids each, without x) to `out` in canonical form.
+  void emit_canonical(std::size_t hull, StarPart part, Star& out);
 
   const KdTree& tree_;
   const PointSet& ps_;
