@@ -56,7 +56,7 @@ double expected_facets_per_point(int d) {
 
 }  // namespace
 
-void FacetCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
+void UnmapWords::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                        std::uint32_t block)
@@ -72,8 +72,8 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   const std::size_t slots = std::min({std::max(estimate, kMinSlots), affordable, kMaxSlots});
   if (slots < kMinSlots) return;  // too little memory for a useful table
   std::size_t table_bytes = 0, starts_bytes_mapped = 0;
-  table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), Free{table_bytes});
-  starts_ = decltype(starts_)(allocate_zeroed(std::max<std::size_t>(n, 1), starts_bytes_mapped), Free{starts_bytes_mapped});
+  table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), UnmapWords{table_bytes});
+  starts_ = decltype(starts_)(allocate_zeroed(std::max<std::size_t>(n, 1), starts_bytes_mapped), UnmapWords{starts_bytes_mapped});
   if (!table_ || !starts_) {
     table_.reset();
     starts_.reset();
@@ -205,15 +205,13 @@ bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, 
 // ---------------------------------------------------------------------------------
 // EdgeCache
 
-void EdgeCache::Free::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
-
 EdgeCache::EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                      std::uint32_t block)
     : n_(n), order_{begin, std::min(end, n), std::max(block, 1u)} {
   const std::size_t bytes = std::size_t{n} * kBoxWords * sizeof(std::uint32_t);
   if (order_.begin >= order_.end || bytes > max_bytes) return;
   std::size_t mapped = 0;
-  boxes_ = decltype(boxes_)(allocate_zeroed(std::size_t{n} * kBoxWords, mapped), Free{mapped});
+  boxes_ = decltype(boxes_)(allocate_zeroed(std::size_t{n} * kBoxWords, mapped), UnmapWords{mapped});
 }
 
 void EdgeCache::post(std::uint32_t t, const Post& p) {

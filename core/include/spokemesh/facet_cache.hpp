@@ -33,6 +33,14 @@
 
 namespace spokemesh {
 
+// Words mapped from the OS by the caches (see allocate_zeroed in facet_cache.cpp),
+// unmapped when released.
+struct UnmapWords {
+  std::size_t bytes = 0;  // of the mapping
+  void operator()(std::uint32_t* p) const;
+};
+using MappedWords = std::unique_ptr<std::uint32_t[], UnmapWords>;
+
 // The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
 // `block`, blocks in order, a block's seeds in any order.
 struct RunOrder {
@@ -104,10 +112,6 @@ class FacetCache {
   bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const;
 
  private:
-  struct Free {
-    std::size_t bytes;  // of the mapping
-    void operator()(std::uint32_t* p) const;
-  };
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
   // A hash's first slot: its low 32 bits scaled to [0, capacity) (the tag uses the
   // high 32); probing goes on linearly, wrapping at the end.
@@ -123,8 +127,8 @@ class FacetCache {
   std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
   std::size_t capacity_ = 0;  // slots (at most 2^31), 0 when disabled
   std::size_t max_entries_ = 0;
-  std::unique_ptr<std::uint32_t[], Free> table_;
-  std::unique_ptr<std::uint32_t[], Free> starts_;  // per point: slot + 1, or 0
+  MappedWords table_;
+  MappedWords starts_;  // per point: slot + 1, or 0
   mutable std::atomic<std::size_t> entries_{0};
 };
 
@@ -186,15 +190,11 @@ class EdgeCache {
   // published last; a, b).
   static constexpr std::size_t kBoxWords = 16;
   static_assert(1 + 3 * kPostsPerPoint <= kBoxWords);
-  struct Free {
-    std::size_t bytes;
-    void operator()(std::uint32_t* p) const;
-  };
   std::uint32_t* box(std::uint32_t t) const { return boxes_.get() + std::size_t{t} * kBoxWords; }
 
   std::uint32_t n_;
   RunOrder order_;
-  std::unique_ptr<std::uint32_t[], Free> boxes_;
+  MappedWords boxes_;
 };
 
 }  // namespace spokemesh
