@@ -5,12 +5,10 @@
 //
 // Data: uniform points in d = 4, 6, 8, 12, and points near a random smooth k-manifold
 // (k = 2..4) in D = 16, 32, 64 with small noise; n = 1,000 (and 10,000 with --large).
-// For K sampled seeds per set: the exact neighbours (LP oracle, GLPK, with Clarkson-style
-// row generation so each LP stays small), then for each M and mode: recall, precision
-// (always 1: every reported edge is checked against the oracle), degree, and mean / p99
-// time per seed on one thread. Prints a table; --svg draws recall against M.
-#include <glpk.h>
-
+// For K sampled seeds per set: the exact neighbours (the tests' LP oracle,
+// tests/lp_oracle.hpp: GLPK with Clarkson-style row generation), then for each M and
+// mode: recall, precision (always 1: every reported edge is checked against the
+// oracle), degree, and mean / p99 time per seed on one thread. Prints a table; --svg draws recall against M.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -21,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "lp_oracle.hpp"
 #include "spokemesh/approx.hpp"
 
 using namespace spokemesh;
@@ -69,108 +68,6 @@ Dataset manifold(int k, int D, std::size_t n, std::uint64_t seed) {
     }
   }
   return s;
-}
-
-// Exact Delaunay neighbours of x_i: for each j, maximise the slack delta of
-// 2 w.(x_k - x_i) + delta <= |x_k - x_i|^2 (k != i, j) with equality for j. Rows are
-// generated lazily (Clarkson): solve over a working set, add the rows the optimum
-// violates, repeat; an infeasible working set already proves "not a neighbour".
-std::vector<std::uint32_t> oracle(const Dataset& s, std::uint32_t i) {
-  const int d = s.d;
-  const std::size_t n = s.n;
-  const double* xi = &s.coords[static_cast<std::size_t>(i) * d];
-  std::vector<double> q(n * d), r(n);
-  std::vector<std::uint32_t> by_distance(n);
-  for (std::size_t k = 0; k < n; ++k) {
-    double t = 0;
-    for (int c = 0; c < d; ++c) {
-      q[k * d + c] = s.coords[k * d + c] - xi[c];
-      t += q[k * d + c] * q[k * d + c];
-    }
-    r[k] = t;
-    by_distance[k] = static_cast<std::uint32_t>(k);
-  }
-  std::sort(by_distance.begin(), by_distance.end(), [&](auto a, auto b) { return r[a] < r[b]; });
-  std::vector<std::uint32_t> out;
-  std::vector<int> ia, ja;
-  std::vector<double> ar;
-  for (std::uint32_t j = 0; j < n; ++j) {
-    if (j == i) continue;
-    std::vector<std::uint32_t> rows;
-    std::vector<char> in_rows(n, 0);
-    for (std::size_t t = 0; t < std::min<std::size_t>(n, 4 * d + 40); ++t) {
-      if (by_distance[t] != i && by_distance[t] != j) {
-        rows.push_back(by_distance[t]);
-        in_rows[by_distance[t]] = 1;
-      }
-    }
-    bool neighbour = false;
-    for (int round = 0;; ++round) {
-      glp_prob* lp = glp_create_prob();
-      glp_set_obj_dir(lp, GLP_MAX);
-      glp_add_cols(lp, d + 1);
-      for (int c = 1; c <= d; ++c) glp_set_col_bnds(lp, c, GLP_FR, 0, 0);
-      glp_set_col_bnds(lp, d + 1, GLP_UP, 0, 1);
-      glp_set_obj_coef(lp, d + 1, 1);
-      glp_add_rows(lp, static_cast<int>(rows.size() + 1));
-      ia.assign(1, 0);
-      ja.assign(1, 0);
-      ar.assign(1, 0);
-      for (int c = 0; c < d; ++c) {
-        ia.push_back(1);
-        ja.push_back(c + 1);
-        ar.push_back(2 * q[j * d + c]);
-      }
-      glp_set_row_bnds(lp, 1, GLP_FX, r[j], r[j]);
-      for (std::size_t t = 0; t < rows.size(); ++t) {
-        const std::uint32_t k = rows[t];
-        for (int c = 0; c < d; ++c) {
-          ia.push_back(static_cast<int>(t + 2));
-          ja.push_back(c + 1);
-          ar.push_back(2 * q[k * d + c]);
-        }
-        ia.push_back(static_cast<int>(t + 2));
-        ja.push_back(d + 1);
-        ar.push_back(1);
-        glp_set_row_bnds(lp, static_cast<int>(t + 2), GLP_UP, 0, r[k]);
-      }
-      glp_load_matrix(lp, static_cast<int>(ia.size() - 1), ia.data(), ja.data(), ar.data());
-      glp_smcp parm;
-      glp_init_smcp(&parm);
-      parm.msg_lev = GLP_MSG_OFF;
-      parm.presolve = GLP_ON;
-      const bool solved = glp_simplex(lp, &parm) == 0 && glp_get_status(lp) == GLP_OPT;
-      const double delta = solved ? glp_get_obj_val(lp) : -1;
-      std::vector<double> w(static_cast<std::size_t>(d));
-      for (int c = 0; c < d; ++c) w[c] = solved ? glp_get_col_prim(lp, c + 1) : 0;
-      glp_delete_prob(lp);
-      if (!(delta > 1e-9 * r[j])) break;  // infeasible on a subset: not a neighbour
-      if (round > 200) {
-        std::fprintf(stderr, "oracle: row generation for (%u, %u) did not converge\n", i, j);
-        std::exit(1);
-      }
-      // Rows the optimum violates (or meets with less than its slack), most violated first.
-      std::vector<std::pair<double, std::uint32_t>> violated;
-      for (std::size_t k = 0; k < n; ++k) {
-        if (k == i || k == j) continue;
-        double lhs = delta;
-        for (int c = 0; c < d; ++c) lhs += 2 * w[c] * q[k * d + c];
-        // Rows already in the working set are met up to GLPK's tolerance: not new.
-        if (!in_rows[k] && lhs > r[k]) violated.emplace_back(lhs - r[k], static_cast<std::uint32_t>(k));
-      }
-      if (violated.empty()) {
-        neighbour = true;
-        break;
-      }
-      std::sort(violated.rbegin(), violated.rend());
-      for (std::size_t t = 0; t < std::min<std::size_t>(violated.size(), 4 * d + 20); ++t) {
-        rows.push_back(violated[t].second);
-        in_rows[violated[t].second] = 1;
-      }
-    }
-    if (neighbour) out.push_back(j);
-  }
-  return out;
 }
 
 struct Measurement {
@@ -233,7 +130,7 @@ int main(int argc, char** argv) {
     for (int k = 0; k < seeds; ++k) sample.push_back(static_cast<std::uint32_t>(rng() % s.n));
     std::vector<std::vector<std::uint32_t>> truth;
     const auto t0 = std::chrono::steady_clock::now();
-    for (std::uint32_t seed : sample) truth.push_back(oracle(s, seed));
+    for (std::uint32_t seed : sample) truth.push_back(testing::lp_delaunay_neighbors(s.coords, s.d, seed));
     const double oracle_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     double truth_degree = 0;
     for (const auto& t : truth) truth_degree += static_cast<double>(t.size()) / sample.size();

@@ -2,6 +2,8 @@
 // (against exact stars in low d, and against the LP oracle in high d), recall is 1 on
 // small 2-d/3-d inputs with a generous budget, and answers do not depend on threads.
 #include <atomic>
+#include <cmath>
+#include <random>
 #include <set>
 
 #include "lp_oracle.hpp"
@@ -62,6 +64,67 @@ TEST(Approx, RecallOneAndPrecisionOneIn2dAnd3d) {
       }
     }
   }
+}
+
+// A cell with more neighbours than the walk lists at first (512 d = 1,536 in 3-d):
+// x at the centre of 2,000 points on a sphere, every one of which is a neighbour, and
+// 1,000 farther points, none of which is. The walk lists more as it finds them.
+TEST(Approx, CellsWithMoreNeighboursThanTheListAreWalkedWhole) {
+  std::vector<double> c = {0, 0, 0};
+  std::mt19937_64 rng(99);
+  std::uniform_real_distribution<double> u(0, 1);
+  auto next = [&] { return u(rng); };
+  for (int i = 0; i < 3000; ++i) {
+    double p[3], r2 = 0;
+    do {
+      r2 = 0;
+      for (double& v : p) {
+        v = 2 * next() - 1;
+        r2 += v * v;
+      }
+    } while (r2 > 1 || r2 < 1e-3);
+    const double scale = (i < 2000 ? 1.0 : 3.0 + next()) / std::sqrt(r2);
+    for (double v : p) c.push_back(v * scale);
+  }
+  Set s(3, c);
+  const auto truth = exact_neighbors(*s.tree, 0);
+  ASSERT_EQ(truth.size(), 2000u);
+  ApproxOptions o;
+  o.max_misses = 100;
+  ApproxWalker walker(*s.tree, o);
+  ApproxNeighbors a;
+  ASSERT_TRUE(walker.compute(0, a).is_ok());
+  EXPECT_EQ(a.neighbors, truth);
+}
+
+// Points near a curved 2-d surface in 10-d: cells are long across the surface, most
+// facets are far from the seed's first vertex, and most are reached by aimed spokes.
+// Recall against the LP oracle at the default budget, precision 1.
+TEST(Approx, NearAManifoldRecallIsHighAtTheDefaultBudget) {
+  const int D = 10;
+  const std::size_t n = 500;  // the LP oracle takes about a second here
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0, 1);
+  std::uniform_real_distribution<double> u(0, 1);
+  std::vector<double> freq(2 * D), phase(D), c;
+  for (double& v : freq) v = 2 * g(rng);
+  for (double& v : phase) v = 6.283185307179586 * u(rng);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double a = u(rng), b = u(rng);
+    for (int j = 0; j < D; ++j) c.push_back(std::sin(phase[j] + freq[2 * j] * a + freq[2 * j + 1] * b) + 0.01 * g(rng));
+  }
+  Set s(D, c);
+  ApproxWalker walker(*s.tree, ApproxOptions{});
+  std::size_t found = 0, total = 0;
+  for (std::uint32_t seed : {0u, 123u, 321u, 499u}) {
+    const auto truth = lp_delaunay_neighbors(c, D, seed);
+    ApproxNeighbors a;
+    ASSERT_TRUE(walker.compute(seed, a).is_ok());
+    EXPECT_TRUE(subset(a.neighbors, truth)) << "seed " << seed << " (points seed 5)";
+    found += a.neighbors.size();
+    total += truth.size();
+  }
+  EXPECT_GE(static_cast<double>(found), 0.99 * static_cast<double>(total)) << found << " of " << total;
 }
 
 TEST(Approx, PrecisionOneOnGridsWithTies) {

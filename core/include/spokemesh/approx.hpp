@@ -64,7 +64,8 @@ class ApproxWalker {
 
  private:
   struct Ray;
-  void load_candidates();
+  // Lists the k points nearest to x (k + 1 with x itself; all of them if fewer).
+  void load_candidates(std::size_t k);
   // First point (not x, not excluded) that becomes equidistant with x along
   // y + t e, t > 0 (relative coordinates: y, e relative to x). Returns -1 if none.
   // head_only: among the nearest few candidates only (a guess, no tree query).
