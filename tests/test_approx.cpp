@@ -98,7 +98,7 @@ TEST(Approx, CellsWithMoreNeighboursThanTheListAreWalkedWhole) {
 }
 
 // Points near a curved 2-d surface in 10-d: cells are long across the surface, most
-// facets are far from the seed's first vertex, and most are reached by aimed spokes.
+// facets are far from the seed's first vertex.
 // Recall against the LP oracle at the default budget, precision 1.
 TEST(Approx, NearAManifoldRecallIsHighAtTheDefaultBudget) {
   const int D = 10;

@@ -426,9 +426,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    sweeps the cell's surface instead of re-walking known parts of it, as an
   //    undirected walk does once most of its neighbours are found. A target is first
   //    walked to on a relaxed polytope (relaxed_refutes below), and only walked for
-  //    real if that cannot refute it. Every vertex reached counts, as in the paper, as
-  //    a miss when it certifies no new neighbour, and so does a target refuted
-  //    without a leg; M misses in a row stop the walk.
+  //    real if that cannot refute it; if its facet is far, a spoke aimed at it replaces
+  //    the leg (docs/algorithm.md, section 7). Every vertex reached counts, as in the
+  //    paper, as a miss when it certifies no new neighbour, and two targets refuted
+  //    without a leg count as one; M misses in a row stop the walk.
   auto listed = static_cast<Eigen::Index>(cand_id_.size());
   // Per listed candidate: still a target (0), found or given up (1), refuted (2).
   std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
@@ -506,10 +507,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // manifold the facets of far targets are often 30 or more steps away.
   constexpr int kRelaxedSteps = 1024;
   // A relaxed walk that needs this many steps to reach the goal's facet is answered by
-  // an aimed spoke instead of a leg. Measured at M = 100 (with the other choices here):
-  // after 0 steps (always aim), 8-d n=10,000 recall 0.985 at 98 ms per seed and the
-  // 2-manifold in 16-d n=10,000 0.982; after 8, 0.988 at 88 ms and 0.985 (never: 0.989
-  // at 85 ms and 0.957).
+  // an aimed spoke instead of a leg. Measured at M = 100, each refutation then a whole
+  // miss: always aiming, 8-d n=10,000 recall 0.985 at 98 ms per seed and the
+  // 2-manifold in 16-d n=10,000 0.982; after 8 steps, 0.988 at 95 ms and 0.985; never,
+  // 0.989 at 85-110 ms and 0.957 (with every point listed).
   constexpr int kAimAfterSteps = 8;
   std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
   int refuted_in_a_row = 0;
@@ -524,7 +525,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // Sherman-Morrison at each step, no tree queries). That polytope contains the cell,
   // so if g stays positive on it, it does on the cell. Its vertices are not Voronoi
   // vertices of x (none is visited or counted); it only spares the walk legs towards
-  // points that cannot be reached.
+  // points that cannot be reached. When it reaches the target's bisector after
+  // kAimAfterSteps steps or more, it sets the aim (r_p) instead.
   // The edge (a column of `edges`, which leave a vertex) along which g falls fastest
   // for the target with offset q: rate E_k . q / |E_k|; -1 when none lowers g.
   auto steepest_edge = [&](const MatrixXd& edges, const auto& q) {
@@ -717,7 +719,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
       state[static_cast<std::size_t>(target)] = 2;
       ++refuted_in_a_row;
-      if (++refutations % 2 == 0) ++misses;
+      if (++refutations % 2 == 0) ++misses;  // two count as one miss (docs section 7)
       continue;
     }
     refuted_in_a_row = 0;
