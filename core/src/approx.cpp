@@ -516,7 +516,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   std::vector<std::uint32_t> next;
   constexpr int kStepsPerTarget = 64;
   // Steps of a relaxed walk (no tree queries: cheap) before it gives up; near a
-  // manifold the facets of far targets are often 30 or more steps away.
+  // manifold the facets of far targets are often 15 or more steps away.
   constexpr int kRelaxedSteps = 1024;
   // A relaxed walk that needs this many steps to reach the goal's facet is answered by
   // an aimed spoke instead of a leg. Measured at M = 100, each refutation then a whole
@@ -727,7 +727,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       continue;
     }
     if (relaxed_refutes(target)) {
-      // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
+      // Refuted without a leg: a try that found nothing, like an empty vertex, but cheaper.
       state[static_cast<std::size_t>(target)] = 2;
       ++refuted_in_a_row;
       if (++refutations % 2 == 0) ++misses;  // two count as one miss (docs section 7)
