@@ -525,6 +525,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // 0.989 at 85-110 ms and 0.957 (with every point listed).
   constexpr int kAimAfterSteps = 8;
   std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
+  VectorXd inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();  // 1 / |q|
+  Eigen::Index first_open = 0;  // no open candidate before it
   int refuted_in_a_row = 0;
   std::uint64_t refutations = 0;
   // Refutations in a row before the nearest open point is taken instead. Against the
@@ -557,6 +559,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   std::vector<std::uint32_t> rs;    // the relaxed vertex: indices into found_q
   std::vector<std::uint8_t> in_rs;   // per found point: one of rs
   std::vector<double> r_vq, r_eq;    // per found point: rv . q and re . q
+  std::vector<double> v_q;           // per found point: v . q, at the vertex visited vq_at-th
+  std::uint64_t vq_at = ~std::uint64_t{0};
   MatrixXd rE(d, d);                 // its edges: -(the matrix of rs's offsets, as rows)^{-1}
   VectorXd rv(d), re(d), r_row(d), r_col(d);
   // Set by relaxed_refutes when the goal's facet is far: r_p, a point inside it (the aim).
@@ -580,8 +584,19 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     rE = E;
     rv = v;
     const Eigen::Map<const MatrixXd> F(found_q.data(), d, static_cast<Eigen::Index>(nf));
-    r_vq.resize(nf);
-    Eigen::Map<VectorXd>(r_vq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * rv;
+    // v . q for the found points, kept while the walk stays at v (targets refuted one
+    // after another from the same vertex), extended as points are found.
+    if (vq_at != out.vertices) {
+      vq_at = out.vertices;
+      v_q.clear();
+    }
+    if (v_q.size() < nf) {
+      const std::size_t from = v_q.size();
+      v_q.resize(nf);
+      const Eigen::Map<const MatrixXd> Fnew(&found_q[from * sd], d, static_cast<Eigen::Index>(nf - from));
+      Eigen::Map<VectorXd>(&v_q[from], static_cast<Eigen::Index>(nf - from)).noalias() = Fnew.transpose() * v;
+    }
+    r_vq.assign(v_q.begin(), v_q.end());
     double g_vq = gq.dot(rv);
     r_eq.resize(nf);
     for (int step = 0; step < kRelaxedSteps; ++step) {
@@ -672,23 +687,22 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
     // The target: the open candidate whose bisector is nearest to the current vertex,
     // (|q|^2 - 2 v.q) / (2 |q|) (the constant 2 dropped; recomputed only when the walk
-    // has moved).
-    if (slack_at != out.vertices) {
-      const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
-      const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
-      slack.noalias() = Q2 - 2 * (Q.transpose() * v);
-      slack.array() /= Q2.array().sqrt();
-      slack_at = out.vertices;
-    }
-    // After a few refutations in a row the points about v are spent: the nearest open
-    // point to x instead (the likeliest neighbour left), wherever its facet is.
+    // has moved). After a few refutations in a row the points about v are spent: the
+    // nearest open point to x instead (the likeliest neighbour left), wherever its
+    // facet is. States only leave 0, so the nearest open point is found from a cursor.
     Eigen::Index target = -1;
+    while (first_open < listed && state[static_cast<std::size_t>(first_open)] != 0) ++first_open;
     if (refuted_in_a_row >= kRefutedBeforeNearest) {
-      for (Eigen::Index j = 0; j < listed && target < 0; ++j) {
-        if (state[static_cast<std::size_t>(j)] == 0) target = j;
-      }
+      if (first_open < listed) target = first_open;
     } else {
-      for (Eigen::Index j = 0; j < listed; ++j) {
+      if (slack_at != out.vertices) {
+        const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
+        const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
+        slack.noalias() = Q2 - 2 * (Q.transpose() * v);
+        slack.array() *= inv_norm.array();
+        slack_at = out.vertices;
+      }
+      for (Eigen::Index j = first_open; j < listed; ++j) {
         if (state[static_cast<std::size_t>(j)] == 0 && (target < 0 || slack[j] < slack[target])) target = j;
       }
     }
@@ -714,7 +728,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         state[static_cast<std::size_t>(j)] = it != settled.end() ? it->second : (found(id) ? 1 : 0);
       }
       slack.resize(listed);
+      inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();
       slack_at = ~std::uint64_t{0};
+      first_open = 0;
       measure_outer();
       continue;
     }
