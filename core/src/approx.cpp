@@ -440,8 +440,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    walked to on a relaxed polytope (relaxed_refutes below), and only walked for
   //    real if that cannot refute it; if its facet is far, a spoke aimed at it replaces
   //    the leg (docs/algorithm.md, section 7). Every vertex reached counts, as in the
-  //    paper, as a miss when it certifies no new neighbour, and two targets refuted
-  //    without a leg count as one; M misses in a row stop the walk.
+  //    paper, as a miss when it certifies no new neighbour, and so does a target
+  //    refuted without a leg; M misses in a row stop the walk.
   auto listed = static_cast<Eigen::Index>(cand_id_.size());
   // Per listed candidate: still a target (0), found or given up (1), refuted (2).
   std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
@@ -519,16 +519,15 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // manifold the facets of far targets are often 15 or more steps away.
   constexpr int kRelaxedSteps = 1024;
   // A relaxed walk that needs this many steps to reach the goal's facet is answered by
-  // an aimed spoke instead of a leg. Measured at M = 100, each refutation then a whole
-  // miss: always aiming, 8-d n=10,000 recall 0.985 at 98 ms per seed and the
-  // 2-manifold in 16-d n=10,000 0.982; after 8 steps, 0.988 at 95 ms and 0.985; never,
-  // 0.989 at 85-110 ms and 0.957 (with every point listed).
+  // an aimed spoke instead of a leg. Measured at M = 100 (one seed of the manifold,
+  // before the list grew as it does now): always aiming, 8-d n=10,000 recall 0.985 at
+  // 98 ms per seed and the 2-manifold in 16-d n=10,000 0.982; after 8 steps, 0.988 at
+  // 95 ms and 0.985; never, 0.989 at 85-110 ms and 0.957 (with every point listed).
   constexpr int kAimAfterSteps = 8;
   std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
   VectorXd inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();  // 1 / |q|
   Eigen::Index first_open = 0;  // no open candidate before it
   int refuted_in_a_row = 0;
-  std::uint64_t refutations = 0;
   // Refutations in a row before the nearest open point is taken instead. Against the
   // walk's own exhaustive answer, M = 100: 6-d n=1,500 recall 0.956 without the switch,
   // 0.995 after 4, 0.997 after 8; 8-d n=10,000 0.974, 0.981, 0.994 (16: 0.991).
@@ -743,10 +742,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       continue;
     }
     if (relaxed_refutes(target)) {
-      // Refuted without a leg: a try that found nothing, like an empty vertex, but cheaper.
+      // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
       state[static_cast<std::size_t>(target)] = 2;
+      ++misses;
       ++refuted_in_a_row;
-      if (++refutations % 2 == 0) ++misses;  // two count as one miss (docs section 7)
       continue;
     }
     refuted_in_a_row = 0;

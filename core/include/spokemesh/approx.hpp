@@ -6,9 +6,9 @@
 // levels); then the walk goes from vertex to vertex along Voronoi edges, each leg
 // heading for one nearby point not yet found by the simplex method, or, when that
 // point's facet is far, replaced by one spoke aimed at the facet (docs/algorithm.md,
-// section 7). A vertex whose equidistant points add no new neighbour is a miss, and
-// two targets refuted without a leg count as one; the walk stops after `max_misses`
-// consecutive misses (or `max_vertices`, or cancellation).
+// section 7). A vertex whose equidistant points add no new neighbour is a miss, and so
+// is a target refuted without a leg; the walk stops after `max_misses` consecutive
+// misses (or `max_vertices`, or cancellation).
 // Spokes mode: random rays from x only, each finding one Voronoi facet (one
 // neighbour); a ray that finds no new neighbour is a miss.
 //
