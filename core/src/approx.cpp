@@ -336,7 +336,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   bool list_more = false;
   auto measure_outer = [&]() {
     outer2 = cand_radius2_ == kInf ? kInf : cand_norm2_[3 * cand_norm2_.size() / 4];
-    outer_found = static_cast<std::size_t>(std::count_if(found_q2.begin(), found_q2.end(), [&](double q2) { return q2 >= outer2; }));
+    outer_found = static_cast<std::size_t>(
+        std::count_if(found_q2.begin(), found_q2.end(), [&](double q2) { return q2 >= outer2; }));
     list_more = outer_found >= 4 * static_cast<std::size_t>(d);
   };
   measure_outer();
@@ -631,7 +632,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         // Halfway there is the aim.
         r_p = rv + t_best * re;
         r_u.setZero();
-        for (int m = 0; m < d; ++m) if (m != best) r_u += rE.col(m);
+        for (int m = 0; m < d; ++m) {
+          if (m != best) r_u += rE.col(m);
+        }
         const double lam = -gq.dot(r_u) / g_eq;
         r_u += lam * re;
         double t_u = kInf;
