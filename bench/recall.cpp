@@ -8,7 +8,8 @@
 // For K sampled seeds per set: the exact neighbours (the tests' LP oracle,
 // tests/lp_oracle.hpp: GLPK with Clarkson-style row generation), then for each M and
 // mode: recall, precision (always 1: every reported edge is checked against the
-// oracle), degree, and mean / p99 time per seed on one thread. Prints a table; --svg draws recall against M.
+// oracle), degree, and mean / p99 time per seed on one thread. Prints a table; --svg
+// draws recall against M.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
