@@ -4,9 +4,7 @@
 #include <gmpxx.h>
 
 #include <algorithm>
-#include <array>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <unordered_map>
 #include <unordered_set>
@@ -334,13 +332,6 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   double outer2 = kInf;
   std::size_t outer_found = 0;
   bool list_more = false;
-  auto measure_outer = [&]() {
-    outer2 = cand_radius2_ == kInf ? kInf : cand_norm2_[3 * cand_norm2_.size() / 4];
-    outer_found = static_cast<std::size_t>(
-        std::count_if(found_q2.begin(), found_q2.end(), [&](double q2) { return q2 >= outer2; }));
-    list_more = outer_found >= 4 * static_cast<std::size_t>(d);
-  };
-  measure_outer();
   auto found = [&](std::uint32_t s) { return found_at.count(s) != 0; };
   // Records s, certified, as a neighbour.
   auto accept = [&](std::uint32_t s) {
@@ -443,12 +434,32 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   //    the leg (docs/algorithm.md, section 7). Every vertex reached counts, as in the
   //    paper, as a miss when it certifies no new neighbour, and so does a target
   //    refuted without a leg; M misses in a row stop the walk.
-  auto listed = static_cast<Eigen::Index>(cand_id_.size());
+  Eigen::Index listed = 0;
   // Per listed candidate: still a target (0), found or given up (1), refuted (2).
-  std::vector<std::uint8_t> state(static_cast<std::size_t>(listed), 0);
-  for (Eigen::Index j = 0; j < listed; ++j) {
-    if (found(cand_id_[static_cast<std::size_t>(j)])) state[static_cast<std::size_t>(j)] = 1;
-  }
+  std::vector<std::uint8_t> state;
+  std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
+  VectorXd slack, inv_norm;                    // per listed candidate; inv_norm: 1 / |q|
+  Eigen::Index first_open = 0;                 // no open candidate before it
+  // Takes the candidate list as it is now: states from `settled` (id -> state, for
+  // points listed before) or from what is found, and everything derived from the list.
+  auto relist = [&](const std::unordered_map<std::uint32_t, std::uint8_t>& settled) {
+    listed = static_cast<Eigen::Index>(cand_id_.size());
+    state.assign(static_cast<std::size_t>(listed), 0);
+    for (Eigen::Index j = 0; j < listed; ++j) {
+      const std::uint32_t id = cand_id_[static_cast<std::size_t>(j)];
+      const auto it = settled.find(id);
+      state[static_cast<std::size_t>(j)] = it != settled.end() ? it->second : (found(id) ? 1 : 0);
+    }
+    slack.resize(listed);
+    inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();
+    slack_at = ~std::uint64_t{0};
+    first_open = 0;
+    outer2 = cand_radius2_ == kInf ? kInf : cand_norm2_[3 * cand_norm2_.size() / 4];
+    outer_found = static_cast<std::size_t>(
+        std::count_if(found_q2.begin(), found_q2.end(), [&](double q2) { return q2 >= outer2; }));
+    list_more = outer_found >= 4 * static_cast<std::size_t>(d);
+  };
+  relist({});
   auto settle = [&](std::uint32_t id, std::uint8_t to) {
     // Candidates are few thousand and sorted by distance; a point is settled once.
     for (Eigen::Index j = 0; j < listed; ++j) {
@@ -459,7 +470,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
   };
   MatrixXd B(d, d), E(d, d);
-  VectorXd v(d), f(d), e(d), w(d), rhs(d), slack(listed);
+  VectorXd v(d), f(d), e(d), w(d), rhs(d);
   std::uint64_t misses = 0;
   const double* x = ps_.point(x_);
   // Visits vertex S (sorted): solves it again from S (errors do not accumulate along
@@ -525,9 +536,6 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   // 98 ms per seed and the 2-manifold in 16-d n=10,000 0.982; after 8 steps, 0.988 at
   // 95 ms and 0.985; never, 0.989 at 85-110 ms and 0.957 (with every point listed).
   constexpr int kAimAfterSteps = 8;
-  std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
-  VectorXd inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();  // 1 / |q|
-  Eigen::Index first_open = 0;  // no open candidate before it
   int refuted_in_a_row = 0;
   // Refutations in a row before the nearest open point is taken instead. Against the
   // walk's own exhaustive answer, M = 100: 6-d n=1,500 recall 0.956 without the switch,
@@ -565,9 +573,22 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
   VectorXd rv(d), re(d), r_row(d), r_col(d);
   // Set by relaxed_refutes when the goal's facet is far: r_p, a point inside it (the aim).
   bool aim_ready = false;
-  VectorXd r_p(d), r_u(d), aim_from(d), kept_v(d);
+  VectorXd r_p(d), r_u(d), kept_v(d);
+  const VectorXd origin = VectorXd::Zero(d);  // x, where aimed spokes start
   MatrixXd kept_E(d, d);
   std::vector<std::uint32_t> kept_S;
+  // The first found neighbour's bisector met along p + t u, t > 0, not counting those in
+  // rs (in_rs): (t, index into found_q), or (kInf, -1). r_vq and r_eq hold p . q and
+  // u . q for the nf found points.
+  auto first_bisector = [&](std::size_t nf) {
+    std::pair<double, std::int64_t> first{kInf, -1};
+    for (std::size_t i = 0; i < nf; ++i) {
+      if (!(r_eq[i] > 0) || in_rs[i] != 0) continue;
+      const double t = (found_q2[i] - 2 * r_vq[i]) / (2 * r_eq[i]);
+      if (t > 0 && t < first.first) first = {t, static_cast<std::int64_t>(i)};
+    }
+    return first;
+  };
   auto relaxed_refutes = [&](Eigen::Index target) {
     const Eigen::Map<const VectorXd> gq(&cand_q_[static_cast<std::size_t>(target) * d], d);
     const double gq2 = cand_norm2_[static_cast<std::size_t>(target)];
@@ -615,13 +636,9 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
           hit = -2;
         }
       }
-      for (std::size_t i = 0; i < nf; ++i) {
-        if (!(r_eq[i] > 0) || in_rs[i] != 0) continue;
-        const double t = (found_q2[i] - 2 * r_vq[i]) / (2 * r_eq[i]);
-        if (t > 0 && t < t_best) {
-          t_best = t;
-          hit = static_cast<std::int64_t>(i);
-        }
+      if (const auto [t, i] = first_bisector(nf); t < t_best) {
+        t_best = t;
+        hit = i;
       }
       if (hit == -2 && step >= kAimAfterSteps) {
         // A long way to the goal's facet: a leg would be as long. Aim a spoke at that
@@ -637,15 +654,10 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         }
         const double lam = -gq.dot(r_u) / g_eq;
         r_u += lam * re;
-        double t_u = kInf;
-        for (std::size_t i = 0; i < nf; ++i) {
-          if (in_rs[i] != 0 && i != rs[static_cast<std::size_t>(best)]) continue;
-          const Eigen::Map<const VectorXd> fi(&found_q[i * sd], d);
-          const double den = fi.dot(r_u);
-          if (!(den > 0)) continue;
-          const double t = (found_q2[i] - 2 * fi.dot(r_p)) / (2 * den);
-          if (t > 0 && t < t_u) t_u = t;
-        }
+        for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];  // now p . q
+        Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * r_u;
+        in_rs[rs[static_cast<std::size_t>(best)]] = 0;  // the bisector the edge left may be met
+        double t_u = first_bisector(nf).first;
         if (t_u == kInf) t_u = r_p.norm() / std::max(r_u.norm(), 1e-300);
         r_p += (t_u / 2) * r_u;
         aim_ready = r_p.allFinite();
@@ -722,18 +734,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         settled.emplace(cand_id_[static_cast<std::size_t>(j)], state[static_cast<std::size_t>(j)]);
       }
       load_candidates(2 * cand_id_.size());
-      listed = static_cast<Eigen::Index>(cand_id_.size());
-      state.assign(static_cast<std::size_t>(listed), 0);
-      for (Eigen::Index j = 0; j < listed; ++j) {
-        const std::uint32_t id = cand_id_[static_cast<std::size_t>(j)];
-        const auto it = settled.find(id);
-        state[static_cast<std::size_t>(j)] = it != settled.end() ? it->second : (found(id) ? 1 : 0);
-      }
-      slack.resize(listed);
-      inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();
-      slack_at = ~std::uint64_t{0};
-      first_open = 0;
-      measure_outer();
+      relist(settled);
       continue;
     }
     const std::uint32_t goal = cand_id_[static_cast<std::size_t>(target)];
@@ -762,8 +763,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       // walked as before.
       aim_ready = false;
       double t = 0;
-      aim_from.setZero();
-      const std::int64_t hit = shoot(aim_from.data(), r_p.data(), nullptr, 0, t);
+      const std::int64_t hit = shoot(origin.data(), r_p.data(), nullptr, 0, t);
       if (hit >= 0 && !found(static_cast<std::uint32_t>(hit))) {
         w = t * r_p;
         if (try_certify(static_cast<std::uint32_t>(hit), w.data())) {
