@@ -246,6 +246,45 @@ TEST(Mesh, FacetCacheChangesNoSimplex) {
   }
 }
 
+// The process's mapped address space (VmSize), from /proc/self/status, in kB.
+long vm_size_kb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("VmSize:", 0) == 0) return std::stol(line.substr(7));
+  }
+  return -1;
+}
+
+// Every whole mesh maps a FacetCache (3-d) or EdgeCache (2-d) and must return it: a
+// deleter that recorded a zero length (munmap then fails) leaked the whole table on
+// every run, which a server meshing for months cannot afford. Twenty meshes of one
+// set must leave neither mapped cache bytes nor address space behind.
+TEST(FacetCache, WholeMeshesReturnTheirCacheMemory) {
+  for (const int d : {2, 3}) {
+    SCOPED_TRACE(d);
+    const PointSet ps = make_points(d, uniform_points(d, 20000, 7));
+    const KdTree tree(ps);
+    EXPECT_EQ(mapped_cache_bytes(), 0u);
+    const Simplices first = mesh_all(tree, 2);  // warms up the allocator and threads
+    const long before = vm_size_kb();
+    ASSERT_GT(before, 0);
+    for (int run = 0; run < 20; ++run) {
+      MeshOptions options;
+      options.threads = 2;
+      std::size_t cache_bytes = 0;
+      auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+      ASSERT_TRUE(r.is_ok());
+      cache_bytes = r.value().facet_cache_bytes;
+      ASSERT_GT(cache_bytes, 0u) << "the run must use a cache for this test to mean anything";
+      EXPECT_EQ(mapped_cache_bytes(), 0u) << "run " << run;
+    }
+    // A leak of even the smallest table each run would add > 20 x 600 kB.
+    EXPECT_LT(vm_size_kb() - before, 4096) << "address space grew across 20 meshes";
+    EXPECT_EQ(mesh_all(tree, 2), first);
+  }
+}
+
 TEST(FacetCache, KeepsFacetsForLaterSeedsAndAnswersEitherSide) {
   // 3-d: facets are triples. Seeds [10, 100) are meshed.
   FacetCache cache(3, 200, 10, 100, 1 << 20);

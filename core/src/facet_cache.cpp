@@ -31,15 +31,24 @@ std::uint32_t tag_of(std::uint64_t hash) {
   return t <= kWriting ? t + 2 : t;  // never empty or being written
 }
 
+// Bytes the caches hold mapped right now, process-wide (see mapped_cache_bytes()).
+std::atomic<std::size_t> g_mapped_bytes{0};
+
 // Zeroed memory straight from the OS: pages are committed on first touch, and huge
 // pages are requested because lookups land at random all over the table (with 4 KiB
-// pages nearly every lookup also missed the TLB). Null on failure.
-std::uint32_t* allocate_zeroed(std::size_t words, std::size_t& bytes) {
-  bytes = words * sizeof(std::uint32_t);
+// pages nearly every lookup also missed the TLB). Empty on failure.
+//
+// The deleter is built here, after the size is known, and handed out with the
+// pointer: an earlier version built `UnmapWords{bytes}` in the same call expression
+// as the allocation, so it captured the size before it was set and every munmap got
+// length 0 (EINVAL): each whole mesh leaked its cache.
+MappedWords allocate_zeroed(std::size_t words) {
+  const std::size_t bytes = words * sizeof(std::uint32_t);
   void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-  if (p == MAP_FAILED) return nullptr;
+  if (p == MAP_FAILED) return MappedWords(nullptr, UnmapWords{0});
   ::madvise(p, bytes, MADV_HUGEPAGE);  // advice only: ignored where unsupported
-  return static_cast<std::uint32_t*>(p);
+  g_mapped_bytes.fetch_add(bytes, std::memory_order_relaxed);
+  return MappedWords(static_cast<std::uint32_t*>(p), UnmapWords{bytes});
 }
 
 // Expected Delaunay facets per point for uniform points in dimension d (the table is
@@ -56,7 +65,12 @@ double expected_facets_per_point(int d) {
 
 }  // namespace
 
-void UnmapWords::operator()(std::uint32_t* p) const { ::munmap(p, bytes); }
+void UnmapWords::operator()(std::uint32_t* p) const {
+  if (p == nullptr) return;
+  if (::munmap(p, bytes) == 0) g_mapped_bytes.fetch_sub(bytes, std::memory_order_relaxed);
+}
+
+std::size_t mapped_cache_bytes() { return g_mapped_bytes.load(std::memory_order_relaxed); }
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                        std::uint32_t block)
@@ -71,9 +85,8 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   const auto estimate = static_cast<std::size_t>(std::min(wanted * 1.1, static_cast<double>(kMaxSlots)));
   const std::size_t slots = std::min({std::max(estimate, kMinSlots), affordable, kMaxSlots});
   if (slots < kMinSlots) return;  // too little memory for a useful table
-  std::size_t table_bytes = 0, starts_bytes_mapped = 0;
-  table_ = decltype(table_)(allocate_zeroed(slots * stride_, table_bytes), UnmapWords{table_bytes});
-  starts_ = decltype(starts_)(allocate_zeroed(std::max<std::size_t>(n, 1), starts_bytes_mapped), UnmapWords{starts_bytes_mapped});
+  table_ = allocate_zeroed(slots * stride_);
+  starts_ = allocate_zeroed(std::max<std::size_t>(n, 1));
   if (!table_ || !starts_) {
     table_.reset();
     starts_.reset();
@@ -210,8 +223,7 @@ EdgeCache::EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, st
     : n_(n), order_{begin, std::min(end, n), std::max(block, 1u)} {
   const std::size_t bytes = std::size_t{n} * kBoxWords * sizeof(std::uint32_t);
   if (order_.begin >= order_.end || bytes > max_bytes) return;
-  std::size_t mapped = 0;
-  boxes_ = decltype(boxes_)(allocate_zeroed(std::size_t{n} * kBoxWords, mapped), UnmapWords{mapped});
+  boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords);
 }
 
 void EdgeCache::post(std::uint32_t t, const Post& p) {

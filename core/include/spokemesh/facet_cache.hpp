@@ -41,6 +41,11 @@ struct UnmapWords {
 };
 using MappedWords = std::unique_ptr<std::uint32_t[], UnmapWords>;
 
+// Bytes mapped by all FacetCaches and EdgeCaches alive in this process (0 once every
+// cache is destroyed). For tests and the server's memory accounting.
+// Thread safety: safe to call concurrently.
+std::size_t mapped_cache_bytes();
+
 // The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
 // `block`, blocks in order, a block's seeds in any order.
 struct RunOrder {
