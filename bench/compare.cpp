@@ -31,12 +31,18 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
+// Points of a configuration: uniform random, or a grid of `side`^d points whose axis
+// values are written the way users write them.
+enum class Kind { kUniform, kGridInteger, kGridDyadic, kGridLinspace, kGridDecimal, kGridJittered };
+
 struct Config {
   std::string name;
   int d;
-  std::size_t n;
+  std::size_t n;  // points (for grids: side^d)
   bool cgal_dd;
   bool qhull;
+  Kind kind = Kind::kUniform;
+  int side = 0;  // grids: points per axis
 };
 
 std::vector<double> uniform(int d, std::size_t n, std::uint64_t seed) {
@@ -47,6 +53,42 @@ std::vector<double> uniform(int d, std::size_t n, std::uint64_t seed) {
   return c;
 }
 
+// A grid's axis values: i (integers), i / 32 (exact dyadic), i / (side - 1) as numpy's
+// linspace(0, 1, side) computes it, i * 0.1 (decimal steps), or integers jittered by
+// up to 1e-3 per coordinate (general position: the twin without ties).
+std::vector<double> grid(int d, int side, Kind kind, std::uint64_t seed) {
+  std::vector<double> axis(static_cast<std::size_t>(side));
+  for (int i = 0; i < side; ++i) {
+    switch (kind) {
+      case Kind::kGridDyadic: axis[i] = i / 32.0; break;
+      case Kind::kGridLinspace:  // numpy: arange(side) * step + 0, the last value set to stop
+        axis[i] = i + 1 == side ? 1.0 : i * (1.0 / (side - 1));
+        break;
+      case Kind::kGridDecimal: axis[i] = i * 0.1; break;
+      default: axis[i] = i; break;
+    }
+  }
+  std::size_t n = 1;
+  for (int c = 0; c < d; ++c) n *= static_cast<std::size_t>(side);
+  std::vector<double> coords(n * d);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> jitter(-1e-3, 1e-3);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::size_t rest = i;
+    for (int c = d - 1; c >= 0; --c) {
+      coords[i * d + c] = axis[rest % side] + (kind == Kind::kGridJittered ? jitter(rng) : 0.0);
+      rest /= side;
+    }
+  }
+  return coords;
+}
+
+std::vector<double> points_of(const Config& c) {
+  return c.kind == Kind::kUniform ? uniform(c.d, c.n, 2016 + c.d) : grid(c.d, c.side, c.kind, 2016 + c.d);
+}
+
+spokemesh::StarStats g_last_stats;  // of the last spokemesh run, for the per-point counts
+
 std::pair<double, std::size_t> time_spokemesh(const spokemesh::PointSet& ps, unsigned threads) {
   const auto t0 = Clock::now();
   const spokemesh::KdTree tree(ps);
@@ -55,6 +97,7 @@ std::pair<double, std::size_t> time_spokemesh(const spokemesh::PointSet& ps, uns
   auto r = spokemesh::mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) {
     return spokemesh::Status::ok();
   });
+  if (r.is_ok()) g_last_stats = r.value().star;
   return {since(t0), r.is_ok() ? r.value().simplices : 0};
 }
 
@@ -110,19 +153,35 @@ std::pair<double, std::size_t> time_qhull(const spokemesh::PointSet& ps) {
 
 int main(int argc, char** argv) {
   unsigned threads = 2;
-  bool quick = false;
+  bool quick = false, grids = false;
   std::string only;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--threads" && i + 1 < argc) threads = static_cast<unsigned>(std::stoul(argv[++i]));
     else if (a == "--quick") quick = true;
+    else if (a == "--grids") grids = true;
     else if (a == "--only" && i + 1 < argc) only = argv[++i];
     else {
-      std::fprintf(stderr, "usage: spokemesh_compare [--threads N] [--quick] [--only NAME]\n");
+      std::fprintf(stderr, "usage: spokemesh_compare [--threads N] [--quick] [--grids] [--only NAME]\n");
       return 2;
     }
   }
-  const std::vector<Config> configs = quick ? std::vector<Config>{{"2d-100k", 2, 100000, false, true},
+  auto g = [](int d, int side, Kind kind, const char* how) {
+    std::size_t n = 1;
+    for (int c = 0; c < d; ++c) n *= static_cast<std::size_t>(side);
+    return Config{std::to_string(d) + "d-" + std::to_string(side) + "-" + how, d, n, d >= 4, d >= 4, kind, side};
+  };
+  const std::vector<Config> grid_configs = {
+      g(3, 25, Kind::kGridInteger, "int"),    g(3, 25, Kind::kGridDyadic, "dyadic"),
+      g(3, 25, Kind::kGridDecimal, "dec"),    g(3, 25, Kind::kGridLinspace, "lin"),
+      g(3, 25, Kind::kGridJittered, "jit"),   g(3, 50, Kind::kGridLinspace, "lin"),
+      g(3, 50, Kind::kGridInteger, "int"),    g(3, 50, Kind::kGridJittered, "jit"),
+      g(3, 100, Kind::kGridLinspace, "lin"),  g(2, 1000, Kind::kGridLinspace, "lin"),
+      g(2, 1000, Kind::kGridInteger, "int"),  g(2, 1000, Kind::kGridJittered, "jit"),
+      g(4, 10, Kind::kGridInteger, "int"),    g(4, 10, Kind::kGridLinspace, "lin"),
+      g(4, 10, Kind::kGridJittered, "jit"),
+  };
+  const std::vector<Config> configs = grids ? grid_configs : quick ? std::vector<Config>{{"2d-100k", 2, 100000, false, true},
                                                                   {"3d-20k", 3, 20000, true, true},
                                                                   {"4d-2k", 4, 2000, true, true}}
                                             : std::vector<Config>{{"2d-1M", 2, 1000000, false, true},
@@ -130,11 +189,11 @@ int main(int argc, char** argv) {
                                                                   {"4d-20k", 4, 20000, true, true},
                                                                   {"5d-5k", 5, 5000, true, true},
                                                                   {"6d-2k", 6, 2000, true, true}};
-  std::printf("%-9s %9s %12s | %10s %10s %10s %10s | %9s %9s\n", "config", "points", "simplices", "spokemesh",
-              "CGAL 2/3", "CGAL dD", "Qhull", "vs best", "agree");
+  std::printf("%-14s %9s %12s | %10s %10s %10s %10s | %9s %9s | %8s %8s\n", "config", "points", "simplices",
+              "spokemesh", "CGAL 2/3", "CGAL dD", "Qhull", "vs best", "agree", "wraps/pt", "exact/pt");
   for (const Config& c : configs) {
     if (!only.empty() && c.name != only) continue;
-    spokemesh::PointSet ps(c.d, uniform(c.d, c.n, 2016 + c.d));
+    spokemesh::PointSet ps(c.d, points_of(c));
     if (!ps.validate(c.name).is_ok()) return 1;
     const auto ours = time_spokemesh(ps, threads);
     std::pair<double, std::size_t> low{0, 0}, dd{0, 0}, qh{0, 0};
@@ -150,9 +209,12 @@ int main(int argc, char** argv) {
       if (m != 0 && m != ours.second) agree = false;
     }
     auto cell = [](double t) { return t > 0 ? std::to_string(t).substr(0, 6) + " s" : std::string("-"); };
-    std::printf("%-9s %9zu %12zu | %10s %10s %10s %10s | %8.2fx %9s\n", c.name.c_str(), c.n, ours.second,
-                cell(ours.first).c_str(), cell(low.first).c_str(), cell(dd.first).c_str(), cell(qh.first).c_str(),
-                ours.first / best, agree ? "yes" : "NO");
+    const double per_point = 1.0 / static_cast<double>(c.n);
+    std::printf("%-14s %9zu %12zu | %10s %10s %10s %10s | %8.2fx %9s | %8.2f %8.2f\n", c.name.c_str(), c.n,
+                ours.second, cell(ours.first).c_str(), cell(low.first).c_str(), cell(dd.first).c_str(),
+                cell(qh.first).c_str(), ours.first / best, agree ? "yes" : "NO",
+                static_cast<double>(g_last_stats.wraps) * per_point,
+                static_cast<double>(g_last_stats.exact_fallbacks) * per_point);
     std::fflush(stdout);
   }
   std::printf("(spokemesh with %u threads; CGAL and Qhull single-threaded; 'vs best' = our time / fastest other)\n", threads);

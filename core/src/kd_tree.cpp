@@ -228,6 +228,7 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
       }
       lo[c] = float_down(low);
       hi[c] = float_up(high);
+      if (low == high) box.flat |= 1u << c;
     }
   } else {
     const std::size_t left = add_box_nodes(node->child1);
@@ -238,6 +239,14 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
     const float* a = &box_bounds_[left * 2 * d];
     const float* b = &box_bounds_[right * 2 * d];
     for (std::size_t c = 0; c < 2 * d; ++c) lo[c] = c < d ? std::min(a[c], b[c]) : std::max(a[c], b[c]);
+    // Flat where both children are, at the same value.
+    const double* first_left = leaf_coords_.data() + std::size_t{box_nodes_[left].begin} * d;
+    const double* first_right = leaf_coords_.data() + std::size_t{box_nodes_[right].begin} * d;
+    for (std::size_t c = 0; c < d; ++c) {
+      if ((box_nodes_[left].flat & box_nodes_[right].flat & (1u << c)) != 0 && first_left[c] == first_right[c]) {
+        box.flat |= 1u << c;
+      }
+    }
   }
   box.skip = static_cast<std::uint32_t>(box_nodes_.size());
   box_nodes_[at] = box;

@@ -351,6 +351,16 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
     }
     const int s = certified(v, a, normal_depth + d + 3);
     if (s != Approx::kUnknownSign) return s;
+    // Exactly on the hyperplane without the exact stage: every term is zero because
+    // its normal component is exactly zero (no monomial survives: a == 0 at a safe
+    // depth) or the point shares x's coordinate (fl(p - x) == 0 iff p == x). Grids
+    // meet this all the time: pivots on an axis-aligned face give an axis-aligned
+    // normal, and the face's other points lie on it.
+    if (a == 0 && normal_depth < Approx::kUnsafe) {
+      bool zero = true;
+      for (int c = 0; c < d; ++c) zero &= normal[c].a == 0 || q[c] == 0;
+      if (zero) return 0;
+    }
     ++stats_.exact_fallbacks;
     rows[d - 1] = Row::of_point(id);
     return predicates_.spatial_sign_exact(x_, std::span<const Row>(rows.data(), d));

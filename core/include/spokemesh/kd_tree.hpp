@@ -83,8 +83,10 @@ class KdTree {
   // First point p (in tree order) with accept(p), visiting only boxes for which
   // may_contain(lo, hi) holds (d lows, d highs: floats rounded outwards, read in
   // place; widened to double, they are exact). may_contain must be conservative:
-  // false only when no point of the box can be accepted. `accept` may also take (p,
-  // coordinates of p), read from the leaf-ordered copy.
+  // false only when no point of the box can be accepted. It may also take (lo, hi,
+  // flat, first): bit c of `flat` set when every point of the box has coordinate c
+  // equal to first[c] (exact doubles). `accept` may also take (p, coordinates of p),
+  // read from the leaf-ordered copy.
   template <class MayContain, class Accept>
   std::int64_t find_first(MayContain&& may_contain, Accept&& accept) const;
 
@@ -119,6 +121,9 @@ class KdTree {
   // point, so 2.9 d + 4.3 bytes per point where doubles would take 5.8 d + 4.3.
   struct BoxNode {
     std::uint32_t begin, end, skip;
+    // Bit c: every point of the box has the same coordinate c (read it exactly from
+    // the box's first point). Grids' faces are such boxes: flat along their normal.
+    std::uint32_t flat;
   };
 
   // Sets at least this large are split at the top into two nanoflann trees (see the
@@ -150,7 +155,13 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
   for (std::size_t i = 0; i < count;) {
     const BoxNode& node = box_nodes_[i];
     const float* lo = &box_bounds_[i * 2 * d];
-    if (!may_contain(lo, lo + d)) {
+    bool visit;
+    if constexpr (std::is_invocable_v<MayContain&, const float*, const float*, std::uint32_t, const double*>) {
+      visit = may_contain(lo, lo + d, node.flat, leaf_coords_.data() + std::size_t{node.begin} * d);
+    } else {
+      visit = may_contain(lo, lo + d);
+    }
+    if (!visit) {
       i = node.skip;
       continue;
     }
@@ -188,17 +199,26 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
   // Upper bound of sigma * n.(p - x) over a box. Each normal component is known to
   // within e_c; box offsets are rounded once; the sum is rounded d times. The 1e-12
   // relative slack covers those roundings (<= (d + 3) 2^-53 relative).
-  auto may_contain = [&](const float* lo, const float* hi) {
+  // A box is also skipped when n.(p - x) is exactly 0 for all its points: along every
+  // axis either the normal component is exactly zero (no monomial: a == 0; safe
+  // depths were checked above) or the box is flat at x's own coordinate. Such points
+  // lie on the hyperplane, never strictly beyond it; without this, every hull query
+  // of a grid's face seed visited the whole face (quadratic in the face's size).
+  auto may_contain = [&](const float* lo, const float* hi, std::uint32_t flat, const double* first) {
     double bound = 0, magnitude = 0;
+    bool on_plane = true;
     for (int c = 0; c < d; ++c) {
       const double t = sigma * normal[c].v;
-      const double lo_off = lo[c] - x[c], hi_off = hi[c] - x[c];
+      const bool is_flat = (flat >> c) & 1u;
+      const double lo_off = (is_flat ? first[c] : static_cast<double>(lo[c])) - x[c];
+      const double hi_off = (is_flat ? first[c] : static_cast<double>(hi[c])) - x[c];
       const double reach = std::max(std::fabs(lo_off), std::fabs(hi_off));
       const double e = normal[c].a * (static_cast<double>(normal[c].n + 2) * 0x1p-53) * 1.01;
       bound += std::max(t * lo_off, t * hi_off) + e * reach;
       magnitude += std::fabs(t) * reach + e * reach;
+      on_plane &= normal[c].a == 0 || (is_flat && first[c] == x[c]);
     }
-    return bound + 1e-12 * magnitude >= 0;
+    return !on_plane && bound + 1e-12 * magnitude >= 0;
   };
   return find_first(may_contain, on_side);
 }
