@@ -4,6 +4,8 @@
 
 #include <array>
 #include <cmath>
+#include <functional>
+#include <set>
 
 #include "support.hpp"
 
@@ -135,6 +137,75 @@ TEST(Predicates, CocircularTiesFollowCgalPerturbation) {
           ++checked;
         }
   EXPECT_EQ(checked, 220 * 9);
+}
+
+}  // namespace
+}  // namespace spokemesh
+
+namespace spokemesh {
+namespace {
+
+// The common binary scale: integers, dyadic fractions, linspace and decimal values.
+TEST(PointSet, IntegerScaleCoversEveryCoordinate) {
+  const PointSet ints = testing::make_points(2, {0, 0, 3, 0, 0, 5});
+  EXPECT_EQ(ints.scale_exponent(), 0);
+  EXPECT_EQ(ints.integer_bits(), 3);  // 5 < 2^3
+  const PointSet dyadic = testing::make_points(2, {0, 0, 0.75, 0, 0, 0.03125});
+  EXPECT_EQ(dyadic.scale_exponent(), -5);  // 0.03125 = 2^-5; 0.75 = 3 * 2^-2
+  EXPECT_EQ(dyadic.integer_bits(), 5);
+  const PointSet tenths = testing::make_points(2, {0, 0, 0.1, 0, 0, 1});
+  EXPECT_EQ(tenths.scale_exponent(), -55);  // 0.1 = 0x1999999999999a 2^-56, whose lowest set bit is 2^1
+  EXPECT_EQ(std::ldexp(0.1, -tenths.scale_exponent()), std::trunc(std::ldexp(0.1, -tenths.scale_exponent())));
+}
+
+// Lifted and spatial determinants on scaled integers (the 128-bit path, the Wide path
+// and, for coordinates spanning more than 2^120, GMP rationals) against a rational
+// determinant computed here from the doubles, on grids written three ways, with ties.
+TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
+  const std::vector<std::pair<const char*, std::function<double(int)>>> axes = {
+      {"integer", [](int i) { return static_cast<double>(i); }},
+      {"linspace", [](int i) { return i * (1.0 / 6.0); }},
+      {"decimal", [](int i) { return i * 0.1; }},
+      {"wide range", [](int i) { return i == 0 ? 1e-30 : i * 1e10; }},
+  };
+  for (const auto& [name, axis] : axes) {
+    for (int d = 2; d <= 5; ++d) {
+      for (std::uint64_t seed = 1; seed <= 30; ++seed) {
+        SCOPED_TRACE(std::string(name) + " d " + std::to_string(d) + " seed " + std::to_string(seed));
+        std::mt19937_64 rng(seed * 31 + d);
+        std::uniform_int_distribution<int> pick(0, 6);
+        std::vector<double> c;
+        std::set<std::vector<double>> seen;
+        while (seen.size() < static_cast<std::size_t>(d + 2)) {
+          std::vector<double> p(d);
+          for (double& v : p) v = axis(pick(rng));
+          if (seen.insert(p).second) c.insert(c.end(), p.begin(), p.end());
+        }
+        for (int extra = 0; extra < d + 2; ++extra) {  // a full-dimensional set for validate()
+          for (int k = 0; k < d; ++k) c.push_back(k == extra ? 100.5 : 200.25 + extra);
+        }
+        const PointSet ps = testing::make_points(d, c);
+        const Predicates pred(ps);
+        const int k = d + 1;
+        std::vector<Row> rows;
+        std::vector<mpq_class> lifted(k * k), spatial(d * d);
+        for (int i = 1; i <= k; ++i) {
+          rows.push_back(Row::of_point(i));
+          mpq_class norm2 = 0;
+          for (int col = 0; col < d; ++col) {
+            const mpq_class q = mpq_class(ps.point(i)[col]) - mpq_class(ps.point(0)[col]);
+            lifted[(i - 1) * k + col] = q;
+            if (i <= d) spatial[(i - 1) * d + col] = q;
+            norm2 += q * q;
+          }
+          lifted[(i - 1) * k + d] = norm2;
+        }
+        EXPECT_EQ(pred.lifted_sign_exact(0, rows, false), sgn(exact_determinant(lifted, k)));
+        rows.pop_back();
+        EXPECT_EQ(pred.spatial_sign_exact(0, rows), sgn(exact_determinant(spatial, d)));
+      }
+    }
+  }
 }
 
 }  // namespace

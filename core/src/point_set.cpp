@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace spokemesh {
@@ -94,6 +95,25 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
   }
   rank_.assign(n, 0);
   for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
+  // The common scale: the lowest set bit over all coordinates, and the highest.
+  // frexp: v = f 2^e with 0.5 <= |f| < 1, so |v| < 2^e and v's 53-bit integer
+  // mantissa f 2^53 has its lowest set bit at 2^(e - 53 + ctz).
+  int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
+  for (const double v : coords_) {
+    if (v == 0) continue;
+    int e = 0;
+    const double f = std::frexp(std::fabs(v), &e);
+    const auto mantissa = static_cast<std::uint64_t>(std::ldexp(f, 53));
+    lowest = std::min(lowest, e - 53 + __builtin_ctzll(mantissa));
+    highest = std::max(highest, e);
+  }
+  if (highest >= lowest) {
+    scale_exponent_ = lowest;
+    integer_bits_ = highest - lowest;
+  } else {
+    scale_exponent_ = 0;
+    integer_bits_ = kNoIntegerScale;
+  }
   return check_span ? check_affine_span(source) : Status::ok();
 }
 

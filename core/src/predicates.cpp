@@ -1,8 +1,11 @@
 #include "spokemesh/predicates.hpp"
 
+#include <boost/multiprecision/cpp_int.hpp>
 #include <gmpxx.h>
 
+#include <algorithm>
 #include <array>
+#include <limits>
 #include <cmath>
 #include <numeric>
 #include <vector>
@@ -93,36 +96,69 @@ int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) 
   return det > 0 ? sign : det < 0 ? -sign : 0;
 }
 
-// Exact entries of one predicate matrix: integers when every entry is an integer
-// that fits (the common case for degenerate inputs: grids and lattices), rationals
-// otherwise.
+// Fixed-width integers for the determinants of scaled coordinates: stack storage,
+// no allocation and no gcd per operation, unlike GMP rationals (which were 80% of a
+// linspace grid's mesh time). Entries below are at most 2^121 (coordinates) and
+// 2^245 (lifted heights, d <= 8); by Hadamard's bound on columns a 9 x 9
+// determinant or any of its minors then needs at most 8 (121 + 2) + 247 + 4 < 1,240
+// bits, so kWideBits leaves room; sign_of_wide_determinant checks the actual bound.
+constexpr unsigned kWideBits = 1536;
+using Wide = boost::multiprecision::number<
+    boost::multiprecision::cpp_int_backend<kWideBits, kWideBits, boost::multiprecision::signed_magnitude,
+                                           boost::multiprecision::unchecked, void>,
+    boost::multiprecision::et_off>;
+// Largest scaled coordinate accepted for the integer path: differences then fit in
+// 122 bits, their squares' sums in 248.
+constexpr int kMaxScaledBits = 120;
+
+// Sign of det(m) (k x k, row-major) by Laplace expansion over column subsets
+// (minors_table's recurrence on Wide): no division, so every intermediate is a minor
+// or a partial sum of at most k terms of one; `col_bits` (per column, the largest
+// entry's bit length) bounds them all by Hadamard. kUnknownSign when they might not
+// fit.
+int sign_of_wide_determinant(const Wide* m, const int* col_bits, int k) {
+  int bound = 4;  // partial sums of <= 9 terms
+  for (int c = 0; c < k; ++c) bound += col_bits[c] + 2;  // sqrt(k) <= 3 < 2^2 per column
+  if (bound >= static_cast<int>(kWideBits) - 1) return Approx::kUnknownSign;
+  thread_local std::vector<Wide> table(std::size_t{1} << kMaxCols);
+  table[0] = 1;
+  const unsigned full = (1u << k) - 1u;
+  for (unsigned mask = 1; mask <= full; ++mask) {
+    const int j = detail::kPopCounts.of[mask];
+    const Wide* row = m + (k - j) * k;
+    Wide acc = 0;
+    int t = 0;
+    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
+      const int c = __builtin_ctz(rest);
+      if (row[c] == 0) continue;
+      const Wide& minor = table[mask ^ (1u << c)];
+      if (minor == 0) continue;
+      if (t % 2 == 0) {
+        acc += row[c] * minor;
+      } else {
+        acc -= row[c] * minor;
+      }
+    }
+    table[mask] = acc;
+  }
+  const Wide& det = table[full];
+  return det > 0 ? 1 : det < 0 ? -1 : 0;
+}
+
+// Exact entries of one predicate matrix. When the point set has an integer scale
+// (PointSet::scale_exponent), every entry is an integer after scaling the spatial
+// columns by 2^-E and the height column by 2^-2E (a direction row is scaled by its
+// own power of two instead): positive factors, so every sign is unchanged. Those
+// integers are kept in 128 bits when they are small (integer grids: the Bareiss
+// fast path) and in Wide otherwise; only a set without a usable scale (coordinates
+// spanning more than 2^120) falls back to GMP rationals.
 class ExactMatrix {
  public:
   ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols)
-      : k_(static_cast<int>(rows.size())), cols_(cols) {
-    const int d = ps.dimension();
-    const double* x = ps.point(origin);
-    for (int r = 0; r < k_ && integral_; ++r) {
-      const Row& row = rows[r];
-      i128 norm2 = 0;
-      for (int c = 0; c < d && integral_; ++c) {
-        double v;
-        if (row.is_point()) {
-          const double a = ps.point(static_cast<std::size_t>(row.point))[c], b = x[c];
-          v = a - b;
-          const double z = v - a;  // TwoSum of a and -b: the rounding error is zero iff exact
-          if ((a - (v - z)) + (-b - z) != 0) integral_ = false;
-        } else {
-          v = row.dir[c];
-        }
-        if (v != std::trunc(v) || std::fabs(v) >= 0x1p40) integral_ = false;
-        if (!integral_) break;
-        ints_[r * cols_ + c] = static_cast<i128>(static_cast<std::int64_t>(v));
-        norm2 += ints_[r * cols_ + c] * ints_[r * cols_ + c];
-      }
-      if (cols_ > d) ints_[r * cols_ + d] = row.is_point() ? norm2 : 0;
-    }
-    if (integral_) return;
+      : ps_(&ps), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
+    scaled_ = ps.integer_bits() <= kMaxScaledBits;
+    for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, rows[r], r);
+    if (scaled_) return;
     rats_.resize(static_cast<std::size_t>(k_ * cols_));
     for (int r = 0; r < k_; ++r) exact_row(ps, origin, rows[r], &rats_[r * cols_]);
   }
@@ -132,27 +168,39 @@ class ExactMatrix {
   int sign(std::span<const int> row_ids, std::span<const int> col_ids, std::span<const Row> rows) const {
     const int k = static_cast<int>(row_ids.size());
     auto indicator = [&](int r) { return rows[r].is_point() ? 1 : 0; };
-    if (integral_) {
-      std::array<i128, kMaxCols * kMaxCols> m;
+    if (scaled_) {
+      bool small = true;
+      for (int i = 0; i < k && small; ++i) {
+        for (int j = 0; j < k; ++j) small &= col_ids[j] < 0 || bits_[row_ids[i] * cols_ + col_ids[j]] <= 62;
+      }
+      if (small) {
+        std::array<i128, kMaxCols * kMaxCols> m;
+        for (int i = 0; i < k; ++i) {
+          for (int j = 0; j < k; ++j) {
+            m[i * k + j] = col_ids[j] < 0 ? i128{indicator(row_ids[i])} : ints_[row_ids[i] * cols_ + col_ids[j]];
+          }
+        }
+        const int s = sign_of_integer_determinant(m, k);
+        if (s != Approx::kUnknownSign) return s;
+      }
+      std::array<Wide, kMaxCols * kMaxCols> m;
+      std::array<int, kMaxCols> col_bits{};
       for (int i = 0; i < k; ++i) {
         for (int j = 0; j < k; ++j) {
-          m[i * k + j] = col_ids[j] < 0 ? i128{indicator(row_ids[i])} : ints_[row_ids[i] * cols_ + col_ids[j]];
+          if (col_ids[j] < 0) {
+            m[i * k + j] = indicator(row_ids[i]);
+            col_bits[j] = std::max(col_bits[j], 1);
+          } else {
+            m[i * k + j] = wide(row_ids[i], col_ids[j]);
+            col_bits[j] = std::max(col_bits[j], bits_[row_ids[i] * cols_ + col_ids[j]]);
+          }
         }
       }
-      const int s = sign_of_integer_determinant(m, k);
+      const int s = sign_of_wide_determinant(m.data(), col_bits.data(), k);
       if (s != Approx::kUnknownSign) return s;
-    }
-    if (rats_.empty()) {  // integral but too large for 128 bits: convert
+      // Unreachable with the entry bounds above; the rationals below are always right.
       rats_.resize(static_cast<std::size_t>(k_ * cols_));
-      for (int i = 0; i < k_ * cols_; ++i) {
-        const i128 v = ints_[i];
-        const bool negative = v < 0;
-        const u128 u = negative ? -static_cast<u128>(v) : static_cast<u128>(v);
-        mpz_class z = static_cast<unsigned long>(static_cast<std::uint64_t>(u >> 64));
-        z <<= 64;
-        z += mpz_class(static_cast<unsigned long>(static_cast<std::uint64_t>(u)));
-        rats_[i] = negative ? mpq_class(-z) : mpq_class(z);
-      }
+      for (int r = 0; r < k_; ++r) exact_row(*ps_, origin_, rows[r], &rats_[r * cols_]);
     }
     std::vector<mpq_class> m(static_cast<std::size_t>(k * k));
     for (int i = 0; i < k; ++i) {
@@ -164,6 +212,72 @@ class ExactMatrix {
   }
 
  private:
+  // Row r as scaled integers (see the class comment); false when a direction row
+  // spans more than kMaxScaledBits bits. Spatial entries (< 2^122) are kept in 128
+  // bits; a height in 128 bits when it fits, else in Wide.
+  bool scaled_row(const PointSet& ps, std::uint32_t origin, const Row& row, int r) {
+    const int d = ps.dimension();
+    i128* out = &ints_[r * cols_];
+    int* bits = &bits_[r * cols_];
+    auto bits_of = [](i128 v) {
+      const u128 u = v < 0 ? -static_cast<u128>(v) : static_cast<u128>(v);
+      const auto high = static_cast<std::uint64_t>(u >> 64), low = static_cast<std::uint64_t>(u);
+      return high != 0 ? 128 - __builtin_clzll(high) : low != 0 ? 64 - __builtin_clzll(low) : 0;
+    };
+    if (row.is_point()) {
+      // v 2^-E is an integer below 2^120: exact as a double, and so as an i128.
+      const int e = ps.scale_exponent();
+      const double* p = ps.point(static_cast<std::size_t>(row.point));
+      const double* x = ps.point(origin);
+      int widest = 0;
+      for (int c = 0; c < d; ++c) {
+        out[c] = static_cast<i128>(std::ldexp(p[c], -e)) - static_cast<i128>(std::ldexp(x[c], -e));
+        bits[c] = bits_of(out[c]);
+        widest = std::max(widest, bits[c]);
+      }
+      if (cols_ > d) {
+        if (widest <= 60) {  // d <= 8 squares below 2^120 each: the sum fits
+          i128 norm2 = 0;
+          for (int c = 0; c < d; ++c) norm2 += out[c] * out[c];
+          out[d] = norm2;
+          bits[d] = bits_of(norm2);
+        } else {
+          Wide& norm2 = heights_[r];
+          norm2 = 0;
+          for (int c = 0; c < d; ++c) norm2 += Wide(out[c]) * Wide(out[c]);
+          wide_height_ |= 1u << r;
+          bits[d] = static_cast<int>(boost::multiprecision::msb(norm2)) + 1;  // > 0: some |q_c| >= 2^60
+        }
+      }
+      return true;
+    }
+    int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
+    for (int c = 0; c < d; ++c) {
+      const double w = row.dir[c];
+      if (w == 0) continue;
+      int e = 0;
+      const double f = std::frexp(std::fabs(w), &e);
+      lowest = std::min(lowest, e - 53 + __builtin_ctzll(static_cast<std::uint64_t>(std::ldexp(f, 53))));
+      highest = std::max(highest, e);
+    }
+    if (highest >= lowest && highest - lowest > kMaxScaledBits) return false;
+    for (int c = 0; c < d; ++c) {
+      out[c] = row.dir[c] == 0 ? i128{0} : static_cast<i128>(std::ldexp(row.dir[c], -lowest));
+      bits[c] = bits_of(out[c]);
+    }
+    if (cols_ > d) {
+      out[d] = 0;
+      bits[d] = 0;
+    }
+    return true;
+  }
+
+  // Entry (r, c) as a Wide.
+  Wide wide(int r, int c) const {
+    if (c == cols_ - 1 && cols_ > ps_->dimension() && ((wide_height_ >> r) & 1u) != 0) return heights_[r];
+    return Wide(ints_[r * cols_ + c]);
+  }
+
   void exact_row(const PointSet& ps, std::uint32_t origin, const Row& row, mpq_class* out) const {
     const int d = ps.dimension();
     if (row.is_point()) {
@@ -181,9 +295,14 @@ class ExactMatrix {
     }
   }
 
+  const PointSet* ps_;
+  std::uint32_t origin_;
   int k_, cols_;
-  bool integral_ = true;
-  std::array<i128, kMaxCols * kMaxCols> ints_{};
+  bool scaled_ = false;
+  std::array<i128, kMaxCols * kMaxCols> ints_;
+  std::array<int, kMaxCols * kMaxCols> bits_{};
+  unsigned wide_height_ = 0;  // bit r: row r's height is in heights_[r]
+  std::array<Wide, kMaxCols> heights_;
   mutable std::vector<mpq_class> rats_;
 };
 

@@ -40,6 +40,16 @@ class PointSet {
   // Lexicographic rank of point i (0 = smallest); valid after validate().
   std::uint32_t lex_rank(std::size_t i) const { return rank_[i]; }
 
+  // The common binary scale of the coordinates, set by validate(): every coordinate
+  // is an integer times 2^scale_exponent() of at most integer_bits() bits. Every
+  // double is m 2^e with an integer m, so one scale turns any grid (integer,
+  // dyadic, linspace or decimal steps) into integers; the exact predicates work on
+  // those integers (converted once per set, not per call). kNoIntegerScale before
+  // validate() or when all coordinates are zero.
+  static constexpr int kNoIntegerScale = 1 << 20;
+  int scale_exponent() const { return scale_exponent_; }
+  int integer_bits() const { return integer_bits_; }
+
   // Checks the preconditions above (duplicates are refused here; merge them first
   // with merge_duplicates()). `source` names the input in messages ("file.txt").
   // check_span = false skips the exact affine-rank check (approximate neighbour
@@ -57,6 +67,8 @@ class PointSet {
   int d_ = 0;
   std::vector<double> coords_;
   std::vector<std::uint32_t> rank_;
+  int scale_exponent_ = 0;
+  int integer_bits_ = kNoIntegerScale;
 };
 
 // Lexicographic comparison of two points of dimension d (exact on doubles).
