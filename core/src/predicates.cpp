@@ -98,51 +98,63 @@ int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) 
 
 // Fixed-width integers for the determinants of scaled coordinates: stack storage,
 // no allocation and no gcd per operation, unlike GMP rationals (which were 80% of a
-// linspace grid's mesh time). Entries below are at most 2^121 (coordinates) and
-// 2^245 (lifted heights, d <= 8); by Hadamard's bound on columns a 9 x 9
-// determinant or any of its minors then needs at most 8 (121 + 2) + 247 + 4 < 1,240
-// bits, so kWideBits leaves room; sign_of_wide_determinant checks the actual bound.
-constexpr unsigned kWideBits = 1536;
-using Wide = boost::multiprecision::number<
-    boost::multiprecision::cpp_int_backend<kWideBits, kWideBits, boost::multiprecision::signed_magnitude,
+// linspace grid's mesh time). Entries are at most 2^122 (coordinates) and 2^248
+// (lifted heights, d <= 8); by Hadamard's bound on columns a 9 x 9 determinant or
+// any of its minors then needs at most 8 (122 + 2) + 250 + 4 < 1,250 bits. Each
+// determinant runs in the narrowest width its own entries allow (3-d linspace
+// grids: 256 bits for orientations, 512 for lifted tests), since every operation
+// and copy costs in proportion to the width.
+template <unsigned Bits>
+using FixedInt = boost::multiprecision::number<
+    boost::multiprecision::cpp_int_backend<Bits, Bits, boost::multiprecision::signed_magnitude,
                                            boost::multiprecision::unchecked, void>,
     boost::multiprecision::et_off>;
+using Height = FixedInt<256>;  // a lifted height: a sum of <= 8 squares below 2^244
 // Largest scaled coordinate accepted for the integer path: differences then fit in
 // 122 bits, their squares' sums in 248.
 constexpr int kMaxScaledBits = 120;
 
-// Sign of det(m) (k x k, row-major) by Laplace expansion over column subsets
-// (minors_table's recurrence on Wide): no division, so every intermediate is a minor
-// or a partial sum of at most k terms of one; `col_bits` (per column, the largest
-// entry's bit length) bounds them all by Hadamard. kUnknownSign when they might not
-// fit.
-int sign_of_wide_determinant(const Wide* m, const int* col_bits, int k) {
-  int bound = 4;  // partial sums of <= 9 terms
-  for (int c = 0; c < k; ++c) bound += col_bits[c] + 2;  // sqrt(k) <= 3 < 2^2 per column
-  if (bound >= static_cast<int>(kWideBits) - 1) return Approx::kUnknownSign;
-  thread_local std::vector<Wide> table(std::size_t{1} << kMaxCols);
+// Per-thread scratch for one width: the gathered matrix and the minors table (kept
+// between calls: constructing 2^9 fixed-width integers zeroes every limb).
+template <class W>
+struct FixedScratch {
+  std::vector<W> matrix = std::vector<W>(kMaxCols * kMaxCols);
+  std::vector<W> table = std::vector<W>(std::size_t{1} << kMaxCols);
+};
+
+// Sign of det(m) (k x k, row-major, set by entry(i, j, out)) by Laplace expansion
+// over column subsets (minors_table's recurrence on W): no division, so every
+// intermediate is a minor or a partial sum of at most k terms of one, all within the
+// Hadamard bound the caller checked against W's width.
+template <class W, class Entry>
+int sign_of_fixed_determinant(int k, Entry&& entry) {
+  thread_local FixedScratch<W> scratch;
+  W* m = scratch.matrix.data();
+  W* table = scratch.table.data();
+  for (int i = 0; i < k; ++i) {
+    for (int j = 0; j < k; ++j) entry(i, j, m[i * k + j]);
+  }
   table[0] = 1;
   const unsigned full = (1u << k) - 1u;
   for (unsigned mask = 1; mask <= full; ++mask) {
     const int j = detail::kPopCounts.of[mask];
-    const Wide* row = m + (k - j) * k;
-    Wide acc = 0;
+    const W* row = m + (k - j) * k;
+    W& acc = table[mask];
+    acc = 0;
     int t = 0;
     for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
       const int c = __builtin_ctz(rest);
-      if (row[c] == 0) continue;
-      const Wide& minor = table[mask ^ (1u << c)];
-      if (minor == 0) continue;
+      if (row[c].is_zero()) continue;
+      const W& minor = table[mask ^ (1u << c)];
+      if (minor.is_zero()) continue;
       if (t % 2 == 0) {
         acc += row[c] * minor;
       } else {
         acc -= row[c] * minor;
       }
     }
-    table[mask] = acc;
   }
-  const Wide& det = table[full];
-  return det > 0 ? 1 : det < 0 ? -1 : 0;
+  return table[full].sign();
 }
 
 // Exact entries of one predicate matrix. When the point set has an integer scale
@@ -150,7 +162,7 @@ int sign_of_wide_determinant(const Wide* m, const int* col_bits, int k) {
 // columns by 2^-E and the height column by 2^-2E (a direction row is scaled by its
 // own power of two instead): positive factors, so every sign is unchanged. Those
 // integers are kept in 128 bits when they are small (integer grids: the Bareiss
-// fast path) and in Wide otherwise; only a set without a usable scale (coordinates
+// fast path) and in fixed-width integers otherwise; only a set without a usable scale (coordinates
 // spanning more than 2^120) falls back to GMP rationals.
 class ExactMatrix {
  public:
@@ -183,21 +195,28 @@ class ExactMatrix {
         const int s = sign_of_integer_determinant(m, k);
         if (s != Approx::kUnknownSign) return s;
       }
-      std::array<Wide, kMaxCols * kMaxCols> m;
+      // The narrowest width that holds every minor (Hadamard on columns; sqrt(k) < 4).
       std::array<int, kMaxCols> col_bits{};
-      for (int i = 0; i < k; ++i) {
-        for (int j = 0; j < k; ++j) {
-          if (col_ids[j] < 0) {
-            m[i * k + j] = indicator(row_ids[i]);
-            col_bits[j] = std::max(col_bits[j], 1);
-          } else {
-            m[i * k + j] = wide(row_ids[i], col_ids[j]);
-            col_bits[j] = std::max(col_bits[j], bits_[row_ids[i] * cols_ + col_ids[j]]);
-          }
+      int bound = 4;  // partial sums of <= 9 terms
+      for (int j = 0; j < k; ++j) {
+        for (int i = 0; i < k; ++i) {
+          col_bits[j] = std::max(col_bits[j], col_ids[j] < 0 ? 1 : bits_[row_ids[i] * cols_ + col_ids[j]]);
         }
+        bound += col_bits[j] + 2;
       }
-      const int s = sign_of_wide_determinant(m.data(), col_bits.data(), k);
-      if (s != Approx::kUnknownSign) return s;
+      auto entry = [&](int i, int j, auto& out) {
+        const int r = row_ids[i], c = col_ids[j];
+        if (c < 0) {
+          out = indicator(r);
+        } else if (c == ps_->dimension() && ((wide_height_ >> r) & 1u) != 0) {
+          out = static_cast<std::remove_reference_t<decltype(out)>>(heights_[r]);
+        } else {
+          out = ints_[r * cols_ + c];
+        }
+      };
+      if (bound < 255) return sign_of_fixed_determinant<FixedInt<256>>(k, entry);
+      if (bound < 511) return sign_of_fixed_determinant<FixedInt<512>>(k, entry);
+      if (bound < 1535) return sign_of_fixed_determinant<FixedInt<1536>>(k, entry);
       // Unreachable with the entry bounds above; the rationals below are always right.
       rats_.resize(static_cast<std::size_t>(k_ * cols_));
       for (int r = 0; r < k_; ++r) exact_row(*ps_, origin_, rows[r], &rats_[r * cols_]);
@@ -214,7 +233,7 @@ class ExactMatrix {
  private:
   // Row r as scaled integers (see the class comment); false when a direction row
   // spans more than kMaxScaledBits bits. Spatial entries (< 2^122) are kept in 128
-  // bits; a height in 128 bits when it fits, else in Wide.
+  // bits; a height in 128 bits when it fits, else in 256.
   bool scaled_row(const PointSet& ps, std::uint32_t origin, const Row& row, int r) {
     const int d = ps.dimension();
     i128* out = &ints_[r * cols_];
@@ -242,9 +261,9 @@ class ExactMatrix {
           out[d] = norm2;
           bits[d] = bits_of(norm2);
         } else {
-          Wide& norm2 = heights_[r];
+          Height& norm2 = heights_[r];
           norm2 = 0;
-          for (int c = 0; c < d; ++c) norm2 += Wide(out[c]) * Wide(out[c]);
+          for (int c = 0; c < d; ++c) norm2 += Height(out[c]) * Height(out[c]);
           wide_height_ |= 1u << r;
           bits[d] = static_cast<int>(boost::multiprecision::msb(norm2)) + 1;  // > 0: some |q_c| >= 2^60
         }
@@ -272,12 +291,6 @@ class ExactMatrix {
     return true;
   }
 
-  // Entry (r, c) as a Wide.
-  Wide wide(int r, int c) const {
-    if (c == cols_ - 1 && cols_ > ps_->dimension() && ((wide_height_ >> r) & 1u) != 0) return heights_[r];
-    return Wide(ints_[r * cols_ + c]);
-  }
-
   void exact_row(const PointSet& ps, std::uint32_t origin, const Row& row, mpq_class* out) const {
     const int d = ps.dimension();
     if (row.is_point()) {
@@ -302,7 +315,7 @@ class ExactMatrix {
   std::array<i128, kMaxCols * kMaxCols> ints_;
   std::array<int, kMaxCols * kMaxCols> bits_{};
   unsigned wide_height_ = 0;  // bit r: row r's height is in heights_[r]
-  std::array<Wide, kMaxCols> heights_;
+  std::array<Height, kMaxCols> heights_;
   mutable std::vector<mpq_class> rats_;
 };
 

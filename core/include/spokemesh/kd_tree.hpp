@@ -199,26 +199,30 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
   // Upper bound of sigma * n.(p - x) over a box. Each normal component is known to
   // within e_c; box offsets are rounded once; the sum is rounded d times. The 1e-12
   // relative slack covers those roundings (<= (d + 3) 2^-53 relative).
-  // A box is also skipped when n.(p - x) is exactly 0 for all its points: along every
-  // axis either the normal component is exactly zero (no monomial: a == 0; safe
-  // depths were checked above) or the box is flat at x's own coordinate. Such points
-  // lie on the hyperplane, never strictly beyond it; without this, every hull query
-  // of a grid's face seed visited the whole face (quadratic in the face's size).
+  // A box is also skipped when every term sigma n_c (p_c - x_c) is certainly <= 0 for
+  // all its points: the normal component is exactly zero (no monomial: a == 0; safe
+  // depths were checked above), or its sign is certain and the box lies on the
+  // non-positive side of x_c (fl(p - x) keeps the sign of p - x, so the comparisons
+  // are exact), or the box is flat at x_c. The rounded bound cannot see this where
+  // the maximum is exactly 0: a grid's face seed's hull facets lie in the face, and
+  // each hull query visited every box along the face (quadratic in its size).
   auto may_contain = [&](const float* lo, const float* hi, std::uint32_t flat, const double* first) {
     double bound = 0, magnitude = 0;
-    bool on_plane = true;
+    bool nonpositive = true;
     for (int c = 0; c < d; ++c) {
       const double t = sigma * normal[c].v;
       const bool is_flat = (flat >> c) & 1u;
-      const double lo_off = (is_flat ? first[c] : static_cast<double>(lo[c])) - x[c];
-      const double hi_off = (is_flat ? first[c] : static_cast<double>(hi[c])) - x[c];
+      const double low = is_flat ? first[c] : static_cast<double>(lo[c]);
+      const double high = is_flat ? first[c] : static_cast<double>(hi[c]);
+      const double lo_off = low - x[c], hi_off = high - x[c];
       const double reach = std::max(std::fabs(lo_off), std::fabs(hi_off));
       const double e = normal[c].a * (static_cast<double>(normal[c].n + 2) * 0x1p-53) * 1.01;
       bound += std::max(t * lo_off, t * hi_off) + e * reach;
       magnitude += std::fabs(t) * reach + e * reach;
-      on_plane &= normal[c].a == 0 || (is_flat && first[c] == x[c]);
+      nonpositive &= normal[c].a == 0 || (low == x[c] && high == x[c]) || (t > e && high <= x[c]) ||
+                     (t < -e && low >= x[c]);
     }
-    return !on_plane && bound + 1e-12 * magnitude >= 0;
+    return !nonpositive && bound + 1e-12 * magnitude >= 0;
   };
   return find_first(may_contain, on_side);
 }
