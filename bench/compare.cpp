@@ -204,8 +204,12 @@ int main(int argc, char** argv) {
     for (double t : {low.first, dd.first, qh.first}) {
       if (t > 0) best = std::min(best, t);
     }
+    // On grids only CGAL's count must agree: Qhull's Qt triangulates each cospherical
+    // facet its own way, and a cube (4-d: a tesseract) has triangulations of
+    // different sizes. CGAL's perturbation is ours (test_mesh checks the simplices).
+    const bool ties = c.kind != Kind::kUniform && c.kind != Kind::kGridJittered;
     bool agree = true;
-    for (std::size_t m : {low.second, dd.second, qh.second}) {
+    for (std::size_t m : {low.second, dd.second, ties ? std::size_t{0} : qh.second}) {
       if (m != 0 && m != ours.second) agree = false;
     }
     auto cell = [](double t) { return t > 0 ? std::to_string(t).substr(0, 6) + " s" : std::string("-"); };

@@ -43,6 +43,18 @@ inline std::vector<double> grid_points(int d, int side) {
   return c;
 }
 
+// The same grid with every coordinate v written as scale(v): i / (side - 1) as numpy's
+// linspace computes it, i * 0.1, i / 32. Ties stay exact ties (a box's corners are
+// cospherical whatever its side lengths), but the coordinates are no longer integers.
+inline std::vector<double> scaled_grid_points(int d, int side, double (*scale)(double, int)) {
+  std::vector<double> c = grid_points(d, side);
+  for (double& v : c) v = scale(v, side);
+  return c;
+}
+inline double linspace_value(double i, int side) { return i + 1 == side ? 1.0 : i * (1.0 / (side - 1)); }
+inline double decimal_value(double i, int) { return i * 0.1; }
+inline double dyadic_value(double i, int) { return i / 32.0; }
+
 // Integer points on the sphere |p|^2 = r2 (exactly cospherical), plus the centre.
 inline std::vector<double> sphere_points(int d, int r2, bool with_centre) {
   std::vector<double> c;
