@@ -7,6 +7,9 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
+#include <random>
+
+#include <gmpxx.h>
 
 #include "spokemesh/approx.hpp"
 #include "support.hpp"
@@ -139,6 +142,59 @@ TEST(KdTree, NearestMatchBruteForceOnAwkwardInputs) {
   // Fewer points than asked for, down to the fewest accepted.
   expect_knn_matches_brute_force("three", 2, {0, 0, 1, 0, 0, 1}, 8);
   expect_knn_matches_brute_force("five-4d", 4, uniform_points(4, 5, 7), 9);
+}
+
+// any_beyond and find_first against brute force: for hyperplanes through a point x
+// (random normals, and axis-aligned ones that grids' faces produce, where whole boxes
+// lie on the hyperplane and are skipped as flat), whether some point lies strictly on
+// side sigma must match an exact rational scan, and any point returned must be such a
+// point. find_first with an accept-all box test must visit every point.
+TEST(KdTree, AnyBeyondMatchesBruteForce) {
+  for (int d = 2; d <= 4; ++d) {
+    for (const bool on_grid : {false, true}) {
+      const std::vector<double> coords = on_grid ? grid_points(d, d == 2 ? 20 : d == 3 ? 8 : 5)
+                                                 : uniform_points(d, 600, 40 + d);
+      const PointSet ps = make_points(d, coords);
+      const KdTree tree(ps);
+      std::mt19937_64 rng(1000 + d);
+      std::uniform_int_distribution<std::size_t> any_point(0, ps.size() - 1);
+      std::uniform_int_distribution<int> axis(0, d - 1), small(-2, 2);
+      for (int trial = 0; trial < 200; ++trial) {
+        const std::size_t origin = any_point(rng);
+        const double* x = ps.point(origin);
+        std::vector<double> n(static_cast<std::size_t>(d), 0.0);
+        if (trial % 2 == 0) {
+          n[static_cast<std::size_t>(axis(rng))] = 1.0;  // axis-aligned
+        } else {
+          for (double& v : n) v = small(rng) * 0.5;
+        }
+        std::vector<Approx> normal;
+        for (const double v : n) normal.push_back(Approx::exact(v));
+        auto exact_side = [&](std::uint32_t p) {
+          mpq_class s = 0;
+          for (int c = 0; c < d; ++c) s += mpq_class(n[c]) * (mpq_class(ps.point(p)[c]) - mpq_class(x[c]));
+          return sgn(s);
+        };
+        for (const int sigma : {-1, 1}) {
+          SCOPED_TRACE("d " + std::to_string(d) + (on_grid ? " grid" : " uniform") + " trial " +
+                       std::to_string(trial) + " sigma " + std::to_string(sigma));
+          bool expected = false;
+          for (std::uint32_t p = 0; p < ps.size() && !expected; ++p) expected = exact_side(p) == sigma;
+          const std::int64_t got = tree.any_beyond(x, normal.data(), sigma, exact_side);
+          EXPECT_EQ(got >= 0, expected);
+          if (got >= 0) {
+            EXPECT_EQ(exact_side(static_cast<std::uint32_t>(got)), sigma);
+          }
+        }
+      }
+      std::size_t visited = 0;
+      tree.find_first([](const float*, const float*) { return true; }, [&](std::uint32_t) {
+        ++visited;
+        return false;
+      });
+      EXPECT_EQ(visited, ps.size());
+    }
+  }
 }
 
 }  // namespace

@@ -64,6 +64,31 @@ TEST(Star, EqualsBruteForceOnEverySeedWithOneWrapPerSimplex) {
   }
 }
 
+// d = 7 and 8, the largest dimensions meshed exactly: random points, and the
+// cross-polytope with its centre (2d + 1 points, 2d of them cospherical: every star
+// simplex there is decided by the symbolic perturbation), every seed against the
+// brute force.
+TEST(Star, EqualsBruteForceInSevenAndEightDimensions) {
+  for (const int d : {7, 8}) {
+    std::vector<double> cross(static_cast<std::size_t>(d), 0.0);  // the centre
+    for (int axis = 0; axis < d; ++axis) {
+      for (const double sign : {-1.0, 1.0}) {
+        for (int c = 0; c < d; ++c) cross.push_back(c == axis ? sign : 0.0);
+      }
+    }
+    for (const auto& [name, coords] : {std::pair{std::string("uniform"), uniform_points(d, d + 6, 70 + d)},
+                                       std::pair{std::string("cross+centre"), cross}}) {
+      SCOPED_TRACE(name + " d " + std::to_string(d));
+      const PointSet ps = make_points(d, coords);
+      const KdTree tree(ps);
+      StarWalker walker(tree);
+      for (std::uint32_t seed = 0; seed < ps.size(); ++seed) {
+        ASSERT_EQ(star_set(walker, seed, d), brute_force_star(ps, seed)) << "seed " << seed;
+      }
+    }
+  }
+}
+
 // A two-point neighbourhood sends nearly every wrap to the k-d tree's sphere and
 // hull queries and triggers the neighbourhood growth; coordinates far from the
 // origin stress the certified error terms of the pencil keys and of the sphere
