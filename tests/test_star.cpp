@@ -188,13 +188,10 @@ TEST(Star, HonoursCancellation) {
   EXPECT_EQ(walker.compute(0, star).code(), Code::kCancelled);
 }
 
-// Property: shuffling the input gives the same mesh, mapped back through the shuffle.
-RC_GTEST_PROP(MeshProperty, PermutationInvariant, ()) {
-  const int d = *rc::gen::inRange(2, 5);
-  const int n = *rc::gen::inRange(d + 2, d <= 3 ? 60 : 30);
-  const bool on_grid = *rc::gen::arbitrary<bool>();
-  const std::uint64_t seed = *rc::gen::arbitrary<std::uint64_t>();
-  std::vector<double> coords = on_grid ? grid_points(d, 3) : uniform_points(d, n, seed);
+// Shuffles the points with `seed`, meshes both orders (the shuffled one with
+// `threads` threads and the seed as the spoke seed) and asserts the same simplices
+// once mapped back through the shuffle.
+void assert_permutation_invariant(int d, const std::vector<double>& coords, std::uint64_t seed, unsigned threads) {
   const std::size_t count = coords.size() / d;
   std::vector<std::uint32_t> perm(count);
   std::iota(perm.begin(), perm.end(), 0u);
@@ -207,9 +204,18 @@ RC_GTEST_PROP(MeshProperty, PermutationInvariant, ()) {
   RC_ASSERT(a.validate("a").is_ok());
   RC_ASSERT(b.validate("b").is_ok());
   const KdTree ta(a), tb(b);
-  Simplices mb = mesh_all(tb, 1, 0, 0xFFFFFFFFu, seed);
+  Simplices mb = mesh_all(tb, threads, 0, 0xFFFFFFFFu, seed);
   for (auto& v : mb) v = perm[v];
   RC_ASSERT(as_set(mesh_all(ta), d + 1) == as_set(mb, d + 1));
+}
+
+// Property: shuffling the input gives the same mesh, mapped back through the shuffle.
+RC_GTEST_PROP(MeshProperty, PermutationInvariant, ()) {
+  const int d = *rc::gen::inRange(2, 5);
+  const int n = *rc::gen::inRange(d + 2, d <= 3 ? 60 : 30);
+  const bool on_grid = *rc::gen::arbitrary<bool>();
+  const std::uint64_t seed = *rc::gen::arbitrary<std::uint64_t>();
+  assert_permutation_invariant(d, on_grid ? grid_points(d, 3) : uniform_points(d, n, seed), seed, 1);
 }
 
 // Property: grids written every way the benchmark writes them (integer, linspace,
@@ -222,20 +228,7 @@ RC_GTEST_PROP(MeshProperty, GridsArePermutationInvariant, ()) {
   const std::uint64_t seed = *rc::gen::arbitrary<std::uint64_t>();
   double (*const scales[])(double, int) = {[](double v, int) { return v; }, linspace_value, decimal_value,
                                            dyadic_value};
-  const std::vector<double> coords = scaled_grid_points(d, side, scales[kind]);
-  const std::size_t count = coords.size() / d;
-  std::vector<std::uint32_t> perm(count);
-  std::iota(perm.begin(), perm.end(), 0u);
-  std::shuffle(perm.begin(), perm.end(), std::mt19937_64(seed));
-  std::vector<double> shuffled(coords.size());
-  for (std::size_t i = 0; i < count; ++i) std::copy_n(&coords[perm[i] * d], d, &shuffled[i * d]);
-  PointSet a(d, coords), b(d, shuffled);
-  RC_ASSERT(a.validate("a").is_ok());
-  RC_ASSERT(b.validate("b").is_ok());
-  const KdTree ta(a), tb(b);
-  Simplices mb = mesh_all(tb, 2, 0, 0xFFFFFFFFu, seed);
-  for (auto& v : mb) v = perm[v];
-  RC_ASSERT(as_set(mesh_all(ta), d + 1) == as_set(mb, d + 1));
+  assert_permutation_invariant(d, scaled_grid_points(d, side, scales[kind]), seed, 2);
 }
 
 }  // namespace
