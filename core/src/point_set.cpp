@@ -17,6 +17,16 @@ bool lex_less(const double* a, const double* b, int d) {
   return false;
 }
 
+void widen_binary_span(double v, int& lowest, int& highest) {
+  if (v == 0) return;
+  // frexp: v = f 2^e with 0.5 <= |f| < 1, so |v| < 2^e and v's 53-bit integer
+  // mantissa f 2^53 has its lowest set bit at 2^(e - 53 + ctz).
+  int e = 0;
+  const double f = std::frexp(std::fabs(v), &e);
+  lowest = std::min(lowest, e - 53 + __builtin_ctzll(static_cast<std::uint64_t>(std::ldexp(f, 53))));
+  highest = std::max(highest, e);
+}
+
 PointSet::PointSet(int dimension, std::vector<double> coordinates)
     : d_(dimension), coords_(std::move(coordinates)) {}
 
@@ -96,17 +106,8 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
   rank_.assign(n, 0);
   for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
   // The common scale: the lowest set bit over all coordinates, and the highest.
-  // frexp: v = f 2^e with 0.5 <= |f| < 1, so |v| < 2^e and v's 53-bit integer
-  // mantissa f 2^53 has its lowest set bit at 2^(e - 53 + ctz).
   int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
-  for (const double v : coords_) {
-    if (v == 0) continue;
-    int e = 0;
-    const double f = std::frexp(std::fabs(v), &e);
-    const auto mantissa = static_cast<std::uint64_t>(std::ldexp(f, 53));
-    lowest = std::min(lowest, e - 53 + __builtin_ctzll(mantissa));
-    highest = std::max(highest, e);
-  }
+  for (const double v : coords_) widen_binary_span(v, lowest, highest);
   if (highest >= lowest) {
     scale_exponent_ = lowest;
     integer_bits_ = highest - lowest;

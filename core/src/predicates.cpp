@@ -271,14 +271,7 @@ class ExactMatrix {
       return true;
     }
     int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
-    for (int c = 0; c < d; ++c) {
-      const double w = row.dir[c];
-      if (w == 0) continue;
-      int e = 0;
-      const double f = std::frexp(std::fabs(w), &e);
-      lowest = std::min(lowest, e - 53 + __builtin_ctzll(static_cast<std::uint64_t>(std::ldexp(f, 53))));
-      highest = std::max(highest, e);
-    }
+    for (int c = 0; c < d; ++c) widen_binary_span(row.dir[c], lowest, highest);
     if (highest >= lowest && highest - lowest > kMaxScaledBits) return false;
     for (int c = 0; c < d; ++c) {
       out[c] = row.dir[c] == 0 ? i128{0} : static_cast<i128>(std::ldexp(row.dir[c], -lowest));

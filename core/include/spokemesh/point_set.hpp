@@ -71,6 +71,11 @@ class PointSet {
   int integer_bits_ = kNoIntegerScale;
 };
 
+// Widens [lowest, highest] to v's binary span: v = m 2^lowest for an integer m, and
+// |v| < 2^highest (zero changes nothing). Used for the common integer scale of a set
+// and of a spoke direction.
+void widen_binary_span(double v, int& lowest, int& highest);
+
 // Lexicographic comparison of two points of dimension d (exact on doubles).
 bool lex_less(const double* a, const double* b, int d);
 
