@@ -168,8 +168,8 @@ TEST(KdTree, AnyBeyondMatchesBruteForce) {
         } else {
           for (double& v : n) v = small(rng) * 0.5;
         }
-        std::vector<Approx> normal;
-        for (const double v : n) normal.push_back(Approx::exact(v));
+        std::vector<BoundedDouble> normal;
+        for (const double v : n) normal.push_back(BoundedDouble::exact(v));
         auto exact_side = [&](std::uint32_t p) {
           mpq_class s = 0;
           for (int c = 0; c < d; ++c) s += mpq_class(n[c]) * (mpq_class(ps.point(p)[c]) - mpq_class(x[c]));

@@ -1,4 +1,4 @@
-// Predicates: the Approx filter's error bound holds, filtered signs equal exact
+// Predicates: the BoundedDouble filter's error bound holds, filtered signs equal exact
 // rational signs on near-degenerate inputs, and ties follow CGAL's perturbation rule.
 #include <gmpxx.h>
 
@@ -14,7 +14,7 @@ namespace {
 
 using testing::make_points;
 
-TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
+TEST(BoundedDouble, ErrorBoundHoldsOnNearSingularMatrices) {
   for (std::uint64_t seed = 1; seed <= 300; ++seed) {
     SCOPED_TRACE("seed " + std::to_string(seed));
     std::mt19937_64 rng(seed);
@@ -26,32 +26,32 @@ TEST(Approx, ErrorBoundHoldsOnNearSingularMatrices) {
     for (int c = 0; c < k; ++c) base[(k - 1) * k + c] = base[c] + base[k + c] * 0.5 + (c == 0 ? std::ldexp(u(rng), -50) : 0.0);
     std::vector<double> origin(k);
     for (double& v : origin) v = u(rng) * 0.1;
-    std::vector<Approx> m(k * k);
+    std::vector<BoundedDouble> m(k * k);
     std::vector<mpq_class> e(k * k);
     for (int i = 0; i < k * k; ++i) {
-      m[i] = Approx::difference(base[i], origin[i % k]);
+      m[i] = BoundedDouble::difference(base[i], origin[i % k]);
       e[i] = mpq_class(base[i]) - mpq_class(origin[i % k]);
     }
-    std::vector<Approx> table(1u << k);
+    std::vector<BoundedDouble> table(1u << k);
     minors_table(m.data(), k, k, table.data());
-    const Approx det = table[(1u << k) - 1];
+    const BoundedDouble det = table[(1u << k) - 1];
     const mpq_class exact = exact_determinant(e, k);
-    const mpq_class error = abs(mpq_class(det.v) - exact);
-    const double bound = det.a * ((det.n + 2) * 0x1p-53) * 1.01;
+    const mpq_class error = abs(mpq_class(det.value) - exact);
+    const double bound = filter::error_bound(det.magnitude, det.depth);
     EXPECT_LE(error.get_d(), bound);
     const int s = det.certified_sign();
-    if (s != Approx::kUnknownSign) {
+    if (s != BoundedDouble::kUnknownSign) {
       EXPECT_EQ(s, sgn(exact));
     }
   }
 }
 
-TEST(Approx, UnderflowAndOverflowAreNeverCertified) {
-  const Approx tiny = Approx::exact(0x1p-600);
-  EXPECT_EQ((tiny * tiny).certified_sign(), Approx::kUnknownSign);
-  const Approx huge = Approx::exact(0x1p+600);
-  EXPECT_EQ((huge * huge).certified_sign(), Approx::kUnknownSign);
-  EXPECT_EQ((Approx::exact(0.0) * huge).certified_sign(), 0);
+TEST(BoundedDouble, UnderflowAndOverflowAreNeverCertified) {
+  const BoundedDouble tiny = BoundedDouble::exact(0x1p-600);
+  EXPECT_EQ((tiny * tiny).certified_sign(), BoundedDouble::kUnknownSign);
+  const BoundedDouble huge = BoundedDouble::exact(0x1p+600);
+  EXPECT_EQ((huge * huge).certified_sign(), BoundedDouble::kUnknownSign);
+  EXPECT_EQ((BoundedDouble::exact(0.0) * huge).certified_sign(), 0);
 }
 
 // Points nearly on a circle: filtered+exact lifted sign must equal the pure exact sign.

@@ -190,24 +190,24 @@ bool ApproxWalker::certify(std::uint32_t s, const double* w) {
   // the projection of x + w onto the bisector of x and s. For another point q, with
   // q' = q - x, |W* - q|^2 - |W* - x|^2 = G_q / D where
   //   G_q = D |q'|^2 - 2 D (w . q') + 2 N (a . q'),
-  // a polynomial in the input doubles and w: its sign is decided by the Approx filter
+  // a polynomial in the input doubles and w: its sign is decided by the BoundedDouble filter
   // (a proven error bound), else exactly with GMP. D > 0 since s != x.
-  std::vector<Approx> a(static_cast<std::size_t>(d));
-  Approx a2{0, 0, 0}, wa{0, 0, 0};
+  std::vector<BoundedDouble> a(static_cast<std::size_t>(d));
+  BoundedDouble a2{0, 0, 0}, wa{0, 0, 0};
   for (int c = 0; c < d; ++c) {
-    a[c] = Approx::difference(sp[c], x[c]);
+    a[c] = BoundedDouble::difference(sp[c], x[c]);
     a2 = a2 + a[c] * a[c];
-    wa = wa + Approx::exact(w[c]) * a[c];
+    wa = wa + BoundedDouble::exact(w[c]) * a[c];
   }
-  const Approx D = Approx::exact(2) * a2;
-  const Approx N = Approx::exact(2) * wa - a2;
+  const BoundedDouble D = BoundedDouble::exact(2) * a2;
+  const BoundedDouble N = BoundedDouble::exact(2) * wa - a2;
   // Candidates: points near the witness (a k-d tree ball query with a margin that
   // covers every rounding in locating it); all others are certainly farther.
-  const double alpha = N.v / D.v;
+  const double alpha = N.value / D.value;
   std::vector<double> centre(static_cast<std::size_t>(d));
   double r2 = 0, xmax = 0;
   for (int c = 0; c < d; ++c) {
-    const double ws = w[c] - alpha * a[c].v;
+    const double ws = w[c] - alpha * a[c].value;
     r2 += ws * ws;
     centre[c] = x[c] + ws;
     xmax = std::max(xmax, std::fabs(x[c]));
@@ -218,23 +218,23 @@ bool ApproxWalker::certify(std::uint32_t s, const double* w) {
   double w2 = 0;
   for (int c = 0; c < d; ++c) w2 += w[c] * w[c];
   const double slack = 1e-12 * (xmax * std::sqrt(static_cast<double>(d)) + std::sqrt(w2) +
-                                std::fabs(alpha) * std::sqrt(std::fabs(a2.v)));
+                                std::fabs(alpha) * std::sqrt(std::fabs(a2.value)));
   const double r = std::sqrt(r2) * (1 + 1e-6) + slack + 1e-300;
   thread_local std::vector<std::pair<std::uint32_t, double>> near;
   tree_.within(centre.data(), r * r * (1 + 1e-9), near);
   for (const auto& [q, dist2] : near) {
     if (q == x_ || q == s) continue;
     const double* qp = ps_.point(q);
-    Approx q2{0, 0, 0}, wq{0, 0, 0}, aq{0, 0, 0};
+    BoundedDouble q2{0, 0, 0}, wq{0, 0, 0}, aq{0, 0, 0};
     for (int c = 0; c < d; ++c) {
-      const Approx qc = Approx::difference(qp[c], x[c]);
+      const BoundedDouble qc = BoundedDouble::difference(qp[c], x[c]);
       q2 = q2 + qc * qc;
-      wq = wq + Approx::exact(w[c]) * qc;
+      wq = wq + BoundedDouble::exact(w[c]) * qc;
       aq = aq + a[c] * qc;
     }
-    const Approx g = D * q2 - Approx::exact(2) * D * wq + Approx::exact(2) * N * aq;
+    const BoundedDouble g = D * q2 - BoundedDouble::exact(2) * D * wq + BoundedDouble::exact(2) * N * aq;
     int sign = g.certified_sign();
-    if (sign == Approx::kUnknownSign) {
+    if (sign == BoundedDouble::kUnknownSign) {
       mpq_class A2 = 0, WA = 0, Q2 = 0, WQ = 0, AQ = 0;
       std::vector<mpq_class> ac(static_cast<std::size_t>(d));
       for (int c = 0; c < d; ++c) {

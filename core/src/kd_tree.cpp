@@ -7,6 +7,8 @@
 #include <system_error>
 #include <thread>
 
+#include "dimension.hpp"
+
 namespace spokemesh {
 
 namespace {
@@ -260,6 +262,12 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
 // search's instructions, where the k-NN search is the largest part of a seed); and
 // ours reads the leaf-ordered copy, which spans both halves of the tree.
 // Same visiting order, same arithmetic in the same order as nanoflann's.
+// Guarded by the version: another nanoflann may visit or round differently (the
+// brute-force tests of test_kd_tree.cpp check the answers, not the equivalence).
+// Debian's 1.4.3 still reports 0x142: upstream did not bump the macro in that release.
+static_assert(NANOFLANN_VERSION == 0x142,
+              "search_level mirrors nanoflann 1.4.3's searchLevel (whose header says 0x142): compare it "
+              "with this version's and update the check");
 template <int D, class ResultSet>
 bool KdTree::search_level(const Node* node, ResultSet& result, const double* query, double mindistsq,
                           double* offsets) const {
@@ -312,16 +320,9 @@ void KdTree::search(const double* query, ResultSet& result) const {
       distsq += offsets[c];
     }
   }
-  switch (d_) {  // the one dispatch from the runtime dimension to compiled searches
-    case 2: search_level<2>(root_, result, query, distsq, offsets.data()); return;
-    case 3: search_level<3>(root_, result, query, distsq, offsets.data()); return;
-    case 4: search_level<4>(root_, result, query, distsq, offsets.data()); return;
-    case 5: search_level<5>(root_, result, query, distsq, offsets.data()); return;
-    case 6: search_level<6>(root_, result, query, distsq, offsets.data()); return;
-    case 7: search_level<7>(root_, result, query, distsq, offsets.data()); return;
-    case 8: search_level<8>(root_, result, query, distsq, offsets.data()); return;
-    default: search_level<0>(root_, result, query, distsq, offsets.data());
-  }
+  detail::dispatch_dimension(static_cast<int>(d_), [&](auto dim) {
+    search_level<decltype(dim)::value>(root_, result, query, distsq, offsets.data());
+  });
 }
 
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,

@@ -55,18 +55,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 
   // Shared by every worker's walker: a facet wrapped in one star answers the same
   // wrap in the stars of its other vertices (in 2-d, posted per point).
-  std::optional<FacetCache> facets;
-  std::optional<EdgeCache> edges;
-  const auto n32 = static_cast<std::uint32_t>(n), begin32 = static_cast<std::uint32_t>(begin),
-             end32 = static_cast<std::uint32_t>(end), block32 = static_cast<std::uint32_t>(block);
-  if (options.facet_cache_bytes != 0 && d == 2) {
-    edges.emplace(n32, begin32, end32, options.facet_cache_bytes, block32);
-  } else if (options.facet_cache_bytes != 0) {
-    facets.emplace(d, n32, begin32, end32, options.facet_cache_bytes, block32);
+  std::optional<RunCache> cache;
+  if (options.facet_cache_bytes != 0) {
+    cache.emplace(d, static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end),
+                  options.facet_cache_bytes, static_cast<std::uint32_t>(block));
   }
   StarOptions star_options = options.star;
-  if (facets && facets->enabled()) star_options.facets = &*facets;
-  if (edges && edges->enabled()) star_options.edges = &*edges;
+  if (cache && cache->enabled()) star_options.cache = &*cache;
 
   std::mutex mu;
   std::condition_variable worker_cv, writer_cv;
@@ -168,7 +163,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   for (auto& t : pool) t.join();
   if (!failure.is_ok()) return failure;
   total.seeds = end - begin;
-  total.facet_cache_bytes = facets ? facets->reserved_bytes() : edges ? edges->reserved_bytes() : 0;
+  total.facet_cache_bytes = cache ? cache->reserved_bytes() : 0;
   return total;
 }
 

@@ -12,7 +12,7 @@
 
 namespace spokemesh {
 
-void minors_table(const Approx* m, int rows, int cols, Approx* table) { minors_table_loop(m, rows, cols, table); }
+void minors_table(const BoundedDouble* m, int rows, int cols, BoundedDouble* table) { minors_table_loop(m, rows, cols, table); }
 
 mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   mpq_class det = 1;
@@ -36,20 +36,20 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   return det;
 }
 
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out) {
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out) {
   const int d = ps.dimension();
   if (row.is_point()) {
     const double* p = ps.point(static_cast<std::size_t>(row.point));
     const double* x = ps.point(origin);
-    Approx norm2{};
+    BoundedDouble norm2{};
     for (int c = 0; c < d; ++c) {
-      out[c] = Approx::difference(p[c], x[c]);
+      out[c] = BoundedDouble::difference(p[c], x[c]);
       norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
     }
     if (cols > d) out[d] = norm2;
   } else {
-    for (int c = 0; c < d; ++c) out[c] = Approx::exact(row.dir[c]);
-    if (cols > d) out[d] = Approx::exact(0.0);
+    for (int c = 0; c < d; ++c) out[c] = BoundedDouble::exact(row.dir[c]);
+    if (cols > d) out[d] = BoundedDouble::exact(0.0);
   }
 }
 
@@ -71,7 +71,7 @@ int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) 
     for (int c = 0; c < k; ++c) norm2 += static_cast<long double>(m[r * k + c]) * static_cast<long double>(m[r * k + c]);
     bound *= std::sqrt(norm2) * 1.0001L + 1;
   }
-  if (!(bound < 0x1p61L)) return Approx::kUnknownSign;
+  if (!(bound < 0x1p61L)) return BoundedDouble::kUnknownSign;
   int sign = 1;
   i128 previous = 1;
   for (int col = 0; col < k; ++col) {
@@ -193,7 +193,7 @@ class ExactMatrix {
           }
         }
         const int s = sign_of_integer_determinant(m, k);
-        if (s != Approx::kUnknownSign) return s;
+        if (s != BoundedDouble::kUnknownSign) return s;
       }
       // The narrowest width that holds every minor (Hadamard on columns; sqrt(k) < 4).
       std::array<int, kMaxCols> col_bits{};
@@ -313,8 +313,8 @@ class ExactMatrix {
 };
 
 int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int k) {
-  std::array<Approx, kMaxCols * kMaxCols> m;
-  std::array<Approx, 1u << kMaxCols> table;
+  std::array<BoundedDouble, kMaxCols * kMaxCols> m;
+  std::array<BoundedDouble, 1u << kMaxCols> table;
   for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k]);
   minors_table(m.data(), k, k, table.data());
   return table[(1u << k) - 1u].certified_sign();
@@ -332,7 +332,7 @@ int Predicates::spatial_sign_exact(std::uint32_t origin, std::span<const Row> ro
 
 int Predicates::spatial_sign(std::uint32_t origin, std::span<const Row> rows) const {
   const int s = filtered_sign(ps_, origin, rows, ps_.dimension());
-  return s != Approx::kUnknownSign ? s : spatial_sign_exact(origin, rows);
+  return s != BoundedDouble::kUnknownSign ? s : spatial_sign_exact(origin, rows);
 }
 
 // The lifted determinant is linear in every point's height. With heights
@@ -393,7 +393,7 @@ int Predicates::lifted_sign(std::uint32_t origin, std::span<const Row> rows) con
 
 int Predicates::lifted_sign_unperturbed(std::uint32_t origin, std::span<const Row> rows) const {
   const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1);
-  if (s != Approx::kUnknownSign) return s;
+  if (s != BoundedDouble::kUnknownSign) return s;
   return lifted_sign_exact(origin, rows, /*perturb=*/false);
 }
 
@@ -404,10 +404,10 @@ int Predicates::orientation(std::span<const std::uint32_t> simplex) const {
   return spatial_sign(simplex[0], std::span<const Row>(rows.data(), d));
 }
 
-void Predicates::spatial_normal(std::uint32_t origin, std::span<const Row> rows, Approx* normal) const {
+void Predicates::spatial_normal(std::uint32_t origin, std::span<const Row> rows, BoundedDouble* normal) const {
   const int d = ps_.dimension();
-  std::array<Approx, kMaxCols * kMaxCols> m{};
-  std::array<Approx, 1u << kMaxCols> table;
+  std::array<BoundedDouble, kMaxCols * kMaxCols> m{};
+  std::array<BoundedDouble, 1u << kMaxCols> table;
   for (int r = 0; r < d - 1; ++r) approx_row(ps_, origin, rows[r], d, &m[r * d]);
   minors_table(m.data(), d - 1, d, table.data());
   const unsigned all = (1u << d) - 1u;

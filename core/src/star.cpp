@@ -6,14 +6,19 @@
 #include <limits>
 #include <numeric>
 
+#include "dimension.hpp"
+#include "invariant.hpp"
 #include "mixing.hpp"
+#include "ring_walk.hpp"
 #include "simd.hpp"
 
 namespace spokemesh {
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
-constexpr double kUnit = 0x1p-53;
+using filter::is_certifiable;
+using filter::relative_error;
+constexpr double kUnit = filter::kUnitRoundoff;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Sphere queries that found a point missing from the candidates before the walk
 // loads a neighbourhood twice as large (once per seed: a seed on the hull can
@@ -28,17 +33,15 @@ constexpr std::size_t kCacheBatch = 256;
 // Candidates per chunk of the pencil scan's vectorized dot products.
 constexpr std::size_t kPencilChunk = 16;
 
-// Certified sign of a dot product v whose monomial magnitudes sum to a, computed
-// with the given rounding depth; Approx::kUnknownSign when not certain. A product in
-// the last (unmultiplied) step may underflow with absolute error <= 2^-1075; for
-// a >= 2^-900 that is far below the relative bound, and smaller magnitudes go to the
-// exact stage (this also keeps subnormal arithmetic, which is slow, off the hot path).
+// Certified sign of a dot product v = sum coefficient_c q_c computed in double, whose
+// monomial magnitudes sum to a, at the given rounding depth (of the coefficients plus
+// the dot product's own d + 1 roundings); kUnknownSign when not certain. Its last
+// products are not BoundedDouble products, so the underflow guard is applied to their
+// sum a (filter::is_certifiable): smaller magnitudes go to the exact stage, which
+// also keeps slow subnormal arithmetic off the hot path.
 inline int certified(double v, double a, int depth) {
-  if (!(a >= 0x1p-900 && a <= DBL_MAX) || depth >= Approx::kUnsafe) return Approx::kUnknownSign;
-  const double err = a * (static_cast<double>(depth + 3) * kUnit) * 1.01;
-  if (v > err) return 1;
-  if (v < -err) return -1;
-  return Approx::kUnknownSign;
+  if (depth >= BoundedDouble::kUnsafe) return BoundedDouble::kUnknownSign;
+  return filter::certified_sign(v, a, depth + 1);
 }
 
 // One wrap's pencil (see wrap_kernel, step 1a): the rotation's vertical normal nn
@@ -93,11 +96,11 @@ template <int D, class V, class M>
     const V n_bound = pencil.n_mag * qn;
     const V en = n_bound * pencil.n_eps;
     const V h_bound = pencil.h_mag_d * q2 + pencil.h_mag * qn;
-    const V eh = h_bound * ((pencil.h_depth_base + qdepth) * (kUnit * 1.01));
+    const V eh = h_bound * ((pencil.h_depth_base + qdepth) * (kUnit * 1.01));  // relative_error, per lane
     const V h_low = h - eh;
     const V lo_num = (h_low > 0 ? h_low : 0.0) * (1 - 1e-12), lo_den = n + en;
-    const M n_safe = (n_bound >= 0x1p-900) & (n_bound <= DBL_MAX);
-    const M h_safe = (h_bound >= 0x1p-900) & (h_bound <= DBL_MAX);
+    const M n_safe = (n_bound >= filter::kUnderflowGuard) & (n_bound <= DBL_MAX);  // is_certifiable, per lane
+    const M h_safe = (h_bound >= filter::kUnderflowGuard) & (h_bound <= DBL_MAX);
     const M wrong_side = n < -en;
     const M after_best = h_safe & (lo_den > 0) & (lo_num > u_best * lo_den * (1 + 1e-15));
     const M r = n_safe & (wrong_side | after_best);
@@ -222,9 +225,17 @@ std::uint32_t StarWalker::TupleSet::position(const std::uint32_t* key, std::uint
 
 StarWalker::StarWalker(const KdTree& tree, StarOptions options)
     : tree_(tree), ps_(tree.points()), predicates_(ps_), options_(options), d_(ps_.dimension()) {
+  if (d_ == 2) ring_walk_ = std::make_unique<RingWalk>(*this);
+  // The walker's one dispatch from the runtime dimension to its compiled kernels.
+  detail::dispatch_dimension(d_, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D >= 2) kernels_ = {&StarWalker::wrap_kernel<D>, &StarWalker::simplex_plane_kernel<D>};
+  });
   minors_.resize(std::size_t{1} << (d_ + 1));
   directions_.resize(static_cast<std::size_t>(d_ * d_));
 }
+
+StarWalker::~StarWalker() = default;
 
 void StarWalker::load_candidates(std::size_t k) {
   ++stats_.candidate_loads;
@@ -281,7 +292,7 @@ void StarWalker::load_candidates(std::size_t k) {
     for (int c = 0; c < d_; ++c) column[static_cast<std::size_t>(c) * cand_stride_] = q[c];
     column[static_cast<std::size_t>(d_) * cand_stride_] = norm2;
     column[static_cast<std::size_t>(d_ + 1) * cand_stride_] = cand_norm_[j];
-    column[static_cast<std::size_t>(d_ + 2) * cand_stride_] = depth >= Approx::kUnsafe ? kInf : depth;
+    column[static_cast<std::size_t>(d_ + 2) * cand_stride_] = depth >= BoundedDouble::kUnsafe ? kInf : depth;
     ++j;
   }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
@@ -297,177 +308,70 @@ void StarWalker::relative_row(const double* pp, double* q, double& norm2, int& d
   // A sum of d squares of rounded differences has depth d + 2; one more covers a
   // square that underflowed (absolute error 2^-1075, relatively negligible once
   // norm2 >= 2^-900). Below that, the exact stage decides.
-  depth = norm2 >= 0x1p-900 ? d_ + 3 : Approx::kUnsafe;
+  depth = norm2 >= filter::kUnderflowGuard ? d_ + 3 : BoundedDouble::kUnsafe;
 }
 
-void StarWalker::lifted_row(const double* q, double norm2, int depth, Approx* out) const {
-  for (int c = 0; c < d_; ++c) out[c] = Approx{q[c], std::fabs(q[c]), 1};  // one rounding: p - x
-  out[d_] = Approx{norm2, norm2, depth};
+void StarWalker::lifted_row(const double* q, double norm2, int depth, BoundedDouble* out) const {
+  for (int c = 0; c < d_; ++c) out[c] = BoundedDouble{q[c], std::fabs(q[c]), 1};  // one rounding: p - x
+  out[d_] = BoundedDouble{norm2, norm2, depth};
 }
 
-// The one dispatch point from the runtime dimension to the compiled kernels.
-std::int64_t StarWalker::wrap(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane) {
-  switch (d_) {
-    case 2: return wrap_kernel<2>(pivot, side, reference, hit_plane);
-    case 3: return wrap_kernel<3>(pivot, side, reference, hit_plane);
-    case 4: return wrap_kernel<4>(pivot, side, reference, hit_plane);
-    case 5: return wrap_kernel<5>(pivot, side, reference, hit_plane);
-    case 6: return wrap_kernel<6>(pivot, side, reference, hit_plane);
-    case 7: return wrap_kernel<7>(pivot, side, reference, hit_plane);
-    default: return wrap_kernel<8>(pivot, side, reference, hit_plane);
-  }
+StarWalker::WrapResult StarWalker::wrap(const Row* pivot, Side side, const BoundedDouble* reference, BoundedDouble* hit_plane) {
+  return (this->*kernels_.wrap)(pivot, side, reference, hit_plane);
 }
 
+// One wrap of StarWalker::wrap_kernel: its state and its steps, in the order the
+// kernel runs them. Everything a step shares with another lives here, so each step
+// reads on its own; the walker's candidate arrays, caches and counters are read
+// through `w` (a nested class: the walker's private members are its own).
 template <int D>
-std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane) {
-  static_assert(D >= 2 && D <= kMaxDimension);
-  ++stats_.wraps;
-  constexpr int d = D;
-  constexpr int cols = d + 1;
-  constexpr unsigned all = (1u << cols) - 1u;
+class StarWalker::WrapState {
+ public:
+  static constexpr int d = D;
+  static constexpr int cols = D + 1;
+  static constexpr unsigned all = (1u << cols) - 1u;
 
-  // Minors of the pivot rows, shared by the spatial normal and every lifted plane.
-  std::array<Approx, (D - 1) * (D + 1)> pivot_rows;
-  for (int r = 0; r < d - 1; ++r) approx_row(ps_, x_, pivot[r], cols, &pivot_rows[r * cols]);
-  minors_table_fixed<D - 1, D + 1>(pivot_rows.data(), minors_.data());
+  WrapState(StarWalker& walker, const Row* pivot_rows) : w(walker), pivot(pivot_rows), x(walker.ps_.point(walker.x_)) {}
 
-  // Spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
-  std::array<Approx, kMaxDimension> normal;
-  int normal_depth = 0;
-  const unsigned spatial = (1u << d) - 1u;
-  for (int c = 0; c < d; ++c) {
-    const Approx& m = minors_[spatial ^ (1u << c)];
-    normal[c] = ((d - 1 + c) % 2 == 0) ? m : -m;
-    normal_depth = std::max(normal_depth, normal[c].n);
-  }
-  std::array<Row, kMaxCols> rows;  // scratch for the exact stage
-  std::copy(pivot, pivot + d - 1, rows.begin());
-
-  auto spatial_side = [&](const double* q, std::uint32_t id) {
-    double v = 0, a = 0;
+  // 0. The minors of the pivot rows, shared by the spatial normal and every lifted
+  //    plane; the spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
+  void pivot_minors() {
+    std::array<BoundedDouble, (D - 1) * (D + 1)> pivot_table;
+    for (int r = 0; r < d - 1; ++r) approx_row(w.ps_, w.x_, pivot[r], cols, &pivot_table[r * cols]);
+    minors_table_fixed<D - 1, D + 1>(pivot_table.data(), w.minors_.data());
+    constexpr unsigned spatial = (1u << d) - 1u;
+    normal_depth = 0;
     for (int c = 0; c < d; ++c) {
-      v += normal[c].v * q[c];
-      a += normal[c].a * std::fabs(q[c]);
+      const BoundedDouble& m = w.minors_[spatial ^ (1u << c)];
+      normal[c] = ((d - 1 + c) % 2 == 0) ? m : -m;
+      normal_depth = std::max(normal_depth, normal[c].depth);
     }
-    const int s = certified(v, a, normal_depth + d + 3);
-    if (s != Approx::kUnknownSign) return s;
-    // Exactly on the hyperplane without the exact stage: every term is zero because
-    // its normal component is exactly zero (no monomial survives: a == 0 at a safe
-    // depth) or the point shares x's coordinate (fl(p - x) == 0 iff p == x). Grids
-    // meet this all the time: pivots on an axis-aligned face give an axis-aligned
-    // normal, and the face's other points lie on it.
-    if (a == 0 && normal_depth < Approx::kUnsafe) {
-      bool zero = true;
-      for (int c = 0; c < d; ++c) zero &= normal[c].a == 0 || q[c] == 0;
-      if (zero) return 0;
-    }
-    ++stats_.exact_fallbacks;
-    rows[d - 1] = Row::of_point(id);
-    return predicates_.spatial_sign_exact(x_, std::span<const Row>(rows.data(), d));
-  };
-  auto is_pivot = [&](std::uint32_t id) {
-    for (int r = 0; r < d - 1; ++r) {
-      if (pivot[r].point == id) return true;
-    }
-    return false;
-  };
-
-  const double* x = ps_.point(x_);
-  int sigma = 0;
-  if (side.away_from >= 0) {
-    std::array<double, kMaxDimension> q;
-    const double* o = ps_.point(static_cast<std::size_t>(side.away_from));
-    for (int c = 0; c < d; ++c) q[c] = o[c] - x[c];
-    sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(side.away_from));
-  } else {
-    // Towards the spoke direction w (exact doubles, so one rounding less than q).
-    double v = 0, a = 0;
-    for (int c = 0; c < d; ++c) {
-      v += normal[c].v * side.toward[c];
-      a += normal[c].a * std::fabs(side.toward[c]);
-    }
-    sigma = certified(v, a, normal_depth + d + 2);
-    if (sigma == Approx::kUnknownSign) {
-      rows[d - 1] = Row::of_direction(side.toward);
-      sigma = predicates_.spatial_sign_exact(x_, std::span<const Row>(rows.data(), d));
-    }
-    sigma *= side.reverse ? -1 : 1;
+    std::copy(pivot, pivot + d - 1, rows.begin());
   }
 
-  if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return -2;
-
-  // The lifted hyperplane through the pivot and the current best point, as the
-  // cofactors of the query row of det[pivot; best; query].
-  std::int64_t best_id = -1;
-  std::array<Approx, kMaxCols> plane;
-  int plane_depth = 0;
-  double next_exit_test = kInf;
-  // The cofactors of the query row of det[pivot; b; query]: the plane through the
-  // lifted pivot, x and b.
-  auto plane_through = [&](const Approx* b, Approx* out, int& depth) {
-    depth = 0;
-    for (int c = 0; c < cols; ++c) {
-      // M_c = det[pivot; best] without column c, expanded along the best row.
-      Approx m{};
-      int t = 0;
-      for (int c2 = 0; c2 < cols; ++c2) {
-        if (c2 == c) continue;
-        const Approx term = b[c2] * minors_[all ^ (1u << c) ^ (1u << c2)];
-        const bool plus = ((d - 1 + t) % 2 == 0);
-        m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
-        ++t;
+  // The side of the pivot's spatial hyperplane the wrap turns to (sigma).
+  void orient(Side side) {
+    if (side.away_from >= 0) {
+      std::array<double, kMaxDimension> q;
+      const double* o = w.ps_.point(static_cast<std::size_t>(side.away_from));
+      for (int c = 0; c < d; ++c) q[c] = o[c] - x[c];
+      sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(side.away_from));
+    } else {
+      // Towards the spoke direction (exact doubles, so one rounding less than q).
+      double v = 0, a = 0;
+      for (int c = 0; c < d; ++c) {
+        v += normal[c].value * side.toward[c];
+        a += normal[c].magnitude * std::fabs(side.toward[c]);
       }
-      out[c] = ((d + c) % 2 == 0) ? m : -m;
-      depth = std::max(depth, out[c].n);
+      sigma = certified(v, a, normal_depth + d + 2);
+      if (sigma == BoundedDouble::kUnknownSign) {
+        rows[d - 1] = Row::of_direction(side.toward);
+        sigma = w.predicates_.spatial_sign_exact(w.x_, std::span<const Row>(rows.data(), d));
+      }
+      sigma *= side.reverse ? -1 : 1;
     }
-  };
-  auto build_plane = [&](std::uint32_t id, const Approx* b) {
-    best_id = id;
-    plane_through(b, plane.data(), plane_depth);
-    double s = 0;
-    for (int c = 0; c < d; ++c) s += plane[c].v * plane[c].v;
-    next_exit_test = s / (plane[d].v * plane[d].v) * (1 + 1e-9);  // |slope|^2 = (2r)^2, estimate
-  };
-  auto build_plane_from_candidate = [&](std::size_t j) {
-    std::array<Approx, kMaxCols> b;
-    lifted_row(&cand_q_[j * d], cand_norm2_[j], cand_depth_[j], b.data());
-    build_plane(cand_id_[j], b.data());
-  };
-  auto build_plane_from_point = [&](std::uint32_t id) {
-    std::array<Approx, kMaxCols> b;
-    approx_row(ps_, x_, Row::of_point(id), cols, b.data());
-    build_plane(id, b.data());
-  };
-  // Side of the lifted point (q, norm2) relative to the plane: > 0 above, < 0 below
-  // (the plane's "up" cofactor plane[d] has the sign sigma).
-  auto lifted_side = [&](const double* q, double norm2, int norm2_depth, std::uint32_t id) {
-    double v = plane[d].v * norm2, a = plane[d].a * norm2;
-    for (int c = 0; c < d; ++c) {
-      v += plane[c].v * q[c];
-      a += plane[c].a * std::fabs(q[c]);
-    }
-    const int depth = norm2_depth >= Approx::kUnsafe ? Approx::kUnsafe : plane_depth + norm2_depth + d + 4;
-    int s = certified(v, a, depth);
-    if (s == Approx::kUnknownSign || s == 0) {
-      ++stats_.exact_fallbacks;
-      rows[d - 1] = Row::of_point(static_cast<std::uint32_t>(best_id));
-      rows[d] = Row::of_point(id);
-      s = predicates_.lifted_sign_exact(x_, std::span<const Row>(rows.data(), cols), true);
-    }
-    return s * sigma;
-  };
-  // Certifies that every point with exact |q|^2 >= bound is strictly above the
-  // plane: above holds where |q| > |slope| (the plane is h = slope . q through x).
-  auto certified_beyond = [&](double bound) {
-    if (bound == kInf) return true;
-    Approx e = Approx::exact(bound) * plane[d] * plane[d];
-    for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
-    return e.certified_sign() == 1;
-  };
-
-  const std::size_t count = cand_id_.size();
-  bool exited = false;
-  std::size_t j = 0;  // the next candidate the certified scan (1b) looks at
+    SPOKEMESH_INVARIANT(sigma == 1 || sigma == -1, "a wrap's side must be strict (the pivot spans a hyperplane)");
+  }
 
   // 1a. The pencil scan. Every hyperplane through the lifted pivot (and x) is
   //     h - lambda (n, 0): h the plane through the pivot and a reference row that
@@ -479,154 +383,267 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
   //     bounds, instead of a plane rebuilt at every improvement. Only candidates whose
   //     brackets reach below the best upper bound are compared exactly afterwards.
   //     Sums of |coefficient| * |q_c| are bounded by Cauchy-Schwarz, ||coeff|| |q|.
-  {
+  //     Leaves `next` at the first candidate the certified scan must still look at.
+  void pencil_scan(const BoundedDouble* reference) {
     int h_depth = 0;
-    for (int c = 0; c < cols; ++c) h_depth = std::max(h_depth, reference[c].n);
+    for (int c = 0; c < cols; ++c) h_depth = std::max(h_depth, reference[c].depth);
     const int up = reference[d].certified_sign();
-    if ((up == 1 || up == -1) && h_depth < Approx::kUnsafe && normal_depth < Approx::kUnsafe) {
-      std::array<double, kMaxCols> h;
-      std::array<double, kMaxDimension> nn;
-      double h_mag2 = 0, n_mag2 = 0;
-      for (int c = 0; c < d; ++c) {
-        h[c] = up * reference[c].v;
-        nn[c] = sigma * normal[c].v;
-        h_mag2 += reference[c].a * reference[c].a;
-        n_mag2 += normal[c].a * normal[c].a;
-      }
-      h[d] = up * reference[d].v;
-      const double h_mag_d = reference[d].a;
-      const double h_mag = std::sqrt(h_mag2) * (1 + 1e-12), n_mag = std::sqrt(n_mag2) * (1 + 1e-12);
-      // certified()'s error factors for the two dot products (see spatial_side and
-      // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
-      const double n_eps = static_cast<double>(normal_depth + d + 3 + 3) * kUnit * 1.01;
-      const int h_depth_base = h_depth + d + 4 + 3;  // plus the candidate's |q|^2 depth
-      double u_best = kInf;
-      std::int64_t best_j = -1;
-      contenders_.clear();
-      const Pencil pencil{nn.data(), h.data(), n_mag, h_mag, h_mag_d, n_eps, static_cast<double>(h_depth_base)};
-      const PencilFilter filter = pencil_filter<D>();
-      std::array<double, kPencilChunk> nvs, hvs;
-      std::array<std::uint8_t, kPencilChunk> keep;
-      // Chunk by chunk: the filter rejects most candidates branch-free; the rest are
-      // bracketed one by one. Every candidate before j is a contender or certainly
-      // not the first hit, which is all step 1b relies on.
-      bool stopped = false;
-      while (j < count && !stopped) {
-        if (best_j >= 0 && cand_lower_[j] > next_exit_test) break;  // estimate; certified below
-        const std::size_t chunk = j, limit = std::min(kPencilChunk, count - j);
-        const std::size_t kept =
-            filter(&cand_block_[chunk], cand_stride_, pencil, u_best, limit, nvs.data(), hvs.data(), keep.data());
-        stats_.candidate_tests += limit;
-        j = chunk + limit;
-        for (std::size_t k = 0; k < kept; ++k) {
-          const std::size_t i = chunk + keep[k];
-          if ((best_j >= 0 && cand_lower_[i] > next_exit_test) || cand_depth_[i] >= Approx::kUnsafe) {
-            j = i;  // step 1b goes on from here
-            stopped = true;
-            break;
-          }
-          const std::uint32_t id = cand_id_[i];
-          const double norm2 = cand_norm2_[i], norm = cand_norm_[i];
-          const double nv = nvs[keep[k]], hv = hvs[keep[k]];
-          // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
-          // uncertain branch has to skip the pivot explicitly.
-          const double n_bound = n_mag * norm;
-          const double en = n_bound * n_eps;
-          bool n_certain = n_bound >= 0x1p-900 && n_bound <= DBL_MAX;
-          if (n_certain && nv < -en) continue;
-          if (!n_certain || !(nv > en)) {
-            if (is_pivot(id) || spatial_side(&cand_q_[i * d], id) != sigma) continue;  // decided exactly
-            n_certain = false;
-          }
-          const double h_bound = h_mag_d * norm2 + h_mag * norm;
-          double lo = 0, hi = kInf;
-          if (h_bound >= 0x1p-900 && h_bound <= DBL_MAX && (n_certain || nv + en > 0)) {
-            const double eh = h_bound * (static_cast<double>(h_depth_base + cand_depth_[i]) * kUnit * 1.01);
-            const double lo_den = nv + en;  // > 0
-            // As in pencil_filter: lo > u_best without a division (the 1e-15 covers
-            // the product's rounding; u_best = inf never rejects).
-            const double lo_num = std::max(0.0, hv - eh) * (1 - 1e-12);
-            if (lo_num > u_best * lo_den * (1 + 1e-15)) continue;
-            lo = lo_num / lo_den;
-            if (n_certain) hi = (hv + eh) / (nv - en) * (1 + 1e-12);
-          }
-          if (lo > u_best) continue;
-          contenders_.push_back({static_cast<std::uint32_t>(i), lo});
-          if (hi < u_best) {
-            u_best = hi;
-            best_j = static_cast<std::int64_t>(i);
-            // (2r)^2 of the plane through this candidate, estimated from lambda_c.
-            const double lambda = hv / nv;
-            double slope2 = 0;
-            for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
-            next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
-          }
+    if (!(up == 1 || up == -1) || h_depth >= BoundedDouble::kUnsafe || normal_depth >= BoundedDouble::kUnsafe) return;
+    std::array<double, kMaxCols> h;
+    std::array<double, kMaxDimension> nn;
+    double h_mag2 = 0, n_mag2 = 0;
+    for (int c = 0; c < d; ++c) {
+      h[c] = up * reference[c].value;
+      nn[c] = sigma * normal[c].value;
+      h_mag2 += reference[c].magnitude * reference[c].magnitude;
+      n_mag2 += normal[c].magnitude * normal[c].magnitude;
+    }
+    h[d] = up * reference[d].value;
+    const double h_mag_d = reference[d].magnitude;
+    const double h_mag = std::sqrt(h_mag2) * (1 + 1e-12), n_mag = std::sqrt(n_mag2) * (1 + 1e-12);
+    // certified()'s error factors for the two dot products (see spatial_side and
+    // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
+    const double n_eps = relative_error(normal_depth + d + 3 + 1);
+    // relative_error(h_depth + d + 4 + 1 + the candidate's |q|^2 depth) is
+    // (h_depth_base + that depth) u (1.01).
+    const int h_depth_base = h_depth + d + 4 + 1 + 2;
+    double u_best = kInf;
+    std::int64_t best_j = -1;
+    w.contenders_.clear();
+    const Pencil pencil{nn.data(), h.data(), n_mag, h_mag, h_mag_d, n_eps, static_cast<double>(h_depth_base)};
+    const PencilFilter filter = pencil_filter<D>();
+    std::array<double, kPencilChunk> nvs, hvs;
+    std::array<std::uint8_t, kPencilChunk> keep;
+    const std::size_t count = w.cand_id_.size();
+    // Chunk by chunk: the filter rejects most candidates branch-free; the rest are
+    // bracketed one by one. Every candidate before `next` is a contender or certainly
+    // not the first hit, which is all step 1b relies on.
+    bool stopped = false;
+    while (next < count && !stopped) {
+      if (best_j >= 0 && w.cand_lower_[next] > next_exit_test) break;  // estimate; certified below
+      const std::size_t chunk = next, limit = std::min(kPencilChunk, count - next);
+      const std::size_t kept =
+          filter(&w.cand_block_[chunk], w.cand_stride_, pencil, u_best, limit, nvs.data(), hvs.data(), keep.data());
+      w.stats_.candidate_tests += limit;
+      next = chunk + limit;
+      for (std::size_t k = 0; k < kept; ++k) {
+        const std::size_t i = chunk + keep[k];
+        if ((best_j >= 0 && w.cand_lower_[i] > next_exit_test) || w.cand_depth_[i] >= BoundedDouble::kUnsafe) {
+          next = i;  // step 1b goes on from here
+          stopped = true;
+          break;
+        }
+        const std::uint32_t id = w.cand_id_[i];
+        const double norm2 = w.cand_norm2_[i], norm = w.cand_norm_[i];
+        const double nv = nvs[keep[k]], hv = hvs[keep[k]];
+        // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
+        // uncertain branch has to skip the pivot explicitly.
+        const double n_bound = n_mag * norm;
+        const double en = n_bound * n_eps;
+        bool n_certain = is_certifiable(n_bound);
+        if (n_certain && nv < -en) continue;
+        if (!n_certain || !(nv > en)) {
+          if (is_pivot(id) || spatial_side(&w.cand_q_[i * d], id) != sigma) continue;  // decided exactly
+          n_certain = false;
+        }
+        const double h_bound = h_mag_d * norm2 + h_mag * norm;
+        double lo = 0, hi = kInf;
+        if (is_certifiable(h_bound) && (n_certain || nv + en > 0)) {
+          const double eh = h_bound * relative_error(h_depth_base - 2 + w.cand_depth_[i]);
+          const double lo_den = nv + en;  // > 0
+          // As in pencil_filter: lo > u_best without a division (the 1e-15 covers
+          // the product's rounding; u_best = inf never rejects).
+          const double lo_num = std::max(0.0, hv - eh) * (1 - 1e-12);
+          if (lo_num > u_best * lo_den * (1 + 1e-15)) continue;
+          lo = lo_num / lo_den;
+          if (n_certain) hi = (hv + eh) / (nv - en) * (1 + 1e-12);
+        }
+        if (lo > u_best) continue;
+        w.contenders_.push_back({static_cast<std::uint32_t>(i), lo});
+        if (hi < u_best) {
+          u_best = hi;
+          best_j = static_cast<std::int64_t>(i);
+          // (2r)^2 of the plane through this candidate, estimated from lambda_c.
+          const double lambda = hv / nv;
+          double slope2 = 0;
+          for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
+          next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
         }
       }
-      // The exact winner among the contenders still in reach of the best bracket
-      // (planes about one pivot are ordered, so one pass keeps the lowest).
-      if (!contenders_.empty()) {
-        const std::uint32_t first = best_j >= 0 ? static_cast<std::uint32_t>(best_j) : contenders_.front().index;
-        build_plane_from_candidate(first);
-        for (const Contender& k : contenders_) {
-          if (k.index == first || k.lower > u_best) continue;
-          const std::size_t kj = k.index;
-          if (lifted_side(&cand_q_[kj * d], cand_norm2_[kj], cand_depth_[kj], cand_id_[kj]) < 0) {
-            build_plane_from_candidate(kj);
-          }
+    }
+    // The exact winner among the contenders still in reach of the best bracket
+    // (planes about one pivot are ordered, so one pass keeps the lowest).
+    if (!w.contenders_.empty()) {
+      const std::uint32_t first = best_j >= 0 ? static_cast<std::uint32_t>(best_j) : w.contenders_.front().index;
+      take_candidate(first);
+      for (const Contender& k : w.contenders_) {
+        if (k.index == first || k.lower > u_best) continue;
+        if (lifted_side(&w.cand_q_[k.index * d], w.cand_norm2_[k.index], w.cand_depth_[k.index], w.cand_id_[k.index]) <
+            0) {
+          take_candidate(k.index);
         }
       }
     }
   }
 
-  // 1b. The certified scan: certifies the pencil scan's exit, then scans what
-  //     remains of the cached candidates (all of them when the pencil scan could not
-  //     run), nearest first, rebuilding the plane at each improvement; stops once the
-  //     best sphere is certified to lie within the distance scanned.
-  for (; j < count && !exited; ++j) {
-    if (best_id >= 0 && cand_lower_[j] > next_exit_test) {
-      if (certified_beyond(cand_lower_[j])) {
-        exited = true;
-        break;
+  // 1b. The certified scan: certifies the pencil scan's exit, then scans what remains
+  //     of the cached candidates (all of them when the pencil scan could not run),
+  //     nearest first, rebuilding the plane at each improvement; stops once the best
+  //     sphere is certified to lie within the distance scanned. True when the
+  //     candidates decide the wrap (no tree query needed).
+  bool certified_scan() {
+    const std::size_t count = w.cand_id_.size();
+    for (; next < count; ++next) {
+      if (best_id >= 0 && w.cand_lower_[next] > next_exit_test) {
+        if (certified_beyond(w.cand_lower_[next])) return true;
+        next_exit_test = w.cand_lower_[next] * (1 + 1e-6);
       }
-      next_exit_test = cand_lower_[j] * (1 + 1e-6);
+      const std::uint32_t id = w.cand_id_[next];
+      if (is_pivot(id)) continue;
+      ++w.stats_.candidate_tests;
+      const double* q = &w.cand_q_[next * d];
+      if (spatial_side(q, id) != sigma) continue;
+      if (best_id < 0 || lifted_side(q, w.cand_norm2_[next], w.cand_depth_[next], id) < 0) take_candidate(next);
     }
-    const std::uint32_t id = cand_id_[j];
-    if (is_pivot(id)) continue;
-    ++stats_.candidate_tests;
-    const double* q = &cand_q_[j * d];
-    if (spatial_side(q, id) != sigma) continue;
-    if (best_id < 0 || lifted_side(q, cand_norm2_[j], cand_depth_[j], id) < 0) build_plane_from_candidate(j);
+    if (best_id >= 0 && certified_beyond(w.r2_certified_)) return true;
+    return w.r2_certified_ == kInf;  // every point was scanned
   }
-  // The hit's plane, oriented so that every point is on or above it: the next
-  // wraps' reference.
-  auto hit = [&] {
-    if (best_id >= 0) {
-      for (int c = 0; c < cols; ++c) hit_plane[c] = sigma > 0 ? plane[c] : -plane[c];
-    }
-    return best_id;
-  };
-  if (exited || (best_id >= 0 && certified_beyond(r2_certified_))) return hit();
-  if (r2_certified_ == kInf) return hit();  // every point was scanned
 
-  // 2. Beyond the candidates, ask the tree. With no eligible candidate, any point
-  //    strictly on side sigma (none: the facet is on the hull).
-  if (best_id < 0) {
-    ++stats_.hull_queries;
-    const std::int64_t beyond = tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
-      if (p == x_ || is_pivot(p)) return 0;  // on the hyperplane
+  // 2. No eligible candidate: any point of the tree strictly on side sigma. False
+  //    when there is none (the facet is on the hull: the Voronoi edge is unbounded).
+  bool hull_query() {
+    ++w.stats_.hull_queries;
+    const std::int64_t beyond = w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
+      if (p == w.x_ || is_pivot(p)) return 0;  // on the hyperplane
       std::array<double, kMaxDimension> q;
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       return spatial_side(q.data(), p);
     });
-    if (beyond < 0) return -1;
-    build_plane_from_point(static_cast<std::uint32_t>(beyond));
+    if (beyond < 0) return false;
+    take_point(static_cast<std::uint32_t>(beyond));
+    return true;
   }
-  // 3. Any point below the plane is hit before the best: take it and ask again.
-  //    The lowered plane stays above everything already rejected (the planes about a
+
+  // 3. Any point below the plane is hit before the best: take it and ask again. The
+  //    lowered plane stays above everything already rejected (the planes about a
   //    fixed pivot form a pencil), so this terminates with the first hit.
-  for (;;) {
-    ++stats_.sphere_queries;
+  void sphere_queries() {
+    for (;;) {
+      ++w.stats_.sphere_queries;
+      const std::int64_t below = first_point_below();
+      if (below < 0) return;
+      ++w.missed_candidates_;
+      take_point(static_cast<std::uint32_t>(below));
+    }
+  }
+
+  bool has_best() const { return best_id >= 0; }
+
+  // The wrap's answer; writes the hit's plane, oriented so that every point is on or
+  // above it (the next wraps' reference).
+  WrapResult result(BoundedDouble* hit_plane) const {
+    if (best_id < 0) return WrapResult::unbounded();
+    for (int c = 0; c < cols; ++c) hit_plane[c] = sigma > 0 ? plane[c] : -plane[c];
+    return WrapResult::hit(static_cast<std::uint32_t>(best_id));
+  }
+
+ private:
+  // Side of the pivot's spatial hyperplane q = p - x lies on (0: on it).
+  int spatial_side(const double* q, std::uint32_t id) {
+    double v = 0, a = 0;
+    for (int c = 0; c < d; ++c) {
+      v += normal[c].value * q[c];
+      a += normal[c].magnitude * std::fabs(q[c]);
+    }
+    const int s = certified(v, a, normal_depth + d + 3);
+    if (s != BoundedDouble::kUnknownSign) return s;
+    // Exactly on the hyperplane without the exact stage: every term is zero because
+    // its normal component is exactly zero (no monomial survives: magnitude 0 at a
+    // safe depth) or the point shares x's coordinate (fl(p - x) == 0 iff p == x).
+    // Grids meet this all the time: pivots on an axis-aligned face give an
+    // axis-aligned normal, and the face's other points lie on it.
+    if (a == 0 && normal_depth < BoundedDouble::kUnsafe) {
+      bool zero = true;
+      for (int c = 0; c < d; ++c) zero &= normal[c].magnitude == 0 || q[c] == 0;
+      if (zero) return 0;
+    }
+    ++w.stats_.exact_fallbacks;
+    rows[d - 1] = Row::of_point(id);
+    return w.predicates_.spatial_sign_exact(w.x_, std::span<const Row>(rows.data(), d));
+  }
+
+  bool is_pivot(std::uint32_t id) const {
+    for (int r = 0; r < d - 1; ++r) {
+      if (pivot[r].point == id) return true;
+    }
+    return false;
+  }
+
+  // The best point so far and its plane: the cofactors of the query row of
+  // det[pivot; b; query], i.e. the plane through the lifted pivot, x and b.
+  void take(std::uint32_t id, const BoundedDouble* b) {
+    best_id = id;
+    plane_depth = 0;
+    for (int c = 0; c < cols; ++c) {
+      // M_c = det[pivot; b] without column c, expanded along b's row.
+      BoundedDouble m{};
+      int t = 0;
+      for (int c2 = 0; c2 < cols; ++c2) {
+        if (c2 == c) continue;
+        const BoundedDouble term = b[c2] * w.minors_[all ^ (1u << c) ^ (1u << c2)];
+        const bool plus = ((d - 1 + t) % 2 == 0);
+        m = (t == 0) ? (plus ? term : -term) : (plus ? m + term : m - term);
+        ++t;
+      }
+      plane[c] = ((d + c) % 2 == 0) ? m : -m;
+      plane_depth = std::max(plane_depth, plane[c].depth);
+    }
+    double s = 0;
+    for (int c = 0; c < d; ++c) s += plane[c].value * plane[c].value;
+    next_exit_test = s / (plane[d].value * plane[d].value) * (1 + 1e-9);  // |slope|^2 = (2r)^2, estimate
+  }
+  void take_candidate(std::size_t j) {
+    std::array<BoundedDouble, kMaxCols> b;
+    w.lifted_row(&w.cand_q_[j * d], w.cand_norm2_[j], w.cand_depth_[j], b.data());
+    take(w.cand_id_[j], b.data());
+  }
+  void take_point(std::uint32_t id) {
+    std::array<BoundedDouble, kMaxCols> b;
+    approx_row(w.ps_, w.x_, Row::of_point(id), cols, b.data());
+    take(id, b.data());
+  }
+
+  // Side of the lifted point (q, norm2) relative to the best plane: > 0 above, < 0
+  // below (the plane's "up" cofactor plane[d] has the sign sigma).
+  int lifted_side(const double* q, double norm2, int norm2_depth, std::uint32_t id) {
+    double v = plane[d].value * norm2, a = plane[d].magnitude * norm2;
+    for (int c = 0; c < d; ++c) {
+      v += plane[c].value * q[c];
+      a += plane[c].magnitude * std::fabs(q[c]);
+    }
+    const int depth = norm2_depth >= BoundedDouble::kUnsafe ? BoundedDouble::kUnsafe : plane_depth + norm2_depth + d + 4;
+    int s = certified(v, a, depth);
+    if (s == BoundedDouble::kUnknownSign || s == 0) {
+      ++w.stats_.exact_fallbacks;
+      rows[d - 1] = Row::of_point(static_cast<std::uint32_t>(best_id));
+      rows[d] = Row::of_point(id);
+      s = w.predicates_.lifted_sign_exact(w.x_, std::span<const Row>(rows.data(), cols), true);
+    }
+    return s * sigma;
+  }
+
+  // Certifies that every point with exact |q|^2 >= bound is strictly above the best
+  // plane: above holds where |q| > |slope| (the plane is h = slope . q through x).
+  bool certified_beyond(double bound) const {
+    if (bound == kInf) return true;
+    BoundedDouble e = BoundedDouble::exact(bound) * plane[d] * plane[d];
+    for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
+    return e.certified_sign() == 1;
+  }
+
+  // A point of the tree strictly below the best plane (inside its sphere), not among
+  // the scanned candidates; -1 when there is none.
+  std::int64_t first_point_below() {
     // The points below the plane are those inside its sphere: with O = sigma * plane
     // (O_d > 0), centre m = -O / (2 O_d) relative to x and radius |m|. Boxes are
     // pruned by their distance from the computed centre, against a radius enlarged
@@ -634,27 +651,26 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
     // |O_c - true| <= e_c, |O_d - true| <= e_d and A = O_d - e_d > 0,
     // |dm_c| <= (e_c / A + |O_c| e_d / (A O_d)) / 2, plus the roundings of m and x + m.
     std::array<double, kMaxDimension> centre{};  // absolute coordinates
-    double r2_outer = kInf;                    // prune beyond this; kInf: no pruning
-    {
-      const double o_d = std::fabs(plane[d].v);
-      const double e_d = plane[d].a * (static_cast<double>(plane[d].n + 2) * kUnit) * 1.01;
-      const double A = o_d - e_d;
-      if (A > 0 && plane_depth < Approx::kUnsafe) {
-        double m2 = 0, delta = 0, c_max = 0;
-        for (int c = 0; c < d; ++c) {
-          const double o_c = sigma * plane[c].v;
-          const double e_c = plane[c].a * (static_cast<double>(plane[c].n + 2) * kUnit) * 1.01;
-          const double m = -o_c / (2 * o_d);
-          m2 += m * m;
-          delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * kUnit;
-          centre[c] = x[c] + m;
-          c_max = std::max(c_max, std::fabs(centre[c]));
-        }
-        delta += c_max * 2 * kUnit * d;
-        const double r = std::sqrt(m2) * (1 + 1e-12) + 2 * delta;
-        if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
+    double r2_outer = kInf;                       // prune beyond this; kInf: no pruning
+    const double o_d = std::fabs(plane[d].value);
+    const double e_d = filter::error_bound(plane[d].magnitude, plane[d].depth);
+    const double A = o_d - e_d;
+    if (A > 0 && plane_depth < BoundedDouble::kUnsafe) {
+      double m2 = 0, delta = 0, c_max = 0;
+      for (int c = 0; c < d; ++c) {
+        const double o_c = sigma * plane[c].value;
+        const double e_c = filter::error_bound(plane[c].magnitude, plane[c].depth);
+        const double m = -o_c / (2 * o_d);
+        m2 += m * m;
+        delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * kUnit;
+        centre[c] = x[c] + m;
+        c_max = std::max(c_max, std::fabs(centre[c]));
       }
+      delta += c_max * 2 * kUnit * d;
+      const double r = std::sqrt(m2) * (1 + 1e-12) + 2 * delta;
+      if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
     }
+    const double r2_certified = w.r2_certified_;
     auto may_contain = [&](const float* lo, const float* hi) {
       // Boxes inside the certified ball hold only scanned candidates, all above the
       // plane already (pencil argument above).
@@ -665,10 +681,10 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
         const double gap = std::max({lo[c] - centre[c], 0.0, centre[c] - hi[c]});
         near2 += gap * gap;
       }
-      return far2 * (1 + 1e-9) >= r2_certified_ && (r2_outer == kInf || near2 <= r2_outer);
+      return far2 * (1 + 1e-9) >= r2_certified && (r2_outer == kInf || near2 <= r2_outer);
     };
-    const std::int64_t below = tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
-      if (p == x_ || p == best_id || is_pivot(p)) return false;
+    return w.tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
+      if (p == w.x_ || p == best_id || is_pivot(p)) return false;
       if (r2_outer != kInf) {
         // A point is a box of its own: outside the enlarged sphere, certainly above.
         double near2 = 0;
@@ -678,23 +694,54 @@ std::int64_t StarWalker::wrap_kernel(const Row* pivot, Side side, const Approx* 
       std::array<double, kMaxDimension> q;
       double norm2;
       int depth;
-      relative_row(pp, q.data(), norm2, depth);
-      if (norm2 * (1 + 1e-9) < r2_certified_) return false;  // a scanned candidate
+      w.relative_row(pp, q.data(), norm2, depth);
+      if (norm2 * (1 + 1e-9) < r2_certified) return false;  // a scanned candidate
       return lifted_side(q.data(), norm2, depth, p) < 0;
     });
-    if (below < 0) return hit();
-    ++missed_candidates_;
-    build_plane_from_point(static_cast<std::uint32_t>(below));
   }
+
+  StarWalker& w;
+  const Row* pivot;  // d - 1 rows
+  const double* x;   // the seed's coordinates
+  std::array<BoundedDouble, kMaxDimension> normal;
+  int normal_depth = 0;
+  std::array<Row, kMaxCols> rows;  // scratch for the exact stage: the pivot, then two more
+  int sigma = 0;                   // the side turned to
+  // The best point so far (-1: none) and its lifted plane through the pivot and x.
+  std::int64_t best_id = -1;
+  std::array<BoundedDouble, kMaxCols> plane;
+  int plane_depth = 0;
+  double next_exit_test = kInf;  // estimated (2r)^2 of the best sphere: where scanning may stop
+  std::size_t next = 0;          // the next candidate the certified scan (1b) looks at
+};
+
+// A wrap is the steps of WrapState in order: the candidates decide it unless the
+// sphere of the best point reaches beyond them (or none was eligible), when the k-d
+// tree finishes it.
+template <int D>
+StarWalker::WrapResult StarWalker::wrap_kernel(const Row* pivot, Side side, const BoundedDouble* reference,
+                                   BoundedDouble* hit_plane) {
+  static_assert(D >= 2 && D <= kMaxDimension);
+  ++stats_.wraps;
+  WrapState<D> wrap(*this, pivot);
+  wrap.pivot_minors();
+  wrap.orient(side);
+  if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return WrapResult::cancelled();
+  wrap.pencil_scan(reference);
+  if (!wrap.certified_scan()) {
+    if (!wrap.has_best() && !wrap.hull_query()) return WrapResult::unbounded();
+    wrap.sphere_queries();
+  }
+  return wrap.result(hit_plane);
 }
 
-Status StarWalker::first_simplex(std::uint32_t* found, Approx* plane) {
+Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane) {
   const int d = d_;
   // Level 0's reference is the plane tangent to the paraboloid at x (h = 0), which
   // holds every direction row; each later level's is the previous level's hit.
-  std::array<Approx, kMaxCols> reference;
-  for (int c = 0; c < d; ++c) reference[c] = Approx::exact(0.0);
-  reference[d] = Approx::exact(1.0);
+  std::array<BoundedDouble, kMaxCols> reference;
+  for (int c = 0; c < d; ++c) reference[c] = BoundedDouble::exact(0.0);
+  reference[d] = BoundedDouble::exact(1.0);
   std::uint64_t state = detail::seed_state(options_.random_seed, x_);
   std::array<Row, kMaxCols> rows;
   for (int attempt = 0;; ++attempt) {
@@ -709,11 +756,13 @@ Status StarWalker::first_simplex(std::uint32_t* found, Approx* plane) {
     for (int i = 0; i < k; ++i) rows[r++] = Row::of_point(found[i]);
     for (int i = 0; i < d - 1 - k; ++i) rows[r++] = Row::of_direction(&directions_[i * d]);
     const double* spoke = &directions_[(d - 1 - k) * d];  // the side the spoke goes to
-    std::int64_t p = wrap(rows.data(), Side{.toward = spoke}, reference.data(), plane);
-    if (p == -1) p = wrap(rows.data(), Side{.toward = spoke, .reverse = true}, reference.data(), plane);
-    if (p == -2) return cancelled("star computation cancelled");
-    if (p < 0) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
-    found[k] = static_cast<std::uint32_t>(p);
+    WrapResult hit = wrap(rows.data(), Side{.toward = spoke}, reference.data(), plane);
+    if (hit.kind == WrapResult::Kind::kUnbounded) {
+      hit = wrap(rows.data(), Side{.toward = spoke, .reverse = true}, reference.data(), plane);
+    }
+    if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
+    if (!hit.is_hit()) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
+    found[k] = hit.point;
     std::copy(plane, plane + d + 1, reference.begin());
   }
   return Status::ok();
@@ -737,28 +786,20 @@ void StarWalker::prepare_wrap() {
   }
 }
 
-void StarWalker::simplex_plane(const std::uint32_t* ids, Approx* out) {
-  switch (d_) {
-    case 2: return simplex_plane_kernel<2>(ids, out);
-    case 3: return simplex_plane_kernel<3>(ids, out);
-    case 4: return simplex_plane_kernel<4>(ids, out);
-    case 5: return simplex_plane_kernel<5>(ids, out);
-    case 6: return simplex_plane_kernel<6>(ids, out);
-    case 7: return simplex_plane_kernel<7>(ids, out);
-    default: return simplex_plane_kernel<8>(ids, out);
-  }
+void StarWalker::simplex_plane(const std::uint32_t* ids, BoundedDouble* out) {
+  (this->*kernels_.simplex_plane)(ids, out);
 }
 
 template <int D>
-void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, Approx* out) {
+void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, BoundedDouble* out) {
   // The cofactors of the query row of det[ids; query], as plane_through in the wrap.
   constexpr int cols = D + 1;
   constexpr unsigned all = (1u << cols) - 1u;
-  std::array<Approx, D * cols> rows;
+  std::array<BoundedDouble, D * cols> rows;
   for (int r = 0; r < D; ++r) approx_row(ps_, x_, Row::of_point(ids[r]), cols, &rows[r * cols]);
   minors_table_fixed<D, cols>(rows.data(), minors_.data());
   for (int c = 0; c < cols; ++c) {
-    const Approx& m = minors_[all ^ (1u << c)];
+    const BoundedDouble& m = minors_[all ^ (1u << c)];
     out[c] = ((D + c) % 2 == 0) ? m : -m;
   }
 }
@@ -766,15 +807,14 @@ void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, Approx* out) {
 void StarWalker::prefetch(std::uint32_t seed) const {
   if (seed >= ps_.size()) return;
   __builtin_prefetch(ps_.point(seed));
-  if (d_ == 2) {
-    if (options_.edges != nullptr) options_.edges->prefetch(seed);
-  } else if (options_.facets != nullptr) {
-    options_.facets->prefetch_start(seed);
-  }
+  if (options_.cache == nullptr) return;
+  if (EdgeCache* edges = options_.cache->edges()) edges->prefetch(seed);
+  if (FacetCache* facets = options_.cache->facets()) facets->prefetch_start(seed);
 }
 
 void StarWalker::prefetch_start(std::uint32_t seed) const {
-  if (d_ != 2 && options_.facets != nullptr) options_.facets->prefetch_start_entry(seed);
+  if (options_.cache == nullptr) return;
+  if (FacetCache* facets = options_.cache->facets()) facets->prefetch_start_entry(seed);
 }
 
 Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
@@ -789,8 +829,8 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   loaded_ = false;
   missed_candidates_ = 0;
   grown_ = false;
-  if (d == 2) return compute_ring(out, part);
-  FacetCache* const cache = options_.facets;
+  if (ring_walk_) return ring_walk_->compute(out, part);
+  FacetCache* const cache = options_.cache != nullptr ? options_.cache->facets() : nullptr;
 
   work_.clear();
   work_planes_.clear();
@@ -803,7 +843,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   facet_seen_.reset(d - 1);
   std::array<std::uint32_t, kMaxCols> simplex{};
   std::array<std::uint32_t, kMaxCols> key{};
-  std::array<Approx, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
+  std::array<BoundedDouble, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
   std::size_t hull = 0;
   // The facet key of x's star: the d - 1 other vertices of a facet, ascending; the
   // cache's key is the whole facet, x included.
@@ -837,7 +877,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   // simplices along a spanning tree of their adjacency: m - 1 wraps or lookups for m
   // simplices, where walking every facet once took m d / 2 (3-d: a third fewer, 6-d:
   // two thirds).
-  auto add_simplex = [&](const std::uint32_t* ids, const Approx* with_plane) {
+  auto add_simplex = [&](const std::uint32_t* ids, const BoundedDouble* with_plane) {
     std::array<std::uint32_t, kMaxCols> sorted;
     std::copy(ids, ids + d, sorted.begin());
     detail::sort_small(sorted.data(), d);
@@ -976,22 +1016,20 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     const std::uint32_t apex = ids[k];
     drop(ids, k, others.data());
     prepare_wrap();
-    Approx* reference = &work_planes_[owner * (sd + 1)];
+    BoundedDouble* reference = &work_planes_[owner * (sd + 1)];
     if (plane_known_[owner] == 0) {
       simplex_plane(ids, reference);
       plane_known_[owner] = 1;
     }
     for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(others[j]);
-    const std::int64_t p = wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
-    if (p == -2) return cancelled("star computation cancelled");
-    if (cache != nullptr) {
-      record(others.data(), work_hashes_[at], apex, p < 0 ? FacetCache::kHull : static_cast<std::uint32_t>(p));
-    }
-    if (p < 0) {
+    const WrapResult hit = wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
+    if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
+    if (cache != nullptr) record(others.data(), work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetCache::kHull);
+    if (!hit.is_hit()) {
       ++hull;
       continue;
     }
-    others[d - 1] = static_cast<std::uint32_t>(p);
+    others[d - 1] = hit.point;
     add_simplex(others.data(), plane.data());
   }
 
@@ -1025,159 +1063,6 @@ void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   out.hull_facets = hull;
   out.simplices.resize(m * w);
   for (std::size_t i = 0; i < m; ++i) std::copy(&flat[order[i] * w], &flat[order[i] * w] + w, &out.simplices[i * w]);
-}
-
-// The star in 2-d. x's star is a ring of triangles about x, each two consecutive
-// neighbours and x (a path, ended by two hull edges, when x is on the convex hull), so
-// the walk keeps each neighbour with its two neighbours in the ring: the link of x. The
-// EdgeCache's posts fill in runs of the ring; a start by spokes fills one triangle.
-// Each neighbour with one side still unknown then wraps about its edge with x, away
-// from the side it knows, and the walk goes on from the point hit until it meets the
-// other end of the gap (known, so it stops) or the hull. Every triangle but the first
-// costs one wrap, every hull edge one wrap that finds nothing (as the general walk's
-// spanning tree, without its hashing: in a ring, the point hit is either new or the
-// end of an open gap).
-Status StarWalker::compute_ring(Star& out, StarPart part) {
-  constexpr std::uint32_t kUnknown = 0xFFFFFFFEu, kHull = EdgeCache::kHull;
-  EdgeCache* const cache = options_.edges;
-  ring_.clear();
-  ring_open_.clear();
-  ring_triangles_.clear();
-  std::size_t hull = 0;
-  // The node of a neighbour, added if new; only the posts' few ids are searched.
-  auto add_node = [&](std::uint32_t id) {
-    __builtin_prefetch(ps_.point(id));
-    if (cache != nullptr && cache->wanted(x_, id)) cache->prefetch(id, /*for_post=*/true);
-    ring_.push_back(RingNode{id, {kUnknown, kUnknown}, false});
-    return static_cast<std::uint32_t>(ring_.size() - 1);
-  };
-  auto node_of = [&](std::uint32_t id) {
-    for (std::uint32_t i = 0; i < ring_.size(); ++i) {
-      if (ring_[i].id == id) return i;
-    }
-    return add_node(id);
-  };
-  // Sets one unknown side of node u to `id` (a neighbour or kHull); false when u has no
-  // unknown side left, which exact answers never cause.
-  auto set_side = [&](std::uint32_t u, std::uint32_t id) {
-    RingNode& node = ring_[u];
-    const int k = node.side[0] == kUnknown ? 0 : node.side[1] == kUnknown ? 1 : -1;
-    if (k < 0) return false;
-    node.side[k] = id;
-    if (id == kHull) ++hull;
-    return true;
-  };
-  // The triangle x, u, v (nodes), unless known.
-  auto link = [&](std::uint32_t u, std::uint32_t v) {
-    const std::uint32_t a = ring_[u].id, b = ring_[v].id;
-    if (ring_[u].side[0] == b || ring_[u].side[1] == b) return true;
-    if (!set_side(u, b) || !set_side(v, a)) return false;
-    ring_triangles_.push_back(a < b ? std::uint64_t{a} << 32 | b : std::uint64_t{b} << 32 | a);
-    return true;
-  };
-  const auto inconsistent = [] { return internal_error("inconsistent triangles in a 2-d star (three on one edge)"); };
-
-  // A start: the posts of earlier stars, or recursive spokes.
-  std::array<Approx, 3> first_plane;
-  std::array<std::uint32_t, 2> first{kUnknown, kUnknown};  // the spoke triangle, if any
-  std::array<EdgeCache::Post, EdgeCache::kPostsPerPoint> posts;
-  const int post_count = cache != nullptr ? cache->read(x_, posts.data()) : 0;
-  for (int i = 0; i < post_count; ++i) {
-    const EdgeCache::Post& post = posts[static_cast<std::size_t>(i)];
-    const std::uint32_t from = node_of(post.from);
-    ring_[from].sender = true;
-    for (const std::uint32_t apex : {post.a, post.b}) {
-      if (apex == kHull) {
-        if (!set_side(from, kHull)) return inconsistent();
-      } else if (!link(from, node_of(apex))) {
-        return inconsistent();
-      }
-    }
-  }
-  if (post_count > 0) {
-    ++stats_.cached_starts;
-    stats_.cached_wraps += static_cast<std::uint64_t>(post_count);
-  } else {
-    ensure_candidates();
-    if (Status s = first_simplex(first.data(), first_plane.data()); !s.is_ok()) return s;
-    if (!link(add_node(first[0]), add_node(first[1]))) return inconsistent();
-  }
-  for (std::uint32_t i = 0; i < ring_.size(); ++i) {
-    if (ring_[i].side[1] == kUnknown) ring_open_.push_back(i);
-  }
-
-  // Close the gaps, each from one end.
-  std::array<Approx, 3> plane, hit_plane;
-  std::array<Row, 1> pivot;
-  for (const std::uint32_t start : ring_open_) {
-    if (ring_[start].side[1] != kUnknown) continue;  // closed from its gap's other end
-    std::uint32_t u = start;
-    std::uint32_t from = ring_[u].side[0];
-    {
-      const std::uint32_t ids[2] = {std::min(from, ring_[u].id), std::max(from, ring_[u].id)};
-      if (ids[0] == std::min(first[0], first[1]) && ids[1] == std::max(first[0], first[1])) {
-        plane = first_plane;
-      } else {
-        simplex_plane(ids, plane.data());
-      }
-    }
-    for (;;) {
-      prepare_wrap();
-      pivot[0] = Row::of_point(ring_[u].id);
-      const std::int64_t p = wrap(pivot.data(), Side{.away_from = from}, plane.data(), hit_plane.data());
-      if (p == -2) return cancelled("star computation cancelled");
-      if (p == -1) {
-        if (!set_side(u, kHull)) return inconsistent();
-        break;
-      }
-      const auto id = static_cast<std::uint32_t>(p);
-      std::uint32_t v = kUnknown;
-      for (const std::uint32_t o : ring_open_) {
-        if (ring_[o].id == id && ring_[o].side[1] == kUnknown) v = o;
-      }
-      if (v != kUnknown) {  // the gap's other end
-        if (!link(u, v)) return inconsistent();
-        break;
-      }
-      if (ring_.size() >= ps_.size()) return inconsistent();  // a ring longer than the set
-      v = add_node(id);
-      if (!link(u, v)) return inconsistent();
-      from = ring_[u].id;
-      u = v;
-      plane = hit_plane;
-    }
-  }
-
-  // Posts to the neighbours still to come: x's triangles on either side of each.
-  if (cache != nullptr) {
-    for (const RingNode& node : ring_) {
-      if (!node.sender && cache->wanted(x_, node.id)) cache->post(node.id, {x_, node.side[0], node.side[1]});
-    }
-  }
-
-  // Canonical output. The whole star as any star's; the owned triangles (the whole
-  // mesh's hot path) are x, low, high with x < low, so sorting (low, high) words orders
-  // them.
-  if (part == StarPart::kAll) {
-    work_.clear();
-    for (const std::uint64_t t : ring_triangles_) {
-      work_.push_back(static_cast<std::uint32_t>(t >> 32));
-      work_.push_back(static_cast<std::uint32_t>(t));
-    }
-    emit_canonical(hull, part, out);
-    return Status::ok();
-  }
-  std::sort(ring_triangles_.begin(), ring_triangles_.end());
-  out.seed = x_;
-  out.dimension = 2;
-  out.hull_facets = hull;
-  out.simplices.clear();
-  for (const std::uint64_t t : ring_triangles_) {
-    const auto low = static_cast<std::uint32_t>(t >> 32), high = static_cast<std::uint32_t>(t);
-    if (low < x_) continue;
-    out.simplices.insert(out.simplices.end(), {x_, low, high});
-  }
-  return Status::ok();
 }
 
 }  // namespace spokemesh

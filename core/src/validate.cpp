@@ -147,7 +147,7 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
   }
   mpq_class hull_volume = 0;
   const std::uint32_t reference = 0;
-  std::array<Approx, kMaxDimension> normal;
+  std::array<BoundedDouble, kMaxDimension> normal;
   for (const FacetRef& f : hull) {
     std::array<std::uint32_t, kMaxCols> key{};
     facet_key(f, key);

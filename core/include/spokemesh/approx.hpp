@@ -15,7 +15,7 @@
 // The walk itself is floating point: it only proposes neighbours. Every neighbour
 // reported is certified: a witness point W on the bisector of x and s (a point inside
 // the Voronoi facet, constructed exactly in rationals) with every other point strictly
-// farther from W than x and s are, decided by a filtered exact predicate (the Approx
+// farther from W than x and s are, decided by a filtered exact predicate (the BoundedDouble
 // bound of predicates.hpp, then GMP). Strict inequalities survive any infinitesimal
 // perturbation, so each reported edge is a Delaunay edge of the point set, whatever
 // the degeneracies: precision is 1 by construction, only recall is approximate.

@@ -202,4 +202,31 @@ class EdgeCache {
   MappedWords boxes_;
 };
 
+// The cache one whole-mesh run shares among its walkers: an EdgeCache in 2-d (posts
+// per point: the ring walk), a FacetCache otherwise. Both only save work.
+// Ownership: owns the cache it holds. Thread safety: as the cache it holds.
+class RunCache {
+ public:
+  // As FacetCache's constructor; d == 2 makes an EdgeCache.
+  RunCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+           std::uint32_t block = 1) {
+    if (d == 2) {
+      edges_ = std::make_unique<EdgeCache>(n, begin, end, max_bytes, block);
+    } else {
+      facets_ = std::make_unique<FacetCache>(d, n, begin, end, max_bytes, block);
+    }
+  }
+  bool enabled() const { return (facets_ && facets_->enabled()) || (edges_ && edges_->enabled()); }
+  std::size_t reserved_bytes() const {
+    return facets_ ? facets_->reserved_bytes() : edges_ ? edges_->reserved_bytes() : 0;
+  }
+  // The cache of this run's kind when enabled, else nullptr.
+  FacetCache* facets() const { return facets_ && facets_->enabled() ? facets_.get() : nullptr; }
+  EdgeCache* edges() const { return edges_ && edges_->enabled() ? edges_.get() : nullptr; }
+
+ private:
+  std::unique_ptr<FacetCache> facets_;
+  std::unique_ptr<EdgeCache> edges_;
+};
+
 }  // namespace spokemesh

@@ -78,7 +78,7 @@ class KdTree {
   // hyperplane's normal with certified error bounds; it prunes boxes only where no
   // point can be strictly on side sigma.
   template <class ExactSide>
-  std::int64_t any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const;
+  std::int64_t any_beyond(const double* x, const BoundedDouble* normal, int sigma, ExactSide&& exact_side) const;
 
   // First point p (in tree order) with accept(p), visiting only boxes for which
   // may_contain(lo, hi) holds (d lows, d highs: floats rounded outwards, read in
@@ -181,7 +181,7 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
 }
 
 template <class ExactSide>
-std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma, ExactSide&& exact_side) const {
+std::int64_t KdTree::any_beyond(const double* x, const BoundedDouble* normal, int sigma, ExactSide&& exact_side) const {
   const int d = points().dimension();
   auto on_side = [&](std::uint32_t p, const double* coords) {
     if constexpr (std::is_invocable_v<ExactSide&, std::uint32_t, const double*>) {
@@ -192,7 +192,7 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
     }
   };
   for (int c = 0; c < d; ++c) {
-    if (normal[c].n >= Approx::kUnsafe || !(normal[c].a <= DBL_MAX)) {
+    if (normal[c].depth >= BoundedDouble::kUnsafe || !(normal[c].magnitude <= DBL_MAX)) {
       return find_first([](const float*, const float*) { return true; }, on_side);
     }
   }
@@ -210,16 +210,16 @@ std::int64_t KdTree::any_beyond(const double* x, const Approx* normal, int sigma
     double bound = 0, magnitude = 0;
     bool nonpositive = true;
     for (int c = 0; c < d; ++c) {
-      const double t = sigma * normal[c].v;
+      const double t = sigma * normal[c].value;
       const bool is_flat = (flat >> c) & 1u;
       const double low = is_flat ? first[c] : static_cast<double>(lo[c]);
       const double high = is_flat ? first[c] : static_cast<double>(hi[c]);
       const double lo_off = low - x[c], hi_off = high - x[c];
       const double reach = std::max(std::fabs(lo_off), std::fabs(hi_off));
-      const double e = normal[c].a * (static_cast<double>(normal[c].n + 2) * 0x1p-53) * 1.01;
+      const double e = filter::error_bound(normal[c].magnitude, normal[c].depth);
       bound += std::max(t * lo_off, t * hi_off) + e * reach;
       magnitude += std::fabs(t) * reach + e * reach;
-      nonpositive &= normal[c].a == 0 || (low == x[c] && high == x[c]) || (t > e && high <= x[c]) ||
+      nonpositive &= normal[c].magnitude == 0 || (low == x[c] && high == x[c]) || (t > e && high <= x[c]) ||
                      (t < -e && low >= x[c]);
     }
     return !nonpositive && bound + 1e-12 * magnitude >= 0;

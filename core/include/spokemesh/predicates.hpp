@@ -7,7 +7,7 @@
 // The "spatial" determinant uses only the first d columns; the "lifted" determinant
 // uses all d + 1. Staging (as Shewchuk's orient3d -> orient3dadapt):
 //   1. filter: the determinant in double precision, carrying a rigorous bound on its
-//      rounding error (class Approx below);
+//      rounding error (class BoundedDouble below);
 //   2. exact: GMP rationals, when the filter cannot certify the sign;
 //   3. symbolic perturbation, when the exact lifted determinant is zero: point p's
 //      height becomes |p - x|^2 + delta_p (with x's own delta subtracted), where the
@@ -32,67 +32,103 @@
 
 namespace spokemesh {
 
-// A floating-point value with a certified error bound.
+// The floating-point filter's one error bound and one underflow guard.
 //
-// Invariant: if the computation is evaluated exactly on exact inputs, the result E
-// satisfies |v - E| <= err() (unless depth() reports unsafe). Proof sketch (Higham,
-// "Accuracy and Stability of Numerical Algorithms", 3.1): every monomial of the
-// expanded computation passes through at most n roundings, so v = sum T_k prod(1+d_i)
-// with |d_i| <= u = 2^-53, hence |v - E| <= gamma_n sum|T_k|, and `a` (the same
-// computation on magnitudes) bounds sum|T_k| up to the same factor. Leaves are exact
-// doubles (n = 0) or rounded differences fl(p - x) (n = 1). A product that could
-// underflow (0 < a < 2^-960) loses the relative-error model and marks the value
-// unsafe; overflow shows as a non-finite `a`. Sums of doubles never underflow.
+// A value computed in double by sums, differences and products of exact inputs has a
+// rounding depth n: the most roundings any monomial of its expansion passes through.
+// Then (Higham, "Accuracy and Stability of Numerical Algorithms", 3.1) the computed v
+// and the exact E satisfy |v - E| <= gamma_n sum|T_k|, gamma_n = n u / (1 - n u),
+// u = 2^-53, and `magnitude` a (the same computation on |inputs|, itself rounded)
+// bounds sum|T_k| within the same factor. error_bound(a, n) = (n + 2) u a (1.01)
+// covers gamma_n / (1 - gamma_n)^2 and the roundings of the bound itself for every
+// depth the predicates reach (n < 2^20 << 1 / u).
+//
+// Underflow breaks the relative model: a product that lands in the subnormal range
+// is off by up to 2^-1075 absolutely. The guard: every product is taken with a
+// magnitude >= kUnderflowGuard = 2^-900 (smaller ones mark the value unsafe, or send
+// the caller to the exact stage). A predicate performs fewer than 2^13 operations
+// (8-d: 9 2^9 minors), so underflow adds at most 2^-1062 <= 2^-162 a, far inside
+// the 1.01 slack (>= 2^-60 a). Overflow shows as a non-finite magnitude, which
+// is_certifiable() rejects. Sums of doubles never underflow.
+namespace filter {
+inline constexpr double kUnitRoundoff = 0x1p-53;
+inline constexpr double kUnderflowGuard = 0x1p-900;
+// (depth + 2) u (1.01): the bound's factor per unit of magnitude.
+inline constexpr double relative_error(double depth) { return (depth + 2) * kUnitRoundoff * 1.01; }
+inline constexpr double error_bound(double magnitude, int depth) {
+  return magnitude * relative_error(static_cast<double>(depth));
+}
+// The magnitude lets the bound hold: no product below the guard, no overflow.
+inline constexpr bool is_certifiable(double magnitude) {
+  return magnitude >= kUnderflowGuard && magnitude <= DBL_MAX;
+}
+inline constexpr int kUnknownSign = 2;
+// +1 / -1 when the computed value's sign is certain, else kUnknownSign.
+inline int certified_sign(double value, double magnitude, int depth) {
+  if (!is_certifiable(magnitude)) return kUnknownSign;
+  const double err = error_bound(magnitude, depth);
+  if (value > err) return 1;
+  if (value < -err) return -1;
+  return kUnknownSign;
+}
+}  // namespace filter
+
+// A double together with what certifies it: the magnitude and rounding depth of the
+// filter's error bound above. Invariant: unless depth == kUnsafe, the exact result of
+// the same computation on exact inputs lies within filter::error_bound(magnitude,
+// depth) of value. Leaves are exact doubles (depth 0) or rounded differences
+// fl(p - x) (depth 1).
 //
 // Trivially constructible on purpose: predicate scratch arrays are large and must not
-// be zero-filled on every call. Approx{} is zero.
-struct Approx {
-  double v;  // computed value
-  double a;  // computed bound on the sum of magnitudes of the monomials
-  int n;     // rounding depth (kUnsafe: no bound)
+// be zero-filled on every call. BoundedDouble{} is zero.
+// Thread safety: a value type.
+struct BoundedDouble {
+  double value;      // computed value
+  double magnitude;  // computed bound on the sum of magnitudes of the monomials
+  int depth;         // rounding depth (kUnsafe: no bound)
 
   static constexpr int kUnsafe = 1 << 20;
+  static constexpr int kUnknownSign = filter::kUnknownSign;
 
-  static Approx exact(double x) { return {x, std::fabs(x), 0}; }
-  static Approx difference(double p, double x) {
+  static BoundedDouble exact(double x) { return {x, std::fabs(x), 0}; }
+  static BoundedDouble difference(double p, double x) {
     const double v = p - x;
     return {v, std::fabs(v), 1};
   }
 
   // +1 / -1 when the sign of the exact value is certain, 0 when it is certainly zero
   // (all monomials vanish), kUnknownSign otherwise.
-  static constexpr int kUnknownSign = 2;
   int certified_sign() const {
-    if (n >= kUnsafe || !(a <= DBL_MAX)) return kUnknownSign;
-    if (a == 0) return 0;
-    // (n + 2) u (1.01) covers gamma_n / (1 - gamma_n)^2 and the three roundings here.
-    const double err = a * (static_cast<double>(n + 2) * 0x1p-53) * 1.01;
-    if (v > err) return 1;
-    if (v < -err) return -1;
+    if (depth >= kUnsafe || !(magnitude <= DBL_MAX)) return kUnknownSign;
+    if (magnitude == 0) return 0;
+    const double err = filter::error_bound(magnitude, depth);
+    if (value > err) return 1;
+    if (value < -err) return -1;
     return kUnknownSign;
   }
 };
 
-inline Approx operator+(const Approx& x, const Approx& y) {
-  return {x.v + y.v, x.a + y.a, std::min(std::max(x.n, y.n) + 1, Approx::kUnsafe)};
+inline BoundedDouble operator+(const BoundedDouble& x, const BoundedDouble& y) {
+  return {x.value + y.value, x.magnitude + y.magnitude, std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
 }
-inline Approx operator-(const Approx& x, const Approx& y) {
-  return {x.v - y.v, x.a + y.a, std::min(std::max(x.n, y.n) + 1, Approx::kUnsafe)};
+inline BoundedDouble operator-(const BoundedDouble& x, const BoundedDouble& y) {
+  return {x.value - y.value, x.magnitude + y.magnitude, std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
 }
-inline Approx operator-(const Approx& x) { return {-x.v, x.a, x.n}; }
-inline Approx operator*(const Approx& x, const Approx& y) {
-  const double a = x.a * y.a;
-  int n = std::min(x.n + y.n + 1, Approx::kUnsafe);
-  if (a < 0x1p-960 && x.a != 0 && y.a != 0) n = Approx::kUnsafe;
-  return {x.v * y.v, a, n};
+inline BoundedDouble operator-(const BoundedDouble& x) { return {-x.value, x.magnitude, x.depth}; }
+inline BoundedDouble operator*(const BoundedDouble& x, const BoundedDouble& y) {
+  const double a = x.magnitude * y.magnitude;
+  int n = std::min(x.depth + y.depth + 1, BoundedDouble::kUnsafe);
+  // The underflow guard (a product of zero is exact and safe).
+  if (a < filter::kUnderflowGuard && x.magnitude != 0 && y.magnitude != 0) n = BoundedDouble::kUnsafe;
+  return {x.value * y.value, a, n};
 }
 
 // Minors by Laplace expansion memoised over column subsets: for every mask over
 // `cols` columns with popcount(mask) <= rows, table[mask] = det(last popcount(mask)
 // rows of the row-major rows x cols matrix m, columns in mask). O(cols 2^cols)
-// operations and no division, so the Approx error bound applies. `table` holds
+// operations and no division, so the BoundedDouble error bound applies. `table` holds
 // 2^cols entries. With rows == cols, table[2^cols - 1] is det(m).
-void minors_table(const Approx* m, int rows, int cols, Approx* table);
+void minors_table(const BoundedDouble* m, int rows, int cols, BoundedDouble* table);
 
 namespace detail {
 struct PopCounts {
@@ -108,20 +144,20 @@ inline constexpr PopCounts kPopCounts;
 
 // The loop behind minors_table; inlined so that minors_table_fixed gets the sizes as
 // compile-time constants.
-[[gnu::always_inline]] inline void minors_table_loop(const Approx* m, int rows, int cols, Approx* table) {
-  table[0] = Approx{1.0, 1.0, 0};
+[[gnu::always_inline]] inline void minors_table_loop(const BoundedDouble* m, int rows, int cols, BoundedDouble* table) {
+  table[0] = BoundedDouble{1.0, 1.0, 0};
   const unsigned full = (1u << cols) - 1u;
   for (unsigned mask = 1; mask <= full; ++mask) {
     const int j = detail::kPopCounts.of[mask];
     if (j > rows) continue;
-    const Approx* row = m + (rows - j) * cols;
+    const BoundedDouble* row = m + (rows - j) * cols;
     unsigned rest = mask;
     int c = __builtin_ctz(rest);
-    Approx acc = row[c] * table[mask ^ (1u << c)];
+    BoundedDouble acc = row[c] * table[mask ^ (1u << c)];
     rest &= rest - 1;
     for (int t = 1; rest != 0; rest &= rest - 1, ++t) {
       c = __builtin_ctz(rest);
-      const Approx term = row[c] * table[mask ^ (1u << c)];
+      const BoundedDouble term = row[c] * table[mask ^ (1u << c)];
       acc = (t % 2 == 0) ? acc + term : acc - term;
     }
     table[mask] = acc;
@@ -130,7 +166,7 @@ inline constexpr PopCounts kPopCounts;
 
 // minors_table for sizes known at compile time (the star walk's kernels).
 template <int Rows, int Cols>
-inline void minors_table_fixed(const Approx* m, Approx* table) {
+inline void minors_table_fixed(const BoundedDouble* m, BoundedDouble* table) {
   minors_table_loop(m, Rows, Cols, table);
 }
 
@@ -147,9 +183,9 @@ struct Row {
   bool is_point() const { return point >= 0; }
 };
 
-// The Approx entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
+// The BoundedDouble entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
 // a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted).
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, Approx* out);
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out);
 
 // Exact predicates over one PointSet (which must outlive this object).
 class Predicates {
@@ -171,7 +207,7 @@ class Predicates {
   int orientation(std::span<const std::uint32_t> simplex) const;
   // Normal of the hyperplane through origin spanned by d - 1 rows: for any q,
   // sign(sum_c normal[c] (q - origin)_c) = sign det[rows; q - origin].
-  void spatial_normal(std::uint32_t origin, std::span<const Row> rows, Approx* normal) const;
+  void spatial_normal(std::uint32_t origin, std::span<const Row> rows, BoundedDouble* normal) const;
   // +1 if q lies outside the perturbed circumsphere of the (non-degenerate) simplex,
   // -1 if inside. Never 0 for q not a vertex of the simplex.
   int side_of_sphere(std::span<const std::uint32_t> simplex, std::uint32_t q) const;

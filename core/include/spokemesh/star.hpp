@@ -32,6 +32,7 @@
 #pragma once
 
 #include <atomic>
+#include <memory>
 #include <cstdint>
 #include <vector>
 
@@ -49,11 +50,9 @@ struct StarOptions {
   std::size_t initial_candidates = 0;
   // Checked between wraps; a set flag makes compute() return CANCELLED.
   const std::atomic<bool>* cancel = nullptr;
-  // Facets found by other stars of the same run (not owned; may be shared by many
-  // walkers). Only saves work: every star is the same with or without it.
-  FacetCache* facets = nullptr;
-  // The same for 2-d runs (see EdgeCache; `facets` is not used in 2-d).
-  EdgeCache* edges = nullptr;
+  // What other stars of the same run found (not owned; may be shared by many
+  // walkers; see RunCache). Only saves work: every star is the same with or without it.
+  RunCache* cache = nullptr;
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).
@@ -108,6 +107,9 @@ enum class StarPart { kAll, kOwned };
 class StarWalker {
  public:
   explicit StarWalker(const KdTree& tree, StarOptions options = {});
+  ~StarWalker();
+  StarWalker(const StarWalker&) = delete;
+  StarWalker& operator=(const StarWalker&) = delete;
 
   // Computes the star of `seed` into `out` (its buffers are reused); with kOwned,
   // out.simplices keeps only the owned simplices (hull_facets still counts the star's).
@@ -155,14 +157,14 @@ class StarWalker {
   void ensure_candidates();
   // The lifted plane through x and the d points `ids` (its orientation is arbitrary:
   // a wrap's reference only needs every point on one side of it).
-  void simplex_plane(const std::uint32_t* ids, Approx* out);
+  void simplex_plane(const std::uint32_t* ids, BoundedDouble* out);
   template <int D>
-  void simplex_plane_kernel(const std::uint32_t* ids, Approx* out);
+  void simplex_plane_kernel(const std::uint32_t* ids, BoundedDouble* out);
   // p - x rounded (p given by its coordinates), |p - x|^2 from it, and that sum's
   // rounding depth (or kUnsafe).
   void relative_row(const double* p, double* q, double& norm2, int& depth) const;
-  // The same as an Approx row (q, |q|^2), for cached candidates.
-  void lifted_row(const double* q, double norm2, int depth, Approx* out) const;
+  // The same as an BoundedDouble row (q, |q|^2), for cached candidates.
+  void lifted_row(const double* q, double norm2, int depth, BoundedDouble* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
   // (the walk), or towards (or, reversed, away from) a spoke direction.
   struct Side {
@@ -170,23 +172,46 @@ class StarWalker {
     const double* toward = nullptr;
     bool reverse = false;
   };
+  // A wrap's answer: the point hit, or none on that side (the Voronoi edge or the
+  // spoke is unbounded), or the run was cancelled.
+  struct WrapResult {
+    enum class Kind : std::uint8_t { kHit, kUnbounded, kCancelled };
+    Kind kind = Kind::kUnbounded;
+    std::uint32_t point = 0;  // when kHit
+
+    static WrapResult hit(std::uint32_t p) { return {Kind::kHit, p}; }
+    static WrapResult unbounded() { return {Kind::kUnbounded, 0}; }
+    static WrapResult cancelled() { return {Kind::kCancelled, 0}; }
+    bool is_hit() const { return kind == Kind::kHit; }
+  };
   // Rotates the lifted hyperplane about pivot (d - 1 rows) towards `side` of the
   // pivot's spatial hyperplane, starting from `reference` (d + 1 coefficients of a
   // plane through the lifted pivot and x with every point on or above it); returns
-  // the point hit and writes its plane, oriented the same way, to `hit_plane`; -1
-  // when no point lies strictly on that side, -2 when cancelled.
-  std::int64_t wrap(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane);
+  // the point hit and writes its plane, oriented the same way, to `hit_plane`.
+  WrapResult wrap(const Row* pivot, Side side, const BoundedDouble* reference, BoundedDouble* hit_plane);
   template <int D>
-  std::int64_t wrap_kernel(const Row* pivot, Side side, const Approx* reference, Approx* hit_plane);
+  WrapResult wrap_kernel(const Row* pivot, Side side, const BoundedDouble* reference, BoundedDouble* hit_plane);
+  // One wrap's state and named steps (star.cpp).
+  template <int D>
+  class WrapState;
   // The first simplex by recursive spokes (d ids, without x) and its plane.
-  Status first_simplex(std::uint32_t* out, Approx* plane);
+  Status first_simplex(std::uint32_t* out, BoundedDouble* plane);
   // Loads the candidates before a wrap, or a larger neighbourhood once sphere queries
   // keep finding points they lack.
   void prepare_wrap();
-  // compute() for d = 2: the star as a ring of neighbours (see the definition).
-  Status compute_ring(Star& out, StarPart part);
+  // The star walk for d = 2: x's star as a ring of neighbours (ring_walk.cpp), with
+  // its own state; it wraps through this walker.
+  class RingWalk;
+  std::unique_ptr<RingWalk> ring_walk_;  // set when d == 2
   // Writes the simplices in work_ (d ids each, without x) to `out` in canonical form.
   void emit_canonical(std::size_t hull, StarPart part, Star& out);
+
+  // The kernels compiled for this walker's dimension (chosen once, in the constructor).
+  struct Kernels {
+    WrapResult (StarWalker::*wrap)(const Row*, Side, const BoundedDouble*, BoundedDouble*) = nullptr;
+    void (StarWalker::*simplex_plane)(const std::uint32_t*, BoundedDouble*) = nullptr;
+  };
+  Kernels kernels_;
 
   const KdTree& tree_;
   const PointSet& ps_;
@@ -203,7 +228,7 @@ class StarWalker {
   std::vector<double> cand_block_;  // the pencil scan's column-major copy (see load_candidates)
   std::size_t cand_stride_ = 0;     // candidate count rounded up to whole pencil-scan chunks
   std::vector<double> cand_norm_;   // sqrt(cand_norm2_), for error bounds
-  std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or Approx::kUnsafe
+  std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or BoundedDouble::kUnsafe
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
   double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
@@ -216,7 +241,7 @@ class StarWalker {
   std::vector<double> knn_d2_;
   std::vector<const double*> knn_coords_;
   std::vector<double> directions_;
-  std::vector<Approx> minors_;
+  std::vector<BoundedDouble> minors_;
   TupleSet simplex_seen_, facet_seen_;
   struct Contender {
     std::uint32_t index;  // into the candidate arrays
@@ -228,21 +253,10 @@ class StarWalker {
   std::vector<std::uint8_t> facet_open_;  // per facet_seen_ position: one side known, not yet walked
   std::vector<std::uint32_t> facet_apex_;  // per facet_seen_ position: the apex of its first simplex
   std::vector<std::uint32_t> deferred_;  // facets (simplex * d + k) the cache could not answer, to wrap
-  std::vector<Approx> work_planes_;  // their lifted planes, d + 1 coefficients each
+  std::vector<BoundedDouble> work_planes_;  // their lifted planes, d + 1 coefficients each
   std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
   std::vector<std::uint64_t> work_hashes_;  // per work_ simplex, with a facet cache: its d facets' hashes
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
-  // compute_ring's state: x's neighbours with their neighbours on either side in the
-  // ring (ids, or kHull / kUnknown), the ones open when the walk began, and the
-  // triangles found (as the two ids besides x).
-  struct RingNode {
-    std::uint32_t id;
-    std::uint32_t side[2];
-    bool sender;  // posted its edge with x, so came earlier
-  };
-  std::vector<RingNode> ring_;
-  std::vector<std::uint32_t> ring_open_;
-  std::vector<std::uint64_t> ring_triangles_;  // (low id << 32) | high id
 };
 
 // Default first candidate count for dimension d.
