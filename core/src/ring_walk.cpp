@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 
+#include "invariant.hpp"
+
 namespace spokemesh {
 
 // The star in 2-d. x's star is a ring of triangles about x, each two consecutive
@@ -127,6 +129,16 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
     }
   }
 
+#ifdef SPOKEMESH_CHECK_INVARIANTS
+  // A closed ring has as many triangles as neighbours; a path (x on the hull) one
+  // fewer, and ends at two hull edges.
+  for (const RingNode& node : ring_) {
+    SPOKEMESH_INVARIANT(node.side[0] != kUnknown && node.side[1] != kUnknown, "every neighbour's ring sides are known");
+  }
+  SPOKEMESH_INVARIANT((hull == 0 && ring_triangles_.size() == ring_.size()) ||
+                          (hull == 2 && ring_triangles_.size() + 1 == ring_.size()),
+                      "x's link is a cycle, or a path between two hull edges");
+#endif
   // Posts to the neighbours still to come: x's triangles on either side of each.
   if (cache != nullptr) {
     for (const RingNode& node : ring_) {

@@ -541,8 +541,18 @@ class StarWalker::WrapState {
 
   // The wrap's answer; writes the hit's plane, oriented so that every point is on or
   // above it (the next wraps' reference).
-  WrapResult result(BoundedDouble* hit_plane) const {
+  WrapResult result(BoundedDouble* hit_plane) {
     if (best_id < 0) return WrapResult::unbounded();
+#ifdef SPOKEMESH_CHECK_INVARIANTS
+    {
+      const auto hit = static_cast<std::uint32_t>(best_id);
+      SPOKEMESH_INVARIANT(hit != w.x_ && !is_pivot(hit), "a wrap hits a point outside its pivot");
+      std::array<double, kMaxDimension> q;
+      const double* p = w.ps_.point(hit);
+      for (int c = 0; c < d; ++c) q[c] = p[c] - x[c];
+      SPOKEMESH_INVARIANT(spatial_side(q.data(), hit) == sigma, "a wrap hits a point on the side it turns to");
+    }
+#endif
     for (int c = 0; c < cols; ++c) hit_plane[c] = sigma > 0 ? plane[c] : -plane[c];
     return WrapResult::hit(static_cast<std::uint32_t>(best_id));
   }
@@ -1033,6 +1043,20 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     add_simplex(others.data(), plane.data());
   }
 
+#ifdef SPOKEMESH_CHECK_INVARIANTS
+  {
+    // A complete star: every facet through x lies in two of its simplices, or in one
+    // when it is on the hull (then counted in `hull`), never in more.
+    std::vector<std::uint32_t> uses(facet_open_.size(), 0);
+    for (const std::uint32_t at : work_facets_) ++uses[at];
+    std::size_t once = 0;
+    for (const std::uint32_t u : uses) {
+      SPOKEMESH_INVARIANT(u == 1 || u == 2, "a facet of a star lies in one or two of its simplices");
+      once += u == 1 ? 1 : 0;
+    }
+    SPOKEMESH_INVARIANT(once == hull, "the facets in one simplex of a star are its hull facets");
+  }
+#endif
   emit_canonical(hull, part, out);
   return Status::ok();
 }
