@@ -307,65 +307,126 @@ Status ApproxWalker::compute_spokes(ApproxNeighbors& out) {
   return Status::ok();
 }
 
-Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
-  using Eigen::MatrixXd;
-  using Eigen::VectorXd;
-  const int d = d_;
-  // 1. Recursive spokes down to a Voronoi vertex (Sec. 3.2): at level k the spoke
-  //    lies in the flat equidistant to x and the k points found, i.e. orthogonal to
-  //    their offsets (Gram-Schmidt), and starts where the previous spoke ended.
-  //    Returns false if no vertex was reached within the attempts.
-  std::vector<std::uint32_t> S;
-  VectorXd y(d);
-  std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
-  bool descent_found = false;                       // the last descent certified a new neighbour
-  // The certified neighbours: id -> index in found_q, their offsets s - x (d per point),
-  // and found_q2, their |s - x|^2.
-  std::unordered_map<std::uint32_t, std::uint32_t> found_at;
-  std::vector<double> found_q, found_q2;
-  // Neighbours found in the outer quarter of the candidate list (by distance from x,
-  // from outer2 on) suggest more beyond it: a long cell, as near a manifold or in 12-d.
-  // 4 d of them set list_more, and the walk lists twice as many candidates. (Uniform
-  // 8-d n=10,000: at most 17 true neighbours there, in 2 of 10 seeds, which 2 d would
-  // grow for at a 15% cost in time; 12-d: 18-117, recall 0.972 -> 0.995 at M = 100;
-  // the 2-manifold in 16-d: 301-1,731, with as many again beyond the list.)
-  double outer2 = kInf;
-  std::size_t outer_found = 0;
-  bool list_more = false;
-  auto found = [&](std::uint32_t s) { return found_at.count(s) != 0; };
+// The RSD walk of one seed (compute_rsd): its state and its named steps.
+//
+// 1. Recursive spokes down to a Voronoi vertex (Sec. 3.2, descend): at level k the
+//    spoke lies in the flat equidistant to x and the k points found, i.e. orthogonal
+//    to their offsets (Gram-Schmidt), and starts where the previous spoke ended.
+// 2. The walk (Sec. 3.3 and 4.4), directed. A Voronoi vertex v of cell(x) is where x
+//    and d points S are equidistant; dropping s_k from S leaves a Voronoi edge, and a
+//    ray along it meets the next vertex. Which edges to walk is the walk's choice:
+//    here each leg heads for one target, a listed point q not yet found, by the
+//    simplex method. g(w) = |w - q|^2 - |w - x|^2 is linear in w and >= 0 on cell(x),
+//    and 0 exactly on the facet of (x, q): so (x, q) is a Delaunay edge iff the
+//    minimum of g over the cell is 0. From the current vertex the walk takes the edge
+//    along which g falls fastest (the steepest edge) to the next vertex, until q is
+//    among the equidistant points (found, and certified like every new point met on
+//    the way), or no edge lowers g (q is not a neighbour: refuted, in floating point,
+//    which can only cost recall). The next target is the point whose bisector is
+//    nearest to the current vertex, so consecutive legs stay short and the walk
+//    sweeps the cell's surface instead of re-walking known parts of it, as an
+//    undirected walk does once most of its neighbours are found. A target is first
+//    walked to on a relaxed polytope (relaxed_refutes), and only walked for real if
+//    that cannot refute it; if its facet is far, a spoke aimed at it replaces the leg
+//    (docs/algorithm.md, section 7). Every vertex reached counts, as in the paper, as
+//    a miss when it certifies no new neighbour, and so does a target refuted without
+//    a leg; M misses in a row stop the walk.
+class ApproxWalker::RsdWalk {
+ public:
+  RsdWalk(ApproxWalker& walker, ApproxNeighbors& out)
+      : walker_(walker), out_(out), d(walker.d_), x(walker.ps_.point(walker.x_)), y(d), B(d, d), E(d, d), v(d),
+        f(d), e(d), witness(d), rhs(d), rE(d, d), rv(d), re(d), r_row(d), r_col(d), r_p(d), r_u(d), kept_v(d),
+        origin(VectorXd::Zero(d)), kept_E(d, d) {}
+
+  Status run() {
+    const bool reached_first = descend(nullptr, -1);
+    if (walker_.stop_requested()) return cancelled("neighbour walk cancelled");
+    relist({});
+    // The first vertex, by recursive spokes (again if the spokes miss, or the vertex
+    // is degenerate, as for points in a lower-dimensional subspace: each descent
+    // still certifies the facet its first spoke ends on).
+    at_vertex = reached_first && visit(S);
+    if (reached_first && !at_vertex) misses = 1;
+    for (;;) {
+      if (budget_spent()) break;
+      if (walker_.stop_requested()) return cancelled("neighbour walk cancelled");
+      if (!at_vertex) {
+        descend_again();
+        continue;
+      }
+      const Eigen::Index target = next_target();
+      if (target < 0 || (list_more && walker_.cand_radius2_ != kInf)) {
+        // Every listed point is found, given up or refuted: the cell is done as far as
+        // the list reaches (the whole cell when every point is listed). Otherwise, or
+        // when the list looks too short (list_more), list more and go on.
+        if (walker_.cand_radius2_ == kInf) {
+          out_.exhausted = true;
+          break;
+        }
+        grow_list();
+        continue;
+      }
+      head_for(target);
+    }
+    out_.misses = misses;
+    return Status::ok();
+  }
+
+ private:
+  using MatrixXd = Eigen::MatrixXd;
+  using VectorXd = Eigen::VectorXd;
+  static constexpr int kStepsPerTarget = 64;
+  // Steps of a relaxed walk (no tree queries: cheap) before it gives up; near a
+  // manifold the facets of far targets are often 15 or more steps away.
+  static constexpr int kRelaxedSteps = 1024;
+  // A relaxed walk that needs this many steps to reach the goal's facet is answered
+  // by an aimed spoke instead of a leg (measurements: bench/README.md, tuning history).
+  static constexpr int kAimAfterSteps = 8;
+  // Refutations in a row before the nearest open point is taken instead (ibid.).
+  static constexpr int kRefutedBeforeNearest = 8;
+  // A candidate's state: still a target, found or given up, refuted.
+  static constexpr std::uint8_t kOpen = 0, kSettled = 1, kRefuted = 2;
+
+  bool budget_spent() const {
+    return misses >= walker_.options_.max_misses || out_.vertices >= walker_.options_.max_vertices;
+  }
+  bool found(std::uint32_t s) const { return found_at.count(s) != 0; }
+
   // Records s, certified, as a neighbour.
-  auto accept = [&](std::uint32_t s) {
-    out.neighbors.push_back(s);
-    const double* sp = ps_.point(s);
-    const double* xp = ps_.point(x_);
+  bool accept(std::uint32_t s) {
+    out_.neighbors.push_back(s);
+    const double* sp = walker_.ps_.point(s);
     double q2 = 0;
     for (int c = 0; c < d; ++c) {
-      found_q.push_back(sp[c] - xp[c]);
+      found_q.push_back(sp[c] - x[c]);
       q2 += found_q.back() * found_q.back();
     }
     found_at.emplace(s, static_cast<std::uint32_t>(found_q2.size()));
     found_q2.push_back(q2);
     if (q2 >= outer2 && ++outer_found >= 4 * static_cast<std::size_t>(d)) list_more = true;
     return true;
-  };
-  // Certifies s with witness w (relative to x) unless already known or tried too often;
-  // true if s is a new certified neighbour.
-  auto try_certify = [&](std::uint32_t s, const double* w) {
+  }
+
+  // Certifies s with witness w (relative to x) unless already known or tried too
+  // often; true if s is a new certified neighbour.
+  bool try_certify(std::uint32_t s, const double* w) {
     if (found(s) || attempts[s] >= 3) return false;
-    if (certify(s, w)) return accept(s);
+    if (walker_.certify(s, w)) return accept(s);
     ++attempts[s];
-    ++out.uncertified;
+    ++out_.uncertified;
     return false;
-  };
-  auto descend = [&](const double* start, std::int64_t first) -> bool {
+  }
+
+  // Recursive spokes from `start` (relative to x; with `first`, a point already met
+  // there) down to a vertex S; false if no vertex was reached within the attempts.
+  bool descend(const double* start, std::int64_t first) {
     S.clear();
     y.setZero();
     std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
     VectorXd u(d), q(d);
-    const double* x = ps_.point(x_);
     if (first >= 0) {
       for (int c = 0; c < d; ++c) y[c] = start[c];
-      const double* pp = ps_.point(static_cast<std::size_t>(first));
+      const double* pp = walker_.ps_.point(static_cast<std::size_t>(first));
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       q.normalize();
       basis.insert(basis.end(), q.data(), q.data() + d);
@@ -374,8 +435,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     // A level whose spokes keep missing (an unbounded face, or a cell without vertices
     // when the points lie in a subspace) ends the descent after a few tries.
     for (int misses_here = 0; static_cast<int>(S.size()) < d; ++misses_here) {
-      if (misses_here >= 8 || stop_requested()) return false;
-      for (int c = 0; c < d; ++c) u[c] = normal_variate(rng_);
+      if (misses_here >= 8 || walker_.stop_requested()) return false;
+      for (int c = 0; c < d; ++c) u[c] = normal_variate(walker_.rng_);
       for (std::size_t b = 0; b * d < basis.size(); ++b) {
         const Eigen::Map<const VectorXd> row(&basis[b * d], d);
         u -= row.dot(u) * row;
@@ -383,13 +444,13 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       if (!(u.norm() > 1e-9)) continue;
       u.normalize();
       double t = 0;
-      std::int64_t p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+      std::int64_t p = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
       if (p < 0) {  // unbounded that way: the face reaches the hull; try the other way
         u = -u;
-        p = shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+        p = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
       }
       if (p < 0) continue;
-      const double* pp = ps_.point(static_cast<std::size_t>(p));
+      const double* pp = walker_.ps_.point(static_cast<std::size_t>(p));
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       for (std::size_t b = 0; b * d < basis.size(); ++b) {
         const Eigen::Map<const VectorXd> row(&basis[b * d], d);
@@ -411,78 +472,77 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     }
     std::sort(S.begin(), S.end());
     return true;
-  };
-  const bool reached_first = descend(nullptr, -1);
-  if (stop_requested()) return cancelled("neighbour walk cancelled");
+  }
 
-  // 2. The walk (Sec. 3.3 and 4.4), directed. A Voronoi vertex v of cell(x) is where x
-  //    and d points S are equidistant; dropping s_k from S leaves a Voronoi edge, and
-  //    a ray along it meets the next vertex. Which edges to walk is the walk's choice:
-  //    here each leg heads for one target, a listed point q not yet found, by the
-  //    simplex method. g(w) = |w - q|^2 - |w - x|^2 is linear in w and >= 0 on cell(x),
-  //    and 0 exactly on the facet of (x, q): so (x, q) is a Delaunay edge iff the
-  //    minimum of g over the cell is 0. From the current vertex the walk takes the edge
-  //    along which g falls fastest (the steepest edge) to the next vertex, until q is
-  //    among the equidistant points (found, and certified like every new point met on
-  //    the way), or no edge lowers g (q is not a neighbour: refuted, in floating point,
-  //    which can only cost recall). The next target is the point whose bisector is
-  //    nearest to the current vertex, so consecutive legs stay short and the walk
-  //    sweeps the cell's surface instead of re-walking known parts of it, as an
-  //    undirected walk does once most of its neighbours are found. A target is first
-  //    walked to on a relaxed polytope (relaxed_refutes below), and only walked for
-  //    real if that cannot refute it; if its facet is far, a spoke aimed at it replaces
-  //    the leg (docs/algorithm.md, section 7). Every vertex reached counts, as in the
-  //    paper, as a miss when it certifies no new neighbour, and so does a target
-  //    refuted without a leg; M misses in a row stop the walk.
-  Eigen::Index listed = 0;
-  // Per listed candidate: still a target (0), found or given up (1), refuted (2).
-  std::vector<std::uint8_t> state;
-  std::uint64_t slack_at = ~std::uint64_t{0};  // the vertex count when slack was computed
-  VectorXd slack, inv_norm;                    // per listed candidate; inv_norm: 1 / |q|
-  Eigen::Index first_open = 0;                 // no open candidate before it
+  // Not at a vertex (the last one was degenerate): a fresh descent, counted as one
+  // vertex and a miss unless it certifies something.
+  void descend_again() {
+    ++out_.vertices;
+    descent_found = false;
+    const bool reached = descend(nullptr, -1);
+    misses = descent_found ? 0 : misses + 1;
+    if (reached) {
+      --out_.vertices;  // visit() counts it
+      const std::uint64_t kept = misses;
+      at_vertex = visit(S);
+      misses = std::min(misses, kept);
+    }
+  }
+
   // Takes the candidate list as it is now: states from `settled` (id -> state, for
   // points listed before) or from what is found, and everything derived from the list.
-  auto relist = [&](const std::unordered_map<std::uint32_t, std::uint8_t>& settled) {
-    listed = static_cast<Eigen::Index>(cand_id_.size());
-    state.assign(static_cast<std::size_t>(listed), 0);
+  void relist(const std::unordered_map<std::uint32_t, std::uint8_t>& settled) {
+    listed = static_cast<Eigen::Index>(walker_.cand_id_.size());
+    state.assign(static_cast<std::size_t>(listed), kOpen);
     for (Eigen::Index j = 0; j < listed; ++j) {
-      const std::uint32_t id = cand_id_[static_cast<std::size_t>(j)];
+      const std::uint32_t id = walker_.cand_id_[static_cast<std::size_t>(j)];
       const auto it = settled.find(id);
-      state[static_cast<std::size_t>(j)] = it != settled.end() ? it->second : (found(id) ? 1 : 0);
+      state[static_cast<std::size_t>(j)] = it != settled.end() ? it->second : (found(id) ? kSettled : kOpen);
     }
     slack.resize(listed);
-    inv_norm = Eigen::Map<const VectorXd>(cand_norm2_.data(), listed).array().rsqrt();
+    inv_norm = Eigen::Map<const VectorXd>(walker_.cand_norm2_.data(), listed).array().rsqrt();
     slack_at = ~std::uint64_t{0};
     first_open = 0;
-    outer2 = cand_radius2_ == kInf ? kInf : cand_norm2_[3 * cand_norm2_.size() / 4];
+    // Neighbours found in the outer quarter of the candidate list (by distance from
+    // x, from outer2 on) suggest more beyond it: a long cell, as near a manifold or in
+    // 12-d. 4 d of them set list_more (measurements: bench/README.md).
+    const std::vector<double>& norm2 = walker_.cand_norm2_;
+    outer2 = walker_.cand_radius2_ == kInf ? kInf : norm2[3 * norm2.size() / 4];
     outer_found = static_cast<std::size_t>(
         std::count_if(found_q2.begin(), found_q2.end(), [&](double q2) { return q2 >= outer2; }));
     list_more = outer_found >= 4 * static_cast<std::size_t>(d);
-  };
-  relist({});
-  auto settle = [&](std::uint32_t id, std::uint8_t to) {
+  }
+
+  // Lists twice as many candidates, keeping the states of those listed before.
+  void grow_list() {
+    std::unordered_map<std::uint32_t, std::uint8_t> settled;
+    for (Eigen::Index j = 0; j < listed; ++j) {
+      settled.emplace(walker_.cand_id_[static_cast<std::size_t>(j)], state[static_cast<std::size_t>(j)]);
+    }
+    walker_.load_candidates(2 * walker_.cand_id_.size());
+    relist(settled);
+  }
+
+  void settle(std::uint32_t id, std::uint8_t to) {
     // Candidates are few thousand and sorted by distance; a point is settled once.
     for (Eigen::Index j = 0; j < listed; ++j) {
-      if (cand_id_[static_cast<std::size_t>(j)] == id) {
-        if (state[static_cast<std::size_t>(j)] == 0) state[static_cast<std::size_t>(j)] = to;
+      if (walker_.cand_id_[static_cast<std::size_t>(j)] == id) {
+        if (state[static_cast<std::size_t>(j)] == kOpen) state[static_cast<std::size_t>(j)] = to;
         return;
       }
     }
-  };
-  MatrixXd B(d, d), E(d, d);
-  VectorXd v(d), f(d), e(d), w(d), rhs(d);
-  std::uint64_t misses = 0;
-  const double* x = ps_.point(x_);
+  }
+
   // Visits vertex S (sorted): solves it again from S (errors do not accumulate along
-  // the walk), its edge directions E = -B^{-1} with rows
-  // B_m = s_m - x (column k is orthogonal to every offset but the k-th and points away
-  // from s_k), and certifies its new points: for s = S_i, the direction sum_{k != i} E_k
-  // keeps x and s equidistant and moves away from the others, into the facet of (x, s);
-  // the witness is halfway to the first point met that way. False when S is degenerate.
-  auto visit = [&](const std::vector<std::uint32_t>& vertex) {
-    ++out.vertices;
+  // the walk), its edge directions E = -B^{-1} with rows B_m = s_m - x (column k is
+  // orthogonal to every offset but the k-th and points away from s_k), and certifies
+  // its new points: for s = S_i, the direction sum_{k != i} E_k keeps x and s
+  // equidistant and moves away from the others, into the facet of (x, s); the witness
+  // is halfway to the first point met that way. False when S is degenerate.
+  bool visit(const std::vector<std::uint32_t>& vertex) {
+    ++out_.vertices;
     for (int m = 0; m < d; ++m) {
-      const double* sp = ps_.point(vertex[m]);
+      const double* sp = walker_.ps_.point(vertex[m]);
       for (int c = 0; c < d; ++c) B(m, c) = sp[c] - x[c];
       rhs[m] = B.row(m).squaredNorm() / 2;
     }
@@ -500,58 +560,76 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       // again as v is from x). The nearest candidates usually give that point already
       // (the witness is then certified by certify()'s own ball query); the full ray is
       // shot only when that fails.
-      auto witness = [&](bool head_only) {
+      auto place_witness = [&](bool head_only) {
         double t = 0;
-        if (shoot(v.data(), f.data(), &s, 1, t, head_only) < 0) {
+        if (walker_.shoot(v.data(), f.data(), &s, 1, t, head_only) < 0) {
           t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
         }
-        w = v + (t / 2) * f;
+        witness = v + (t / 2) * f;
       };
-      witness(/*head_only=*/true);
-      const bool certified = certify(s, w.data());
-      if (!certified) witness(/*head_only=*/false);
-      if (certified ? accept(s) : try_certify(s, w.data())) {
+      place_witness(/*head_only=*/true);
+      const bool certified = walker_.certify(s, witness.data());
+      if (!certified) place_witness(/*head_only=*/false);
+      if (certified ? accept(s) : try_certify(s, witness.data())) {
         fresh = true;
-        settle(s, 1);
+        settle(s, kSettled);
       } else if (attempts[s] >= 3) {
-        settle(s, 1);
+        settle(s, kSettled);
       }
     }
     misses = fresh ? 0 : misses + 1;
     return true;
-  };
-  // The first vertex, by recursive spokes (again if the spokes miss, or the vertex is
-  // degenerate, as for points in a lower-dimensional subspace: each descent still
-  // certifies the facet its first spoke ends on).
-  bool at_vertex = reached_first && visit(S);
-  if (reached_first && !at_vertex) misses = 1;
-  std::vector<std::uint32_t> next;
-  constexpr int kStepsPerTarget = 64;
-  // Steps of a relaxed walk (no tree queries: cheap) before it gives up; near a
-  // manifold the facets of far targets are often 15 or more steps away.
-  constexpr int kRelaxedSteps = 1024;
-  // A relaxed walk that needs this many steps to reach the goal's facet is answered by
-  // an aimed spoke instead of a leg. Measured at M = 100 (one seed of the manifold,
-  // before the list grew as it does now): always aiming, 8-d n=10,000 recall 0.985 at
-  // 98 ms per seed and the 2-manifold in 16-d n=10,000 0.982; after 8 steps, 0.988 at
-  // 95 ms and 0.985; never, 0.989 at 85-110 ms and 0.957 (with every point listed).
-  constexpr int kAimAfterSteps = 8;
-  int refuted_in_a_row = 0;
-  // Refutations in a row before the nearest open point is taken instead. Against the
-  // walk's own exhaustive answer, M = 100: 6-d n=1,500 recall 0.956 without the switch,
-  // 0.995 after 4, 0.997 after 8; 8-d n=10,000 0.974, 0.981, 0.994 (16: 0.991).
-  constexpr int kRefutedBeforeNearest = 8;
-  // Whether the listed candidate `target` is certainly (in floating point) not a
-  // neighbour: the same steepest-edge walk, from the current vertex, over the polytope
-  // cut by the bisectors of the found neighbours only (B^{-1} updated by
-  // Sherman-Morrison at each step, no tree queries). That polytope contains the cell,
-  // so if g stays positive on it, it does on the cell. Its vertices are not Voronoi
-  // vertices of x (none is visited or counted); it only spares the walk legs towards
-  // points that cannot be reached. When it reaches the target's bisector after
-  // kAimAfterSteps steps or more, it sets the aim (r_p) instead.
+  }
+
+  // The target: the open candidate whose bisector is nearest to the current vertex,
+  // (|q|^2 - 2 v.q) / (2 |q|) (the constant 2 dropped; recomputed only when the walk
+  // has moved). After a few refutations in a row the points about v are spent: the
+  // nearest open point to x instead (the likeliest neighbour left), wherever its
+  // facet is. States only leave kOpen, so the nearest open point is found from a
+  // cursor. -1 when none is open.
+  Eigen::Index next_target() {
+    Eigen::Index target = -1;
+    while (first_open < listed && state[static_cast<std::size_t>(first_open)] != kOpen) ++first_open;
+    if (refuted_in_a_row >= kRefutedBeforeNearest) return first_open < listed ? first_open : -1;
+    if (slack_at != out_.vertices) {
+      const Eigen::Map<const MatrixXd> Q(walker_.cand_q_.data(), d, listed);
+      const Eigen::Map<const VectorXd> Q2(walker_.cand_norm2_.data(), listed);
+      slack.noalias() = Q2 - 2 * (Q.transpose() * v);
+      slack.array() *= inv_norm.array();
+      slack_at = out_.vertices;
+    }
+    for (Eigen::Index j = first_open; j < listed; ++j) {
+      if (state[static_cast<std::size_t>(j)] == kOpen && (target < 0 || slack[j] < slack[target])) target = j;
+    }
+    return target;
+  }
+
+  // One target: refuted on the relaxed polytope, reached by an aimed spoke, or walked
+  // to by a leg.
+  void head_for(Eigen::Index target) {
+    const std::uint32_t goal = walker_.cand_id_[static_cast<std::size_t>(target)];
+    if (std::find(S.begin(), S.end(), goal) != S.end()) {
+      // Equidistant at this vertex already, so visit() has tried to certify it (it
+      // failed; it may be tried again from another vertex): no leg can reach it.
+      state[static_cast<std::size_t>(target)] = kSettled;
+      return;
+    }
+    if (relaxed_refutes(target)) {
+      // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
+      state[static_cast<std::size_t>(target)] = kRefuted;
+      ++misses;
+      ++refuted_in_a_row;
+      return;
+    }
+    refuted_in_a_row = 0;
+    if (aim_ready && aimed_spoke()) return;
+    walk_leg(target);
+  }
+
   // The edge (a column of `edges`, which leave a vertex) along which g falls fastest
   // for the target with offset q: rate E_k . q / |E_k|; -1 when none lowers g.
-  auto steepest_edge = [&](const MatrixXd& edges, const auto& q) {
+  template <class Offset>
+  int steepest_edge(const MatrixXd& edges, const Offset& q) const {
     int best = -1;
     double best_rate = 0;
     for (int k = 0; k < d; ++k) {
@@ -563,24 +641,12 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       }
     }
     return best;
-  };
-  std::vector<std::uint32_t> rs;    // the relaxed vertex: indices into found_q
-  std::vector<std::uint8_t> in_rs;   // per found point: one of rs
-  std::vector<double> r_vq, r_eq;    // per found point: rv . q and re . q
-  std::vector<double> v_q;           // per found point: v . q, at the vertex visited vq_at-th
-  std::uint64_t vq_at = ~std::uint64_t{0};
-  MatrixXd rE(d, d);                 // its edges: -(the matrix of rs's offsets, as rows)^{-1}
-  VectorXd rv(d), re(d), r_row(d), r_col(d);
-  // Set by relaxed_refutes when the goal's facet is far: r_p, a point inside it (the aim).
-  bool aim_ready = false;
-  VectorXd r_p(d), r_u(d), kept_v(d);
-  const VectorXd origin = VectorXd::Zero(d);  // x, where aimed spokes start
-  MatrixXd kept_E(d, d);
-  std::vector<std::uint32_t> kept_S;
-  // The first found neighbour's bisector met along p + t u, t > 0, not counting those in
-  // rs (in_rs): (t, index into found_q), or (kInf, -1). r_vq and r_eq hold p . q and
-  // u . q for the nf found points.
-  auto first_bisector = [&](std::size_t nf) {
+  }
+
+  // The first found neighbour's bisector met along p + t u, t > 0, not counting those
+  // in rs (in_rs): (t, index into found_q), or (kInf, -1). r_vq and r_eq hold p . q
+  // and u . q for the nf found points.
+  std::pair<double, std::int64_t> first_bisector(std::size_t nf) const {
     std::pair<double, std::int64_t> first{kInf, -1};
     for (std::size_t i = 0; i < nf; ++i) {
       if (!(r_eq[i] > 0) || in_rs[i] != 0) continue;
@@ -588,12 +654,21 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       if (t > 0 && t < first.first) first = {t, static_cast<std::int64_t>(i)};
     }
     return first;
-  };
-  auto relaxed_refutes = [&](Eigen::Index target) {
-    const Eigen::Map<const VectorXd> gq(&cand_q_[static_cast<std::size_t>(target) * d], d);
-    const double gq2 = cand_norm2_[static_cast<std::size_t>(target)];
-    const std::size_t nf = found_q2.size();
+  }
+
+  // Whether the listed candidate `target` is certainly (in floating point) not a
+  // neighbour: the same steepest-edge walk, from the current vertex, over the polytope
+  // cut by the bisectors of the found neighbours only (B^{-1} updated by
+  // Sherman-Morrison at each step, no tree queries). That polytope contains the cell,
+  // so if g stays positive on it, it does on the cell. Its vertices are not Voronoi
+  // vertices of x (none is visited or counted); it only spares the walk legs towards
+  // points that cannot be reached. When it reaches the target's bisector after
+  // kAimAfterSteps steps or more, it sets the aim (r_p) instead.
+  bool relaxed_refutes(Eigen::Index target) {
     const auto sd = static_cast<std::size_t>(d);
+    const Eigen::Map<const VectorXd> gq(&walker_.cand_q_[static_cast<std::size_t>(target) * sd], d);
+    const double gq2 = walker_.cand_norm2_[static_cast<std::size_t>(target)];
+    const std::size_t nf = found_q2.size();
     rs.resize(sd);
     for (int m = 0; m < d; ++m) {
       const auto it = found_at.find(S[static_cast<std::size_t>(m)]);
@@ -607,8 +682,8 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
     const Eigen::Map<const MatrixXd> F(found_q.data(), d, static_cast<Eigen::Index>(nf));
     // v . q for the found points, kept while the walk stays at v (targets refuted one
     // after another from the same vertex), extended as points are found.
-    if (vq_at != out.vertices) {
-      vq_at = out.vertices;
+    if (vq_at != out_.vertices) {
+      vq_at = out_.vertices;
       v_q.clear();
     }
     if (v_q.size() < nf) {
@@ -641,26 +716,7 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
         hit = i;
       }
       if (hit == -2 && step >= kAimAfterSteps) {
-        // A long way to the goal's facet: a leg would be as long. Aim a spoke at that
-        // facet instead: p = rv + t re is on it and on the d - 1 bisectors the edge
-        // keeps; u keeps g = 0 and leaves those d - 1 (each E_m, m != best, leaves its
-        // own and keeps the others; lambda E_best restores g), so p + s u lies inside
-        // the goal's facet of the relaxed polytope for 0 < s < (first bisector met).
-        // Halfway there is the aim.
-        r_p = rv + t_best * re;
-        r_u.setZero();
-        for (int m = 0; m < d; ++m) {
-          if (m != best) r_u += rE.col(m);
-        }
-        const double lam = -gq.dot(r_u) / g_eq;
-        r_u += lam * re;
-        for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];  // now p . q
-        Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * r_u;
-        in_rs[rs[static_cast<std::size_t>(best)]] = 0;  // the bisector the edge left may be met
-        double t_u = first_bisector(nf).first;
-        if (t_u == kInf) t_u = r_p.norm() / std::max(r_u.norm(), 1e-300);
-        r_p += (t_u / 2) * r_u;
-        aim_ready = r_p.allFinite();
+        set_aim(gq, best, t_best, g_eq, nf);
         return false;
       }
       if (hit < 0) return false;  // reaches the goal's bisector, or unbounded
@@ -682,114 +738,73 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       if (!rE.allFinite()) return false;
     }
     return false;
-  };
-  for (;;) {
-    if (misses >= options_.max_misses || out.vertices >= options_.max_vertices) break;
-    if (stop_requested()) return cancelled("neighbour walk cancelled");
-    if (!at_vertex) {
-      ++out.vertices;
-      descent_found = false;
-      const bool reached = descend(nullptr, -1);
-      misses = descent_found ? 0 : misses + 1;
-      if (reached) {
-        --out.vertices;  // visit() counts it
-        const std::uint64_t kept = misses;
-        at_vertex = visit(S);
-        misses = std::min(misses, kept);
-      }
-      continue;
+  }
+
+  // A long way to the goal's facet: a leg would be as long. Aim a spoke at that facet
+  // instead: p = rv + t re is on it and on the d - 1 bisectors the edge keeps; u keeps
+  // g = 0 and leaves those d - 1 (each E_m, m != best, leaves its own and keeps the
+  // others; lambda E_best restores g), so p + s u lies inside the goal's facet of the
+  // relaxed polytope for 0 < s < (first bisector met). Halfway there is the aim.
+  template <class Offset>
+  void set_aim(const Offset& gq, int best, double t_best, double g_eq, std::size_t nf) {
+    r_p = rv + t_best * re;
+    r_u.setZero();
+    for (int m = 0; m < d; ++m) {
+      if (m != best) r_u += rE.col(m);
     }
-    // The target: the open candidate whose bisector is nearest to the current vertex,
-    // (|q|^2 - 2 v.q) / (2 |q|) (the constant 2 dropped; recomputed only when the walk
-    // has moved). After a few refutations in a row the points about v are spent: the
-    // nearest open point to x instead (the likeliest neighbour left), wherever its
-    // facet is. States only leave 0, so the nearest open point is found from a cursor.
-    Eigen::Index target = -1;
-    while (first_open < listed && state[static_cast<std::size_t>(first_open)] != 0) ++first_open;
-    if (refuted_in_a_row >= kRefutedBeforeNearest) {
-      if (first_open < listed) target = first_open;
-    } else {
-      if (slack_at != out.vertices) {
-        const Eigen::Map<const MatrixXd> Q(cand_q_.data(), d, listed);
-        const Eigen::Map<const VectorXd> Q2(cand_norm2_.data(), listed);
-        slack.noalias() = Q2 - 2 * (Q.transpose() * v);
-        slack.array() *= inv_norm.array();
-        slack_at = out.vertices;
-      }
-      for (Eigen::Index j = first_open; j < listed; ++j) {
-        if (state[static_cast<std::size_t>(j)] == 0 && (target < 0 || slack[j] < slack[target])) target = j;
-      }
+    const double lam = -gq.dot(r_u) / g_eq;
+    r_u += lam * re;
+    for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];  // now p . q
+    const Eigen::Map<const MatrixXd> F(found_q.data(), d, static_cast<Eigen::Index>(nf));
+    Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * r_u;
+    in_rs[rs[static_cast<std::size_t>(best)]] = 0;  // the bisector the edge left may be met
+    double t_u = first_bisector(nf).first;
+    if (t_u == kInf) t_u = r_p.norm() / std::max(r_u.norm(), 1e-300);
+    r_p += (t_u / 2) * r_u;
+    aim_ready = r_p.allFinite();
+  }
+
+  // The spoke from x towards the aim stays inside the relaxed polytope until it
+  // reaches the goal's bisector there, so the first bisector it crosses is the goal's
+  // or an unfound point's: a new neighbour (in exact arithmetic), certified at the
+  // spoke's end like any spoke. The walk then moves to that facet: recursive spokes
+  // inside it from the spoke's end down to a vertex (Sec. 3.2), visited as usual, so
+  // the next targets are chosen about it. False if any of it fails (the leg is walked
+  // as before).
+  bool aimed_spoke() {
+    aim_ready = false;
+    double t = 0;
+    const std::int64_t hit = walker_.shoot(origin.data(), r_p.data(), nullptr, 0, t);
+    if (hit < 0 || found(static_cast<std::uint32_t>(hit))) return false;
+    witness = t * r_p;
+    if (!try_certify(static_cast<std::uint32_t>(hit), witness.data())) return false;
+    settle(static_cast<std::uint32_t>(hit), kSettled);
+    misses = 0;
+    kept_S = S;
+    kept_v = v;
+    kept_E = E;
+    if (!descend(witness.data(), hit) || !visit(S)) {  // stay at the vertex we were at
+      S.swap(kept_S);
+      v = kept_v;
+      E = kept_E;
     }
-    if (target < 0 || (list_more && cand_radius2_ != kInf)) {
-      // Every listed point is found, given up or refuted: the cell is done as far as
-      // the list reaches (the whole cell when every point is listed). Otherwise, or when
-      // the list looks too short (list_more), list twice as many and go on with those
-      // not yet settled.
-      if (cand_radius2_ == kInf) {
-        out.exhausted = true;
-        break;
-      }
-      std::unordered_map<std::uint32_t, std::uint8_t> settled;
-      for (Eigen::Index j = 0; j < listed; ++j) {
-        settled.emplace(cand_id_[static_cast<std::size_t>(j)], state[static_cast<std::size_t>(j)]);
-      }
-      load_candidates(2 * cand_id_.size());
-      relist(settled);
-      continue;
-    }
-    const std::uint32_t goal = cand_id_[static_cast<std::size_t>(target)];
-    const Eigen::Map<const VectorXd> q(&cand_q_[static_cast<std::size_t>(target) * d], d);
-    if (std::find(S.begin(), S.end(), goal) != S.end()) {
-      // Equidistant at this vertex already, so visit() has tried to certify it (it
-      // failed; it may be tried again from another vertex): no leg can reach it.
-      state[static_cast<std::size_t>(target)] = 1;
-      continue;
-    }
-    if (relaxed_refutes(target)) {
-      // Refuted without a leg: a try that found nothing, so a miss like an empty vertex.
-      state[static_cast<std::size_t>(target)] = 2;
-      ++misses;
-      ++refuted_in_a_row;
-      continue;
-    }
-    refuted_in_a_row = 0;
-    if (aim_ready) {
-      // The spoke from x towards the aim stays inside the relaxed polytope until it
-      // reaches the goal's bisector there, so the first bisector it crosses is the
-      // goal's or an unfound point's: a new neighbour (in exact arithmetic), certified
-      // at the spoke's end like any spoke. The walk then moves to that facet: recursive
-      // spokes inside it from the spoke's end down to a vertex (Sec. 3.2), visited as
-      // usual, so the next targets are chosen about it. If any of it fails, the leg is
-      // walked as before.
-      aim_ready = false;
-      double t = 0;
-      const std::int64_t hit = shoot(origin.data(), r_p.data(), nullptr, 0, t);
-      if (hit >= 0 && !found(static_cast<std::uint32_t>(hit))) {
-        w = t * r_p;
-        if (try_certify(static_cast<std::uint32_t>(hit), w.data())) {
-          settle(static_cast<std::uint32_t>(hit), 1);
-          misses = 0;
-          kept_S = S;
-          kept_v = v;
-          kept_E = E;
-          if (!descend(w.data(), hit) || !visit(S)) {  // stay at the vertex we were at
-            S.swap(kept_S);
-            v = kept_v;
-            E = kept_E;
-          }
-          continue;
-        }
-      }
-    }
+    return true;
+  }
+
+  // A leg: steepest edges towards the target until it is met, refuted (no edge lowers
+  // g) or the leg's budget is spent.
+  void walk_leg(Eigen::Index target) {
+    const std::uint32_t goal = walker_.cand_id_[static_cast<std::size_t>(target)];
+    const Eigen::Map<const VectorXd> q(&walker_.cand_q_[static_cast<std::size_t>(target) * d], d);
     bool reached_goal = false;
     for (int step = 0; step < kStepsPerTarget && !reached_goal; ++step) {
-      if (misses >= options_.max_misses || out.vertices >= options_.max_vertices || stop_requested()) break;
+      if (budget_spent() || walker_.stop_requested()) break;
       // The steepest edge towards the goal (g falls along E_k at the rate -2 E_k . q).
       const int best = steepest_edge(E, q);
       if (best < 0) break;  // no edge lowers g: the goal is not a neighbour
       e = E.col(best);
       double t = 0;
-      const std::int64_t hit = shoot(v.data(), e.data(), S.data(), d, t);
+      const std::int64_t hit = walker_.shoot(v.data(), e.data(), S.data(), d, t);
       if (hit < 0) break;  // unbounded: cannot happen with the goal listed
       next = S;
       next[static_cast<std::size_t>(best)] = static_cast<std::uint32_t>(hit);
@@ -799,14 +814,58 @@ Status ApproxWalker::compute_rsd(ApproxNeighbors& out) {
       if (!at_vertex) break;
       reached_goal = static_cast<std::uint32_t>(hit) == goal;
     }
-    if (!reached_goal && at_vertex && state[static_cast<std::size_t>(target)] == 0 &&
-        misses < options_.max_misses && out.vertices < options_.max_vertices) {
-      state[static_cast<std::size_t>(target)] = 2;
+    if (!reached_goal && at_vertex && state[static_cast<std::size_t>(target)] == kOpen && !budget_spent()) {
+      state[static_cast<std::size_t>(target)] = kRefuted;
     }
-    if (reached_goal) settle(goal, 1);
+    if (reached_goal) settle(goal, kSettled);
   }
-  out.misses = misses;
-  return Status::ok();
-}
+
+  ApproxWalker& walker_;
+  ApproxNeighbors& out_;
+  const int d;
+  const double* x;  // the seed
+  // The current vertex: its d equidistant points (sorted), found by descend or a leg.
+  std::vector<std::uint32_t> S, next;
+  VectorXd y;                                        // where a descent's spoke starts
+  std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
+  bool descent_found = false;                       // the last descent certified a new neighbour
+  // The certified neighbours: id -> index in found_q, their offsets s - x (d per
+  // point), and found_q2, their |s - x|^2.
+  std::unordered_map<std::uint32_t, std::uint32_t> found_at;
+  std::vector<double> found_q, found_q2;
+  double outer2 = kInf;  // see relist
+  std::size_t outer_found = 0;
+  bool list_more = false;
+  // The candidate list: its length, a state per candidate, and the slack of each
+  // bisector at the vertex visited slack_at-th (inv_norm: 1 / |q|).
+  Eigen::Index listed = 0;
+  std::vector<std::uint8_t> state;
+  std::uint64_t slack_at = ~std::uint64_t{0};
+  VectorXd slack, inv_norm;
+  Eigen::Index first_open = 0;  // no open candidate before it
+  // The vertex v, its offsets B, its edge directions E, and scratch vectors.
+  MatrixXd B, E;
+  VectorXd v, f, e, witness, rhs;
+  std::uint64_t misses = 0;
+  bool at_vertex = false;
+  int refuted_in_a_row = 0;
+  // The relaxed walk: rs (indices into found_q) and in_rs (per found point) its
+  // vertex, r_vq and r_eq (per found point) rv . q and re . q, v_q (per found point)
+  // v . q at the vertex visited vq_at-th; rE its edges, -(rs's offsets as rows)^{-1}.
+  std::vector<std::uint32_t> rs;
+  std::vector<std::uint8_t> in_rs;
+  std::vector<double> r_vq, r_eq, v_q;
+  std::uint64_t vq_at = ~std::uint64_t{0};
+  MatrixXd rE;
+  VectorXd rv, re, r_row, r_col;
+  // Set by relaxed_refutes when the goal's facet is far: r_p, a point inside it (the aim).
+  bool aim_ready = false;
+  VectorXd r_p, r_u, kept_v;
+  const VectorXd origin;  // x, where aimed spokes start
+  MatrixXd kept_E;
+  std::vector<std::uint32_t> kept_S;
+};
+
+Status ApproxWalker::compute_rsd(ApproxNeighbors& out) { return RsdWalk(*this, out).run(); }
 
 }  // namespace spokemesh

@@ -75,6 +75,8 @@ class ApproxWalker {
   // Is w' (relative to x) a witness for the edge (x, s)? Projects it exactly onto the
   // bisector and checks every point with the filtered exact predicate.
   bool certify(std::uint32_t s, const double* w);
+  // The RSD walk of one seed: its state and named steps (approx.cpp).
+  class RsdWalk;
   Status compute_rsd(ApproxNeighbors& out);
   Status compute_spokes(ApproxNeighbors& out);
   bool stop_requested() const { return options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed); }
