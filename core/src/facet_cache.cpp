@@ -81,7 +81,7 @@ FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_
   const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
   // Any slot count (home slots come from a multiply, not a mask), 10% above the
   // estimate: a power of two would waste up to half the table, and every page of it
-  // is zeroed by the kernel when first touched (7% of a 2-d run with 8M slots).
+  // is zeroed by the kernel when first touched (bench/README.md, "Tuning history").
   const auto estimate = static_cast<std::size_t>(std::min(wanted * 1.1, static_cast<double>(kMaxSlots)));
   const std::size_t slots = std::min({std::max(estimate, kMinSlots), affordable, kMaxSlots});
   if (slots < kMinSlots) return;  // too little memory for a useful table

@@ -73,7 +73,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   // The bounding box (the Z order's grid, the search's initial distances) and the
   // top split: the widest side, at the median point along it. The two halves are
   // separate nanoflann trees under one root of our own, built concurrently for large
-  // sets (nanoflann 1.4.3 builds on one thread: 10% of a 2-d million's whole mesh).
+  // sets (nanoflann 1.4.3 builds on one thread; measured in bench/README.md).
   // The split does not depend on the thread count, so neither does the tree.
   bbox_.assign(2 * d, 0.0);
   for (std::size_t c = 0; c < d; ++c) {
@@ -111,7 +111,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   }
   leaf_coords_.resize(n * d);
   // Points are copied coordinate by coordinate: a std::copy_n of a runtime d is a
-  // memmove call per point (16% of a 2-d build).
+  // memmove call per point.
   auto copy_point = [d](const double* from, double* to) {
     for (std::size_t c = 0; c < d; ++c) to[c] = from[c];
   };
@@ -134,8 +134,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   }
   // Now the leaf order: leaf position k holds what was at Z position z_of(k) (each
   // half's vAcc, the right half's shifted past the left). The same trees, but a query
-  // reads each leaf's points from consecutive memory (about 40% of a 3-d 64-NN
-  // query's time was reading them from n random places).
+  // reads each leaf's points from consecutive memory instead of from n random places.
   auto z_of = [&](std::size_t k) -> std::size_t {
     return k < n_left ? halves_[0]->vAcc[k] : n_left + halves_[1]->vAcc[k - n_left];
   };
@@ -258,8 +257,8 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
 // nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor), with the dimension a
 // compile-time constant for d <= 8 (D = 0: the runtime d). The index is built with a
 // runtime dimension (one type for every d), so its own search cannot unroll its
-// distance loops or index the leaf copy without a multiplication by d (11% of a 2-d
-// search's instructions, where the k-NN search is the largest part of a seed); and
+// distance loops or index the leaf copy without a multiplication by d (a 2-d k-NN
+// search, the largest part of a 2-d seed, spent a tenth of its instructions there); and
 // ours reads the leaf-ordered copy, which spans both halves of the tree.
 // Same visiting order, same arithmetic in the same order as nanoflann's.
 // Guarded by the version: another nanoflann may visit or round differently (the

@@ -37,10 +37,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   // reader leaves buffered, large enough to amortise. In 2-d, whose stars are cheapest
   // and most bound by memory latency, larger blocks keep the leaf order below dense, so
   // consecutive stars (and the workers' concurrent blocks, swept in the same order)
-  // touch the same tree nodes and points: 1M points in blocks of 125,000 seeds instead
-  // of 31,250 took 7-12% off with 2 threads (blocks of 4,096 had cost 11% more
-  // again). A 2-d block of at most 131,072 seeds buffers about 3 MB of triangles. In
-  // 3-d larger blocks gained nothing measurable.
+  // touch the same tree nodes and points (measured: bench/README.md, "Tuning
+  // history"). A 2-d block of at most 131,072 seeds buffers about 3 MB of triangles.
   const std::uint64_t per_thread = d == 2 ? 4 : 64;
   const std::uint64_t block = options.block_size != 0
                                   ? options.block_size

@@ -21,12 +21,11 @@ using filter::relative_error;
 constexpr double kUnit = filter::kUnitRoundoff;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Sphere queries that found a point missing from the candidates before the walk
-// loads a neighbourhood twice as large (once per seed: a seed on the hull can
-// have spheres of any size, and the tree answers those; growing a second time cost
-// 3-d, 4-d and 5-d seeds 0-11% more instructions).
+// loads a neighbourhood twice as large (once per seed: a seed on the hull can have
+// spheres of any size, and the tree answers those). Measurements behind this and the
+// other constants: bench/README.md, "Tuning history".
 constexpr int kGrowAfterMisses = 3;
-// A k-NN search is bounded by the previous seed's k-th squared distance times this
-// (callgrind, whole meshes: 3-d 3% fewer instructions at 1.5, 2-d 1%; 1.2 and 2 less).
+// A k-NN search is bounded by the previous seed's k-th squared distance times this.
 constexpr double kGuessSlack = 1.5;
 // FacetCache entries a walker reserves at a time (one shared counter update per batch).
 constexpr std::size_t kCacheBatch = 256;
@@ -144,11 +143,8 @@ double random_unit(std::uint64_t& state) {
 }  // namespace
 
 std::size_t default_candidates(int d) {
-  // Tuned on callgrind instruction counts of whole meshes with the FacetCache (which
-  // leaves about a third of the wraps to each star): fewer candidates than before it,
-  // since sphere queries now serve fewer wraps. 6-d re-timed after the vectorized
-  // pencil filter and tight tree boxes (400: 20% faster than 640 on 2,000 points;
-  // 5-d's 150 and 200 were within noise). 7-d and 8-d keep their earlier values.
+  // Enough that most wraps are decided by the candidates, few enough that loading
+  // them stays cheap (tuned: bench/README.md, "Tuning history").
   static constexpr std::array<std::size_t, kMaxDimension + 1> kDefault = {0, 8, 16, 48, 100, 200, 400, 1280, 2560};
   return kDefault[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
 }
