@@ -24,17 +24,19 @@
 #include <thread>
 #include <vector>
 
+#include "inputs.hpp"
 #include "spokemesh/mesh.hpp"
 
 namespace {
 
+using spokemesh::bench::grid;
+using spokemesh::bench::Kind;
+using spokemesh::bench::uniform;
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// Points of a configuration: uniform random, or a grid of `side`^d points whose axis
-// values are written the way users write them.
-enum class Kind { kUniform, kGridInteger, kGridDyadic, kGridLinspace, kGridDecimal, kGridJittered };
-
+// A configuration: uniform random points, or a grid of `side`^d points whose axis
+// values are written the way users write them (inputs.hpp).
 struct Config {
   std::string name;
   int d;
@@ -44,44 +46,6 @@ struct Config {
   Kind kind = Kind::kUniform;
   int side = 0;  // grids: points per axis
 };
-
-std::vector<double> uniform(int d, std::size_t n, std::uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0, 1);
-  std::vector<double> c(n * d);
-  for (double& v : c) v = u(rng);
-  return c;
-}
-
-// A grid's axis values: i (integers), i / 32 (exact dyadic), i / (side - 1) as numpy's
-// linspace(0, 1, side) computes it, i * 0.1 (decimal steps), or integers jittered by
-// up to 1e-3 per coordinate (general position: the twin without ties).
-std::vector<double> grid(int d, int side, Kind kind, std::uint64_t seed) {
-  std::vector<double> axis(static_cast<std::size_t>(side));
-  for (int i = 0; i < side; ++i) {
-    switch (kind) {
-      case Kind::kGridDyadic: axis[i] = i / 32.0; break;
-      case Kind::kGridLinspace:  // numpy: arange(side) * step + 0, the last value set to stop
-        axis[i] = i + 1 == side ? 1.0 : i * (1.0 / (side - 1));
-        break;
-      case Kind::kGridDecimal: axis[i] = i * 0.1; break;
-      default: axis[i] = i; break;
-    }
-  }
-  std::size_t n = 1;
-  for (int c = 0; c < d; ++c) n *= static_cast<std::size_t>(side);
-  std::vector<double> coords(n * d);
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> jitter(-1e-3, 1e-3);
-  for (std::size_t i = 0; i < n; ++i) {
-    std::size_t rest = i;
-    for (int c = d - 1; c >= 0; --c) {
-      coords[i * d + c] = axis[rest % side] + (kind == Kind::kGridJittered ? jitter(rng) : 0.0);
-      rest /= side;
-    }
-  }
-  return coords;
-}
 
 std::vector<double> points_of(const Config& c) {
   return c.kind == Kind::kUniform ? uniform(c.d, c.n, 2016 + c.d) : grid(c.d, c.side, c.kind, 2016 + c.d);
@@ -186,6 +150,7 @@ int main(int argc, char** argv) {
                                                                   {"4d-2k", 4, 2000, true, true}}
                                             : std::vector<Config>{{"2d-1M", 2, 1000000, false, true},
                                                                   {"3d-200k", 3, 200000, false, true},
+                                                                  {"3d-1M", 3, 1000000, false, false},
                                                                   {"4d-20k", 4, 20000, true, true},
                                                                   {"5d-5k", 5, 5000, true, true},
                                                                   {"6d-2k", 6, 2000, true, true}};

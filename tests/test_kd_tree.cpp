@@ -180,10 +180,10 @@ TEST(KdTree, AnyBeyondMatchesBruteForce) {
                        std::to_string(trial) + " sigma " + std::to_string(sigma));
           bool expected = false;
           for (std::uint32_t p = 0; p < ps.size() && !expected; ++p) expected = exact_side(p) == sigma;
-          const std::int64_t got = tree.any_beyond(x, normal.data(), sigma, exact_side);
-          EXPECT_EQ(got >= 0, expected);
-          if (got >= 0) {
-            EXPECT_EQ(exact_side(static_cast<std::uint32_t>(got)), sigma);
+          const std::optional<std::uint32_t> got = tree.any_beyond(x, normal.data(), sigma, exact_side);
+          EXPECT_EQ(got.has_value(), expected);
+          if (got) {
+            EXPECT_EQ(exact_side(*got), sigma);
           }
         }
       }

@@ -64,11 +64,11 @@ void ApproxWalker::load_candidates(std::size_t k) {
   cand_radius2_ = got == n ? kInf : d2[got - 1] * (1 - 2e-9);
 }
 
-std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
-                                 double& t_out, bool head_only) {
+std::optional<std::uint32_t> ApproxWalker::shoot(const double* y, const double* e, const std::uint32_t* exclude,
+                                                 int excluded, double& t_out, bool head_only) {
   ++rays_;
   const int d = d_;
-  std::int64_t best = -1;
+  std::optional<std::uint32_t> best;
   // reach2: (2 |z_best|)^2 (z = y + t e); no point farther than 2 |z_best| from x can
   // be hit first.
   double t_best = kInf, reach2 = kInf;
@@ -110,7 +110,7 @@ std::int64_t ApproxWalker::shoot(const double* y, const double* e, const std::ui
     t_out = t_best;
     return best;
   }
-  if (best >= 0) {
+  if (best) {
     double z2 = 0;
     scratch_.resize(static_cast<std::size_t>(2 * d));
     for (int c = 0; c < d; ++c) {
@@ -288,14 +288,14 @@ Status ApproxWalker::compute_spokes(ApproxNeighbors& out) {
     for (double& v : u) v = normal_variate(rng_);
     ++out.vertices;
     double t = 0;
-    const std::int64_t p = shoot(y.data(), u.data(), nullptr, 0, t);
+    const std::optional<std::uint32_t> p = shoot(y.data(), u.data(), nullptr, 0, t);
     bool fresh = false;
-    if (p >= 0 && found.count(static_cast<std::uint32_t>(p)) == 0) {
+    if (p && found.count(*p) == 0) {
       // The trimmed spoke's end lies on the Voronoi facet of (x, p): the witness.
       for (int c = 0; c < d; ++c) w[c] = t * u[c];
-      if (certify(static_cast<std::uint32_t>(p), w.data())) {
-        found.insert(static_cast<std::uint32_t>(p));
-        out.neighbors.push_back(static_cast<std::uint32_t>(p));
+      if (certify(*p, w.data())) {
+        found.insert(*p);
+        out.neighbors.push_back(*p);
         fresh = true;
       } else {
         ++out.uncertified;
@@ -339,7 +339,7 @@ class ApproxWalker::RsdWalk {
         origin(VectorXd::Zero(d)), kept_E(d, d) {}
 
   Status run() {
-    const bool reached_first = descend(nullptr, -1);
+    const bool reached_first = descend(nullptr, std::nullopt);
     if (walker_.stop_requested()) return cancelled("neighbour walk cancelled");
     relist({});
     // The first vertex, by recursive spokes (again if the spokes miss, or the vertex
@@ -419,18 +419,18 @@ class ApproxWalker::RsdWalk {
 
   // Recursive spokes from `start` (relative to x; with `first`, a point already met
   // there) down to a vertex S; false if no vertex was reached within the attempts.
-  bool descend(const double* start, std::int64_t first) {
+  bool descend(const double* start, std::optional<std::uint32_t> first) {
     S.clear();
     y.setZero();
     std::vector<double> basis;  // orthonormal rows spanning the offsets found so far
     VectorXd u(d), q(d);
-    if (first >= 0) {
+    if (first) {
       for (int c = 0; c < d; ++c) y[c] = start[c];
-      const double* pp = walker_.ps_.point(static_cast<std::size_t>(first));
+      const double* pp = walker_.ps_.point(*first);
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       q.normalize();
       basis.insert(basis.end(), q.data(), q.data() + d);
-      S.push_back(static_cast<std::uint32_t>(first));
+      S.push_back(*first);
     }
     // A level whose spokes keep missing (an unbounded face, or a cell without vertices
     // when the points lie in a subspace) ends the descent after a few tries.
@@ -444,13 +444,14 @@ class ApproxWalker::RsdWalk {
       if (!(u.norm() > 1e-9)) continue;
       u.normalize();
       double t = 0;
-      std::int64_t p = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
-      if (p < 0) {  // unbounded that way: the face reaches the hull; try the other way
+      std::optional<std::uint32_t> hit = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+      if (!hit) {  // unbounded that way: the face reaches the hull; try the other way
         u = -u;
-        p = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
+        hit = walker_.shoot(y.data(), u.data(), S.data(), static_cast<int>(S.size()), t);
       }
-      if (p < 0) continue;
-      const double* pp = walker_.ps_.point(static_cast<std::size_t>(p));
+      if (!hit) continue;
+      const std::uint32_t p = *hit;
+      const double* pp = walker_.ps_.point(p);
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       for (std::size_t b = 0; b * d < basis.size(); ++b) {
         const Eigen::Map<const VectorXd> row(&basis[b * d], d);
@@ -462,10 +463,10 @@ class ApproxWalker::RsdWalk {
         // Darts, so RSD never finds less than the spokes it shoots (and still works
         // where the cell has no vertices, e.g. points in a lower-dimensional subspace).
         const VectorXd w1 = t * u;
-        descent_found = try_certify(static_cast<std::uint32_t>(p), w1.data()) || descent_found;
+        descent_found = try_certify(p, w1.data()) || descent_found;
       }
       y += t * u;
-      S.push_back(static_cast<std::uint32_t>(p));
+      S.push_back(p);
       q.normalize();
       basis.insert(basis.end(), q.data(), q.data() + d);
       misses_here = -1;  // a new level
@@ -479,7 +480,7 @@ class ApproxWalker::RsdWalk {
   void descend_again() {
     ++out_.vertices;
     descent_found = false;
-    const bool reached = descend(nullptr, -1);
+    const bool reached = descend(nullptr, std::nullopt);
     misses = descent_found ? 0 : misses + 1;
     if (reached) {
       --out_.vertices;  // visit() counts it
@@ -562,7 +563,7 @@ class ApproxWalker::RsdWalk {
       // shot only when that fails.
       auto place_witness = [&](bool head_only) {
         double t = 0;
-        if (walker_.shoot(v.data(), f.data(), &s, 1, t, head_only) < 0) {
+        if (!walker_.shoot(v.data(), f.data(), &s, 1, t, head_only)) {
           t = 2 * std::max(v.norm(), 1e-300) / std::max(f.norm(), 1e-300);
         }
         witness = v + (t / 2) * f;
@@ -774,16 +775,16 @@ class ApproxWalker::RsdWalk {
   bool aimed_spoke() {
     aim_ready = false;
     double t = 0;
-    const std::int64_t hit = walker_.shoot(origin.data(), r_p.data(), nullptr, 0, t);
-    if (hit < 0 || found(static_cast<std::uint32_t>(hit))) return false;
+    const std::optional<std::uint32_t> hit = walker_.shoot(origin.data(), r_p.data(), nullptr, 0, t);
+    if (!hit || found(*hit)) return false;
     witness = t * r_p;
-    if (!try_certify(static_cast<std::uint32_t>(hit), witness.data())) return false;
-    settle(static_cast<std::uint32_t>(hit), kSettled);
+    if (!try_certify(*hit, witness.data())) return false;
+    settle(*hit, kSettled);
     misses = 0;
     kept_S = S;
     kept_v = v;
     kept_E = E;
-    if (!descend(witness.data(), hit) || !visit(S)) {  // stay at the vertex we were at
+    if (!descend(witness.data(), *hit) || !visit(S)) {  // stay at the vertex we were at
       S.swap(kept_S);
       v = kept_v;
       E = kept_E;
@@ -804,15 +805,15 @@ class ApproxWalker::RsdWalk {
       if (best < 0) break;  // no edge lowers g: the goal is not a neighbour
       e = E.col(best);
       double t = 0;
-      const std::int64_t hit = walker_.shoot(v.data(), e.data(), S.data(), d, t);
-      if (hit < 0) break;  // unbounded: cannot happen with the goal listed
+      const std::optional<std::uint32_t> hit = walker_.shoot(v.data(), e.data(), S.data(), d, t);
+      if (!hit) break;  // unbounded: cannot happen with the goal listed
       next = S;
-      next[static_cast<std::size_t>(best)] = static_cast<std::uint32_t>(hit);
+      next[static_cast<std::size_t>(best)] = *hit;
       std::sort(next.begin(), next.end());
       S.swap(next);
       at_vertex = visit(S);
       if (!at_vertex) break;
-      reached_goal = static_cast<std::uint32_t>(hit) == goal;
+      reached_goal = *hit == goal;
     }
     if (!reached_goal && at_vertex && state[static_cast<std::size_t>(target)] == kOpen && !budget_spent()) {
       state[static_cast<std::size_t>(target)] = kRefuted;

@@ -509,14 +509,14 @@ class StarWalker::WrapState {
   //    when there is none (the facet is on the hull: the Voronoi edge is unbounded).
   bool hull_query() {
     ++w.stats_.hull_queries;
-    const std::int64_t beyond = w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
+    const std::optional<std::uint32_t> beyond = w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
       if (p == w.x_ || is_pivot(p)) return 0;  // on the hyperplane
       std::array<double, kMaxDimension> q;
       for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
       return spatial_side(q.data(), p);
     });
-    if (beyond < 0) return false;
-    take_point(static_cast<std::uint32_t>(beyond));
+    if (!beyond) return false;
+    take_point(*beyond);
     return true;
   }
 
@@ -526,10 +526,10 @@ class StarWalker::WrapState {
   void sphere_queries() {
     for (;;) {
       ++w.stats_.sphere_queries;
-      const std::int64_t below = first_point_below();
-      if (below < 0) return;
+      const std::optional<std::uint32_t> below = first_point_below();
+      if (!below) return;
       ++w.missed_candidates_;
-      take_point(static_cast<std::uint32_t>(below));
+      take_point(*below);
     }
   }
 
@@ -648,8 +648,8 @@ class StarWalker::WrapState {
   }
 
   // A point of the tree strictly below the best plane (inside its sphere), not among
-  // the scanned candidates; -1 when there is none.
-  std::int64_t first_point_below() {
+  // the scanned candidates, if any.
+  std::optional<std::uint32_t> first_point_below() {
     // The points below the plane are those inside its sphere: with O = sigma * plane
     // (O_d > 0), centre m = -O / (2 O_d) relative to x and radius |m|. Boxes are
     // pruned by their distance from the computed centre, against a radius enlarged

@@ -155,11 +155,11 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
     const int inner = side(key, apex);
     for (int r = 0; r + 1 < d; ++r) rows[r] = Row::of_point(key[r + 1]);
     pred.spatial_normal(key[0], std::span<const Row>(rows.data(), d - 1), normal.data());
-    const std::int64_t beyond = tree.any_beyond(ps.point(key[0]), normal.data(), -inner,
+    const std::optional<std::uint32_t> beyond = tree.any_beyond(ps.point(key[0]), normal.data(), -inner,
                                                 [&](std::uint32_t q) { return side(key, q); });
-    if (beyond >= 0) {
+    if (beyond) {
       fail("boundary facet " + tuple_text(key.data(), d) + " is not on the convex hull: point " +
-           std::to_string(beyond) + " lies beyond it");
+           std::to_string(*beyond) + " lies beyond it");
       continue;
     }
     // Signed volume of the cone from the reference point, positive when the reference

@@ -27,6 +27,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "spokemesh/kd_tree.hpp"
@@ -68,10 +69,10 @@ class ApproxWalker {
   // Lists the k points nearest to x (k + 1 with x itself; all of them if fewer).
   void load_candidates(std::size_t k);
   // First point (not x, not excluded) that becomes equidistant with x along
-  // y + t e, t > 0 (relative coordinates: y, e relative to x). Returns -1 if none.
+  // y + t e, t > 0 (relative coordinates: y, e relative to x), if any.
   // head_only: among the nearest few candidates only (a guess, no tree query).
-  std::int64_t shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded, double& t,
-                     bool head_only = false);
+  std::optional<std::uint32_t> shoot(const double* y, const double* e, const std::uint32_t* exclude, int excluded,
+                                     double& t, bool head_only = false);
   // Is w' (relative to x) a witness for the edge (x, s)? Projects it exactly onto the
   // bisector and checks every point with the filtered exact predicate.
   bool certify(std::uint32_t s, const double* w);

@@ -33,6 +33,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <type_traits>
 #include <vector>
 
@@ -74,11 +75,12 @@ class KdTree {
   void within(const double* query, double r2, std::vector<std::pair<std::uint32_t, double>>& out) const;
 
   // First point p found (in tree order) with `exact_side(p) == sigma` (or
-  // `exact_side(p, coordinates of p)`), or -1 if none. `normal` approximates the
+  // `exact_side(p, coordinates of p)`), or none. `normal` approximates the
   // hyperplane's normal with certified error bounds; it prunes boxes only where no
   // point can be strictly on side sigma.
   template <class ExactSide>
-  std::int64_t any_beyond(const double* x, const BoundedDouble* normal, int sigma, ExactSide&& exact_side) const;
+  std::optional<std::uint32_t> any_beyond(const double* x, const BoundedDouble* normal, int sigma,
+                                          ExactSide&& exact_side) const;
 
   // First point p (in tree order) with accept(p), visiting only boxes for which
   // may_contain(lo, hi) holds (d lows, d highs: floats rounded outwards, read in
@@ -86,9 +88,9 @@ class KdTree {
   // false only when no point of the box can be accepted. It may also take (lo, hi,
   // flat, first): bit c of `flat` set when every point of the box has coordinate c
   // equal to first[c] (exact doubles). `accept` may also take (p, coordinates of p),
-  // read from the leaf-ordered copy.
+  // read from the leaf-ordered copy. None when no point is accepted.
   template <class MayContain, class Accept>
-  std::int64_t find_first(MayContain&& may_contain, Accept&& accept) const;
+  std::optional<std::uint32_t> find_first(MayContain&& may_contain, Accept&& accept) const;
 
  private:
   // Reads the PointSet while nanoflann builds, the leaf-ordered copy afterwards.
@@ -148,7 +150,7 @@ class KdTree {
 };
 
 template <class MayContain, class Accept>
-std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const {
+std::optional<std::uint32_t> KdTree::find_first(MayContain&& may_contain, Accept&& accept) const {
   // Stackless preorder walk of the box tree: a rejected box jumps past its subtree.
   const std::size_t d = d_;
   const std::size_t count = box_nodes_.size();
@@ -177,11 +179,12 @@ std::int64_t KdTree::find_first(MayContain&& may_contain, Accept&& accept) const
     }
     ++i;
   }
-  return -1;
+  return std::nullopt;
 }
 
 template <class ExactSide>
-std::int64_t KdTree::any_beyond(const double* x, const BoundedDouble* normal, int sigma, ExactSide&& exact_side) const {
+std::optional<std::uint32_t> KdTree::any_beyond(const double* x, const BoundedDouble* normal, int sigma,
+                                                ExactSide&& exact_side) const {
   const int d = points().dimension();
   auto on_side = [&](std::uint32_t p, const double* coords) {
     if constexpr (std::is_invocable_v<ExactSide&, std::uint32_t, const double*>) {
