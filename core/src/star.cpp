@@ -43,7 +43,7 @@ inline int certified(double v, double a, int depth) {
   return filter::certified_sign(v, a, depth + 1);
 }
 
-// One wrap's pencil (see wrap_kernel, step 1a): the rotation's vertical normal nn
+// One wrap's pencil (see WrapState::pencil_scan, step 1a): the rotation's vertical normal nn
 // and reference plane h, with the magnitudes and depths of their error bounds.
 struct Pencil {
   const double* nn;    // d coefficients
@@ -64,7 +64,7 @@ using detail::Mask4;
 // same order as a row-by-row loop, and the offsets of the first `limit` candidates
 // that can still be the first hit to `keep`; returns their number. Rejected are only
 // candidates certainly on the wrong side (nn . q < 0) or certainly met after u_best
-// (certified lambda_c > u_best), with the bounds of the scalar scan in wrap_kernel;
+// (certified lambda_c > u_best), with the bounds of the scalar scan in WrapState::pencil_scan;
 // anything uncertain is kept for it. Branch-free, V's lanes at a time; the same
 // operations in the same order for any lane count, so the results are bit-identical.
 template <int D, class V, class M>
