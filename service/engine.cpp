@@ -9,8 +9,11 @@ namespace spokemesh::service {
 
 // ---- CallControl and Watchdog ----------------------------------------------------
 
-CallControl::CallControl(Clock::time_point deadline, std::function<bool()> client_gone)
-    : deadline_(deadline), start_(Clock::now()), client_gone_(std::move(client_gone)) {
+CallControl::CallControl(Clock::time_point deadline, std::function<bool()> client_gone, std::function<void()> on_stop)
+    : deadline_(deadline.time_since_epoch().count()),
+      start_(Clock::now()),
+      client_gone_(std::move(client_gone)),
+      on_stop_(std::move(on_stop)) {
   Watchdog::instance().add(this);
 }
 
@@ -19,17 +22,18 @@ CallControl::~CallControl() { Watchdog::instance().remove(this); }
 void CallControl::poll(Clock::time_point now) {
   if (stop_.load(std::memory_order_relaxed)) return;
   // The deadline first: a gRPC client whose deadline passed also reads as cancelled.
-  if (now >= deadline_) {
+  if (now >= deadline()) {
     stop_.store(true);
   } else if (client_gone_ && client_gone_()) {
     client_left_.store(true);
     stop_.store(true);
   }
+  if (on_stop_ && stop_.load()) on_stop_();
 }
 
 Status CallControl::stopped_status(const std::string& what) const {
   if (client_left_.load()) return cancelled(what + " stopped: the client cancelled or disconnected");
-  const auto ms = std::chrono::round<std::chrono::milliseconds>(deadline_ - start_).count();
+  const auto ms = std::chrono::round<std::chrono::milliseconds>(deadline() - start_).count();
   return {Code::kDeadlineExceeded, what + " stopped at the request deadline (" + std::to_string(ms) +
                                        " ms); ask with a longer deadline or raise --default-deadline"};
 }
@@ -72,11 +76,29 @@ void Watchdog::run() {
 
 // ---- uploads ----------------------------------------------------------------------
 
+Status UploadSession::adopt(std::vector<double>&& coords) {
+  if (received_ != 0 || coords.size() * sizeof(double) != expected_) {
+    return append(coords.data(), coords.size() * sizeof(double));
+  }
+  sha_->update(coords.data(), expected_);
+  received_ = expected_;
+  coords_ = std::move(coords);
+  return Status::ok();
+}
+
 Status UploadSession::append(const void* data, std::size_t size) {
   if (size > expected_ - received_) {
     return invalid_argument("coordinates: more than the " + std::to_string(expected_) + " bytes that dimension " +
                             std::to_string(header_.dimension) + " x count " + std::to_string(header_.count) +
                             " x 8 bytes allow");
+  }
+  // Memory follows the bytes that arrived, not the count the header claims: a header
+  // alone reserves nothing. Doubling (capped at what the header allows) keeps the
+  // copies amortised.
+  const std::uint64_t needed = received_ + size;
+  if (needed > coords_.size() * sizeof(double)) {
+    const std::uint64_t grown = std::min<std::uint64_t>(expected_, std::max<std::uint64_t>(needed, 2 * received_));
+    coords_.resize(static_cast<std::size_t>((grown + sizeof(double) - 1) / sizeof(double)));
   }
   std::memcpy(reinterpret_cast<char*>(coords_.data()) + received_, data, size);
   sha_->update(data, size);
@@ -119,7 +141,6 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
   auto s = std::make_unique<UploadSession>();
   s->header_ = h;
   s->expected_ = static_cast<std::uint64_t>(h.count) * static_cast<std::uint64_t>(h.dimension) * 8;
-  s->coords_.resize(static_cast<std::size_t>(h.count * h.dimension));
   s->sha_ = std::make_unique<Sha256>();
   const std::string header =
       point_set_header_bytes(static_cast<std::uint32_t>(h.dimension), static_cast<std::uint64_t>(h.count));

@@ -35,6 +35,7 @@ struct Limits {
   int max_dimension = 128;  // uploads; exact answers are defined up to kMaxDimension
   std::uint64_t max_memory = 4ull << 30;      // bytes of point sets + trees kept in memory
   std::chrono::milliseconds default_deadline{60'000};
+  std::chrono::milliseconds upload_idle_timeout{30'000};  // an upload stream sending nothing this long ends
   unsigned stream_threads = 1;                // worker threads per StreamSimplices call
   std::size_t stream_cache_bytes = 256u << 20;  // FacetCache cap per StreamSimplices call (0: none)
   std::size_t max_display_name = 256;
@@ -45,23 +46,29 @@ struct Limits {
 // the flag the core checks between wraps.
 class CallControl {
  public:
-  explicit CallControl(Clock::time_point deadline, std::function<bool()> client_gone = {});
+  // on_stop, if given, runs once on the watchdog's thread when the flag is set (e.g.
+  // grpc::ServerContext::TryCancel, to end a blocked Read).
+  explicit CallControl(Clock::time_point deadline, std::function<bool()> client_gone = {},
+                       std::function<void()> on_stop = {});
   ~CallControl();
   CallControl(const CallControl&) = delete;
   CallControl& operator=(const CallControl&) = delete;
 
   const std::atomic<bool>* stop_flag() const { return &stop_; }
   bool stopped() const { return stop_.load(std::memory_order_relaxed); }
-  Clock::time_point deadline() const { return deadline_; }
+  Clock::time_point deadline() const { return Clock::time_point(Clock::duration(deadline_.load())); }
+  // Moves the deadline (an idle timeout restarted by each message that arrives).
+  void extend_deadline(Clock::time_point deadline) { deadline_.store(deadline.time_since_epoch().count()); }
   // Called by the watchdog: sets the flag if the deadline passed or the client left.
   void poll(Clock::time_point now);
   // The status for a computation that was stopped: DEADLINE_EXCEEDED or CANCELLED.
   Status stopped_status(const std::string& what) const;
 
  private:
-  Clock::time_point deadline_;
+  std::atomic<Clock::rep> deadline_;
   Clock::time_point start_;
   std::function<bool()> client_gone_;
+  std::function<void()> on_stop_;
   std::atomic<bool> stop_{false};
   std::atomic<bool> client_left_{false};
 };
@@ -95,6 +102,8 @@ struct UploadHeader {
 class UploadSession {
  public:
   Status append(const void* data, std::size_t size);
+  // The whole body at once, already as doubles: taken without a copy.
+  Status adopt(std::vector<double>&& coords);
   std::uint64_t expected_bytes() const { return expected_; }
   std::uint64_t received_bytes() const { return received_; }
 

@@ -77,8 +77,20 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
                                            pb::PointSet* response) {
   Call call(*this, ctx, "UploadPointSet");
   if (!call.auth().is_ok()) return call.finish(call.auth());
+  // A stream that sends nothing for the idle timeout is cancelled (its blocked Read
+  // returns), so a stalled client holds neither a thread nor memory for long.
+  const auto idle = engine_.limits().upload_idle_timeout;
+  CallControl idle_control(Clock::now() + idle, {}, [ctx] { ctx->TryCancel(); });
+  const auto idle_status = [&] {
+    return Status{Code::kDeadlineExceeded, "upload: nothing arrived for " + std::to_string(idle.count()) +
+                                               " ms (--upload-idle-timeout); the upload was ended"};
+  };
   pb::UploadPointSetRequest message;
-  if (!reader->Read(&message)) return call.finish(invalid_argument("header: the stream ended before any message"));
+  if (!reader->Read(&message)) {
+    if (idle_control.stopped()) return call.finish(idle_status());
+    return call.finish(invalid_argument("header: the stream ended before any message"));
+  }
+  idle_control.extend_deadline(Clock::now() + idle);
   if (!message.has_header()) return call.finish(invalid_argument("header: the first message must carry the header"));
   UploadHeader header;
   header.dimension = message.header().dimension();
@@ -88,6 +100,7 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
   if (!session.is_ok()) return call.finish(session.status());
   std::uint64_t index = 1;
   while (reader->Read(&message)) {
+    idle_control.extend_deadline(Clock::now() + idle);
     if (message.has_header()) {
       return call.finish(invalid_argument("message " + std::to_string(index) + ": a second header"));
     }
@@ -95,6 +108,7 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
     if (Status s = session.value()->append(chunk.data(), chunk.size()); !s.is_ok()) return call.finish(s);
     ++index;
   }
+  if (idle_control.stopped()) return call.finish(idle_status());
   if (ctx->IsCancelled()) return call.finish(cancelled("upload cancelled by the client"));
   auto info = engine_.finish_upload(*session.value());
   if (!info.is_ok()) return call.finish(info.status());

@@ -10,6 +10,7 @@
 #include <optional>
 
 #include "status_map.hpp"
+#include "upload_json.hpp"
 
 namespace spokemesh::service {
 namespace {
@@ -77,10 +78,25 @@ json rows(const std::vector<T>& flat, std::size_t width) {
   return out;
 }
 
+// The media type of a Content-Type value: type/subtype without parameters, lowercased
+// (RFC 9110 8.3.1: type, subtype and parameter names are case-insensitive).
+std::string media_type_of(std::string_view content_type) {
+  std::string_view type = content_type.substr(0, content_type.find(';'));
+  while (!type.empty() && (type.back() == ' ' || type.back() == '\t')) type.remove_suffix(1);
+  while (!type.empty() && (type.front() == ' ' || type.front() == '\t')) type.remove_prefix(1);
+  std::string out(type);
+  std::transform(out.begin(), out.end(), out.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  return out;
+}
+
 }  // namespace
 
-std::string error_json(const Status& s) {
-  return dump({{"error", {{"code", http_status(s.code())}, {"status", code_name(s.code())}, {"message", s.message()}}}});
+std::string error_json(const Status& s, int http_code) {
+  json error = {{"code", http_code != 0 ? http_code : http_status(s)},
+                {"status", code_name(s.code())},
+                {"message", s.message()}};
+  if (!s.reason().empty()) error["reason"] = s.reason();
+  return dump({{"error", std::move(error)}});
 }
 
 struct HttpApi::Context {
@@ -95,7 +111,7 @@ struct HttpApi::Context {
     record.code = s.code();
     record.message = s.message();
     HttpResponse r;
-    r.status = static_cast<unsigned>(http_status(s.code()));
+    r.status = static_cast<unsigned>(http_status(s));
     r.body = error_json(s);
     return r;
   }
@@ -238,9 +254,10 @@ HttpResponse HttpApi::upload(Context& c) {
   const std::string& body = c.request.body();
   const auto ctype = c.request.find(http::field::content_type);
   const std::string content_type = ctype == c.request.end() ? "" : std::string(ctype->value());
+  const std::string media_type = media_type_of(content_type);
   UploadHeader header;
   std::vector<double> coords;
-  if (content_type.rfind("application/octet-stream", 0) == 0) {
+  if (media_type == "application/octet-stream") {
     const auto d = c.param("dimension");
     if (!d) return c.fail(invalid_argument("dimension: the query parameter is required for raw float64 uploads"));
     auto dim = parse_uint(*d, "dimension");
@@ -256,86 +273,26 @@ HttpResponse HttpApi::upload(Context& c) {
     header.dimension = static_cast<std::int64_t>(dim.value());
     header.count = static_cast<std::int64_t>(body.size() / row);
     header.display_name = c.param("display_name").value_or("");
-    return store_upload(c, header, body.data(), body.size());
+    return store_upload(c, header, std::span<const char>(body.data(), body.size()));
   }
   // JSON also under curl -d's default type, so `curl -d '{...}'` just works.
-  if (!content_type.empty() && content_type.rfind("application/json", 0) != 0 &&
-      content_type.rfind("application/x-www-form-urlencoded", 0) != 0) {
+  if (!media_type.empty() && media_type != "application/json" && media_type != "application/x-www-form-urlencoded") {
     return c.fail(invalid_argument("Content-Type: \"" + content_type.substr(0, 80) +
                                    "\" is not supported; send application/json or application/octet-stream"));
   }
-  json doc;
-  try {
-    doc = json::parse(body);
-  } catch (const json::exception& e) {  // syntax errors, and numbers beyond double's range
-    return c.fail(invalid_argument(std::string("body: invalid JSON: ") + e.what()));
-  }
-  if (!doc.is_object()) return c.fail(invalid_argument("body: expected a JSON object"));
-  if (auto it = doc.find("display_name"); it != doc.end()) {
-    if (!it->is_string()) return c.fail(invalid_argument("display_name: expected a string"));
-    header.display_name = it->get<std::string>();
-  }
-  auto number = [](const json& v, double& out) {
-    if (!v.is_number()) return false;
-    out = v.get<double>();
-    return true;
-  };
-  if (auto pts = doc.find("points"); pts != doc.end()) {
-    if (!pts->is_array() || pts->empty()) return c.fail(invalid_argument("points: expected a non-empty array of points"));
-    std::size_t d = 0;
-    for (std::size_t i = 0; i < pts->size(); ++i) {
-      const json& row = (*pts)[i];
-      const std::string where = "points[" + std::to_string(i) + "]";
-      if (!row.is_array()) return c.fail(invalid_argument(where + ": expected an array of coordinates"));
-      if (i == 0) d = row.size();
-      if (row.size() != d) {
-        return c.fail(invalid_argument(where + ": " + std::to_string(row.size()) + " coordinates, but points[0] has " +
-                                       std::to_string(d)));
-      }
-      for (std::size_t k = 0; k < row.size(); ++k) {
-        double v = 0;
-        if (!number(row[k], v)) {
-          return c.fail(invalid_argument(where + "[" + std::to_string(k) + "]: expected a number, got " +
-                                         dump(row[k]).substr(0, 40)));
-        }
-        coords.push_back(v);
-      }
-    }
-    header.dimension = static_cast<std::int64_t>(d);
-    header.count = static_cast<std::int64_t>(pts->size());
-  } else if (auto flat = doc.find("coordinates"); flat != doc.end()) {
-    const auto dim = doc.find("dimension");
-    if (dim == doc.end() || !dim->is_number_unsigned()) {
-      return c.fail(invalid_argument("dimension: a positive integer is required with \"coordinates\""));
-    }
-    if (!flat->is_array()) return c.fail(invalid_argument("coordinates: expected a flat array of numbers"));
-    const std::uint64_t d = dim->get<std::uint64_t>();
-    if (d < 2 || d > 1000) {
-      return c.fail(invalid_argument("dimension: " + std::to_string(d) + " is not supported; it must be at least 2"));
-    }
-    if (flat->size() % d != 0) {
-      return c.fail(invalid_argument("coordinates: " + std::to_string(flat->size()) +
-                                     " numbers are not a multiple of dimension " + std::to_string(d)));
-    }
-    coords.resize(flat->size());
-    for (std::size_t i = 0; i < flat->size(); ++i) {
-      if (!number((*flat)[i], coords[i])) {
-        return c.fail(invalid_argument("coordinates[" + std::to_string(i) + "]: expected a number, got " +
-                                       dump((*flat)[i]).substr(0, 40)));
-      }
-    }
-    header.dimension = static_cast<std::int64_t>(d);
-    header.count = static_cast<std::int64_t>(flat->size() / d);
-  } else {
-    return c.fail(invalid_argument("body: expected \"points\" or \"dimension\" and \"coordinates\""));
-  }
-  return store_upload(c, header, coords.data(), coords.size() * sizeof(double));
+  if (Status s = read_upload_json(body, engine_.limits(), header, coords); !s.is_ok()) return c.fail(s);
+  return store_upload(c, header, std::move(coords));
 }
 
-HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, const void* data, std::size_t size) {
+HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header,
+                                   std::variant<std::span<const char>, std::vector<double>> data) {
   auto session = engine_.begin_upload(header);
   if (!session.is_ok()) return c.fail(session.status());
-  if (Status s = session.value()->append(data, size); !s.is_ok()) return c.fail(s);
+  const Status appended =
+      data.index() == 0
+          ? session.value()->append(std::get<0>(data).data(), std::get<0>(data).size())
+          : session.value()->adopt(std::move(std::get<1>(data)));  // parsed doubles: no second copy
+  if (!appended.is_ok()) return c.fail(appended);
   auto info = engine_.finish_upload(*session.value());
   if (!info.is_ok()) return c.fail(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);

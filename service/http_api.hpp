@@ -24,8 +24,11 @@
 #include <boost/beast/http.hpp>
 
 #include <functional>
+#include <span>
 #include <string>
 #include <string_view>
+#include <variant>
+#include <vector>
 
 #include "engine.hpp"
 #include "telemetry.hpp"
@@ -44,7 +47,9 @@ struct HttpResponse {
   std::function<Status(const std::function<bool(std::string_view)>& write_chunk)> stream;
 };
 
-std::string error_json(const Status& s);
+// {"error": {"code", "status", "message"[, "reason"]}}; code is the HTTP status sent
+// (http_code, or the one http_status(s) maps to when 0).
+std::string error_json(const Status& s, int http_code = 0);
 
 class HttpApi {
  public:
@@ -60,7 +65,9 @@ class HttpApi {
   HttpResponse route(Context& c);
   HttpResponse upload(Context& c);
   // Coordinates decoded from any body form -> stored point set (201, or 200 if it existed).
-  HttpResponse store_upload(Context& c, const UploadHeader& header, const void* data, std::size_t size);
+  // Raw float64 bytes (copied), or doubles parsed from JSON (taken).
+  HttpResponse store_upload(Context& c, const UploadHeader& header,
+                            std::variant<std::span<const char>, std::vector<double>> data);
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
 

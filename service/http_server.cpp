@@ -2,6 +2,8 @@
 
 #include <sys/socket.h>
 
+#include <cerrno>
+
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/ssl/stream.hpp>
 #include <boost/asio/write.hpp>
@@ -138,7 +140,7 @@ void write_error(Stream& stream, http::status status, const Status& error) {
   http::response<http::string_body> res{status, 11};
   res.set(http::field::content_type, "application/json");
   res.keep_alive(false);
-  res.body() = error_json(error);
+  res.body() = error_json(error, static_cast<int>(status));
   res.prepare_payload();
   boost::system::error_code ec;
   http::write(stream, res, ec);
@@ -150,10 +152,13 @@ template <class Stream>
 void HttpServer::session(Stream& stream, int fd) {
   namespace beast = boost::beast;
   beast::flat_buffer buffer;
-  // A closed connection reads as end-of-file without blocking.
+  // A client is gone when its connection is reset. End-of-file alone is not enough:
+  // a client may shut down its sending side after the request (a half-close) and
+  // still read the answer; one that closed both sides is found when a write fails.
   auto client_gone = [fd] {
     char c;
-    return ::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT) == 0;
+    if (::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT) >= 0) return false;
+    return errno == ECONNRESET || errno == EPIPE || errno == ENOTCONN;
   };
   for (;;) {
     http::request_parser<http::string_body> parser;
@@ -210,7 +215,7 @@ void HttpServer::session(Stream& stream, int fd) {
       const Status s = response.stream(write_chunk);
       if (!head_sent && !s.is_ok()) {
         response.stream = nullptr;
-        response.status = static_cast<unsigned>(http_status(s.code()));
+        response.status = static_cast<unsigned>(http_status(s));
         response.content_type = "application/json";
         response.body = error_json(s);
       } else if (s.is_ok()) {

@@ -51,6 +51,7 @@ int main(int argc, char** argv) {
   int max_dimension = 128;
   int max_concurrent = 64;
   std::string max_memory = "4G", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
+  std::string upload_idle = "30s";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
@@ -74,6 +75,10 @@ int main(int argc, char** argv) {
                  "simplices, slower)")
       ->capture_default_str();
   app.add_option("--default-deadline", default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
+      ->capture_default_str();
+  app.add_option("--upload-idle-timeout", upload_idle,
+                 "An upload that sends nothing for this long is ended and its memory returned (gRPC "
+                 "upload streams; 1s, 30s, 2m)")
       ->capture_default_str();
   app.add_option("--drain-delay", drain,
                  "On SIGTERM, keep serving this long while health says NOT_SERVING (lets load balancers "
@@ -100,17 +105,19 @@ int main(int argc, char** argv) {
   auto memory = parse_bytes(max_memory, "--max-memory");
   auto deadline = parse_duration(default_deadline, "--default-deadline");
   auto grace_ms = parse_duration(grace, "--grace-period");
+  auto idle_ms = parse_duration(upload_idle, "--upload-idle-timeout");
   auto drain_ms = drain == "0" || drain == "0s" ? Result<std::chrono::milliseconds>(std::chrono::milliseconds(0))
                                                 : parse_duration(drain, "--drain-delay");
   auto body = parse_bytes(max_body, "--max-body-bytes");
   auto cache = stream_cache == "0" ? Result<std::uint64_t>(std::uint64_t{0}) : parse_bytes(stream_cache, "--stream-cache");
   for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status(),
-                          &cache.status()}) {
+                          &cache.status(), &idle_ms.status()}) {
     if (!s->is_ok()) return usage_error(*s);
   }
   limits.max_memory = memory.value();
   limits.stream_cache_bytes = static_cast<std::size_t>(cache.value());
   limits.default_deadline = deadline.value();
+  limits.upload_idle_timeout = idle_ms.value();
   if (tls_cert.empty() != tls_key.empty()) return usage_error(invalid_argument("--tls-cert and --tls-key go together"));
   if (!tls_client_ca.empty() && tls_cert.empty()) {
     return usage_error(invalid_argument("--tls-client-ca needs --tls-cert and --tls-key"));

@@ -27,4 +27,11 @@ inline int http_status(Code code) {
   return 500;
 }
 
+// The HTTP status of a whole Status: its code, refined by its reason where HTTP has a
+// more specific status (507 Insufficient Storage for a full data volume).
+inline int http_status(const Status& s) {
+  if (s.code() == Code::kResourceExhausted && s.reason() == "STORAGE_FULL") return 507;
+  return http_status(s.code());
+}
+
 }  // namespace spokemesh::service

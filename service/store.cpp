@@ -79,23 +79,36 @@ std::string temp_name(const std::string& dir) {
   return dir + buf;
 }
 
+// A failed write as clients see it: the operation and the system's reason, never the
+// server's paths; a full volume is RESOURCE_EXHAUSTED with reason STORAGE_FULL.
+Status storage_error(const char* what, int error) {
+  if (error == ENOSPC || error == EDQUOT) {
+    return resource_exhausted(std::string("insufficient storage: the server's data volume is full (") + what + ")")
+        .with_reason("STORAGE_FULL");
+  }
+  return internal_error(std::string("storage error: ") + what + ": " + std::strerror(error));
+}
+
 // Writes `parts` to `path` durably: temporary file, fsync, rename, fsync directory.
 Status write_durably(const std::string& dir, const std::string& path, std::initializer_list<std::pair<const char*, std::size_t>> parts) {
   const std::string temp = temp_name(dir);
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) return {Code::kInternal, "cannot create " + temp + ": " + errno_text()};
+  if (fd < 0) return storage_error("cannot create a file", errno);
   bool ok = true;
   for (const auto& [data, size] : parts) ok = ok && write_all(fd, data, size);
   ok = ok && ::fsync(fd) == 0;
-  const std::string why = ok ? "" : errno_text();
+  int error = ok ? 0 : errno;
   ok = (::close(fd) == 0) && ok;
-  if (ok && ::rename(temp.c_str(), path.c_str()) != 0) ok = false;
-  if (!ok) {
-    const std::string msg = "cannot store " + path + ": " + (why.empty() ? errno_text() : why);
-    ::unlink(temp.c_str());
-    return {Code::kInternal, msg};
+  if (!ok && error == 0) error = errno;
+  if (ok && ::rename(temp.c_str(), path.c_str()) != 0) {
+    ok = false;
+    error = errno;
   }
-  if (!fsync_dir(dir)) return {Code::kInternal, "cannot fsync " + dir + ": " + errno_text()};
+  if (!ok) {
+    ::unlink(temp.c_str());
+    return storage_error("cannot store the point set", error);
+  }
+  if (!fsync_dir(dir)) return storage_error("cannot sync the data directory", errno);
   return Status::ok();
 }
 
@@ -191,7 +204,6 @@ Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
       return existing;
     }
   }
-  const std::uint64_t bytes = estimated_memory(info.count, info.dimension);
   if (!info.display_name.empty()) {
     // The name first: the data file's rename is what makes the set exist.
     Status s = write_durably(dir_, name_path(info.id), {{info.display_name.data(), info.display_name.size()}});
@@ -206,13 +218,8 @@ Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
     ::unlink(name_path(info.id).c_str());
     return s;
   }
-  auto set = std::make_shared<StoredSet>();
-  set->info = info;
-  set->info.already_existed = false;
-  set->points = std::move(points);
-  set->tree = std::make_unique<KdTree>(set->points);
-  set->memory_bytes = bytes;
-  remember(std::move(set));
+  // Not kept in memory: the first query loads the set and builds its tree (get), so an
+  // upload holds no more than its own bytes and a set nobody queries costs no memory.
   return info;
 }
 

@@ -41,10 +41,18 @@ class [[nodiscard]] Status {
   bool is_ok() const { return code_ == Code::kOk; }
   Code code() const { return code_; }
   const std::string& message() const { return message_; }
+  // A machine-readable reason within the code (google.rpc.ErrorInfo's `reason`), e.g.
+  // "STORAGE_FULL" for a RESOURCE_EXHAUSTED that HTTP reports as 507; empty if none.
+  const std::string& reason() const { return reason_; }
+  Status&& with_reason(std::string reason) && {
+    reason_ = std::move(reason);
+    return std::move(*this);
+  }
 
  private:
   Code code_ = Code::kOk;
   std::string message_;
+  std::string reason_;
 };
 
 inline Status invalid_argument(std::string m) { return {Code::kInvalidArgument, std::move(m)}; }
