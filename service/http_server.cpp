@@ -2,13 +2,19 @@
 
 #include <sys/socket.h>
 
-#include <cerrno>
-
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/asio/ssl/stream.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/asio/strand.hpp>
 #include <boost/asio/write.hpp>
-#include <boost/beast/core/flat_buffer.hpp>
+#include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
+
+#include <cerrno>
+#include <future>
+#include <optional>
+#include <sstream>
+#include <type_traits>
 
 #include "status_map.hpp"
 
@@ -40,6 +46,261 @@ Result<tcp::endpoint> parse_endpoint(const std::string& listen, const std::strin
   return tcp::endpoint(address, static_cast<unsigned short>(port));
 }
 
+namespace beast = boost::beast;
+
+namespace {
+
+// A complete one-off response (a 503 when a cap is reached, a 413, a 400), then close.
+std::string one_off_response(http::status status, const Status& error, bool retry_after) {
+  http::response<http::string_body> res{status, 11};
+  res.set(http::field::server, "spokemesh");
+  res.set(http::field::content_type, "application/json");
+  if (retry_after) res.set(http::field::retry_after, "1");
+  res.keep_alive(false);
+  res.body() = error_json(error, static_cast<int>(status));
+  res.prepare_payload();  // Content-Length from the body itself
+  std::ostringstream out;
+  out << res;
+  return out.str();
+}
+
+// Errors that only mean the connection ended or timed out: closed without a word.
+bool quiet_end(const boost::system::error_code& ec) {
+  return ec == http::error::end_of_stream || ec == net::error::eof || ec == net::error::connection_reset ||
+         ec == net::error::operation_aborted || ec == net::error::bad_descriptor || ec == beast::error::timeout ||
+         ec == net::ssl::error::stream_truncated || ec == net::error::broken_pipe;
+}
+
+}  // namespace
+
+// The part of a session the server can reach without knowing its stream type.
+class HttpServer::SessionBase : public std::enable_shared_from_this<SessionBase> {
+ public:
+  virtual ~SessionBase() = default;
+  // Both post onto the session's strand, so they may be called from any thread.
+  virtual void close() = 0;
+  virtual void close_if_idle() = 0;
+};
+
+template <class Stream>
+class HttpServer::Session final : public HttpServer::SessionBase {
+ public:
+  Session(HttpServer& server, Stream stream, net::ip::address from)
+      : server_(server), options_(server.options_), stream_(std::move(stream)), from_(std::move(from)) {}
+  ~Session() override { server_.release(from_, this); }
+
+  void run() {
+    {
+      std::lock_guard lock(server_.mutex_);
+      server_.sessions_[this] = weak_from_this();
+    }
+    if constexpr (kTls) {
+      lowest().expires_after(options_.handshake_timeout);
+      stream_.async_handshake(net::ssl::stream_base::server,
+                              [self = shared()](boost::system::error_code ec) {
+                                if (ec) return self->do_close();
+                                self->read_request();
+                              });
+    } else {
+      read_request();
+    }
+  }
+
+  void close() override {
+    net::post(lowest().get_executor(), [self = shared()] { self->do_close(); });
+  }
+  void close_if_idle() override {
+    net::post(lowest().get_executor(), [self = shared()] {
+      if (self->idle_) self->do_close();
+    });
+  }
+
+ private:
+  static constexpr bool kTls = !std::is_same_v<Stream, beast::tcp_stream>;
+
+  std::shared_ptr<Session> shared() { return std::static_pointer_cast<Session>(shared_from_this()); }
+  beast::tcp_stream& lowest() { return beast::get_lowest_layer(stream_); }
+
+  // Waits for a request: the keep-alive idle timeout until its first bytes (the header
+  // timeout for a connection's first request), then the header timeout for the rest
+  // of the header, then the body timeout. A trickling client is cut off at a timeout
+  // without ever holding a thread.
+  void read_request() {
+    if (closed_ || server_.stopping_.load()) return do_close();
+    idle_ = true;
+    parser_.emplace();
+    parser_->body_limit(options_.max_body_bytes);
+    lowest().expires_after(requests_ == 0 ? options_.header_timeout : options_.idle_timeout);
+    http::async_read_some(stream_, buffer_, *parser_,
+                          [self = shared()](boost::system::error_code ec, std::size_t) { self->on_first_bytes(ec); });
+  }
+  void on_first_bytes(boost::system::error_code ec) {
+    idle_ = false;
+    if (ec) return fail_read(ec);
+    if (parser_->is_header_done()) return on_header({});
+    if (requests_ != 0) lowest().expires_after(options_.header_timeout);
+    http::async_read_header(stream_, buffer_, *parser_,
+                            [self = shared()](boost::system::error_code e, std::size_t) { self->on_header(e); });
+  }
+  void on_header(boost::system::error_code ec) {
+    if (ec) return fail_read(ec);
+    if (parser_->is_done()) return on_request();
+    lowest().expires_after(options_.body_timeout);
+    http::async_read(stream_, buffer_, *parser_, [self = shared()](boost::system::error_code e, std::size_t) {
+      if (e) return self->fail_read(e);
+      self->on_request();
+    });
+  }
+  void fail_read(boost::system::error_code ec) {
+    if (ec == http::error::body_limit) {
+      return write_one_off(one_off_response(
+          http::status::payload_too_large,
+          resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
+                             std::to_string(options_.max_body_bytes)),
+          false));
+    }
+    if (quiet_end(ec) || !parser_->got_some()) return do_close();
+    write_one_off(one_off_response(http::status::bad_request,
+                                   invalid_argument("malformed HTTP request: " + ec.message()), false));
+  }
+  void write_one_off(std::string bytes) {
+    auto text = std::make_shared<std::string>(std::move(bytes));
+    lowest().expires_after(options_.write_timeout);
+    net::async_write(stream_, net::buffer(*text),
+                     [self = shared(), text](boost::system::error_code, std::size_t) { self->do_close(); });
+  }
+
+  // A whole request has arrived: it gets a thread of its own (computations block),
+  // unless too many are in flight.
+  void on_request() {
+    lowest().expires_never();
+    if (!server_.begin_request()) {
+      return write_one_off(one_off_response(http::status::service_unavailable,
+                                            Status{Code::kUnavailable, "too many requests in flight; retry later"},
+                                            true));
+    }
+    ++requests_;
+    request_ = parser_->release();
+    try {
+      std::thread([self = shared()] { self->handle(); }).detach();
+    } catch (const std::system_error&) {  // no thread to be had
+      server_.end_request();
+      write_one_off(one_off_response(http::status::service_unavailable,
+                                     Status{Code::kUnavailable, "the server is out of threads; retry later"}, true));
+    }
+  }
+
+  // Runs an asynchronous write on the session's strand and waits for it (from the
+  // request's own thread). The write timeout ends a client that stopped reading.
+  template <class Start>
+  boost::system::error_code write_and_wait(Start&& start) {
+    std::promise<boost::system::error_code> done;
+    std::future<boost::system::error_code> result = done.get_future();
+    net::post(lowest().get_executor(), [&] {
+      if (closed_) return done.set_value(net::error::operation_aborted);
+      lowest().expires_after(options_.write_timeout);
+      start([&done](boost::system::error_code ec, std::size_t) { done.set_value(ec); });
+    });
+    return result.get();
+  }
+
+  // On the request's thread: the transport-neutral handler, then the response.
+  void handle() {
+    const int fd = lowest().socket().native_handle();
+    // Gone when the connection is reset or closed by the server; end-of-file alone is
+    // not enough: a client may shut down its sending side after its request (a
+    // half-close) and still read the answer.
+    auto client_gone = [fd, self = shared()] {
+      if (self->closed_.load()) return true;
+      char c;
+      if (::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT) >= 0) return false;
+      return errno == ECONNRESET || errno == EPIPE || errno == ENOTCONN;
+    };
+    HttpResponse response;
+    try {
+      response = server_.api_.handle_request(request_, client_gone);
+    } catch (const std::exception& e) {  // e.g. bad_alloc: one failed request, not a dead server
+      response = HttpResponse{};
+      response.status = 500;
+      response.body = error_json(internal_error(std::string("internal error: ") + e.what()));
+      server_.telemetry_.log("error", std::string("request failed with an exception: ") + e.what());
+    }
+    const bool keep_alive = request_.keep_alive() && !server_.stopping_.load();
+    bool ok = true;
+    if (response.stream) {
+      http::response<http::empty_body> head{http::status::ok, request_.version()};
+      head.set(http::field::server, "spokemesh");
+      head.set(http::field::content_type, response.content_type);
+      head.keep_alive(keep_alive);
+      head.chunked(true);
+      http::response_serializer<http::empty_body> serializer{head};
+      bool head_sent = false;
+      auto write_chunk = [&](std::string_view data) -> bool {
+        if (!head_sent) {
+          if (write_and_wait([&](auto done) { http::async_write_header(stream_, serializer, std::move(done)); })) {
+            return false;
+          }
+          head_sent = true;
+        }
+        if (data.empty()) return true;
+        const auto chunk = http::make_chunk(net::const_buffer(data.data(), data.size()));
+        return !write_and_wait([&](auto done) { net::async_write(stream_, chunk, std::move(done)); });
+      };
+      const Status s = response.stream(write_chunk);
+      if (!head_sent && !s.is_ok()) {
+        response.stream = nullptr;
+        response.status = static_cast<unsigned>(http_status(s));
+        response.content_type = "application/json";
+        response.body = error_json(s);
+      } else if (s.is_ok()) {
+        ok = write_chunk("") &&
+             !write_and_wait([&](auto done) { net::async_write(stream_, http::make_chunk_last(), std::move(done)); });
+      } else {
+        // Mid-stream failure: say why on a last line, then drop the connection without
+        // the terminating chunk so no client can take the partial shard as complete.
+        write_chunk(error_json(s) + "\n");
+        ok = false;
+      }
+    }
+    if (!response.stream) {
+      http::response<http::string_body> res;
+      res.version(request_.version());
+      res.result(response.status);
+      res.set(http::field::server, "spokemesh");
+      res.set(http::field::content_type, response.content_type);
+      res.keep_alive(keep_alive);
+      res.body() = std::move(response.body);
+      res.prepare_payload();
+      ok = !write_and_wait([&](auto done) { http::async_write(stream_, res, std::move(done)); });
+    }
+    request_ = {};
+    server_.end_request();
+    net::post(lowest().get_executor(), [self = shared(), next = ok && keep_alive] {
+      if (next) return self->read_request();
+      self->do_close();
+    });
+  }
+
+  void do_close() {
+    if (closed_.exchange(true)) return;
+    idle_ = false;
+    boost::system::error_code ec;
+    lowest().socket().shutdown(net::ip::tcp::socket::shutdown_both, ec);
+    lowest().cancel();  // pending reads and writes end; the socket closes with the session
+  }
+
+  HttpServer& server_;
+  const HttpServerOptions& options_;
+  Stream stream_;
+  net::ip::address from_;
+  beast::flat_buffer buffer_;
+  std::optional<http::request_parser<http::string_body>> parser_;
+  http::request<http::string_body> request_;
+  std::size_t requests_ = 0;
+  bool idle_ = false;  // waiting for a request (on the strand only)
+  std::atomic<bool> closed_{false};
+};
+
 HttpServer::HttpServer(HttpApi& api, Telemetry& telemetry, HttpServerOptions options)
     : api_(api), telemetry_(telemetry), options_(std::move(options)) {}
 
@@ -58,214 +319,131 @@ Result<unsigned short> HttpServer::start() {
     return Status{Code::kUnavailable, "--http-listen: cannot listen on " + options_.listen + ": " + ec.message()};
   }
   const unsigned short port = acceptor_->local_endpoint().port();
-  accept_thread_ = std::thread([this] { accept_loop(); });
-  reaper_thread_ = std::thread([this] { reap_idle(); });
+  work_.emplace(io_.get_executor());
+  do_accept();
+  for (unsigned i = 0; i < std::max(1u, options_.io_threads); ++i) io_threads_.emplace_back([this] { io_.run(); });
   return port;
 }
 
-void HttpServer::reap_idle() {
-  std::unique_lock lock(mutex_);
-  while (!stopping_.load()) {
-    cv_.wait_for(lock, std::chrono::seconds(1));
-    const auto limit = Clock::now() - options_.idle_timeout;
-    for (const auto& [fd, idle_since] : connections_) {
-      if (idle_since < limit) ::shutdown(fd, SHUT_RDWR);  // wakes the blocked read
-    }
-  }
-}
-
-void HttpServer::accept_loop() {
-  while (!stopping_.load()) {
-    tcp::socket socket(io_);
-    boost::system::error_code ec;
-    acceptor_->accept(socket, ec);
-    if (stopping_.load()) break;
+void HttpServer::do_accept() {
+  acceptor_->async_accept(net::make_strand(io_), [this](boost::system::error_code ec, tcp::socket socket) {
+    if (stopping_.load() || ec == net::error::operation_aborted) return;
     if (ec) {
       // Out of descriptors and the like: back off instead of spinning.
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-      continue;
+      auto timer = std::make_shared<net::steady_timer>(io_, std::chrono::milliseconds(10));
+      timer->async_wait([this, timer](boost::system::error_code) { do_accept(); });
+      return;
     }
-    {
-      std::lock_guard lock(mutex_);
-      if (threads_ >= options_.max_connections) {
-        static const std::string busy =
-            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\nConnection: close\r\n"
-            "Content-Length: 94\r\n\r\n"
-            "{\"error\":{\"code\":503,\"status\":\"UNAVAILABLE\",\"message\":\"too many connections; retry later\"}}\n";
-        net::write(socket, net::buffer(busy), ec);
-        continue;
+    boost::system::error_code ep_ec;
+    const net::ip::address from = socket.remote_endpoint(ep_ec).address();
+    std::string why;
+    if (ep_ec) {
+      socket.close(ep_ec);
+    } else if (!admit(from, why)) {
+      // A complete 503 on plain HTTP (a TLS client could not read it: closed instead),
+      // written without blocking: it fits the socket's buffer.
+      if (!options_.tls) {
+        const std::string busy =
+            one_off_response(http::status::service_unavailable, Status{Code::kUnavailable, why}, true);
+        socket.non_blocking(true, ep_ec);
+        socket.write_some(net::buffer(busy), ep_ec);
       }
-      ++threads_;
+      socket.shutdown(tcp::socket::shutdown_both, ep_ec);
+      socket.close(ep_ec);
+    } else if (options_.tls) {
+      std::make_shared<Session<beast::ssl_stream<beast::tcp_stream>>>(
+          *this, beast::ssl_stream<beast::tcp_stream>(beast::tcp_stream(std::move(socket)), *options_.tls), from)
+          ->run();
+    } else {
+      std::make_shared<Session<beast::tcp_stream>>(*this, beast::tcp_stream(std::move(socket)), from)->run();
     }
-    std::thread([this, s = std::move(socket)]() mutable { serve(std::move(s)); }).detach();
-  }
+    do_accept();
+  });
 }
 
-void HttpServer::serve(tcp::socket socket) {
-  const int fd = socket.native_handle();
-  {
-    std::lock_guard lock(mutex_);
-    connections_[fd] = Clock::now();
-  }
-  boost::system::error_code ec;
-  if (options_.tls) {
-    net::ssl::stream<tcp::socket> stream(std::move(socket), *options_.tls);
-    stream.handshake(net::ssl::stream_base::server, ec);
-    if (!ec) session(stream, fd);
-    {
-      std::lock_guard lock(mutex_);
-      connections_.erase(fd);
-    }
-    stream.next_layer().shutdown(tcp::socket::shutdown_both, ec);
-    stream.next_layer().close(ec);
-  } else {
-    session(socket, fd);
-    {
-      std::lock_guard lock(mutex_);
-      connections_.erase(fd);
-    }
-    socket.shutdown(tcp::socket::shutdown_both, ec);
-    socket.close(ec);
-  }
+bool HttpServer::admit(const net::ip::address& from, std::string& why) {
   std::lock_guard lock(mutex_);
-  --threads_;
+  if (open_ >= options_.max_connections) {
+    why = "too many connections (" + std::to_string(options_.max_connections) + "); retry later";
+    return false;
+  }
+  std::size_t& mine = per_address_[from];
+  if (mine >= options_.max_connections_per_address) {
+    why = "too many connections from one address (" + std::to_string(options_.max_connections_per_address) +
+          "); retry later";
+    if (mine == 0) per_address_.erase(from);
+    return false;
+  }
+  ++mine;
+  ++open_;
+  return true;
+}
+
+void HttpServer::release(const net::ip::address& from, SessionBase* session) {
+  std::lock_guard lock(mutex_);
+  sessions_.erase(session);
+  if (auto it = per_address_.find(from); it != per_address_.end() && --it->second == 0) per_address_.erase(it);
+  --open_;
   cv_.notify_all();
 }
 
-namespace {
-
-// A one-off JSON error response, then the connection closes.
-template <class Stream>
-void write_error(Stream& stream, http::status status, const Status& error) {
-  http::response<http::string_body> res{status, 11};
-  res.set(http::field::content_type, "application/json");
-  res.keep_alive(false);
-  res.body() = error_json(error, static_cast<int>(status));
-  res.prepare_payload();
-  boost::system::error_code ec;
-  http::write(stream, res, ec);
+bool HttpServer::begin_request() {
+  std::lock_guard lock(mutex_);
+  if (in_flight_ >= options_.max_in_flight) return false;
+  ++in_flight_;
+  return true;
 }
 
-}  // namespace
+void HttpServer::end_request() {
+  std::lock_guard lock(mutex_);
+  --in_flight_;
+  cv_.notify_all();
+}
 
-template <class Stream>
-void HttpServer::session(Stream& stream, int fd) {
-  namespace beast = boost::beast;
-  beast::flat_buffer buffer;
-  // A client is gone when its connection is reset. End-of-file alone is not enough:
-  // a client may shut down its sending side after the request (a half-close) and
-  // still read the answer; one that closed both sides is found when a write fails.
-  auto client_gone = [fd] {
-    char c;
-    if (::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT) >= 0) return false;
-    return errno == ECONNRESET || errno == EPIPE || errno == ENOTCONN;
-  };
-  for (;;) {
-    http::request_parser<http::string_body> parser;
-    parser.body_limit(options_.max_body_bytes);
-    boost::system::error_code ec;
-    // Idle keep-alive connections are closed by stop() or by the peer; reads block.
-    http::read(stream, buffer, parser, ec);
-    if (ec) {
-      if (ec == http::error::body_limit) {
-        write_error(stream, http::status::payload_too_large,
-                    resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
-                                       std::to_string(options_.max_body_bytes)));
-      } else if (ec != http::error::end_of_stream && ec != net::error::eof && ec != net::error::connection_reset &&
-                 ec != net::ssl::error::stream_truncated && ec != net::error::operation_aborted &&
-                 ec != net::error::bad_descriptor && parser.got_some()) {
-        write_error(stream, http::status::bad_request, invalid_argument("malformed HTTP request: " + ec.message()));
-      }
-      return;
-    }
-    {
-      std::lock_guard lock(mutex_);
-      ++busy_;
-      connections_[fd] = Clock::time_point::max();  // busy: never reaped as idle
-    }
-    const http::request<http::string_body> request = parser.release();
-    HttpResponse response;
-    try {
-      response = api_.handle_request(request, client_gone);
-    } catch (const std::exception& e) {  // e.g. bad_alloc: one failed request, not a dead server
-      response.status = 500;
-      response.body = error_json(internal_error(std::string("internal error: ") + e.what()));
-      telemetry_.log("error", std::string("request failed with an exception: ") + e.what());
-    }
-    const bool keep_alive = request.keep_alive() && !stopping_.load();
-    bool broken = false;
-    if (response.stream) {
-      http::response<http::empty_body> head{http::status::ok, request.version()};
-      head.set(http::field::server, "spokemesh");
-      head.set(http::field::content_type, response.content_type);
-      head.keep_alive(keep_alive);
-      head.chunked(true);
-      bool head_sent = false;
-      auto write_chunk = [&](std::string_view data) -> bool {
-        boost::system::error_code wec;
-        if (!head_sent) {
-          http::response_serializer<http::empty_body> serializer{head};
-          http::write_header(stream, serializer, wec);
-          if (wec) return false;
-          head_sent = true;
-        }
-        if (!data.empty()) net::write(stream, http::make_chunk(net::const_buffer(data.data(), data.size())), wec);
-        return !wec;
-      };
-      const Status s = response.stream(write_chunk);
-      if (!head_sent && !s.is_ok()) {
-        response.stream = nullptr;
-        response.status = static_cast<unsigned>(http_status(s));
-        response.content_type = "application/json";
-        response.body = error_json(s);
-      } else if (s.is_ok()) {
-        if (write_chunk("")) net::write(stream, http::make_chunk_last(), ec);
-        broken = static_cast<bool>(ec);
-      } else {
-        // Mid-stream failure: say why on a last line, then drop the connection without
-        // the terminating chunk so no client can take the partial shard as complete.
-        write_chunk(error_json(s) + "\n");
-        broken = true;
-      }
-    }
-    if (!response.stream) {
-      http::response<http::string_body> res;
-      res.version(request.version());
-      res.result(response.status);
-      res.set(http::field::server, "spokemesh");
-      res.set(http::field::content_type, response.content_type);
-      res.keep_alive(keep_alive);
-      res.body() = std::move(response.body);
-      res.prepare_payload();
-      http::write(stream, res, ec);
-      broken = static_cast<bool>(ec);
-    }
-    {
-      std::lock_guard lock(mutex_);
-      --busy_;
-      connections_[fd] = Clock::now();
-    }
-    cv_.notify_all();
-    if (broken || !keep_alive) return;
-  }
+std::size_t HttpServer::connections() const {
+  std::lock_guard lock(mutex_);
+  return open_;
+}
+
+std::size_t HttpServer::in_flight() const {
+  std::lock_guard lock(mutex_);
+  return in_flight_;
 }
 
 void HttpServer::stop(std::chrono::milliseconds grace) {
   if (stopping_.exchange(true)) return;
-  if (acceptor_) {
-    // Wakes the blocking accept().
-    ::shutdown(acceptor_->native_handle(), SHUT_RDWR);
-    if (accept_thread_.joinable()) accept_thread_.join();
+  if (!acceptor_) return;
+  net::post(io_, [this] {
     boost::system::error_code ec;
     acceptor_->close(ec);
+  });
+  auto each_session = [this](auto&& fn) {
+    std::vector<std::shared_ptr<SessionBase>> live;
+    {
+      std::lock_guard lock(mutex_);
+      for (const auto& [ptr, weak] : sessions_) {
+        if (auto s = weak.lock()) live.push_back(std::move(s));
+      }
+    }
+    for (const auto& s : live) fn(*s);
+  };
+  // Idle keep-alive connections now; requests in flight may finish within the grace.
+  each_session([](SessionBase& s) { s.close_if_idle(); });
+  {
+    std::unique_lock lock(mutex_);
+    cv_.wait_for(lock, grace, [this] { return in_flight_ == 0; });
   }
-  cv_.notify_all();
-  if (reaper_thread_.joinable()) reaper_thread_.join();
-  std::unique_lock lock(mutex_);
-  cv_.wait_for(lock, grace, [this] { return busy_ == 0; });
-  // Idle keep-alive connections, and whatever outlived the grace period.
-  for (const auto& entry : connections_) ::shutdown(entry.first, SHUT_RDWR);
-  cv_.wait_for(lock, std::chrono::seconds(5), [this] { return threads_ == 0; });
+  each_session([](SessionBase& s) { s.close(); });
+  {
+    std::unique_lock lock(mutex_);
+    if (!cv_.wait_for(lock, std::chrono::seconds(5), [this] { return in_flight_ == 0 && open_ == 0; })) {
+      telemetry_.log("warning", "HTTP: " + std::to_string(in_flight_) + " requests still running at shutdown");
+    }
+  }
+  work_.reset();
+  io_.stop();
+  for (std::thread& t : io_threads_) t.join();
+  io_threads_.clear();
 }
 
 }  // namespace spokemesh::service

@@ -1,25 +1,34 @@
 // HttpServer: Boost.Beast over Boost.Asio, serving HttpApi on one port, plain or TLS.
 //
-// Deliberately synchronous, one thread per connection (capped by max_connections):
-// a long computation or a slow NDJSON reader then blocks only its own thread, a
-// blocking chunk write is the flow control that keeps a streamed shard's memory
-// bounded, and there is no callback state to get wrong. Requests are parsed with a
-// body limit, so an oversized body is refused from its Content-Length (413) without
-// being buffered.
+// In the shape of Beast's advanced server: the connections live on a few I/O threads
+// as asynchronous sessions, each with its own timeouts (TLS handshake, request header,
+// request body, keep-alive idle, response write), so an idle, trickling or never
+// handshaking connection costs a socket and a small buffer, never a thread. Only a
+// request that has fully arrived gets a thread of its own, which runs the transport-
+// neutral HttpApi::handle_request (computations block; a streamed shard writes chunk by
+// chunk, each write waiting for the client: that wait is the flow control that keeps
+// the shard's memory bounded, and the write timeout ends a client that stopped
+// reading). Connections are capped per client address and in all; requests in flight
+// are capped too; beyond a cap the answer is a complete 503 with Retry-After.
 //
 // Thread safety: start() once, then stop() from any thread.
 #pragma once
 
+#include <boost/asio/executor_work_guard.hpp>
+#include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/ssl/context.hpp>
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
+#include <map>
 #include <memory>
 #include <mutex>
-#include <map>
+#include <optional>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "http_api.hpp"
 
@@ -28,8 +37,15 @@ namespace spokemesh::service {
 struct HttpServerOptions {
   std::string listen = "127.0.0.1:8080";  // host:port; port 0 picks a free one
   std::size_t max_body_bytes = 256u << 20;
-  std::size_t max_connections = 512;
-  std::chrono::seconds idle_timeout{120};  // a keep-alive connection with no request is closed
+  std::size_t max_connections = 10000;          // open connections in all
+  std::size_t max_connections_per_address = 256;  // open connections from one client address
+  std::size_t max_in_flight = 256;              // requests being handled at once (one thread each)
+  std::chrono::milliseconds handshake_timeout{10'000};  // TLS handshake
+  std::chrono::milliseconds header_timeout{10'000};     // a request's header, from its first byte
+  std::chrono::milliseconds body_timeout{120'000};      // a request's body, after its header
+  std::chrono::milliseconds idle_timeout{60'000};       // a keep-alive connection between requests
+  std::chrono::milliseconds write_timeout{60'000};      // each response write (a stalled reader)
+  unsigned io_threads = 2;
   std::shared_ptr<boost::asio::ssl::context> tls;  // null: plain HTTP
 };
 
@@ -40,32 +56,47 @@ class HttpServer {
 
   // Binds and starts accepting. Returns the bound port.
   Result<unsigned short> start();
-  // Stops accepting, lets in-flight requests finish for up to `grace`, then closes
-  // every connection and joins.
+  // Stops accepting and closes idle connections, lets requests in flight finish for up
+  // to `grace`, then closes every connection and joins.
   void stop(std::chrono::milliseconds grace);
 
+  // For tests and metrics: open connections and requests in flight.
+  std::size_t connections() const;
+  std::size_t in_flight() const;
+
  private:
-  void accept_loop();
-  void reap_idle();
-  void serve(boost::asio::ip::tcp::socket socket);
+  class SessionBase;
   template <class Stream>
-  void session(Stream& stream, int fd);
+  class Session;
+  friend class SessionBase;
+  template <class Stream>
+  friend class Session;
+
+  void do_accept();
+  // Admission of a new connection; false (and the reason) when a cap is reached.
+  bool admit(const boost::asio::ip::address& from, std::string& why);
+  void release(const boost::asio::ip::address& from, SessionBase* session);
+  bool begin_request();
+  void end_request();
 
   HttpApi& api_;
   Telemetry& telemetry_;
   HttpServerOptions options_;
-  boost::asio::io_context io_;
-  std::unique_ptr<boost::asio::ip::tcp::acceptor> acceptor_;
-  std::thread accept_thread_;
-  std::thread reaper_thread_;
   std::atomic<bool> stopping_{false};
 
-  std::mutex mutex_;
+  // Declared before io_: sessions still held by io_'s handlers reach these as io_ is
+  // destroyed (members are destroyed in reverse order).
+  mutable std::mutex mutex_;
   std::condition_variable cv_;
-  // Open sockets -> when they became idle (max() while a request runs).
-  std::map<int, Clock::time_point> connections_;
-  std::size_t threads_ = 0;    // live connection threads
-  std::size_t busy_ = 0;       // requests being handled
+  std::map<boost::asio::ip::address, std::size_t> per_address_;  // open connections per client address
+  std::map<SessionBase*, std::weak_ptr<SessionBase>> sessions_;
+  std::size_t open_ = 0;       // open connections
+  std::size_t in_flight_ = 0;  // requests being handled
+
+  boost::asio::io_context io_;
+  std::optional<boost::asio::executor_work_guard<boost::asio::io_context::executor_type>> work_;
+  std::unique_ptr<boost::asio::ip::tcp::acceptor> acceptor_;
+  std::vector<std::thread> io_threads_;
 };
 
 // host:port -> endpoint (IPv4/IPv6 literal or "localhost").

@@ -6,6 +6,7 @@
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 #include <signal.h>
+#include <sys/resource.h>
 
 #include <CLI/CLI.hpp>
 #include <boost/asio/ssl/context.hpp>
@@ -52,6 +53,13 @@ int main(int argc, char** argv) {
   int max_concurrent = 64;
   std::string max_memory = "4G", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string upload_idle = "30s";
+  // REST connection limits and timeouts (HttpServerOptions holds the defaults).
+  const HttpServerOptions http_defaults;
+  std::size_t http_max_connections = http_defaults.max_connections;
+  std::size_t http_per_address = http_defaults.max_connections_per_address;
+  std::size_t http_in_flight = http_defaults.max_in_flight;
+  std::string http_header_timeout = "10s", http_body_timeout = "120s", http_idle_timeout = "60s",
+              http_write_timeout = "60s", tls_handshake_timeout = "10s";
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
@@ -80,6 +88,28 @@ int main(int argc, char** argv) {
                  "An upload that sends nothing for this long is ended and its memory returned (gRPC "
                  "upload streams; 1s, 30s, 2m)")
       ->capture_default_str();
+  app.add_option("--http-max-connections", http_max_connections,
+                 "REST connections open at once; beyond it a complete 503 with Retry-After")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{1000000}))
+      ->capture_default_str();
+  app.add_option("--http-max-connections-per-address", http_per_address,
+                 "REST connections open at once from one client address")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{1000000}))
+      ->capture_default_str();
+  app.add_option("--http-max-in-flight", http_in_flight, "REST requests handled at once (one thread each)")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{100000}))
+      ->capture_default_str();
+  app.add_option("--http-header-timeout", http_header_timeout, "Time for a REST request's header to arrive")
+      ->capture_default_str();
+  app.add_option("--http-body-timeout", http_body_timeout, "Time for a REST request's body to arrive")
+      ->capture_default_str();
+  app.add_option("--http-idle-timeout", http_idle_timeout, "A keep-alive REST connection with no request is closed")
+      ->capture_default_str();
+  app.add_option("--http-write-timeout", http_write_timeout,
+                 "A REST client that reads nothing of a response this long is disconnected")
+      ->capture_default_str();
+  app.add_option("--tls-handshake-timeout", tls_handshake_timeout, "Time for a REST client's TLS handshake")
+      ->capture_default_str();
   app.add_option("--drain-delay", drain,
                  "On SIGTERM, keep serving this long while health says NOT_SERVING (lets load balancers "
                  "move traffic away), then stop accepting")
@@ -106,12 +136,18 @@ int main(int argc, char** argv) {
   auto deadline = parse_duration(default_deadline, "--default-deadline");
   auto grace_ms = parse_duration(grace, "--grace-period");
   auto idle_ms = parse_duration(upload_idle, "--upload-idle-timeout");
+  auto header_ms = parse_duration(http_header_timeout, "--http-header-timeout");
+  auto body_ms = parse_duration(http_body_timeout, "--http-body-timeout");
+  auto keepalive_ms = parse_duration(http_idle_timeout, "--http-idle-timeout");
+  auto write_ms = parse_duration(http_write_timeout, "--http-write-timeout");
+  auto handshake_ms = parse_duration(tls_handshake_timeout, "--tls-handshake-timeout");
   auto drain_ms = drain == "0" || drain == "0s" ? Result<std::chrono::milliseconds>(std::chrono::milliseconds(0))
                                                 : parse_duration(drain, "--drain-delay");
   auto body = parse_bytes(max_body, "--max-body-bytes");
   auto cache = stream_cache == "0" ? Result<std::uint64_t>(std::uint64_t{0}) : parse_bytes(stream_cache, "--stream-cache");
   for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status(),
-                          &cache.status(), &idle_ms.status()}) {
+                          &cache.status(), &idle_ms.status(), &header_ms.status(), &body_ms.status(),
+                          &keepalive_ms.status(), &write_ms.status(), &handshake_ms.status()}) {
     if (!s->is_ok()) return usage_error(*s);
   }
   limits.max_memory = memory.value();
@@ -138,6 +174,12 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   signal(SIGPIPE, SIG_IGN);
+  // Every connection is a descriptor: take the hard limit (the default soft limit of
+  // 1024 would cap the server far below --http-max-connections).
+  if (rlimit files{}; ::getrlimit(RLIMIT_NOFILE, &files) == 0 && files.rlim_cur < files.rlim_max) {
+    files.rlim_cur = files.rlim_max;
+    ::setrlimit(RLIMIT_NOFILE, &files);
+  }
 
   Telemetry telemetry;
   auto store = PointSetStore::open(data_dir, limits.max_memory,
@@ -151,6 +193,14 @@ int main(int argc, char** argv) {
   HttpServerOptions http_options;
   http_options.listen = http_listen;
   http_options.max_body_bytes = body.value();
+  http_options.max_connections = http_max_connections;
+  http_options.max_connections_per_address = http_per_address;
+  http_options.max_in_flight = http_in_flight;
+  http_options.header_timeout = header_ms.value();
+  http_options.body_timeout = body_ms.value();
+  http_options.idle_timeout = keepalive_ms.value();
+  http_options.write_timeout = write_ms.value();
+  http_options.handshake_timeout = handshake_ms.value();
   std::shared_ptr<grpc::ServerCredentials> grpc_credentials = grpc::InsecureServerCredentials();
   if (!tls_cert.empty()) {
     auto cert = read_text_file(tls_cert, "--tls-cert");

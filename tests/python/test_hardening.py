@@ -221,3 +221,137 @@ def test_an_upload_header_reserves_nothing_and_a_stalled_upload_ends(start_serve
 
     assert stub.UploadPointSet(steady(), timeout=30).count == 3000
     assert healthy(server)
+
+
+def timed_get(url: str, timeout: float = 10) -> float:
+    start = time.perf_counter()
+    status, _, _ = http("GET", url, timeout=timeout)
+    assert status == 200
+    return time.perf_counter() - start
+
+
+def raise_fd_limit() -> None:
+    import resource
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < hard:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+
+
+def open_connections(server, count: int, source: str, first_bytes: bytes = b""):
+    """count TCP connections from `source` (another loopback address), each sending
+    first_bytes and then nothing more; the server's caps answer some of them."""
+    host, port = server.http.removeprefix("http://").split(":")
+    socks = []
+    for _ in range(count):
+        s = socket.socket()
+        s.bind((source, 0))
+        s.settimeout(5)
+        s.connect((host, int(port)))
+        if first_bytes:
+            s.sendall(first_bytes)
+        socks.append(s)
+    return socks
+
+
+# Finding 5: 520 connections trickling header bytes, or 700 idle ones, locked every
+# other REST client out until a 120 s reaper ran; the 503 said Content-Length 94 for
+# a 92-byte body.
+def test_slowloris_and_idle_connections_do_not_lock_other_clients_out(start_server):
+    raise_fd_limit()
+    server = start_server("--http-max-connections-per-address", "400", "--http-header-timeout", "3s")
+    url = f"{server.http}/healthz"
+    baseline = min(timed_get(url) for _ in range(5))
+    trickling = open_connections(server, 600, "127.0.0.2", b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+    idle = open_connections(server, 700, "127.0.0.3")
+    stop = threading.Event()
+
+    def trickle():
+        while not stop.is_set():
+            for s in trickling:
+                try:
+                    s.send(b"a")
+                except OSError:
+                    pass
+            stop.wait(0.5)
+
+    t = threading.Thread(target=trickle)
+    t.start()
+    try:
+        time.sleep(0.5)
+        delays = sorted(timed_get(url, timeout=5) for _ in range(9))
+        # A well-behaved client from its own address is served at once (measured on the
+        # development VM: a few ms; the issue's target is under 100 ms more than idle).
+        assert delays[4] - baseline < 0.1, (baseline, delays)
+        # The header timeout ends the trickling connections (they never finish a header).
+        time.sleep(4)
+        closed = 0
+        for s in trickling:
+            try:
+                s.settimeout(0.01)
+                closed += s.recv(1) == b""
+            except (socket.timeout, BlockingIOError):
+                pass
+            except OSError:
+                closed += 1
+        assert closed >= 390, f"only {closed} of the admitted trickling connections were closed"
+    finally:
+        stop.set()
+        t.join()
+        for s in trickling + idle:
+            s.close()
+    assert healthy(server)
+
+
+def test_connection_caps_answer_a_complete_503_with_retry_after(start_server):
+    raise_fd_limit()
+    server = start_server("--http-max-connections-per-address", "8")
+    held = open_connections(server, 8, "127.0.0.4")
+    try:
+        reply = open_connections(server, 1, "127.0.0.4")[0]
+        data = b""
+        while True:
+            chunk = reply.recv(4096)
+            if not chunk:
+                break
+            data += chunk
+        head, _, body = data.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 503"), data
+        headers = dict(line.split(": ", 1) for line in head.decode().split("\r\n")[1:])
+        assert int(headers["Content-Length"]) == len(body), data
+        assert headers["Retry-After"] == "1"
+        assert json.loads(body)["error"]["code"] == 503
+        # Other addresses are not affected by this one's cap.
+        assert timed_get(f"{server.http}/healthz") < 5
+    finally:
+        for s in held:
+            s.close()
+
+
+def test_tls_handshakes_that_never_finish_do_not_lock_other_clients_out(start_server, tmp_path):
+    import ssl
+    from test_server import make_pki
+    raise_fd_limit()
+    make_pki(tmp_path)
+    server = start_server("--tls-cert", str(tmp_path / "server.pem"), "--tls-key", str(tmp_path / "server.key"),
+                          "--tls-handshake-timeout", "2s")
+    https = server.http.replace("http://", "https://")
+    context = ssl.create_default_context(cafile=str(tmp_path / "ca.pem"))
+    silent = open_connections(server, 300, "127.0.0.5")  # TCP connected, no ClientHello
+    try:
+        start = time.perf_counter()
+        status, _, _ = http("GET", f"{https}/healthz", context=context, timeout=5)
+        assert status == 200 and time.perf_counter() - start < 2
+        time.sleep(3)  # past the handshake timeout: the server has closed them
+        closed = 0
+        for s in silent:
+            try:
+                s.settimeout(0.05)
+                closed += s.recv(1) == b""
+            except socket.timeout:
+                pass
+            except OSError:
+                closed += 1
+        assert closed == len(silent)
+    finally:
+        for s in silent:
+            s.close()
