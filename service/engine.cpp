@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstring>
 
+#include "spokemesh/facet_cache.hpp"
 #include "spokemesh/mesh.hpp"
 
 namespace spokemesh::service {
@@ -76,13 +77,14 @@ void Watchdog::run() {
 
 // ---- uploads ----------------------------------------------------------------------
 
-Status UploadSession::adopt(std::vector<double>&& coords) {
+Status UploadSession::adopt(std::vector<double>&& coords, MemoryBudget::Charge&& charge) {
   if (received_ != 0 || coords.size() * sizeof(double) != expected_) {
     return append(coords.data(), coords.size() * sizeof(double));
   }
   sha_->update(coords.data(), expected_);
   received_ = expected_;
   coords_ = std::move(coords);
+  charge_ = std::move(charge);
   return Status::ok();
 }
 
@@ -98,7 +100,10 @@ Status UploadSession::append(const void* data, std::size_t size) {
   const std::uint64_t needed = received_ + size;
   if (needed > coords_.size() * sizeof(double)) {
     const std::uint64_t grown = std::min<std::uint64_t>(expected_, std::max<std::uint64_t>(needed, 2 * received_));
-    coords_.resize(static_cast<std::size_t>((grown + sizeof(double) - 1) / sizeof(double)));
+    const std::uint64_t words = (grown + sizeof(double) - 1) / sizeof(double);
+    const std::uint64_t more = (words - coords_.size()) * sizeof(double);
+    if (!charge_.grow(more)) return budget_->over_budget("an upload of " + std::to_string(expected_) + " bytes", more);
+    coords_.resize(static_cast<std::size_t>(words));
   }
   std::memcpy(reinterpret_cast<char*>(coords_.data()) + received_, data, size);
   sha_->update(data, size);
@@ -140,6 +145,8 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
   }
   auto s = std::make_unique<UploadSession>();
   s->header_ = h;
+  s->charge_ = store_->budget().empty_charge();
+  s->budget_ = &store_->budget();
   s->expected_ = static_cast<std::uint64_t>(h.count) * static_cast<std::uint64_t>(h.dimension) * 8;
   s->sha_ = std::make_unique<Sha256>();
   const std::string header =
@@ -295,9 +302,29 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   if (dimension_out != nullptr) *dimension_out = s.info.dimension;
   const std::size_t width = static_cast<std::size_t>(s.info.dimension) + 1;
 
+  // The stream's memory against the budget: its output window (a bounded number of
+  // blocks of simplices and one batch: kStreamWindowBytes covers both), and its facet
+  // cache at the size it would take, or smaller (a smaller cache, or none, gives the
+  // same simplices, only slower) when the budget is short.
+  MemoryBudget& budget = store_->budget();
+  const auto n32 = static_cast<std::uint32_t>(s.info.count);
+  auto window = budget.try_charge(kStreamWindowBytes);
+  if (!window) return budget.over_budget("a streamed shard", kStreamWindowBytes);
+  std::size_t cache_bytes = 0;
+  MemoryBudget::Charge cache_charge;
+  for (std::size_t cap = limits_.stream_cache_bytes; cap >= (1u << 20); cap /= 2) {
+    const std::size_t need = RunCache::bytes_for(s.info.dimension, n32, cap);
+    if (need == 0) continue;
+    if (auto c = budget.try_charge(need)) {
+      cache_charge = std::move(*c);
+      cache_bytes = cap;
+      break;
+    }
+  }
+
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);
-  options.facet_cache_bytes = limits_.stream_cache_bytes;
+  options.facet_cache_bytes = cache_bytes;
   options.seed_begin = range.begin;
   options.seed_end = range.end;
   options.star.cancel = control.stop_flag();

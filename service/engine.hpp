@@ -30,6 +30,10 @@ namespace spokemesh::service {
 
 using Clock = std::chrono::steady_clock;
 
+// Charged per streamed shard for its output: the mesh's window of blocks in flight (a
+// few MB: mesh.cpp) and one batch being assembled (at most 65,536 x 9 x 4 bytes).
+inline constexpr std::uint64_t kStreamWindowBytes = 16u << 20;
+
 struct Limits {
   std::uint64_t max_points = 10'000'000;
   int max_dimension = 128;  // uploads; exact answers are defined up to kMaxDimension
@@ -102,8 +106,9 @@ struct UploadHeader {
 class UploadSession {
  public:
   Status append(const void* data, std::size_t size);
-  // The whole body at once, already as doubles: taken without a copy.
-  Status adopt(std::vector<double>&& coords);
+  // The whole body at once, already as doubles (and what they are charged): taken
+  // without a copy.
+  Status adopt(std::vector<double>&& coords, MemoryBudget::Charge&& charge);
   std::uint64_t expected_bytes() const { return expected_; }
   std::uint64_t received_bytes() const { return received_; }
 
@@ -113,6 +118,8 @@ class UploadSession {
   std::uint64_t expected_ = 0;
   std::uint64_t received_ = 0;
   std::vector<double> coords_;
+  MemoryBudget::Charge charge_;  // coords_'s capacity against the server's budget
+  const MemoryBudget* budget_ = nullptr;
   std::unique_ptr<Sha256> sha_;
 };
 

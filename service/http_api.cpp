@@ -280,18 +280,22 @@ HttpResponse HttpApi::upload(Context& c) {
     return c.fail(invalid_argument("Content-Type: \"" + content_type.substr(0, 80) +
                                    "\" is not supported; send application/json or application/octet-stream"));
   }
-  if (Status s = read_upload_json(body, engine_.limits(), header, coords); !s.is_ok()) return c.fail(s);
-  return store_upload(c, header, std::move(coords));
+  MemoryBudget& budget = engine_.store().budget();
+  MemoryBudget::Charge charge = budget.empty_charge();
+  if (Status s = read_upload_json(body, engine_.limits(), header, coords, &charge, &budget); !s.is_ok()) {
+    return c.fail(s);
+  }
+  return store_upload(c, header, std::make_pair(std::move(coords), std::move(charge)));
 }
 
-HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header,
-                                   std::variant<std::span<const char>, std::vector<double>> data) {
+HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, UploadData data) {
   auto session = engine_.begin_upload(header);
   if (!session.is_ok()) return c.fail(session.status());
   const Status appended =
       data.index() == 0
           ? session.value()->append(std::get<0>(data).data(), std::get<0>(data).size())
-          : session.value()->adopt(std::move(std::get<1>(data)));  // parsed doubles: no second copy
+          : session.value()->adopt(std::move(std::get<1>(data).first),
+                                   std::move(std::get<1>(data).second));  // parsed doubles: no second copy
   if (!appended.is_ok()) return c.fail(appended);
   auto info = engine_.finish_upload(*session.value());
   if (!info.is_ok()) return c.fail(info.status());

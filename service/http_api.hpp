@@ -65,9 +65,10 @@ class HttpApi {
   HttpResponse route(Context& c);
   HttpResponse upload(Context& c);
   // Coordinates decoded from any body form -> stored point set (201, or 200 if it existed).
-  // Raw float64 bytes (copied), or doubles parsed from JSON (taken).
-  HttpResponse store_upload(Context& c, const UploadHeader& header,
-                            std::variant<std::span<const char>, std::vector<double>> data);
+  // Raw float64 bytes (copied), or doubles parsed from JSON with their memory charge
+  // (taken).
+  using UploadData = std::variant<std::span<const char>, std::pair<std::vector<double>, MemoryBudget::Charge>>;
+  HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data);
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
 

@@ -10,6 +10,7 @@
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
 
+#include <array>
 #include <cerrno>
 #include <future>
 #include <optional>
@@ -128,6 +129,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   void read_request() {
     if (closed_ || server_.stopping_.load()) return do_close();
     idle_ = true;
+    body_charge_.reset();
     parser_.emplace();
     parser_->body_limit(options_.max_body_bytes);
     lowest().expires_after(requests_ == 0 ? options_.header_timeout : options_.idle_timeout);
@@ -144,6 +146,20 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   }
   void on_header(boost::system::error_code ec) {
     if (ec) return fail_read(ec);
+    // The body's memory is charged before a byte of it is held: from its
+    // Content-Length, or the body limit when it is chunked.
+    if (options_.budget != nullptr) {
+      const std::uint64_t bytes =
+          parser_->content_length().value_or(parser_->chunked() ? options_.max_body_bytes : 0);
+      if (bytes != 0 && bytes <= options_.max_body_bytes) {
+        auto charge = options_.budget->try_charge(bytes);
+        if (!charge) {
+          return write_one_off(one_off_response(http::status::service_unavailable,
+                                                options_.budget->over_budget("a request body", bytes), true));
+        }
+        body_charge_ = std::move(*charge);
+      }
+    }
     if (parser_->is_done()) return on_request();
     lowest().expires_after(options_.body_timeout);
     http::async_read(stream_, buffer_, *parser_, [self = shared()](boost::system::error_code e, std::size_t) {
@@ -167,7 +183,26 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     auto text = std::make_shared<std::string>(std::move(bytes));
     lowest().expires_after(options_.write_timeout);
     net::async_write(stream_, net::buffer(*text),
-                     [self = shared(), text](boost::system::error_code, std::size_t) { self->do_close(); });
+                     [self = shared(), text](boost::system::error_code ec, std::size_t) {
+                       if (ec) return self->do_close();
+                       self->linger();
+                     });
+  }
+  // A lingering close (as nginx's): after an early answer (413, 503) the client may
+  // still be sending its body; closing at once would reset the connection before it
+  // reads the answer. So: stop sending, read and discard what still comes for a
+  // few seconds, then close.
+  void linger() {
+    boost::system::error_code ec;
+    lowest().socket().shutdown(net::ip::tcp::socket::shutdown_send, ec);
+    lowest().expires_after(std::chrono::seconds(5));
+    discard();
+  }
+  void discard() {
+    lowest().async_read_some(net::buffer(drain_), [self = shared()](boost::system::error_code ec, std::size_t) {
+      if (ec) return self->do_close();
+      self->discard();
+    });
   }
 
   // A whole request has arrived: it gets a thread of its own (computations block),
@@ -269,11 +304,13 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       res.set(http::field::server, "spokemesh");
       res.set(http::field::content_type, response.content_type);
       res.keep_alive(keep_alive);
+      if (response.status == 503) res.set(http::field::retry_after, "1");
       res.body() = std::move(response.body);
       res.prepare_payload();
       ok = !write_and_wait([&](auto done) { http::async_write(stream_, res, std::move(done)); });
     }
     request_ = {};
+    body_charge_.reset();
     server_.end_request();
     net::post(lowest().get_executor(), [self = shared(), next = ok && keep_alive] {
       if (next) return self->read_request();
@@ -296,6 +333,8 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   http::request<http::string_body> request_;
+  MemoryBudget::Charge body_charge_;  // the request body's bytes, until it is handled
+  std::array<char, 4096> drain_{};    // discarded bytes of a lingering close
   std::size_t requests_ = 0;
   bool idle_ = false;  // waiting for a request (on the strand only)
   std::atomic<bool> closed_{false};

@@ -47,6 +47,9 @@ struct HttpServerOptions {
   std::chrono::milliseconds write_timeout{60'000};      // each response write (a stalled reader)
   unsigned io_threads = 2;
   std::shared_ptr<boost::asio::ssl::context> tls;  // null: plain HTTP
+  // Request bodies are charged here from their Content-Length before they are read
+  // (not owned; null: not charged).
+  MemoryBudget* budget = nullptr;
 };
 
 class HttpServer {

@@ -5,8 +5,10 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
+#include <malloc.h>
 #include <signal.h>
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <boost/asio/ssl/context.hpp>
@@ -36,6 +38,31 @@ Result<std::string> read_text_file(const std::string& path, const std::string& f
   return s.str();
 }
 
+// The default memory budget: half of what this process may use, the smaller of the
+// cgroup's limit (v2 memory.max, or v1 memory.limit_in_bytes) and physical memory;
+// `why` says which.
+std::uint64_t default_memory_budget(std::string& why) {
+  const auto pages = static_cast<std::uint64_t>(::sysconf(_SC_PHYS_PAGES));
+  const auto page = static_cast<std::uint64_t>(::sysconf(_SC_PAGE_SIZE));
+  std::uint64_t limit = pages * page;
+  why = "physical memory " + std::to_string(limit);
+  for (const char* path : {"/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"}) {
+    std::ifstream in(path);
+    std::string text;
+    if (!(in >> text) || text == "max") continue;
+    try {
+      const std::uint64_t cgroup = std::stoull(text);
+      if (cgroup < limit) {
+        limit = cgroup;
+        why = std::string("the cgroup limit ") + std::to_string(cgroup) + " (" + path + ")";
+      }
+    } catch (const std::exception&) {
+    }
+    break;
+  }
+  return limit / 2;
+}
+
 int usage_error(const Status& s) {
   std::cerr << "spokemesh-server: " << s.message() << "\n";
   return 2;
@@ -44,6 +71,15 @@ int usage_error(const Status& s) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // The memory budget counts what the server holds; for the process's RSS to follow
+  // it, freed memory must go back to the system. glibc's default raises its mmap
+  // threshold after each large free (to 32 MB), after which large buffers (point
+  // sets, trees, request bodies) come from arenas that never shrink; and each thread
+  // may get its own arena. A fixed 1 MiB threshold maps and unmaps every large
+  // buffer, and a few arenas bound fragmentation across many request threads.
+  ::mallopt(M_MMAP_THRESHOLD, 1 << 20);
+  ::mallopt(M_TRIM_THRESHOLD, 4 << 20);
+  ::mallopt(M_ARENA_MAX, 4);
   CLI::App app{"spokemesh-server: exact Delaunay/Voronoi meshing service (gRPC and REST).\n"
                "Point sets are uploaded once, stored durably in --data-dir, and queried per seed."};
   std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
@@ -51,7 +87,7 @@ int main(int argc, char** argv) {
   std::uint64_t max_points = 10'000'000;
   int max_dimension = 128;
   int max_concurrent = 64;
-  std::string max_memory = "4G", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
+  std::string max_memory = "auto", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
   std::string upload_idle = "30s";
   // REST connection limits and timeouts (HttpServerOptions holds the defaults).
   const HttpServerOptions http_defaults;
@@ -76,8 +112,11 @@ int main(int argc, char** argv) {
                  "Largest dimension accepted (exact answers need d <= 8; above, approximate neighbours only)")
       ->check(CLI::Range(2, kMaxApproxDimension))
       ->capture_default_str();
-  app.add_option("--max-memory", max_memory, "Memory for loaded point sets and trees; the least recently used are "
-                                             "dropped from memory (they stay on disk)")->capture_default_str();
+  app.add_option("--max-memory", max_memory,
+                 "The one memory budget: loaded point sets and trees (the least recently used leave memory, "
+                 "they stay on disk), stream caches and windows, upload buffers; over it requests get 503 / "
+                 "RESOURCE_EXHAUSTED. auto: half the cgroup limit or physical memory")
+      ->capture_default_str();
   app.add_option("--stream-cache", stream_cache,
                  "Memory per streamed shard for sharing facets between its seeds' stars (0 = none: same "
                  "simplices, slower)")
@@ -132,7 +171,10 @@ int main(int argc, char** argv) {
   limits.max_points = max_points;
   limits.max_dimension = max_dimension;
   limits.stream_threads = threads;
-  auto memory = parse_bytes(max_memory, "--max-memory");
+  std::string memory_why = "--max-memory";
+  auto memory = max_memory == "auto" ? Result<std::uint64_t>(default_memory_budget(memory_why))
+                                     : parse_bytes(max_memory, "--max-memory");
+  if (max_memory == "auto") memory_why = "half of " + memory_why;
   auto deadline = parse_duration(default_deadline, "--default-deadline");
   auto grace_ms = parse_duration(grace, "--grace-period");
   auto idle_ms = parse_duration(upload_idle, "--upload-idle-timeout");
@@ -187,12 +229,14 @@ int main(int argc, char** argv) {
   if (!store.is_ok()) return usage_error(store.status());
   Engine engine(std::move(store).value(), limits);
   const std::size_t loaded = engine.store().load_all();
+  telemetry.log("info", "memory budget: " + std::to_string(limits.max_memory) + " bytes (" + memory_why + ")");
   telemetry.log("info", "data dir " + data_dir + ": " + std::to_string(loaded) + " point sets verified");
 
   std::atomic<bool> ready{false};
   HttpServerOptions http_options;
   http_options.listen = http_listen;
   http_options.max_body_bytes = body.value();
+  http_options.budget = &engine.store().budget();
   http_options.max_connections = http_max_connections;
   http_options.max_connections_per_address = http_per_address;
   http_options.max_in_flight = http_in_flight;

@@ -28,9 +28,12 @@ inline int http_status(Code code) {
 }
 
 // The HTTP status of a whole Status: its code, refined by its reason where HTTP has a
-// more specific status (507 Insufficient Storage for a full data volume).
+// more specific status (507 Insufficient Storage for a full data volume, 503 with
+// Retry-After when the memory budget is spent).
 inline int http_status(const Status& s) {
   if (s.code() == Code::kResourceExhausted && s.reason() == "STORAGE_FULL") return 507;
+  // The memory budget is the server's state, not the client's quota: retry later.
+  if (s.code() == Code::kResourceExhausted && s.reason() == "OVER_BUDGET") return 503;
   return http_status(s.code());
 }
 

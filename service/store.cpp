@@ -40,6 +40,18 @@ bool write_all(int fd, const char* data, std::size_t size) {
   return true;
 }
 
+// Reads exactly `size` bytes (false on error or early end of file).
+bool read_all(int fd, char* out, std::size_t size) {
+  std::size_t done = 0;
+  while (done < size) {
+    const ssize_t r = ::read(fd, out + done, size - done);
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    done += static_cast<std::size_t>(r);
+  }
+  return true;
+}
+
 bool read_file(const std::string& path, std::string& out) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return false;
@@ -47,16 +59,7 @@ bool read_file(const std::string& path, std::string& out) {
   bool ok = ::fstat(fd, &st) == 0;
   if (ok) {
     out.resize(static_cast<std::size_t>(st.st_size));
-    std::size_t done = 0;
-    while (ok && done < out.size()) {
-      const ssize_t r = ::read(fd, out.data() + done, out.size() - done);
-      if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) {
-        ok = false;
-        break;
-      }
-      done += static_cast<std::size_t>(r);
-    }
+    ok = read_all(fd, out.data(), out.size());
   }
   ::close(fd);
   return ok;
@@ -164,7 +167,27 @@ std::uint64_t estimated_memory(std::uint64_t n, int d) {
 }
 
 PointSetStore::PointSetStore(std::string dir, std::uint64_t budget, LogFn log)
-    : dir_(std::move(dir)), budget_(budget), log_(std::move(log)) {}
+    : dir_(std::move(dir)), budget_(budget), log_(std::move(log)) {
+  budget_.set_reclaimer([this](std::uint64_t bytes) { reclaim(bytes); });
+}
+
+void PointSetStore::reclaim(std::uint64_t bytes) {
+  // Sets are destroyed outside the lock (a large set's memory takes a while to free).
+  std::vector<std::shared_ptr<const StoredSet>> dropped;
+  {
+    std::lock_guard lock(mutex_);
+    std::uint64_t freed = 0;
+    for (auto it = lru_.end(); it != lru_.begin() && freed < bytes;) {
+      --it;
+      if (it->use_count() != 1) continue;  // a request is using it: dropping frees nothing now
+      freed += (*it)->memory_bytes;
+      in_use_ -= (*it)->memory_bytes;
+      index_.erase((*it)->info.id);
+      dropped.push_back(std::move(*it));
+      it = lru_.erase(it);
+    }
+  }
+}
 
 Result<std::unique_ptr<PointSetStore>> PointSetStore::open(const std::string& data_dir, std::uint64_t memory_budget,
                                                            LogFn log) {
@@ -266,35 +289,51 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& i
     forget(id);  // deleted, possibly through another server sharing the data dir
     return Status{Code::kNotFound, "point set " + id + " not found"};
   }
-  auto loaded = load_from_disk(id);
+  // Charged before it is read: the set and its tree must fit the budget.
+  auto header = info(id);
+  if (!header.is_ok()) return header.status();
+  const std::uint64_t bytes = estimated_memory(header->count, header->dimension);
+  auto charge = budget_.try_charge(bytes);
+  if (!charge) return budget_.over_budget("loading point set " + id, bytes);
+  auto loaded = load_from_disk(id, std::move(*charge));
   if (!loaded.is_ok()) return loaded.status();
   return remember(std::move(loaded).value());
 }
 
-Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std::string& id) {
-  std::string bytes;
-  if (!read_file(data_path(id), bytes)) return Status{Code::kNotFound, "point set " + id + " not found"};
-  Sha256 sha;
-  sha.update(bytes.data(), bytes.size());
-  if (sha.hex_digest() != id) {
-    quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(bytes.size()) + " bytes)");
-    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
-  }
+Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std::string& id,
+                                                                     MemoryBudget::Charge charge) {
+  // Read straight into the coordinates (no second copy of the file in memory).
+  const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
+  struct stat st {};
+  char header[kHeaderBytes];
   std::uint32_t d = 0;
   std::uint64_t n = 0;
-  if (bytes.size() >= kHeaderBytes) {
-    std::memcpy(&d, bytes.data(), 4);
-    std::memcpy(&n, bytes.data() + 4, 8);
+  bool ok = ::fstat(fd, &st) == 0 && read_all(fd, header, kHeaderBytes);
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  if (ok) {
+    std::memcpy(&d, header, 4);
+    std::memcpy(&n, header + 4, 8);
   }
-  if (bytes.size() < kHeaderBytes || d < 2 || d > kMaxApproxDimension || n > (bytes.size() - kHeaderBytes) / 8 / d ||
-      bytes.size() != kHeaderBytes + n * d * 8) {
+  std::vector<double> coords;
+  const bool shaped = ok && d >= 2 && d <= kMaxApproxDimension && n <= (size - kHeaderBytes) / 8 / d &&
+                      size == kHeaderBytes + n * d * 8;
+  if (shaped) {
+    coords.resize(n * d);
+    ok = read_all(fd, reinterpret_cast<char*>(coords.data()), coords.size() * 8);
+  }
+  ::close(fd);
+  if (ok && !shaped) {
     quarantine(id, "its header does not match its size");
     return Status{Code::kNotFound, "point set " + id + " was malformed on disk and has been quarantined"};
   }
-  std::vector<double> coords(n * d);
-  std::memcpy(coords.data(), bytes.data() + kHeaderBytes, coords.size() * 8);
-  bytes.clear();
-  bytes.shrink_to_fit();
+  Sha256 sha;
+  sha.update(header, kHeaderBytes);
+  sha.update(coords.data(), coords.size() * 8);
+  if (!ok || sha.hex_digest() != id) {
+    quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(size) + " bytes)");
+    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
+  }
   auto set = std::make_shared<StoredSet>();
   set->points = PointSet(static_cast<int>(d), std::move(coords));
   if (Status s = set->points.validate("point set " + id, kMaxApproxDimension, static_cast<int>(d) <= kMaxDimension);
@@ -309,6 +348,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   if (read_file(name_path(id), name)) set->info.display_name = name;
   set->tree = std::make_unique<KdTree>(set->points);
   set->memory_bytes = estimated_memory(n, static_cast<int>(d));
+  set->charge = std::move(charge);
   return std::shared_ptr<const StoredSet>(std::move(set));
 }
 
@@ -331,14 +371,7 @@ std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const S
   lru_.push_front(set);
   index_[set->info.id] = lru_.begin();
   in_use_ += set->memory_bytes;
-  // Drop least recently used sets from memory (they stay on disk); never the new one.
-  while (in_use_ > budget_ && lru_.size() > 1) {
-    const auto& victim = lru_.back();
-    in_use_ -= victim->memory_bytes;
-    index_.erase(victim->info.id);
-    lru_.pop_back();
-  }
-  return set;
+  return set;  // the budget, not a count, decides when sets leave memory (reclaim)
 }
 
 void PointSetStore::forget(const std::string& id) {
@@ -398,10 +431,12 @@ std::size_t PointSetStore::load_all() {
         std::lock_guard lock(mutex_);
         if (index_.count(info.id) != 0) continue;
       }
-      auto set = load_from_disk(info.id);  // verifies; quarantines what fails
+      // Verifies (quarantining what fails); keeps what fits the budget as it is now.
+      auto charge = budget_.try_charge(estimated_memory(info.count, info.dimension), /*reclaim=*/false);
+      auto set = load_from_disk(info.id, charge ? std::move(*charge) : MemoryBudget::Charge{});
       if (!set.is_ok()) continue;
       ++loaded;
-      if (memory_in_use() + set.value()->memory_bytes <= budget_) remember(std::move(set).value());
+      if (set.value()->charge.bytes() != 0) remember(std::move(set).value());
     }
   }
   return loaded;

@@ -29,6 +29,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "memory_budget.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
@@ -49,6 +50,7 @@ struct StoredSet {
   PointSet points;
   std::unique_ptr<KdTree> tree;
   std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + tree
+  MemoryBudget::Charge charge;     // memory_bytes against the server's budget, while the set lives
 };
 
 // Incremental SHA-256 (OpenSSL EVP).
@@ -78,7 +80,9 @@ using LogFn = std::function<void(const std::string& level, const std::string& me
 
 class PointSetStore {
  public:
-  // Creates data_dir (and quarantine/) if needed. memory_budget: bytes of loaded sets.
+  // Creates data_dir (and quarantine/) if needed. memory_budget: the server's one
+  // budget (--max-memory), owned here (budget()): loaded sets draw from it, and when a
+  // charge does not fit the store drops its least recently used sets nobody is using.
   static Result<std::unique_ptr<PointSetStore>> open(const std::string& data_dir, std::uint64_t memory_budget,
                                                      LogFn log);
 
@@ -102,20 +106,24 @@ class PointSetStore {
   // Loads and verifies every point set on disk (start-up). Returns how many loaded.
   std::size_t load_all();
 
+  // Bytes of the sets loaded in memory (their estimates), and how many.
   std::uint64_t memory_in_use() const;
   std::size_t loaded_count() const;
+  MemoryBudget& budget() { return budget_; }
 
  private:
   PointSetStore(std::string dir, std::uint64_t budget, LogFn log);
   std::string data_path(const std::string& id) const;
   std::string name_path(const std::string& id) const;
-  Result<std::shared_ptr<const StoredSet>> load_from_disk(const std::string& id);
+  Result<std::shared_ptr<const StoredSet>> load_from_disk(const std::string& id, MemoryBudget::Charge charge);
+  // Drops least recently used sets that no request holds, until `bytes` are freed.
+  void reclaim(std::uint64_t bytes);
   void quarantine(const std::string& id, const std::string& why);
   std::shared_ptr<const StoredSet> remember(std::shared_ptr<const StoredSet> set);
   void forget(const std::string& id);
 
   const std::string dir_;
-  const std::uint64_t budget_;
+  MemoryBudget budget_;
   LogFn log_;
 
   mutable std::mutex mutex_;

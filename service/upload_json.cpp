@@ -15,8 +15,11 @@ using json = nlohmann::json;
 // false to stop the parse at the first error, which it records in `error`.
 class UploadSax final : public nlohmann::json_sax<json> {
  public:
-  UploadSax(const Limits& limits, UploadHeader& header, std::vector<double>& coords)
-      : max_points_(limits.max_points),
+  UploadSax(const Limits& limits, UploadHeader& header, std::vector<double>& coords, MemoryBudget::Charge* charge,
+            const MemoryBudget* budget)
+      : charge_(charge),
+        budget_(budget),
+        max_points_(limits.max_points),
         max_values_(limits.max_points * static_cast<std::uint64_t>(std::max(2, limits.max_dimension))),
         header_(header),
         coords_(coords) {}
@@ -101,6 +104,13 @@ class UploadSax final : public nlohmann::json_sax<json> {
     if (coords_.size() >= max_values_) {
       return fail(resource_exhausted("body: more than " + std::to_string(max_values_) +
                                      " coordinates (this server's limits --max-points times --max-dimension)"));
+    }
+    if (coords_.size() == coords_.capacity() && charge_ != nullptr) {
+      // Grown here, as the vector would, so the charge follows the capacity.
+      const std::size_t next = std::max<std::size_t>(1024, 2 * coords_.capacity());
+      const std::uint64_t more = (next - coords_.capacity()) * sizeof(double);
+      if (!charge_->grow(more)) return fail(budget_->over_budget("parsing the uploaded coordinates", more));
+      coords_.reserve(next);
     }
     coords_.push_back(v);
     return true;
@@ -193,6 +203,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
     return true;
   }
 
+  MemoryBudget::Charge* charge_;
+  const MemoryBudget* budget_;
   const std::uint64_t max_points_;
   const std::uint64_t max_values_;
   UploadHeader& header_;
@@ -208,8 +220,9 @@ class UploadSax final : public nlohmann::json_sax<json> {
 }  // namespace
 
 Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords) {
-  UploadSax sax(limits, header, coords);
+                        std::vector<double>& coords, MemoryBudget::Charge* charge, const MemoryBudget* budget) {
+  if (charge != nullptr && budget == nullptr) return internal_error("read_upload_json: a charge needs its budget");
+  UploadSax sax(limits, header, coords, charge, budget);
   bool parsed = false;
   try {
     parsed = json::sax_parse(body.begin(), body.end(), &sax, json::input_format_t::json, /*strict=*/true);

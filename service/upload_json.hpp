@@ -32,8 +32,10 @@ inline constexpr int kMaxUploadJsonDepth = 3;
 // stop an oversized upload as soon as it is known to be one.
 // Errors: INVALID_ARGUMENT naming the field and index (e.g. "points[3][1]: expected a
 // number, got \"x\""), or the byte offset of a syntax error; RESOURCE_EXHAUSTED past
-// the limits.
+// the limits. `charge`, if given, grows with coords' capacity: RESOURCE_EXHAUSTED
+// (reason OVER_BUDGET) when the server's memory budget cannot take it.
 Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords);
+                        std::vector<double>& coords, MemoryBudget::Charge* charge = nullptr,
+                        const MemoryBudget* budget = nullptr);
 
 }  // namespace spokemesh::service

@@ -72,19 +72,34 @@ void UnmapWords::operator()(std::uint32_t* p) const {
 
 std::size_t mapped_cache_bytes() { return g_mapped_bytes.load(std::memory_order_relaxed); }
 
-FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
-                       std::uint32_t block)
-    : d_(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
+// The table's slot count for n points within max_bytes (with the per-point starts);
+// 0 when the cache would be disabled.
+std::size_t FacetCache::slots_for(int d, std::uint32_t n, std::size_t max_bytes) {
   const std::size_t starts_bytes = std::size_t{n} * sizeof(std::uint32_t);
-  if (d < 2 || d > kMaxDimension || order_.begin >= order_.end || max_bytes <= starts_bytes) return;
+  const std::size_t stride = static_cast<std::size_t>(d) + 3;
+  if (d < 2 || d > kMaxDimension || max_bytes <= starts_bytes) return 0;
   const double wanted = expected_facets_per_point(d) * static_cast<double>(n) / kMaxLoad;
-  const std::size_t affordable = (max_bytes - starts_bytes) / (stride_ * sizeof(std::uint32_t));
+  const std::size_t affordable = (max_bytes - starts_bytes) / (stride * sizeof(std::uint32_t));
   // Any slot count (home slots come from a multiply, not a mask), 10% above the
   // estimate: a power of two would waste up to half the table, and every page of it
   // is zeroed by the kernel when first touched (bench/README.md, "Tuning history").
   const auto estimate = static_cast<std::size_t>(std::min(wanted * 1.1, static_cast<double>(kMaxSlots)));
   const std::size_t slots = std::min({std::max(estimate, kMinSlots), affordable, kMaxSlots});
-  if (slots < kMinSlots) return;  // too little memory for a useful table
+  return slots < kMinSlots ? 0 : slots;  // too little memory for a useful table: none
+}
+
+std::size_t FacetCache::bytes_for(int d, std::uint32_t n, std::size_t max_bytes) {
+  const std::size_t slots = slots_for(d, n, max_bytes);
+  if (slots == 0) return 0;
+  return (slots * (static_cast<std::size_t>(d) + 3) + std::max<std::size_t>(n, 1)) * sizeof(std::uint32_t);
+}
+
+FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
+                       std::uint32_t block)
+    : d_(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
+  if (order_.begin >= order_.end) return;
+  const std::size_t slots = slots_for(d, n, max_bytes);
+  if (slots == 0) return;
   table_ = allocate_zeroed(slots * stride_);
   starts_ = allocate_zeroed(std::max<std::size_t>(n, 1));
   if (!table_ || !starts_) {
@@ -218,11 +233,15 @@ bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, 
 // ---------------------------------------------------------------------------------
 // EdgeCache
 
+std::size_t EdgeCache::bytes_for(std::uint32_t n, std::size_t max_bytes) {
+  const std::size_t bytes = std::size_t{n} * kBoxWords * sizeof(std::uint32_t);
+  return bytes > max_bytes ? 0 : bytes;
+}
+
 EdgeCache::EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                      std::uint32_t block)
     : n_(n), order_{begin, std::min(end, n), std::max(block, 1u)} {
-  const std::size_t bytes = std::size_t{n} * kBoxWords * sizeof(std::uint32_t);
-  if (order_.begin >= order_.end || bytes > max_bytes) return;
+  if (order_.begin >= order_.end || bytes_for(n, max_bytes) == 0) return;
   boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords);
 }
 

@@ -80,6 +80,9 @@ class FacetCache {
   bool enabled() const { return capacity_ != 0; }
   // Bytes reserved (address space; pages are committed as they are touched).
   std::size_t reserved_bytes() const;
+  // What a cache for n points in dimension d would reserve within max_bytes (0: it
+  // would be disabled), without building it: for charging a memory budget first.
+  static std::size_t bytes_for(int d, std::uint32_t n, std::size_t max_bytes);
 
   // A facet's hash (d ascending indices), for the calls below.
   std::uint64_t hash(const std::uint32_t* facet) const;
@@ -117,6 +120,7 @@ class FacetCache {
   bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const;
 
  private:
+  static std::size_t slots_for(int d, std::uint32_t n, std::size_t max_bytes);
   std::uint32_t* slot(std::size_t s) const { return table_.get() + s * stride_; }
   // A hash's first slot: its low 32 bits scaled to [0, capacity) (the tag uses the
   // high 32); probing goes on linearly, wrapping at the end.
@@ -172,6 +176,8 @@ class EdgeCache {
             std::uint32_t block = 1);
 
   bool enabled() const { return static_cast<bool>(boxes_); }
+  // What a cache for n points would reserve within max_bytes (0: disabled).
+  static std::size_t bytes_for(std::uint32_t n, std::size_t max_bytes);
   std::size_t reserved_bytes() const { return enabled() ? std::size_t{n_} * kBoxWords * sizeof(std::uint32_t) : 0; }
 
   // Whether a post from x's star to its neighbour t may be read: t may come later.
@@ -219,6 +225,10 @@ class RunCache {
   bool enabled() const { return (facets_ && facets_->enabled()) || (edges_ && edges_->enabled()); }
   std::size_t reserved_bytes() const {
     return facets_ ? facets_->reserved_bytes() : edges_ ? edges_->reserved_bytes() : 0;
+  }
+  // What the cache of a run over n points would reserve within max_bytes.
+  static std::size_t bytes_for(int d, std::uint32_t n, std::size_t max_bytes) {
+    return d == 2 ? EdgeCache::bytes_for(n, max_bytes) : FacetCache::bytes_for(d, n, max_bytes);
   }
   // The cache of this run's kind when enabled, else nullptr.
   FacetCache* facets() const { return facets_ && facets_->enabled() ? facets_.get() : nullptr; }
