@@ -155,7 +155,7 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
   return s;
 }
 
-Result<PointSetInfo> Engine::finish_upload(UploadSession& s) {
+Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& who) {
   if (s.received_ != s.expected_) {
     return invalid_argument("coordinates: received " + std::to_string(s.received_) + " bytes, but dimension " +
                             std::to_string(s.header_.dimension) + " x count " + std::to_string(s.header_.count) +
@@ -166,22 +166,38 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s) {
   info.dimension = static_cast<int>(s.header_.dimension);
   info.count = static_cast<std::uint64_t>(s.header_.count);
   info.display_name = s.header_.display_name;
-  // Same data as a stored set: no work (the id is a function of the bytes).
+  // Same data as a stored set: no work (the id is a function of the bytes), but the
+  // caller becomes one of its owners.
   if (auto existing = store_->info(info.id); existing.is_ok()) {
-    existing->already_existed = true;
+    const bool had = who.tenant.empty() || store_->owned_by(info.id, who.tenant);
+    if (Status st = store_->add_owner(info.id, who.tenant); !st.is_ok()) return st;
+    existing->already_existed = had;
     return existing;
   }
   PointSet points(info.dimension, std::move(s.coords_));
   if (Status st = points.validate("coordinates", limits_.max_dimension, info.dimension <= kMaxDimension); !st.is_ok()) {
     return st;
   }
-  return store_->put(info, std::move(points));
+  // The owner first, then the set (see PointSetStore::add_owner).
+  if (Status st = store_->add_owner(info.id, who.tenant); !st.is_ok()) return st;
+  auto stored = store_->put(info, std::move(points));
+  if (stored.is_ok() && stored->already_existed && !who.tenant.empty()) stored->already_existed = false;
+  return stored;
 }
 
-Result<PointSetInfo> Engine::get_point_set(const std::string& id) { return store_->info(id); }
+Status Engine::authorize(const std::string& id, const Principal& who) {
+  if (who.admin || !is_valid_id(id)) return Status::ok();  // a malformed id gets its own error downstream
+  if (store_->owned_by(id, who.tenant)) return Status::ok();
+  return Status{Code::kNotFound, "point set " + id + " not found"};
+}
+
+Result<PointSetInfo> Engine::get_point_set(const std::string& id, const Principal& who) {
+  if (Status s = authorize(id, who); !s.is_ok()) return s;
+  return store_->info(id);
+}
 
 Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_size, const std::string& page_token,
-                                                          std::string* next_page_token) {
+                                                          std::string* next_page_token, const Principal& who) {
   if (page_size == 0) page_size = 100;
   if (page_size > 1000) {
     return invalid_argument("page_size: " + std::to_string(page_size) + " is above the maximum 1000");
@@ -190,12 +206,17 @@ Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_siz
     return invalid_argument("page_token: \"" + page_token.substr(0, 80) + "\" is not a token from a previous page");
   }
   bool more = false;
-  std::vector<PointSetInfo> page = store_->list(page_token, page_size, &more);
+  std::function<bool(const std::string&)> visible;
+  if (!who.admin) visible = [&](const std::string& id) { return store_->owned_by(id, who.tenant); };
+  std::vector<PointSetInfo> page = store_->list(page_token, page_size, &more, visible);
   if (next_page_token != nullptr) *next_page_token = more ? page.back().id : "";
   return page;
 }
 
-Status Engine::delete_point_set(const std::string& id) { return store_->remove(id); }
+Status Engine::delete_point_set(const std::string& id, const Principal& who) {
+  if (who.admin) return store_->remove(id);
+  return store_->release(id, who.tenant);
+}
 
 Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_of(const std::string& id,
                                                                                    std::uint64_t seed) {

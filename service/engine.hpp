@@ -24,6 +24,7 @@
 #include "spokemesh/approx.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
+#include "auth.hpp"
 #include "store.hpp"
 
 namespace spokemesh::service {
@@ -95,6 +96,9 @@ class Watchdog {
   std::thread thread_;
 };
 
+// The caller in open mode (no keys configured): an admin of the empty tenant.
+inline const Principal kOpenPrincipal{"", true};
+
 struct UploadHeader {
   std::int64_t dimension = 0;
   std::int64_t count = 0;
@@ -158,13 +162,21 @@ class Engine {
   // count, validates the points (NaN/Inf, range, duplicates, affine span) and stores
   // them durably before returning.
   Result<std::unique_ptr<UploadSession>> begin_upload(const UploadHeader& header) const;
-  Result<PointSetInfo> finish_upload(UploadSession& session);
+  // Tenancy (auth.hpp): `who` becomes an owner of the set it uploads (the set is
+  // stored once whoever uploads it); already_existed says whether `who` had it.
+  Result<PointSetInfo> finish_upload(UploadSession& session, const Principal& who = kOpenPrincipal);
 
-  Result<PointSetInfo> get_point_set(const std::string& id);
-  // page_token is the last id of the previous page ("" for the first).
+  // NOT_FOUND unless `who` may see the set (an owner, or an admin): other tenants'
+  // sets are indistinguishable from absent ones.
+  Status authorize(const std::string& id, const Principal& who);
+  Result<PointSetInfo> get_point_set(const std::string& id, const Principal& who = kOpenPrincipal);
+  // page_token is the last id of the previous page ("" for the first); only `who`'s sets.
   Result<std::vector<PointSetInfo>> list_point_sets(std::uint32_t page_size, const std::string& page_token,
-                                                    std::string* next_page_token);
-  Status delete_point_set(const std::string& id);
+                                                    std::string* next_page_token,
+                                                    const Principal& who = kOpenPrincipal);
+  // A tenant gives up its ownership (the set goes when no owner is left); an admin
+  // deletes the set for everyone.
+  Status delete_point_set(const std::string& id, const Principal& who = kOpenPrincipal);
   Result<std::shared_ptr<const StoredSet>> point_set(const std::string& id) { return store_->get(id); }
 
   Result<StarAnswer> star(const std::string& id, std::uint64_t seed, const CallControl& control);

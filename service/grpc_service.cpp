@@ -1,6 +1,5 @@
 #include "grpc_service.hpp"
 
-#include <openssl/crypto.h>
 
 #include <algorithm>
 #include <optional>
@@ -31,17 +30,22 @@ class MesherService::Call {
     record_.method = method;
     record_.point_set = std::move(point_set);
     record_.seed = seed;
-    if (!service.auth_token_.empty()) {
-      const auto& md = ctx->client_metadata();
-      const auto it = md.find("authorization");
-      const std::string expected = "Bearer " + service.auth_token_;
-      const bool ok = it != md.end() && it->second.size() == expected.size() &&
-                      CRYPTO_memcmp(it->second.data(), expected.data(), expected.size()) == 0;
-      if (!ok) auth_ = Status{Code::kUnauthenticated, "missing or wrong bearer token in 'authorization' metadata"};
+    // Who is calling, and whether they may see the set named (auth.hpp).
+    const auto& md = ctx->client_metadata();
+    const auto it = md.find("authorization");
+    const std::string_view presented = it == md.end() ? std::string_view{} : std::string_view(it->second.data(), it->second.size());
+    auto principal = service.auth_->authenticate(presented, "'authorization' metadata");
+    if (!principal.is_ok()) {
+      auth_ = principal.status();
+    } else {
+      principal_ = std::move(principal).value();
+      if (!record_.point_set.empty()) auth_ = service.engine_.authorize(record_.point_set, principal_);
     }
   }
 
+  // UNAUTHENTICATED, or NOT_FOUND for a set the caller may not see; OK otherwise.
   const Status& auth() const { return auth_; }
+  const Principal& principal() const { return principal_; }
   const CallControl& control() const { return control_; }
 
   grpc::Status finish(const Status& s) {
@@ -66,11 +70,12 @@ class MesherService::Call {
   RequestTimer timer_;
   CallControl control_;
   Status auth_;
+  Principal principal_;
   Telemetry::Request record_;
 };
 
-MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::string auth_token)
-    : engine_(engine), telemetry_(telemetry), auth_token_(std::move(auth_token)) {}
+MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth)
+    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)) {}
 
 grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
                                            grpc::ServerReader<pb::UploadPointSetRequest>* reader,
@@ -110,7 +115,7 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
   }
   if (idle_control.stopped()) return call.finish(idle_status());
   if (ctx->IsCancelled()) return call.finish(cancelled("upload cancelled by the client"));
-  auto info = engine_.finish_upload(*session.value());
+  auto info = engine_.finish_upload(*session.value(), call.principal());
   if (!info.is_ok()) return call.finish(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
   fill_point_set(info.value(), response);
@@ -121,7 +126,7 @@ grpc::Status MesherService::GetPointSet(grpc::ServerContext* ctx, const pb::GetP
                                         pb::PointSet* response) {
   Call call(*this, ctx, "GetPointSet", request->point_set_id());
   if (!call.auth().is_ok()) return call.finish(call.auth());
-  auto info = engine_.get_point_set(request->point_set_id());
+  auto info = engine_.get_point_set(request->point_set_id(), call.principal());
   if (!info.is_ok()) return call.finish(info.status());
   fill_point_set(info.value(), response);
   return call.finish(Status::ok());
@@ -132,7 +137,7 @@ grpc::Status MesherService::ListPointSets(grpc::ServerContext* ctx, const pb::Li
   Call call(*this, ctx, "ListPointSets");
   if (!call.auth().is_ok()) return call.finish(call.auth());
   std::string next;
-  auto page = engine_.list_point_sets(request->page_size(), request->page_token(), &next);
+  auto page = engine_.list_point_sets(request->page_size(), request->page_token(), &next, call.principal());
   if (!page.is_ok()) return call.finish(page.status());
   for (const PointSetInfo& info : page.value()) fill_point_set(info, response->add_point_sets());
   response->set_next_page_token(next);
@@ -143,7 +148,7 @@ grpc::Status MesherService::DeletePointSet(grpc::ServerContext* ctx, const pb::D
                                            pb::DeletePointSetResponse*) {
   Call call(*this, ctx, "DeletePointSet", request->point_set_id());
   if (!call.auth().is_ok()) return call.finish(call.auth());
-  return call.finish(engine_.delete_point_set(request->point_set_id()));
+  return call.finish(engine_.delete_point_set(request->point_set_id(), call.principal()));
 }
 
 grpc::Status MesherService::DownloadPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,

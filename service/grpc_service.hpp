@@ -10,6 +10,7 @@
 
 #include <string>
 
+#include "auth.hpp"
 #include "engine.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 #include "telemetry.hpp"
@@ -22,8 +23,8 @@ grpc::Status to_grpc(const Status& s);
 
 class MesherService final : public pb::Mesher::Service {
  public:
-  // auth_token: required bearer token ("" = no authentication).
-  MesherService(Engine& engine, Telemetry& telemetry, std::string auth_token);
+  // auth: who may call and which sets they see (auth.hpp); shared with the REST API.
+  MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth);
 
   grpc::Status UploadPointSet(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadPointSetRequest>* reader,
                               pb::PointSet* response) override;
@@ -47,7 +48,7 @@ class MesherService final : public pb::Mesher::Service {
   class Call;
   Engine& engine_;
   Telemetry& telemetry_;
-  std::string auth_token_;
+  std::shared_ptr<const Authenticator> auth_;
 };
 
 void fill_point_set(const PointSetInfo& info, pb::PointSet* out);

@@ -1,6 +1,5 @@
 #include "http_api.hpp"
 
-#include <openssl/crypto.h>
 
 #include <cctype>
 #include <charconv>
@@ -106,6 +105,7 @@ struct HttpApi::Context {
   Clock::time_point deadline;
   Telemetry::Request record;
   RequestTimer timer;
+  Principal principal;  // set once authenticated
 
   HttpResponse fail(const Status& s) {
     record.code = s.code();
@@ -128,8 +128,9 @@ struct HttpApi::Context {
   }
 };
 
-HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::string auth_token, std::function<bool()> ready)
-    : engine_(engine), telemetry_(telemetry), auth_token_(std::move(auth_token)), ready_(std::move(ready)) {}
+HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
+                 std::function<bool()> ready)
+    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), ready_(std::move(ready)) {}
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
@@ -180,12 +181,13 @@ HttpResponse HttpApi::route(Context& c) {
     if (ready_ && !ready_()) return c.fail({Code::kUnavailable, "not ready: the server is starting or shutting down"});
     return c.ok({{"status", "READY"}});
   }
-  if (!auth_token_.empty()) {
+  {
     const auto it = req.find(http::field::authorization);
-    const std::string expected = "Bearer " + auth_token_;
-    const bool ok = it != req.end() && it->value().size() == expected.size() &&
-                    CRYPTO_memcmp(it->value().data(), expected.data(), expected.size()) == 0;
-    if (!ok) return c.fail({Code::kUnauthenticated, "missing or wrong bearer token in the Authorization header"});
+    const std::string_view presented =
+        it == req.end() ? std::string_view{} : std::string_view(it->value().data(), it->value().size());
+    auto principal = auth_->authenticate(presented, "Authorization header");
+    if (!principal.is_ok()) return c.fail(principal.status());
+    c.principal = std::move(principal).value();
   }
   if (p.size() == 1 && p[0] == "metrics" && method == http::verb::get) {
     c.record.method = "Metrics";
@@ -216,7 +218,7 @@ HttpResponse HttpApi::route(Context& c) {
       page_size = static_cast<std::uint32_t>(std::min<std::uint64_t>(v.value(), 1u << 30));
     }
     std::string next;
-    auto page = engine_.list_point_sets(page_size, c.param("page_token").value_or(""), &next);
+    auto page = engine_.list_point_sets(page_size, c.param("page_token").value_or(""), &next, c.principal);
     if (!page.is_ok()) return c.fail(page.status());
     json sets = json::array();
     for (const PointSetInfo& info : page.value()) sets.push_back(point_set_json(info));
@@ -224,16 +226,18 @@ HttpResponse HttpApi::route(Context& c) {
   }
   const std::string& id = p[2];
   if (p.size() <= 6) c.record.point_set = id.substr(0, 64);
+  // Other tenants' sets are answered as absent, on every route below.
+  if (Status s = engine_.authorize(id, c.principal); !s.is_ok()) return c.fail(s);
   if (p.size() == 3) {
     if (method == http::verb::get) {
       c.record.method = "GetPointSet";
-      auto info = engine_.get_point_set(id);
+      auto info = engine_.get_point_set(id, c.principal);
       if (!info.is_ok()) return c.fail(info.status());
       return c.ok(point_set_json(info.value()));
     }
     if (method == http::verb::delete_) {
       c.record.method = "DeletePointSet";
-      if (Status s = engine_.delete_point_set(id); !s.is_ok()) return c.fail(s);
+      if (Status s = engine_.delete_point_set(id, c.principal); !s.is_ok()) return c.fail(s);
       return c.ok(json::object());
     }
     return wrong_method();
@@ -297,7 +301,7 @@ HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, Uploa
           : session.value()->adopt(std::move(std::get<1>(data).first),
                                    std::move(std::get<1>(data).second));  // parsed doubles: no second copy
   if (!appended.is_ok()) return c.fail(appended);
-  auto info = engine_.finish_upload(*session.value());
+  auto info = engine_.finish_upload(*session.value(), c.principal);
   if (!info.is_ok()) return c.fail(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
   c.record.point_set = info->id;

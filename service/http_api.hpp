@@ -30,6 +30,7 @@
 #include <variant>
 #include <vector>
 
+#include "auth.hpp"
 #include "engine.hpp"
 #include "telemetry.hpp"
 
@@ -54,7 +55,7 @@ std::string error_json(const Status& s, int http_code = 0);
 class HttpApi {
  public:
   // ready(): false while starting or shutting down (/readyz answers 503).
-  HttpApi(Engine& engine, Telemetry& telemetry, std::string auth_token, std::function<bool()> ready);
+  HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth, std::function<bool()> ready);
 
   // client_gone: polled during long computations to stop work for a closed connection.
   HttpResponse handle_request(const http::request<http::string_body>& request,
@@ -74,7 +75,7 @@ class HttpApi {
 
   Engine& engine_;
   Telemetry& telemetry_;
-  std::string auth_token_;
+  std::shared_ptr<const Authenticator> auth_;
   std::function<bool()> ready_;
 };
 

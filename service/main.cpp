@@ -5,6 +5,7 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
+#include <grpcpp/support/server_interceptor.h>
 #include <malloc.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -17,6 +18,7 @@
 #include <sstream>
 #include <thread>
 
+#include "auth.hpp"
 #include "engine.hpp"
 #include "spokemesh/approx.hpp"
 #include "grpc_service.hpp"
@@ -63,6 +65,40 @@ std::uint64_t default_memory_budget(std::string& why) {
   return limit / 2;
 }
 
+// gRPC reflection describes the whole API: with keys configured it needs one too. Its
+// handler is gRPC's own, so the check is an interceptor: a call without a valid key
+// is cancelled when its metadata arrives, before the handler reads a message.
+class ReflectionGuard final : public grpc::experimental::Interceptor {
+ public:
+  ReflectionGuard(grpc::experimental::ServerRpcInfo* info, const Authenticator& auth) : info_(info), auth_(auth) {}
+  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
+    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::POST_RECV_INITIAL_METADATA)) {
+      std::string_view presented;
+      if (auto* md = methods->GetRecvInitialMetadata()) {
+        if (auto it = md->find("authorization"); it != md->end()) presented = {it->second.data(), it->second.size()};
+      }
+      if (!auth_.authenticate(presented, "'authorization' metadata").is_ok()) info_->server_context()->TryCancel();
+    }
+    methods->Proceed();
+  }
+
+ private:
+  grpc::experimental::ServerRpcInfo* info_;
+  const Authenticator& auth_;
+};
+
+class ReflectionGuardFactory final : public grpc::experimental::ServerInterceptorFactoryInterface {
+ public:
+  explicit ReflectionGuardFactory(std::shared_ptr<const Authenticator> auth) : auth_(std::move(auth)) {}
+  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
+    if (std::string_view(info->method()).rfind("/grpc.reflection.", 0) != 0) return nullptr;
+    return new ReflectionGuard(info, *auth_);
+  }
+
+ private:
+  std::shared_ptr<const Authenticator> auth_;
+};
+
 int usage_error(const Status& s) {
   std::cerr << "spokemesh-server: " << s.message() << "\n";
   return 2;
@@ -96,7 +132,7 @@ int main(int argc, char** argv) {
   std::size_t http_in_flight = http_defaults.max_in_flight;
   std::string http_header_timeout = "10s", http_body_timeout = "120s", http_idle_timeout = "60s",
               http_write_timeout = "60s", tls_handshake_timeout = "10s";
-  std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
+  std::string tls_cert, tls_key, tls_client_ca, auth_token_file, keys_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--data-dir", data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
@@ -160,7 +196,11 @@ int main(int argc, char** argv) {
   app.add_option("--tls-key", tls_key, "PEM private key for --tls-cert");
   app.add_option("--tls-client-ca", tls_client_ca, "PEM CA bundle: require client certificates signed by it (mTLS)");
   app.add_option("--auth-token-file", auth_token_file,
-                 "File holding a bearer token that every request must carry (health and readiness exempt)");
+                 "File holding a bearer token that every request must carry (health and readiness exempt); it "
+                 "acts as one admin key");
+  app.add_option("--keys", keys_file,
+                 "API keys with tenants, one `key tenant [admin]` per line (re-read on SIGHUP): a tenant sees only "
+                 "its own point sets, an admin all");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -209,11 +249,16 @@ int main(int argc, char** argv) {
     if (token.empty()) return usage_error(invalid_argument("--auth-token-file: " + auth_token_file + " is empty"));
   }
 
-  // SIGTERM/SIGINT are taken by sigwait() below, so every thread must block them.
+  auto auth_created = Authenticator::create(keys_file, token);
+  if (!auth_created.is_ok()) return usage_error(auth_created.status());
+  const std::shared_ptr<Authenticator> auth = std::move(auth_created).value();
+
+  // SIGTERM/SIGINT/SIGHUP are taken by sigwait() below, so every thread must block them.
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   signal(SIGPIPE, SIG_IGN);
   // Every connection is a descriptor: take the hard limit (the default soft limit of
@@ -276,8 +321,8 @@ int main(int argc, char** argv) {
     http_options.tls = tls;
   }
 
-  MesherService mesher(engine, telemetry, token);
-  HttpApi api(engine, telemetry, token, [&ready] { return ready.load(); });
+  MesherService mesher(engine, telemetry, auth);
+  HttpApi api(engine, telemetry, auth, [&ready] { return ready.load(); });
   HttpServer http_server(api, telemetry, http_options);
 
   grpc::EnableDefaultHealthCheckService(true);
@@ -287,6 +332,9 @@ int main(int argc, char** argv) {
   if (auto ep = parse_endpoint(grpc_listen, "--grpc-listen"); !ep.is_ok()) return usage_error(ep.status());
   builder.AddListeningPort(grpc_listen, grpc_credentials, &grpc_port);
   builder.RegisterService(&mesher);
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
+  interceptors.push_back(std::make_unique<ReflectionGuardFactory>(auth));
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
   grpc::ResourceQuota quota("spokemesh");
   // Sync gRPC runs one thread per call, plus a few pollers per completion queue.
   quota.SetMaxThreads(max_concurrent + 4 * static_cast<int>(std::max(2u, std::thread::hardware_concurrency())));
@@ -308,10 +356,21 @@ int main(int argc, char** argv) {
   const std::string http_host = http_listen.substr(0, http_listen.rfind(':'));
   telemetry.log("info", "serving gRPC on " + grpc_host + ":" + std::to_string(grpc_port) + " and HTTP on " +
                             http_host + ":" + std::to_string(http_port.value()) + (tls_cert.empty() ? "" : " (TLS)") +
-                            (token.empty() ? "" : " (bearer token required)"));
+                            (auth->enabled() ? " (" + std::to_string(auth->key_count()) + " API keys)" : ""));
 
   int signal_number = 0;
-  sigwait(&signals, &signal_number);
+  for (;;) {
+    sigwait(&signals, &signal_number);
+    if (signal_number != SIGHUP) break;
+    if (keys_file.empty()) {
+      telemetry.log("info", "received SIGHUP: no --keys file to re-read");
+    } else if (Status s = auth->reload(); s.is_ok()) {
+      telemetry.log("info", "received SIGHUP: " + keys_file + " re-read, " + std::to_string(auth->key_count()) +
+                                " API keys");
+    } else {
+      telemetry.log("error", "received SIGHUP: " + s.message() + "; the previous keys stay in force");
+    }
+  }
   telemetry.log("info", std::string("received ") + (signal_number == SIGTERM ? "SIGTERM" : "SIGINT") +
                             ": health NOT_SERVING; stopping after --drain-delay " + drain +
                             ", then in-flight requests have up to " + grace);

@@ -218,6 +218,64 @@ Result<std::unique_ptr<PointSetStore>> PointSetStore::open(const std::string& da
 std::string PointSetStore::data_path(const std::string& id) const { return dir_ + "/" + id + ".points"; }
 std::string PointSetStore::name_path(const std::string& id) const { return dir_ + "/" + id + ".name"; }
 
+std::string PointSetStore::owner_path(const std::string& id, const std::string& tenant) const {
+  // The tenant in hex: any name is a safe file name.
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string path = dir_ + "/" + id + ".owner-";
+  for (const unsigned char ch : tenant) {
+    path += kHex[ch >> 4];
+    path += kHex[ch & 15];
+  }
+  return path;
+}
+
+Status PointSetStore::add_owner(const std::string& id, const std::string& tenant) {
+  if (tenant.empty() || file_exists(owner_path(id, tenant))) return Status::ok();
+  return write_durably(dir_, owner_path(id, tenant), {});
+}
+
+bool PointSetStore::owned_by(const std::string& id, const std::string& tenant) const {
+  return !tenant.empty() && file_exists(owner_path(id, tenant));
+}
+
+bool PointSetStore::has_owners(const std::string& id) const {
+  const std::string prefix = id + ".owner-";
+  bool found = false;
+  if (DIR* dir = ::opendir(dir_.c_str())) {
+    while (const dirent* e = ::readdir(dir)) {
+      if (std::strncmp(e->d_name, prefix.c_str(), prefix.size()) == 0) {
+        found = true;
+        break;
+      }
+    }
+    ::closedir(dir);
+  }
+  return found;
+}
+
+void PointSetStore::remove_owner_markers(const std::string& id) {
+  const std::string prefix = id + ".owner-";
+  std::vector<std::string> markers;
+  if (DIR* dir = ::opendir(dir_.c_str())) {
+    while (const dirent* e = ::readdir(dir)) {
+      if (std::strncmp(e->d_name, prefix.c_str(), prefix.size()) == 0) markers.push_back(dir_ + "/" + e->d_name);
+    }
+    ::closedir(dir);
+  }
+  for (const std::string& m : markers) ::unlink(m.c_str());
+}
+
+Status PointSetStore::release(const std::string& id, const std::string& tenant) {
+  if (!is_valid_id(id)) return not_an_id(id);
+  if (::unlink(owner_path(id, tenant).c_str()) != 0) {
+    return {Code::kNotFound, "point set " + id + " not found"};
+  }
+  fsync_dir(dir_);
+  if (has_owners(id)) return Status::ok();  // still another tenant's
+  Status s = remove(id);
+  return s.code() == Code::kNotFound ? Status::ok() : s;  // another replica removed it first
+}
+
 Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
   const std::string path = data_path(info.id);
   if (file_exists(path)) {
@@ -383,14 +441,15 @@ void PointSetStore::forget(const std::string& id) {
   }
 }
 
-std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::size_t limit, bool* more) {
+std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::size_t limit, bool* more,
+                                              const std::function<bool(const std::string&)>& visible) {
   std::vector<std::string> ids;
   if (DIR* dir = ::opendir(dir_.c_str())) {
     while (const dirent* e = ::readdir(dir)) {
       const std::string name = e->d_name;
       if (name.size() != 64 + 7 || name.compare(64, 7, ".points") != 0) continue;
       std::string id = name.substr(0, 64);
-      if (is_valid_id(id) && id > after) ids.push_back(std::move(id));
+      if (is_valid_id(id) && id > after && (!visible || visible(id))) ids.push_back(std::move(id));
     }
     ::closedir(dir);
   }
@@ -415,6 +474,7 @@ Status PointSetStore::remove(const std::string& id) {
     return {Code::kInternal, "cannot delete point set " + id + ": " + errno_text()};
   }
   ::unlink(name_path(id).c_str());
+  remove_owner_markers(id);
   fsync_dir(dir_);
   return Status::ok();
 }

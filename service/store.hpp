@@ -98,8 +98,19 @@ class PointSetStore {
   // Metadata only (reads the 12-byte header, does not load or verify coordinates).
   Result<PointSetInfo> info(const std::string& id);
 
-  // Ids on disk in ascending order, strictly after `after`, at most `limit`.
-  std::vector<PointSetInfo> list(const std::string& after, std::size_t limit, bool* more);
+  // Ids on disk in ascending order, strictly after `after`, at most `limit`; with
+  // `visible`, only the ids it accepts.
+  std::vector<PointSetInfo> list(const std::string& after, std::size_t limit, bool* more,
+                                 const std::function<bool(const std::string&)>& visible = {});
+
+  // Tenancy (see auth.hpp): one empty marker file per owning tenant, written durably
+  // before the set itself so that a concurrent last-owner delete cannot remove a set
+  // just acknowledged to another tenant. The empty tenant (open mode) has no marker.
+  Status add_owner(const std::string& id, const std::string& tenant);
+  bool owned_by(const std::string& id, const std::string& tenant) const;
+  // Removes the tenant's marker; deletes the set when no owner is left. NOT_FOUND if
+  // the tenant did not own it.
+  Status release(const std::string& id, const std::string& tenant);
 
   Status remove(const std::string& id);
 
@@ -115,6 +126,9 @@ class PointSetStore {
   PointSetStore(std::string dir, std::uint64_t budget, LogFn log);
   std::string data_path(const std::string& id) const;
   std::string name_path(const std::string& id) const;
+  std::string owner_path(const std::string& id, const std::string& tenant) const;
+  bool has_owners(const std::string& id) const;
+  void remove_owner_markers(const std::string& id);
   Result<std::shared_ptr<const StoredSet>> load_from_disk(const std::string& id, MemoryBudget::Charge charge);
   // Drops least recently used sets that no request holds, until `bytes` are freed.
   void reclaim(std::uint64_t bytes);

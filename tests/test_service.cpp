@@ -54,6 +54,11 @@ std::string raw_bytes(int d, const std::vector<double>& coords) {
          std::string(reinterpret_cast<const char*>(coords.data()), coords.size() * 8);
 }
 
+// The authenticator of a server run with --auth-token-file holding `token` ("" = open).
+std::shared_ptr<const Authenticator> token_auth(const std::string& token) {
+  return Authenticator::create("", token).value();
+}
+
 std::unique_ptr<Engine> make_engine(const std::string& dir, Limits limits = {}) {
   auto store = PointSetStore::open(dir, limits.max_memory, {});
   EXPECT_TRUE(store.is_ok()) << store.status().message();
@@ -367,7 +372,7 @@ struct Rest {
   std::unique_ptr<Engine> engine = make_engine(dir.path());
   Telemetry telemetry;
   bool ready = true;
-  HttpApi api{*engine, telemetry, "", [this] { return ready; }};
+  HttpApi api{*engine, telemetry, token_auth(""), [this] { return ready; }};
 
   HttpResponse call(http::verb verb, const std::string& target, const std::string& body = "",
                     const std::string& type = "application/json") {
@@ -487,7 +492,7 @@ TEST(Rest, BearerTokenGuardsEverythingButProbes) {
   TempDir dir;
   auto engine = make_engine(dir.path());
   Telemetry telemetry;
-  HttpApi api(*engine, telemetry, "s3cret", [] { return true; });
+  HttpApi api(*engine, telemetry, token_auth("s3cret"), [] { return true; });
   auto call = [&](const std::string& target, const std::string& auth) {
     http::request<http::string_body> req{http::verb::get, target, 11};
     if (!auth.empty()) req.set(http::field::authorization, auth);
@@ -506,7 +511,7 @@ struct GrpcFixture {
   TempDir dir;
   std::unique_ptr<Engine> engine = make_engine(dir.path());
   Telemetry telemetry;
-  MesherService service{*engine, telemetry, "tok"};
+  MesherService service{*engine, telemetry, token_auth("tok")};
   std::unique_ptr<grpc::Server> server;
   std::unique_ptr<pb::Mesher::Stub> stub;
   std::shared_ptr<grpc::Channel> channel;

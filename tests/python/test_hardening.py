@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import threading
@@ -464,3 +465,87 @@ def test_over_the_memory_budget_is_503_with_retry_after(start_server):
         time.sleep(0.5)
     assert status == 201, body[:300]
     assert healthy(server)
+
+
+# Finding 10: one shared token let anyone list, read and delete everyone's sets, and
+# gRPC reflection answered without it.
+def test_api_keys_with_tenants(start_server, tmp_path):
+    keys = tmp_path / "keys"
+    alice, bob, root = "alice-key-0123456789", "bob-key-0123456789ab", "root-key-0123456789ab"
+    keys.write_text(f"# key tenant [admin]\n{alice} alice\n{bob} bob\n{root} ops admin\n")
+    token = tmp_path / "token"
+    token.write_text("legacy-admin-token-0123\n")
+    server = start_server("--keys", str(keys), "--auth-token-file", str(token))
+    base = f"{server.http}/v1/pointsets"
+
+    def as_(key):
+        return {"Authorization": f"Bearer {key}"}
+
+    shared = {"points": [[0, 0], [1, 0], [0, 1], [1, 1]]}
+    mine = {"points": [[0, 0], [2, 0], [0, 2], [3, 3]]}
+    status, a = http_json("POST", base, json.dumps(shared).encode(), {**as_(alice), "Content-Type": "application/json"})
+    assert status == 201 and a["already_existed"] is False
+    status, b = http_json("POST", base, json.dumps(shared).encode(), {**as_(bob), "Content-Type": "application/json"})
+    # Stored once (the id is the content's hash); new for bob.
+    assert status == 201 and b["id"] == a["id"] and b["already_existed"] is False, b
+    status, own = http_json("POST", base, json.dumps(mine).encode(), {**as_(alice), "Content-Type": "application/json"})
+    assert status == 201
+    files = [p.name for p in server.data_dir.iterdir() if p.name.endswith(".points")]
+    assert sorted(files) == sorted({f"{a['id']}.points", f"{own['id']}.points"})
+
+    def listed(key):
+        status, body = http_json("GET", base, headers=as_(key))
+        assert status == 200
+        return {s["id"] for s in body["point_sets"]}
+
+    assert listed(alice) == {a["id"], own["id"]}
+    assert listed(bob) == {a["id"]}
+    assert listed(root) == {a["id"], own["id"]} == listed("legacy-admin-token-0123")
+    # Another tenant's set is answered as absent, on every route and both transports.
+    for route in ("", "/seeds/0/star", "/seeds/0/cell", "/simplices"):
+        status, body = http_json("GET", f"{base}/{own['id']}{route}", headers=as_(bob))
+        assert status == 404, (route, body)
+    status, body = http_json("DELETE", f"{base}/{own['id']}", headers=as_(bob))
+    assert status == 404
+    bob_client = spokemesh.Client(server.grpc, token=bob)
+    with pytest.raises(spokemesh.Error) as e:
+        bob_client.star(own["id"], 0)
+    assert e.value.code == grpc.StatusCode.NOT_FOUND
+    assert {p.id for p in bob_client.list()} == {a["id"]}
+    assert bob_client.star(a["id"], 0).simplices.shape[1] == 3
+    # No key, or a wrong one: 401 / UNAUTHENTICATED; health stays open.
+    assert http_json("GET", base)[0] == 401
+    assert http_json("GET", base, headers=as_("not-a-key-0123456789"))[0] == 401
+    with pytest.raises(spokemesh.Error) as e:
+        spokemesh.Client(server.grpc).list()
+    assert e.value.code == grpc.StatusCode.UNAUTHENTICATED
+    assert healthy(server)
+    # Reflection needs a key too.
+    identity = lambda b: b  # noqa: E731
+    reflect = grpc.insecure_channel(server.grpc).stream_stream(
+        "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+        request_serializer=identity, response_deserializer=identity)
+    with pytest.raises(grpc.RpcError):
+        b"".join(reflect(iter([b"\x3a\x00"]), timeout=10))
+    answer = b"".join(reflect(iter([b"\x3a\x00"]), timeout=10, metadata=[("authorization", f"Bearer {alice}")]))
+    assert b"spokemesh.v1.Mesher" in answer
+    # A tenant's delete gives up its own ownership; the set goes with its last owner.
+    assert http_json("DELETE", f"{base}/{a['id']}", headers=as_(alice))[0] == 200
+    assert listed(alice) == {own["id"]} and listed(bob) == {a["id"]}
+    assert http_json("DELETE", f"{base}/{a['id']}", headers=as_(bob))[0] == 200
+    assert not (server.data_dir / f"{a['id']}.points").exists()
+    # SIGHUP re-reads the keys: a new tenant's key works, a removed one stops working.
+    carol = "carol-key-0123456789"
+    keys.write_text(f"{alice} alice\n{carol} carol\n{root} ops admin\n")
+    server.proc.send_signal(signal.SIGHUP)
+    deadline = time.time() + 10
+    while http_json("GET", base, headers=as_(carol))[0] != 200 and time.time() < deadline:
+        time.sleep(0.1)
+    assert http_json("GET", base, headers=as_(carol))[0] == 200
+    assert http_json("GET", base, headers=as_(bob))[0] == 401
+    # A broken keys file keeps the previous keys.
+    keys.write_text("short alice\n")
+    server.proc.send_signal(signal.SIGHUP)
+    time.sleep(0.5)
+    assert http_json("GET", base, headers=as_(carol))[0] == 200
+    assert "previous keys stay in force" in server.log()
