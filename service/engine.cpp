@@ -179,9 +179,12 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
     return st;
   }
   // The owner first, then the set (see PointSetStore::add_owner).
+  const bool had = !who.tenant.empty() && store_->owned_by(info.id, who.tenant);
   if (Status st = store_->add_owner(info.id, who.tenant); !st.is_ok()) return st;
   auto stored = store_->put(info, std::move(points));
-  if (stored.is_ok() && stored->already_existed && !who.tenant.empty()) stored->already_existed = false;
+  // A concurrent identical upload may have created it first (already_existed): for a
+  // tenant, what counts is whether it had the set before.
+  if (stored.is_ok() && !who.tenant.empty()) stored->already_existed = had;
   return stored;
 }
 

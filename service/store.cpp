@@ -93,7 +93,12 @@ Status storage_error(const char* what, int error) {
 }
 
 // Writes `parts` to `path` durably: temporary file, fsync, rename, fsync directory.
-Status write_durably(const std::string& dir, const std::string& path, std::initializer_list<std::pair<const char*, std::size_t>> parts) {
+// exclusive: `path` must not exist yet; if it does (a concurrent identical upload, on
+// this or another replica, won), nothing is written and the status is ALREADY_EXISTS.
+// The temporary file is linked, not renamed, into place: link() fails on an existing
+// name, atomically, where rename() would replace it.
+Status write_durably(const std::string& dir, const std::string& path,
+                     std::initializer_list<std::pair<const char*, std::size_t>> parts, bool exclusive = false) {
   const std::string temp = temp_name(dir);
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd < 0) return storage_error("cannot create a file", errno);
@@ -103,7 +108,16 @@ Status write_durably(const std::string& dir, const std::string& path, std::initi
   int error = ok ? 0 : errno;
   ok = (::close(fd) == 0) && ok;
   if (!ok && error == 0) error = errno;
-  if (ok && ::rename(temp.c_str(), path.c_str()) != 0) {
+  if (ok && exclusive) {
+    const bool linked = ::link(temp.c_str(), path.c_str()) == 0;
+    const int link_error = errno;
+    ::unlink(temp.c_str());
+    if (!linked && link_error == EEXIST) return Status{Code::kAlreadyExists, "exists"};
+    if (!linked) {
+      ok = false;
+      error = link_error;
+    }
+  } else if (ok && ::rename(temp.c_str(), path.c_str()) != 0) {
     ok = false;
     error = errno;
   }
@@ -285,19 +299,28 @@ Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
       return existing;
     }
   }
-  if (!info.display_name.empty()) {
-    // The name first: the data file's rename is what makes the set exist.
-    Status s = write_durably(dir_, name_path(info.id), {{info.display_name.data(), info.display_name.size()}});
-    if (!s.is_ok()) return s;
-  }
   const std::string header = point_set_header_bytes(static_cast<std::uint32_t>(info.dimension), info.count);
   const auto coords = points.coordinates();
+  // Of concurrent identical uploads (any replica), exactly one creates the set: the
+  // others find it existing, and its name is the creator's.
   Status s = write_durably(dir_, path,
                            {{header.data(), header.size()},
-                            {reinterpret_cast<const char*>(coords.data()), coords.size_bytes()}});
-  if (!s.is_ok()) {
-    ::unlink(name_path(info.id).c_str());
-    return s;
+                            {reinterpret_cast<const char*>(coords.data()), coords.size_bytes()}},
+                           /*exclusive=*/true);
+  if (s.code() == Code::kAlreadyExists) {
+    auto existing = this->info(info.id);
+    if (existing.is_ok()) existing->already_existed = true;
+    return existing;
+  }
+  if (!s.is_ok()) return s;
+  if (!info.display_name.empty()) {
+    // After the data: only the creator names the set. (A crash in between leaves the
+    // set whole, without its name.)
+    if (Status n = write_durably(dir_, name_path(info.id), {{info.display_name.data(), info.display_name.size()}});
+        !n.is_ok()) {
+      if (log_) log_("error", "point set " + info.id + " stored without its display name: " + n.message());
+      info.display_name.clear();
+    }
   }
   // Not kept in memory: the first query loads the set and builds its tree (get), so an
   // upload holds no more than its own bytes and a set nobody queries costs no memory.

@@ -549,3 +549,34 @@ def test_api_keys_with_tenants(start_server, tmp_path):
     time.sleep(0.5)
     assert http_json("GET", base, headers=as_(carol))[0] == 200
     assert "previous keys stay in force" in server.log()
+
+
+# Finding 8 (last part): two identical concurrent uploads raced on already_existed and
+# on the display name.
+def test_identical_concurrent_uploads_create_once(start_server, tmp_path):
+    server = start_server()
+    second = start_server(data_dir=server.data_dir, name="replica")  # another replica, same data dir
+    for trial in range(8):
+        points = uniform(20000, 3, 100 + trial).tolist()
+        barrier = threading.Barrier(2)
+        results = {}
+
+        def upload(name, base):
+            body = json.dumps({"points": points, "display_name": name}).encode()
+            barrier.wait()
+            results[name] = http_json("POST", f"{base}/v1/pointsets", body, {"Content-Type": "application/json"})
+
+        threads = [threading.Thread(target=upload, args=(n, b)) for n, b in (("first", server.http),
+                                                                           ("second", second.http))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(120)
+        statuses = sorted(r[0] for r in results.values())
+        assert statuses == [200, 201], (trial, results)
+        winner = next(n for n, r in results.items() if r[0] == 201)
+        pid = results[winner][1]["id"]
+        assert [r[1]["already_existed"] for n, r in sorted(results.items())] == [n != winner for n in sorted(results)]
+        for base in (server.http, second.http):
+            status, info = http_json("GET", f"{base}/v1/pointsets/{pid}")
+            assert status == 200 and info["display_name"] == winner, (trial, info)
