@@ -30,8 +30,9 @@ class Server:
     """One spokemesh-server process. Ports are chosen by the kernel (port 0) and read
     back from the server's own start-up log line."""
 
-    def __init__(self, data_dir: Path, log_path: Path, *args: str, grpc_port: int = 0, http_port: int = 0):
-        self.data_dir, self.log_path, self.args = data_dir, log_path, args
+    def __init__(self, data_dir: Path, log_path: Path, *args: str, grpc_port: int = 0, http_port: int = 0,
+                 host: str = "127.0.0.1"):
+        self.data_dir, self.log_path, self.args, self.host = data_dir, log_path, args, host
         self.requested = (grpc_port, http_port)
         self.proc = None
         self.start()
@@ -40,16 +41,16 @@ class Server:
         self._log = open(self.log_path, "ab")
         self._offset = self.log_path.stat().st_size
         self.proc = subprocess.Popen(
-            [str(SERVER), "--data-dir", str(self.data_dir), "--grpc-listen", f"127.0.0.1:{self.requested[0]}",
-             "--http-listen", f"127.0.0.1:{self.requested[1]}", "--threads", "2", *self.args],
+            [str(SERVER), "--data-dir", str(self.data_dir), "--grpc-listen", f"{self.host}:{self.requested[0]}",
+             "--http-listen", f"{self.host}:{self.requested[1]}", "--threads", "2", *self.args],
             stderr=self._log, stdout=subprocess.DEVNULL)
         deadline = time.time() + 30
         while time.time() < deadline:
             text = self.log_path.read_bytes()[self._offset:].decode(errors="replace")
             m = _SERVING.search(text)
             if m:
-                self.grpc = f"127.0.0.1:{m.group(2)}"
-                self.http = f"http://127.0.0.1:{m.group(4)}"
+                self.grpc = f"{m.group(1)}:{m.group(2)}"
+                self.http = f"http://{m.group(3)}:{m.group(4)}"
                 self.requested = (int(m.group(2)), int(m.group(4)))  # a restart keeps the ports
                 return
             if self.proc.poll() is not None:
@@ -80,9 +81,9 @@ class Server:
 def start_server(tmp_path):
     servers = []
 
-    def start(*args: str, data_dir: Path | None = None, name: str = "server") -> Server:
+    def start(*args: str, data_dir: Path | None = None, name: str = "server", **where) -> Server:
         d = data_dir or tmp_path / "data"
-        s = Server(d, tmp_path / f"{name}-{len(servers)}.log", *args)
+        s = Server(d, tmp_path / f"{name}-{len(servers)}.log", *args, **where)
         servers.append(s)
         return s
 

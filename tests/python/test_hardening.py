@@ -580,3 +580,119 @@ def test_identical_concurrent_uploads_create_once(start_server, tmp_path):
         for base in (server.http, second.http):
             status, info = http_json("GET", f"{base}/v1/pointsets/{pid}")
             assert status == 200 and info["display_name"] == winner, (trial, info)
+
+
+class TinyDns:
+    """A loopback DNS server answering A queries for one name from a list the test
+    changes (as Docker's or podman's DNS does when a replica restarts elsewhere)."""
+
+    def __init__(self, name: str, addresses: list):
+        import struct
+        self.struct, self.name, self.addresses = struct, name, addresses
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.queries = 0
+        threading.Thread(target=self.serve, daemon=True).start()
+
+    def serve(self):
+        st = self.struct
+        while True:
+            try:
+                query, peer = self.sock.recvfrom(512)
+            except OSError:
+                return
+            self.queries += 1
+            qid = query[:2]
+            end = 12
+            while query[end] != 0:
+                end += query[end] + 1
+            question = query[12:end + 5]
+            labels, i = [], 12
+            while query[i] != 0:
+                labels.append(query[i + 1:i + 1 + query[i]].decode())
+                i += query[i] + 1
+            qtype = st.unpack(">H", query[end + 1:end + 3])[0]
+            answers = list(self.addresses) if ".".join(labels) == self.name and qtype == 1 else []
+            reply = qid + st.pack(">HHHHH", 0x8180, 1, len(answers), 0, 0) + question
+            for a in answers:
+                reply += st.pack(">HHHIH", 0xC00C, 1, 1, 1, 4) + socket.inet_aton(a)
+            self.sock.sendto(reply, peer)
+
+    def close(self):
+        self.sock.close()
+
+
+# Finding 9: nginx resolved `spokemesh` once at start, so a replica restarted with a new
+# address never got traffic again. docker/nginx.conf itself, run here against replicas
+# on other loopback addresses and a DNS server whose answer the test changes.
+def test_nginx_re_resolves_replicas_that_restart_elsewhere(start_server, tmp_path):
+    import shutil
+    from conftest import free_port
+    nginx = shutil.which("nginx") or "/usr/sbin/nginx"
+    grpc_port, rest_port = free_port(), free_port()
+    data = tmp_path / "shared"
+    first = start_server(data_dir=data, name="first", host="127.0.0.2", grpc_port=grpc_port, http_port=rest_port)
+    dns = TinyDns("spokemesh", ["127.0.0.2"])
+    ndir = tmp_path / "nginx"
+    ndir.mkdir()
+    front_grpc, front_rest = free_port(), free_port()
+    conf = (Path(__file__).resolve().parents[2] / "docker" / "nginx.conf").read_text()
+    conf = (conf.replace("@RESOLVER@", f"127.0.0.1:{dns.port}")
+            .replace("listen 50051 http2;", f"listen 127.0.0.1:{front_grpc} http2;")
+            .replace("listen 8080;", f"listen 127.0.0.1:{front_rest};")
+            .replace("spokemesh:50051", f"spokemesh:{grpc_port}")
+            .replace("spokemesh:8080", f"spokemesh:{rest_port}")
+            .replace("worker_processes auto;", ("user root;\n" if os.geteuid() == 0 else "") +
+                     f"worker_processes 1;\npid {ndir}/nginx.pid;\nerror_log {ndir}/error.log warn;")
+            .replace("http {", f"http {{\n  access_log {ndir}/access.log;\n  client_body_temp_path {ndir}/body;\n"
+                               f"  proxy_temp_path {ndir}/proxy;\n  fastcgi_temp_path {ndir}/fastcgi;\n"
+                               f"  uwsgi_temp_path {ndir}/uwsgi;\n  scgi_temp_path {ndir}/scgi;", 1))
+    assert "@RESOLVER@" not in conf
+    (ndir / "nginx.conf").write_text(conf)
+    proc = subprocess.Popen([nginx, "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
+                            stderr=open(ndir / "stderr.log", "wb"))
+    front = f"http://127.0.0.1:{front_rest}"
+    try:
+        deadline = time.time() + 20
+        while time.time() < deadline:
+            try:
+                if http("GET", f"{front}/healthz", timeout=2)[0] == 200:
+                    break
+            except OSError:
+                pass
+            time.sleep(0.1)
+        status, info = http_json("POST", f"{front}/v1/pointsets", {"points": uniform(2000, 3, 9).tolist()})
+        assert status == 201, info
+        client = spokemesh.Client(f"127.0.0.1:{front_grpc}")
+        assert client.star(info["id"], 0).simplices.shape[1] == 4
+        # The replica restarts with a new address; DNS now says so.
+        first.kill()
+        second = start_server(data_dir=data, name="second", host="127.0.0.3", grpc_port=grpc_port,
+                              http_port=rest_port)
+        dns.addresses[:] = ["127.0.0.3"]
+        deadline = time.time() + 15
+        while time.time() < deadline:
+            if http("GET", f"{front}/v1/pointsets/{info['id']}/seeds/1/star", timeout=5)[0] == 200:
+                break
+            time.sleep(0.2)
+        # From now on every request reaches the new replica, promptly, on both fronts.
+        slowest = 0.0
+        for k in range(20):
+            start = time.perf_counter()
+            assert http("GET", f"{front}/v1/pointsets/{info['id']}/seeds/{k}/star", timeout=5)[0] == 200
+            assert client.star(info["id"], k).simplices.shape[1] == 4
+            slowest = max(slowest, time.perf_counter() - start)
+        served = [r for r in second.log_records() if r.get("method") == "GetStar"]
+        assert len(served) >= 40, len(served)
+        assert slowest < 1.0, slowest
+        # A dead address among the answers costs a retry on the next one, not an error.
+        dns.addresses[:] = ["127.0.0.4", "127.0.0.3"]
+        time.sleep(2.5)  # past valid=2s
+        for k in range(10):
+            assert http("GET", f"{front}/v1/pointsets/{info['id']}/seeds/{k}/star", timeout=5)[0] == 200
+        assert dns.queries >= 2
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        dns.close()
