@@ -18,6 +18,8 @@ packages=(
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
+  # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers
+  clang libfuzzer-14-dev libclang-rt-14-dev
 )
 
 missing=()
