@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -142,3 +143,27 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def start_nginx(ndir: Path, rest_url: str) -> subprocess.Popen:
+    """Debian's nginx on ndir/nginx.conf, in the foreground; returns once rest_url's
+    /healthz answers through it (fails the test if nginx exits first)."""
+    nginx = shutil.which("nginx") or "/usr/sbin/nginx"
+    if not os.path.exists(nginx):
+        pytest.fail("nginx is not installed (scripts/install-deps.sh installs it)")
+    proc = subprocess.Popen([nginx, "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
+                            stderr=open(ndir / "stderr.log", "wb"))
+    deadline = time.time() + 20
+    while time.time() < deadline:
+        try:
+            if http("GET", f"{rest_url}/healthz", timeout=2)[0] == 200:
+                return proc
+        except OSError:
+            pass
+        if proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    logs = "".join(p.read_text() for p in (ndir / "stderr.log", ndir / "error.log") if p.exists())
+    proc.kill()
+    pytest.fail("nginx did not come up: " + logs)
+

@@ -627,9 +627,7 @@ class TinyDns:
 # address never got traffic again. docker/nginx.conf itself, run here against replicas
 # on other loopback addresses and a DNS server whose answer the test changes.
 def test_nginx_re_resolves_replicas_that_restart_elsewhere(start_server, tmp_path):
-    import shutil
-    from conftest import free_port
-    nginx = shutil.which("nginx") or "/usr/sbin/nginx"
+    from conftest import free_port, start_nginx
     grpc_port, rest_port = free_port(), free_port()
     data = tmp_path / "shared"
     first = start_server(data_dir=data, name="first", host="127.0.0.2", grpc_port=grpc_port, http_port=rest_port)
@@ -650,18 +648,9 @@ def test_nginx_re_resolves_replicas_that_restart_elsewhere(start_server, tmp_pat
                                f"  uwsgi_temp_path {ndir}/uwsgi;\n  scgi_temp_path {ndir}/scgi;", 1))
     assert "@RESOLVER@" not in conf
     (ndir / "nginx.conf").write_text(conf)
-    proc = subprocess.Popen([nginx, "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
-                            stderr=open(ndir / "stderr.log", "wb"))
     front = f"http://127.0.0.1:{front_rest}"
+    proc = start_nginx(ndir, front)
     try:
-        deadline = time.time() + 20
-        while time.time() < deadline:
-            try:
-                if http("GET", f"{front}/healthz", timeout=2)[0] == 200:
-                    break
-            except OSError:
-                pass
-            time.sleep(0.1)
         status, info = http_json("POST", f"{front}/v1/pointsets", {"points": uniform(2000, 3, 9).tolist()})
         assert status == 201, info
         client = spokemesh.Client(f"127.0.0.1:{front_grpc}")

@@ -7,10 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import subprocess
-import time
-from pathlib import Path
 
 import grpc
 import numpy as np
@@ -19,9 +15,7 @@ import spokemesh
 from spokemesh.v1 import mesher_pb2 as pb
 from spokemesh.v1 import mesher_pb2_grpc as pb_grpc
 
-from conftest import free_port, http, http_json, local_mesh, uniform
-
-NGINX = shutil.which("nginx") or "/usr/sbin/nginx"
+from conftest import free_port, http, http_json, local_mesh, start_nginx, uniform
 
 CONF = """
 {user}
@@ -59,8 +53,6 @@ http {{
 
 @pytest.fixture
 def cluster(start_server, tmp_path):
-    if not os.path.exists(NGINX):
-        pytest.fail("nginx is not installed (scripts/install-deps.sh installs it)")
     data = tmp_path / "shared-data"
     replicas = [start_server(data_dir=data, name=f"replica{k}") for k in range(3)]
     ndir = tmp_path / "nginx"
@@ -72,18 +64,7 @@ def cluster(start_server, tmp_path):
         grpc_servers=" ".join(f"server {r.grpc};" for r in replicas),
         rest_servers=" ".join(f"server {r.http.removeprefix('http://')};" for r in replicas))
     (ndir / "nginx.conf").write_text(conf)
-    proc = subprocess.Popen([NGINX, "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
-                            stderr=open(ndir / "stderr.log", "wb"))
-    deadline = time.time() + 20
-    while time.time() < deadline:
-        try:
-            if http("GET", f"http://127.0.0.1:{rest_port}/healthz", timeout=2)[0] == 200:
-                break
-        except OSError:
-            pass
-        if proc.poll() is not None:
-            pytest.fail("nginx exited: " + (ndir / "stderr.log").read_text() + (ndir / "error.log").read_text())
-        time.sleep(0.05)
+    proc = start_nginx(ndir, f"http://127.0.0.1:{rest_port}")
     yield replicas, f"127.0.0.1:{grpc_port}", f"http://127.0.0.1:{rest_port}"
     proc.terminate()
     proc.wait(20)
