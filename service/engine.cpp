@@ -201,9 +201,10 @@ Result<PointSetInfo> Engine::get_point_set(const std::string& id, const Principa
 
 Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_size, const std::string& page_token,
                                                           std::string* next_page_token, const Principal& who) {
-  if (page_size == 0) page_size = 100;
-  if (page_size > 1000) {
-    return invalid_argument("page_size: " + std::to_string(page_size) + " is above the maximum 1000");
+  if (page_size == 0) page_size = defaults::kPageSize;
+  if (page_size > defaults::kMaxPageSize) {
+    return invalid_argument("page_size: " + std::to_string(page_size) + " is above the maximum " +
+                            std::to_string(defaults::kMaxPageSize));
   }
   if (!page_token.empty() && !is_valid_id(page_token)) {
     return invalid_argument("page_token: \"" + page_token.substr(0, 80) + "\" is not a token from a previous page");
@@ -313,9 +314,10 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
                             std::to_string(shard_count));
   }
-  if (batch_size == 0) batch_size = 4096;
-  if (batch_size > 65536) {
-    return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum 65536");
+  if (batch_size == 0) batch_size = defaults::kBatchSize;
+  if (batch_size > defaults::kMaxBatchSize) {
+    return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum " +
+                            std::to_string(defaults::kMaxBatchSize));
   }
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();

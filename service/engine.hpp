@@ -25,25 +25,25 @@
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "auth.hpp"
+#include "limits.hpp"
 #include "store.hpp"
 
 namespace spokemesh::service {
 
 using Clock = std::chrono::steady_clock;
 
-// Charged per streamed shard for its output: the mesh's window of blocks in flight (a
-// few MB: mesh.cpp) and one batch being assembled (at most 65,536 x 9 x 4 bytes).
-inline constexpr std::uint64_t kStreamWindowBytes = 16u << 20;
+using defaults::kStreamWindowBytes;
 
+// The engine's limits (defaults: limits.hpp).
 struct Limits {
-  std::uint64_t max_points = 10'000'000;
-  int max_dimension = 128;  // uploads; exact answers are defined up to kMaxDimension
-  std::uint64_t max_memory = 4ull << 30;      // bytes of point sets + trees kept in memory
-  std::chrono::milliseconds default_deadline{60'000};
-  std::chrono::milliseconds upload_idle_timeout{30'000};  // an upload stream sending nothing this long ends
-  unsigned stream_threads = 1;                // worker threads per StreamSimplices call
-  std::size_t stream_cache_bytes = 256u << 20;  // FacetCache cap per StreamSimplices call (0: none)
-  std::size_t max_display_name = 256;
+  std::uint64_t max_points = defaults::kMaxPoints;
+  int max_dimension = defaults::kMaxDimension;  // uploads; exact answers are defined up to kMaxDimension
+  std::uint64_t max_memory = 4ull << 30;  // the memory budget (the server's default: half the cgroup limit or RAM)
+  std::chrono::milliseconds default_deadline = defaults::kDefaultDeadline;
+  std::chrono::milliseconds upload_idle_timeout = defaults::kUploadIdleTimeout;  // an idle upload stream ends
+  unsigned stream_threads = 1;                                      // worker threads per StreamSimplices call
+  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // FacetCache cap per StreamSimplices call (0: none)
+  std::size_t max_display_name = defaults::kMaxDisplayName;
 };
 
 // Stops one request's computation: at `deadline`, or once `client_gone()` says the

@@ -31,20 +31,22 @@
 #include <vector>
 
 #include "http_api.hpp"
+#include "limits.hpp"
 
 namespace spokemesh::service {
 
 struct HttpServerOptions {
   std::string listen = "127.0.0.1:8080";  // host:port; port 0 picks a free one
-  std::size_t max_body_bytes = 256u << 20;
-  std::size_t max_connections = 10000;          // open connections in all
-  std::size_t max_connections_per_address = 256;  // open connections from one client address
-  std::size_t max_in_flight = 256;              // requests being handled at once (one thread each)
-  std::chrono::milliseconds handshake_timeout{10'000};  // TLS handshake
-  std::chrono::milliseconds header_timeout{10'000};     // a request's header, from its first byte
-  std::chrono::milliseconds body_timeout{120'000};      // a request's body, after its header
-  std::chrono::milliseconds idle_timeout{60'000};       // a keep-alive connection between requests
-  std::chrono::milliseconds write_timeout{60'000};      // each response write (a stalled reader)
+  // Defaults: limits.hpp.
+  std::size_t max_body_bytes = defaults::kMaxBodyBytes;
+  std::size_t max_connections = defaults::kHttpMaxConnections;  // open connections in all
+  std::size_t max_connections_per_address = defaults::kHttpMaxConnectionsPerAddress;  // from one client address
+  std::size_t max_in_flight = defaults::kHttpMaxInFlight;  // requests being handled at once (one thread each)
+  std::chrono::milliseconds handshake_timeout = defaults::kTlsHandshakeTimeout;  // TLS handshake
+  std::chrono::milliseconds header_timeout = defaults::kHttpHeaderTimeout;  // a request's header, from its first byte
+  std::chrono::milliseconds body_timeout = defaults::kHttpBodyTimeout;      // a request's body, after its header
+  std::chrono::milliseconds idle_timeout = defaults::kHttpIdleTimeout;      // keep-alive between requests
+  std::chrono::milliseconds write_timeout = defaults::kHttpWriteTimeout;    // each response write (a stalled reader)
   unsigned io_threads = 2;
   std::shared_ptr<boost::asio::ssl::context> tls;  // null: plain HTTP
   // Request bodies are charged here from their Content-Length before they are read

@@ -120,18 +120,25 @@ int main(int argc, char** argv) {
                "Point sets are uploaded once, stored durably in --data-dir, and queried per seed."};
   std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
-  std::uint64_t max_points = 10'000'000;
-  int max_dimension = 128;
-  int max_concurrent = 64;
-  std::string max_memory = "auto", stream_cache = "256M", default_deadline = "60s", grace = "10s", drain = "0s", max_body = "256M";
-  std::string upload_idle = "30s";
-  // REST connection limits and timeouts (HttpServerOptions holds the defaults).
-  const HttpServerOptions http_defaults;
-  std::size_t http_max_connections = http_defaults.max_connections;
-  std::size_t http_per_address = http_defaults.max_connections_per_address;
-  std::size_t http_in_flight = http_defaults.max_in_flight;
-  std::string http_header_timeout = "10s", http_body_timeout = "120s", http_idle_timeout = "60s",
-              http_write_timeout = "60s", tls_handshake_timeout = "10s";
+  // Every default from limits.hpp (sizes and durations as the flags write them).
+  using defaults::bytes_text;
+  using defaults::duration_text;
+  std::uint64_t max_points = defaults::kMaxPoints;
+  int max_dimension = defaults::kMaxDimension;
+  int max_concurrent = defaults::kMaxConcurrentRpcs;
+  std::string max_memory = "auto", stream_cache = bytes_text(defaults::kStreamCacheBytes),
+              default_deadline = duration_text(defaults::kDefaultDeadline),
+              grace = duration_text(defaults::kGracePeriod), drain = duration_text(defaults::kDrainDelay),
+              max_body = bytes_text(defaults::kMaxBodyBytes);
+  std::string upload_idle = duration_text(defaults::kUploadIdleTimeout);
+  std::size_t http_max_connections = defaults::kHttpMaxConnections;
+  std::size_t http_per_address = defaults::kHttpMaxConnectionsPerAddress;
+  std::size_t http_in_flight = defaults::kHttpMaxInFlight;
+  std::string http_header_timeout = duration_text(defaults::kHttpHeaderTimeout),
+              http_body_timeout = duration_text(defaults::kHttpBodyTimeout),
+              http_idle_timeout = duration_text(defaults::kHttpIdleTimeout),
+              http_write_timeout = duration_text(defaults::kHttpWriteTimeout),
+              tls_handshake_timeout = duration_text(defaults::kTlsHandshakeTimeout);
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file, keys_file;
   app.add_option("--grpc-listen", grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();

@@ -685,3 +685,37 @@ def test_nginx_re_resolves_replicas_that_restart_elsewhere(start_server, tmp_pat
         proc.terminate()
         proc.wait(10)
         dns.close()
+
+
+# Every limit and default is defined once (service/limits.hpp); the flag table of
+# docs/service.md must say what `spokemesh-server --help` says.
+def test_documented_flag_defaults_match_the_server():
+    import re
+    from conftest import REPO, SERVER
+    help_text = subprocess.run([str(SERVER), "--help"], capture_output=True, text=True, check=True).stdout
+    actual = dict(re.findall(r"^\s+(--[\w-]+) [A-Z]+[^=\s]*(?:\s+in \[[^\]]*\])?=(\S+)", help_text, re.M))
+    documented = {}
+    in_table = False
+    for line in (REPO / "docs" / "service.md").read_text().splitlines():
+        if line.startswith("## Flags"):
+            in_table = True
+        elif line.startswith("## "):
+            in_table = False
+        elif in_table and line.startswith("| `--"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            for flag in re.findall(r"`(--[\w-]+)`", cells[0]):
+                documented[flag] = cells[1].strip("`").replace(",", "")
+    assert documented, "no flag table found in docs/service.md"
+    # Documented in words where the default depends on the machine.
+    machine = {"--threads": "cores"}
+    checked = 0
+    for flag, default in actual.items():
+        assert flag in documented, f"{flag} is not in docs/service.md's flag table"
+        if flag in machine:
+            assert documented[flag] == machine[flag], (flag, documented[flag])
+            continue
+        assert documented[flag] == default, f"{flag}: docs say {documented[flag]!r}, the server {default!r}"
+        checked += 1
+    undocumented = set(documented) - set(actual) - {f for f in documented if documented[f] == "–"}
+    assert not undocumented, f"documented flags the server does not have: {undocumented}"
+    assert checked >= 20
