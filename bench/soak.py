@@ -55,6 +55,30 @@ def rss_mb(pid: int, field: str = "VmRSS") -> float:
     return 0.0
 
 
+def diagnose(server) -> str:
+    """What the server says it holds, beside what the kernel says it uses."""
+    status = {}
+    for line in Path(f"/proc/{server.proc.pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        status[key] = value.strip()
+    metrics = {}
+    try:
+        _, _, body = http("GET", f"{server.http}/metrics", timeout=5)
+        for line in body.decode().splitlines():
+            if line.startswith(("spokemesh_memory_budget", "spokemesh_store_", "spokemesh_heap_")):
+                name, _, value = line.partition(" ")
+                metrics[name] = float(value)
+    except Exception as e:  # noqa: BLE001 - a diagnosis must not hide the failure
+        return f"(metrics unavailable: {e})"
+    mib = lambda v: f"{v / 2**20:.0f} MB"  # noqa: E731
+    return (f"budget used {mib(metrics.get('spokemesh_memory_budget_used_bytes', 0))}, "
+            f"store {mib(metrics.get('spokemesh_store_memory_bytes', 0))} in "
+            f"{metrics.get('spokemesh_store_loaded_point_sets', 0):.0f} sets; "
+            f"heap in use {mib(metrics.get('spokemesh_heap_in_use_bytes', 0))} of "
+            f"{mib(metrics.get('spokemesh_heap_held_bytes', 0))} held; "
+            f"RssAnon {status.get('RssAnon')}, RssFile {status.get('RssFile')}, threads {status.get('Threads')}")
+
+
 class Soak:
     def __init__(self, servers, seconds: float, seed: int):
         self.servers, self.deadline = servers, time.time() + seconds
@@ -196,6 +220,7 @@ class Soak:
         assert status in (200, 404), body
 
     def watch(self):
+        start = last_report = time.time()
         while time.time() < self.deadline + 5 and not self.failures:
             for s in self.servers:
                 if s.proc.poll() is not None:
@@ -204,7 +229,15 @@ class Soak:
                 mb = rss_mb(s.proc.pid)
                 self.peak[s.proc.pid] = max(self.peak[s.proc.pid], mb)
                 if mb > BUDGET_MB + ALLOWANCE_MB:
-                    self.fail(f"server {s.proc.pid}: RSS {mb:.0f} MB over {BUDGET_MB} + {ALLOWANCE_MB} MB")
+                    self.fail(f"server {s.proc.pid}: RSS {mb:.0f} MB over {BUDGET_MB} + {ALLOWANCE_MB} MB "
+                              f"({diagnose(s)})")
+            if time.time() - last_report >= 60:  # progress on long runs
+                last_report = time.time()
+                with self.lock:
+                    done = sum(self.counts.values())
+                for s in self.servers:
+                    print(f"[{last_report - start:5.0f} s] {done} requests; server {s.proc.pid}: "
+                          f"RSS {rss_mb(s.proc.pid):.0f} MB, {diagnose(s)}", flush=True)
             time.sleep(0.2)
 
     def verify(self):

@@ -20,6 +20,11 @@ packages=(
   libglpk-dev
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers
   clang libfuzzer-14-dev libclang-rt-14-dev
+  # the container system test (scripts/container-test.sh): rootful podman with runc,
+  # netavark and aardvark-dns (replicas found by name), podman-compose, and
+  # debootstrap for the base image (no registry is reachable)
+  podman buildah podman-compose runc netavark aardvark-dns containernetworking-plugins
+  slirp4netns fuse-overlayfs uidmap iptables debootstrap
 )
 
 missing=()

@@ -89,6 +89,7 @@ Status UploadSession::adopt(std::vector<double>&& coords, MemoryBudget::Charge&&
 }
 
 Status UploadSession::append(const void* data, std::size_t size) {
+  if (size == 0) return Status::ok();  // an empty chunk (memcpy of nothing into nothing is UB)
   if (size > expected_ - received_) {
     return invalid_argument("coordinates: more than the " + std::to_string(expected_) + " bytes that dimension " +
                             std::to_string(header_.dimension) + " x count " + std::to_string(header_.count) +

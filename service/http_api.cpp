@@ -134,7 +134,7 @@ HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Aut
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
-  Context c{request, {}, std::move(client_gone), Clock::now() + engine_.limits().default_deadline, {}, {}};
+  Context c{request, {}, std::move(client_gone), Clock::now() + engine_.limits().default_deadline, {}, {}, {}};
   c.record.transport = "http";
   const std::string_view target(request.target().data(), request.target().size());
   const std::size_t q = target.find('?');
@@ -191,7 +191,8 @@ HttpResponse HttpApi::route(Context& c) {
   }
   if (p.size() == 1 && p[0] == "metrics" && method == http::verb::get) {
     c.record.method = "Metrics";
-    telemetry_.set_memory(engine_.store().memory_in_use(), engine_.store().loaded_count());
+    auto& store = engine_.store();
+    telemetry_.set_memory(store.memory_in_use(), store.loaded_count(), store.budget().used(), store.budget().limit());
     HttpResponse r;
     r.content_type = "text/plain; version=0.0.4";
     r.body = telemetry_.render_metrics();

@@ -5,7 +5,6 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
-#include <grpcpp/support/server_interceptor.h>
 #include <malloc.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -21,6 +20,7 @@
 #include "auth.hpp"
 #include "engine.hpp"
 #include "spokemesh/approx.hpp"
+#include "grpc_guards.hpp"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "http_server.hpp"
@@ -65,40 +65,6 @@ std::uint64_t default_memory_budget(std::string& why) {
   return limit / 2;
 }
 
-// gRPC reflection describes the whole API: with keys configured it needs one too. Its
-// handler is gRPC's own, so the check is an interceptor: a call without a valid key
-// is cancelled when its metadata arrives, before the handler reads a message.
-class ReflectionGuard final : public grpc::experimental::Interceptor {
- public:
-  ReflectionGuard(grpc::experimental::ServerRpcInfo* info, const Authenticator& auth) : info_(info), auth_(auth) {}
-  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
-    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::POST_RECV_INITIAL_METADATA)) {
-      std::string_view presented;
-      if (auto* md = methods->GetRecvInitialMetadata()) {
-        if (auto it = md->find("authorization"); it != md->end()) presented = {it->second.data(), it->second.size()};
-      }
-      if (!auth_.authenticate(presented, "'authorization' metadata").is_ok()) info_->server_context()->TryCancel();
-    }
-    methods->Proceed();
-  }
-
- private:
-  grpc::experimental::ServerRpcInfo* info_;
-  const Authenticator& auth_;
-};
-
-class ReflectionGuardFactory final : public grpc::experimental::ServerInterceptorFactoryInterface {
- public:
-  explicit ReflectionGuardFactory(std::shared_ptr<const Authenticator> auth) : auth_(std::move(auth)) {}
-  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
-    if (std::string_view(info->method()).rfind("/grpc.reflection.", 0) != 0) return nullptr;
-    return new ReflectionGuard(info, *auth_);
-  }
-
- private:
-  std::shared_ptr<const Authenticator> auth_;
-};
-
 int usage_error(const Status& s) {
   std::cerr << "spokemesh-server: " << s.message() << "\n";
   return 2;
@@ -111,9 +77,11 @@ int main(int argc, char** argv) {
   // it, freed memory must go back to the system. glibc's default raises its mmap
   // threshold after each large free (to 32 MB), after which large buffers (point
   // sets, trees, request bodies) come from arenas that never shrink; and each thread
-  // may get its own arena. A fixed 1 MiB threshold maps and unmaps every large
-  // buffer, and a few arenas bound fragmentation across many request threads.
-  ::mallopt(M_MMAP_THRESHOLD, 1 << 20);
+  // may get its own arena. A fixed 64 KiB threshold maps and unmaps every buffer of
+  // a point set, tree, cache or stream window (small sets' arrays too: in arenas,
+  // thousands of them fragment the heap by tens of MB over a soak run), and a few
+  // arenas bound fragmentation across many request threads.
+  ::mallopt(M_MMAP_THRESHOLD, 64 << 10);
   ::mallopt(M_TRIM_THRESHOLD, 4 << 20);
   ::mallopt(M_ARENA_MAX, 4);
   CLI::App app{"spokemesh-server: exact Delaunay/Voronoi meshing service (gRPC and REST).\n"
@@ -281,6 +249,8 @@ int main(int argc, char** argv) {
   if (!store.is_ok()) return usage_error(store.status());
   Engine engine(std::move(store).value(), limits);
   const std::size_t loaded = engine.store().load_all();
+  // Free pages back to the system after every 4 MB of churn, checked twice a second.
+  HeapTrimmer trimmer(engine.store().budget(), std::chrono::milliseconds(500), 4u << 20);
   telemetry.log("info", "memory budget: " + std::to_string(limits.max_memory) + " bytes (" + memory_why + ")");
   telemetry.log("info", "data dir " + data_dir + ": " + std::to_string(loaded) + " point sets verified");
 
@@ -341,6 +311,7 @@ int main(int argc, char** argv) {
   builder.RegisterService(&mesher);
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
   interceptors.push_back(std::make_unique<ReflectionGuardFactory>(auth));
+  interceptors.push_back(std::make_unique<DecodeGuardFactory>());
   builder.experimental().SetInterceptorCreators(std::move(interceptors));
   grpc::ResourceQuota quota("spokemesh");
   // Sync gRPC runs one thread per call, plus a few pollers per completion queue.

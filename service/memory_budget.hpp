@@ -19,10 +19,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <utility>
 
 #include "spokemesh/status.hpp"
@@ -91,6 +95,9 @@ class MemoryBudget {
   }
 
   std::uint64_t used() const { return used_.load(std::memory_order_relaxed); }
+  // Bytes given back since start (monotonic): how much memory has churned, which is
+  // what HeapTrimmer watches.
+  std::uint64_t released() const { return released_.load(std::memory_order_relaxed); }
   std::uint64_t limit() const { return limit_; }
 
   // The error for a request whose `what` needs `bytes` that do not fit.
@@ -117,11 +124,46 @@ class MemoryBudget {
     } while (!used_.compare_exchange_weak(now, now + bytes, std::memory_order_relaxed));
     return true;
   }
-  void give_back(std::uint64_t bytes) { used_.fetch_sub(bytes, std::memory_order_relaxed); }
+  void give_back(std::uint64_t bytes) {
+    used_.fetch_sub(bytes, std::memory_order_relaxed);
+    released_.fetch_add(bytes, std::memory_order_relaxed);
+  }
 
   const std::uint64_t limit_;
   std::atomic<std::uint64_t> used_{0};
+  std::atomic<std::uint64_t> released_{0};
   Reclaimer reclaimer_;
+};
+
+// HeapTrimmer: returns the allocator's free pages to the system after memory churns,
+// so that RSS follows the budget. Charged buffers of 64 KiB and more are mapped and
+// unmapped directly (main.cpp's mallopt), but the many small ones of small point sets
+// and requests leave free pages inside glibc's arenas: about 40 MB of a 256 MB budget
+// after four minutes of bench/soak.py, which malloc_trim(0) gives back (it madvises
+// free pages anywhere in every arena, not only at the top).
+//
+// A background thread wakes every `period` and trims when at least `churn` bytes have
+// been released to the budget since the last trim: at most a few trims a second under
+// churn (each takes each arena's lock for about a millisecond per 100 MB of heap),
+// none when idle. Stops and joins when destroyed.
+//
+// Thread safety: construct and destroy on one thread; the budget is only read.
+class HeapTrimmer {
+ public:
+  HeapTrimmer(const MemoryBudget& budget, std::chrono::milliseconds period, std::uint64_t churn);
+  ~HeapTrimmer();
+  HeapTrimmer(const HeapTrimmer&) = delete;
+  HeapTrimmer& operator=(const HeapTrimmer&) = delete;
+
+  std::uint64_t trims() const { return trims_.load(std::memory_order_relaxed); }
+
+ private:
+  const MemoryBudget& budget_;
+  std::atomic<std::uint64_t> trims_{0};
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  bool stopping_ = false;
+  std::thread thread_;
 };
 
 }  // namespace spokemesh::service

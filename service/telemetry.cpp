@@ -2,6 +2,8 @@
 
 #include <prometheus/text_serializer.h>
 
+#include <malloc.h>
+
 #include <chrono>
 #include <cstdio>
 #include <ctime>
@@ -53,6 +55,29 @@ Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
                  .Help("Point sets held in memory")
                  .Register(*registry_)
                  .Add({});
+  budget_used_ = &prometheus::BuildGauge()
+                      .Name("spokemesh_memory_budget_used_bytes")
+                      .Help("Bytes charged to --max-memory: sets, trees, caches, stream windows, uploads")
+                      .Register(*registry_)
+                      .Add({});
+  budget_limit_ = &prometheus::BuildGauge()
+                       .Name("spokemesh_memory_budget_limit_bytes")
+                       .Help("The --max-memory budget")
+                       .Register(*registry_)
+                       .Add({});
+  // The allocator's view beside the budget's: held minus in use is free memory the
+  // allocator keeps (fragmentation); in use minus the budget's used is what is not
+  // charged (the process's fixed cost and small per-request answers).
+  heap_in_use_ = &prometheus::BuildGauge()
+                      .Name("spokemesh_heap_in_use_bytes")
+                      .Help("Bytes allocated with malloc and not yet freed (glibc mallinfo2)")
+                      .Register(*registry_)
+                      .Add({});
+  heap_held_ = &prometheus::BuildGauge()
+                    .Name("spokemesh_heap_held_bytes")
+                    .Help("Bytes malloc holds from the system, in use or free (glibc mallinfo2)")
+                    .Register(*registry_)
+                    .Add({});
 }
 
 void Telemetry::log(const std::string& level, const std::string& message) {
@@ -88,6 +113,9 @@ void Telemetry::record(const Request& r) {
 }
 
 std::string Telemetry::render_metrics() const {
+  const struct mallinfo2 heap = ::mallinfo2();
+  heap_in_use_->Set(static_cast<double>(heap.uordblks + heap.hblkhd));
+  heap_held_->Set(static_cast<double>(heap.arena + heap.hblkhd));
   prometheus::TextSerializer serializer;
   return serializer.Serialize(registry_->Collect());
 }

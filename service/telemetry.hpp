@@ -42,9 +42,14 @@ class Telemetry {
 
   void add_simplices_served(std::uint64_t n) { simplices_->Increment(static_cast<double>(n)); }
   void add_points_uploaded(std::uint64_t n) { points_->Increment(static_cast<double>(n)); }
-  void set_memory(std::uint64_t bytes, std::size_t sets) {
-    memory_->Set(static_cast<double>(bytes));
+  // store_bytes: loaded sets and trees; budget_used/budget_limit: the whole
+  // --max-memory budget (sets, caches, stream windows, upload buffers).
+  void set_memory(std::uint64_t store_bytes, std::size_t sets, std::uint64_t budget_used,
+                  std::uint64_t budget_limit) {
+    memory_->Set(static_cast<double>(store_bytes));
     loaded_->Set(static_cast<double>(sets));
+    budget_used_->Set(static_cast<double>(budget_used));
+    budget_limit_->Set(static_cast<double>(budget_limit));
   }
 
   // The Prometheus text exposition of every metric.
@@ -58,6 +63,10 @@ class Telemetry {
   prometheus::Counter* points_;
   prometheus::Gauge* memory_;
   prometheus::Gauge* loaded_;
+  prometheus::Gauge* budget_used_;
+  prometheus::Gauge* budget_limit_;
+  prometheus::Gauge* heap_in_use_;
+  prometheus::Gauge* heap_held_;
   std::mutex log_mutex_;
 };
 

@@ -144,6 +144,13 @@ def test_errors_name_the_field_and_map_to_codes(start_server):
     assert code == grpc.StatusCode.NOT_FOUND
     code, _ = code_of(lambda: client.star("not-an-id", 0))
     assert code == grpc.StatusCode.INVALID_ARGUMENT
+    # Bytes that are no protobuf message at all (found by fuzz_grpc_requests: gRPC
+    # answered INTERNAL with no message).
+    raw = grpc.insecure_channel(server.grpc).unary_unary("/spokemesh.v1.Mesher/GetStar")
+    with pytest.raises(grpc.RpcError) as e:
+        raw(b"\xff\xff\xff\xff", timeout=10)
+    assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT
+    assert "not a valid protobuf encoding of /spokemesh.v1.Mesher/GetStar" in e.value.details()
     # REST: one error shape; an oversized body is refused from its Content-Length.
     status, body = http_json("POST", f"{server.http}/v1/pointsets", {"points": uniform(3000, 2, 7).tolist()})
     assert status == 413 and body["error"]["status"] == "RESOURCE_EXHAUSTED" and "--max-body-bytes" in body["error"]["message"]
@@ -280,6 +287,9 @@ def test_metrics_and_structured_logs(server):
     assert 'spokemesh_request_duration_seconds_count{method="UploadPointSet",status="OK",transport="grpc"} 1' in text
     assert "spokemesh_points_uploaded_total 500" in text
     assert "spokemesh_simplices_served_total" in text
+    for gauge in ("spokemesh_memory_budget_used_bytes", "spokemesh_memory_budget_limit_bytes",
+                  "spokemesh_heap_in_use_bytes", "spokemesh_heap_held_bytes"):
+        assert float(text.split(f"\n{gauge} ")[1].split()[0]) > 0, gauge
     records = server.log_records()  # every line is one JSON object
     assert len(records) == len(server.log().splitlines())
     star = [r for r in records if r.get("method") == "GetStar" and r.get("transport") == "grpc"][0]

@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# Container system test: the images of docker/ built with podman, the compose set
+# (three replicas sharing a volume, behind nginx) started with podman-compose, replicas
+# stopped, killed and restarted under load; tests/container/restart_under_load.py
+# checks that every request is answered correctly and promptly and that each restarted
+# replica (on a new address) serves again.
+#
+# No registry is reachable, so debian:bookworm-slim is made here with debootstrap (from
+# Debian's archive) and imported, once; the images then build from Debian's packages.
+# Needs root (debootstrap, rootful podman) and podman, podman-compose, runc, buildah,
+# debootstrap (scripts/install-deps.sh --containers installs them).
+#
+# Usage: scripts/container-test.sh [--keep]     (--keep: leave the compose set running)
+# Exit status: 0 passed, 1 failed, 77 skipped (this machine cannot run containers).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repo="$PWD"
+keep=0
+[[ "${1:-}" == "--keep" ]] && keep=1
+export CONTAINERS_CONF="$repo/docker/podman/containers.conf"
+project=spokemesh-ct
+base=docker.io/library/debian:bookworm-slim
+mirror="${SPOKEMESH_DEBIAN_MIRROR:-http://deb.debian.org/debian}"
+work="$repo/build-container"
+log() { echo "== container-test: $*" >&2; }
+skip() { log "SKIPPED: $*"; exit 77; }
+
+for tool in podman podman-compose debootstrap runc; do
+  command -v "$tool" >/dev/null || skip "$tool is not installed (scripts/install-deps.sh --containers)"
+done
+[[ "$(id -u)" == 0 ]] || skip "needs root (debootstrap and rootful podman)"
+podman info >/dev/null 2>&1 || skip "podman cannot start here: $(podman info 2>&1 | tail -n 1)"
+
+mkdir -p "$work"
+if ! podman image exists "$base"; then
+  log "making $base with debootstrap from $mirror"
+  rm -rf "$work/rootfs"
+  debootstrap --variant=minbase bookworm "$work/rootfs" "$mirror" >"$work/debootstrap.log" 2>&1 \
+    || { tail -n 20 "$work/debootstrap.log" >&2; exit 1; }
+  cat >"$work/rootfs/etc/apt/sources.list" <<SOURCES
+deb $mirror bookworm main
+deb $mirror bookworm-updates main
+deb http://deb.debian.org/debian-security bookworm-security main
+SOURCES
+  rm -rf "$work"/rootfs/var/cache/apt/archives/*.deb "$work"/rootfs/var/lib/apt/lists/*
+  tar -C "$work/rootfs" -c . | podman import --change 'CMD ["bash"]' - "$base" >/dev/null
+  rm -rf "$work/rootfs"
+fi
+podman run --rm --network none "$base" true 2>"$work/run.err" \
+  || skip "podman cannot run a container here: $(tail -n 1 "$work/run.err")"
+
+free_port() { /usr/bin/python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+export SPOKEMESH_GRPC_PORT="${SPOKEMESH_GRPC_PORT:-$(free_port)}"
+export SPOKEMESH_HTTP_PORT="${SPOKEMESH_HTTP_PORT:-$(free_port)}"
+compose=(podman-compose -p "$project" -f docker/compose.yaml)
+
+down() {
+  podman logs "${project}_nginx_1" >"$work/nginx.log" 2>&1 || true
+  if [[ $keep == 0 ]]; then
+    "${compose[@]}" down -v >"$work/down.log" 2>&1 || true
+    podman volume rm -f "${project}_spokemesh-data" >/dev/null 2>&1 || true
+  fi
+}
+trap down EXIT
+down
+
+log "building the images (server: a Release build inside the container)"
+start=$(date +%s)
+"${compose[@]}" build >"$work/build.log" 2>&1 || { tail -n 40 "$work/build.log" >&2; exit 1; }
+log "images built in $(( $(date +%s) - start )) s"
+"${compose[@]}" up -d >"$work/up.log" 2>&1 || { tail -n 40 "$work/up.log" >&2; exit 1; }
+log "compose set up: gRPC on 127.0.0.1:$SPOKEMESH_GRPC_PORT, REST on 127.0.0.1:$SPOKEMESH_HTTP_PORT"
+
+/usr/bin/python3 tests/container/restart_under_load.py --project "$project" \
+  --grpc "127.0.0.1:$SPOKEMESH_GRPC_PORT" --http "http://127.0.0.1:$SPOKEMESH_HTTP_PORT" \
+  || { podman logs "${project}_nginx_1" 2>&1 | grep -v ' 200 upstream=' | tail -n 20 >&2; exit 1; }
