@@ -225,7 +225,7 @@ TEST(Graph, ExactGraphIsTheMeshEdgesAndApproximateIsASubsetForAnyThreads) {
   ASSERT_TRUE(mesh_seeds(*s.tree, {}, [&](std::span<const std::uint32_t> b, std::uint64_t) {
                 for (std::size_t i = 0; i < b.size(); i += 5) {
                   for (int p = 0; p < 5; ++p) {
-                    for (int q = p + 1; q < 5; ++q) mesh_edges.emplace(b[i + p], b[i + q]);
+                    for (int q = p + 1; q < 5; ++q) mesh_edges.emplace(std::minmax(b[i + p], b[i + q]));
                   }
                 }
                 return Status::ok();

@@ -171,7 +171,8 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
   const std::string dup2 = write("dup2.txt", "0 0\n1 0\n0 1\n1 0\n1 1\n0.4 0.6\n");
   const Outcome star = run("star " + dup2 + " --seed 5 --merge-duplicates");
   EXPECT_EQ(star.code, 0) << star.err;
-  EXPECT_EQ(star.out, "0 1 5\n0 2 5\n1 4 5\n2 4 5\n");
+  // Positively oriented (counter-clockwise): 0 2 5 and 2 4 5 are clockwise, so swapped.
+  EXPECT_EQ(star.out, "0 1 5\n0 5 2\n1 4 5\n2 5 4\n");
 }
 
 }  // namespace
@@ -189,7 +190,7 @@ TEST_F(Cli, GraphExactIsTheMeshEdgesAndApproximateWorksInAnyDimension) {
     while (in >> a >> b >> c >> d) {
       const int v[4] = {a, b, c, d};
       for (int i = 0; i < 4; ++i) {
-        for (int j = i + 1; j < 4; ++j) mesh_edges.emplace(v[i], v[j]);
+        for (int j = i + 1; j < 4; ++j) mesh_edges.emplace(std::minmax(v[i], v[j]));
       }
     }
   }

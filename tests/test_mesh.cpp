@@ -223,10 +223,20 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountAndCanonicallyOrdered) {
     EXPECT_EQ(mesh_all(tree, 7), one);
     EXPECT_EQ(mesh_all(tree, 3, 0, 0xFFFFFFFFu, /*random_seed=*/12345), one);
     const int w = d + 1;
-    for (std::size_t i = 0; i + w < one.size(); i += w) {
-      ASSERT_TRUE(std::is_sorted(one.begin() + i, one.begin() + i + w));
-      ASSERT_TRUE(std::lexicographical_compare(one.begin() + i, one.begin() + i + w, one.begin() + i + w,
-                                               one.begin() + i + 2 * w));
+    const Predicates pred(ps);
+    const auto sorted = [&](std::size_t i) {
+      std::vector<std::uint32_t> s(one.begin() + i, one.begin() + i + w);
+      std::sort(s.begin(), s.end());
+      return s;
+    };
+    for (std::size_t i = 0; i < one.size(); i += w) {
+      // Positively oriented (issue 18), ascending but for the last two vertices.
+      ASSERT_GT(pred.orientation(std::span<const std::uint32_t>(one.data() + i, w)), 0);
+      ASSERT_TRUE(std::is_sorted(one.begin() + i, one.begin() + i + w - 1));
+      ASSERT_EQ(one[i], sorted(i)[0]);
+      if (i + w < one.size()) {
+        ASSERT_LT(sorted(i), sorted(i + w));
+      }
     }
   }
 }

@@ -204,6 +204,22 @@ TEST(Store, SharedDataDirServesUploadsAndDeletesOfOtherReplicas) {
   EXPECT_EQ(a->get_point_set(id).status().code(), Code::kNotFound);
 }
 
+TEST(MemoryBudget, HeapTrimmerTrimsAfterChurnOnlyAndStops) {
+  MemoryBudget budget(64u << 20);
+  HeapTrimmer trimmer(budget, std::chrono::milliseconds(10), 1u << 20);
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  EXPECT_EQ(trimmer.trims(), 0u);  // idle: nothing released, nothing to do
+  { auto charge = budget.try_charge(2u << 20); }  // 2 MB charged and given back
+  EXPECT_EQ(budget.released(), 2u << 20);
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (trimmer.trims() == 0 && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_EQ(trimmer.trims(), 1u);
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  EXPECT_EQ(trimmer.trims(), 1u);  // once per churn, not on every wake-up
+}  // the destructor stops and joins its thread
+
 TEST(Store, MemoryBudgetDropsLeastRecentlyUsedButKeepsThemOnDisk) {
   TempDir dir;
   Limits limits;
@@ -422,7 +438,8 @@ TEST(Rest, EveryRoute) {
   EXPECT_EQ(rest.get("/v1/pointsets/" + id)["count"], 5);
   EXPECT_EQ(rest.get("/v1/pointsets")["point_sets"].size(), 1u);
   const json star = rest.get("/v1/pointsets/" + id + "/seeds/4/star");
-  EXPECT_EQ(star["simplices"], json({{0, 1, 4}, {0, 2, 4}, {1, 3, 4}, {2, 3, 4}}));
+  // Counter-clockwise: (0, 2, 4) and (2, 3, 4) are clockwise, so their last two swap.
+  EXPECT_EQ(star["simplices"], json({{0, 1, 4}, {0, 4, 2}, {1, 3, 4}, {2, 4, 3}}));
   EXPECT_EQ(star["circumcenters"].size(), 4u);
   EXPECT_EQ(rest.get("/v1/pointsets/" + id + "/seeds/0/neighbors")["neighbors"], json({1, 2, 4}));
   const json cell = rest.get("/v1/pointsets/" + id + "/seeds/4/cell");
@@ -438,7 +455,7 @@ TEST(Rest, EveryRoute) {
                 body += chunk;
                 return true;
               }).is_ok());
-  EXPECT_EQ(body, "[0,1,4]\n[0,2,4]\n[1,3,4]\n[2,3,4]\n");
+  EXPECT_EQ(body, "[0,1,4]\n[0,4,2]\n[1,3,4]\n[2,4,3]\n");
 
   EXPECT_EQ(rest.get("/healthz")["status"], "SERVING");
   EXPECT_EQ(rest.get("/readyz")["status"], "READY");

@@ -168,6 +168,7 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
     if (low < w_.x_) continue;
     out.simplices.insert(out.simplices.end(), {w_.x_, low, high});
   }
+  w_.orient_positively(out);
   return Status::ok();
 }
 

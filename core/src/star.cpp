@@ -1083,6 +1083,23 @@ void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   out.hull_facets = hull;
   out.simplices.resize(m * w);
   for (std::size_t i = 0; i < m; ++i) std::copy(&flat[order[i] * w], &flat[order[i] * w] + w, &out.simplices[i * w]);
+  orient_positively(out);
+}
+
+void StarWalker::orient_positively(Star& out) const {
+  // Positive orientation, det[s_1 - s_0, ..., s_d - s_0] > 0, as finite-element codes
+  // require: by the exact predicate (a Delaunay simplex is never flat, so the sign is
+  // never 0), a negative simplex gets its last two vertices swapped. That keeps s_0,
+  // the smallest index and so the simplex's owner, first, and the order of simplices
+  // (by their sorted vertex lists) unchanged.
+  const int d = d_;
+  const Predicates pred(ps_);
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    std::uint32_t* s = &out.simplices[i * static_cast<std::size_t>(d + 1)];
+    const int sign = pred.orientation(std::span<const std::uint32_t>(s, static_cast<std::size_t>(d + 1)));
+    SPOKEMESH_INVARIANT(sign != 0, "a Delaunay simplex is full-dimensional");
+    if (sign < 0) std::swap(s[d - 1], s[d]);
+  }
 }
 
 }  // namespace spokemesh

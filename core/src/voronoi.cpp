@@ -60,8 +60,11 @@ class FaceVolumes {
     // Children: faces with one more vertex, taken from the star simplices containing `face`.
     std::vector<std::uint32_t> extra;
     for (std::size_t i = 0; i < star_.size(); ++i) {
+      // Star simplices are not sorted within (positive orientation), hence find.
       const std::uint32_t* s = star_.simplex(i);
-      if (!std::includes(s, s + d_ + 1, face.begin(), face.end())) continue;
+      if (!std::all_of(face.begin(), face.end(), [&](std::uint32_t v) { return std::find(s, s + d_ + 1, v) != s + d_ + 1; })) {
+        continue;
+      }
       for (int j = 0; j <= d_; ++j) {
         if (!std::binary_search(face.begin(), face.end(), s[j])) extra.push_back(s[j]);
       }
@@ -115,7 +118,7 @@ VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
     facet.neighbor = j;
     for (std::size_t i = 0; i < m; ++i) {
       const std::uint32_t* s = star.simplex(i);
-      if (std::binary_search(s, s + d + 1, j)) facet.vertices.push_back(static_cast<std::uint32_t>(i));
+      if (std::find(s, s + d + 1, j) != s + d + 1) facet.vertices.push_back(static_cast<std::uint32_t>(i));
     }
     cell.facets.push_back(std::move(facet));
   }

@@ -79,6 +79,57 @@ def test_rest_grpc_and_python_client_agree_with_the_local_mesh(server, tmp_path)
     assert http("GET", f"{server.http}/v1/pointsets/{ps['id']}")[0] == 404
 
 
+def signed_volumes(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """det[s_1 - s_0, ..., s_d - s_0] of each simplex (d! times its signed volume)."""
+    p = points[simplices]
+    return np.linalg.det(p[:, 1:, :] - p[:, :1, :])
+
+
+def read_vtu(path) -> np.ndarray:
+    """The connectivity of our ASCII .vtu, (m, d + 1)."""
+    text = path.read_text()
+    block = text.split('Name="connectivity" format="ascii">\n')[1].split("</DataArray>")[0]
+    types = text.split('Name="types" format="ascii">\n')[1].split("</DataArray>")[0].split()
+    width = {"5": 3, "10": 4}[types[0]]
+    return np.array(block.split(), dtype=np.int64).reshape(-1, width)
+
+
+def read_msh(path) -> np.ndarray:
+    """The elements of our gmsh 2.2 ASCII .msh, (m, d + 1), 0-based."""
+    lines = path.read_text().split("$Elements\n")[1].split("$EndElements")[0].splitlines()[1:]
+    rows = [[int(v) for v in line.split()[5:]] for line in lines]  # index type ntags tag tag nodes...
+    return np.array(rows, dtype=np.int64) - 1
+
+
+# Issue 18, part 1: every simplex in every output is positively oriented (finite-element
+# solvers reject inverted elements): the local CLI's files and star, the gRPC and REST
+# stars and streams, and the Python client. numpy's determinants must all be > 0.
+def test_every_output_is_positively_oriented(server, tmp_path):
+    client = spokemesh.Client(server.grpc)
+    for d, n in ((2, 400), (3, 400), (4, 150)):
+        points = uniform(n, d, seed=70 + d)
+        src = tmp_path / f"p{d}.npy"
+        np.save(src, points)
+        outputs = {}
+        for ext in (("npy", "simplices", "vtu", "msh") if d <= 3 else ("npy", "simplices")):
+            out = tmp_path / f"m{d}.{ext}"
+            cli("mesh", str(src), "-o", str(out), "-q")
+            outputs[ext] = {"npy": np.load, "simplices": lambda f: np.loadtxt(f, dtype=np.int64, ndmin=2),
+                            "vtu": read_vtu, "msh": read_msh}[ext](out)
+        reference = outputs["simplices"]
+        for ext, simplices in outputs.items():  # the same simplices, vertex order included
+            assert np.array_equal(simplices, reference), ext
+        outputs["cli star"] = np.loadtxt(cli("star", str(src), "--seed", "7").stdout.splitlines(), dtype=np.int64)
+        pid = client.upload(points).id
+        outputs["grpc stream"] = client.simplices(pid, shards=2).astype(np.int64)
+        outputs["rest stream"] = ndjson_shard(server.http, pid, 0, 1)
+        outputs["grpc star"] = client.star(pid, 7).simplices.astype(np.int64)
+        outputs["rest star"] = np.array(http_json("GET", f"{server.http}/v1/pointsets/{pid}/seeds/7/star")[1]["simplices"])
+        for what, simplices in outputs.items():
+            volumes = signed_volumes(points, simplices)
+            assert len(volumes) > 0 and (volumes > 0).all(), (d, what, simplices[volumes <= 0][:5])
+
+
 def test_cli_remote_mode_upload_health_list_delete(server, tmp_path):
     example = REPO / "examples" / "disc-2d.txt"
     up = cli("--server", server.grpc, "upload", str(example), "--name", "disc")

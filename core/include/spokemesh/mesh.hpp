@@ -45,7 +45,8 @@ struct MeshStats {
   StarStats star;
 };
 
-// Receives a block of owned simplices ((d + 1) ascending indices each, lexicographic)
+// Receives a block of owned simplices ((d + 1) indices each, positively oriented as in
+// Star, the owner first; lexicographic by sorted vertex lists)
 // and the number of seeds finished so far. A non-OK status stops the run.
 using SimplexSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;
 

@@ -85,8 +85,10 @@ struct StarStats {
 struct Star {
   std::uint32_t seed = 0;
   int dimension = 0;
-  // d + 1 vertex indices per simplex, ascending within a simplex; simplices in
-  // lexicographic order.
+  // d + 1 vertex indices per simplex, positively oriented (det[s_1 - s_0, ...,
+  // s_d - s_0] > 0, decided exactly): ascending within a simplex, except that the last
+  // two are swapped where ascending order would be negative. Simplices in
+  // lexicographic order of their sorted vertex lists; s_0 is always the smallest.
   std::vector<std::uint32_t> simplices;
   // Facets of the star that lie on the convex hull (unbounded Voronoi edges).
   std::size_t hull_facets = 0;
@@ -205,6 +207,7 @@ class StarWalker {
   std::unique_ptr<RingWalk> ring_walk_;  // set when d == 2
   // Writes the simplices in work_ (d ids each, without x) to `out` in canonical form.
   void emit_canonical(std::size_t hull, StarPart part, Star& out);
+  void orient_positively(Star& out) const;
 
   // The kernels compiled for this walker's dimension (chosen once, in the constructor).
   struct Kernels {
