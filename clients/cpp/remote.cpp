@@ -64,6 +64,13 @@ std::shared_ptr<grpc::Channel> channel(const RemoteOptions& o) {
   }
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
+  // Every RPC is idempotent (reads are pure, uploads content-addressed), so a call that
+  // fails with UNAVAILABLE before any answer (a replica stopping, a proxy's 502) is
+  // retried by gRPC: up to 3 more attempts, 0.1 s to 1 s apart, within the deadline.
+  args.SetInt(GRPC_ARG_ENABLE_RETRIES, 1);
+  args.SetServiceConfigJSON(R"({"methodConfig": [{"name": [{"service": "spokemesh.v1.Mesher"}],
+      "retryPolicy": {"maxAttempts": 4, "initialBackoff": "0.1s", "maxBackoff": "1s", "backoffMultiplier": 2,
+                      "retryableStatusCodes": ["UNAVAILABLE"]}}]})");
   return grpc::CreateCustomChannel(o.server, creds, args);
 }
 

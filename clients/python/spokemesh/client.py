@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import json
 from typing import Iterator, List, Optional, Sequence
 
 import grpc
@@ -36,7 +37,7 @@ class PointSet:
 @dataclasses.dataclass(frozen=True)
 class Star:
     seed: int
-    simplices: np.ndarray      # (m, d + 1) uint32, ascending rows, lexicographic
+    simplices: np.ndarray      # (m, d + 1) uint32, positively oriented rows, lexicographic
     circumcenters: np.ndarray  # (m, d) float64: the Voronoi vertices of the seed's cell
     hull_facets: int           # star facets on the convex hull (0 <=> bounded cell)
 
@@ -61,19 +62,32 @@ class Cell:
     volume: float                 # inf when unbounded
 
 
+# Every spokemesh RPC is idempotent (reads are pure, uploads content-addressed), so a
+# call that fails with UNAVAILABLE before any answer (a replica stopping or killed, a
+# proxy's 502 for a call it cannot retry itself) is retried by gRPC: up to 3 more
+# attempts, 0.1 s to 1 s apart, within the call's deadline.
+RETRY_SERVICE_CONFIG = json.dumps({"methodConfig": [{
+    "name": [{"service": "spokemesh.v1.Mesher"}],
+    "retryPolicy": {"maxAttempts": 4, "initialBackoff": "0.1s", "maxBackoff": "1s", "backoffMultiplier": 2,
+                    "retryableStatusCodes": ["UNAVAILABLE"]},
+}]})
+
+
 class Client:
     """A connection to one spokemesh-server (or a load balancer in front of several).
 
     target: "host:port". timeout: seconds allowed for each call (every call has a
     deadline). token: bearer token, if the server requires one. root_certificates /
     private_key / certificate_chain: PEM bytes for TLS / mutual TLS.
+    Calls failing with UNAVAILABLE are retried (RETRY_SERVICE_CONFIG).
     Thread safety: a Client may be shared by threads (gRPC channels are thread-safe).
     """
 
     def __init__(self, target: str, *, timeout: float = 60.0, token: Optional[str] = None,
                  root_certificates: Optional[bytes] = None, private_key: Optional[bytes] = None,
                  certificate_chain: Optional[bytes] = None):
-        options = [("grpc.max_receive_message_length", 64 << 20)]
+        options = [("grpc.max_receive_message_length", 64 << 20), ("grpc.enable_retries", 1),
+                   ("grpc.service_config", RETRY_SERVICE_CONFIG)]
         if root_certificates is not None:
             creds = grpc.ssl_channel_credentials(root_certificates, private_key, certificate_chain)
             self._channel = grpc.secure_channel(target, creds, options=options)
@@ -205,8 +219,8 @@ class Client:
         return flat.reshape(-1, width)
 
     def simplices(self, point_set_id: str, shards: int = 1, timeout: Optional[float] = None) -> np.ndarray:
-        """The whole Delaunay mesh, (m, d + 1) uint32 in lexicographic order, fetched as
-        `shards` parallel streams (shard k owns seeds [k N / shards, (k + 1) N / shards))."""
+        """The whole Delaunay mesh, (m, d + 1) uint32, positively oriented rows in
+        lexicographic order, fetched as `shards` parallel streams (shard k owns seeds [k N / shards, (k + 1) N / shards))."""
         if shards < 1:
             raise ValueError("shards: must be at least 1")
         with concurrent.futures.ThreadPoolExecutor(max_workers=min(shards, 16)) as pool:
