@@ -2,6 +2,7 @@
 
 
 #include <algorithm>
+#include <limits>
 #include <optional>
 
 namespace spokemesh::service {
@@ -230,7 +231,9 @@ grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::S
     out->mutable_vertices()->Add(f.vertices.begin(), f.vertices.end());
   }
   response->set_bounded(cell->bounded);
-  response->set_volume(cell->bounded ? cell->volume : 0.0);
+  // One convention for unbounded cells (docs/service.md): +infinity where the volume
+  // is a typed number.
+  response->set_volume(cell->bounded ? cell->volume : std::numeric_limits<double>::infinity());
   return call.finish(Status::ok());
 }
 

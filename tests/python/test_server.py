@@ -70,6 +70,18 @@ def test_rest_grpc_and_python_client_agree_with_the_local_mesh(server, tmp_path)
             cli("star", str(src), "--seed", str(seed)).stdout
         assert cli("--server", server.grpc, "cell", ps["id"], "--seed", str(seed), "--json").stdout == \
             cli("cell", str(src), "--seed", str(seed), "--json").stdout
+    # One convention for unbounded cells (docs/service.md): +inf over gRPC and in Python,
+    # null beside "bounded": false in JSON. The leftmost point is on the hull; seed 1234
+    # (inside) is bounded.
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    for seed, bounded in ((int(np.argmin(points[:, 0])), False), (1234, True)):
+        raw = stub.GetVoronoiCell(pb.SeedRequest(point_set_id=ps["id"], seed=seed), timeout=30)
+        rest = http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/cell")[1]
+        assert raw.bounded == rest["bounded"] == client.cell(ps["id"], seed).bounded == bounded
+        if bounded:
+            assert 0 < raw.volume < float("inf") and rest["volume"] == raw.volume
+        else:
+            assert raw.volume == client.cell(ps["id"], seed).volume == float("inf") and rest["volume"] is None
 
     assert np.array_equal(client.download(ps["id"]), points)
     assert [p.id for p in client.list()] == [ps["id"]]
