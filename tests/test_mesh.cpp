@@ -727,19 +727,29 @@ TEST(Voronoi, BoundedCellVolumesMatchPolygonAreas) {
   for (std::uint32_t s = 0; s < ps.size(); ++s) {
     ASSERT_TRUE(walker.compute(s, star).is_ok());
     const VoronoiCell cell = voronoi_cell(ps, star);
+    // Consecutive vertices share an edge of the cell (a path when it is unbounded).
+    for (std::size_t v = 0; v + (cell.bounded ? 0 : 1) < cell.vertex_count(); ++v) {
+      const auto w = static_cast<std::uint32_t>((v + 1) % cell.vertex_count());
+      EXPECT_TRUE(std::any_of(cell.facets.begin(), cell.facets.end(), [&](const VoronoiFacet& f) {
+        return std::count(f.vertices.begin(), f.vertices.end(), v) + std::count(f.vertices.begin(), f.vertices.end(), w) == 2;
+      })) << "seed " << s << ", vertices " << v << " and " << w;
+    }
     if (!cell.bounded) continue;
     ++bounded;
-    // Shoelace over vertices sorted by angle around the seed.
-    std::vector<std::pair<double, std::size_t>> order;
-    for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
-      order.push_back({std::atan2(cell.vertices[2 * v + 1] - ps.point(s)[1], cell.vertices[2 * v] - ps.point(s)[0]), v});
-    }
-    std::sort(order.begin(), order.end());
+    // Shoelace over the vertices in the cell's own order (issue 18, part 8: counter-
+    // clockwise, so the signed area is the volume), and that order is the angular one.
+    std::vector<std::pair<double, std::size_t>> by_angle;
+    const std::size_t k = cell.vertex_count();
     double area = 0;
-    for (std::size_t k = 0; k < order.size(); ++k) {
-      const double* a = &cell.vertices[2 * order[k].second];
-      const double* b = &cell.vertices[2 * order[(k + 1) % order.size()].second];
+    for (std::size_t v = 0; v < k; ++v) {
+      const double* a = &cell.vertices[2 * v];
+      const double* b = &cell.vertices[2 * ((v + 1) % k)];
       area += a[0] * b[1] - a[1] * b[0];
+      by_angle.push_back({std::atan2(a[1] - ps.point(s)[1], a[0] - ps.point(s)[0]), v});
+    }
+    std::sort(by_angle.begin(), by_angle.end());
+    for (std::size_t v = 0; v < k; ++v) {  // cyclically increasing angles
+      EXPECT_EQ((by_angle[v].second + 1) % k, by_angle[(v + 1) % k].second) << "seed " << s;
     }
     EXPECT_NEAR(cell.volume, area / 2, 1e-9 * std::max(1.0, area)) << "seed " << s;
     EXPECT_EQ(cell.facets.size(), cell.vertex_count()) << "a bounded polygon has as many edges as vertices";

@@ -3,10 +3,14 @@
 #include <Eigen/Dense>
 #include <gmpxx.h>
 
+#include "invariant.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <array>
 #include <map>
+#include <numeric>
 
 namespace spokemesh {
 
@@ -177,6 +181,44 @@ class FaceVolumes {
   std::map<std::vector<std::uint32_t>, double> memo_;
 };
 
+// The order of a cell's vertices (as indices into the star's simplices): in 2-d
+// counter-clockwise around the seed, by topology alone. Each triangle is positively
+// oriented, so read from the seed x it is (x, a, b) counter-clockwise, and the next
+// vertex counter-clockwise is the triangle (x, b, c) across the edge x-b. An
+// unbounded cell's vertices form a path, which starts at the triangle whose edge x-a
+// lies on the hull (no triangle ends at a). Other dimensions: the star's order.
+std::vector<std::uint32_t> vertex_order(const Star& star) {
+  const std::size_t m = star.size();
+  std::vector<std::uint32_t> order(m);
+  std::iota(order.begin(), order.end(), 0u);
+  if (star.dimension != 2 || m == 0) return order;
+  std::vector<std::array<std::uint32_t, 2>> arc(m);  // (a, b) of each triangle
+  for (std::size_t i = 0; i < m; ++i) {
+    const std::uint32_t* s = star.simplex(i);
+    const int p = static_cast<int>(std::find(s, s + 3, star.seed) - s);
+    arc[i] = {s[(p + 1) % 3], s[(p + 2) % 3]};
+  }
+  std::size_t at = 0;
+  for (std::size_t i = 0; i < m; ++i) {
+    const bool starts = std::none_of(arc.begin(), arc.end(), [&](const auto& t) { return t[1] == arc[i][0]; });
+    if (starts) at = i;
+  }
+  std::vector<bool> taken(m, false);
+  std::size_t filled = 0;
+  while (filled < m) {
+    order[filled++] = static_cast<std::uint32_t>(at);
+    taken[at] = true;
+    const auto next = std::find_if(arc.begin(), arc.end(), [&](const auto& t) { return t[0] == arc[at][1]; });
+    if (next == arc.end() || taken[static_cast<std::size_t>(next - arc.begin())]) break;
+    at = static_cast<std::size_t>(next - arc.begin());
+  }
+  SPOKEMESH_INVARIANT(filled == m, "a 2-d star's triangles form one fan around the seed");
+  for (std::size_t i = 0; i < m && filled < m; ++i) {  // never reached for a valid star
+    if (!taken[i]) order[filled++] = static_cast<std::uint32_t>(i);
+  }
+  return order;
+}
+
 }  // namespace
 
 VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
@@ -186,18 +228,21 @@ VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
   cell.dimension = d;
   cell.bounded = star.bounded_cell();
   const std::size_t m = star.size();
-  cell.vertex_simplices = star.simplices;
+  const std::vector<std::uint32_t> order = vertex_order(star);
+  cell.vertex_simplices.reserve(star.simplices.size());
   cell.vertices.reserve(m * d);
-  for (std::size_t i = 0; i < m; ++i) {
-    const std::vector<double> c = circumcentre(points, star.simplex(i), d + 1);
+  for (const std::uint32_t i : order) {
+    const std::uint32_t* s = star.simplex(i);
+    cell.vertex_simplices.insert(cell.vertex_simplices.end(), s, s + d + 1);
+    const std::vector<double> c = circumcentre(points, s, d + 1);
     cell.vertices.insert(cell.vertices.end(), c.begin(), c.end());
   }
   for (std::uint32_t j : star_neighbors(star)) {
     VoronoiFacet facet;
     facet.neighbor = j;
-    for (std::size_t i = 0; i < m; ++i) {
-      const std::uint32_t* s = star.simplex(i);
-      if (std::find(s, s + d + 1, j) != s + d + 1) facet.vertices.push_back(static_cast<std::uint32_t>(i));
+    for (std::size_t v = 0; v < m; ++v) {
+      const std::uint32_t* s = &cell.vertex_simplices[v * static_cast<std::size_t>(d + 1)];
+      if (std::find(s, s + d + 1, j) != s + d + 1) facet.vertices.push_back(static_cast<std::uint32_t>(v));
     }
     cell.facets.push_back(std::move(facet));
   }
