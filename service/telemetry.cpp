@@ -45,39 +45,20 @@ Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
                  .Help("Points in newly stored point sets")
                  .Register(*registry_)
                  .Add({});
-  memory_ = &prometheus::BuildGauge()
-                 .Name("spokemesh_store_memory_bytes")
-                 .Help("Estimated bytes of point sets and k-d trees held in memory")
-                 .Register(*registry_)
-                 .Add({});
-  loaded_ = &prometheus::BuildGauge()
-                 .Name("spokemesh_store_loaded_point_sets")
-                 .Help("Point sets held in memory")
-                 .Register(*registry_)
-                 .Add({});
-  budget_used_ = &prometheus::BuildGauge()
-                      .Name("spokemesh_memory_budget_used_bytes")
-                      .Help("Bytes charged to --max-memory: sets, trees, caches, stream windows, uploads")
-                      .Register(*registry_)
-                      .Add({});
-  budget_limit_ = &prometheus::BuildGauge()
-                       .Name("spokemesh_memory_budget_limit_bytes")
-                       .Help("The --max-memory budget")
-                       .Register(*registry_)
-                       .Add({});
+  // One unlabelled gauge each.
+  const auto gauge = [this](const char* name, const char* help) {
+    return &prometheus::BuildGauge().Name(name).Help(help).Register(*registry_).Add({});
+  };
+  memory_ = gauge("spokemesh_store_memory_bytes", "Estimated bytes of point sets and k-d trees held in memory");
+  loaded_ = gauge("spokemesh_store_loaded_point_sets", "Point sets held in memory");
+  budget_used_ = gauge("spokemesh_memory_budget_used_bytes",
+                       "Bytes charged to --max-memory: sets, trees, caches, stream windows, uploads");
+  budget_limit_ = gauge("spokemesh_memory_budget_limit_bytes", "The --max-memory budget");
   // The allocator's view beside the budget's: held minus in use is free memory the
   // allocator keeps (fragmentation); in use minus the budget's used is what is not
   // charged (the process's fixed cost and small per-request answers).
-  heap_in_use_ = &prometheus::BuildGauge()
-                      .Name("spokemesh_heap_in_use_bytes")
-                      .Help("Bytes allocated with malloc and not yet freed (glibc mallinfo2)")
-                      .Register(*registry_)
-                      .Add({});
-  heap_held_ = &prometheus::BuildGauge()
-                    .Name("spokemesh_heap_held_bytes")
-                    .Help("Bytes malloc holds from the system, in use or free (glibc mallinfo2)")
-                    .Register(*registry_)
-                    .Add({});
+  heap_in_use_ = gauge("spokemesh_heap_in_use_bytes", "Bytes allocated with malloc and not yet freed (glibc mallinfo2)");
+  heap_held_ = gauge("spokemesh_heap_held_bytes", "Bytes malloc holds from the system, in use or free (glibc mallinfo2)");
 }
 
 void Telemetry::log(const std::string& level, const std::string& message) {

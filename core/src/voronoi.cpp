@@ -3,20 +3,24 @@
 #include <Eigen/Dense>
 #include <gmpxx.h>
 
-#include "invariant.hpp"
-
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
-#include <array>
 #include <map>
 #include <numeric>
+
+#include "invariant.hpp"
 
 namespace spokemesh {
 
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
+
+// Whether the simplex s (d + 1 ids) has vertex v. Star simplices are positively
+// oriented, not sorted within, so this is a scan, not a binary search.
+bool contains(const std::uint32_t* s, int d, std::uint32_t v) { return std::find(s, s + d + 1, v) != s + d + 1; }
 
 // The circumcentre in rationals, rounded once: the face's points are doubles, so
 // differences, squared norms and the normal equations G l = b / 2 (G = V V^T) are
@@ -143,11 +147,8 @@ class FaceVolumes {
     // Children: faces with one more vertex, taken from the star simplices containing `face`.
     std::vector<std::uint32_t> extra;
     for (std::size_t i = 0; i < star_.size(); ++i) {
-      // Star simplices are not sorted within (positive orientation), hence find.
       const std::uint32_t* s = star_.simplex(i);
-      if (!std::all_of(face.begin(), face.end(), [&](std::uint32_t v) { return std::find(s, s + d_ + 1, v) != s + d_ + 1; })) {
-        continue;
-      }
+      if (!std::all_of(face.begin(), face.end(), [&](std::uint32_t v) { return contains(s, d_, v); })) continue;
       for (int j = 0; j <= d_; ++j) {
         if (!std::binary_search(face.begin(), face.end(), s[j])) extra.push_back(s[j]);
       }
@@ -242,7 +243,7 @@ VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
     facet.neighbor = j;
     for (std::size_t v = 0; v < m; ++v) {
       const std::uint32_t* s = &cell.vertex_simplices[v * static_cast<std::size_t>(d + 1)];
-      if (std::find(s, s + d + 1, j) != s + d + 1) facet.vertices.push_back(static_cast<std::uint32_t>(v));
+      if (contains(s, d, j)) facet.vertices.push_back(static_cast<std::uint32_t>(v));
     }
     cell.facets.push_back(std::move(facet));
   }
