@@ -16,6 +16,8 @@ packages=(
   nginx
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
+  # clipped Voronoi cells: .npz output (libzip), and the oracles scipy and Voro++
+  libzip-dev python3-scipy voro++
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers

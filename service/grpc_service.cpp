@@ -227,7 +227,7 @@ grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::S
   response->mutable_vertex_simplices()->Add(cell->vertex_simplices.begin(), cell->vertex_simplices.end());
   for (const VoronoiFacet& f : cell->facets) {
     pb::VoronoiFacet* out = response->add_facets();
-    out->set_neighbor(f.neighbor);
+    out->set_neighbor(static_cast<std::uint32_t>(f.neighbor));
     out->mutable_vertices()->Add(f.vertices.begin(), f.vertices.end());
   }
   response->set_bounded(cell->bounded);

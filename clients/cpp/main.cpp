@@ -255,7 +255,7 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
       }
       j["facets"] = nlohmann::json::array();
       for (const auto& f : cell.facets) {
-        j["facets"].push_back({{"neighbor", loaded.to_original(f.neighbor)}, {"vertices", f.vertices}});
+        j["facets"].push_back({{"neighbor", loaded.to_original(static_cast<std::uint32_t>(f.neighbor))}, {"vertices", f.vertices}});
       }
       std::cout << j.dump(2) << "\n";
       return kExitOk;
@@ -273,7 +273,7 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
     }
     std::printf("facets %zu\n", cell.facets.size());
     for (const auto& f : cell.facets) {
-      std::printf("f neighbor %u vertices", loaded.to_original(f.neighbor));
+      std::printf("f neighbor %u vertices", loaded.to_original(static_cast<std::uint32_t>(f.neighbor)));
       for (auto v : f.vertices) std::printf(" %u", v);
       std::printf("\n");
     }

@@ -10,6 +10,7 @@
 #include <map>
 #include <numeric>
 
+#include "cell_polytope.hpp"
 #include "invariant.hpp"
 
 namespace spokemesh {
@@ -17,10 +18,6 @@ namespace spokemesh {
 namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
-
-// Whether the simplex s (d + 1 ids) has vertex v. Star simplices are positively
-// oriented, not sorted within, so this is a scan, not a binary search.
-bool contains(const std::uint32_t* s, int d, std::uint32_t v) { return std::find(s, s + d + 1, v) != s + d + 1; }
 
 // The circumcentre in rationals, rounded once: the face's points are doubles, so
 // differences, squared norms and the normal equations G l = b / 2 (G = V V^T) are
@@ -127,61 +124,6 @@ std::vector<std::uint32_t> star_neighbors(const Star& star) {
 
 namespace {
 
-double distance2(const double* a, const double* b, int d) {
-  double s = 0;
-  for (int c = 0; c < d; ++c) s += (a[c] - b[c]) * (a[c] - b[c]);
-  return s;
-}
-
-// Signed (d - k)-volume of the Voronoi face dual to the Delaunay face `face`
-// (k + 1 sorted ids including the seed), by the pyramid decomposition.
-class FaceVolumes {
- public:
-  FaceVolumes(const PointSet& ps, const Star& star) : ps_(ps), star_(star), d_(ps.dimension()) {}
-
-  double volume(const std::vector<std::uint32_t>& face) {
-    const int k = static_cast<int>(face.size()) - 1;
-    if (k == d_) return 1.0;
-    if (auto it = memo_.find(face); it != memo_.end()) return it->second;
-    const std::vector<double> c = centre(face);
-    // Children: faces with one more vertex, taken from the star simplices containing `face`.
-    std::vector<std::uint32_t> extra;
-    for (std::size_t i = 0; i < star_.size(); ++i) {
-      const std::uint32_t* s = star_.simplex(i);
-      if (!std::all_of(face.begin(), face.end(), [&](std::uint32_t v) { return contains(s, d_, v); })) continue;
-      for (int j = 0; j <= d_; ++j) {
-        if (!std::binary_search(face.begin(), face.end(), s[j])) extra.push_back(s[j]);
-      }
-    }
-    std::sort(extra.begin(), extra.end());
-    extra.erase(std::unique(extra.begin(), extra.end()), extra.end());
-    double total = 0;
-    for (std::uint32_t j : extra) {
-      std::vector<std::uint32_t> child = face;
-      child.insert(std::upper_bound(child.begin(), child.end(), j), j);
-      const std::vector<double> cc = centre(child);
-      const double height = std::sqrt(distance2(c.data(), cc.data(), d_));
-      // Positive where c lies on the cell's side of the child face: closer to the
-      // face's points than to j.
-      const double own = distance2(c.data(), ps_.point(face[0]), d_);
-      const double other = distance2(c.data(), ps_.point(j), d_);
-      const double sign = other >= own ? 1.0 : -1.0;
-      total += sign * height * volume(child) / (d_ - k);
-    }
-    memo_.emplace(face, total);
-    return total;
-  }
-
- private:
-  std::vector<double> centre(const std::vector<std::uint32_t>& face) {
-    return circumcentre(ps_, face.data(), static_cast<int>(face.size()));
-  }
-  const PointSet& ps_;
-  const Star& star_;
-  int d_;
-  std::map<std::vector<std::uint32_t>, double> memo_;
-};
-
 // The order of a cell's vertices (as indices into the star's simplices): in 2-d
 // counter-clockwise around the seed, by topology alone. Each triangle is positively
 // oriented, so read from the seed x it is (x, a, b) counter-clockwise, and the next
@@ -222,37 +164,90 @@ std::vector<std::uint32_t> vertex_order(const Star& star) {
 
 }  // namespace
 
+namespace {
+
+// Facets, measures and (3-d) facet loops from the polytope; `index` maps polytope
+// vertices to the cell's vertex numbers (-1: not a cell vertex, i.e. ideal).
+void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int64_t>& index, VoronoiCell& cell) {
+  const detail::PolytopeMeasures measures = polytope.measures();
+  cell.volume = measures.volume;
+  cell.centroid = measures.centroid;
+  for (const detail::FacetMeasure& m : measures.facets) {
+    VoronoiFacet facet;
+    facet.neighbor = detail::is_wall_label(m.label) ? -1 - static_cast<std::int64_t>(m.label - detail::kWallLabel0)
+                                                     : static_cast<std::int64_t>(m.label);
+    for (const std::uint32_t v : polytope.facet_vertices(m.label)) {
+      if (index[v] >= 0) facet.vertices.push_back(static_cast<std::uint32_t>(index[v]));
+    }
+    if (cell.dimension != 3) std::sort(facet.vertices.begin(), facet.vertices.end());
+    facet.area = m.area;
+    facet.normal = polytope.facet_normal(m.label);
+    cell.facets.push_back(std::move(facet));
+  }
+  // Neighbours ascending, then walls ascending.
+  std::stable_partition(cell.facets.begin(), cell.facets.end(), [](const VoronoiFacet& f) { return !f.is_wall(); });
+  std::sort(cell.facets.begin(), cell.facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
+    if (a.is_wall() != b.is_wall()) return !a.is_wall();
+    return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
+  });
+}
+
+}  // namespace
+
 VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
   VoronoiCell cell;
   const int d = points.dimension();
   cell.seed = star.seed;
   cell.dimension = d;
   cell.bounded = star.bounded_cell();
-  const std::size_t m = star.size();
+  const detail::CellPolytope polytope(points, star, nullptr);
   const std::vector<std::uint32_t> order = vertex_order(star);
+  std::vector<std::int64_t> index(polytope.size(), -1);
   cell.vertex_simplices.reserve(star.simplices.size());
-  cell.vertices.reserve(m * d);
-  for (const std::uint32_t i : order) {
+  cell.vertices.reserve(order.size() * d);
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    const std::uint32_t i = order[k];
+    index[i] = static_cast<std::int64_t>(k);
     const std::uint32_t* s = star.simplex(i);
     cell.vertex_simplices.insert(cell.vertex_simplices.end(), s, s + d + 1);
-    const std::vector<double> c = circumcentre(points, s, d + 1);
-    cell.vertices.insert(cell.vertices.end(), c.begin(), c.end());
+    cell.vertices.insert(cell.vertices.end(), polytope.coordinates(i), polytope.coordinates(i) + d);
   }
-  for (std::uint32_t j : star_neighbors(star)) {
-    VoronoiFacet facet;
-    facet.neighbor = j;
-    for (std::size_t v = 0; v < m; ++v) {
-      const std::uint32_t* s = &cell.vertex_simplices[v * static_cast<std::size_t>(d + 1)];
-      if (contains(s, d, j)) facet.vertices.push_back(static_cast<std::uint32_t>(v));
-    }
-    cell.facets.push_back(std::move(facet));
+  add_facets(polytope, index, cell);
+  return cell;
+}
+
+Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain) {
+  const int d = points.dimension();
+  if (domain.dimension() != d) {
+    return invalid_argument("domain: dimension " + std::to_string(domain.dimension()) + " does not match the points' " +
+                            std::to_string(d));
   }
-  if (cell.bounded) {
-    FaceVolumes volumes(points, star);
-    cell.volume = volumes.volume({star.seed});
+  if (const long wall = domain.violated_wall(points.point(star.seed)); wall >= 0) {
+    return invalid_argument("seed " + std::to_string(star.seed) + " lies outside the domain (" + domain.describe() +
+                            "): beyond wall " + std::to_string(wall));
+  }
+  detail::CellPolytope polytope(points, star, &domain);
+  polytope.clip_all();
+  VoronoiCell cell;
+  cell.seed = star.seed;
+  cell.dimension = d;
+  cell.clipped = true;
+  cell.bounded = polytope.bounded();
+  std::vector<std::uint32_t> order;
+  if (d == 2) {
+    order = polytope.polygon_order();
   } else {
-    cell.volume = std::numeric_limits<double>::infinity();
+    for (std::size_t v = 0; v < polytope.size(); ++v) {
+      if (!polytope.is_ideal(v)) order.push_back(static_cast<std::uint32_t>(v));
+    }
   }
+  std::vector<std::int64_t> index(polytope.size(), -1);
+  cell.vertices.reserve(order.size() * d);
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    index[order[k]] = static_cast<std::int64_t>(k);
+    cell.vertices.insert(cell.vertices.end(), polytope.coordinates(order[k]), polytope.coordinates(order[k]) + d);
+  }
+  add_facets(polytope, index, cell);
   return cell;
 }
 

@@ -1,14 +1,17 @@
-// VoronoiCell: the Voronoi cell of a seed, assembled from its Delaunay star.
+// VoronoiCell: the Voronoi cell of a seed, assembled from its Delaunay star, and
+// optionally clipped to a Domain (docs/cells.md).
 //
 // Vertices are the circumcentres of the star's simplices (floating point: these
 // are outputs, the topology behind them is exact), each within 1e-12 of its
-// circumradius plus one ulp of the exact one (see circumcentre()). Facets are one per Delaunay
-// neighbour, listing the vertices on them. A cell is bounded iff no facet of the
-// star lies on the convex hull. The volume of a bounded cell is summed over flags
-// x = F_0 < F_1 < ... < F_d of Delaunay faces through x: the simplex
-// [c(F_0), ..., c(F_d)] of their circumcentres has mutually orthogonal edges, and its
-// volume counts negatively where c(F_k) lies beyond the Voronoi face of F_{k+1}
-// (the pyramid decomposition of a convex polytope from the foot of each perpendicular).
+// circumradius plus one ulp of the exact one (see circumcentre()); a clipped cell
+// adds the points where its edges cross the walls. Facets are one per Delaunay
+// neighbour (and per wall that cuts the cell), decided exactly. A cell without a
+// domain is bounded iff no facet of the star lies on the convex hull; its volume is
+// then finite, otherwise +infinity (docs/service.md, "Unbounded cells").
+//
+// Measures are double-precision values of the exact polytope: volume, centroid, and
+// per facet its (d-1)-measure and unit outward normal (cones from each face's vertex
+// mean, recursively: cell_polytope.hpp).
 //
 // Thread safety: value type; building one only reads the PointSet.
 #pragma once
@@ -16,29 +19,48 @@
 #include <cstdint>
 #include <vector>
 
+#include "spokemesh/domain.hpp"
 #include "spokemesh/point_set.hpp"
+#include "spokemesh/status.hpp"
 #include "spokemesh/star.hpp"
 
 namespace spokemesh {
 
 struct VoronoiFacet {
-  std::uint32_t neighbor = 0;           // the Delaunay neighbour across this facet
-  std::vector<std::uint32_t> vertices;  // indices into VoronoiCell::vertices
+  // The Delaunay neighbour across this facet (>= 0), or -1 - k for domain wall k.
+  std::int64_t neighbor = 0;
+  // Indices into VoronoiCell::vertices: in 3-d a loop counter-clockwise seen from
+  // outside (a path when the facet is unbounded); otherwise ascending.
+  std::vector<std::uint32_t> vertices;
+  double area = 0;             // (d-1)-measure; +infinity when the facet is unbounded
+  std::vector<double> normal;  // unit outward normal (d)
+
+  bool is_wall() const { return neighbor < 0; }
+  std::size_t wall() const { return static_cast<std::size_t>(-1 - neighbor); }
 };
 
 struct VoronoiCell {
   std::uint32_t seed = 0;
   int dimension = 0;
   std::vector<double> vertices;            // d coordinates per vertex
-  std::vector<std::uint32_t> vertex_simplices;  // the Delaunay simplex of each vertex (d + 1 ids)
-  std::vector<VoronoiFacet> facets;        // sorted by neighbour
+  // The Delaunay simplex of each vertex (d + 1 ids); unclipped cells only.
+  std::vector<std::uint32_t> vertex_simplices;
+  std::vector<VoronoiFacet> facets;        // neighbours ascending, then walls ascending
   bool bounded = false;
+  bool clipped = false;                    // clipped to a domain
   double volume = 0;                       // +infinity when unbounded (docs/service.md)
+  std::vector<double> centroid;            // d; empty when unbounded
 
   std::size_t vertex_count() const { return dimension == 0 ? 0 : vertices.size() / dimension; }
 };
 
+// The unclipped cell. In 2-d its vertices are counter-clockwise around the seed (a
+// path from the hull edge when unbounded); otherwise in the star's order.
 VoronoiCell voronoi_cell(const PointSet& points, const Star& star);
+// The cell clipped to `domain` (its walls cut in order). In 2-d the vertices are a
+// counter-clockwise cycle. Errors: INVALID_ARGUMENT when the domain's dimension is not
+// the points', or when the seed lies outside the domain (naming seed and wall).
+Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain);
 
 // Circumcentre of the points `ids` (2..d+1 of them): the centre of the smallest
 // sphere through them, which lies in their affine hull. Solved on the coordinate

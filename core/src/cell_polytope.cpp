@@ -1,0 +1,645 @@
+#include "cell_polytope.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <map>
+
+#include "invariant.hpp"
+#include "spokemesh/voronoi.hpp"
+
+namespace spokemesh::detail {
+
+namespace {
+
+constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+double dot(const double* a, const double* b, int d) {
+  double s = 0;
+  for (int c = 0; c < d; ++c) s += a[c] * b[c];
+  return s;
+}
+
+double norm(const double* a, int d) { return std::sqrt(dot(a, a, d)); }
+
+double max_abs(const double* a, int d) {
+  double m = 0;
+  for (int c = 0; c < d; ++c) m = std::max(m, std::abs(a[c]));
+  return m;
+}
+
+// Solves rows x = rhs (rows: r x d, row-major) in rationals by Gauss-Jordan
+// elimination. Returns the solution when r == d and the system is regular; with
+// r == d - 1 and full rank, returns a non-zero vector of the null space instead.
+std::optional<std::vector<mpq_class>> gauss_jordan(std::vector<mpq_class> a, int rows, int d,
+                                                   std::vector<mpq_class> rhs) {
+  std::vector<int> pivot_col;
+  int row = 0;
+  for (int col = 0; col < d && row < rows; ++col) {
+    int p = row;
+    while (p < rows && sgn(a[p * d + col]) == 0) ++p;
+    if (p == rows) continue;
+    if (p != row) {
+      for (int c = 0; c < d; ++c) std::swap(a[row * d + c], a[p * d + c]);
+      std::swap(rhs[row], rhs[p]);
+    }
+    const mpq_class inv = 1 / a[row * d + col];
+    for (int c = 0; c < d; ++c) a[row * d + c] *= inv;
+    rhs[row] *= inv;
+    for (int r = 0; r < rows; ++r) {
+      if (r == row || sgn(a[r * d + col]) == 0) continue;
+      const mpq_class f = a[r * d + col];
+      for (int c = 0; c < d; ++c) a[r * d + c] -= f * a[row * d + c];
+      rhs[r] -= f * rhs[row];
+    }
+    pivot_col.push_back(col);
+    ++row;
+  }
+  std::vector<mpq_class> x(static_cast<std::size_t>(d));
+  if (rows == d) {
+    if (row != d) return std::nullopt;
+    for (int r = 0; r < d; ++r) x[pivot_col[r]] = rhs[r];
+    return x;
+  }
+  if (row != d - 1) return std::nullopt;
+  int free_col = 0;
+  while (std::find(pivot_col.begin(), pivot_col.end(), free_col) != pivot_col.end()) ++free_col;
+  x[free_col] = 1;
+  for (int r = 0; r < row; ++r) x[pivot_col[r]] = -a[r * d + free_col];
+  return x;
+}
+
+}  // namespace
+
+std::size_t CellPolytope::add_vertex() {
+  const std::size_t v = size();
+  x_.resize(x_.size() + d_, 0.0);
+  label_.resize(label_.size() + d_, 0);
+  next_.resize(next_.size() + d_, 0);
+  error_.push_back(0.0);
+  ideal_.push_back(-1);
+  return v;
+}
+
+int CellPolytope::position_of(std::size_t v, std::uint32_t label) const {
+  for (int k = 0; k < d_; ++k) {
+    if (label_[v * d_ + k] == label) return k;
+  }
+  return -1;
+}
+
+void CellPolytope::normal_of(std::uint32_t label, double* out) const {
+  if (is_wall_label(label)) {
+    const double* a = domain_->normal(label - kWallLabel0);
+    std::copy(a, a + d_, out);
+    return;
+  }
+  const double* p = ps_.point(label);
+  const double* s = ps_.point(seed_);
+  for (int c = 0; c < d_; ++c) out[c] = p[c] - s[c];
+}
+
+void CellPolytope::exact_plane(std::uint32_t label, std::vector<mpq_class>& n, mpq_class& c) const {
+  n.resize(static_cast<std::size_t>(d_));
+  if (is_wall_label(label)) {
+    const std::size_t k = label - kWallLabel0;
+    for (int i = 0; i < d_; ++i) n[i] = domain_->normal(k)[i];
+    c = domain_->offset(k);
+    return;
+  }
+  // The bisector of s and p: |x - s|^2 <= |x - p|^2, i.e. (p - s) . x <= (|p|^2 - |s|^2) / 2.
+  const double* p = ps_.point(label);
+  const double* s = ps_.point(seed_);
+  c = 0;
+  for (int i = 0; i < d_; ++i) {
+    const mpq_class pi(p[i]), si(s[i]);
+    n[i] = pi - si;
+    c += pi * pi - si * si;
+  }
+  c /= 2;
+}
+
+std::optional<std::vector<mpq_class>> CellPolytope::exact_vertex(std::size_t v) const {
+  std::vector<mpq_class> a(static_cast<std::size_t>(d_ * d_)), rhs(static_cast<std::size_t>(d_)), n;
+  for (int k = 0; k < d_; ++k) {
+    exact_plane(label_[v * d_ + k], n, rhs[k]);
+    for (int c = 0; c < d_; ++c) a[k * d_ + c] = n[c];
+  }
+  return gauss_jordan(std::move(a), d_, d_, std::move(rhs));
+}
+
+std::vector<mpq_class> CellPolytope::exact_ray(const std::uint32_t* labels, std::uint32_t away_from) const {
+  // The line where the d - 1 finite planes meet, pointed into the cell across the plane
+  // the ray leaves (n_away . r < 0: moving along r goes deeper into that halfspace).
+  std::vector<mpq_class> a, n, rhs(static_cast<std::size_t>(d_ - 1));
+  mpq_class c;
+  for (int k = 0; k < d_; ++k) {
+    if (labels[k] == kInfinityLabel) continue;
+    exact_plane(labels[k], n, c);
+    a.insert(a.end(), n.begin(), n.end());
+  }
+  std::vector<mpq_class> r = gauss_jordan(std::move(a), d_ - 1, d_, std::move(rhs)).value_or(std::vector<mpq_class>(d_));
+  exact_plane(away_from, n, c);
+  mpq_class s = 0;
+  for (int i = 0; i < d_; ++i) s += n[i] * r[i];
+  if (sgn(s) > 0) {
+    for (auto& v : r) v = -v;
+  }
+  return r;
+}
+
+CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domain* domain)
+    : ps_(points), domain_(domain), seed_(star.seed), d_(points.dimension()) {
+  const int d = d_;
+  const std::size_t m = star.size();
+  const double* s = ps_.point(seed_);
+  x_.reserve(m * d);
+  for (std::size_t i = 0; i < m; ++i) {
+    const std::uint32_t* simplex = star.simplex(i);
+    const std::size_t v = add_vertex();
+    int k = 0;
+    for (int j = 0; j <= d; ++j) {
+      if (simplex[j] != seed_) label_[v * d + k++] = simplex[j];
+    }
+    const std::vector<double> c = circumcentre(ps_, simplex, d + 1);
+    std::copy(c.begin(), c.end(), &x_[v * d]);
+    double r2 = 0;
+    for (int i2 = 0; i2 < d; ++i2) r2 += (c[i2] - s[i2]) * (c[i2] - s[i2]);
+    const double r = std::sqrt(r2);
+    // circumcentre(): within 1e-12 of the circumradius plus one ulp per coordinate.
+    error_[v] = 1e-12 * r + std::sqrt(d) * 2 * kUnit * max_abs(c.data(), d);
+    scale_ = std::max(scale_, r);
+  }
+  // Pair the vertices' edges: the edge leaving plane k of v goes to the vertex with the
+  // same d - 1 other planes. A key met once is an unbounded edge (a hull facet of the
+  // star), which ends at a new ideal vertex.
+  struct Edge {
+    std::array<std::uint32_t, kMaxDimension> key{};
+    std::uint32_t vertex;
+    int position;
+    bool operator<(const Edge& o) const { return key != o.key ? key < o.key : vertex < o.vertex; }
+  };
+  auto pair_up = [&](std::size_t from, std::size_t to, [[maybe_unused]] bool open_rays) {
+    std::vector<Edge> edges;
+    for (std::size_t v = from; v < to; ++v) {
+      for (int k = 0; k < d; ++k) {
+        if (ideal_[v] >= 0 && label_[v * d + k] == kInfinityLabel) continue;
+        Edge e;
+        int w = 0;
+        for (int j = 0; j < d; ++j) {
+          if (j != k) e.key[w++] = label_[v * d + j];
+        }
+        std::sort(e.key.begin(), e.key.begin() + std::clamp(d - 1, 0, kMaxDimension));
+        e.vertex = static_cast<std::uint32_t>(v);
+        e.position = k;
+        edges.push_back(e);
+      }
+    }
+    std::stable_sort(edges.begin(), edges.end());
+    for (std::size_t i = 0; i < edges.size();) {
+      if (i + 1 < edges.size() && edges[i + 1].key == edges[i].key) {
+        next_[edges[i].vertex * d + edges[i].position] = edges[i + 1].vertex;
+        next_[edges[i + 1].vertex * d + edges[i + 1].position] = edges[i].vertex;
+        i += 2;
+        continue;
+      }
+      SPOKEMESH_INVARIANT(open_rays, "every edge at infinity joins two ideal vertices");
+      const std::size_t v = edges[i].vertex;
+      const int k = edges[i].position;
+      const std::size_t u = add_vertex();
+      for (int j = 0; j < d; ++j) label_[u * d + j] = label_[v * d + j];
+      label_[u * d + k] = kInfinityLabel;
+      next_[u * d + k] = static_cast<std::uint32_t>(v);
+      next_[v * d + k] = static_cast<std::uint32_t>(u);
+      ideal_[u] = static_cast<int>(rays_.size());
+      rays_.push_back(exact_ray(&label_[u * d], label_[v * d + k]));
+      double len = 0;
+      for (int c = 0; c < d; ++c) len = std::max(len, std::abs(rays_.back()[c].get_d()));
+      for (int c = 0; c < d; ++c) x_[u * d + c] = rays_.back()[c].get_d() / len;
+      const double l2 = norm(&x_[u * d], d);
+      for (int c = 0; c < d; ++c) x_[u * d + c] /= l2;
+      ++i;
+    }
+  };
+  pair_up(0, m, true);
+  if (size() > m) pair_up(m, size(), false);
+  if (scale_ == 0) scale_ = 1;
+}
+
+bool CellPolytope::bounded() const {
+  return std::all_of(ideal_.begin(), ideal_.end(), [](int r) { return r < 0; });
+}
+
+int CellPolytope::side(std::size_t v, std::size_t wall, const std::vector<int>& sides) const {
+  const double* a = domain_->normal(wall);
+  const double b = domain_->offset(wall);
+  if (ideal_[v] >= 0) {
+    const std::vector<mpq_class>& r = rays_[ideal_[v]];
+    mpq_class s = 0;
+    for (int c = 0; c < d_; ++c) {
+      if (a[c] != 0) s += mpq_class(a[c]) * r[c];
+    }
+    if (sgn(s) != 0) return sgn(s);
+    // Along the wall: the ray stays on its base's side.
+    return sides[next_[v * d_ + position_of(v, kInfinityLabel)]];
+  }
+  const double* x = &x_[v * d_];
+  double f = -b, magnitude = std::abs(b);
+  for (int c = 0; c < d_; ++c) {
+    f += a[c] * x[c];
+    magnitude += std::abs(a[c] * x[c]);
+  }
+  // |computed f - a . exact x| <= rounding of the sum + |a| |x - exact x|.
+  const double bound = 2 * (d_ + 2) * kUnit * magnitude + norm(a, d_) * error_[v] * (1 + 4 * d_ * kUnit);
+  if (f > bound) return 1;
+  if (f < -bound) return -1;
+  const auto exact = exact_vertex(v);
+  if (!exact) return f > 0 ? 1 : f < 0 ? -1 : 0;  // planes that coincide: the double value
+  mpq_class g = -mpq_class(b);
+  for (int c = 0; c < d_; ++c) g += mpq_class(a[c]) * (*exact)[c];
+  return sgn(g);
+}
+
+std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, std::size_t wall) {
+  const int d = d_;
+  const std::size_t u = add_vertex();
+  for (int j = 0; j < d; ++j) label_[u * d + j] = label_[in * d + j];
+  label_[u * d + position] = kWallLabel0 + static_cast<std::uint32_t>(wall);
+  next_[u * d + position] = static_cast<std::uint32_t>(in);
+  next_[in * d + position] = static_cast<std::uint32_t>(u);
+  const double* a = domain_->normal(wall);
+  const double b = domain_->offset(wall);
+  const double a_norm = norm(a, d);
+  auto value = [&](std::size_t v, double& rounding) {
+    double f = -b, mag = std::abs(b);
+    for (int c = 0; c < d; ++c) {
+      f += a[c] * x_[v * d + c];
+      mag += std::abs(a[c] * x_[v * d + c]);
+    }
+    rounding = 2 * (d + 2) * kUnit * mag;
+    return f;
+  };
+  if (ideal_[in] >= 0 && ideal_[out] >= 0) {
+    // Two directions on either side of the wall: their combination along it.
+    const std::vector<mpq_class>& rv = rays_[ideal_[in]];
+    const std::vector<mpq_class>& rw = rays_[ideal_[out]];
+    mpq_class av = 0, aw = 0;
+    for (int c = 0; c < d; ++c) {
+      av += mpq_class(a[c]) * rv[c];
+      aw += mpq_class(a[c]) * rw[c];
+    }
+    std::vector<mpq_class> r(static_cast<std::size_t>(d));
+    for (int c = 0; c < d; ++c) r[c] = aw * rv[c] - av * rw[c];
+    ideal_[u] = static_cast<int>(rays_.size());
+    rays_.push_back(std::move(r));
+    double len = 0;
+    for (int c = 0; c < d; ++c) len = std::max(len, std::abs(rays_.back()[c].get_d()));
+    for (int c = 0; c < d; ++c) x_[u * d + c] = len > 0 ? rays_.back()[c].get_d() / len : 0.0;
+    const double l2 = norm(&x_[u * d], d);
+    for (int c = 0; c < d; ++c) x_[u * d + c] = l2 > 0 ? x_[u * d + c] / l2 : 0.0;
+    return u;
+  }
+  double* x = &x_[u * d];
+  double error = kInf;
+  if (ideal_[in] < 0 && ideal_[out] < 0) {
+    double rv = 0, rw = 0;
+    const double fv = value(in, rv), fw = value(out, rw);
+    const double den = fw - fv;
+    double span = 0;
+    for (int c = 0; c < d; ++c) span += (x_[out * d + c] - x_[in * d + c]) * (x_[out * d + c] - x_[in * d + c]);
+    span = std::sqrt(span);
+    const double t = den > 0 ? std::clamp(-fv / den, 0.0, 1.0) : 0.5;
+    for (int c = 0; c < d; ++c) x[c] = x_[in * d + c] + t * (x_[out * d + c] - x_[in * d + c]);
+    if (den > 0) {
+      const double ev = error_[in], ew = error_[out];
+      error = std::max(ev, ew) + span * (a_norm * (ev + ew) + rv + rw) / den +
+              8 * kUnit * std::sqrt(d) * (max_abs(x, d) + span);
+    }
+  } else {
+    // A ray (ideal end r) from its real end: x = base + t r with a . x = b.
+    const std::size_t base = ideal_[in] >= 0 ? out : in;
+    const std::size_t ray = ideal_[in] >= 0 ? in : out;
+    double rb = 0;
+    const double fb = value(base, rb);
+    const double* r = &x_[ray * d];
+    const double ar = dot(a, r, d);
+    const double t = ar != 0 ? std::max(0.0, -fb / ar) : 0.0;
+    for (int c = 0; c < d; ++c) x[c] = x_[base * d + c] + t * r[c];
+    if (ar != 0) {
+      error = error_[base] + (a_norm * error_[base] + rb) / std::abs(ar) +
+              8 * kUnit * std::sqrt(d) * (max_abs(x, d) + t * (1 + a_norm / std::abs(ar)));
+    }
+  }
+  error_[u] = error;
+  // Where the bound is loose (edges nearly parallel to the wall), construct exactly.
+  if (!(error <= 1e-10 * scale_)) {
+    if (const auto exact = exact_vertex(u)) {
+      for (int c = 0; c < d; ++c) x[c] = (*exact)[c].get_d();
+      error_[u] = std::sqrt(d) * 2 * kUnit * max_abs(x, d);
+    }
+  }
+  return u;
+}
+
+std::size_t CellPolytope::walk_to_partner(std::size_t u, int wall_position, int m, std::size_t first_new) const {
+  // The 2-face of planes S = labels(u) without the wall and label m: walk its kept
+  // boundary from u's kept end until it reaches the other new vertex on it.
+  const int d = d_;
+  std::array<std::uint32_t, kMaxDimension> s{};
+  int s_count = 0;
+  for (int k = 0; k < d; ++k) {
+    if (k != wall_position && k != m) s[s_count++] = label_[u * d + k];
+  }
+  auto in_s = [&](std::uint32_t l) { return std::find(s.begin(), s.begin() + s_count, l) != s.begin() + s_count; };
+  std::size_t prev = u, cur = next_[u * d + wall_position];
+  for (std::size_t steps = 0; steps <= size(); ++steps) {
+    std::size_t ways[2] = {prev, prev};
+    int found = 0;
+    for (int k = 0; k < d && found < 2; ++k) {
+      if (!in_s(label_[cur * d + k])) ways[found++] = next_[cur * d + k];
+    }
+    const std::size_t nxt = ways[0] == prev ? ways[1] : ways[0];
+    if (nxt >= first_new) return nxt;
+    prev = cur;
+    cur = nxt;
+  }
+  SPOKEMESH_INVARIANT(false, "the kept part of a 2-face ends at a new vertex");
+  return u;
+}
+
+void CellPolytope::clip(std::size_t wall) {
+  const int d = d_;
+  const std::size_t n = size();
+  std::vector<int> sides(n, 0);
+  for (std::size_t v = 0; v < n; ++v) {
+    if (ideal_[v] < 0) sides[v] = side(v, wall, sides);
+  }
+  for (std::size_t v = 0; v < n; ++v) {
+    if (ideal_[v] >= 0) sides[v] = side(v, wall, sides);
+  }
+  if (std::none_of(sides.begin(), sides.end(), [](int s) { return s > 0; })) return;
+  const std::size_t first_new = n;
+  for (std::size_t v = 0; v < n; ++v) {
+    if (sides[v] > 0) continue;
+    for (int k = 0; k < d; ++k) {
+      const std::size_t w = next_[v * d + k];
+      if (w < first_new && sides[w] > 0) cut(v, k, w, wall);
+    }
+  }
+  const std::uint32_t wall_label = kWallLabel0 + static_cast<std::uint32_t>(wall);
+  for (std::size_t u = first_new; u < size(); ++u) {
+    const int p = position_of(u, wall_label);
+    for (int k = 0; k < d; ++k) {
+      if (k != p) next_[u * d + k] = static_cast<std::uint32_t>(walk_to_partner(u, p, k, first_new));
+    }
+  }
+  // Drop the vertices outside; renumber.
+  std::vector<std::uint32_t> index(size(), 0);
+  std::size_t kept = 0;
+  for (std::size_t v = 0; v < size(); ++v) {
+    if (v >= n || sides[v] <= 0) index[v] = static_cast<std::uint32_t>(kept++);
+  }
+  std::size_t w = 0;
+  for (std::size_t v = 0; v < size(); ++v) {
+    if (v < n && sides[v] > 0) continue;
+    for (int k = 0; k < d; ++k) {
+      x_[w * d + k] = x_[v * d + k];
+      label_[w * d + k] = label_[v * d + k];
+      next_[w * d + k] = index[next_[v * d + k]];
+    }
+    error_[w] = error_[v];
+    ideal_[w] = ideal_[v];
+    ++w;
+  }
+  x_.resize(w * d);
+  label_.resize(w * d);
+  next_.resize(w * d);
+  error_.resize(w);
+  ideal_.resize(w);
+}
+
+void CellPolytope::clip_all() {
+  for (std::size_t k = 0; k < domain_->wall_count(); ++k) clip(k);
+}
+
+std::vector<double> CellPolytope::facet_normal(std::uint32_t label) const {
+  std::vector<double> n(static_cast<std::size_t>(d_));
+  normal_of(label, n.data());
+  const double l = norm(n.data(), d_);
+  for (double& v : n) v /= l;
+  return n;
+}
+
+double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::vector<std::uint32_t>& planes,
+                                  std::vector<double>& basis, double* centroid,
+                                  std::vector<FacetMeasure>* top) const {
+  const int d = d_;
+  const int dim = d - static_cast<int>(planes.size());
+  if (dim == 1 || verts.size() <= 2) {
+    // An edge (two vertices in a simple polytope; more only where zero-length edges
+    // from a wall through a vertex coincide): its length and midpoint.
+    double len = 0;
+    std::size_t a = 0, b = 0;
+    for (std::size_t i = 0; i < verts.size(); ++i) {
+      for (std::size_t j = i + 1; j < verts.size(); ++j) {
+        double l2 = 0;
+        for (int c = 0; c < d; ++c) {
+          const double t = x_[verts[i] * d + c] - x_[verts[j] * d + c];
+          l2 += t * t;
+        }
+        if (l2 > len) len = l2, a = i, b = j;
+      }
+    }
+    for (int c = 0; c < d; ++c) centroid[c] = 0.5 * (x_[verts[a] * d + c] + x_[verts[b] * d + c]);
+    return dim == 1 ? std::sqrt(len) : 0.0;
+  }
+  std::array<double, kMaxDimension> ref{};
+  for (std::uint32_t v : verts) {
+    for (int c = 0; c < d; ++c) ref[c] += x_[v * d + c];
+  }
+  for (int c = 0; c < d; ++c) ref[c] /= static_cast<double>(verts.size());
+  std::vector<std::uint32_t> sub_labels;
+  for (std::uint32_t v : verts) {
+    for (int k = 0; k < d; ++k) {
+      const std::uint32_t l = label_[v * d + k];
+      if (std::find(planes.begin(), planes.end(), l) == planes.end()) sub_labels.push_back(l);
+    }
+  }
+  std::sort(sub_labels.begin(), sub_labels.end());
+  sub_labels.erase(std::unique(sub_labels.begin(), sub_labels.end()), sub_labels.end());
+  double total = 0;
+  std::array<double, kMaxDimension> weighted{};
+  std::array<double, kMaxDimension> sub_centroid{};
+  std::array<double, kMaxDimension> u{};
+  std::vector<std::uint32_t> sub;
+  for (const std::uint32_t l : sub_labels) {
+    sub.clear();
+    for (std::uint32_t v : verts) {
+      if (std::find(&label_[v * d], &label_[v * d] + d, l) != &label_[v * d] + d) sub.push_back(v);
+    }
+    // The facet's normal within this face: n_l without its components along the
+    // normals of the planes already fixed (basis: orthonormal).
+    normal_of(l, u.data());
+    const double n0 = norm(u.data(), d);
+    const std::size_t fixed = planes.size();
+    for (std::size_t i = 0; i < fixed; ++i) {
+      const double* e = &basis[i * d];
+      const double p = dot(u.data(), e, d);
+      for (int c = 0; c < d; ++c) u[c] -= p * e[c];
+    }
+    const double n1 = norm(u.data(), d);
+    planes.push_back(l);
+    const bool degenerate = !(n1 > 1e-12 * n0);
+    if (!degenerate) {
+      for (int c = 0; c < d; ++c) u[c] /= n1;
+    }
+    basis.insert(basis.end(), u.begin(), u.begin() + d);
+    const double measure = degenerate ? 0.0 : face_measure(sub, planes, basis, sub_centroid.data(), nullptr);
+    basis.resize(basis.size() - d);
+    planes.pop_back();
+    if (top != nullptr) top->push_back({l, measure});
+    if (degenerate || measure == 0) continue;
+    double h = 0;
+    for (int c = 0; c < d; ++c) h += u[c] * (sub_centroid[c] - ref[c]);
+    const double w = std::abs(h) * measure / dim;
+    total += w;
+    const double f = static_cast<double>(dim) / (dim + 1);
+    for (int c = 0; c < d; ++c) weighted[c] += w * (ref[c] + f * (sub_centroid[c] - ref[c]));
+  }
+  for (int c = 0; c < d; ++c) centroid[c] = total > 0 ? weighted[c] / total : ref[c];
+  return total;
+}
+
+PolytopeMeasures CellPolytope::measures() const {
+  PolytopeMeasures out;
+  const int d = d_;
+  std::vector<std::uint32_t> planes, verts;
+  std::vector<double> basis;
+  if (bounded()) {
+    for (std::size_t v = 0; v < size(); ++v) verts.push_back(static_cast<std::uint32_t>(v));
+    out.centroid.assign(static_cast<std::size_t>(d), 0.0);
+    out.volume = face_measure(verts, planes, basis, out.centroid.data(), &out.facets);
+  } else {
+    out.volume = kInf;
+    std::vector<std::uint32_t> labels(label_);
+    std::sort(labels.begin(), labels.end());
+    labels.erase(std::unique(labels.begin(), labels.end()), labels.end());
+    std::array<double, kMaxDimension> c{};
+    for (const std::uint32_t l : labels) {
+      if (l == kInfinityLabel) continue;
+      verts.clear();
+      bool open = false;
+      for (std::size_t v = 0; v < size(); ++v) {
+        if (position_of(v, l) >= 0) {
+          verts.push_back(static_cast<std::uint32_t>(v));
+          open = open || ideal_[v] >= 0;
+        }
+      }
+      double area = kInf;
+      if (!open) {
+        planes.assign(1, l);
+        basis = facet_normal(l);
+        area = face_measure(verts, planes, basis, c.data(), nullptr);
+      }
+      out.facets.push_back({l, area});
+    }
+  }
+  std::sort(out.facets.begin(), out.facets.end(),
+            [](const FacetMeasure& a, const FacetMeasure& b) { return a.label < b.label; });
+  return out;
+}
+
+namespace {
+
+// Orders a closed walk of vertex ids so that it starts just after its last ideal
+// vertex, and drops the ideal ones (an unbounded face: the path of its real vertices).
+template <class IsIdeal>
+std::vector<std::uint32_t> open_at_infinity(std::vector<std::uint32_t> cycle, IsIdeal is_ideal) {
+  std::size_t last = cycle.size();
+  for (std::size_t i = 0; i < cycle.size(); ++i) {
+    if (is_ideal(cycle[i]) && !is_ideal(cycle[(i + 1) % cycle.size()])) last = i;
+  }
+  if (last == cycle.size()) return cycle;
+  std::rotate(cycle.begin(), cycle.begin() + static_cast<std::ptrdiff_t>(last + 1), cycle.end());
+  cycle.erase(std::remove_if(cycle.begin(), cycle.end(), is_ideal), cycle.end());
+  return cycle;
+}
+
+}  // namespace
+
+std::vector<std::uint32_t> CellPolytope::polygon_order() const {
+  // 2-d: the cycle through every vertex, counter-clockwise by the shoelace sum (an
+  // ideal vertex counts as a point far along its ray).
+  std::vector<std::uint32_t> cycle;
+  if (size() == 0) return cycle;
+  std::size_t prev = next_[1], cur = 0;  // start towards next_[0]
+  for (std::size_t steps = 0; steps < size(); ++steps) {
+    cycle.push_back(static_cast<std::uint32_t>(cur));
+    const std::size_t nxt = next_[cur * 2] == prev ? next_[cur * 2 + 1] : next_[cur * 2];
+    prev = cur;
+    cur = nxt;
+    if (cur == 0) break;
+  }
+  auto point = [&](std::uint32_t v, int c) {
+    if (ideal_[v] < 0) return x_[v * 2 + c];
+    const std::size_t base = next_[v * 2 + position_of(v, kInfinityLabel)];
+    return x_[base * 2 + c] + 4 * scale_ * x_[v * 2 + c];
+  };
+  double area2 = 0;
+  for (std::size_t i = 0; i < cycle.size(); ++i) {
+    const std::uint32_t a = cycle[i], b = cycle[(i + 1) % cycle.size()];
+    area2 += point(a, 0) * point(b, 1) - point(b, 0) * point(a, 1);
+  }
+  if (area2 < 0) std::reverse(cycle.begin(), cycle.end());
+  return open_at_infinity(std::move(cycle), [&](std::uint32_t v) { return ideal_[v] >= 0; });
+}
+
+std::vector<std::uint32_t> CellPolytope::facet_vertices(std::uint32_t label) const {
+  const int d = d_;
+  std::vector<std::uint32_t> verts;
+  for (std::size_t v = 0; v < size(); ++v) {
+    if (position_of(v, label) >= 0) verts.push_back(static_cast<std::uint32_t>(v));
+  }
+  if (d != 3 || verts.size() < 3) {
+    verts.erase(std::remove_if(verts.begin(), verts.end(), [&](std::uint32_t v) { return ideal_[v] >= 0; }),
+                verts.end());
+    return verts;
+  }
+  // The facet is a polygon: walk it, leaving `label` fixed.
+  std::vector<std::uint32_t> cycle;
+  std::size_t prev = verts[0], cur = verts[0];
+  for (std::size_t steps = 0; steps < verts.size(); ++steps) {
+    cycle.push_back(static_cast<std::uint32_t>(cur));
+    std::size_t ways[2] = {cur, cur};
+    int found = 0;
+    for (int k = 0; k < d; ++k) {
+      if (label_[cur * d + k] != label) ways[found++] = next_[cur * d + k];
+    }
+    const std::size_t nxt = ways[0] == prev ? ways[1] : ways[0];
+    prev = cur;
+    cur = nxt;
+    if (cur == verts[0]) break;
+  }
+  // Newell's normal of the loop against the outward normal.
+  auto point = [&](std::uint32_t v, int c) {
+    if (ideal_[v] < 0) return x_[v * 3 + c];
+    const std::size_t base = next_[v * 3 + position_of(v, kInfinityLabel)];
+    return x_[base * 3 + c] + 4 * scale_ * x_[v * 3 + c];
+  };
+  std::array<double, 3> newell{};
+  for (std::size_t i = 0; i < cycle.size(); ++i) {
+    const std::uint32_t a = cycle[i], b = cycle[(i + 1) % cycle.size()];
+    for (int c = 0; c < 3; ++c) {
+      const int c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+      newell[c] += (point(a, c1) - point(b, c1)) * (point(a, c2) + point(b, c2));
+    }
+  }
+  std::array<double, 3> n{};
+  normal_of(label, n.data());
+  if (dot(newell.data(), n.data(), 3) < 0) std::reverse(cycle.begin(), cycle.end());
+  return open_at_infinity(std::move(cycle), [&](std::uint32_t v) { return ideal_[v] >= 0; });
+}
+
+}  // namespace spokemesh::detail

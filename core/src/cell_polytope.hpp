@@ -1,0 +1,115 @@
+// CellPolytope: a Voronoi cell as a simple polytope, clipped by domain walls, and its
+// measures (docs/cells.md). Internal to the core: voronoi.cpp is its one user.
+//
+// Combinatorics. Every vertex lies on exactly d planes, its labels: a Delaunay
+// neighbour j (the bisector of seed and j), a domain wall, or "infinity". The
+// unclipped cell's vertices are the star's simplices (labels: the simplex without
+// the seed); under symbolic perturbation the star is a triangulation, so the cell is
+// simple. An unbounded cell gets one ideal vertex per hull facet of the star: the
+// direction of its unbounded edge, labelled with the facet's neighbours and
+// "infinity" (the cell truncated by a plane at infinity, which is simple too: its
+// section is dual to the link of the seed on the hull). Edges are stored, not
+// searched: next[v][k] is the vertex reached from v by leaving plane label[v][k].
+//
+// Clipping by a wall a.x <= b (Voro++'s plane cut, in any d): keep the vertices in
+// the closed halfspace, put a new vertex on every edge from a kept to a dropped one
+// (the dropped label replaced by the wall's), and join two new vertices when they
+// are the two ends of the kept part of one 2-face, found by walking that 2-face's
+// boundary. Which vertices are kept is decided exactly: a filter on the double
+// coordinates with a tracked error bound, else the vertex solved in rationals from
+// its d planes (plane_side's exactness, for constructed points). A vertex on the wall
+// is kept, so clipping by a closed halfspace leaves faces of measure zero where a
+// wall passes through a vertex; they are reported like any other (area 0). An ideal
+// vertex is kept when its direction points into the halfspace, or along the wall
+// with its ray's base kept: the limit of truncating the cell far away.
+//
+// Measures: a face's k-measure is the sum over its facets of height x measure / k
+// (cones from the mean of its vertices), recursively down to edges; centroids
+// likewise (a cone's centroid lies k/(k+1) of the way from apex to base centroid).
+//
+// Thread safety: a value type; one per cell and thread.
+#pragma once
+
+#include <gmpxx.h>
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "spokemesh/domain.hpp"
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/star.hpp"
+
+namespace spokemesh::detail {
+
+// Labels: Delaunay neighbours are point indices; walls and infinity sit above them.
+inline constexpr std::uint32_t kWallLabel0 = 0xF0000000u;
+inline constexpr std::uint32_t kInfinityLabel = 0xFFFFFFFFu;
+inline bool is_wall_label(std::uint32_t l) { return l >= kWallLabel0 && l != kInfinityLabel; }
+
+struct FacetMeasure {
+  std::uint32_t label = 0;
+  double area = 0;  // +inf when the facet is unbounded
+};
+
+struct PolytopeMeasures {
+  double volume = 0;              // +inf when unbounded
+  std::vector<double> centroid;   // empty when unbounded
+  std::vector<FacetMeasure> facets;  // ascending label
+};
+
+class CellPolytope {
+ public:
+  // The unclipped cell of star.seed; vertex i < star.size() is star simplex i. With
+  // `exact_rays`, ideal vertices carry exact directions (needed for clipping).
+  CellPolytope(const PointSet& points, const Star& star, const Domain* domain);
+
+  // Clips by every wall of the domain given to the constructor, in order.
+  void clip_all();
+
+  std::size_t size() const { return ideal_.size(); }
+  bool is_ideal(std::size_t v) const { return ideal_[v] >= 0; }
+  bool bounded() const;
+  const double* coordinates(std::size_t v) const { return &x_[v * d_]; }
+  const std::uint32_t* labels(std::size_t v) const { return &label_[v * d_]; }
+  const std::uint32_t* next(std::size_t v) const { return &next_[v * d_]; }
+
+  PolytopeMeasures measures() const;
+  // Unit outward normal of the facet with this label.
+  std::vector<double> facet_normal(std::uint32_t label) const;
+  // The vertices on plane `label` (a facet), ordered around it: a cycle in 3-d (as a
+  // path of real vertices when it has ideal ones), counter-clockwise seen from
+  // outside. Other dimensions: ascending.
+  std::vector<std::uint32_t> facet_vertices(std::uint32_t label) const;
+  // 2-d: the vertices in counter-clockwise order (a cycle, or the path of real ones).
+  std::vector<std::uint32_t> polygon_order() const;
+
+ private:
+  void normal_of(std::uint32_t label, double* out) const;
+  // The plane of a label, exactly: n . x <= c.
+  void exact_plane(std::uint32_t label, std::vector<mpq_class>& n, mpq_class& c) const;
+  std::optional<std::vector<mpq_class>> exact_vertex(std::size_t v) const;
+  std::vector<mpq_class> exact_ray(const std::uint32_t* labels, std::uint32_t away_from) const;
+  int side(std::size_t v, std::size_t wall, const std::vector<int>& sides) const;
+  void clip(std::size_t wall);
+  std::size_t cut(std::size_t in, int position, std::size_t out, std::size_t wall);
+  std::size_t walk_to_partner(std::size_t u, int wall_position, int m, std::size_t first_new) const;
+  std::size_t add_vertex();
+  int position_of(std::size_t v, std::uint32_t label) const;
+  double face_measure(const std::vector<std::uint32_t>& verts, std::vector<std::uint32_t>& planes,
+                      std::vector<double>& basis, double* centroid, std::vector<FacetMeasure>* top) const;
+
+  const PointSet& ps_;
+  const Domain* domain_;
+  std::uint32_t seed_;
+  int d_;
+  double scale_ = 0;                 // the cell's size, for error thresholds
+  std::vector<double> x_;            // d per vertex: coordinates, or an ideal vertex's direction
+  std::vector<std::uint32_t> label_;  // d per vertex
+  std::vector<std::uint32_t> next_;   // d per vertex
+  std::vector<double> error_;        // bound on |x - exact| (real vertices)
+  std::vector<int> ideal_;           // -1, or the index of the exact direction in rays_
+  std::vector<std::vector<mpq_class>> rays_;
+};
+
+}  // namespace spokemesh::detail

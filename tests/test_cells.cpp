@@ -1,0 +1,291 @@
+// Clipped Voronoi cells and their measures (issue 18, parts 3, 4 and 8): invariants
+// checked on every cell of whole point sets, in every dimension from 2 to 6 (7 and 8
+// with SPOKEMESH_HIGH_D=1), as CGAL's tests validate after every step.
+//   * the clipped cells tile the domain: volumes sum to its volume (relative 1e-12),
+//     and the volume-weighted centroids to its centroid;
+//   * facet i -> j exists iff j -> i does, with equal areas and opposite normals;
+//   * the divergence theorem per cell: sum of area x normal = 0;
+//   * the walls' pieces sum to each wall's area (boxes);
+//   * in 3-d every facet's loop is counter-clockwise from outside: its Newell vector
+//     is area x normal.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <map>
+#include <random>
+
+#include "spokemesh/domain.hpp"
+#include "spokemesh/voronoi.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using namespace testing;
+
+std::vector<VoronoiCell> all_cells(const PointSet& ps, const Domain& domain) {
+  const KdTree tree(ps);
+  StarWalker walker(tree);
+  Star star;
+  std::vector<VoronoiCell> cells;
+  for (std::uint32_t s = 0; s < ps.size(); ++s) {
+    EXPECT_TRUE(walker.compute(s, star).is_ok());
+    auto cell = voronoi_cell(ps, star, domain);
+    EXPECT_TRUE(cell.is_ok()) << cell.status().message();
+    cells.push_back(std::move(cell.value()));
+  }
+  return cells;
+}
+
+// Checks every invariant above; `volume` and `centroid` are the domain's.
+void check_tiling(const PointSet& ps, const std::vector<VoronoiCell>& cells, double volume,
+                  const std::vector<double>& centroid, const std::vector<double>* wall_areas) {
+  const int d = ps.dimension();
+  double total = 0, scale = std::pow(volume, 1.0 / d);
+  std::vector<double> moment(d, 0.0), wall_sum(wall_areas ? wall_areas->size() : 0, 0.0);
+  std::map<std::pair<std::int64_t, std::int64_t>, const VoronoiFacet*> facets;
+  for (const VoronoiCell& cell : cells) {
+    SCOPED_TRACE("seed " + std::to_string(cell.seed));
+    ASSERT_TRUE(cell.bounded);
+    ASSERT_TRUE(std::isfinite(cell.volume));
+    EXPECT_GE(cell.volume, 0);
+    total += cell.volume;
+    for (int c = 0; c < d; ++c) moment[c] += cell.volume * cell.centroid[c];
+    std::vector<double> flux(d, 0.0);
+    double area_sum = 0;
+    for (const VoronoiFacet& f : cell.facets) {
+      ASSERT_TRUE(std::isfinite(f.area));
+      EXPECT_GE(f.area, 0);
+      area_sum += f.area;
+      double n2 = 0;
+      for (int c = 0; c < d; ++c) {
+        flux[c] += f.area * f.normal[c];
+        n2 += f.normal[c] * f.normal[c];
+      }
+      EXPECT_NEAR(n2, 1.0, 1e-14);
+      if (f.is_wall()) {
+        if (wall_areas) wall_sum[f.wall()] += f.area;
+      } else {
+        facets[{cell.seed, f.neighbor}] = &f;
+      }
+      if (d == 3 && f.vertices.size() >= 3) {
+        double newell[3] = {0, 0, 0};
+        for (std::size_t i = 0; i < f.vertices.size(); ++i) {
+          const double* a = &cell.vertices[3 * f.vertices[i]];
+          const double* b = &cell.vertices[3 * f.vertices[(i + 1) % f.vertices.size()]];
+          for (int c = 0; c < 3; ++c) {
+            const int c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+            newell[c] += 0.5 * (a[c1] - b[c1]) * (a[c2] + b[c2]);
+          }
+        }
+        for (int c = 0; c < 3; ++c) {
+          EXPECT_NEAR(newell[c], f.area * f.normal[c], 1e-9 * scale * scale) << "facet " << f.neighbor;
+        }
+      }
+    }
+    for (int c = 0; c < d; ++c) EXPECT_NEAR(flux[c], 0.0, 1e-11 * std::max(area_sum, 1e-300)) << "coordinate " << c;
+  }
+  EXPECT_NEAR(total, volume, 1e-12 * volume);
+  for (int c = 0; c < d; ++c) EXPECT_NEAR(moment[c] / total, centroid[c], 1e-11 * scale);
+  for (const auto& [key, f] : facets) {
+    const auto other = facets.find({key.second, key.first});
+    ASSERT_NE(other, facets.end()) << "facet " << key.first << " -> " << key.second << " has no partner";
+    const VoronoiFacet& g = *other->second;
+    EXPECT_NEAR(f->area, g.area, 1e-11 * std::pow(scale, d - 1)) << key.first << " <-> " << key.second;
+    for (int c = 0; c < d; ++c) EXPECT_NEAR(f->normal[c], -g.normal[c], 1e-14);
+  }
+  if (wall_areas) {
+    for (std::size_t k = 0; k < wall_sum.size(); ++k) {
+      EXPECT_NEAR(wall_sum[k], (*wall_areas)[k], 1e-12 * (*wall_areas)[k]) << "wall " << k;
+    }
+  }
+}
+
+// The box's volume, centroid and wall areas.
+void check_box_tiling(const PointSet& ps, const Domain& box) {
+  const int d = ps.dimension();
+  const std::vector<double> lo = box.lower(), hi = box.upper();
+  double volume = 1;
+  std::vector<double> centroid(d), walls(2 * d);
+  for (int c = 0; c < d; ++c) {
+    volume *= hi[c] - lo[c];
+    centroid[c] = 0.5 * (lo[c] + hi[c]);
+  }
+  for (int c = 0; c < d; ++c) walls[c] = walls[d + c] = volume / (hi[c] - lo[c]);
+  check_tiling(ps, all_cells(ps, box), volume, centroid, &walls);
+}
+
+int max_dimension() { return std::getenv("SPOKEMESH_HIGH_D") ? 8 : 6; }
+
+std::size_t points_for(int d) {
+  switch (d) {
+    case 2: return 400;
+    case 3: return 200;
+    case 4: return 80;
+    case 5: return 40;
+    case 6: return 25;
+    default: return 18;
+  }
+}
+
+TEST(ClippedCells, UniformPointsTileTheUnitBox) {
+  for (int d = 2; d <= max_dimension(); ++d) {
+    SCOPED_TRACE("d " + std::to_string(d) + ", seed " + std::to_string(100 + d));
+    const PointSet ps = make_points(d, uniform_points(d, points_for(d), 100 + d));
+    check_box_tiling(ps, Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 1.0)).value());
+  }
+}
+
+TEST(ClippedCells, BoundingBoxHasSeedsOnItsWalls) {
+  // The default domain passes through the extreme points: seeds on walls.
+  for (int d = 2; d <= std::min(5, max_dimension()); ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const PointSet ps = make_points(d, uniform_points(d, points_for(d), 200 + d));
+    check_box_tiling(ps, Domain::bounding_box(ps));
+  }
+}
+
+TEST(ClippedCells, GridsInTheirBoundingBoxAreUnitCellsAndFractions) {
+  // Cospherical everywhere, walls through seeds and along Voronoi facets, rays
+  // parallel to walls: every tie the clipping has.
+  for (int d = 2; d <= 4; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const int side = d == 2 ? 6 : d == 3 ? 4 : 3;
+    const PointSet ps = make_points(d, grid_points(d, side));
+    const Domain box = Domain::bounding_box(ps);
+    const std::vector<VoronoiCell> cells = all_cells(ps, box);
+    for (const VoronoiCell& cell : cells) {
+      // A grid point's cell is the product of [x - 1/2, x + 1/2] cut to [0, side - 1].
+      double expected = 1;
+      for (int c = 0; c < d; ++c) {
+        const double x = ps.point(cell.seed)[c];
+        expected *= (x == 0 || x == side - 1) ? 0.5 : 1.0;
+      }
+      EXPECT_NEAR(cell.volume, expected, 1e-14) << "seed " << cell.seed;
+    }
+    std::vector<double> centroid(d, 0.5 * (side - 1)), walls(2 * d, std::pow(side - 1.0, d - 1));
+    check_tiling(ps, cells, std::pow(side - 1.0, d), centroid, &walls);
+  }
+}
+
+TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
+  // A cube rotated about (1, 1, 1) / sqrt 3 and a 2-d hexagon: general walls.
+  {
+    const int d = 2;
+    std::vector<double> normals, offsets;
+    for (int k = 0; k < 6; ++k) {
+      const double t = k * M_PI / 3 + 0.1;
+      normals.insert(normals.end(), {std::cos(t), std::sin(t)});
+      offsets.push_back(normals[2 * k] * 0.5 + normals[2 * k + 1] * 0.5 + 0.45);
+    }
+    const Domain hexagon = Domain::halfspaces(d, normals, offsets).value();
+    // Points inside the hexagon (apothem 0.45 around (0.5, 0.5)).
+    std::vector<double> inside;
+    for (std::size_t i = 0; inside.size() < 2 * 300; ++i) {
+      const std::vector<double> p = uniform_points(2, 1, 300 + i);
+      if (hexagon.violated_wall(p.data()) < 0) inside.insert(inside.end(), p.begin(), p.end());
+    }
+    const PointSet ps = make_points(d, inside);
+    const double volume = 6 * 0.45 * 0.45 * std::tan(M_PI / 6);
+    check_tiling(ps, all_cells(ps, hexagon), volume, {0.5, 0.5}, nullptr);
+  }
+  {
+    const int d = 3;
+    const double a = 0.3, c = std::cos(a), s = std::sin(a), t = 1 - c;
+    const double u[3] = {1 / std::sqrt(3.0), 1 / std::sqrt(3.0), 1 / std::sqrt(3.0)};
+    double r[3][3];  // rotation by a about u (Rodrigues)
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) r[i][j] = t * u[i] * u[j] + (i == j ? c : 0);
+    r[0][1] -= s * u[2], r[0][2] += s * u[1], r[1][0] += s * u[2];
+    r[1][2] -= s * u[0], r[2][0] -= s * u[1], r[2][1] += s * u[0];
+    std::vector<double> normals, offsets;
+    for (int k = 0; k < 3; ++k) {
+      for (const double sign : {1.0, -1.0}) {
+        for (int i = 0; i < 3; ++i) normals.push_back(sign * r[i][k]);
+        offsets.push_back(0.4 + sign * (r[0][k] + r[1][k] + r[2][k]) * 0.5);  // centred at (.5,.5,.5), half side .4
+      }
+    }
+    const Domain cube = Domain::halfspaces(d, normals, offsets).value();
+    std::vector<double> inside;
+    for (std::size_t i = 0; inside.size() < 3 * 150; ++i) {
+      const std::vector<double> p = uniform_points(3, 1, 500 + i);
+      if (cube.violated_wall(p.data()) < 0) inside.insert(inside.end(), p.begin(), p.end());
+    }
+    const PointSet ps = make_points(d, inside);
+    check_tiling(ps, all_cells(ps, cube), 0.8 * 0.8 * 0.8, {0.5, 0.5, 0.5}, nullptr);
+  }
+}
+
+TEST(ClippedCells, SeedsOutsideTheDomainAreNamed) {
+  const PointSet ps = make_points(2, uniform_points(2, 50, 7));
+  const KdTree tree(ps);
+  StarWalker walker(tree);
+  Star star;
+  const Domain small = Domain::box({0.0, 0.0}, {0.5, 0.5}).value();
+  int outside = 0;
+  for (std::uint32_t s = 0; s < ps.size(); ++s) {
+    ASSERT_TRUE(walker.compute(s, star).is_ok());
+    const auto cell = voronoi_cell(ps, star, small);
+    if (ps.point(s)[0] <= 0.5 && ps.point(s)[1] <= 0.5) {
+      EXPECT_TRUE(cell.is_ok());
+      continue;
+    }
+    ++outside;
+    ASSERT_FALSE(cell.is_ok());
+    EXPECT_EQ(cell.status().code(), Code::kInvalidArgument);
+    EXPECT_NE(cell.status().message().find("seed " + std::to_string(s) + " lies outside the domain"), std::string::npos)
+        << cell.status().message();
+  }
+  EXPECT_GT(outside, 20);
+  EXPECT_FALSE(Domain::box({0.0, 1.0}, {1.0, 0.0}).is_ok());
+  EXPECT_FALSE(Domain::parse_box("0,0,1").is_ok());
+  EXPECT_FALSE(Domain::parse_box("0,x,1,1").is_ok());
+  EXPECT_TRUE(Domain::parse_box("0,0,1,1").is_ok());
+  EXPECT_FALSE(Domain::halfspaces(2, {0.0, 0.0}, {1.0}).is_ok());
+}
+
+TEST(ClippedCells, AnUnboundedHalfspaceDomainLeavesCellsUnbounded) {
+  const PointSet ps = make_points(2, uniform_points(2, 60, 8));
+  const Domain half = Domain::halfspaces(2, {1.0, 0.0}, {2.0}).value();  // x <= 2
+  const std::vector<VoronoiCell> cells = all_cells(ps, half);
+  int unbounded = 0;
+  for (const VoronoiCell& cell : cells) {
+    if (cell.bounded) continue;
+    ++unbounded;
+    EXPECT_TRUE(std::isinf(cell.volume));
+    EXPECT_TRUE(cell.centroid.empty());
+  }
+  EXPECT_GT(unbounded, 3);
+}
+
+TEST(UnclippedCells, FacetMeasuresObeyTheDivergenceTheorem) {
+  for (int d = 2; d <= 5; ++d) {
+    const PointSet ps = make_points(d, uniform_points(d, points_for(d), 400 + d));
+    const KdTree tree(ps);
+    StarWalker walker(tree);
+    Star star;
+    int bounded = 0;
+    for (std::uint32_t s = 0; s < ps.size(); ++s) {
+      ASSERT_TRUE(walker.compute(s, star).is_ok());
+      const VoronoiCell cell = voronoi_cell(ps, star);
+      if (!cell.bounded) {
+        EXPECT_TRUE(std::any_of(cell.facets.begin(), cell.facets.end(),
+                                [](const VoronoiFacet& f) { return std::isinf(f.area); }));
+        continue;
+      }
+      ++bounded;
+      std::vector<double> flux(d, 0.0);
+      double area = 0;
+      for (const VoronoiFacet& f : cell.facets) {
+        area += f.area;
+        for (int c = 0; c < d; ++c) flux[c] += f.area * f.normal[c];
+      }
+      for (int c = 0; c < d; ++c) EXPECT_NEAR(flux[c], 0.0, 1e-11 * area) << "d " << d << ", seed " << s;
+    }
+    EXPECT_GT(bounded, 0) << "d " << d;
+  }
+}
+
+}  // namespace
+}  // namespace spokemesh
