@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -15,6 +16,8 @@
 #include <thread>
 
 #include "spokemesh/approx.hpp"
+#include "spokemesh/cell_io.hpp"
+#include "spokemesh/cells.hpp"
 #include "spokemesh/graph.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
@@ -235,50 +238,150 @@ int with_star(const Common& common, const std::string& input, std::int64_t seed,
   return use(loaded, star);  // internal indices; printers map them with to_original()
 }
 
-int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json) {
+// The domain of `cell` and `cells`: --box, --halfspaces, or (for `cells`, when
+// `default_box`) the points' bounding box; none for an unclipped `cell`.
+struct DomainFlags {
+  std::string box, halfspaces;
+};
+
+Result<std::optional<Domain>> domain_for(const DomainFlags& flags, const PointSet& points, bool default_box) {
+  const int d = points.dimension();
+  if (!flags.box.empty() && !flags.halfspaces.empty()) return invalid_argument("--box and --halfspaces exclude each other");
+  if (!flags.box.empty()) {
+    auto box = Domain::parse_box(flags.box);
+    if (!box.is_ok()) return box.status();
+    if (box->dimension() != d) {
+      return invalid_argument("--box: " + std::to_string(2 * box->dimension()) + " values describe a " +
+                              std::to_string(box->dimension()) + "-d box; the points are " + std::to_string(d) +
+                              "-d (give LO1,...,LOd,HI1,...,HId)");
+    }
+    return std::optional<Domain>(std::move(box).value());
+  }
+  if (!flags.halfspaces.empty()) {
+    auto h = read_halfspaces(flags.halfspaces, d);
+    if (!h.is_ok()) return h.status();
+    return std::optional<Domain>(std::move(h).value());
+  }
+  if (default_box) return std::optional<Domain>(Domain::bounding_box(points));
+  return std::optional<Domain>();
+}
+
+nlohmann::json facet_json(const VoronoiFacet& f, const Loaded& loaded) {
+  nlohmann::json j;
+  if (f.is_wall()) j["wall"] = f.wall();
+  else j["neighbor"] = loaded.to_original(static_cast<std::uint32_t>(f.neighbor));
+  j["vertices"] = f.vertices;
+  j["area"] = std::isfinite(f.area) ? nlohmann::json(f.area) : nlohmann::json(nullptr);
+  j["normal"] = f.normal;
+  return j;
+}
+
+int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json, const DomainFlags& flags) {
   return with_star(common, input, seed, [&](const Loaded& loaded, Star& star) {
-    const VoronoiCell cell = voronoi_cell(loaded.points, star);
+    auto domain = domain_for(flags, loaded.points, false);
+    if (!domain.is_ok()) return report(domain.status());
+    VoronoiCell cell;
+    if (domain.value().has_value()) {
+      auto clipped = voronoi_cell(loaded.points, star, *domain.value());
+      if (!clipped.is_ok()) return report(clipped.status());
+      cell = std::move(clipped).value();
+    } else {
+      cell = voronoi_cell(loaded.points, star);
+    }
     // Original indices from here on (duplicates merged away map to first occurrences).
-    for (auto& v : star.simplices) v = loaded.to_original(v);
+    for (auto& v : cell.vertex_simplices) v = loaded.to_original(v);
     const int d = cell.dimension;
+    const bool simplices = !cell.vertex_simplices.empty();
     if (json) {
       nlohmann::json j;
       j["seed"] = seed;
       j["dimension"] = d;
       j["bounded"] = cell.bounded;
+      j["clipped"] = cell.clipped;
       j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
+      j["centroid"] = cell.bounded ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
       j["vertices"] = nlohmann::json::array();
       for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
-        std::vector<std::uint32_t> simplex(star.simplex(v), star.simplex(v) + d + 1);
-        j["vertices"].push_back({{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)},
-                                 {"simplex", simplex}});
+        nlohmann::json vertex = {{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)}};
+        if (simplices) {
+          vertex["simplex"] = std::vector<std::uint32_t>(&cell.vertex_simplices[v * (d + 1)],
+                                                         &cell.vertex_simplices[(v + 1) * (d + 1)]);
+        }
+        j["vertices"].push_back(std::move(vertex));
       }
       j["facets"] = nlohmann::json::array();
-      for (const auto& f : cell.facets) {
-        j["facets"].push_back({{"neighbor", loaded.to_original(static_cast<std::uint32_t>(f.neighbor))}, {"vertices", f.vertices}});
-      }
+      for (const auto& f : cell.facets) j["facets"].push_back(facet_json(f, loaded));
       std::cout << j.dump(2) << "\n";
       return kExitOk;
     }
     std::printf("seed %lld\ndimension %d\nbounded %s\n", static_cast<long long>(seed), d, cell.bounded ? "yes" : "no");
-    if (cell.bounded) std::printf("volume %.17g\n", cell.volume);
-    else std::printf("volume inf\n");
+    if (cell.clipped) std::printf("clipped yes\n");
+    if (cell.bounded) {
+      std::printf("volume %.17g\ncentroid", cell.volume);
+      for (double c : cell.centroid) std::printf(" %.17g", c);
+      std::printf("\n");
+    } else {
+      std::printf("volume inf\n");
+    }
     std::printf("vertices %zu\n", cell.vertex_count());
     for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
       std::printf("v %zu", v);
       for (int c = 0; c < d; ++c) std::printf(" %.17g", cell.vertices[v * d + c]);
-      std::printf("  simplex");
-      for (int c = 0; c <= d; ++c) std::printf(" %u", star.simplex(v)[c]);
+      if (simplices) {
+        std::printf("  simplex");
+        for (int c = 0; c <= d; ++c) std::printf(" %u", cell.vertex_simplices[v * (d + 1) + c]);
+      }
       std::printf("\n");
     }
     std::printf("facets %zu\n", cell.facets.size());
     for (const auto& f : cell.facets) {
-      std::printf("f neighbor %u vertices", loaded.to_original(static_cast<std::uint32_t>(f.neighbor)));
+      if (f.is_wall()) std::printf("f wall %zu", f.wall());
+      else std::printf("f neighbor %u", loaded.to_original(static_cast<std::uint32_t>(f.neighbor)));
+      std::printf(" area %.17g normal", f.area);
+      for (double c : f.normal) std::printf(" %.17g", c);
+      std::printf(" vertices");
       for (auto v : f.vertices) std::printf(" %u", v);
       std::printf("\n");
     }
     return kExitOk;
   });
+}
+
+int run_cells(const Common& common, const std::string& input, const std::string& output, const DomainFlags& flags) {
+  if (output == input) {
+    return report(invalid_argument("-o " + output + " would overwrite the input; choose another output file"));
+  }
+  auto loaded_or = load(input, false);
+  if (!loaded_or.is_ok()) return report(loaded_or.status());
+  const Loaded& loaded = *loaded_or.value();
+  auto domain = domain_for(flags, loaded.points, true);
+  if (!domain.is_ok()) return report(domain.status());
+  auto writer = CellWriter::open(output, loaded.points.dimension());
+  if (!writer.is_ok()) return report(writer.status());
+  CellsOptions options;
+  options.threads = common.threads;
+  options.star.random_seed = common.random_seed;
+  options.measures_only = !writer.value()->needs_vertices();
+  Progress progress(common.quiet, loaded.points.size(), "cells");
+  std::uint64_t facets = 0;
+  double volume = 0;
+  Status status = compute_cells(*loaded.tree, &*domain.value(), options, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+    for (const VoronoiCell& c : cells) {
+      facets += c.facets.size();
+      volume += c.volume;
+    }
+    progress.update(done, 0);
+    return writer.value()->write(cells);
+  });
+  progress.finish();
+  if (status.is_ok()) status = writer.value()->commit();
+  if (!status.is_ok()) return report(status);
+  if (!common.quiet) {
+    std::fprintf(stderr, "spokemesh: %zu cells in %s, %llu facets, total volume %.17g, %.2f s -> %s\n",
+                 loaded.points.size(), domain.value()->describe().c_str(), static_cast<unsigned long long>(facets), volume,
+                 progress.seconds(), output.c_str());
+  }
+  return kExitOk;
 }
 
 int run_check(const std::string& input, const std::string& mesh_path) {
@@ -432,7 +535,26 @@ int main(int argc, char** argv) {
   cell->add_option("INPUT", input, "Point file")->required();
   cell->add_option("--seed", seed, "Seed index (0-based)")->required();
   cell->add_flag("--json", json, "Print JSON instead of text");
+  DomainFlags domain_flags;
+  auto add_domain = [&](CLI::App* cmd, const char* none) {
+    cmd->add_option("--box", domain_flags.box,
+                    std::string("Clip to the box LO1,...,LOd,HI1,...,HId (walls 0..d-1 low, d..2d-1 high); ") + none);
+    cmd->add_option("--halfspaces", domain_flags.halfspaces,
+                    "Clip to the convex domain given by a file of walls, one per line: a_1 ... a_d b for a.x <= b");
+  };
+  add_domain(cell, "default: unclipped");
   add_common(cell);
+
+  auto* cells = app.add_subcommand(
+      "cells", "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");
+  cells->add_option("INPUT", input, "Point file")->required();
+  cells->add_option("-o,--output", output, ".npz (NumPy arrays, any d) or .vtu (ParaView polygons/polyhedra, 2-d/3-d)")
+      ->required();
+  add_domain(cells, "default: the points' bounding box");
+  cells->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
+  cells->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
+  cells->add_option("--random-seed", common.random_seed, "Seed for the random spoke directions (the result does not depend on it)")
+      ->capture_default_str();
 
   auto* check = app.add_subcommand("check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
   check->add_option("INPUT", input, "Point file")->required();
@@ -530,7 +652,8 @@ int main(int argc, char** argv) {
       return kExitOk;
     });
   }
-  if (*cell) return run_cell(common, input, seed, json);
+  if (*cell) return run_cell(common, input, seed, json, domain_flags);
+  if (*cells) return run_cells(common, input, output, domain_flags);
   if (*check) return run_check(input, mesh_path);
   return kExitUsage;
 }

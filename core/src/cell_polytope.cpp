@@ -191,7 +191,9 @@ CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domai
         for (int j = 0; j < d; ++j) {
           if (j != k) e.key[w++] = label_[v * d + j];
         }
-        std::sort(e.key.begin(), e.key.begin() + std::clamp(d - 1, 0, kMaxDimension));
+        for (int i = 1; i < d - 1; ++i) {  // insertion sort: d - 1 <= 7 labels
+          for (int j = i; j > 0 && e.key[j - 1] > e.key[j]; --j) std::swap(e.key[j - 1], e.key[j]);
+        }
         e.vertex = static_cast<std::uint32_t>(v);
         e.position = k;
         edges.push_back(e);
@@ -496,7 +498,25 @@ double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::
       for (int c = 0; c < d; ++c) u[c] /= n1;
     }
     basis.insert(basis.end(), u.begin(), u.begin() + d);
-    const double measure = degenerate ? 0.0 : face_measure(sub, planes, basis, sub_centroid.data(), nullptr);
+    double measure = 0;
+    if (!degenerate) {
+      // In 4-d and up a face is reached from many parents: measure it once.
+      const bool memo = d >= 4 && planes.size() >= 2 && planes.size() + 1 < static_cast<std::size_t>(d);
+      std::vector<std::uint32_t> key;
+      if (memo) {
+        key = planes;
+        std::sort(key.begin(), key.end());
+        if (const auto it = memo_.find(key); it != memo_.end()) {
+          measure = it->second.first;
+          sub_centroid = it->second.second;
+        } else {
+          measure = face_measure(sub, planes, basis, sub_centroid.data(), nullptr);
+          memo_.emplace(std::move(key), std::make_pair(measure, sub_centroid));
+        }
+      } else {
+        measure = face_measure(sub, planes, basis, sub_centroid.data(), nullptr);
+      }
+    }
     basis.resize(basis.size() - d);
     planes.pop_back();
     if (top != nullptr) top->push_back({l, measure});
@@ -514,6 +534,7 @@ double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::
 
 PolytopeMeasures CellPolytope::measures() const {
   PolytopeMeasures out;
+  memo_.clear();
   const int d = d_;
   std::vector<std::uint32_t> planes, verts;
   std::vector<double> basis;

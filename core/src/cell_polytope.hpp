@@ -32,7 +32,9 @@
 
 #include <gmpxx.h>
 
+#include <array>
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <vector>
 
@@ -110,6 +112,8 @@ class CellPolytope {
   std::vector<double> error_;        // bound on |x - exact| (real vertices)
   std::vector<int> ideal_;           // -1, or the index of the exact direction in rays_
   std::vector<std::vector<mpq_class>> rays_;
+  // measures(): faces of dimension 1 .. d - 3 already measured, by sorted planes.
+  mutable std::map<std::vector<std::uint32_t>, std::pair<double, std::array<double, kMaxDimension>>> memo_;
 };
 
 }  // namespace spokemesh::detail

@@ -1,0 +1,368 @@
+#include "spokemesh/cell_io.hpp"
+
+#include <unistd.h>
+#include <zip.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <vector>
+
+namespace spokemesh {
+
+namespace {
+
+std::string directory_of(const std::string& path) {
+  const std::size_t slash = path.rfind('/');
+  return slash == std::string::npos ? "." : slash == 0 ? "/" : path.substr(0, slash);
+}
+
+bool ends_with(const std::string& s, const char* suffix) {
+  const std::size_t n = std::strlen(suffix);
+  return s.size() >= n && s.compare(s.size() - n, n, suffix) == 0;
+}
+
+// An anonymous scratch file in `dir` (created, then unlinked at once: nothing is left
+// behind whatever happens to the process).
+Result<std::FILE*> scratch_file(const std::string& dir) {
+  std::string name = dir + "/.spokemesh-cells.XXXXXX";
+  const int fd = ::mkstemp(name.data());
+  if (fd < 0) return internal_error("cannot create a scratch file in " + dir + ": " + std::strerror(errno));
+  ::unlink(name.c_str());
+  std::FILE* f = ::fdopen(fd, "w+b");
+  if (f == nullptr) {
+    ::close(fd);
+    return internal_error("cannot open a scratch file in " + dir + ": " + std::strerror(errno));
+  }
+  return f;
+}
+
+// One .npy array written row by row to a scratch file; the 128-byte header, which
+// holds the row count, is written last.
+class NpyColumn {
+ public:
+  NpyColumn(std::string name, std::string descr, int width) : name_(std::move(name)), descr_(std::move(descr)), width_(width) {}
+  ~NpyColumn() {
+    if (file_ != nullptr) std::fclose(file_);
+  }
+  NpyColumn(const NpyColumn&) = delete;
+  NpyColumn& operator=(const NpyColumn&) = delete;
+
+  Status open(const std::string& dir) {
+    auto f = scratch_file(dir);
+    if (!f.is_ok()) return f.status();
+    file_ = f.value();
+    const char zeros[kHeader] = {};
+    return put(zeros, kHeader, 0);
+  }
+  template <class T>
+  Status append(const T* values, std::size_t count) {
+    return put(values, sizeof(T) * count, count / static_cast<std::size_t>(width_));
+  }
+  // Writes the header; the file then holds the whole .npy, and is handed over.
+  Result<std::FILE*> finish() {
+    std::string dict = "{'descr': '" + descr_ + "', 'fortran_order': False, 'shape': (" + std::to_string(rows_) +
+                       (width_ == 1 ? ",), }" : ", " + std::to_string(width_) + "), }");
+    std::string header = "\x93NUMPY";
+    header += '\x01';
+    header += '\x00';
+    const std::size_t len = kHeader - 10;
+    header += static_cast<char>(len & 0xff);
+    header += static_cast<char>(len >> 8);
+    dict.resize(len - 1, ' ');
+    header += dict + "\n";
+    if (std::fseek(file_, 0, SEEK_SET) != 0 || std::fwrite(header.data(), 1, header.size(), file_) != header.size() ||
+        std::fflush(file_) != 0 || std::fseek(file_, 0, SEEK_SET) != 0) {
+      return internal_error("writing " + name_ + ": " + std::strerror(errno));
+    }
+    std::FILE* f = file_;
+    file_ = nullptr;
+    return f;
+  }
+  const std::string& name() const { return name_; }
+
+ private:
+  static constexpr std::size_t kHeader = 128;  // a multiple of 64, as the format asks
+  Status put(const void* data, std::size_t bytes, std::uint64_t rows) {
+    if (bytes != 0 && std::fwrite(data, 1, bytes, file_) != bytes) {
+      return internal_error("writing " + name_ + ": " + std::strerror(errno));
+    }
+    rows_ += rows;
+    return Status::ok();
+  }
+  std::string name_, descr_;
+  int width_;
+  std::FILE* file_ = nullptr;
+  std::uint64_t rows_ = 0;
+};
+
+class NpzCellWriter final : public CellWriter {
+ public:
+  NpzCellWriter(std::string path, int d)
+      : path_(std::move(path)),
+        d_(d),
+        volume_("volume.npy", "<f8", 1),
+        centroid_("centroid.npy", "<f8", d),
+        bounded_("bounded.npy", "|b1", 1),
+        ptr_("facet_ptr.npy", "<i8", 1),
+        neighbor_("facet_neighbor.npy", "<i8", 1),
+        area_("facet_area.npy", "<f8", 1),
+        normal_("facet_normal.npy", "<f8", d) {}
+
+  Status open() {
+    const std::string dir = directory_of(path_);
+    for (NpyColumn* c : columns()) {
+      if (Status s = c->open(dir); !s.is_ok()) return s;
+    }
+    const std::int64_t zero = 0;
+    return ptr_.append(&zero, 1);
+  }
+  bool needs_vertices() const override { return false; }
+
+  Status write(std::span<const VoronoiCell> cells) override {
+    std::vector<double> nan(static_cast<std::size_t>(d_), std::nan(""));
+    for (const VoronoiCell& c : cells) {
+      const std::uint8_t b = c.bounded ? 1 : 0;
+      Status s = volume_.append(&c.volume, 1);
+      if (s.is_ok()) s = centroid_.append(c.centroid.empty() ? nan.data() : c.centroid.data(), static_cast<std::size_t>(d_));
+      if (s.is_ok()) s = bounded_.append(&b, 1);
+      for (const VoronoiFacet& f : c.facets) {
+        if (s.is_ok()) s = neighbor_.append(&f.neighbor, 1);
+        if (s.is_ok()) s = area_.append(&f.area, 1);
+        if (s.is_ok()) s = normal_.append(f.normal.data(), static_cast<std::size_t>(d_));
+      }
+      facets_ += static_cast<std::int64_t>(c.facets.size());
+      if (s.is_ok()) s = ptr_.append(&facets_, 1);
+      if (!s.is_ok()) return s;
+    }
+    return Status::ok();
+  }
+
+  Status commit() override {
+    int error = 0;
+    // libzip writes the archive under a temporary name and renames it on zip_close.
+    zip_t* zip = zip_open(path_.c_str(), ZIP_CREATE | ZIP_TRUNCATE, &error);
+    if (zip == nullptr) {
+      zip_error_t e;
+      zip_error_init_with_code(&e, error);
+      Status s = internal_error("cannot create " + path_ + ": " + zip_error_strerror(&e));
+      zip_error_fini(&e);
+      return s;
+    }
+    for (NpyColumn* c : columns()) {
+      auto file = c->finish();
+      if (!file.is_ok()) {
+        zip_discard(zip);
+        return file.status();
+      }
+      zip_source_t* source = zip_source_filep(zip, file.value(), 0, -1);  // owns the FILE*
+      if (source == nullptr) {
+        std::fclose(file.value());
+        Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
+        zip_discard(zip);
+        return s;
+      }
+      const zip_int64_t index = zip_file_add(zip, c->name().c_str(), source, ZIP_FL_OVERWRITE);
+      if (index < 0 || zip_set_file_compression(zip, static_cast<zip_uint64_t>(index), ZIP_CM_STORE, 0) != 0) {
+        if (index < 0) zip_source_free(source);
+        Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
+        zip_discard(zip);
+        return s;
+      }
+    }
+    if (zip_close(zip) != 0) {
+      Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
+      zip_discard(zip);
+      return s;
+    }
+    return Status::ok();
+  }
+
+ private:
+  std::vector<NpyColumn*> columns() { return {&volume_, &centroid_, &bounded_, &ptr_, &neighbor_, &area_, &normal_}; }
+  std::string path_;
+  int d_;
+  NpyColumn volume_, centroid_, bounded_, ptr_, neighbor_, area_, normal_;
+  std::int64_t facets_ = 0;
+};
+
+// VTK XML unstructured grid, ASCII. Each array goes to its own scratch file, since
+// the piece's header needs the totals; commit() writes header, arrays and footer.
+class VtuCellWriter final : public CellWriter {
+ public:
+  VtuCellWriter(std::string path, int d) : path_(std::move(path)), d_(d) {}
+
+  Status open() {
+    const std::string dir = directory_of(path_);
+    for (Part& p : parts()) {
+      auto f = scratch_file(dir);
+      if (!f.is_ok()) return f.status();
+      p.file = f.value();
+    }
+    return Status::ok();
+  }
+  ~VtuCellWriter() override {
+    for (Part& p : parts()) {
+      if (p.file != nullptr) std::fclose(p.file);
+    }
+  }
+  bool needs_vertices() const override { return true; }
+
+  Status write(std::span<const VoronoiCell> cells) override {
+    for (const VoronoiCell& c : cells) {
+      if (!c.bounded) {
+        ++skipped_;
+        continue;
+      }
+      const std::size_t k = c.vertex_count();
+      const std::int64_t first = points_;
+      for (std::size_t v = 0; v < k; ++v) {
+        const double* x = &c.vertices[v * d_];
+        std::fprintf(points_f(), "%.17g %.17g %.17g\n", x[0], x[1], d_ == 3 ? x[2] : 0.0);
+      }
+      points_ += static_cast<std::int64_t>(k);
+      for (std::size_t v = 0; v < k; ++v) {
+        std::fprintf(part(kConnectivity), "%lld ", static_cast<long long>(first + static_cast<std::int64_t>(v)));
+      }
+      connectivity_ += static_cast<std::int64_t>(k);
+      std::fprintf(part(kOffsets), "%lld\n", static_cast<long long>(connectivity_));
+      std::fprintf(part(kTypes), "%d\n", d_ == 2 ? 7 : 42);  // VTK_POLYGON, VTK_POLYHEDRON
+      std::fprintf(part(kSeed), "%u\n", c.seed);
+      std::fprintf(part(kVolume), "%.17g\n", c.volume);
+      if (d_ == 3) {
+        std::size_t faces = 0;
+        for (const VoronoiFacet& f : c.facets) faces += f.vertices.size() >= 3 ? 1 : 0;
+        std::fprintf(part(kFaces), "%zu\n", faces);
+        face_values_ += 1;
+        for (const VoronoiFacet& f : c.facets) {
+          if (f.vertices.size() < 3) continue;  // a facet of measure zero
+          std::fprintf(part(kFaces), "%zu", f.vertices.size());
+          for (const std::uint32_t v : f.vertices) std::fprintf(part(kFaces), " %lld", static_cast<long long>(first + v));
+          std::fprintf(part(kFaces), "\n");
+          face_values_ += 1 + static_cast<std::int64_t>(f.vertices.size());
+        }
+        std::fprintf(part(kFaceOffsets), "%lld\n", static_cast<long long>(face_values_));
+      }
+      ++cells_;
+    }
+    for (Part& p : parts()) {
+      if (std::ferror(p.file)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
+    }
+    return Status::ok();
+  }
+
+  Status commit() override {
+    const std::string temp = path_ + ".partial";
+    std::FILE* out = std::fopen(temp.c_str(), "wb");
+    if (out == nullptr) return internal_error("cannot create " + temp + ": " + std::strerror(errno));
+    std::fprintf(out,
+                 "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
+                 "header_type=\"UInt64\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%lld\" NumberOfCells=\"%lld\">\n",
+                 static_cast<long long>(points_), static_cast<long long>(cells_));
+    auto array = [&](const char* head, int which) {
+      std::fprintf(out, "%s\n", head);
+      std::FILE* f = parts()[which].file;
+      std::fflush(f);
+      std::rewind(f);
+      char buf[1 << 16];
+      std::size_t got;
+      while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) std::fwrite(buf, 1, got, out);
+      std::fprintf(out, "\n</DataArray>\n");
+    };
+    std::fprintf(out, "<Points>\n");
+    array("<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">", kPoints);
+    std::fprintf(out, "</Points>\n<Cells>\n");
+    array("<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">", kConnectivity);
+    array("<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">", kOffsets);
+    array("<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">", kTypes);
+    if (d_ == 3) {
+      array("<DataArray type=\"Int64\" Name=\"faces\" format=\"ascii\">", kFaces);
+      array("<DataArray type=\"Int64\" Name=\"faceoffsets\" format=\"ascii\">", kFaceOffsets);
+    }
+    std::fprintf(out, "</Cells>\n<CellData Scalars=\"volume\">\n");
+    array("<DataArray type=\"Int64\" Name=\"seed\" format=\"ascii\">", kSeed);
+    array("<DataArray type=\"Float64\" Name=\"volume\" format=\"ascii\">", kVolume);
+    std::fprintf(out, "</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+    const bool failed = std::ferror(out) != 0;
+    if (std::fclose(out) != 0 || failed) {
+      std::remove(temp.c_str());
+      return internal_error("writing " + temp + ": " + std::strerror(errno));
+    }
+    if (std::rename(temp.c_str(), path_.c_str()) != 0) {
+      std::remove(temp.c_str());
+      return internal_error("cannot rename " + temp + " to " + path_ + ": " + std::strerror(errno));
+    }
+    return Status::ok();
+  }
+
+ private:
+  enum { kPoints, kConnectivity, kOffsets, kTypes, kFaces, kFaceOffsets, kSeed, kVolume, kParts };
+  struct Part {
+    std::FILE* file = nullptr;
+  };
+  std::array<Part, kParts>& parts() { return parts_; }
+  std::FILE* part(int which) { return parts_[which].file; }
+  std::FILE* points_f() { return parts_[kPoints].file; }
+  std::string path_;
+  int d_;
+  std::array<Part, kParts> parts_{};
+  std::int64_t points_ = 0, connectivity_ = 0, face_values_ = 0, cells_ = 0, skipped_ = 0;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension) {
+  if (ends_with(path, ".npz")) {
+    auto w = std::make_unique<NpzCellWriter>(path, dimension);
+    if (Status s = w->open(); !s.is_ok()) return s;
+    return std::unique_ptr<CellWriter>(std::move(w));
+  }
+  if (ends_with(path, ".vtu")) {
+    if (dimension != 2 && dimension != 3) {
+      return invalid_argument(path + ": .vtu cells are 2-d polygons or 3-d polyhedra; these points are " +
+                              std::to_string(dimension) + "-d (use .npz)");
+    }
+    auto w = std::make_unique<VtuCellWriter>(path, dimension);
+    if (Status s = w->open(); !s.is_ok()) return s;
+    return std::unique_ptr<CellWriter>(std::move(w));
+  }
+  return invalid_argument(path + ": unknown cell format (use .npz, or .vtu in 2-d and 3-d)");
+}
+
+Result<Domain> read_halfspaces(const std::string& path, int dimension) {
+  std::ifstream in(path);
+  if (!in) return invalid_argument(path + ": cannot read the halfspace file");
+  std::vector<double> normals, offsets;
+  std::string line;
+  for (std::size_t number = 1; std::getline(in, line); ++number) {
+    if (const std::size_t hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    for (char& c : line) {
+      if (c == ',') c = ' ';
+    }
+    std::istringstream fields(line);
+    std::vector<double> values;
+    std::string item;
+    while (fields >> item) {
+      char* end = nullptr;
+      const double v = std::strtod(item.c_str(), &end);
+      if (*end != '\0') return invalid_argument(path + ":" + std::to_string(number) + ": '" + item + "' is not a number");
+      values.push_back(v);
+    }
+    if (values.empty()) continue;
+    if (values.size() != static_cast<std::size_t>(dimension) + 1) {
+      return invalid_argument(path + ":" + std::to_string(number) + ": " + std::to_string(values.size()) +
+                              " values; a wall of " + std::to_string(dimension) + "-d points needs " +
+                              std::to_string(dimension + 1) + " (a_1 ... a_d b for a . x <= b)");
+    }
+    normals.insert(normals.end(), values.begin(), values.end() - 1);
+    offsets.push_back(values.back());
+  }
+  auto domain = Domain::halfspaces(dimension, std::move(normals), std::move(offsets));
+  if (!domain.is_ok()) return invalid_argument(path + ": " + domain.status().message());
+  return domain;
+}
+
+}  // namespace spokemesh
