@@ -1,5 +1,7 @@
 #include "engine.hpp"
 
+#include "spokemesh/cells.hpp"
+
 #include <algorithm>
 #include <cstring>
 
@@ -299,12 +301,137 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
   return answer;
 }
 
-Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const CallControl& control) {
+Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box) {
+  const int d = set.points.dimension();
+  const int given = (spec.box.empty() ? 0 : 1) + (spec.halfspaces.empty() ? 0 : 1) + (spec.bounding_box ? 1 : 0);
+  if (given > 1) return invalid_argument("domain: give one of box, halfspaces and bounding_box");
+  if (!spec.box.empty()) {
+    if (spec.box.size() != 2 * static_cast<std::size_t>(d)) {
+      return invalid_argument("domain.box: " + std::to_string(spec.box.size()) + " values; a box around " +
+                              std::to_string(d) + "-d points needs " + std::to_string(2 * d) +
+                              " (LO_1..LO_d, HI_1..HI_d)");
+    }
+    auto box = Domain::box({spec.box.begin(), spec.box.begin() + d}, {spec.box.begin() + d, spec.box.end()});
+    if (!box.is_ok()) return invalid_argument("domain." + box.status().message());
+    return std::optional<Domain>(std::move(box).value());
+  }
+  if (!spec.halfspaces.empty()) {
+    const std::size_t w = static_cast<std::size_t>(d) + 1;
+    if (spec.halfspaces.size() % w != 0) {
+      return invalid_argument("domain.halfspaces: " + std::to_string(spec.halfspaces.size()) +
+                              " values are not a whole number of walls of " + std::to_string(w) +
+                              " (a_1 .. a_d b for a . x <= b)");
+    }
+    std::vector<double> normals, offsets;
+    for (std::size_t k = 0; k < spec.halfspaces.size(); k += w) {
+      normals.insert(normals.end(), spec.halfspaces.begin() + static_cast<std::ptrdiff_t>(k),
+                     spec.halfspaces.begin() + static_cast<std::ptrdiff_t>(k + w - 1));
+      offsets.push_back(spec.halfspaces[k + w - 1]);
+    }
+    auto h = Domain::halfspaces(d, std::move(normals), std::move(offsets));
+    if (!h.is_ok()) return invalid_argument("domain." + h.status().message());
+    return std::optional<Domain>(std::move(h).value());
+  }
+  if (spec.bounding_box || default_box) return std::optional<Domain>(Domain::bounding_box(set.points));
+  return std::optional<Domain>();
+}
+
+Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const DomainSpec& spec,
+                                 const CallControl& control) {
   auto target = seed_of(id, seed);
   if (!target.is_ok()) return target.status();
-  auto star = compute_star(*target.value().first, target.value().second, control);
+  const StoredSet& set = *target.value().first;
+  if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
+  auto domain = resolve_domain(set, spec, false);
+  if (!domain.is_ok()) return domain.status();
+  auto star = compute_star(set, target.value().second, control);
   if (!star.is_ok()) return star.status();
-  return voronoi_cell(target.value().first->points, star.value());
+  if (!domain.value()) return voronoi_cell(set.points, star.value());
+  return voronoi_cell(set.points, star.value(), *domain.value());
+}
+
+std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {
+  // A smaller cache, or none, gives the same answers, only slower.
+  MemoryBudget& budget = store_->budget();
+  for (std::size_t cap = limits_.stream_cache_bytes; cap >= (1u << 20); cap /= 2) {
+    const std::size_t need = RunCache::bytes_for(dimension, n, cap);
+    if (need == 0) continue;
+    if (auto c = budget.try_charge(need)) {
+      charge = std::move(*c);
+      return cap;
+    }
+  }
+  return 0;
+}
+
+Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
+                            std::uint32_t batch_size, const DomainSpec& spec, bool measures_only,
+                            const CallControl& control, const CellBatchSink& emit, ShardRange* range_out) {
+  if (shard_count == 0) shard_count = 1;
+  if (shard_index >= shard_count) {
+    return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
+                            std::to_string(shard_count));
+  }
+  if (batch_size == 0) batch_size = kCellBatchSize;
+  if (batch_size > kMaxCellBatchSize) {
+    return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum " +
+                            std::to_string(kMaxCellBatchSize) + " cells");
+  }
+  auto set = store_->get(id);
+  if (!set.is_ok()) return set.status();
+  const StoredSet& s = *set.value();
+  if (Status allowed = exact_allowed(s, "StreamCells"); !allowed.is_ok()) return allowed;
+  auto domain = resolve_domain(s, spec, true);
+  if (!domain.is_ok()) return domain.status();
+  const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
+  if (range_out != nullptr) *range_out = range;
+  // Memory: one round of cells (threads x block) and a batch, within the stream window,
+  // and the facet cache as for simplices.
+  MemoryBudget& budget = store_->budget();
+  auto window = budget.try_charge(kStreamWindowBytes);
+  if (!window) return budget.over_budget("a streamed shard of cells", kStreamWindowBytes);
+  MemoryBudget::Charge cache_charge;
+  CellsOptions options;
+  options.threads = std::max(1u, limits_.stream_threads);
+  options.facet_cache_bytes =
+      charge_stream_cache(s.info.dimension, static_cast<std::uint32_t>(s.info.count), cache_charge);
+  options.seed_begin = range.begin;
+  options.seed_end = range.end;
+  options.block_size = 64;
+  options.measures_only = measures_only;
+  options.star.cancel = control.stop_flag();
+  std::vector<VoronoiCell> pending;
+  pending.reserve(batch_size);
+  std::size_t pending_bytes = 0;
+  bool emitted = false;
+  std::uint64_t done = 0;
+  auto sink = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {
+    done = seeds_done;
+    for (const VoronoiCell& c : cells) {
+      pending.push_back(c);
+      // Batches also end at about 2 MiB of payload, well within gRPC's default 4 MiB
+      // message limit, whatever the cells' size (high-d cells have many vertices).
+      pending_bytes += 8 * (c.vertices.size() + c.centroid.size()) + 4 * c.vertex_simplices.size() + 64;
+      for (const VoronoiFacet& f : c.facets) pending_bytes += 8 * f.normal.size() + 4 * f.vertices.size() + 24;
+      if (pending.size() == batch_size || pending_bytes > (std::size_t{2} << 20)) {
+        pending_bytes = 0;
+        emitted = true;
+        if (Status st = emit(pending, done); !st.is_ok()) return st;
+        pending.clear();
+      }
+    }
+    return Status::ok();
+  };
+  Status result = compute_cells(*s.tree, &*domain.value(), options, sink);
+  if (!result.is_ok()) {
+    if (result.code() == Code::kCancelled && control.stopped()) {
+      return control.stopped_status("streaming cells of shard " + std::to_string(shard_index) + " of " +
+                                    std::to_string(shard_count));
+    }
+    return result;
+  }
+  if (!pending.empty() || !emitted) return emit(pending, done);
+  return Status::ok();
 }
 
 Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
@@ -337,17 +464,8 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   const auto n32 = static_cast<std::uint32_t>(s.info.count);
   auto window = budget.try_charge(kStreamWindowBytes);
   if (!window) return budget.over_budget("a streamed shard", kStreamWindowBytes);
-  std::size_t cache_bytes = 0;
   MemoryBudget::Charge cache_charge;
-  for (std::size_t cap = limits_.stream_cache_bytes; cap >= (1u << 20); cap /= 2) {
-    const std::size_t need = RunCache::bytes_for(s.info.dimension, n32, cap);
-    if (need == 0) continue;
-    if (auto c = budget.try_charge(need)) {
-      cache_charge = std::move(*c);
-      cache_bytes = cap;
-      break;
-    }
-  }
+  const std::size_t cache_bytes = charge_stream_cache(s.info.dimension, n32, cache_charge);
 
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);

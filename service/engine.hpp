@@ -16,12 +16,14 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <span>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "spokemesh/approx.hpp"
+#include "spokemesh/domain.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "auth.hpp"
@@ -140,6 +142,17 @@ struct NeighborAnswer {
   ApproxNeighbors walk;  // approximate modes: the walk's statistics
 };
 
+// A requested clipping domain, as the transports carry it (proto Domain; REST query
+// parameters box=, halfspaces=, bounding_box=). At most one of the three is set.
+struct DomainSpec {
+  std::vector<double> box;         // LO_1..LO_d, HI_1..HI_d
+  std::vector<double> halfspaces;  // d + 1 values per wall: a_1 .. a_d b (a . x <= b)
+  bool bounding_box = false;
+  bool empty() const { return box.empty() && halfspaces.empty() && !bounding_box; }
+};
+
+inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
+
 struct StarAnswer {
   Star star;
   std::vector<double> circumcentres;  // d per simplex
@@ -182,7 +195,10 @@ class Engine {
   Result<StarAnswer> star(const std::string& id, std::uint64_t seed, const CallControl& control);
   Result<NeighborAnswer> neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
                                    const CallControl& control);
-  Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const CallControl& control);
+  // The cell, clipped when `domain` is not empty. INVALID_ARGUMENT for a malformed
+  // domain (naming the field) or a seed outside it.
+  Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const DomainSpec& domain,
+                           const CallControl& control);
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
   // shard, lexicographic, on the calling thread. A non-OK status from emit stops the
@@ -192,9 +208,21 @@ class Engine {
                           std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
                           ShardRange* range = nullptr, int* dimension = nullptr);
 
+  // The cells of the shard's seeds in order, in batches of at most batch_size (0 =
+  // kCellBatchSize), clipped to `domain` (empty: the set's bounding box); with
+  // measures_only, without vertices. Streamed as stream_simplices is.
+  using CellBatchSink = std::function<Status(std::span<const VoronoiCell> cells, std::uint64_t seeds_done)>;
+  Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
+                      std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
+                      const CallControl& control, const CellBatchSink& emit, ShardRange* range = nullptr);
+
  private:
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT.
+  static Result<std::optional<Domain>> resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box);
+  // The facet cache a stream may have within the budget: its cap (0: none) and charge.
+  std::size_t charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge);
   // RESOURCE_EXHAUSTED for exact work on a set above the exact dimension limit.
   static Status exact_allowed(const StoredSet& set, const char* what);
 

@@ -214,26 +214,44 @@ grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::Get
   return call.finish(Status::ok());
 }
 
-grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out) {
+  out->set_dimension(static_cast<std::uint32_t>(cell.dimension));
+  out->mutable_vertices()->Add(cell.vertices.begin(), cell.vertices.end());
+  out->mutable_vertex_simplices()->Add(cell.vertex_simplices.begin(), cell.vertex_simplices.end());
+  for (const VoronoiFacet& f : cell.facets) {
+    pb::VoronoiFacet* facet = out->add_facets();
+    if (f.is_wall()) {
+      facet->set_wall(static_cast<std::uint32_t>(f.wall()));
+    } else {
+      facet->set_neighbor(static_cast<std::uint32_t>(f.neighbor));
+    }
+    facet->mutable_vertices()->Add(f.vertices.begin(), f.vertices.end());
+    facet->set_area(f.area);
+    facet->mutable_normal()->Add(f.normal.begin(), f.normal.end());
+  }
+  out->set_bounded(cell.bounded);
+  out->set_volume(cell.bounded ? cell.volume : std::numeric_limits<double>::infinity());
+  out->mutable_centroid()->Add(cell.centroid.begin(), cell.centroid.end());
+  out->set_clipped(cell.clipped);
+}
+
+DomainSpec domain_spec(const pb::Domain& domain) {
+  DomainSpec spec;
+  spec.box.assign(domain.box().begin(), domain.box().end());
+  spec.halfspaces.assign(domain.halfspaces().begin(), domain.halfspaces().end());
+  spec.bounding_box = domain.bounding_box();
+  return spec;
+}
+
+grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::GetVoronoiCellRequest* request,
                                            pb::VoronoiCell* response) {
   Call call(*this, ctx, "GetVoronoiCell", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
-  auto cell = engine_.cell(request->point_set_id(), request->seed(), call.control());
+  auto cell = engine_.cell(request->point_set_id(), request->seed(), domain_spec(request->domain()), call.control());
   if (!cell.is_ok()) return call.finish(cell.status());
   response->set_point_set_id(request->point_set_id());
   response->set_seed(request->seed());
-  response->set_dimension(static_cast<std::uint32_t>(cell->dimension));
-  response->mutable_vertices()->Add(cell->vertices.begin(), cell->vertices.end());
-  response->mutable_vertex_simplices()->Add(cell->vertex_simplices.begin(), cell->vertex_simplices.end());
-  for (const VoronoiFacet& f : cell->facets) {
-    pb::VoronoiFacet* out = response->add_facets();
-    out->set_neighbor(static_cast<std::uint32_t>(f.neighbor));
-    out->mutable_vertices()->Add(f.vertices.begin(), f.vertices.end());
-  }
-  response->set_bounded(cell->bounded);
-  // One convention for unbounded cells (docs/service.md): +infinity where the volume
-  // is a typed number.
-  response->set_volume(cell->bounded ? cell->volume : std::numeric_limits<double>::infinity());
+  fill_cell(cell.value(), response);
   return call.finish(Status::ok());
 }
 
@@ -260,6 +278,30 @@ grpc::Status MesherService::StreamSimplices(grpc::ServerContext* ctx, const pb::
   return call.finish(engine_.stream_simplices(request->point_set_id(), request->shard_index(),
                                               request->shard_count(), request->batch_size(), call.control(), emit,
                                               &range, &dimension));
+}
+
+grpc::Status MesherService::StreamCells(grpc::ServerContext* ctx, const pb::StreamCellsRequest* request,
+                                        grpc::ServerWriter<pb::CellBatch>* writer) {
+  Call call(*this, ctx, "StreamCells", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  pb::CellBatch batch;
+  ShardRange range;
+  auto emit = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {
+    batch.Clear();
+    batch.set_seed_begin(range.begin);
+    batch.set_seed_end(range.end);
+    batch.set_seeds_done(seeds_done);
+    for (const VoronoiCell& c : cells) {
+      pb::VoronoiCell* out = batch.add_cells();
+      out->set_seed(c.seed);
+      fill_cell(c, out);
+    }
+    if (!writer->Write(batch)) return cancelled("streaming stopped: the client went away");
+    return Status::ok();
+  };
+  return call.finish(engine_.stream_cells(request->point_set_id(), request->shard_index(), request->shard_count(),
+                                          request->batch_size(), domain_spec(request->domain()),
+                                          request->measures_only(), call.control(), emit, &range));
 }
 
 }  // namespace spokemesh::service

@@ -39,10 +39,12 @@ class MesherService final : public pb::Mesher::Service {
   grpc::Status GetStar(grpc::ServerContext* ctx, const pb::SeedRequest* request, pb::Star* response) override;
   grpc::Status GetNeighbors(grpc::ServerContext* ctx, const pb::GetNeighborsRequest* request,
                             pb::Neighbors* response) override;
-  grpc::Status GetVoronoiCell(grpc::ServerContext* ctx, const pb::SeedRequest* request,
+  grpc::Status GetVoronoiCell(grpc::ServerContext* ctx, const pb::GetVoronoiCellRequest* request,
                               pb::VoronoiCell* response) override;
   grpc::Status StreamSimplices(grpc::ServerContext* ctx, const pb::StreamSimplicesRequest* request,
                                grpc::ServerWriter<pb::SimplexBatch>* writer) override;
+  grpc::Status StreamCells(grpc::ServerContext* ctx, const pb::StreamCellsRequest* request,
+                           grpc::ServerWriter<pb::CellBatch>* writer) override;
 
  private:
   class Call;
@@ -52,5 +54,8 @@ class MesherService final : public pb::Mesher::Service {
 };
 
 void fill_point_set(const PointSetInfo& info, pb::PointSet* out);
+// One convention for unbounded cells (docs/service.md): +infinity where a number is typed.
+void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out);
+DomainSpec domain_spec(const pb::Domain& domain);
 
 }  // namespace spokemesh::service

@@ -2,6 +2,7 @@
 
 
 #include <cctype>
+#include <cmath>
 #include <charconv>
 #include <cstring>
 #include <map>
@@ -85,6 +86,50 @@ std::string media_type_of(std::string_view content_type) {
   while (!type.empty() && (type.front() == ' ' || type.front() == '\t')) type.remove_prefix(1);
   std::string out(type);
   std::transform(out.begin(), out.end(), out.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  return out;
+}
+
+// A comma-separated list of numbers from a query parameter, e.g. box=0,0,1,1.
+Result<std::vector<double>> parse_numbers(const std::string& text, const std::string& what) {
+  std::vector<double> out;
+  std::size_t at = 0;
+  while (at <= text.size()) {
+    const std::size_t comma = std::min(text.find(',', at), text.size());
+    const std::string item = text.substr(at, comma - at);
+    char* end = nullptr;
+    const double v = std::strtod(item.c_str(), &end);
+    if (item.empty() || *end != '\0' || !std::isfinite(v)) {
+      return invalid_argument(what + ": value " + std::to_string(out.size()) + " ('" + item.substr(0, 40) +
+                              "') is not a finite number");
+    }
+    out.push_back(v);
+    if (out.size() > (kMaxDomainWalls + 1) * (kMaxDimension + 1)) return invalid_argument(what + ": too many values");
+    at = comma + 1;
+  }
+  return out;
+}
+
+// The cell as REST answers it: unbounded volumes, centroids and areas are null beside
+// "bounded": false (docs/service.md, "Unbounded cells"); walls are {"wall": k}.
+json cell_json(const VoronoiCell& cell) {
+  const auto d = static_cast<std::size_t>(cell.dimension);
+  json facets = json::array();
+  for (const VoronoiFacet& f : cell.facets) {
+    json facet = f.is_wall() ? json{{"wall", f.wall()}} : json{{"neighbor", f.neighbor}};
+    facet["vertices"] = f.vertices;
+    facet["area"] = std::isfinite(f.area) ? json(f.area) : json(nullptr);
+    facet["normal"] = f.normal;
+    facets.push_back(std::move(facet));
+  }
+  json out = {{"seed", cell.seed},
+              {"dimension", cell.dimension},
+              {"vertices", rows(cell.vertices, d)},
+              {"facets", std::move(facets)},
+              {"bounded", cell.bounded},
+              {"clipped", cell.clipped},
+              {"volume", cell.bounded ? json(cell.volume) : json(nullptr)},
+              {"centroid", cell.bounded ? json(cell.centroid) : json(nullptr)}};
+  if (!cell.vertex_simplices.empty()) out["vertex_simplices"] = rows(cell.vertex_simplices, d + 1);
   return out;
 }
 
@@ -243,6 +288,11 @@ HttpResponse HttpApi::route(Context& c) {
     }
     return wrong_method();
   }
+  if (p.size() == 4 && p[3] == "cells") {
+    if (method != http::verb::get) return wrong_method();
+    c.record.method = "StreamCells";
+    return cells(c, id);
+  }
   if (p.size() == 4 && p[3] == "simplices") {
     if (method != http::verb::get) return wrong_method();
     c.record.method = "StreamSimplices";
@@ -356,19 +406,78 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     }
     return c.ok(body);
   }
-  auto cell = engine_.cell(id, seed.value(), control);
+  auto spec = domain_from_query(c);
+  if (!spec.is_ok()) return c.fail(spec.status());
+  auto cell = engine_.cell(id, seed.value(), spec.value(), control);
   if (!cell.is_ok()) return c.fail(cell.status());
-  json facets = json::array();
-  for (const VoronoiFacet& f : cell->facets) facets.push_back({{"neighbor", f.neighbor}, {"vertices", f.vertices}});
-  const auto d = static_cast<std::size_t>(cell->dimension);
-  return c.ok({{"point_set_id", id},
-               {"seed", seed.value()},
-               {"dimension", cell->dimension},
-               {"vertices", rows(cell->vertices, d)},
-               {"vertex_simplices", rows(cell->vertex_simplices, d + 1)},
-               {"facets", facets},
-               {"bounded", cell->bounded},
-               {"volume", cell->bounded ? json(cell->volume) : json(nullptr)}});
+  json body = cell_json(cell.value());
+  body["point_set_id"] = id;
+  return c.ok(body);
+}
+
+Result<DomainSpec> HttpApi::domain_from_query(Context& c) {
+  DomainSpec spec;
+  if (auto box = c.param("box")) {
+    auto v = parse_numbers(*box, "box");
+    if (!v.is_ok()) return v.status();
+    spec.box = std::move(v).value();
+  }
+  if (auto h = c.param("halfspaces")) {
+    auto v = parse_numbers(*h, "halfspaces");
+    if (!v.is_ok()) return v.status();
+    spec.halfspaces = std::move(v).value();
+  }
+  if (auto b = c.param("bounding_box")) {
+    if (*b != "true" && *b != "false") return invalid_argument("bounding_box: '" + b->substr(0, 40) + "' is not true or false");
+    spec.bounding_box = *b == "true";
+  }
+  return spec;
+}
+
+HttpResponse HttpApi::cells(Context& c, const std::string& id) {
+  std::uint64_t values[3] = {0, 1, 0};
+  const char* names[3] = {"shard", "shards", "batch_size"};
+  for (int i = 0; i < 3; ++i) {
+    if (auto s = c.param(names[i])) {
+      auto v = parse_uint(*s, names[i]);
+      if (!v.is_ok()) return c.fail(v.status());
+      if (v.value() > 0xFFFFFFFFull) return c.fail(invalid_argument(std::string(names[i]) + ": " + *s + " is too large"));
+      values[i] = v.value();
+    }
+  }
+  bool measures_only = false;
+  if (auto m = c.param("measures_only")) {
+    if (*m != "true" && *m != "false") return c.fail(invalid_argument("measures_only: '" + m->substr(0, 40) + "' is not true or false"));
+    measures_only = *m == "true";
+  }
+  auto spec = domain_from_query(c);
+  if (!spec.is_ok()) return c.fail(spec.status());
+  HttpResponse r;
+  r.content_type = "application/x-ndjson";
+  // One JSON object per line and cell, in seed order.
+  r.stream = [this, id, values, measures_only, spec = std::move(spec).value(), deadline = c.deadline,
+              gone = c.client_gone, record = c.record,
+              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+    CallControl control(deadline, gone);
+    std::string text;
+    auto emit = [&](std::span<const VoronoiCell> batch, std::uint64_t) -> Status {
+      text.clear();
+      for (const VoronoiCell& cell : batch) {
+        text += dump(cell_json(cell));
+        text += '\n';
+      }
+      if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
+      return Status::ok();
+    };
+    Status s = engine_.stream_cells(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
+                                    static_cast<std::uint32_t>(values[2]), spec, measures_only, control, emit);
+    record.code = s.code();
+    record.message = s.message();
+    record.seconds = timer.seconds();
+    telemetry_.record(record);
+    return s;
+  };
+  return r;
 }
 
 HttpResponse HttpApi::simplices(Context& c, const std::string& id) {

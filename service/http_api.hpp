@@ -72,6 +72,8 @@ class HttpApi {
   HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data);
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
+  HttpResponse cells(Context& c, const std::string& id);
+  static Result<DomainSpec> domain_from_query(Context& c);
 
   Engine& engine_;
   Telemetry& telemetry_;

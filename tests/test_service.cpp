@@ -278,7 +278,7 @@ TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
     EXPECT_EQ(got->star.simplices, expected.simplices);
     EXPECT_EQ(got->circumcentres.size(), expected.size() * 3);
     EXPECT_EQ(engine->neighbors(id, seed, {}, control).value().neighbors, star_neighbors(expected));
-    EXPECT_EQ(engine->cell(id, seed, control).value().facets.size(), star_neighbors(expected).size());
+    EXPECT_EQ(engine->cell(id, seed, {}, control).value().facets.size(), star_neighbors(expected).size());
   }
   std::vector<std::uint32_t> whole;
   ASSERT_TRUE(mesh_seeds(tree, {}, [&](std::span<const std::uint32_t> b, std::uint64_t) {
@@ -615,7 +615,10 @@ TEST(Grpc, EveryMethodAndItsErrors) {
                             approx.neighbors().end()));
   EXPECT_GT(neighbors.neighbors_size(), 3);
   pb::VoronoiCell cell;
-  ASSERT_TRUE(f.stub->GetVoronoiCell(f.ctx().get(), seed, &cell).ok());
+  pb::GetVoronoiCellRequest cell_request;
+  cell_request.set_point_set_id(seed.point_set_id());
+  cell_request.set_seed(seed.seed());
+  ASSERT_TRUE(f.stub->GetVoronoiCell(f.ctx().get(), cell_request, &cell).ok());
   EXPECT_EQ(cell.facets_size(), neighbors.neighbors_size());
 
   // Download gives the upload back.

@@ -26,6 +26,7 @@
 #include "spokemesh/units.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
+#include "cell_print.hpp"
 #ifdef SPOKEMESH_REMOTE
 #include "remote.hpp"
 #endif
@@ -266,16 +267,6 @@ Result<std::optional<Domain>> domain_for(const DomainFlags& flags, const PointSe
   return std::optional<Domain>();
 }
 
-nlohmann::json facet_json(const VoronoiFacet& f, const Loaded& loaded) {
-  nlohmann::json j;
-  if (f.is_wall()) j["wall"] = f.wall();
-  else j["neighbor"] = loaded.to_original(static_cast<std::uint32_t>(f.neighbor));
-  j["vertices"] = f.vertices;
-  j["area"] = std::isfinite(f.area) ? nlohmann::json(f.area) : nlohmann::json(nullptr);
-  j["normal"] = f.normal;
-  return j;
-}
-
 int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json, const DomainFlags& flags) {
   return with_star(common, input, seed, [&](const Loaded& loaded, Star& star) {
     auto domain = domain_for(flags, loaded.points, false);
@@ -288,61 +279,8 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
     } else {
       cell = voronoi_cell(loaded.points, star);
     }
-    // Original indices from here on (duplicates merged away map to first occurrences).
-    for (auto& v : cell.vertex_simplices) v = loaded.to_original(v);
-    const int d = cell.dimension;
-    const bool simplices = !cell.vertex_simplices.empty();
-    if (json) {
-      nlohmann::json j;
-      j["seed"] = seed;
-      j["dimension"] = d;
-      j["bounded"] = cell.bounded;
-      j["clipped"] = cell.clipped;
-      j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
-      j["centroid"] = cell.bounded ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
-      j["vertices"] = nlohmann::json::array();
-      for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
-        nlohmann::json vertex = {{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)}};
-        if (simplices) {
-          vertex["simplex"] = std::vector<std::uint32_t>(&cell.vertex_simplices[v * (d + 1)],
-                                                         &cell.vertex_simplices[(v + 1) * (d + 1)]);
-        }
-        j["vertices"].push_back(std::move(vertex));
-      }
-      j["facets"] = nlohmann::json::array();
-      for (const auto& f : cell.facets) j["facets"].push_back(facet_json(f, loaded));
-      std::cout << j.dump(2) << "\n";
-      return kExitOk;
-    }
-    std::printf("seed %lld\ndimension %d\nbounded %s\n", static_cast<long long>(seed), d, cell.bounded ? "yes" : "no");
-    if (cell.clipped) std::printf("clipped yes\n");
-    if (cell.bounded) {
-      std::printf("volume %.17g\ncentroid", cell.volume);
-      for (double c : cell.centroid) std::printf(" %.17g", c);
-      std::printf("\n");
-    } else {
-      std::printf("volume inf\n");
-    }
-    std::printf("vertices %zu\n", cell.vertex_count());
-    for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
-      std::printf("v %zu", v);
-      for (int c = 0; c < d; ++c) std::printf(" %.17g", cell.vertices[v * d + c]);
-      if (simplices) {
-        std::printf("  simplex");
-        for (int c = 0; c <= d; ++c) std::printf(" %u", cell.vertex_simplices[v * (d + 1) + c]);
-      }
-      std::printf("\n");
-    }
-    std::printf("facets %zu\n", cell.facets.size());
-    for (const auto& f : cell.facets) {
-      if (f.is_wall()) std::printf("f wall %zu", f.wall());
-      else std::printf("f neighbor %u", loaded.to_original(static_cast<std::uint32_t>(f.neighbor)));
-      std::printf(" area %.17g normal", f.area);
-      for (double c : f.normal) std::printf(" %.17g", c);
-      std::printf(" vertices");
-      for (auto v : f.vertices) std::printf(" %u", v);
-      std::printf("\n");
-    }
+    // Original indices (duplicates merged away map to first occurrences).
+    cli::print_cell(cell, static_cast<std::uint64_t>(seed), json, [&](std::uint32_t i) { return loaded.to_original(i); });
     return kExitOk;
   });
 }
@@ -621,7 +559,8 @@ int main(int argc, char** argv) {
       return remote::neighbors(o, input, s, mode, approx_flags.enabled ? approx_flags.misses : 0,
                                approx_flags.enabled ? approx_flags.max_vertices : 0);
     }
-    if (*cell) return remote::cell(o, input, s, json);
+    if (*cell) return remote::cell(o, input, s, json, domain_flags.box, domain_flags.halfspaces);
+    if (*cells) return remote::cells(o, input, output, domain_flags.box, domain_flags.halfspaces);
     if (*mesh) {
       if (!seeds.empty()) return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));
       return remote::mesh(o, input, output, shards);

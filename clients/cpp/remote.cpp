@@ -14,6 +14,9 @@
 #include <vector>
 
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "cell_print.hpp"
+#include "spokemesh/cell_io.hpp"
+#include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 
@@ -166,52 +169,125 @@ int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed,
   return kExitOk;
 }
 
-int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json) {
+namespace {
+
+VoronoiCell from_proto(const pb::VoronoiCell& c) {
+  VoronoiCell cell;
+  cell.seed = static_cast<std::uint32_t>(c.seed());
+  cell.dimension = static_cast<int>(c.dimension());
+  cell.vertices.assign(c.vertices().begin(), c.vertices().end());
+  cell.vertex_simplices.assign(c.vertex_simplices().begin(), c.vertex_simplices().end());
+  for (const pb::VoronoiFacet& f : c.facets()) {
+    VoronoiFacet facet;
+    facet.neighbor = f.has_wall() ? -1 - static_cast<std::int64_t>(f.wall()) : static_cast<std::int64_t>(f.neighbor());
+    facet.vertices.assign(f.vertices().begin(), f.vertices().end());
+    facet.area = f.area();
+    facet.normal.assign(f.normal().begin(), f.normal().end());
+    cell.facets.push_back(std::move(facet));
+  }
+  cell.bounded = c.bounded();
+  cell.clipped = c.clipped();
+  cell.volume = c.volume();
+  cell.centroid.assign(c.centroid().begin(), c.centroid().end());
+  return cell;
+}
+
+// The proto Domain for --box / --halfspaces (the file is read here, checked against d).
+Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfspaces, int d) {
+  pb::Domain domain;
+  if (!box.empty() && !halfspaces.empty()) return invalid_argument("--box and --halfspaces exclude each other");
+  if (!box.empty()) {
+    auto b = Domain::parse_box(box);
+    if (!b.is_ok()) return b.status();
+    const std::vector<double> lo = b->lower(), hi = b->upper();
+    domain.mutable_box()->Add(lo.begin(), lo.end());
+    domain.mutable_box()->Add(hi.begin(), hi.end());
+  }
+  if (!halfspaces.empty()) {
+    auto h = read_halfspaces(halfspaces, d);
+    if (!h.is_ok()) return h.status();
+    for (std::size_t k = 0; k < h->wall_count(); ++k) {
+      domain.mutable_halfspaces()->Add(h->normal(k), h->normal(k) + d);
+      domain.add_halfspaces(h->offset(k));
+    }
+  }
+  return domain;
+}
+
+Result<int> dimension_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, grpc::Status& status) {
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::GetPointSetRequest r;
+  r.set_point_set_id(id);
+  pb::PointSet info;
+  status = stub.GetPointSet(&ctx, r, &info);
+  if (!status.ok()) return internal_error("GetPointSet");
+  return static_cast<int>(info.dimension());
+}
+
+}  // namespace
+
+int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json, const std::string& box,
+         const std::string& halfspaces) {
+  pb::GetVoronoiCellRequest request;
+  request.set_point_set_id(id);
+  request.set_seed(seed);
+  if (!box.empty() || !halfspaces.empty()) {
+    auto stub = pb::Mesher::NewStub(channel(o));
+    grpc::Status status;
+    auto d = dimension_of(o, *stub, id, status);
+    if (!d.is_ok()) return report(o, status);
+    auto domain = domain_proto(box, halfspaces, d.value());
+    if (!domain.is_ok()) return report(domain.status());
+    *request.mutable_domain() = domain.value();
+  }
   pb::VoronoiCell c;
   const int rc = unary(
-      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetVoronoiCell(&ctx, seed_request(id, seed), &r); }, c);
+      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetVoronoiCell(&ctx, request, &r); }, c);
   if (rc != kExitOk) return rc;
-  const int d = static_cast<int>(c.dimension());
-  const std::size_t nv = d == 0 ? 0 : static_cast<std::size_t>(c.vertices_size()) / d;
+  c.set_seed(seed);
   // The same layout as the local `cell` command.
-  if (json) {
-    nlohmann::json j;
-    j["seed"] = seed;
-    j["dimension"] = d;
-    j["bounded"] = c.bounded();
-    j["volume"] = c.bounded() ? nlohmann::json(c.volume()) : nlohmann::json(nullptr);
-    j["vertices"] = nlohmann::json::array();
-    for (std::size_t v = 0; v < nv; ++v) {
-      j["vertices"].push_back(
-          {{"position", std::vector<double>(c.vertices().begin() + v * d, c.vertices().begin() + (v + 1) * d)},
-           {"simplex", std::vector<std::uint32_t>(c.vertex_simplices().begin() + v * (d + 1),
-                                                  c.vertex_simplices().begin() + (v + 1) * (d + 1))}});
+  cli::print_cell(from_proto(c), seed, json, [](std::uint32_t i) { return i; });
+  return kExitOk;
+}
+
+int cells(const RemoteOptions& o, const std::string& id, const std::string& output, const std::string& box,
+          const std::string& halfspaces) {
+  auto stub = pb::Mesher::NewStub(channel(o));
+  grpc::Status status;
+  auto d = dimension_of(o, *stub, id, status);
+  if (!d.is_ok()) return report(o, status);
+  auto domain = domain_proto(box, halfspaces, d.value());
+  if (!domain.is_ok()) return report(domain.status());
+  auto writer = CellWriter::open(output, d.value());
+  if (!writer.is_ok()) return report(writer.status());
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::StreamCellsRequest r;
+  r.set_point_set_id(id);
+  *r.mutable_domain() = domain.value();
+  r.set_measures_only(!writer.value()->needs_vertices());
+  auto reader = stub->StreamCells(&ctx, r);
+  pb::CellBatch batch;
+  std::vector<VoronoiCell> cells;
+  std::uint64_t total = 0;
+  const auto start = std::chrono::steady_clock::now();
+  while (reader->Read(&batch)) {
+    cells.clear();
+    for (const pb::VoronoiCell& c : batch.cells()) cells.push_back(from_proto(c));
+    if (Status s = writer.value()->write(cells); !s.is_ok()) {
+      ctx.TryCancel();
+      reader->Finish();
+      return report(s);
     }
-    j["facets"] = nlohmann::json::array();
-    for (const auto& f : c.facets()) {
-      j["facets"].push_back(
-          {{"neighbor", f.neighbor()}, {"vertices", std::vector<std::uint32_t>(f.vertices().begin(), f.vertices().end())}});
-    }
-    std::cout << j.dump(2) << "\n";
-    return kExitOk;
+    total += cells.size();
   }
-  std::printf("seed %llu\ndimension %d\nbounded %s\n", static_cast<unsigned long long>(seed), d,
-              c.bounded() ? "yes" : "no");
-  if (c.bounded()) std::printf("volume %.17g\n", c.volume());
-  else std::printf("volume inf\n");
-  std::printf("vertices %zu\n", nv);
-  for (std::size_t v = 0; v < nv; ++v) {
-    std::printf("v %zu", v);
-    for (int k = 0; k < d; ++k) std::printf(" %.17g", c.vertices(static_cast<int>(v * d + k)));
-    std::printf("  simplex");
-    for (int k = 0; k <= d; ++k) std::printf(" %u", c.vertex_simplices(static_cast<int>(v * (d + 1) + k)));
-    std::printf("\n");
-  }
-  std::printf("facets %d\n", c.facets_size());
-  for (const auto& f : c.facets()) {
-    std::printf("f neighbor %u vertices", f.neighbor());
-    for (auto v : f.vertices()) std::printf(" %u", v);
-    std::printf("\n");
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report(o, s);
+  if (Status s = writer.value()->commit(); !s.is_ok()) return report(s);
+  if (!o.quiet) {
+    std::fprintf(stderr, "spokemesh: %llu cells from %s, %.2f s -> %s\n", static_cast<unsigned long long>(total),
+                 o.server.c_str(), std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+                 output.c_str());
   }
   return kExitOk;
 }

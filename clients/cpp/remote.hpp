@@ -24,7 +24,12 @@ int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
 // mode: "exact", "approximate" or "spokes"; misses / max_vertices: 0 = server default.
 int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed, const std::string& mode = "exact",
               std::uint32_t misses = 0, std::uint32_t max_vertices = 0);
-int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json);
+// box: "LO1,...,HId" or ""; halfspaces: a local file of walls or "" (neither: unclipped).
+int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json, const std::string& box,
+         const std::string& halfspaces);
+// All cells (StreamCells; default domain: the set's bounding box) into .npz or .vtu.
+int cells(const RemoteOptions& o, const std::string& id, const std::string& output, const std::string& box,
+          const std::string& halfspaces);
 // Fetches all shards in parallel (one stream each) and writes OUTPUT in any format
 // of the local `mesh` command.
 int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards);

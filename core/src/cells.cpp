@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <memory>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -24,8 +25,17 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     std::vector<VoronoiCell> cells;
     Status status;
   };
+  // The run's stars share their wraps through a RunCache, as whole meshes do
+  // (mesh.hpp): each star is the same with or without it.
+  std::optional<RunCache> cache;
+  StarOptions star_options = options.star;
+  if (options.facet_cache_bytes != 0) {
+    cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
+                  static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(block));
+    if (cache->enabled()) star_options.cache = &*cache;
+  }
   std::vector<Worker> workers(threads);
-  for (Worker& w : workers) w.walker = std::make_unique<StarWalker>(tree, options.star);
+  for (Worker& w : workers) w.walker = std::make_unique<StarWalker>(tree, star_options);
   auto run = [&](Worker& w, std::uint64_t from, std::uint64_t to) {
     w.cells.clear();
     w.status = Status::ok();

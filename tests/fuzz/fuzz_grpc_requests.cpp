@@ -2,7 +2,7 @@
 // reaches them. One in-process server (MesherService over an Engine on a temporary
 // data dir, with small limits and budget) holds a few point sets, 2-d to 5-d, one a
 // grid; each input is one call:
-//   byte 0        which RPC (modulo the nine methods);
+//   byte 0        which RPC (modulo the ten methods);
 //   the rest      its request message, protobuf-encoded. An empty or one-byte
 //                 point_set_id is replaced by a stored set's id (so that fuzzed seeds,
 //                 modes, shards and page tokens reach the geometry, not only
@@ -215,7 +215,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   Harness& h = harness();
   const std::string rest(reinterpret_cast<const char*>(data) + 1, size - 1);
   auto& stub = *h.stub;
-  switch (data[0] % 9) {
+  switch (data[0] % 10) {
     case 0:
       upload(h, data + 1, size - 1);
       break;
@@ -268,10 +268,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       });
       break;
     case 7:
-      unary<pb::SeedRequest>(h, "/spokemesh.v1.Mesher/GetVoronoiCell", rest, [&](auto& ctx, auto& r) {
+      unary<pb::GetVoronoiCellRequest>(h, "/spokemesh.v1.Mesher/GetVoronoiCell", rest, [&](auto& ctx, auto& r) {
         pb::VoronoiCell a;
         return stub.GetVoronoiCell(&ctx, r, &a);
       });
+      break;
+    case 8:
+      server_stream<pb::StreamCellsRequest, pb::CellBatch>(
+          h, "/spokemesh.v1.Mesher/StreamCells", rest, [&](auto& ctx, auto& r) { return stub.StreamCells(&ctx, r); });
       break;
     default:
       server_stream<pb::StreamSimplicesRequest, pb::SimplexBatch>(

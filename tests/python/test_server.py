@@ -60,7 +60,7 @@ def test_rest_grpc_and_python_client_agree_with_the_local_mesh(server, tmp_path)
         assert list(client.neighbors(ps["id"], seed)) == neighbors
         cell = client.cell(ps["id"], seed)
         cell_rest = http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/cell")[1]
-        assert [f[0] for f in cell.facets] == neighbors == [f["neighbor"] for f in cell_rest["facets"]]
+        assert [f.neighbor for f in cell.facets] == neighbors == [f["neighbor"] for f in cell_rest["facets"]]
         assert cell.bounded == cell_rest["bounded"]
         assert (cell_rest["volume"] is None) == (not cell.bounded)
         # Remote CLI answers are the local CLI's, byte for byte.
@@ -75,7 +75,7 @@ def test_rest_grpc_and_python_client_agree_with_the_local_mesh(server, tmp_path)
     # (inside) is bounded.
     stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
     for seed, bounded in ((int(np.argmin(points[:, 0])), False), (1234, True)):
-        raw = stub.GetVoronoiCell(pb.SeedRequest(point_set_id=ps["id"], seed=seed), timeout=30)
+        raw = stub.GetVoronoiCell(pb.GetVoronoiCellRequest(point_set_id=ps["id"], seed=seed), timeout=30)
         rest = http_json("GET", f"{server.http}/v1/pointsets/{ps['id']}/seeds/{seed}/cell")[1]
         assert raw.bounded == rest["bounded"] == client.cell(ps["id"], seed).bounded == bounded
         if bounded:

@@ -53,13 +53,60 @@ class Neighbors:
 
 
 @dataclasses.dataclass(frozen=True)
+class Facet:
+    """One facet of a Voronoi cell: across a Delaunay neighbour, or on a domain wall."""
+    neighbor: Optional[int]   # the Delaunay neighbour; None for a wall
+    wall: Optional[int]       # the domain wall's index; None for a neighbour
+    vertices: np.ndarray      # uint32 indices into Cell.vertices (3-d: counter-clockwise from outside)
+    area: float               # (d-1)-measure; inf when unbounded
+    normal: np.ndarray        # (d,) unit outward normal
+
+
+@dataclasses.dataclass(frozen=True)
 class Cell:
     seed: int
-    vertices: np.ndarray          # (k, d) float64
-    vertex_simplices: np.ndarray  # (k, d + 1) uint32
-    facets: List[tuple]           # (neighbor, np.ndarray of vertex indices), by neighbour
+    vertices: np.ndarray          # (k, d) float64 (2-d: counter-clockwise)
+    vertex_simplices: np.ndarray  # (k, d + 1) uint32; unclipped cells only (else empty)
+    facets: List[Facet]           # neighbours ascending, then walls ascending
     bounded: bool
     volume: float                 # inf when unbounded
+    centroid: Optional[np.ndarray] = None  # (d,); None when unbounded
+    clipped: bool = False
+
+
+def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],
+            bounding_box: bool) -> Optional[pb.Domain]:
+    """The proto Domain: box = (lo_1..lo_d, hi_1..hi_d) or [[lo...], [hi...]];
+    halfspaces = (m, d + 1) rows a_1..a_d b for a.x <= b."""
+    given = (box is not None) + (halfspaces is not None) + bool(bounding_box)
+    if given > 1:
+        raise ValueError("give one of box, halfspaces and bounding_box")
+    if box is not None:
+        return pb.Domain(box=np.asarray(box, dtype=np.float64).ravel().tolist())
+    if halfspaces is not None:
+        h = np.asarray(halfspaces, dtype=np.float64)
+        if h.ndim != 2:
+            raise ValueError("halfspaces: expected an (m, d + 1) array of rows a_1..a_d b (a.x <= b)")
+        return pb.Domain(halfspaces=h.ravel().tolist())
+    if bounding_box:
+        return pb.Domain(bounding_box=True)
+    return None
+
+
+def _cell(r: pb.VoronoiCell) -> Cell:
+    d = r.dimension
+    inf = float("inf")
+    return Cell(seed=r.seed,
+                vertices=np.array(r.vertices, dtype=np.float64).reshape(-1, d),
+                vertex_simplices=np.array(r.vertex_simplices, dtype=np.uint32).reshape(-1, d + 1),
+                facets=[Facet(neighbor=None if f.HasField("wall") else f.neighbor,
+                              wall=f.wall if f.HasField("wall") else None,
+                              vertices=np.array(f.vertices, dtype=np.uint32),
+                              area=f.area, normal=np.array(f.normal, dtype=np.float64)) for f in r.facets],
+                bounded=r.bounded,
+                volume=r.volume if r.bounded else inf,
+                centroid=np.array(r.centroid, dtype=np.float64) if r.bounded else None,
+                clipped=r.clipped)
 
 
 # Every spokemesh RPC is idempotent (reads are pure, uploads content-addressed), so a
@@ -188,15 +235,38 @@ class Client:
                          vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
                          rays=r.rays)
 
-    def cell(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Cell:
-        r = self._call(self._stub.GetVoronoiCell, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
-        d = r.dimension
-        return Cell(seed=r.seed,
-                    vertices=np.array(r.vertices, dtype=np.float64).reshape(-1, d),
-                    vertex_simplices=np.array(r.vertex_simplices, dtype=np.uint32).reshape(-1, d + 1),
-                    facets=[(f.neighbor, np.array(f.vertices, dtype=np.uint32)) for f in r.facets],
-                    bounded=r.bounded,
-                    volume=r.volume if r.bounded else float("inf"))
+    def cell(self, point_set_id: str, seed: int, box: Optional[Sequence[float]] = None,
+             halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
+             timeout: Optional[float] = None) -> Cell:
+        """The Voronoi cell of `seed` with its measures, clipped to a box
+        (lo_1..lo_d, hi_1..hi_d), to halfspaces ((m, d + 1) rows a, b with a.x <= b) or
+        to the point set's bounding box; unclipped when none is given. Unbounded cells
+        have volume inf and centroid None (docs/cells.md)."""
+        request = pb.GetVoronoiCellRequest(point_set_id=point_set_id, seed=seed)
+        domain = _domain(box, halfspaces, bounding_box)
+        if domain is not None:
+            request.domain.CopyFrom(domain)
+        return _cell(self._call(self._stub.GetVoronoiCell, request, timeout))
+
+    def cells(self, point_set_id: str, box: Optional[Sequence[float]] = None,
+              halfspaces: Optional[np.ndarray] = None, shard_index: int = 0, shard_count: int = 1,
+              measures_only: bool = False, batch_size: int = 0,
+              timeout: Optional[float] = None) -> Iterator[Cell]:
+        """Yields the cells of one shard's seeds in seed order (StreamCells), clipped to
+        `box` or `halfspaces`, by default to the point set's bounding box. With
+        measures_only, cells carry no vertices (much less to transfer)."""
+        request = pb.StreamCellsRequest(point_set_id=point_set_id, shard_index=shard_index,
+                                        shard_count=shard_count, batch_size=batch_size,
+                                        measures_only=measures_only)
+        domain = _domain(box, halfspaces, False)
+        if domain is not None:
+            request.domain.CopyFrom(domain)
+        try:
+            for batch in self._stub.StreamCells(request, timeout=timeout or self._timeout, metadata=self._metadata):
+                for c in batch.cells:
+                    yield _cell(c)
+        except grpc.RpcError as e:
+            raise Error(e.code(), e.details()) from None
 
     # ---- the whole mesh ---------------------------------------------------------
 

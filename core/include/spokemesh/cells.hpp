@@ -15,6 +15,7 @@
 #include <span>
 
 #include "spokemesh/domain.hpp"
+#include "spokemesh/facet_cache.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/status.hpp"
@@ -30,6 +31,9 @@ struct CellsOptions {
   // Drop each cell's vertex coordinates and facet vertex lists before the sink sees
   // them (measures only: what `spokemesh cells ... -o x.npz` writes).
   bool measures_only = false;
+  // Cap (bytes) on the cache through which the run's stars share their wraps, as in
+  // MeshOptions; 0 for none. The cells are the same either way.
+  std::size_t facet_cache_bytes = std::size_t{1} << 28;
   StarOptions star;                       // star.cancel also stops the run
 };
 

@@ -1,0 +1,231 @@
+"""Clipped Voronoi cells and their measures (issue 18) through every way users reach
+them: the CLI's `cell` and `cells` (.npz, .vtu), GetVoronoiCell and StreamCells over
+gRPC, the REST routes, the Python client and the remote CLI. scipy's ConvexHull of the
+clipped vertices is the oracle for volumes, surface areas and centroids."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import spokemesh
+from scipy.spatial import ConvexHull
+from spokemesh.v1 import mesher_pb2 as pb
+from spokemesh.v1 import mesher_pb2_grpc as pb_grpc
+
+import grpc
+from conftest import cli, http, http_json, uniform
+
+
+def box_of(d: int, lo: float = 0.0, hi: float = 1.0) -> str:
+    return ",".join([str(lo)] * d + [str(hi)] * d)
+
+
+def check_npz(z, n: int, d: int, volume: float) -> None:
+    """The tiling invariants on a .npz: volumes sum to the domain's, each facet i->j
+    has a partner j->i of equal area and opposite normal, and every cell is closed
+    (sum of area x normal = 0)."""
+    assert z["volume"].shape == (n,) and z["centroid"].shape == (n, d) and z["facet_ptr"].shape == (n + 1,)
+    m = z["facet_ptr"][-1]
+    assert z["facet_neighbor"].shape == (m,) and z["facet_area"].shape == (m,) and z["facet_normal"].shape == (m, d)
+    assert z["bounded"].all()
+    assert abs(z["volume"].sum() - volume) <= 1e-12 * volume
+    owner = np.repeat(np.arange(n), np.diff(z["facet_ptr"]))
+    nb = z["facet_neighbor"]
+    inner = nb >= 0
+    pairs = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(owner, nb)) if j >= 0}
+    for (i, j), k in pairs.items():
+        back = pairs[(j, i)]
+        assert abs(z["facet_area"][k] - z["facet_area"][back]) <= 1e-11
+        assert np.allclose(z["facet_normal"][k], -z["facet_normal"][back], rtol=0, atol=1e-14)
+    flux = np.zeros((n, d))
+    np.add.at(flux, owner, z["facet_area"][:, None] * z["facet_normal"])
+    assert np.abs(flux).max() <= 1e-11
+    assert (nb[~inner] >= -2 * d).all()  # box walls -1 .. -2d
+
+
+@pytest.mark.parametrize("d,n", [(2, 400), (3, 300), (4, 120)])
+def test_cells_npz_tiles_the_box_and_agrees_with_scipy(tmp_path, d, n):
+    points = uniform(n, d, seed=10 + d)
+    src = tmp_path / "p.npy"
+    np.save(src, points)
+    out = tmp_path / "cells.npz"
+    r = cli("cells", str(src), "-o", str(out), "--box", box_of(d), "--threads", "2")
+    assert f"{n} cells" in r.stderr
+    z = np.load(out)
+    check_npz(z, n, d, 1.0)
+    # Per seed: the CLI's vertices, hulled by scipy (Qhull), give the same measures.
+    for seed in range(0, n, max(1, n // 12)):
+        cell = json.loads(cli("cell", str(src), "--seed", str(seed), "--box", box_of(d), "--json").stdout)
+        assert cell["clipped"] and cell["bounded"]
+        hull = ConvexHull(np.array([v["position"] for v in cell["vertices"]]))
+        assert abs(hull.volume - cell["volume"]) <= 1e-9 * hull.volume
+        assert abs(hull.area - sum(f["area"] for f in cell["facets"])) <= 1e-9 * hull.area
+        assert cell["volume"] == z["volume"][seed]
+        assert np.array_equal(np.array(cell["centroid"]), z["centroid"][seed])
+        begin, end = z["facet_ptr"][seed], z["facet_ptr"][seed + 1]
+        got = [f.get("neighbor", -1 - f.get("wall", 0)) for f in cell["facets"]]
+        assert got == z["facet_neighbor"][begin:end].tolist()
+        # The centroid: scipy's hull, split into simplices from its first vertex.
+        pts = hull.points
+        apex = pts[hull.vertices[0]]
+        vol, moment = 0.0, np.zeros(d)
+        for simplex in hull.simplices:
+            corners = np.vstack([apex, pts[simplex]])
+            v = abs(np.linalg.det(corners[1:] - corners[0])) / np.math.factorial(d)
+            vol += v
+            moment += v * corners.mean(axis=0)
+        assert np.allclose(moment / vol, cell["centroid"], rtol=0, atol=1e-9)
+
+
+def test_cells_default_domain_is_the_bounding_box_and_vtu_is_valid(tmp_path):
+    points = uniform(500, 3, seed=3)
+    src = tmp_path / "p.npy"
+    np.save(src, points)
+    z_out, v_out = tmp_path / "c.npz", tmp_path / "c.vtu"
+    cli("cells", str(src), "-o", str(z_out), "-q")
+    z = np.load(z_out)
+    volume = float(np.prod(points.max(axis=0) - points.min(axis=0)))
+    check_npz(z, 500, 3, volume)
+    cli("cells", str(src), "-o", str(v_out), "-q")
+    piece = ET.parse(v_out).getroot().find("UnstructuredGrid/Piece")
+    assert piece.get("NumberOfCells") == "500"
+    arrays = {a.get("Name"): a.text.split() for a in piece.iter("DataArray") if a.get("Name")}
+    assert set(arrays["types"]) == {"42"}  # VTK_POLYHEDRON
+    assert np.allclose(np.array(arrays["volume"], dtype=float), z["volume"], rtol=1e-15, atol=0)
+    # The faces stream: per cell its face count, then each face's size and points.
+    faces = np.array(arrays["faces"], dtype=np.int64)
+    offsets = np.array(arrays["faceoffsets"], dtype=np.int64)
+    assert offsets[-1] == len(faces)
+    # 2-d: polygons.
+    p2 = tmp_path / "p2.npy"
+    np.save(p2, uniform(200, 2, seed=4))
+    cli("cells", str(p2), "-o", str(tmp_path / "c2.vtu"), "-q")
+    piece = ET.parse(tmp_path / "c2.vtu").getroot().find("UnstructuredGrid/Piece")
+    assert {a.get("Name"): a.text.split() for a in piece.iter("DataArray") if a.get("Name")}["types"] == ["7"] * 200
+
+
+def test_cells_errors_name_what_and_where(tmp_path):
+    src = tmp_path / "p.npy"
+    np.save(src, uniform(100, 2, seed=5))
+    r = cli("cells", str(src), "-o", str(tmp_path / "x.npz"), "--box", "0,0,0.5,0.5", check=False)
+    assert r.returncode == 2 and "lies outside the domain" in r.stderr and "seed " in r.stderr
+    assert not (tmp_path / "x.npz").exists()
+    r = cli("cells", str(src), "-o", str(tmp_path / "x.npz"), "--box", "0,0,1", check=False)
+    assert r.returncode == 2 and "--box" in r.stderr
+    r = cli("cells", str(src), "-o", str(tmp_path / "x.vtk"), check=False)
+    assert r.returncode == 2 and "unknown cell format" in r.stderr
+    np.save(tmp_path / "p4.npy", uniform(50, 4, seed=6))
+    r = cli("cells", str(tmp_path / "p4.npy"), "-o", str(tmp_path / "x.vtu"), check=False)
+    assert r.returncode == 2 and ".vtu" in r.stderr and "4-d" in r.stderr
+    walls = tmp_path / "walls.txt"
+    walls.write_text("# a.x <= b\n1 0 1\n0 1 1\n-1 0 0\n0 -1 zero\n")
+    r = cli("cells", str(src), "-o", str(tmp_path / "x.npz"), "--halfspaces", str(walls), check=False)
+    assert r.returncode == 2 and "walls.txt:5" in r.stderr and "'zero'" in r.stderr
+    r = cli("cells", str(src), "-o", str(src), check=False)
+    assert r.returncode == 2 and "overwrite the input" in r.stderr
+
+
+def test_halfspace_domain_from_a_file(tmp_path):
+    # A triangle x >= 0, y >= 0, x + y <= 1.
+    points = uniform(2000, 2, seed=7)
+    points = points[points.sum(axis=1) <= 1][:400]
+    src = tmp_path / "p.npy"
+    np.save(src, points)
+    walls = tmp_path / "triangle.txt"
+    walls.write_text("-1 0 0\n0 -1 0\n1 1 1\n")
+    out = tmp_path / "c.npz"
+    cli("cells", str(src), "-o", str(out), "--halfspaces", str(walls), "-q")
+    z = np.load(out)
+    assert abs(z["volume"].sum() - 0.5) <= 1e-12
+    assert set(z["facet_neighbor"][z["facet_neighbor"] < 0].tolist()) == {-1, -2, -3}
+    # The hypotenuse wall's pieces sum to its length.
+    assert abs(z["facet_area"][z["facet_neighbor"] == -3].sum() - np.sqrt(2)) <= 1e-12
+
+
+def test_cells_over_grpc_rest_python_and_remote_cli_equal_the_local_ones(server, tmp_path):
+    points = uniform(600, 3, seed=8)
+    src = tmp_path / "p.npy"
+    np.save(src, points)
+    local = tmp_path / "local.npz"
+    cli("cells", str(src), "-o", str(local), "--box", box_of(3), "-q")
+    z = np.load(local)
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(points)
+    box = [0, 0, 0, 1, 1, 1]
+
+    # StreamCells through the Python client, in two shards, measures only.
+    cells = [c for k in range(2) for c in client.cells(ps.id, box=box, shard_index=k, shard_count=2, measures_only=True)]
+    assert [c.seed for c in cells] == list(range(600))
+    assert np.array_equal(np.array([c.volume for c in cells]), z["volume"])
+    assert np.array_equal(np.array([c.centroid for c in cells]), z["centroid"])
+    flat = [(f.neighbor if f.wall is None else -1 - f.wall, f.area) for c in cells for f in c.facets]
+    assert [n for n, _ in flat] == z["facet_neighbor"].tolist()
+    assert np.array_equal(np.array([a for _, a in flat]), z["facet_area"])
+
+    # GetVoronoiCell (gRPC, REST, client) equals the local CLI's `cell`.
+    for seed in (0, 17, 599):
+        local_cell = json.loads(cli("cell", str(src), "--seed", str(seed), "--box", box_of(3), "--json").stdout)
+        one = client.cell(ps.id, seed, box=box)
+        rest = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/{seed}/cell?box=0,0,0,1,1,1")[1]
+        assert one.volume == rest["volume"] == local_cell["volume"] == z["volume"][seed]
+        assert np.array_equal(one.vertices, np.array(rest["vertices"]))
+        assert np.array_equal(one.vertices, np.array([v["position"] for v in local_cell["vertices"]]))
+        assert [f.get("neighbor", -1 - f.get("wall", 0)) for f in rest["facets"]] == \
+            [f.neighbor if f.wall is None else -1 - f.wall for f in one.facets]
+        streamed = next(c for c in client.cells(ps.id, box=box) if c.seed == seed)
+        assert np.array_equal(streamed.vertices, one.vertices) and streamed.volume == one.volume
+
+    # REST NDJSON /cells: one object per line, in seed order.
+    status, headers, body = http("GET", f"{server.http}/v1/pointsets/{ps.id}/cells?box=0,0,0,1,1,1&measures_only=true")
+    assert status == 200 and headers["Content-Type"] == "application/x-ndjson"
+    rows = [json.loads(line) for line in body.decode().splitlines()]
+    assert [r["seed"] for r in rows] == list(range(600))
+    assert np.array_equal(np.array([r["volume"] for r in rows]), z["volume"])
+
+    # The remote CLI writes the same arrays as the local one.
+    remote = tmp_path / "remote.npz"
+    cli("--server", server.grpc, "cells", ps.id, "-o", str(remote), "--box", box_of(3), "-q")
+    r = np.load(remote)
+    for name in z.files:
+        assert np.array_equal(r[name], z[name]), name
+    out = cli("--server", server.grpc, "cell", ps.id, "--seed", "17", "--box", box_of(3), "--json").stdout
+    assert json.loads(out)["volume"] == z["volume"][17]
+
+    # Default domain of a stream: the bounding box.
+    volume = float(np.prod(points.max(axis=0) - points.min(axis=0)))
+    total = sum(c.volume for c in client.cells(ps.id, measures_only=True))
+    assert abs(total - volume) <= 1e-12 * volume
+
+
+def test_cell_domain_errors_over_both_transports(server):
+    client = spokemesh.Client(server.grpc)
+    points = uniform(100, 2, seed=9)
+    ps = client.upload(points)
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    bad = [
+        (pb.Domain(box=[0, 0, 1]), "domain.box"),
+        (pb.Domain(box=[0, 0, 0.5, 0.5]), "lies outside the domain"),
+        (pb.Domain(halfspaces=[1, 0]), "domain.halfspaces"),
+        (pb.Domain(halfspaces=[0, 0, 1]), "zero normal"),
+        (pb.Domain(box=[0, 0, 1, 1], bounding_box=True), "one of box, halfspaces and bounding_box"),
+    ]
+    seed = int(np.argmax(points.max(axis=1)))  # beyond [0, 0.5]^2
+    for domain, message in bad:
+        with pytest.raises(grpc.RpcError) as e:
+            stub.GetVoronoiCell(pb.GetVoronoiCellRequest(point_set_id=ps.id, seed=seed, domain=domain), timeout=30)
+        assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT, e.value.details()
+        assert message in e.value.details()
+        if "outside" in message:
+            assert f"seed {seed} " in e.value.details()
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/0/cell?box=0,0,x,1")
+    assert status == 400 and "box" in body["error"]["message"]
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/0/cell?box=0,0,1")
+    assert status == 400 and "domain.box" in body["error"]["message"]
+    status, _, body = http("GET", f"{server.http}/v1/pointsets/{ps.id}/cells?batch_size=5000")
+    assert status == 400 and b"batch_size" in body
+    with pytest.raises(spokemesh.Error) as e:
+        list(client.cells(ps.id, box=[0.4, 0.4, 0.5, 0.5]))
+    assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "lies outside the domain" in e.value.details
