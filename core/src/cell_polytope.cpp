@@ -71,6 +71,20 @@ std::optional<std::vector<mpq_class>> gauss_jordan(std::vector<mpq_class> a, int
   return x;
 }
 
+// Orders a closed walk of vertex ids so that it starts just after its last ideal
+// vertex, and drops the ideal ones (an unbounded face: the path of its real vertices).
+template <class IsIdeal>
+std::vector<std::uint32_t> open_at_infinity(std::vector<std::uint32_t> cycle, IsIdeal is_ideal) {
+  std::size_t last = cycle.size();
+  for (std::size_t i = 0; i < cycle.size(); ++i) {
+    if (is_ideal(cycle[i]) && !is_ideal(cycle[(i + 1) % cycle.size()])) last = i;
+  }
+  if (last == cycle.size()) return cycle;
+  std::rotate(cycle.begin(), cycle.begin() + static_cast<std::ptrdiff_t>(last + 1), cycle.end());
+  cycle.erase(std::remove_if(cycle.begin(), cycle.end(), is_ideal), cycle.end());
+  return cycle;
+}
+
 }  // namespace
 
 std::size_t CellPolytope::add_vertex() {
@@ -519,7 +533,7 @@ double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::
     }
     basis.resize(basis.size() - d);
     planes.pop_back();
-    if (top != nullptr) top->push_back({l, measure});
+    if (top != nullptr) top->push_back({l, measure, {}});
     if (degenerate || measure == 0) continue;
     double h = 0;
     for (int c = 0; c < d; ++c) h += u[c] * (sub_centroid[c] - ref[c]);
@@ -533,6 +547,7 @@ double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::
 }
 
 PolytopeMeasures CellPolytope::measures() const {
+  if (d_ == 3) return measures_3d();
   PolytopeMeasures out;
   memo_.clear();
   const int d = d_;
@@ -564,31 +579,86 @@ PolytopeMeasures CellPolytope::measures() const {
         basis = facet_normal(l);
         area = face_measure(verts, planes, basis, c.data(), nullptr);
       }
-      out.facets.push_back({l, area});
+      out.facets.push_back({l, area, {}});
     }
   }
   std::sort(out.facets.begin(), out.facets.end(),
             [](const FacetMeasure& a, const FacetMeasure& b) { return a.label < b.label; });
+  for (FacetMeasure& f : out.facets) f.vertices = facet_vertices(f.label);
   return out;
 }
 
-namespace {
-
-// Orders a closed walk of vertex ids so that it starts just after its last ideal
-// vertex, and drops the ideal ones (an unbounded face: the path of its real vertices).
-template <class IsIdeal>
-std::vector<std::uint32_t> open_at_infinity(std::vector<std::uint32_t> cycle, IsIdeal is_ideal) {
-  std::size_t last = cycle.size();
-  for (std::size_t i = 0; i < cycle.size(); ++i) {
-    if (is_ideal(cycle[i]) && !is_ideal(cycle[(i + 1) % cycle.size()])) last = i;
+PolytopeMeasures CellPolytope::measures_3d() const {
+  PolytopeMeasures out;
+  const bool closed = bounded();
+  // The first vertex on each plane.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> firsts;
+  firsts.reserve(label_.size());
+  for (std::size_t v = 0; v < size(); ++v) {
+    for (int k = 0; k < 3; ++k) firsts.emplace_back(label_[v * 3 + k], static_cast<std::uint32_t>(v));
   }
-  if (last == cycle.size()) return cycle;
-  std::rotate(cycle.begin(), cycle.begin() + static_cast<std::ptrdiff_t>(last + 1), cycle.end());
-  cycle.erase(std::remove_if(cycle.begin(), cycle.end(), is_ideal), cycle.end());
-  return cycle;
+  std::sort(firsts.begin(), firsts.end());
+  std::array<double, 3> ref{};
+  if (closed) {
+    for (std::size_t v = 0; v < size(); ++v) {
+      for (int c = 0; c < 3; ++c) ref[c] += x_[v * 3 + c];
+    }
+    for (double& r : ref) r /= static_cast<double>(size());
+  }
+  double volume = 0;
+  std::array<double, 3> moment{};
+  for (std::size_t i = 0; i < firsts.size(); ++i) {
+    if (i > 0 && firsts[i].first == firsts[i - 1].first) continue;
+    const std::uint32_t l = firsts[i].first;
+    if (l == kInfinityLabel) continue;
+    FacetMeasure f;
+    f.label = l;
+    std::vector<std::uint32_t> cycle = facet_cycle(l, firsts[i].second);
+    const bool open = std::any_of(cycle.begin(), cycle.end(), [&](std::uint32_t v) { return ideal_[v] >= 0; });
+    f.vertices = open_at_infinity(std::move(cycle), [&](std::uint32_t v) { return ideal_[v] >= 0; });
+    if (open) {
+      f.area = kInf;
+      out.facets.push_back(std::move(f));
+      continue;
+    }
+    // Fan from the loop's first vertex: the area vector and the area centroid.
+    std::array<double, 3> n{};
+    normal_of(l, n.data());
+    const double nn = norm(n.data(), 3);
+    for (double& c : n) c /= nn;
+    const double* p0 = &x_[f.vertices[0] * 3];
+    double area = 0;
+    std::array<double, 3> centre{};
+    for (std::size_t k = 1; k + 1 < f.vertices.size(); ++k) {
+      const double* a = &x_[f.vertices[k] * 3];
+      const double* b = &x_[f.vertices[k + 1] * 3];
+      const double u[3] = {a[0] - p0[0], a[1] - p0[1], a[2] - p0[2]};
+      const double w[3] = {b[0] - p0[0], b[1] - p0[1], b[2] - p0[2]};
+      const double cross[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+      const double t = 0.5 * (cross[0] * n[0] + cross[1] * n[1] + cross[2] * n[2]);
+      area += t;
+      for (int c = 0; c < 3; ++c) centre[c] += t * (p0[c] + a[c] + b[c]) / 3;
+    }
+    f.area = std::max(area, 0.0);
+    if (closed && area > 0) {
+      for (double& c : centre) c /= area;
+      const double h = std::abs(n[0] * (centre[0] - ref[0]) + n[1] * (centre[1] - ref[1]) + n[2] * (centre[2] - ref[2]));
+      const double cone = area * h / 3;
+      volume += cone;
+      for (int c = 0; c < 3; ++c) moment[c] += cone * (ref[c] + 0.75 * (centre[c] - ref[c]));
+    }
+    out.facets.push_back(std::move(f));
+  }
+  if (closed) {
+    out.volume = volume;
+    out.centroid.assign(3, 0.0);
+    for (int c = 0; c < 3; ++c) out.centroid[c] = volume > 0 ? moment[c] / volume : ref[c];
+  } else {
+    out.volume = kInf;
+  }
+  return out;
 }
 
-}  // namespace
 
 std::vector<std::uint32_t> CellPolytope::polygon_order() const {
   // 2-d: the cycle through every vertex, counter-clockwise by the shoelace sum (an
@@ -617,33 +687,24 @@ std::vector<std::uint32_t> CellPolytope::polygon_order() const {
   return open_at_infinity(std::move(cycle), [&](std::uint32_t v) { return ideal_[v] >= 0; });
 }
 
-std::vector<std::uint32_t> CellPolytope::facet_vertices(std::uint32_t label) const {
-  const int d = d_;
-  std::vector<std::uint32_t> verts;
-  for (std::size_t v = 0; v < size(); ++v) {
-    if (position_of(v, label) >= 0) verts.push_back(static_cast<std::uint32_t>(v));
-  }
-  if (d != 3 || verts.size() < 3) {
-    verts.erase(std::remove_if(verts.begin(), verts.end(), [&](std::uint32_t v) { return ideal_[v] >= 0; }),
-                verts.end());
-    return verts;
-  }
-  // The facet is a polygon: walk it, leaving `label` fixed.
+std::vector<std::uint32_t> CellPolytope::facet_cycle(std::uint32_t label, std::uint32_t start) const {
+  // The facet is a polygon: walk it, leaving `label` fixed, then orient it by Newell's
+  // normal against the outward one (an ideal vertex counts as a point far along its ray).
+  const int d = 3;
   std::vector<std::uint32_t> cycle;
-  std::size_t prev = verts[0], cur = verts[0];
-  for (std::size_t steps = 0; steps < verts.size(); ++steps) {
+  std::size_t prev = start, cur = start;
+  for (std::size_t steps = 0; steps <= size(); ++steps) {
     cycle.push_back(static_cast<std::uint32_t>(cur));
     std::size_t ways[2] = {cur, cur};
     int found = 0;
-    for (int k = 0; k < d; ++k) {
+    for (int k = 0; k < d && found < 2; ++k) {
       if (label_[cur * d + k] != label) ways[found++] = next_[cur * d + k];
     }
     const std::size_t nxt = ways[0] == prev ? ways[1] : ways[0];
     prev = cur;
     cur = nxt;
-    if (cur == verts[0]) break;
+    if (cur == start) break;
   }
-  // Newell's normal of the loop against the outward normal.
   auto point = [&](std::uint32_t v, int c) {
     if (ideal_[v] < 0) return x_[v * 3 + c];
     const std::size_t base = next_[v * 3 + position_of(v, kInfinityLabel)];
@@ -660,6 +721,21 @@ std::vector<std::uint32_t> CellPolytope::facet_vertices(std::uint32_t label) con
   std::array<double, 3> n{};
   normal_of(label, n.data());
   if (dot(newell.data(), n.data(), 3) < 0) std::reverse(cycle.begin(), cycle.end());
+  return cycle;
+}
+
+std::vector<std::uint32_t> CellPolytope::facet_vertices(std::uint32_t label) const {
+  const int d = d_;
+  std::vector<std::uint32_t> verts;
+  for (std::size_t v = 0; v < size(); ++v) {
+    if (position_of(v, label) >= 0) verts.push_back(static_cast<std::uint32_t>(v));
+  }
+  if (d != 3 || verts.size() < 3) {
+    verts.erase(std::remove_if(verts.begin(), verts.end(), [&](std::uint32_t v) { return ideal_[v] >= 0; }),
+                verts.end());
+    return verts;
+  }
+  std::vector<std::uint32_t> cycle = facet_cycle(label, verts[0]);
   return open_at_infinity(std::move(cycle), [&](std::uint32_t v) { return ideal_[v] >= 0; });
 }
 

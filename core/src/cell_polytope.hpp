@@ -52,6 +52,9 @@ inline bool is_wall_label(std::uint32_t l) { return l >= kWallLabel0 && l != kIn
 struct FacetMeasure {
   std::uint32_t label = 0;
   double area = 0;  // +inf when the facet is unbounded
+  // Its real vertices: in 3-d a loop counter-clockwise seen from outside (a path when
+  // unbounded), otherwise ascending.
+  std::vector<std::uint32_t> vertices;
 };
 
 struct PolytopeMeasures {
@@ -77,6 +80,10 @@ class CellPolytope {
   const std::uint32_t* next(std::size_t v) const { return &next_[v * d_]; }
 
   PolytopeMeasures measures() const;
+  // measures() in 3-d: each facet's loop walked once, then fans and cones from it.
+  PolytopeMeasures measures_3d() const;
+  // The closed walk around the 2-face on plane `label` from vertex `start` (3-d).
+  std::vector<std::uint32_t> facet_cycle(std::uint32_t label, std::uint32_t start) const;
   // Unit outward normal of the facet with this label.
   std::vector<double> facet_normal(std::uint32_t label) const;
   // The vertices on plane `label` (a facet), ordered around it: a cycle in 3-d (as a

@@ -176,7 +176,7 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
     VoronoiFacet facet;
     facet.neighbor = detail::is_wall_label(m.label) ? -1 - static_cast<std::int64_t>(m.label - detail::kWallLabel0)
                                                      : static_cast<std::int64_t>(m.label);
-    for (const std::uint32_t v : polytope.facet_vertices(m.label)) {
+    for (const std::uint32_t v : m.vertices) {
       if (index[v] >= 0) facet.vertices.push_back(static_cast<std::uint32_t>(index[v]));
     }
     if (cell.dimension != 3) std::sort(facet.vertices.begin(), facet.vertices.end());
