@@ -486,7 +486,7 @@ int main(int argc, char** argv) {
   auto* cells = app.add_subcommand(
       "cells", "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");
   cells->add_option("INPUT", input, "Point file")->required();
-  cells->add_option("-o,--output", output, ".npz (NumPy arrays, any d) or .vtu (ParaView polygons/polyhedra, 2-d/3-d)")
+  cells->add_option("-o,--output", output, ".npz (NumPy arrays, any d), .vtu (ParaView polygons/polyhedra, 2-d/3-d) or .svg (a 2-d picture)")
       ->required();
   add_domain(cells, "default: the points' bounding box");
   cells->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));

@@ -312,6 +312,93 @@ class VtuCellWriter final : public CellWriter {
   std::int64_t points_ = 0, connectivity_ = 0, face_values_ = 0, cells_ = 0, skipped_ = 0;
 };
 
+// 2-d cells as an SVG picture: each bounded cell a polygon shaded by its area
+// (light: small, dark: large), its centroid a dot. Polygons are spooled to a scratch
+// file (area, then the points), since the picture's extent and the shading's range
+// are known only at the end.
+class SvgCellWriter final : public CellWriter {
+ public:
+  explicit SvgCellWriter(std::string path) : path_(std::move(path)) {}
+  ~SvgCellWriter() override {
+    if (spool_ != nullptr) std::fclose(spool_);
+  }
+  Status open() {
+    auto f = scratch_file(directory_of(path_));
+    if (!f.is_ok()) return f.status();
+    spool_ = f.value();
+    return Status::ok();
+  }
+  bool needs_vertices() const override { return true; }
+
+  Status write(std::span<const VoronoiCell> cells) override {
+    for (const VoronoiCell& c : cells) {
+      if (!c.bounded || c.vertex_count() < 3) continue;
+      std::fprintf(spool_, "%.17g %.17g %.17g", c.volume, c.centroid[0], c.centroid[1]);
+      for (std::size_t v = 0; v < c.vertex_count(); ++v) {
+        const double x = c.vertices[2 * v], y = c.vertices[2 * v + 1];
+        std::fprintf(spool_, " %.9g,%.9g", x, y);
+        lo_[0] = std::min(lo_[0], x), lo_[1] = std::min(lo_[1], y);
+        hi_[0] = std::max(hi_[0], x), hi_[1] = std::max(hi_[1], y);
+      }
+      std::fprintf(spool_, "\n");
+      min_ = std::min(min_, c.volume);
+      max_ = std::max(max_, c.volume);
+    }
+    if (std::ferror(spool_)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
+    return Status::ok();
+  }
+
+  Status commit() override {
+    const std::string temp = path_ + ".partial";
+    std::FILE* out = std::fopen(temp.c_str(), "wb");
+    if (out == nullptr) return internal_error("cannot create " + temp + ": " + std::strerror(errno));
+    const double w = std::max(hi_[0] - lo_[0], 1e-300), h = std::max(hi_[1] - lo_[1], 1e-300);
+    const double size = 800, scale = size / std::max(w, h);
+    std::fprintf(out,
+                 "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" viewBox=\"0 0 %.0f %.0f\">\n"
+                 "<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\" stroke=\"#333\" "
+                 "stroke-width=\"%.9g\" stroke-linejoin=\"round\">\n",
+                 w * scale, h * scale, w * scale, h * scale, h * scale, scale, -scale, -lo_[0], -lo_[1], 0.75 / scale);
+    std::fflush(spool_);
+    std::rewind(spool_);
+    std::string dots;
+    char* line = nullptr;
+    std::size_t cap = 0;
+    while (::getline(&line, &cap, spool_) > 0) {
+      double volume = 0, cx = 0, cy = 0;
+      int used = 0;
+      if (std::sscanf(line, "%lf %lf %lf%n", &volume, &cx, &cy, &used) != 3) continue;
+      const double t = max_ > min_ ? (volume - min_) / (max_ - min_) : 0.5;
+      const int shade = static_cast<int>(235 - 150 * t);  // light small cells, darker large ones
+      std::string pts(line + used);
+      while (!pts.empty() && (pts.back() == '\n' || pts.back() == ' ')) pts.pop_back();
+      std::fprintf(out, "<polygon fill=\"rgb(%d,%d,255)\" points=\"%s\"/>\n", shade, shade, pts.c_str() + 1);
+      char dot[160];
+      std::snprintf(dot, sizeof dot, "<circle cx=\"%.9g\" cy=\"%.9g\" r=\"%.9g\"/>\n", cx, cy, 1.5 / scale);
+      dots += dot;
+    }
+    std::free(line);
+    std::fprintf(out, "</g>\n<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\" fill=\"#c00\">\n%s</g>\n</svg>\n",
+                 h * scale, scale, -scale, -lo_[0], -lo_[1], dots.c_str());
+    const bool failed = std::ferror(out) != 0;
+    if (std::fclose(out) != 0 || failed) {
+      std::remove(temp.c_str());
+      return internal_error("writing " + temp + ": " + std::strerror(errno));
+    }
+    if (std::rename(temp.c_str(), path_.c_str()) != 0) {
+      std::remove(temp.c_str());
+      return internal_error("cannot rename " + temp + " to " + path_ + ": " + std::strerror(errno));
+    }
+    return Status::ok();
+  }
+
+ private:
+  std::string path_;
+  std::FILE* spool_ = nullptr;
+  double lo_[2] = {INFINITY, INFINITY}, hi_[2] = {-INFINITY, -INFINITY};
+  double min_ = INFINITY, max_ = -INFINITY;
+};
+
 }  // namespace
 
 Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension) {
@@ -329,7 +416,16 @@ Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, in
     if (Status s = w->open(); !s.is_ok()) return s;
     return std::unique_ptr<CellWriter>(std::move(w));
   }
-  return invalid_argument(path + ": unknown cell format (use .npz, or .vtu in 2-d and 3-d)");
+  if (ends_with(path, ".svg")) {
+    if (dimension != 2) {
+      return invalid_argument(path + ": .svg pictures are of 2-d cells; these points are " + std::to_string(dimension) +
+                              "-d (use .npz or .vtu)");
+    }
+    auto w = std::make_unique<SvgCellWriter>(path);
+    if (Status s = w->open(); !s.is_ok()) return s;
+    return std::unique_ptr<CellWriter>(std::move(w));
+  }
+  return invalid_argument(path + ": unknown cell format (use .npz, .vtu in 2-d and 3-d, or .svg in 2-d)");
 }
 
 Result<Domain> read_halfspaces(const std::string& path, int dimension) {

@@ -348,6 +348,12 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, std
               8 * kUnit * std::sqrt(d) * (max_abs(x, d) + t * (1 + a_norm / std::abs(ar)));
     }
   }
+  // On an axis-aligned wall (a box's) the coordinate across it is known exactly.
+  int axis = -1, nonzero = 0;
+  for (int c = 0; c < d; ++c) {
+    if (a[c] != 0) axis = c, ++nonzero;
+  }
+  if (nonzero == 1 && std::abs(a[axis]) == 1) x[axis] = a[axis] * b;
   error_[u] = error;
   // Where the bound is loose (edges nearly parallel to the wall), construct exactly.
   if (!(error <= 1e-10 * scale_)) {

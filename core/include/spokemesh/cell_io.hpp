@@ -9,6 +9,8 @@
 //   .vtu (VTK XML, d = 2 or 3): one polygon (2-d) or polyhedron (3-d) per bounded
 //       cell, with cell data seed (Int64) and volume (Float64); vertices are not shared
 //       between cells.
+//   .svg (d = 2): a picture, each bounded cell a polygon shaded by its area (light:
+//       small, dark: large) with its centroid as a dot.
 // Arrays are streamed to unlinked temporary files beside the output, so memory stays
 // bounded whatever n; commit() assembles the file under a temporary name and renames
 // it into place, so an interrupted run never leaves a partial file.

@@ -1,0 +1,127 @@
+#!/usr/bin/python3
+"""Clipped Voronoi cells against Voro++ (3-d) and scipy/Qhull (2-d), same points.
+
+3-d: uniform points in the unit cube; `voro++ -c "%i %v %n %f" 0 1 0 1 0 1 FILE`
+(Debian's voro++ 0.4.6, single-threaded) against `spokemesh cells P.npy -o C.npz
+--box 0,0,0,1,1,1 --threads 2`: wall time and peak RSS of each process, then the
+agreement of volumes, neighbour sets and facet areas.
+
+2-d: uniform points in the unit square; scipy.spatial.Voronoi (Qhull) plus clipping
+as users write it (the points mirrored across the four sides, so every original cell
+is bounded and lies inside the square; areas by the shoelace formula) against
+`spokemesh cells ... --box 0,0,1,1`.
+
+Usage: bench/cells.py [--n3 1000000] [--n2 1000000] [--spokemesh build/bin/spokemesh]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def timed(cmd: list[str], cwd: str) -> tuple[float, float]:
+    """(wall seconds, peak RSS MB) of a process, from GNU time."""
+    start = time.perf_counter()
+    r = subprocess.run(["/usr/bin/time", "-v", *cmd], cwd=cwd, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if r.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
+    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr).group(1)) / 1024
+    return wall, rss
+
+
+def bench_3d(n: int, exe: str, work: str) -> None:
+    rng = np.random.default_rng(20261125)
+    pts = rng.random((n, 3))
+    np.save(f"{work}/p3.npy", pts)
+    with open(f"{work}/p3.txt", "w") as f:
+        np.savetxt(f, np.column_stack([np.arange(n), pts]), fmt="%d %.17g %.17g %.17g")
+    ours_t, ours_rss = timed([exe, "cells", "p3.npy", "-o", "c3.npz", "--box", "0,0,0,1,1,1", "--threads", "2", "-q"], work)
+    voro_t, voro_rss = timed(["voro++", "-c", "%i %v %n %f", "0", "1", "0", "1", "0", "1", "p3.txt"], work)
+    print(f"3-d uniform {n:,} in the unit cube: spokemesh {ours_t:.2f} s, {ours_rss:.0f} MB (2 threads); "
+          f"Voro++ {voro_t:.2f} s, {voro_rss:.0f} MB (1 thread); ratio {ours_t / voro_t:.2f}x")
+    z = np.load(f"{work}/c3.npz")
+    vol = np.empty(n)
+    neighbours = [None] * n
+    areas = [None] * n
+    with open(f"{work}/p3.txt.vol") as f:
+        for line in f:
+            fields = line.split()
+            i = int(fields[0])
+            vol[i] = float(fields[1])
+            k = (len(fields) - 2) // 2
+            neighbours[i] = [int(v) for v in fields[2:2 + k]]
+            areas[i] = [float(v) for v in fields[2 + k:]]
+    rel = np.abs(z["volume"] - vol) / vol
+    print(f"  volumes: total {z['volume'].sum():.15f} (ours) vs {vol.sum():.15f} (Voro++); "
+          f"relative difference median {np.median(rel):.1e}, max {rel.max():.1e}")
+    same = extra = missing = 0
+    extra_area = []
+    ptr, nb, area = z["facet_ptr"], z["facet_neighbor"], z["facet_area"]
+    for i in range(n):
+        ours = {int(j) if j >= 0 else -1 - (-1 - int(j)) for j in nb[ptr[i]:ptr[i + 1]] if j >= 0}
+        theirs = {j for j in neighbours[i] if j >= 0}
+        if ours == theirs:
+            same += 1
+        else:
+            for j in ours - theirs:
+                extra += 1
+                k = ptr[i] + list(nb[ptr[i]:ptr[i + 1]]).index(j)
+                extra_area.append(area[k])
+            missing += len(theirs - ours)
+    print(f"  neighbour sets: {same:,} of {n:,} cells identical; {extra} facets only ours, {missing} only Voro++'s")
+    if extra_area:
+        print(f"  the facets only we report have areas up to {max(extra_area):.1e} (median {np.median(extra_area):.1e})")
+
+
+def bench_2d(n: int, exe: str, work: str) -> None:
+    from scipy.spatial import Voronoi
+    rng = np.random.default_rng(20261126)
+    pts = rng.random((n, 2))
+    np.save(f"{work}/p2.npy", pts)
+    ours_t, ours_rss = timed([exe, "cells", "p2.npy", "-o", "c2.npz", "--box", "0,0,1,1", "--threads", "2", "-q"], work)
+    start = time.perf_counter()
+    # As users write it: mirror the points across the four sides, so the original
+    # cells are bounded and clipped by the mirror bisectors, then shoelace areas.
+    mirrored = np.vstack([pts, pts * [-1, 1], pts * [1, -1], [2, 0] - pts * [1, -1], [0, 2] - pts * [-1, 1]])
+    vor = Voronoi(mirrored)
+    areas = np.empty(n)
+    for i in range(n):
+        poly = vor.vertices[vor.regions[vor.point_region[i]]]
+        x, y = poly[:, 0], poly[:, 1]
+        areas[i] = 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
+    scipy_t = time.perf_counter() - start
+    z = np.load(f"{work}/c2.npz")
+    rel = np.abs(z["volume"] - areas) / areas
+    print(f"2-d uniform {n:,} in the unit square: spokemesh {ours_t:.2f} s, {ours_rss:.0f} MB (2 threads); "
+          f"scipy Voronoi + mirror clipping {scipy_t:.2f} s (1 thread, in-process); ratio {ours_t / scipy_t:.2f}x")
+    print(f"  areas: relative difference median {np.median(rel):.1e}, max {rel.max():.1e}; "
+          f"totals {z['volume'].sum():.15f} vs {areas.sum():.15f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n3", type=int, default=1_000_000)
+    ap.add_argument("--n2", type=int, default=1_000_000)
+    ap.add_argument("--spokemesh", default=str(REPO / "build/bin/spokemesh"))
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR", "/tmp")) as work:
+        if args.n3:
+            bench_3d(args.n3, args.spokemesh, work)
+        if args.n2:
+            bench_2d(args.n2, args.spokemesh, work)
+
+
+if __name__ == "__main__":
+    main()
