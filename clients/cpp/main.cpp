@@ -300,6 +300,7 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
   options.measures_only = !writer.value()->needs_vertices();
+  options.facet_cache_bytes = common.cache_mb << 20;
   Progress progress(common.quiet, loaded.points.size(), "cells");
   std::uint64_t facets = 0;
   double volume = 0;
@@ -491,6 +492,11 @@ int main(int argc, char** argv) {
   add_domain(cells, "default: the points' bounding box");
   cells->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
   cells->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");
+  std::size_t cells_cache_mb = 256;
+  cells->add_option("--cache-mb", cells_cache_mb,
+                    "Memory cap (MiB) for sharing wraps between the seeds' stars; 0 = none (same cells, slower)")
+      ->capture_default_str()
+      ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
   cells->add_option("--random-seed", common.random_seed, "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
 
@@ -592,7 +598,10 @@ int main(int argc, char** argv) {
     });
   }
   if (*cell) return run_cell(common, input, seed, json, domain_flags);
-  if (*cells) return run_cells(common, input, output, domain_flags);
+  if (*cells) {
+    common.cache_mb = cells_cache_mb;
+    return run_cells(common, input, output, domain_flags);
+  }
   if (*check) return run_check(input, mesh_path);
   return kExitUsage;
 }
