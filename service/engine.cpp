@@ -179,6 +179,14 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
   }
   PointSet points(info.dimension, std::move(s.coords_));
   if (Status st = points.validate("coordinates", limits_.max_dimension, info.dimension <= kMaxDimension); !st.is_ok()) {
+    if (st.reason() == "DUPLICATE_POINTS") {
+      // The stored set is exactly what was uploaded (its id is its bytes' hash), so the
+      // fix is on the client's side.
+      return invalid_argument(st.message() +
+                              "; point sets are stored as uploaded, so remove duplicates first (numpy: "
+                              "np.unique(points, axis=0)), or mesh locally with spokemesh --merge-duplicates")
+          .with_reason("DUPLICATE_POINTS");
+    }
     return st;
   }
   // The owner first, then the set (see PointSetStore::add_owner).
@@ -199,16 +207,16 @@ Status Engine::authorize(const std::string& id, const Principal& who) {
 
 Result<PointSetInfo> Engine::get_point_set(const std::string& id, const Principal& who) {
   if (Status s = authorize(id, who); !s.is_ok()) return s;
-  return store_->info(id);
+  auto info = store_->info(id);
+  if (info.is_ok()) info->already_existed = false;  // an upload's answer only
+  return info;
 }
 
 Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_size, const std::string& page_token,
                                                           std::string* next_page_token, const Principal& who) {
+  // AIP-158: a page size above the maximum is clamped to it, not refused.
   if (page_size == 0) page_size = defaults::kPageSize;
-  if (page_size > defaults::kMaxPageSize) {
-    return invalid_argument("page_size: " + std::to_string(page_size) + " is above the maximum " +
-                            std::to_string(defaults::kMaxPageSize));
-  }
+  page_size = std::min(page_size, defaults::kMaxPageSize);
   if (!page_token.empty() && !is_valid_id(page_token)) {
     return invalid_argument("page_token: \"" + page_token.substr(0, 80) + "\" is not a token from a previous page");
   }
@@ -216,6 +224,7 @@ Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_siz
   std::function<bool(const std::string&)> visible;
   if (!who.admin) visible = [&](const std::string& id) { return store_->owned_by(id, who.tenant); };
   std::vector<PointSetInfo> page = store_->list(page_token, page_size, &more, visible);
+  for (PointSetInfo& info : page) info.already_existed = false;  // an upload's answer only
   if (next_page_token != nullptr) *next_page_token = more ? page.back().id : "";
   return page;
 }

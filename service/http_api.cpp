@@ -59,12 +59,11 @@ Result<std::uint64_t> parse_uint(const std::string& text, const std::string& wha
   return v;
 }
 
-json point_set_json(const PointSetInfo& info) {
-  return {{"id", info.id},
-          {"dimension", info.dimension},
-          {"count", info.count},
-          {"display_name", info.display_name},
-          {"already_existed", info.already_existed}};
+// `already_existed` belongs to an upload's answer only (get and list leave it out).
+json point_set_json(const PointSetInfo& info, bool upload = false) {
+  json out = {{"id", info.id}, {"dimension", info.dimension}, {"count", info.count}, {"display_name", info.display_name}};
+  if (upload) out["already_existed"] = info.already_existed;
+  return out;
 }
 
 // Rows of `width` values as nested arrays.
@@ -356,7 +355,7 @@ HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, Uploa
   if (!info.is_ok()) return c.fail(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
   c.record.point_set = info->id;
-  return c.ok(point_set_json(info.value()), info->already_existed ? 200 : 201);
+  return c.ok(point_set_json(info.value(), true), info->already_existed ? 200 : 201);
 }
 
 HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::string& seed_text,

@@ -142,7 +142,7 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
       {"mesh " + write("ragged.txt", "0 0\n1 0 3\n") + " -o OUT", "ragged.txt:2: has 3 coordinates"},
       {"mesh " + write("word.txt", "0 0\n1 zero\n") + " -o OUT", "word.txt:2: cannot parse 'zero'"},
       {"mesh " + write("few.txt", "0 0\n1 0\n") + " -o OUT", "2 points given"},
-      {"mesh " + write("dup.txt", "0 0\n1 0\n0 1\n1 0\n") + " -o OUT", "points 1 and 3 are equal"},
+      {"mesh " + write("dup.txt", "0 0\n1 0\n0 1\n1 0\n") + " -o OUT", "points 1 and 3 are equal (use --merge-duplicates"},
       {"mesh " + write("flat.txt", "0 0 0\n1 0 0\n0 1 0\n1 1 0\n") + " -o OUT", "span only a 2-dimensional"},
       {"mesh " + write("huge.txt", "0 0\n1 0\n0 1e300\n") + " -o OUT", "huge.txt:3: coordinate 1 has magnitude"},
       {"mesh " + good + " -o " + "OUT.unknown", "unknown output format"},
@@ -162,6 +162,15 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
     for (const std::string& name : listing()) {
       EXPECT_NE(name.rfind("out", 0), 0u) << "left behind: " << name;
     }
+  }
+  // An output that is the input is refused, whatever its spelling, and the input kept.
+  const std::string before = slurp(good);
+  for (const std::string& cmd : {"mesh " + good + " -o " + good, "graph " + good + " -o " + good,
+                                 "cells " + good + " -o " + good, "mesh " + good + " -o " + path("./") + good.substr(good.rfind('/') + 1)}) {
+    const Outcome r = run(cmd);
+    EXPECT_EQ(r.code, 2) << cmd;
+    EXPECT_NE(r.err.find("would overwrite the input"), std::string::npos) << cmd << "\n" << r.err;
+    EXPECT_EQ(slurp(good), before) << cmd;
   }
   // --merge-duplicates accepts the duplicate and maps it to its first occurrence.
   const Outcome merged = run("mesh -q " + path("dup.txt") + " -o " + path("merged.simplices") + " --merge-duplicates");

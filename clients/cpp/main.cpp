@@ -4,6 +4,7 @@
 // 2 bad usage or bad input.
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -74,6 +75,9 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
   }
   Status valid = approximate ? loaded->points.validate(path, kMaxApproxDimension, d <= kMaxDimension)
                              : loaded->points.validate(path);
+  if (!valid.is_ok() && valid.reason() == "DUPLICATE_POINTS") {
+    return invalid_argument(valid.message() + " (use --merge-duplicates to map duplicates to their first occurrence)");
+  }
   if (!valid.is_ok()) return valid;
   loaded->tree = std::make_unique<KdTree>(loaded->points);
   return loaded;
@@ -171,7 +175,20 @@ class Progress {
   Clock::time_point start_ = Clock::now();
 };
 
+// An output that is the input file itself (same path, a link, another spelling) would
+// destroy the input when the result is renamed into place: refused up front.
+Status check_not_input(const std::string& input, const std::string& output) {
+  struct stat in {}, out {};
+  if (::stat(input.c_str(), &in) == 0 && ::stat(output.c_str(), &out) == 0 && in.st_dev == out.st_dev &&
+      in.st_ino == out.st_ino) {
+    return invalid_argument("-o " + output + " is the input file " + input +
+                            "; writing it would overwrite the input: choose another output file");
+  }
+  return Status::ok();
+}
+
 int run_mesh(const Common& common, const std::string& input, const std::string& output, const std::string& seeds) {
+  if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, common.merge_duplicates);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   const Loaded& loaded = *loaded_or.value();
@@ -286,9 +303,7 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
 }
 
 int run_cells(const Common& common, const std::string& input, const std::string& output, const DomainFlags& flags) {
-  if (output == input) {
-    return report(invalid_argument("-o " + output + " would overwrite the input; choose another output file"));
-  }
+  if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, false);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   const Loaded& loaded = *loaded_or.value();
@@ -362,6 +377,7 @@ int run_approx_neighbors(const Common& common, const ApproxFlags& flags, const s
 }
 
 int run_graph(const Common& common, const ApproxFlags& flags, const std::string& input, const std::string& output) {
+  if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, common.merge_duplicates, flags.enabled);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   const Loaded& loaded = *loaded_or.value();

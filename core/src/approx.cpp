@@ -360,7 +360,8 @@ class ApproxWalker::RsdWalk {
         // the list reaches (the whole cell when every point is listed). Otherwise, or
         // when the list looks too short (list_more), list more and go on.
         if (walker_.cand_radius2_ == kInf) {
-          out_.exhausted = true;
+          // Complete only if nothing was given up: every point certified or refuted.
+          out_.exhausted = given_up == 0;
           break;
         }
         grow_list();
@@ -576,6 +577,7 @@ class ApproxWalker::RsdWalk {
         settle(s, kSettled);
       } else if (attempts[s] >= 3) {
         settle(s, kSettled);
+        ++given_up;  // neither certified nor refuted
       }
     }
     misses = fresh ? 0 : misses + 1;
@@ -613,6 +615,7 @@ class ApproxWalker::RsdWalk {
       // Equidistant at this vertex already, so visit() has tried to certify it (it
       // failed; it may be tried again from another vertex): no leg can reach it.
       state[static_cast<std::size_t>(target)] = kSettled;
+      ++given_up;  // neither certified nor refuted
       return;
     }
     if (relaxed_refutes(target)) {
@@ -850,6 +853,7 @@ class ApproxWalker::RsdWalk {
   std::uint64_t misses = 0;
   bool at_vertex = false;
   int refuted_in_a_row = 0;
+  std::size_t given_up = 0;  // targets settled neither certified nor refuted
   // The relaxed walk: rs (indices into found_q) and in_rs (per found point) its
   // vertex, r_vq and r_eq (per found point) rv . q and re . q, v_q (per found point)
   // v . q at the vertex visited vq_at-th; rE its edges, -(rs's offsets as rows)^{-1}.

@@ -97,10 +97,9 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
     if (equal_points(point(order[k - 1]), point(order[k]), d_)) {
       const auto a = std::min(order[k - 1], order[k]);
       const auto b = std::max(order[k - 1], order[k]);
-      return invalid_argument(source + ": points " + std::to_string(a) + " and " +
-                              std::to_string(b) +
-                              " are equal (use --merge-duplicates to map duplicates to their "
-                              "first occurrence)");
+      // Callers add the advice that fits them (the CLI: --merge-duplicates).
+      return invalid_argument(source + ": points " + std::to_string(a) + " and " + std::to_string(b) + " are equal")
+          .with_reason("DUPLICATE_POINTS");
     }
   }
   rank_.assign(n, 0);

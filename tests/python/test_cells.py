@@ -125,7 +125,7 @@ def test_cells_errors_name_what_and_where(tmp_path):
     r = cli("cells", str(src), "-o", str(tmp_path / "x.npz"), "--halfspaces", str(walls), check=False)
     assert r.returncode == 2 and "walls.txt:5" in r.stderr and "'zero'" in r.stderr
     r = cli("cells", str(src), "-o", str(src), check=False)
-    assert r.returncode == 2 and "overwrite the input" in r.stderr
+    assert r.returncode == 2 and "would overwrite the input" in r.stderr
 
 
 def test_halfspace_domain_from_a_file(tmp_path):

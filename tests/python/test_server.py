@@ -168,6 +168,26 @@ def test_cli_remote_mode_upload_health_list_delete(server, tmp_path):
     assert down.returncode == 1 and "UNAVAILABLE" in down.stderr
 
 
+def test_list_clamps_page_size_and_only_uploads_say_already_existed(server):
+    client = spokemesh.Client(server.grpc)
+    first = client.upload(uniform(20, 2, 30))
+    again = client.upload(uniform(20, 2, 30))
+    assert not first.already_existed and again.already_existed
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    # AIP-158: a page size above the maximum (1000) is clamped, not refused.
+    page = stub.ListPointSets(pb.ListPointSetsRequest(page_size=5000), timeout=10)
+    assert [p.id for p in page.point_sets] == [first.id] and page.next_page_token == ""
+    assert not page.point_sets[0].already_existed
+    assert not stub.GetPointSet(pb.GetPointSetRequest(point_set_id=first.id), timeout=10).already_existed
+    status, body = http_json("GET", f"{server.http}/v1/pointsets?page_size=5000")
+    assert status == 200 and [p["id"] for p in body["point_sets"]] == [first.id]
+    assert "already_existed" not in body["point_sets"][0]
+    status, body = http_json("GET", f"{server.http}/v1/pointsets/{first.id}")
+    assert status == 200 and "already_existed" not in body
+    status, body = http_json("POST", f"{server.http}/v1/pointsets", {"points": uniform(20, 2, 30).tolist()})
+    assert status == 200 and body["already_existed"] is True
+
+
 def test_errors_name_the_field_and_map_to_codes(start_server):
     server = start_server("--max-points", "5000", "--max-dimension", "4", "--max-body-bytes", "64K")
     client = spokemesh.Client(server.grpc)
@@ -183,6 +203,8 @@ def test_errors_name_the_field_and_map_to_codes(start_server):
     assert code == grpc.StatusCode.INVALID_ARGUMENT and "point 7, coordinate 1" in msg
     code, msg = code_of(lambda: client.upload(np.vstack([uniform(5, 2, 4), uniform(5, 2, 4)[:1]])))
     assert code == grpc.StatusCode.INVALID_ARGUMENT and "points 0 and 5" in msg
+    # The advice fits the server (upload has no --merge-duplicates).
+    assert "np.unique(points, axis=0)" in msg and "use --merge-duplicates" not in msg
     code, msg = code_of(lambda: client.upload(np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3.0]])))
     assert code == grpc.StatusCode.INVALID_ARGUMENT and "span only a 1" in msg
     code, msg = code_of(lambda: client.upload(uniform(6000, 2, 5)))

@@ -50,6 +50,8 @@ class Neighbors:
     vertices_visited: int = 0   # approximate: Voronoi vertices (or rays) visited
     consecutive_misses: int = 0
     rays: int = 0
+    walk_exhausted: bool = False  # approximate (RSD): nothing left to try and nothing abandoned: complete
+    mode: str = "exact"           # "exact", "approximate" or "spokes"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,7 +235,7 @@ class Client:
                                               max_vertices=max_vertices), timeout)
         return Neighbors(seed=r.seed, neighbors=np.array(r.neighbors, dtype=np.uint32), exact=r.exact,
                          vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
-                         rays=r.rays)
+                         rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode)
 
     def cell(self, point_set_id: str, seed: int, box: Optional[Sequence[float]] = None,
              halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,

@@ -54,7 +54,10 @@ struct ApproxNeighbors {
   std::uint64_t rays = 0;                // rays shot in all (walk, spokes and witnesses)
   std::uint64_t misses = 0;              // consecutive misses when the walk stopped
   std::uint64_t uncertified = 0;         // proposed neighbours whose witness failed (retried later)
-  bool exhausted = false;                // RSD: the walk ran out of targets (every point found or refuted)
+  // RSD: the walk had nothing left to try and gave nothing up: every point was
+  // certified or refuted, so `neighbors` is the complete (exact) set. False whenever
+  // the miss or vertex budget stopped the walk, or a target was abandoned.
+  bool exhausted = false;
 };
 
 class ApproxWalker {
