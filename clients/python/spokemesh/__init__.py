@@ -1,16 +1,45 @@
-"""spokemesh: a Python client for spokemesh-server (exact Delaunay/Voronoi meshing).
+"""spokemesh: exact Delaunay triangulations and Voronoi cells, in-process or from a
+spokemesh-server.
+
+In-process (the compiled module spokemesh._core; no server, no gRPC):
 
     import numpy as np, spokemesh
-    client = spokemesh.Client("localhost:50051")
-    ps = client.upload(np.random.default_rng(1).random((1000, 3)))
-    star = client.star(ps.id, 0)            # Star(simplices (m, 4), circumcenters (m, 3), ...)
-    tets = client.simplices(ps.id, shards=4)  # np.ndarray (m, 4), lexicographic
+    tri = spokemesh.Delaunay(np.random.default_rng(1).random((10_000, 3)))
+    tri.simplices, tri.neighbors, tri.find_simplex(q), tri.cell(0, box=[0, 0, 0, 1, 1, 1])
+    g = spokemesh.approximate_graph(points_in_20d, misses=100)
 
-Errors raise spokemesh.Error, which carries the gRPC status code (``.code``).
-Needs Debian's python3-grpcio, python3-protobuf and python3-numpy; the stubs
-(spokemesh.v1.mesher_pb2*) are generated at build time into build/python.
+Remote (spokemesh.remote.Client, also spokemesh.Client; needs python3-grpcio):
+
+    client = spokemesh.Client("localhost:50051")
+    ps = client.upload(points)
+    star = client.star(ps.id, 0)
+
+Errors: ValueError in-process; spokemesh.Error (with the gRPC status code) remotely.
 """
 
-from .client import Cell, Client, Error, Neighbors, PointSet, Star
+from __future__ import annotations
 
-__all__ = ["Client", "Error", "PointSet", "Star", "Cell", "Neighbors"]
+from typing import Any
+
+from .types import Cell, Facet
+
+__all__ = ["Delaunay", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+           "Client", "Error", "PointSet", "Star", "Neighbors"]
+
+_REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors"}
+_LOCAL = {"Delaunay", "ApproximateGraph", "approximate_graph"}
+
+
+def __getattr__(name: str) -> Any:
+    # Imported on first use: in-process users need not have gRPC, remote users need not
+    # have the compiled module.
+    if name in _LOCAL:
+        from . import delaunay
+        return getattr(delaunay, name)
+    if name in _REMOTE:
+        from . import remote
+        return getattr(remote, name)
+    if name == "remote":
+        from . import remote
+        return remote
+    raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

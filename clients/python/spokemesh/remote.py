@@ -10,6 +10,8 @@ from typing import Iterator, List, Optional, Sequence
 import grpc
 import numpy as np
 
+from .types import Cell, Facet
+
 from .v1 import mesher_pb2 as pb
 from .v1 import mesher_pb2_grpc as pb_grpc
 
@@ -52,28 +54,6 @@ class Neighbors:
     rays: int = 0
     walk_exhausted: bool = False  # approximate (RSD): nothing left to try and nothing abandoned: complete
     mode: str = "exact"           # "exact", "approximate" or "spokes"
-
-
-@dataclasses.dataclass(frozen=True)
-class Facet:
-    """One facet of a Voronoi cell: across a Delaunay neighbour, or on a domain wall."""
-    neighbor: Optional[int]   # the Delaunay neighbour; None for a wall
-    wall: Optional[int]       # the domain wall's index; None for a neighbour
-    vertices: np.ndarray      # uint32 indices into Cell.vertices (3-d: counter-clockwise from outside)
-    area: float               # (d-1)-measure; inf when unbounded
-    normal: np.ndarray        # (d,) unit outward normal
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    seed: int
-    vertices: np.ndarray          # (k, d) float64 (2-d: counter-clockwise)
-    vertex_simplices: np.ndarray  # (k, d + 1) uint32; unclipped cells only (else empty)
-    facets: List[Facet]           # neighbours ascending, then walls ascending
-    bounded: bool
-    volume: float                 # inf when unbounded
-    centroid: Optional[np.ndarray] = None  # (d,); None when unbounded
-    clipped: bool = False
 
 
 def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],

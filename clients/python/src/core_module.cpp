@@ -1,0 +1,490 @@
+// spokemesh._core: the core library in-process, for spokemesh.Delaunay and friends
+// (clients/python/spokemesh/delaunay.py holds the scipy-compatible surface).
+//
+// Arrays come in as C-contiguous float64 (numpy converts others once) and go out as
+// numpy arrays that own the C++ buffers (no copy). Every long call releases the GIL.
+// Errors become ValueError (bad input: the core's message names the index) or
+// RuntimeError.
+//
+// Thread safety: a Triangulation is immutable after construction; its methods may be
+// called from several Python threads at once.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <gmpxx.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <vector>
+
+#include "spokemesh/approx.hpp"
+#include "spokemesh/cells.hpp"
+#include "spokemesh/domain.hpp"
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/mesh.hpp"
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/star.hpp"
+#include "spokemesh/voronoi.hpp"
+
+namespace py = pybind11;
+using namespace spokemesh;
+
+namespace {
+
+using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+[[noreturn]] void raise(const Status& s) {
+  if (s.code() == Code::kInvalidArgument || s.code() == Code::kOutOfRange) throw py::value_error(s.message());
+  throw std::runtime_error(s.message());
+}
+
+// A numpy array owning `data` (moved to the heap), shaped `shape`.
+template <class T>
+py::array_t<T> owned(std::vector<T>&& data, std::vector<py::ssize_t> shape) {
+  auto* heap = new std::vector<T>(std::move(data));
+  py::capsule free(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
+  return py::array_t<T>(shape, heap->data(), free);
+}
+
+PointSet points_from(const Points& array, bool exact_span = true) {
+  if (array.ndim() != 2) throw py::value_error("points: expected a 2-d array of shape (n, d)");
+  const auto n = static_cast<std::size_t>(array.shape(0));
+  const int d = static_cast<int>(array.shape(1));
+  std::vector<double> coords(array.data(), array.data() + n * static_cast<std::size_t>(d));
+  PointSet ps(d, std::move(coords));
+  const Status s = exact_span ? ps.validate("points") : ps.validate("points", kMaxApproxDimension, d <= kMaxDimension);
+  if (!s.is_ok()) raise(s);
+  return ps;
+}
+
+unsigned thread_count(std::optional<unsigned> threads) {
+  if (threads && *threads > 0) return *threads;
+  return std::max(1u, std::thread::hardware_concurrency());
+}
+
+// The exact sign of det[p_1 - p_0, ..., p_d - p_0] for d + 1 points given by pointers.
+// Filter: Gaussian elimination with partial pivoting in double; its error stays below
+// d^3 2^(d-1) u times the product of the rows' norms (Hadamard; the growth factor of
+// partial pivoting is at most 2^(d-1)), which is < 1e-10 of that product for d <= 8,
+// so a larger determinant has the computed sign. Otherwise rationals decide.
+int orientation_sign(const std::array<const double*, kMaxDimension + 1>& p, int d) {
+  std::array<double, kMaxDimension * kMaxDimension> m{};
+  double hadamard = 1;
+  for (int r = 0; r < d; ++r) {
+    double n2 = 0;
+    for (int c = 0; c < d; ++c) {
+      m[r * d + c] = p[r + 1][c] - p[0][c];
+      n2 += m[r * d + c] * m[r * d + c];
+    }
+    hadamard *= std::sqrt(n2);
+  }
+  double det = 1;
+  for (int c = 0; c < d; ++c) {
+    int pivot = c;
+    for (int r = c + 1; r < d; ++r) {
+      if (std::abs(m[r * d + c]) > std::abs(m[pivot * d + c])) pivot = r;
+    }
+    if (pivot != c) {
+      for (int k = 0; k < d; ++k) std::swap(m[c * d + k], m[pivot * d + k]);
+      det = -det;
+    }
+    det *= m[c * d + c];
+    if (m[c * d + c] == 0) break;
+    for (int r = c + 1; r < d; ++r) {
+      const double f = m[r * d + c] / m[c * d + c];
+      for (int k = c; k < d; ++k) m[r * d + k] -= f * m[c * d + k];
+    }
+  }
+  if (std::abs(det) > 1e-10 * hadamard) return det > 0 ? 1 : -1;
+  std::vector<mpq_class> a(static_cast<std::size_t>(d * d));
+  for (int r = 0; r < d; ++r) {
+    for (int c = 0; c < d; ++c) a[r * d + c] = mpq_class(p[r + 1][c]) - mpq_class(p[0][c]);
+  }
+  int sign = 1;
+  for (int c = 0; c < d; ++c) {
+    int pivot = c;
+    while (pivot < d && sgn(a[pivot * d + c]) == 0) ++pivot;
+    if (pivot == d) return 0;
+    if (pivot != c) {
+      for (int k = 0; k < d; ++k) std::swap(a[c * d + k], a[pivot * d + k]);
+      sign = -sign;
+    }
+    if (sgn(a[c * d + c]) < 0) sign = -sign;
+    for (int r = c + 1; r < d; ++r) {
+      if (sgn(a[r * d + c]) == 0) continue;
+      const mpq_class f = a[r * d + c] / a[c * d + c];
+      for (int k = c; k < d; ++k) a[r * d + k] -= f * a[c * d + k];
+    }
+  }
+  return sign;
+}
+
+std::optional<Domain> domain_from(int d, const std::optional<std::vector<double>>& box,
+                                  const std::optional<Points>& halfspaces) {
+  if (box && halfspaces) throw py::value_error("give box or halfspaces, not both");
+  if (box) {
+    if (box->size() != 2 * static_cast<std::size_t>(d)) {
+      throw py::value_error("box: expected " + std::to_string(2 * d) + " values (lo_1..lo_d, hi_1..hi_d), got " +
+                            std::to_string(box->size()));
+    }
+    auto b = Domain::box({box->begin(), box->begin() + d}, {box->begin() + d, box->end()});
+    if (!b.is_ok()) raise(b.status());
+    return std::move(b).value();
+  }
+  if (halfspaces) {
+    const Points& h = *halfspaces;
+    if (h.ndim() != 2 || h.shape(1) != d + 1) {
+      throw py::value_error("halfspaces: expected shape (m, " + std::to_string(d + 1) + "): rows a_1..a_d b for a.x <= b");
+    }
+    std::vector<double> normals, offsets;
+    for (py::ssize_t k = 0; k < h.shape(0); ++k) {
+      normals.insert(normals.end(), h.data(k, 0), h.data(k, 0) + d);
+      offsets.push_back(*h.data(k, d));
+    }
+    auto domain = Domain::halfspaces(d, std::move(normals), std::move(offsets));
+    if (!domain.is_ok()) raise(domain.status());
+    return std::move(domain).value();
+  }
+  return std::nullopt;
+}
+
+py::dict cell_dict(const VoronoiCell& c) {
+  const int d = c.dimension;
+  py::dict out;
+  out["seed"] = c.seed;
+  out["vertices"] = owned(std::vector<double>(c.vertices), {static_cast<py::ssize_t>(c.vertex_count()), d});
+  out["bounded"] = c.bounded;
+  out["clipped"] = c.clipped;
+  out["volume"] = c.volume;
+  out["centroid"] = c.centroid.empty() ? py::object(py::none()) : py::object(owned(std::vector<double>(c.centroid), {d}));
+  py::list facets;
+  for (const VoronoiFacet& f : c.facets) {
+    py::dict facet;
+    facet["neighbor"] = f.is_wall() ? py::object(py::none()) : py::object(py::int_(f.neighbor));
+    facet["wall"] = f.is_wall() ? py::object(py::int_(f.wall())) : py::object(py::none());
+    facet["vertices"] = owned(std::vector<std::uint32_t>(f.vertices), {static_cast<py::ssize_t>(f.vertices.size())});
+    facet["area"] = f.area;
+    facet["normal"] = owned(std::vector<double>(f.normal), {d});
+    facets.append(facet);
+  }
+  out["facets"] = facets;
+  return out;
+}
+
+class Triangulation {
+ public:
+  Triangulation(const Points& array, std::optional<unsigned> threads)
+      : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
+    py::gil_scoped_release release;
+    tree_ = std::make_unique<KdTree>(points_);
+    MeshOptions options;
+    options.threads = threads_;
+    auto stats = mesh_seeds(*tree_, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+      simplices_.insert(simplices_.end(), block.begin(), block.end());
+      return Status::ok();
+    });
+    if (!stats.is_ok()) {
+      py::gil_scoped_acquire acquire;
+      raise(stats.status());
+    }
+  }
+
+  int dimension() const { return d_; }
+  std::size_t npoints() const { return points_.size(); }
+  std::size_t nsimplices() const { return simplices_.size() / (d_ + 1); }
+
+  py::array_t<std::int32_t> simplices() const {
+    std::vector<std::int32_t> out(simplices_.begin(), simplices_.end());
+    return owned(std::move(out), {static_cast<py::ssize_t>(nsimplices()), d_ + 1});
+  }
+
+  // scipy's `neighbors`: row i, column k is the simplex across the facet opposite
+  // vertex k of simplex i, -1 on the hull. Facets are matched by sorting their keys.
+  py::array_t<std::int32_t> neighbors() const {
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    std::vector<std::int32_t> out(adjacency_);
+    return owned(std::move(out), {static_cast<py::ssize_t>(nsimplices()), d_ + 1});
+  }
+
+  // Exact point location: the simplex containing each query (one of them on a shared
+  // face), -1 outside the hull. A visibility walk from the simplex of the query's
+  // nearest input point; every side test is an exact orientation sign.
+  py::array_t<std::int32_t> find_simplex(const Points& queries) const {
+    if (queries.ndim() != 2 || queries.shape(1) != d_) {
+      throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
+    }
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    const auto q = static_cast<std::size_t>(queries.shape(0));
+    std::vector<std::int32_t> out(q, -1);
+    const double* data = queries.data();
+    {
+      py::gil_scoped_release release;
+      parallel_for(q, [&](std::size_t i) { out[i] = locate(data + i * d_); });
+    }
+    return owned(std::move(out), {static_cast<py::ssize_t>(q)});
+  }
+
+  py::array_t<std::uint32_t> star(std::uint32_t seed) const {
+    Star star = star_of(seed);
+    return owned(std::move(star.simplices), {static_cast<py::ssize_t>(star.size()), d_ + 1});
+  }
+
+  py::array_t<std::uint32_t> neighbors_of(std::uint32_t seed) const {
+    std::vector<std::uint32_t> n = star_neighbors(star_of(seed));
+    const auto size = static_cast<py::ssize_t>(n.size());
+    return owned(std::move(n), {size});
+  }
+
+  py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
+                const std::optional<Points>& halfspaces) const {
+    const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
+    const Star star = star_of(seed);
+    if (!domain) return cell_dict(voronoi_cell(points_, star));
+    auto c = voronoi_cell(points_, star, *domain);
+    if (!c.is_ok()) raise(c.status());
+    return cell_dict(c.value());
+  }
+
+  // All cells' measures as the .npz of `spokemesh cells` holds them.
+  py::dict cells(const std::optional<std::vector<double>>& box, const std::optional<Points>& halfspaces,
+                 bool bounding_box) const {
+    std::optional<Domain> domain = domain_from(d_, box, halfspaces);
+    if (!domain && bounding_box) domain = Domain::bounding_box(points_);
+    std::vector<double> volume, centroid, area, normal;
+    std::vector<std::int64_t> ptr{0}, neighbor;
+    std::vector<std::uint8_t> bounded;
+    Status status;
+    {
+      py::gil_scoped_release release;
+      CellsOptions options;
+      options.threads = threads_;
+      options.measures_only = true;
+      status = compute_cells(*tree_, domain ? &*domain : nullptr, options,
+                             [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+                               for (const VoronoiCell& c : cells) {
+                                 volume.push_back(c.volume);
+                                 bounded.push_back(c.bounded ? 1 : 0);
+                                 if (c.centroid.empty()) centroid.insert(centroid.end(), d_, std::nan(""));
+                                 else centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
+                                 for (const VoronoiFacet& f : c.facets) {
+                                   neighbor.push_back(f.neighbor);
+                                   area.push_back(f.area);
+                                   normal.insert(normal.end(), f.normal.begin(), f.normal.end());
+                                 }
+                                 ptr.push_back(static_cast<std::int64_t>(neighbor.size()));
+                               }
+                               return Status::ok();
+                             });
+    }
+    if (!status.is_ok()) raise(status);
+    const auto n = static_cast<py::ssize_t>(volume.size());
+    const auto m = static_cast<py::ssize_t>(neighbor.size());
+    py::dict out;
+    out["volume"] = owned(std::move(volume), {n});
+    out["centroid"] = owned(std::move(centroid), {n, d_});
+    out["bounded"] = owned(std::move(bounded), {n}).attr("astype")("bool");
+    out["facet_ptr"] = owned(std::move(ptr), {n + 1});
+    out["facet_neighbor"] = owned(std::move(neighbor), {m});
+    out["facet_area"] = owned(std::move(area), {m});
+    out["facet_normal"] = owned(std::move(normal), {m, d_});
+    return out;
+  }
+
+ private:
+  template <class Fn>
+  void parallel_for(std::size_t count, Fn&& fn) const {
+    std::atomic<std::size_t> next{0};
+    auto work = [&] {
+      for (std::size_t i; (i = next.fetch_add(256)) < count;) {
+        for (std::size_t j = i; j < std::min(count, i + 256); ++j) fn(j);
+      }
+    };
+    std::vector<std::thread> pool;
+    const unsigned extra = count > 1024 ? threads_ - 1 : 0;
+    for (unsigned t = 0; t < extra; ++t) pool.emplace_back(work);
+    work();
+    for (auto& t : pool) t.join();
+  }
+
+  Star star_of(std::uint32_t seed) const {
+    if (seed >= points_.size()) {
+      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
+                            " points)");
+    }
+    StarWalker walker(*tree_);
+    Star star;
+    Status s;
+    {
+      py::gil_scoped_release release;
+      s = walker.compute(seed, star);
+    }
+    if (!s.is_ok()) raise(s);
+    return star;
+  }
+
+  void build_adjacency() const {
+    const std::size_t m = nsimplices();
+    const int w = d_ + 1;
+    struct Facet {
+      std::array<std::uint32_t, kMaxDimension> key{};
+      std::uint32_t simplex;
+      std::uint8_t opposite;
+      bool operator<(const Facet& o) const { return key < o.key; }
+    };
+    std::vector<Facet> facets(m * w);
+    for (std::size_t s = 0; s < m; ++s) {
+      const std::uint32_t* v = &simplices_[s * w];
+      for (int k = 0; k < w; ++k) {
+        Facet& f = facets[s * w + k];
+        int at = 0;
+        for (int j = 0; j < w; ++j) {
+          if (j != k) f.key[at++] = v[j];
+        }
+        std::sort(f.key.begin(), f.key.begin() + std::min(at, kMaxDimension));
+        f.simplex = static_cast<std::uint32_t>(s);
+        f.opposite = static_cast<std::uint8_t>(k);
+      }
+    }
+    std::sort(facets.begin(), facets.end());
+    adjacency_.assign(m * w, -1);
+    for (std::size_t i = 0; i + 1 < facets.size(); ++i) {
+      if (facets[i].key != facets[i + 1].key) continue;
+      adjacency_[facets[i].simplex * w + facets[i].opposite] = static_cast<std::int32_t>(facets[i + 1].simplex);
+      adjacency_[facets[i + 1].simplex * w + facets[i + 1].opposite] = static_cast<std::int32_t>(facets[i].simplex);
+      ++i;
+    }
+    first_simplex_.assign(points_.size(), -1);
+    for (std::size_t s = 0; s < m; ++s) {
+      for (int k = 0; k < w; ++k) {
+        std::int32_t& f = first_simplex_[simplices_[s * w + k]];
+        if (f < 0) f = static_cast<std::int32_t>(s);
+      }
+    }
+  }
+
+  std::int32_t locate(const double* q) const {
+    std::uint32_t nearest = 0;
+    double dist2 = 0;
+    tree_->knn(q, 1, &nearest, &dist2);
+    std::int32_t s = first_simplex_[nearest];
+    const int w = d_ + 1;
+    std::array<const double*, kMaxDimension + 1> corners{};
+    // A visibility walk terminates in a Delaunay triangulation (Edelsbrunner); the
+    // bound only guards against the impossible.
+    for (std::size_t steps = 0; s >= 0 && steps <= 4 * nsimplices() + 16; ++steps) {
+      const std::uint32_t* v = &simplices_[static_cast<std::size_t>(s) * w];
+      int across = -1;
+      for (int k = 0; k < w && across < 0; ++k) {
+        for (int j = 0; j < w; ++j) corners[j] = j == k ? q : points_.point(v[j]);
+        // Simplices are positively oriented: q beyond facet k makes this negative.
+        if (orientation_sign(corners, d_) < 0) across = k;
+      }
+      if (across < 0) return s;
+      s = adjacency_[static_cast<std::size_t>(s) * w + across];
+    }
+    return -1;
+  }
+
+  PointSet points_;
+  int d_;
+  unsigned threads_;
+  std::unique_ptr<KdTree> tree_;
+  std::vector<std::uint32_t> simplices_;
+  mutable std::once_flag adjacency_once_;
+  mutable std::vector<std::int32_t> adjacency_;
+  mutable std::vector<std::int32_t> first_simplex_;
+};
+
+// Certified approximate Delaunay graph, any dimension: CSR (indptr, indices) and each
+// seed's walk_exhausted (its list is complete).
+py::tuple approximate_graph(const Points& array, std::uint32_t misses, std::uint32_t max_vertices,
+                            std::uint64_t random_seed, const std::string& mode, std::optional<unsigned> threads) {
+  PointSet ps = points_from(array, false);
+  if (mode != "rsd" && mode != "spokes") throw py::value_error("mode: '" + mode + "' is not 'rsd' or 'spokes'");
+  const std::size_t n = ps.size();
+  std::vector<std::vector<std::uint32_t>> lists(n);
+  std::vector<std::uint8_t> exhausted(n, 0);
+  std::atomic<bool> failed{false};
+  Status first_error;
+  std::mutex mu;
+  {
+    py::gil_scoped_release release;
+    const KdTree tree(ps);
+    ApproxOptions o;
+    o.mode = mode == "spokes" ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+    o.max_misses = misses;
+    o.max_vertices = max_vertices;
+    o.random_seed = random_seed;
+    std::atomic<std::size_t> next{0};
+    auto work = [&] {
+      ApproxWalker walker(tree, o);
+      ApproxNeighbors a;
+      for (std::size_t i; !failed && (i = next.fetch_add(1)) < n;) {
+        if (Status s = walker.compute(static_cast<std::uint32_t>(i), a); !s.is_ok()) {
+          std::lock_guard lock(mu);
+          failed = true;
+          first_error = s;
+          return;
+        }
+        lists[i] = a.neighbors;
+        exhausted[i] = a.exhausted ? 1 : 0;
+      }
+    };
+    std::vector<std::thread> pool;
+    const unsigned t = thread_count(threads);
+    for (unsigned k = 1; k < t; ++k) pool.emplace_back(work);
+    work();
+    for (auto& th : pool) th.join();
+  }
+  if (failed) raise(first_error);
+  // Symmetric: an edge certified from either end is an edge.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::uint32_t j : lists[i]) {
+      edges.emplace_back(static_cast<std::uint32_t>(i), j);
+      edges.emplace_back(j, static_cast<std::uint32_t>(i));
+    }
+  }
+  std::sort(edges.begin(), edges.end());
+  edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+  std::vector<std::int64_t> indptr(n + 1, 0);
+  std::vector<std::int32_t> indices;
+  indices.reserve(edges.size());
+  for (const auto& [a, b] : edges) {
+    ++indptr[a + 1];
+    indices.push_back(static_cast<std::int32_t>(b));
+  }
+  for (std::size_t i = 0; i < n; ++i) indptr[i + 1] += indptr[i];
+  const auto m = static_cast<py::ssize_t>(indices.size());
+  return py::make_tuple(owned(std::move(indptr), {static_cast<py::ssize_t>(n + 1)}), owned(std::move(indices), {m}),
+                        owned(std::move(exhausted), {static_cast<py::ssize_t>(n)}).attr("astype")("bool"));
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "spokemesh's exact Delaunay/Voronoi core, in-process (see spokemesh.Delaunay)";
+  py::class_<Triangulation>(m, "Triangulation")
+      .def(py::init<const Points&, std::optional<unsigned>>(), py::arg("points"), py::arg("threads") = py::none())
+      .def_property_readonly("dimension", &Triangulation::dimension)
+      .def_property_readonly("npoints", &Triangulation::npoints)
+      .def_property_readonly("nsimplices", &Triangulation::nsimplices)
+      .def("simplices", &Triangulation::simplices)
+      .def("neighbors", &Triangulation::neighbors)
+      .def("find_simplex", &Triangulation::find_simplex, py::arg("xi"))
+      .def("star", &Triangulation::star, py::arg("seed"))
+      .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))
+      .def("cell", &Triangulation::cell, py::arg("seed"), py::arg("box") = py::none(),
+           py::arg("halfspaces") = py::none())
+      .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
+           py::arg("bounding_box") = true);
+  m.def("approximate_graph", &approximate_graph, py::arg("points"), py::arg("misses") = 100,
+        py::arg("max_vertices") = 20000, py::arg("random_seed") = 0x5eed, py::arg("mode") = "rsd",
+        py::arg("threads") = py::none());
+}
