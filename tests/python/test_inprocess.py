@@ -1,0 +1,180 @@
+"""The in-process module (spokemesh.Delaunay, spokemesh.approximate_graph) against
+scipy.spatial.Delaunay (Qhull) on general-position inputs and against the CLI's mesh
+(which test_mesh checks simplex for simplex against CGAL) on grids."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import spokemesh
+from scipy.spatial import Delaunay as ScipyDelaunay
+
+from conftest import local_mesh, uniform
+
+SIZES = {2: 3000, 3: 2000, 4: 600, 5: 200}
+
+
+def as_set(simplices: np.ndarray) -> set:
+    return set(map(tuple, np.sort(simplices, axis=1).tolist()))
+
+
+def signed_volumes(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    v = points[simplices]
+    return np.linalg.det(v[:, 1:, :] - v[:, :1, :])
+
+
+@pytest.mark.parametrize("d", [2, 3, 4, 5])
+def test_simplices_equal_scipys_and_are_positively_oriented(d):
+    points = uniform(SIZES[d], d, seed=40 + d)
+    tri = spokemesh.Delaunay(points, threads=2)
+    ref = ScipyDelaunay(points)
+    assert tri.simplices.dtype == np.int32 and tri.simplices.shape == (tri.nsimplex, d + 1)
+    assert as_set(tri.simplices) == as_set(ref.simplices)
+    assert (signed_volumes(points, tri.simplices) > 0).all()
+    assert tri.ndim == d and tri.npoints == len(points)
+    assert as_set(tri.convex_hull) == as_set(ref.convex_hull)
+    ip, ix = tri.vertex_neighbor_vertices
+    rp, rx = ref.vertex_neighbor_vertices
+    assert np.array_equal(ip, rp)
+    assert all(set(ix[ip[k]:ip[k + 1]]) == set(rx[rp[k]:rp[k + 1]]) for k in range(len(points)))
+
+
+@pytest.mark.parametrize("d", [2, 3, 4])
+def test_neighbors_are_opposite_each_vertex(d):
+    points = uniform(SIZES[d], d, seed=50 + d)
+    tri = spokemesh.Delaunay(points)
+    s, nb = tri.simplices, tri.neighbors
+    for i in range(0, tri.nsimplex, 7):
+        for k in range(d + 1):
+            facet = set(s[i]) - {s[i, k]}
+            if nb[i, k] < 0:
+                continue
+            j = nb[i, k]
+            assert facet <= set(s[j]) and s[i, k] not in set(s[j])
+            assert i in nb[j]
+    hull = (nb == -1).sum()
+    assert hull == len(tri.convex_hull) == len(ScipyDelaunay(points).convex_hull)
+
+
+@pytest.mark.parametrize("d", [2, 3, 4])
+def test_find_simplex_and_transform_agree_with_scipy(d):
+    points = uniform(SIZES[d], d, seed=60 + d)
+    tri = spokemesh.Delaunay(points)
+    ref = ScipyDelaunay(points)
+    q = np.random.default_rng(d).random((4000, d)) * 1.2 - 0.1
+    ours, theirs = tri.find_simplex(q), ref.find_simplex(q)
+    assert ((ours == -1) == (theirs == -1)).all()
+    inside = ours >= 0
+    assert all(set(tri.simplices[a]) == set(ref.simplices[b]) for a, b in zip(ours[inside], theirs[inside]))
+    # Barycentric coordinates from `transform`, scipy's recipe, are in [0, 1].
+    T = tri.transform[ours[inside]]
+    c = np.einsum("ijk,ik->ij", T[:, :d], q[inside] - T[:, d])
+    bary = np.column_stack([c, 1 - c.sum(axis=1)])
+    assert (bary > -1e-9).all() and (bary < 1 + 1e-9).all()
+    # Shape (..., d) in, (...) out, as scipy.
+    assert tri.find_simplex(q.reshape(40, 100, d)).shape == (40, 100)
+
+
+def test_find_simplex_is_exact_on_grid_vertices_and_faces():
+    points = np.array([[i, j] for i in range(6) for j in range(6)], dtype=float)
+    tri = spokemesh.Delaunay(points)
+    # Every vertex, every edge midpoint, and points just outside the square.
+    mids = points[points[:, 1] < 5] + [0, 0.5]
+    queries = np.vstack([points, mids, [[-1e-300, 2.0], [5.0 + 1e-15, 2.5], [2.5, 5.0]]])
+    found = tri.find_simplex(queries)
+    assert (found[:-3] >= 0).all()
+    assert found[-3] == -1 and found[-2] == -1 and found[-1] >= 0
+    for q, s in zip(queries, found):
+        if s >= 0:  # the query lies in the closed simplex: exact barycentric check
+            v = points[tri.simplices[s]]
+            lam = np.linalg.solve(np.vstack([v.T, np.ones(3)]), np.append(q, 1))
+            assert (lam > -1e-12).all()
+
+
+@pytest.mark.parametrize("d,side", [(2, 12), (3, 6), (4, 4)])
+def test_grids_equal_the_exact_mesh(tmp_path, d, side):
+    axes = np.meshgrid(*[np.linspace(0, 1, side)] * d, indexing="ij")
+    points = np.column_stack([a.ravel() for a in axes])
+    tri = spokemesh.Delaunay(points, threads=2)
+    reference = local_mesh(points, tmp_path)  # the CLI: equal to CGAL's (test_mesh)
+    assert np.array_equal(tri.simplices.astype(np.int64), reference)
+    assert (signed_volumes(points, tri.simplices) > 0).all()
+
+
+def test_thread_counts_and_input_types_give_the_same_mesh():
+    points = uniform(5000, 3, seed=7)
+    one = spokemesh.Delaunay(points, threads=1).simplices
+    assert np.array_equal(one, spokemesh.Delaunay(points, threads=4).simplices)
+    assert np.array_equal(one, spokemesh.Delaunay(np.asfortranarray(points)).simplices)
+    assert np.array_equal(one, spokemesh.Delaunay(points.tolist()).simplices)
+
+
+def test_star_neighbors_cells_and_concurrent_use():
+    points = uniform(1000, 3, seed=8)
+    tri = spokemesh.Delaunay(points)
+    s = tri.simplices
+    for i in (0, 17, 999):
+        assert as_set(tri.star(i)) == as_set(s[(s == i).any(axis=1)])
+        assert tri.neighbors_of(i).tolist() == sorted(set(s[(s == i).any(axis=1)].ravel()) - {i})
+    cell = tri.cell(17, box=[0, 0, 0, 1, 1, 1])
+    assert cell.clipped and cell.bounded and cell.volume > 0
+    assert [f.neighbor for f in cell.facets if f.wall is None] == tri.neighbors_of(17).tolist() or \
+        set(f.neighbor for f in cell.facets if f.wall is None) <= set(tri.neighbors_of(17).tolist())
+    z = tri.cells(box=[0, 0, 0, 1, 1, 1])
+    assert abs(z["volume"].sum() - 1) < 1e-12 and z["volume"][17] == cell.volume
+    assert z["bounded"].dtype == bool and z["facet_normal"].shape == (z["facet_ptr"][-1], 3)
+    unclipped = tri.cell(0)
+    assert unclipped.bounded or unclipped.volume == float("inf")
+    # Several Python threads at once (each call releases the GIL).
+    results = [None] * 4
+
+    def work(k):
+        results[k] = tri.find_simplex(np.random.default_rng(k).random((20000, 3)))
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for k in range(4):
+        assert np.array_equal(results[k], tri.find_simplex(np.random.default_rng(k).random((20000, 3))))
+
+
+def test_bad_input_raises_value_error_naming_the_index():
+    with pytest.raises(ValueError, match="points 1 and 3 are equal"):
+        spokemesh.Delaunay(np.array([[0, 0], [1, 0], [0, 1], [1, 0.0]]))
+    p = uniform(10, 2, 1)
+    p[4, 1] = np.nan
+    with pytest.raises(ValueError, match="point 4, coordinate 1"):
+        spokemesh.Delaunay(p)
+    with pytest.raises(ValueError, match="span only a 1"):
+        spokemesh.Delaunay(np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3.0]]))
+    with pytest.raises(ValueError):
+        spokemesh.Delaunay(np.zeros(5))
+    tri = spokemesh.Delaunay(uniform(50, 2, 2))
+    with pytest.raises(IndexError):
+        tri.star(50)
+    with pytest.raises(ValueError, match="lies outside the domain"):
+        tri.cell(int(np.argmax(tri.points[:, 0])), box=[0, 0, 0.1, 0.1])
+    with pytest.raises(ValueError, match="box: expected 4 values"):
+        tri.cell(0, box=[0, 0, 1])
+
+
+def test_approximate_graph_is_certified_deterministic_and_flags_complete_walks():
+    points = uniform(120, 3, seed=9)
+    exact = spokemesh.Delaunay(points).vertex_neighbor_vertices
+    for misses in (10, 1000):
+        g = spokemesh.approximate_graph(points, misses=misses, threads=2)
+        assert np.array_equal(g.indices, spokemesh.approximate_graph(points, misses=misses, threads=1).indices)
+        for k in range(len(points)):
+            mine = set(g.indices[g.indptr[k]:g.indptr[k + 1]])
+            truth = set(exact[1][exact[0][k]:exact[0][k + 1]])
+            assert mine <= truth
+            if g.walk_exhausted[k]:  # complete (general position: no zero-area facets)
+                assert mine == truth
+    assert g.walk_exhausted.dtype == bool and g.walk_exhausted.sum() > 60
+    # High dimensions, beyond the exact limit.
+    high = spokemesh.approximate_graph(uniform(300, 12, seed=10), misses=20)
+    assert high.indptr.shape == (301,) and high.indptr[-1] > 300
