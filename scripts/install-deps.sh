@@ -18,6 +18,8 @@ packages=(
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
   # clipped Voronoi cells: .npz output (libzip), and the oracles scipy and Voro++
   libzip-dev python3-scipy voro++
+  # the in-process Python module (pybind11) and its pip-installable package
+  pybind11-dev python3-pybind11 python3-dev python3-venv python3-setuptools
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers

@@ -19,6 +19,7 @@ Errors: ValueError in-process; spokemesh.Error (with the gRPC status code) remot
 
 from __future__ import annotations
 
+import importlib
 from typing import Any
 
 from .types import Cell, Facet
@@ -34,12 +35,9 @@ def __getattr__(name: str) -> Any:
     # Imported on first use: in-process users need not have gRPC, remote users need not
     # have the compiled module.
     if name in _LOCAL:
-        from . import delaunay
-        return getattr(delaunay, name)
+        return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
-        from . import remote
-        return getattr(remote, name)
-    if name == "remote":
-        from . import remote
-        return remote
+        return getattr(importlib.import_module(".remote", __name__), name)
+    if name in ("remote", "delaunay"):
+        return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")
