@@ -353,10 +353,87 @@ Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, cons
   if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
   auto domain = resolve_domain(set, spec, false);
   if (!domain.is_ok()) return domain.status();
-  auto star = compute_star(set, target.value().second, control);
+  return cell_of(set, target.value().second, domain.value() ? &*domain.value() : nullptr, control);
+}
+
+Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
+                                    const CallControl& control) {
+  auto star = compute_star(set, seed, control);
   if (!star.is_ok()) return star.status();
-  if (!domain.value()) return voronoi_cell(set.points, star.value());
-  return voronoi_cell(set.points, star.value(), *domain.value());
+  if (domain == nullptr) return voronoi_cell(set.points, star.value());
+  return voronoi_cell(set.points, star.value(), *domain);
+}
+
+Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
+                     const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
+                     const AnswerSink& emit) {
+  if (seeds.empty()) return invalid_argument("seeds: none given");
+  if (seeds.size() > kMaxBatchSeeds) {
+    return invalid_argument("seeds: " + std::to_string(seeds.size()) + " exceed the limit of " +
+                            std::to_string(kMaxBatchSeeds) + " per call");
+  }
+  auto set_or = store_->get(id);
+  if (!set_or.is_ok()) return set_or.status();
+  const std::shared_ptr<const StoredSet> set = set_or.value();
+  for (std::size_t i = 0; i < seeds.size(); ++i) {
+    if (seeds[i] >= set->info.count) {
+      return out_of_range("seeds[" + std::to_string(i) + "]: seed " + std::to_string(seeds[i]) +
+                          " is out of range (the point set has " + std::to_string(set->info.count) + " points)");
+    }
+  }
+  std::optional<Domain> domain;
+  if (kind == BatchKind::kCells) {
+    if (Status s = exact_allowed(*set, "a batch of cells"); !s.is_ok()) return s;
+    auto d = resolve_domain(*set, spec, false);
+    if (!d.is_ok()) return d.status();
+    domain = std::move(d).value();
+  }
+  // A round: each worker answers a slice of consecutive seeds; then the round is
+  // emitted in order. Memory: one round of answers, charged like a stream's window.
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  const std::size_t slice = 16;
+  std::vector<BatchAnswer> round;
+  std::vector<Status> failures(threads);
+  for (std::size_t at = 0; at < seeds.size();) {
+    const std::size_t end = std::min(seeds.size(), at + slice * threads);
+    round.assign(end - at, BatchAnswer{});
+    auto work = [&](unsigned t) {
+      for (std::size_t i = at + t * slice; i < std::min(end, at + (t + 1) * slice); ++i) {
+        BatchAnswer& a = round[i - at];
+        a.seed = seeds[i];
+        Status s;
+        if (kind == BatchKind::kStars) {
+          auto r = star(id, seeds[i], control);
+          s = r.status();
+          if (r.is_ok()) a.star = std::move(r).value();
+        } else if (kind == BatchKind::kNeighbors) {
+          auto r = neighbors(id, seeds[i], query, control);
+          s = r.status();
+          if (r.is_ok()) a.neighbors = std::move(r).value();
+        } else {
+          auto r = cell_of(*set, static_cast<std::uint32_t>(seeds[i]), domain ? &*domain : nullptr, control);
+          s = r.status();
+          if (r.is_ok()) a.cell = std::move(r).value();
+        }
+        if (!s.is_ok()) {
+          failures[t] = std::move(s);
+          return;
+        }
+      }
+    };
+    std::vector<std::thread> pool;
+    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work, t);
+    work(0);
+    for (std::thread& th : pool) th.join();
+    for (Status& f : failures) {
+      if (!f.is_ok()) return f;
+    }
+    if (Status s = emit(round, end); !s.is_ok()) return s;
+    at = end;
+  }
+  return Status::ok();
 }
 
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {

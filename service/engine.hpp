@@ -152,10 +152,23 @@ struct DomainSpec {
 };
 
 inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
+// Seeds in one batch call (BatchSeeds, REST .../stars:batch and friends).
+inline constexpr std::size_t kMaxBatchSeeds = 100000;
+
+enum class BatchKind { kStars, kNeighbors, kCells };
+
 
 struct StarAnswer {
   Star star;
   std::vector<double> circumcentres;  // d per simplex
+};
+
+// One seed's answer in a batch: the member for the batch's kind is set.
+struct BatchAnswer {
+  std::uint64_t seed = 0;
+  StarAnswer star;
+  NeighborAnswer neighbors;
+  VoronoiCell cell;
 };
 
 // Shard k of n owns seeds [floor(k N / n), floor((k + 1) N / n)).
@@ -212,6 +225,14 @@ class Engine {
   // kCellBatchSize), clipped to `domain` (empty: the set's bounding box); with
   // measures_only, without vertices. Streamed as stream_simplices is.
   using CellBatchSink = std::function<Status(std::span<const VoronoiCell> cells, std::uint64_t seeds_done)>;
+  // Many seeds in one call: each answer is the single call's (star, neighbors with
+  // `query`, cell with `domain`), computed by worker threads and handed to `emit` in
+  // request order, a bounded round at a time. INVALID_ARGUMENT for more than
+  // kMaxBatchSeeds seeds or none; OUT_OF_RANGE naming the first seed >= count.
+  using AnswerSink = std::function<Status(std::span<const BatchAnswer> answers, std::uint64_t done)>;
+  Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
+               const NeighborQuery& query, const DomainSpec& domain, const CallControl& control,
+               const AnswerSink& emit);
   Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                       std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
                       const CallControl& control, const CellBatchSink& emit, ShardRange* range = nullptr);
@@ -219,6 +240,8 @@ class Engine {
  private:
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  Result<VoronoiCell> cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
+                              const CallControl& control);
   // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT.
   static Result<std::optional<Domain>> resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box);
   // The facet cache a stream may have within the budget: its cap (0: none) and charge.

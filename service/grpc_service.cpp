@@ -174,14 +174,10 @@ grpc::Status MesherService::GetStar(grpc::ServerContext* ctx, const pb::SeedRequ
   if (!call.auth().is_ok()) return call.finish(call.auth());
   auto answer = engine_.star(request->point_set_id(), request->seed(), call.control());
   if (!answer.is_ok()) return call.finish(answer.status());
-  const Star& star = answer->star;
   response->set_point_set_id(request->point_set_id());
   response->set_seed(request->seed());
-  response->set_dimension(static_cast<std::uint32_t>(star.dimension));
-  response->mutable_simplices()->Add(star.simplices.begin(), star.simplices.end());
-  response->mutable_circumcenters()->Add(answer->circumcentres.begin(), answer->circumcentres.end());
-  response->set_hull_facets(static_cast<std::uint32_t>(star.hull_facets));
-  telemetry_.add_simplices_served(star.size());
+  fill_star(answer.value(), response);
+  telemetry_.add_simplices_served(answer->star.size());
   return call.finish(Status::ok());
 }
 
@@ -189,29 +185,48 @@ grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::Get
                                          pb::Neighbors* response) {
   Call call(*this, ctx, "GetNeighbors", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
-  NeighborQuery query;
-  switch (request->mode()) {
-    case pb::NEIGHBOR_MODE_EXACT: query.mode = NeighborQuery::Mode::kExact; break;
-    case pb::NEIGHBOR_MODE_APPROXIMATE: query.mode = NeighborQuery::Mode::kApproximate; break;
-    case pb::NEIGHBOR_MODE_SPOKES: query.mode = NeighborQuery::Mode::kSpokes; break;
-    default: return call.finish(invalid_argument("mode: " + std::to_string(request->mode()) + " is not a NeighborMode"));
-  }
-  query.max_consecutive_misses = request->max_consecutive_misses();
-  query.max_vertices = request->max_vertices();
+  auto query_or = neighbor_query(request->mode(), request->max_consecutive_misses(), request->max_vertices());
+  if (!query_or.is_ok()) return call.finish(query_or.status());
+  const NeighborQuery query = query_or.value();
   auto answer = engine_.neighbors(request->point_set_id(), request->seed(), query, call.control());
   if (!answer.is_ok()) return call.finish(answer.status());
   response->set_point_set_id(request->point_set_id());
   response->set_seed(request->seed());
-  response->mutable_neighbors()->Add(answer->neighbors.begin(), answer->neighbors.end());
-  response->set_exact(answer->exact);
-  response->set_mode(request->mode());
-  if (!answer->exact) {
-    response->set_vertices_visited(answer->walk.vertices);
-    response->set_consecutive_misses(answer->walk.misses);
-    response->set_rays(answer->walk.rays);
-    response->set_walk_exhausted(answer->walk.exhausted);
-  }
+  fill_neighbors(answer.value(), request->mode(), response);
   return call.finish(Status::ok());
+}
+
+void fill_star(const StarAnswer& answer, pb::Star* out) {
+  const Star& star = answer.star;
+  out->set_dimension(static_cast<std::uint32_t>(star.dimension));
+  out->mutable_simplices()->Add(star.simplices.begin(), star.simplices.end());
+  out->mutable_circumcenters()->Add(answer.circumcentres.begin(), answer.circumcentres.end());
+  out->set_hull_facets(static_cast<std::uint32_t>(star.hull_facets));
+}
+
+void fill_neighbors(const NeighborAnswer& answer, pb::NeighborMode mode, pb::Neighbors* out) {
+  out->mutable_neighbors()->Add(answer.neighbors.begin(), answer.neighbors.end());
+  out->set_exact(answer.exact);
+  out->set_mode(mode);
+  if (!answer.exact) {
+    out->set_vertices_visited(answer.walk.vertices);
+    out->set_consecutive_misses(answer.walk.misses);
+    out->set_rays(answer.walk.rays);
+    out->set_walk_exhausted(answer.walk.exhausted);
+  }
+}
+
+Result<NeighborQuery> neighbor_query(int mode, std::uint32_t misses, std::uint32_t max_vertices) {
+  NeighborQuery query;
+  switch (mode) {
+    case pb::NEIGHBOR_MODE_EXACT: query.mode = NeighborQuery::Mode::kExact; break;
+    case pb::NEIGHBOR_MODE_APPROXIMATE: query.mode = NeighborQuery::Mode::kApproximate; break;
+    case pb::NEIGHBOR_MODE_SPOKES: query.mode = NeighborQuery::Mode::kSpokes; break;
+    default: return invalid_argument("mode: " + std::to_string(mode) + " is not a NeighborMode");
+  }
+  query.max_consecutive_misses = misses;
+  query.max_vertices = max_vertices;
+  return query;
 }
 
 void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out) {
@@ -302,6 +317,60 @@ grpc::Status MesherService::StreamCells(grpc::ServerContext* ctx, const pb::Stre
   return call.finish(engine_.stream_cells(request->point_set_id(), request->shard_index(), request->shard_count(),
                                           request->batch_size(), domain_spec(request->domain()),
                                           request->measures_only(), call.control(), emit, &range));
+}
+
+grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::BatchSeedsRequest* request,
+                                       grpc::ServerWriter<pb::BatchSeedsResponse>* writer) {
+  Call call(*this, ctx, "BatchSeeds", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  BatchKind kind;
+  switch (request->kind()) {
+    case pb::BATCH_KIND_STARS: kind = BatchKind::kStars; break;
+    case pb::BATCH_KIND_NEIGHBORS: kind = BatchKind::kNeighbors; break;
+    case pb::BATCH_KIND_CELLS: kind = BatchKind::kCells; break;
+    default: return call.finish(invalid_argument("kind: " + std::to_string(request->kind()) + " is not a BatchKind"));
+  }
+  auto query = neighbor_query(request->mode(), request->max_consecutive_misses(), request->max_vertices());
+  if (!query.is_ok()) return call.finish(query.status());
+  const std::vector<std::uint64_t> seeds(request->seeds().begin(), request->seeds().end());
+  pb::BatchSeedsResponse response;
+  auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t done) -> Status {
+    // Messages of at most about 2 MiB (gRPC's default limit is 4 MiB).
+    std::size_t bytes = 0;
+    auto flush = [&]() -> Status {
+      if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+      response.Clear();
+      bytes = 0;
+      return Status::ok();
+    };
+    for (std::size_t i = 0; i < answers.size(); ++i) {
+      const BatchAnswer& a = answers[i];
+      if (kind == BatchKind::kStars) {
+        pb::Star* out = response.add_stars();
+        out->set_seed(a.seed);
+        fill_star(a.star, out);
+        telemetry_.add_simplices_served(a.star.star.size());
+        bytes += out->ByteSizeLong();
+      } else if (kind == BatchKind::kNeighbors) {
+        pb::Neighbors* out = response.add_neighbors();
+        out->set_seed(a.seed);
+        fill_neighbors(a.neighbors, request->mode(), out);
+        bytes += out->ByteSizeLong();
+      } else {
+        pb::VoronoiCell* out = response.add_cells();
+        out->set_seed(a.seed);
+        fill_cell(a.cell, out);
+        bytes += out->ByteSizeLong();
+      }
+      if (bytes > (std::size_t{2} << 20) || i + 1 == answers.size()) {
+        response.set_done(done - (answers.size() - 1 - i));
+        if (Status s = flush(); !s.is_ok()) return s;
+      }
+    }
+    return Status::ok();
+  };
+  return call.finish(engine_.batch(request->point_set_id(), seeds, kind, query.value(), domain_spec(request->domain()),
+                                   call.control(), emit));
 }
 
 }  // namespace spokemesh::service

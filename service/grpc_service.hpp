@@ -45,6 +45,8 @@ class MesherService final : public pb::Mesher::Service {
                                grpc::ServerWriter<pb::SimplexBatch>* writer) override;
   grpc::Status StreamCells(grpc::ServerContext* ctx, const pb::StreamCellsRequest* request,
                            grpc::ServerWriter<pb::CellBatch>* writer) override;
+  grpc::Status BatchSeeds(grpc::ServerContext* ctx, const pb::BatchSeedsRequest* request,
+                          grpc::ServerWriter<pb::BatchSeedsResponse>* writer) override;
 
  private:
   class Call;
@@ -56,6 +58,9 @@ class MesherService final : public pb::Mesher::Service {
 void fill_point_set(const PointSetInfo& info, pb::PointSet* out);
 // One convention for unbounded cells (docs/service.md): +infinity where a number is typed.
 void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out);
+void fill_star(const StarAnswer& answer, pb::Star* out);
+void fill_neighbors(const NeighborAnswer& answer, pb::NeighborMode mode, pb::Neighbors* out);
+Result<NeighborQuery> neighbor_query(int mode, std::uint32_t misses, std::uint32_t max_vertices);
 DomainSpec domain_spec(const pb::Domain& domain);
 
 }  // namespace spokemesh::service

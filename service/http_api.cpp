@@ -88,6 +88,41 @@ std::string media_type_of(std::string_view content_type) {
   return out;
 }
 
+json star_json(const StarAnswer& answer, const std::string& id, std::uint64_t seed) {
+  const Star& star = answer.star;
+  return {{"point_set_id", id},
+          {"seed", seed},
+          {"dimension", star.dimension},
+          {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
+          {"circumcenters", rows(answer.circumcentres, static_cast<std::size_t>(star.dimension))},
+          {"hull_facets", star.hull_facets}};
+}
+
+json neighbors_json(const NeighborAnswer& answer, const std::string& id, std::uint64_t seed, const std::string& mode) {
+  json body = {{"point_set_id", id}, {"seed", seed}, {"neighbors", answer.neighbors}, {"exact", answer.exact},
+               {"mode", mode}};
+  if (!answer.exact) {
+    body["vertices_visited"] = answer.walk.vertices;
+    body["consecutive_misses"] = answer.walk.misses;
+    body["rays"] = answer.walk.rays;
+    body["walk_exhausted"] = answer.walk.exhausted;
+  }
+  return body;
+}
+
+Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t misses, std::uint64_t max_vertices) {
+  NeighborQuery query;
+  if (mode == "exact") query.mode = NeighborQuery::Mode::kExact;
+  else if (mode == "approximate") query.mode = NeighborQuery::Mode::kApproximate;
+  else if (mode == "spokes") query.mode = NeighborQuery::Mode::kSpokes;
+  else return invalid_argument("mode: \"" + mode.substr(0, 40) + "\" is not exact, approximate or spokes");
+  if (misses > 100000000) return invalid_argument("max_consecutive_misses: " + std::to_string(misses) + " is too large");
+  if (max_vertices > 100000000) return invalid_argument("max_vertices: " + std::to_string(max_vertices) + " is too large");
+  query.max_consecutive_misses = static_cast<std::uint32_t>(misses);
+  query.max_vertices = static_cast<std::uint32_t>(max_vertices);
+  return query;
+}
+
 // A comma-separated list of numbers from a query parameter, e.g. box=0,0,1,1.
 Result<std::vector<double>> parse_numbers(const std::string& text, const std::string& what) {
   std::vector<double> out;
@@ -287,6 +322,11 @@ HttpResponse HttpApi::route(Context& c) {
     }
     return wrong_method();
   }
+  if (p.size() == 4 && (p[3] == "stars:batch" || p[3] == "neighbors:batch" || p[3] == "cells:batch")) {
+    if (method != http::verb::post) return wrong_method();
+    c.record.method = "BatchSeeds";
+    return batch(c, id, p[3].substr(0, p[3].find(':')));
+  }
   if (p.size() == 4 && p[3] == "cells") {
     if (method != http::verb::get) return wrong_method();
     c.record.method = "StreamCells";
@@ -368,42 +408,25 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   if (what == "star") {
     auto answer = engine_.star(id, seed.value(), control);
     if (!answer.is_ok()) return c.fail(answer.status());
-    const Star& star = answer->star;
-    telemetry_.add_simplices_served(star.size());
-    return c.ok({{"point_set_id", id},
-                 {"seed", seed.value()},
-                 {"dimension", star.dimension},
-                 {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
-                 {"circumcenters", rows(answer->circumcentres, static_cast<std::size_t>(star.dimension))},
-                 {"hull_facets", star.hull_facets}});
+    telemetry_.add_simplices_served(answer->star.size());
+    return c.ok(star_json(answer.value(), id, seed.value()));
   }
   if (what == "neighbors") {
-    NeighborQuery query;
     const std::string mode = c.param("mode").value_or("exact");
-    if (mode == "exact") query.mode = NeighborQuery::Mode::kExact;
-    else if (mode == "approximate") query.mode = NeighborQuery::Mode::kApproximate;
-    else if (mode == "spokes") query.mode = NeighborQuery::Mode::kSpokes;
-    else return c.fail(invalid_argument("mode: \"" + mode.substr(0, 40) + "\" is not exact, approximate or spokes"));
-    for (const char* name : {"max_consecutive_misses", "max_vertices"}) {
-      if (auto text = c.param(name)) {
-        auto v = parse_uint(*text, name);
+    std::uint64_t limits[2] = {0, 0};
+    const char* names[2] = {"max_consecutive_misses", "max_vertices"};
+    for (int i = 0; i < 2; ++i) {
+      if (auto text = c.param(names[i])) {
+        auto v = parse_uint(*text, names[i]);
         if (!v.is_ok()) return c.fail(v.status());
-        if (v.value() > 100000000) return c.fail(invalid_argument(std::string(name) + ": " + *text + " is too large"));
-        (std::string(name) == "max_vertices" ? query.max_vertices : query.max_consecutive_misses) =
-            static_cast<std::uint32_t>(v.value());
+        limits[i] = v.value();
       }
     }
-    auto answer = engine_.neighbors(id, seed.value(), query, control);
+    auto query = neighbor_query_of(mode, limits[0], limits[1]);
+    if (!query.is_ok()) return c.fail(query.status());
+    auto answer = engine_.neighbors(id, seed.value(), query.value(), control);
     if (!answer.is_ok()) return c.fail(answer.status());
-    json body = {{"point_set_id", id}, {"seed", seed.value()}, {"neighbors", answer->neighbors},
-                 {"exact", answer->exact}, {"mode", mode}};
-    if (!answer->exact) {
-      body["vertices_visited"] = answer->walk.vertices;
-      body["consecutive_misses"] = answer->walk.misses;
-      body["rays"] = answer->walk.rays;
-      body["walk_exhausted"] = answer->walk.exhausted;
-    }
-    return c.ok(body);
+    return c.ok(neighbors_json(answer.value(), id, seed.value(), mode));
   }
   auto spec = domain_from_query(c);
   if (!spec.is_ok()) return c.fail(spec.status());
@@ -515,6 +538,90 @@ HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
     };
     Status s = engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
                                         static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
+    record.code = s.code();
+    record.message = s.message();
+    record.seconds = timer.seconds();
+    telemetry_.record(record);
+    return s;
+  };
+  return r;
+}
+
+// POST .../{stars,neighbors,cells}:batch with {"seeds": [...], ...}: NDJSON, one line
+// per seed in request order, each the single route's body.
+HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string& what) {
+  json body;
+  try {
+    body = json::parse(c.request.body());
+  } catch (const json::exception& e) {
+    return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
+  }
+  if (!body.is_object() || !body.contains("seeds") || !body["seeds"].is_array()) {
+    return c.fail(invalid_argument("seeds: the body needs {\"seeds\": [i, j, ...]}"));
+  }
+  const json& list = body["seeds"];
+  if (list.size() > kMaxBatchSeeds) {
+    return c.fail(invalid_argument("seeds: " + std::to_string(list.size()) + " exceed the limit of " +
+                                   std::to_string(kMaxBatchSeeds) + " per call"));
+  }
+  std::vector<std::uint64_t> seeds;
+  seeds.reserve(list.size());
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    if (!list[i].is_number_unsigned()) {
+      return c.fail(invalid_argument("seeds[" + std::to_string(i) + "]: " + list[i].dump().substr(0, 40) +
+                                     " is not a non-negative integer"));
+    }
+    seeds.push_back(list[i].get<std::uint64_t>());
+  }
+  auto number = [&](const char* key) -> Result<std::uint64_t> {
+    if (!body.contains(key)) return std::uint64_t{0};
+    if (!body[key].is_number_unsigned()) return invalid_argument(std::string(key) + ": not a non-negative integer");
+    return body[key].get<std::uint64_t>();
+  };
+  const std::string mode = body.contains("mode") && body["mode"].is_string() ? body["mode"].get<std::string>() : "exact";
+  auto misses = number("max_consecutive_misses");
+  if (!misses.is_ok()) return c.fail(misses.status());
+  auto max_vertices = number("max_vertices");
+  if (!max_vertices.is_ok()) return c.fail(max_vertices.status());
+  auto query = neighbor_query_of(mode, misses.value(), max_vertices.value());
+  if (!query.is_ok()) return c.fail(query.status());
+  DomainSpec spec;
+  for (const char* key : {"box", "halfspaces"}) {
+    if (!body.contains(key)) continue;
+    if (!body[key].is_array()) return c.fail(invalid_argument(std::string(key) + ": expected an array of numbers"));
+    std::vector<double>& out = std::string(key) == "box" ? spec.box : spec.halfspaces;
+    for (const json& v : body[key]) {
+      if (!v.is_number()) return c.fail(invalid_argument(std::string(key) + ": expected an array of numbers"));
+      out.push_back(v.get<double>());
+    }
+  }
+  spec.bounding_box = body.contains("bounding_box") && body["bounding_box"].is_boolean() && body["bounding_box"].get<bool>();
+  const BatchKind kind = what == "stars" ? BatchKind::kStars : what == "neighbors" ? BatchKind::kNeighbors : BatchKind::kCells;
+  HttpResponse r;
+  r.content_type = "application/x-ndjson";
+  r.stream = [this, id, seeds = std::move(seeds), kind, mode, query = query.value(), spec, deadline = c.deadline,
+              gone = c.client_gone, record = c.record,
+              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+    CallControl control(deadline, gone);
+    std::string text;
+    auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
+      text.clear();
+      for (const BatchAnswer& a : answers) {
+        if (kind == BatchKind::kStars) {
+          text += dump(star_json(a.star, id, a.seed));
+        } else if (kind == BatchKind::kNeighbors) {
+          text += dump(neighbors_json(a.neighbors, id, a.seed, mode));
+        } else {
+          json cell = cell_json(a.cell);
+          cell["point_set_id"] = id;
+          text += dump(cell);
+        }
+        text += '\n';
+      }
+      if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
+      return Status::ok();
+    };
+    Status s = engine_.batch(id, seeds, kind, query, spec, control, emit);
     record.code = s.code();
     record.message = s.message();
     record.seconds = timer.seconds();

@@ -73,6 +73,7 @@ class HttpApi {
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);
+  HttpResponse batch(Context& c, const std::string& id, const std::string& what);
   static Result<DomainSpec> domain_from_query(Context& c);
 
   Engine& engine_;

@@ -14,40 +14,48 @@
 
 namespace spokemesh::cli {
 
-// `original` maps a neighbour or vertex index to the user's numbering.
+// The cell as JSON (the `cell --json` layout); `original` maps a neighbour or vertex
+// index to the user's numbering.
+inline nlohmann::json cell_json(const VoronoiCell& cell, std::uint64_t seed,
+                                const std::function<std::uint32_t(std::uint32_t)>& original) {
+  const int d = cell.dimension;
+  const bool simplices = !cell.vertex_simplices.empty();
+  nlohmann::json j;
+  j["seed"] = seed;
+  j["dimension"] = d;
+  j["bounded"] = cell.bounded;
+  j["clipped"] = cell.clipped;
+  j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
+  j["centroid"] = cell.bounded ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
+  j["vertices"] = nlohmann::json::array();
+  for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
+    nlohmann::json vertex = {{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)}};
+    if (simplices) {
+      std::vector<std::uint32_t> s(&cell.vertex_simplices[v * (d + 1)], &cell.vertex_simplices[(v + 1) * (d + 1)]);
+      for (auto& i : s) i = original(i);
+      vertex["simplex"] = s;
+    }
+    j["vertices"].push_back(std::move(vertex));
+  }
+  j["facets"] = nlohmann::json::array();
+  for (const VoronoiFacet& f : cell.facets) {
+    nlohmann::json facet;
+    if (f.is_wall()) facet["wall"] = f.wall();
+    else facet["neighbor"] = original(static_cast<std::uint32_t>(f.neighbor));
+    facet["vertices"] = f.vertices;
+    facet["area"] = std::isfinite(f.area) ? nlohmann::json(f.area) : nlohmann::json(nullptr);
+    facet["normal"] = f.normal;
+    j["facets"].push_back(std::move(facet));
+  }
+  return j;
+}
+
 inline void print_cell(const VoronoiCell& cell, std::uint64_t seed, bool json,
                        const std::function<std::uint32_t(std::uint32_t)>& original) {
   const int d = cell.dimension;
   const bool simplices = !cell.vertex_simplices.empty();
   if (json) {
-    nlohmann::json j;
-    j["seed"] = seed;
-    j["dimension"] = d;
-    j["bounded"] = cell.bounded;
-    j["clipped"] = cell.clipped;
-    j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
-    j["centroid"] = cell.bounded ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
-    j["vertices"] = nlohmann::json::array();
-    for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
-      nlohmann::json vertex = {{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)}};
-      if (simplices) {
-        std::vector<std::uint32_t> s(&cell.vertex_simplices[v * (d + 1)], &cell.vertex_simplices[(v + 1) * (d + 1)]);
-        for (auto& i : s) i = original(i);
-        vertex["simplex"] = s;
-      }
-      j["vertices"].push_back(std::move(vertex));
-    }
-    j["facets"] = nlohmann::json::array();
-    for (const VoronoiFacet& f : cell.facets) {
-      nlohmann::json facet;
-      if (f.is_wall()) facet["wall"] = f.wall();
-      else facet["neighbor"] = original(static_cast<std::uint32_t>(f.neighbor));
-      facet["vertices"] = f.vertices;
-      facet["area"] = std::isfinite(f.area) ? nlohmann::json(f.area) : nlohmann::json(nullptr);
-      facet["normal"] = f.normal;
-      j["facets"].push_back(std::move(facet));
-    }
-    std::cout << j.dump(2) << "\n";
+    std::cout << cell_json(cell, seed, original).dump(2) << "\n";
     return;
   }
   std::printf("seed %llu\ndimension %d\nbounded %s\n", static_cast<unsigned long long>(seed), d,

@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <optional>
@@ -524,6 +525,15 @@ int main(int argc, char** argv) {
   upload->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
   upload->add_option("--name", display_name, "Display name stored with the point set");
   upload->add_flag("-q,--quiet", common.quiet, "Print only the id");
+  auto* batch = app.add_subcommand(
+      "batch", "Remote mode: stars, neighbours or cells of many seeds in one call; one JSON object per line");
+  std::string batch_kind, seeds_text, seeds_file;
+  batch->add_option("ID", input, "Point-set id")->required();
+  batch->add_option("KIND", batch_kind, "stars, neighbors or cells")->required()->check(CLI::IsMember({"stars", "neighbors", "cells"}));
+  batch->add_option("--seeds", seeds_text, "Comma-separated seed indices, e.g. 0,5,17");
+  batch->add_option("--seeds-file", seeds_file, "File of seed indices (whitespace or commas)");
+  add_domain(batch, "cells only; default: unclipped");
+  add_approx_flags(batch, approx_flags);
   auto* health = app.add_subcommand("health", "Remote mode: ask the server's gRPC health service (exit 0 if SERVING)");
   auto* list = app.add_subcommand("list", "Remote mode: list the stored point sets");
   auto* del = app.add_subcommand("delete", "Remote mode: delete a stored point set");
@@ -542,7 +552,7 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
 
-  const bool remote_only = *upload || *health || *list || *del;
+  const bool remote_only = *upload || *health || *list || *del || *batch;
   if (!server.empty()) {
 #ifdef SPOKEMESH_REMOTE
     remote::RemoteOptions o;
@@ -572,6 +582,36 @@ int main(int argc, char** argv) {
     if (seed < -1) return report(out_of_range("--seed: " + std::to_string(seed) + " is negative"));
     const auto s = static_cast<std::uint64_t>(seed);
     if (*upload) return remote::upload(o, input, display_name);
+    if (*batch) {
+      std::string text = seeds_text;
+      if (!seeds_file.empty()) {
+        std::ifstream in(seeds_file);
+        if (!in) return report(invalid_argument("--seeds-file: cannot read " + seeds_file));
+        text.append(",").append(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+      }
+      std::vector<std::uint64_t> list;
+      std::string item;
+      for (char ch : text + ",") {
+        if (ch == ',' || std::isspace(static_cast<unsigned char>(ch))) {
+          if (item.empty()) continue;
+          char* end = nullptr;
+          const unsigned long long v = std::strtoull(item.c_str(), &end, 10);
+          if (*end != '\0' || item[0] == '-') {
+            return report(invalid_argument("--seeds: '" + item + "' (seed " + std::to_string(list.size()) +
+                                           ") is not a seed index"));
+          }
+          list.push_back(v);
+          item.clear();
+        } else {
+          item += ch;
+        }
+      }
+      if (list.empty()) return report(invalid_argument("batch: give seeds with --seeds or --seeds-file"));
+      const std::string mode = !approx_flags.enabled ? "exact" : approx_flags.mode == "spokes" ? "spokes" : "approximate";
+      return remote::batch(o, input, batch_kind, list, mode, approx_flags.enabled ? approx_flags.misses : 0,
+                           approx_flags.enabled ? approx_flags.max_vertices : 0, domain_flags.box,
+                           domain_flags.halfspaces);
+    }
     if (*health) return remote::health(o);
     if (*list) return remote::list(o);
     if (*del) return remote::remove(o, input);

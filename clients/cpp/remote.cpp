@@ -292,6 +292,68 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
   return kExitOk;
 }
 
+int batch(const RemoteOptions& o, const std::string& id, const std::string& kind, const std::vector<std::uint64_t>& seeds,
+          const std::string& mode, std::uint32_t misses, std::uint32_t max_vertices, const std::string& box,
+          const std::string& halfspaces) {
+  auto stub = pb::Mesher::NewStub(channel(o));
+  pb::BatchSeedsRequest r;
+  r.set_point_set_id(id);
+  r.mutable_seeds()->Add(seeds.begin(), seeds.end());
+  r.set_kind(kind == "stars" ? pb::BATCH_KIND_STARS : kind == "neighbors" ? pb::BATCH_KIND_NEIGHBORS : pb::BATCH_KIND_CELLS);
+  r.set_mode(mode == "approximate" ? pb::NEIGHBOR_MODE_APPROXIMATE
+             : mode == "spokes"    ? pb::NEIGHBOR_MODE_SPOKES
+                                   : pb::NEIGHBOR_MODE_EXACT);
+  r.set_max_consecutive_misses(misses);
+  r.set_max_vertices(max_vertices);
+  if (!box.empty() || !halfspaces.empty()) {
+    grpc::Status status;
+    auto d = dimension_of(o, *stub, id, status);
+    if (!d.is_ok()) return report(o, status);
+    auto domain = domain_proto(box, halfspaces, d.value());
+    if (!domain.is_ok()) return report(domain.status());
+    *r.mutable_domain() = domain.value();
+  }
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  auto reader = stub->BatchSeeds(&ctx, r);
+  pb::BatchSeedsResponse response;
+  std::string line;
+  while (reader->Read(&response)) {
+    for (const pb::Star& s : response.stars()) {
+      const int d = static_cast<int>(s.dimension());
+      nlohmann::json j = {{"seed", s.seed()}, {"dimension", d}, {"hull_facets", s.hull_facets()}};
+      j["simplices"] = nlohmann::json::array();
+      for (int i = 0; i + d < s.simplices_size(); i += d + 1) {
+        j["simplices"].push_back(std::vector<std::uint32_t>(s.simplices().begin() + i, s.simplices().begin() + i + d + 1));
+      }
+      j["circumcenters"] = nlohmann::json::array();
+      for (int i = 0; i + d <= s.circumcenters_size(); i += d) {
+        j["circumcenters"].push_back(std::vector<double>(s.circumcenters().begin() + i, s.circumcenters().begin() + i + d));
+      }
+      std::cout << j.dump() << "\n";
+    }
+    for (const pb::Neighbors& n : response.neighbors()) {
+      nlohmann::json j = {{"seed", n.seed()},
+                          {"neighbors", std::vector<std::uint32_t>(n.neighbors().begin(), n.neighbors().end())},
+                          {"exact", n.exact()},
+                          {"mode", mode}};
+      if (!n.exact()) {
+        j["vertices_visited"] = n.vertices_visited();
+        j["consecutive_misses"] = n.consecutive_misses();
+        j["rays"] = n.rays();
+        j["walk_exhausted"] = n.walk_exhausted();
+      }
+      std::cout << j.dump() << "\n";
+    }
+    for (const pb::VoronoiCell& c : response.cells()) {
+      std::cout << cli::cell_json(from_proto(c), c.seed(), [](std::uint32_t i) { return i; }).dump() << "\n";
+    }
+  }
+  std::cout.flush();
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report(o, s);
+  return kExitOk;
+}
+
 int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards) {
   auto ch = channel(o);
   auto stub = pb::Mesher::NewStub(ch);

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 namespace spokemesh::remote {
 
@@ -33,6 +34,11 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
 // Fetches all shards in parallel (one stream each) and writes OUTPUT in any format
 // of the local `mesh` command.
 int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards);
+// Many seeds in one BatchSeeds call; prints one JSON object per seed (NDJSON), as the
+// REST .../{stars,neighbors,cells}:batch routes answer. kind: stars, neighbors, cells.
+int batch(const RemoteOptions& o, const std::string& id, const std::string& kind, const std::vector<std::uint64_t>& seeds,
+          const std::string& mode, std::uint32_t misses, std::uint32_t max_vertices, const std::string& box,
+          const std::string& halfspaces);
 int health(const RemoteOptions& o);
 int list(const RemoteOptions& o);
 int remove(const RemoteOptions& o, const std::string& id);

@@ -188,12 +188,44 @@ class Client:
     # ---- per-seed queries -------------------------------------------------------
 
     def star(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Star:
-        r = self._call(self._stub.GetStar, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout)
-        d = r.dimension
-        return Star(seed=r.seed,
-                    simplices=np.array(r.simplices, dtype=np.uint32).reshape(-1, d + 1),
-                    circumcenters=np.array(r.circumcenters, dtype=np.float64).reshape(-1, d),
-                    hull_facets=r.hull_facets)
+        """The Delaunay simplices incident to `seed` and their circumcentres."""
+        return _star(self._call(self._stub.GetStar, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout))
+
+    # ---- many seeds in one call --------------------------------------------------
+
+    def _batch(self, request: pb.BatchSeedsRequest, timeout: Optional[float]):
+        try:
+            for r in self._stub.BatchSeeds(request, timeout=timeout or self._timeout, metadata=self._metadata):
+                yield r
+        except grpc.RpcError as e:
+            raise Error(e.code(), e.details()) from None
+
+    def batch_stars(self, point_set_id: str, seeds: Sequence[int], timeout: Optional[float] = None) -> List[Star]:
+        """The stars of many seeds (at most 100,000) in one streamed call, in order;
+        each equals star()'s answer."""
+        request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
+                                       kind=pb.BATCH_KIND_STARS)
+        return [_star(r) for batch in self._batch(request, timeout) for r in batch.stars]
+
+    def batch_neighbors(self, point_set_id: str, seeds: Sequence[int], timeout: Optional[float] = None, *,
+                        mode: str = "exact", max_consecutive_misses: int = 0,
+                        max_vertices: int = 0) -> List[Neighbors]:
+        """neighbor_walk() for many seeds (at most 100,000) in one streamed call, in order."""
+        request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
+                                       kind=pb.BATCH_KIND_NEIGHBORS, mode=_mode(mode),
+                                       max_consecutive_misses=max_consecutive_misses, max_vertices=max_vertices)
+        return [_neighbors(r, mode) for batch in self._batch(request, timeout) for r in batch.neighbors]
+
+    def batch_cells(self, point_set_id: str, seeds: Sequence[int], box: Optional[Sequence[float]] = None,
+                    halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
+                    timeout: Optional[float] = None) -> List[Cell]:
+        """cell() for many seeds (at most 100,000) in one streamed call, in order."""
+        request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
+                                       kind=pb.BATCH_KIND_CELLS)
+        domain = _domain(box, halfspaces, bounding_box)
+        if domain is not None:
+            request.domain.CopyFrom(domain)
+        return [_cell(r) for batch in self._batch(request, timeout) for r in batch.cells]
 
     def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
                   max_consecutive_misses: int = 0, max_vertices: int = 0) -> np.ndarray:
@@ -204,18 +236,13 @@ class Client:
                                   max_vertices=max_vertices).neighbors
 
     def neighbor_walk(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
-                      max_consecutive_misses: int = 0, max_vertices: int = 0) -> "Neighbors":
-        modes = {"exact": pb.NEIGHBOR_MODE_EXACT, "approximate": pb.NEIGHBOR_MODE_APPROXIMATE,
-                 "spokes": pb.NEIGHBOR_MODE_SPOKES}
-        if mode not in modes:
-            raise ValueError(f"mode: {mode!r} is not one of {sorted(modes)}")
+                      max_consecutive_misses: int = 0, max_vertices: int = 0) -> Neighbors:
+        """The neighbours with the walk's statistics (approximate modes) and walk_exhausted."""
         r = self._call(self._stub.GetNeighbors,
-                       pb.GetNeighborsRequest(point_set_id=point_set_id, seed=seed, mode=modes[mode],
+                       pb.GetNeighborsRequest(point_set_id=point_set_id, seed=seed, mode=_mode(mode),
                                               max_consecutive_misses=max_consecutive_misses,
                                               max_vertices=max_vertices), timeout)
-        return Neighbors(seed=r.seed, neighbors=np.array(r.neighbors, dtype=np.uint32), exact=r.exact,
-                         vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
-                         rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode)
+        return _neighbors(r, mode)
 
     def cell(self, point_set_id: str, seed: int, box: Optional[Sequence[float]] = None,
              halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
@@ -278,6 +305,26 @@ class Client:
         with concurrent.futures.ThreadPoolExecutor(max_workers=min(shards, 16)) as pool:
             parts = list(pool.map(lambda k: self.shard(point_set_id, k, shards, timeout=timeout), range(shards)))
         return np.concatenate(parts, axis=0)
+
+
+def _mode(mode: str) -> int:
+    modes = {"exact": pb.NEIGHBOR_MODE_EXACT, "approximate": pb.NEIGHBOR_MODE_APPROXIMATE,
+             "spokes": pb.NEIGHBOR_MODE_SPOKES}
+    if mode not in modes:
+        raise ValueError(f"mode: {mode!r} is not one of {sorted(modes)}")
+    return modes[mode]
+
+
+def _star(r: pb.Star) -> Star:
+    d = r.dimension
+    return Star(seed=r.seed, simplices=np.array(r.simplices, dtype=np.uint32).reshape(-1, d + 1),
+                circumcenters=np.array(r.circumcenters, dtype=np.float64).reshape(-1, d), hull_facets=r.hull_facets)
+
+
+def _neighbors(r: pb.Neighbors, mode: str) -> Neighbors:
+    return Neighbors(seed=r.seed, neighbors=np.array(r.neighbors, dtype=np.uint32), exact=r.exact,
+                     vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
+                     rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode)
 
 
 def _point_set(r: pb.PointSet) -> PointSet:
