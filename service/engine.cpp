@@ -396,26 +396,53 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   const std::size_t slice = 16;
   std::vector<BatchAnswer> round;
   std::vector<Status> failures(threads);
+  const bool exact = kind != BatchKind::kNeighbors || query.mode == NeighborQuery::Mode::kExact;
+  if (exact) {
+    if (Status s = exact_allowed(*set, "this batch"); !s.is_ok()) return s;
+  }
+  StarOptions star_options;
+  star_options.cancel = control.stop_flag();
+  std::vector<std::unique_ptr<StarWalker>> walkers;
+  std::vector<Star> scratch(threads);
+  for (unsigned t = 0; t < threads; ++t) walkers.push_back(std::make_unique<StarWalker>(*set->tree, star_options));
   for (std::size_t at = 0; at < seeds.size();) {
     const std::size_t end = std::min(seeds.size(), at + slice * threads);
     round.assign(end - at, BatchAnswer{});
     auto work = [&](unsigned t) {
+      StarWalker& walker = *walkers[t];
       for (std::size_t i = at + t * slice; i < std::min(end, at + (t + 1) * slice); ++i) {
         BatchAnswer& a = round[i - at];
         a.seed = seeds[i];
+        const auto seed = static_cast<std::uint32_t>(seeds[i]);
         Status s;
-        if (kind == BatchKind::kStars) {
-          auto r = star(id, seeds[i], control);
-          s = r.status();
-          if (r.is_ok()) a.star = std::move(r).value();
-        } else if (kind == BatchKind::kNeighbors) {
+        if (kind == BatchKind::kNeighbors && query.mode != NeighborQuery::Mode::kExact) {
           auto r = neighbors(id, seeds[i], query, control);
           s = r.status();
           if (r.is_ok()) a.neighbors = std::move(r).value();
         } else {
-          auto r = cell_of(*set, static_cast<std::uint32_t>(seeds[i]), domain ? &*domain : nullptr, control);
-          s = r.status();
-          if (r.is_ok()) a.cell = std::move(r).value();
+          // The exact answers from one walker per thread, kept across the batch (the
+          // star is the same from any walker; reuse saves its set-up per seed).
+          s = walker.compute(seed, scratch[t]);
+          if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
+          if (s.is_ok()) {
+            if (kind == BatchKind::kStars) {
+              a.star.star = scratch[t];
+              const int d = set->points.dimension();
+              a.star.circumcentres.reserve(a.star.star.size() * d);
+              for (std::size_t k = 0; k < a.star.star.size(); ++k) {
+                const std::vector<double> c = circumcentre(set->points, a.star.star.simplex(k), d + 1);
+                a.star.circumcentres.insert(a.star.circumcentres.end(), c.begin(), c.end());
+              }
+            } else if (kind == BatchKind::kNeighbors) {
+              a.neighbors.neighbors = star_neighbors(scratch[t]);
+            } else if (!domain) {
+              a.cell = voronoi_cell(set->points, scratch[t]);
+            } else {
+              auto r = voronoi_cell(set->points, scratch[t], *domain);
+              s = r.status();
+              if (r.is_ok()) a.cell = std::move(r).value();
+            }
+          }
         }
         if (!s.is_ok()) {
           failures[t] = std::move(s);
