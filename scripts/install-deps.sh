@@ -20,6 +20,8 @@ packages=(
   libzip-dev python3-scipy voro++
   # the in-process Python module (pybind11) and its pip-installable package
   pybind11-dev python3-pybind11 python3-dev python3-venv python3-setuptools
+  # the OpenAPI description: compiled in from YAML, and the schema check of REST answers
+  python3-yaml python3-jsonschema
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 
+#include "openapi_json.hpp"
 #include "status_map.hpp"
 #include "upload_json.hpp"
 
@@ -254,6 +255,12 @@ HttpResponse HttpApi::route(Context& c) {
   if (p.size() == 1 && p[0] == "healthz" && method == http::verb::get) {
     c.record.method = "Healthz";
     return c.ok({{"status", "SERVING"}});
+  }
+  if (p.size() == 1 && p[0] == "openapi.json" && method == http::verb::get) {
+    c.record.method = "OpenApi";
+    HttpResponse r;
+    r.body = kOpenApiJson;
+    return r;
   }
   if (p.size() == 1 && p[0] == "readyz" && method == http::verb::get) {
     c.record.method = "Readyz";

@@ -17,6 +17,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import openapi_check
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -109,9 +110,12 @@ def http(method: str, url: str, body=None, headers=None, timeout: float = 60, co
     req = urllib.request.Request(url, data=data, method=method, headers=hdrs)
     try:
         with urllib.request.urlopen(req, timeout=timeout, context=context) as r:
-            return r.status, dict(r.headers), r.read()
+            status, got_headers, got = r.status, dict(r.headers), r.read()
     except urllib.error.HTTPError as e:
-        return e.code, dict(e.headers), e.read()
+        status, got_headers, got = e.code, dict(e.headers), e.read()
+    # Every REST answer the suite receives must match docs/openapi.yaml.
+    openapi_check.check(method, url, status, got_headers, got)
+    return status, got_headers, got
 
 
 def http_json(method: str, url: str, body=None, headers=None, context=None):
