@@ -24,6 +24,8 @@ assert tri.cell(0, box=[0, 0, 0, 1, 1, 1]).volume > 0
 client = spokemesh.remote.Client(sys.argv[1])
 ps = client.upload(points)
 assert np.array_equal(client.simplices(ps.id).astype(np.int64), tri.simplices.astype(np.int64))
+many = client.batch_neighbors(ps.id, [i % 2000 for i in range(10_000)])   # 10,000 seeds, one call
+assert len(many) == 10_000 and all(np.array_equal(m.neighbors, tri.neighbors_of(m.seed)) for m in many[:200])
 print("ok")
 """
 

@@ -29,15 +29,17 @@ class Error(Exception):
 
 @dataclasses.dataclass(frozen=True)
 class PointSet:
+    """A stored point set: its id (SHA-256 of the data), shape and display name."""
     id: str
     dimension: int
     count: int
     display_name: str = ""
-    already_existed: bool = False
+    already_existed: bool = False  # upload() only: the data was stored before
 
 
 @dataclasses.dataclass(frozen=True)
 class Star:
+    """The Delaunay simplices incident to one seed, with their circumcentres."""
     seed: int
     simplices: np.ndarray      # (m, d + 1) uint32, positively oriented rows, lexicographic
     circumcenters: np.ndarray  # (m, d) float64: the Voronoi vertices of the seed's cell
@@ -46,6 +48,7 @@ class Star:
 
 @dataclasses.dataclass(frozen=True)
 class Neighbors:
+    """A seed's Delaunay neighbours, and for approximate modes the walk's statistics."""
     seed: int
     neighbors: np.ndarray       # uint32, ascending
     exact: bool                 # True: the complete set; False: certified but possibly partial
@@ -127,6 +130,7 @@ class Client:
         self._metadata = [("authorization", f"Bearer {token}")] if token else []
 
     def close(self) -> None:
+        """Closes the channel (also on leaving a `with` block)."""
         self._channel.close()
 
     def __enter__(self) -> "Client":
@@ -152,6 +156,7 @@ class Client:
         data = array.tobytes()
 
         def messages() -> Iterator[pb.UploadPointSetRequest]:
+            """The header, then 1 MiB chunks of coordinates."""
             yield pb.UploadPointSetRequest(
                 header=pb.PointSetHeader(dimension=array.shape[1], count=array.shape[0], display_name=name))
             for at in range(0, len(data), _CHUNK):
@@ -161,9 +166,11 @@ class Client:
         return _point_set(r)
 
     def get(self, point_set_id: str) -> PointSet:
+        """A stored point set's metadata; spokemesh.Error NOT_FOUND if absent."""
         return _point_set(self._call(self._stub.GetPointSet, pb.GetPointSetRequest(point_set_id=point_set_id)))
 
     def list(self, page_size: int = 0) -> List[PointSet]:
+        """Every point set the caller may see, by id (pages of page_size, 0 = 100, fetched in turn)."""
         out, token = [], ""
         while True:
             r = self._call(self._stub.ListPointSets, pb.ListPointSetsRequest(page_size=page_size, page_token=token))
@@ -173,6 +180,7 @@ class Client:
                 return out
 
     def delete(self, point_set_id: str) -> None:
+        """Deletes a point set (for this caller's tenant; for everyone with an admin key)."""
         self._call(self._stub.DeletePointSet, pb.DeletePointSetRequest(point_set_id=point_set_id))
 
     def download(self, point_set_id: str) -> np.ndarray:

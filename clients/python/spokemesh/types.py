@@ -20,6 +20,7 @@ class Facet:
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
+    """A Voronoi cell with its measures (docs/cells.md), from either client."""
     seed: int
     vertices: np.ndarray          # (k, d) float64 (2-d: counter-clockwise)
     vertex_simplices: np.ndarray  # (k, d + 1) uint32; unclipped cells only (else empty)
