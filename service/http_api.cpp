@@ -2,6 +2,7 @@
 
 
 #include <cctype>
+#include <array>
 #include <cmath>
 #include <charconv>
 #include <cstring>
@@ -122,26 +123,6 @@ Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t m
   query.max_consecutive_misses = static_cast<std::uint32_t>(misses);
   query.max_vertices = static_cast<std::uint32_t>(max_vertices);
   return query;
-}
-
-// A comma-separated list of numbers from a query parameter, e.g. box=0,0,1,1.
-Result<std::vector<double>> parse_numbers(const std::string& text, const std::string& what) {
-  std::vector<double> out;
-  std::size_t at = 0;
-  while (at <= text.size()) {
-    const std::size_t comma = std::min(text.find(',', at), text.size());
-    const std::string item = text.substr(at, comma - at);
-    char* end = nullptr;
-    const double v = std::strtod(item.c_str(), &end);
-    if (item.empty() || *end != '\0' || !std::isfinite(v)) {
-      return invalid_argument(what + ": value " + std::to_string(out.size()) + " ('" + item.substr(0, 40) +
-                              "') is not a finite number");
-    }
-    out.push_back(v);
-    if (out.size() > (kMaxDomainWalls + 1) * (kMaxDimension + 1)) return invalid_argument(what + ": too many values");
-    at = comma + 1;
-  }
-  return out;
 }
 
 // The cell as REST answers it: unbounded volumes, centroids and areas are null beside
@@ -444,41 +425,63 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   return c.ok(body);
 }
 
+// A stream records its own outcome once it ends (after the headers went out).
+Status HttpApi::finish_stream(Telemetry::Request& record, const RequestTimer& timer, Status s) {
+  record.code = s.code();
+  record.message = s.message();
+  record.seconds = timer.seconds();
+  telemetry_.record(record);
+  return s;
+}
+
 Result<DomainSpec> HttpApi::domain_from_query(Context& c) {
   DomainSpec spec;
   if (auto box = c.param("box")) {
-    auto v = parse_numbers(*box, "box");
+    auto v = parse_number_list(*box, "box", (kMaxDomainWalls + 1) * (kMaxDimension + 1));
     if (!v.is_ok()) return v.status();
     spec.box = std::move(v).value();
   }
   if (auto h = c.param("halfspaces")) {
-    auto v = parse_numbers(*h, "halfspaces");
+    auto v = parse_number_list(*h, "halfspaces", (kMaxDomainWalls + 1) * (kMaxDimension + 1));
     if (!v.is_ok()) return v.status();
     spec.halfspaces = std::move(v).value();
   }
-  if (auto b = c.param("bounding_box")) {
-    if (*b != "true" && *b != "false") return invalid_argument("bounding_box: '" + b->substr(0, 40) + "' is not true or false");
-    spec.bounding_box = *b == "true";
-  }
+  auto bounding_box = bool_param(c, "bounding_box");
+  if (!bounding_box.is_ok()) return bounding_box.status();
+  spec.bounding_box = bounding_box.value();
   return spec;
 }
 
-HttpResponse HttpApi::cells(Context& c, const std::string& id) {
-  std::uint64_t values[3] = {0, 1, 0};
+Result<bool> HttpApi::bool_param(Context& c, const char* name) {
+  const auto text = c.param(name);
+  if (!text) return false;
+  if (*text != "true" && *text != "false") {
+    return invalid_argument(std::string(name) + ": '" + text->substr(0, 40) + "' is not true or false");
+  }
+  return *text == "true";
+}
+
+Result<std::array<std::uint64_t, 3>> HttpApi::shard_params(Context& c) {
+  std::array<std::uint64_t, 3> values = {0, 1, 0};
   const char* names[3] = {"shard", "shards", "batch_size"};
   for (int i = 0; i < 3; ++i) {
     if (auto s = c.param(names[i])) {
       auto v = parse_uint(*s, names[i]);
-      if (!v.is_ok()) return c.fail(v.status());
-      if (v.value() > 0xFFFFFFFFull) return c.fail(invalid_argument(std::string(names[i]) + ": " + *s + " is too large"));
+      if (!v.is_ok()) return v.status();
+      if (v.value() > 0xFFFFFFFFull) return invalid_argument(std::string(names[i]) + ": " + *s + " is too large");
       values[i] = v.value();
     }
   }
-  bool measures_only = false;
-  if (auto m = c.param("measures_only")) {
-    if (*m != "true" && *m != "false") return c.fail(invalid_argument("measures_only: '" + m->substr(0, 40) + "' is not true or false"));
-    measures_only = *m == "true";
-  }
+  return values;
+}
+
+HttpResponse HttpApi::cells(Context& c, const std::string& id) {
+  auto shard = shard_params(c);
+  if (!shard.is_ok()) return c.fail(shard.status());
+  const std::array<std::uint64_t, 3> values = shard.value();
+  auto measures_only_or = bool_param(c, "measures_only");
+  if (!measures_only_or.is_ok()) return c.fail(measures_only_or.status());
+  const bool measures_only = measures_only_or.value();
   auto spec = domain_from_query(c);
   if (!spec.is_ok()) return c.fail(spec.status());
   HttpResponse r;
@@ -500,26 +503,15 @@ HttpResponse HttpApi::cells(Context& c, const std::string& id) {
     };
     Status s = engine_.stream_cells(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
                                     static_cast<std::uint32_t>(values[2]), spec, measures_only, control, emit);
-    record.code = s.code();
-    record.message = s.message();
-    record.seconds = timer.seconds();
-    telemetry_.record(record);
-    return s;
+    return finish_stream(record, timer, std::move(s));
   };
   return r;
 }
 
 HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
-  std::uint64_t values[3] = {0, 1, 0};
-  const char* names[3] = {"shard", "shards", "batch_size"};
-  for (int i = 0; i < 3; ++i) {
-    if (auto s = c.param(names[i])) {
-      auto v = parse_uint(*s, names[i]);
-      if (!v.is_ok()) return c.fail(v.status());
-      if (v.value() > 0xFFFFFFFFull) return c.fail(invalid_argument(std::string(names[i]) + ": " + *s + " is too large"));
-      values[i] = v.value();
-    }
-  }
+  auto shard = shard_params(c);
+  if (!shard.is_ok()) return c.fail(shard.status());
+  const std::array<std::uint64_t, 3> values = shard.value();
   HttpResponse r;
   r.content_type = "application/x-ndjson";
   // The stream runs after the headers are decided; it records its own outcome.
@@ -545,11 +537,7 @@ HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
     };
     Status s = engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
                                         static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
-    record.code = s.code();
-    record.message = s.message();
-    record.seconds = timer.seconds();
-    telemetry_.record(record);
-    return s;
+    return finish_stream(record, timer, std::move(s));
   };
   return r;
 }
@@ -629,11 +617,7 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
       return Status::ok();
     };
     Status s = engine_.batch(id, seeds, kind, query, spec, control, emit);
-    record.code = s.code();
-    record.message = s.message();
-    record.seconds = timer.seconds();
-    telemetry_.record(record);
-    return s;
+    return finish_stream(record, timer, std::move(s));
   };
   return r;
 }

@@ -23,6 +23,7 @@
 
 #include <boost/beast/http.hpp>
 
+#include <array>
 #include <functional>
 #include <span>
 #include <string>
@@ -75,6 +76,9 @@ class HttpApi {
   HttpResponse cells(Context& c, const std::string& id);
   HttpResponse batch(Context& c, const std::string& id, const std::string& what);
   static Result<DomainSpec> domain_from_query(Context& c);
+  static Result<bool> bool_param(Context& c, const char* name);
+  static Result<std::array<std::uint64_t, 3>> shard_params(Context& c);  // shard, shards, batch_size
+  Status finish_stream(Telemetry::Request& record, const RequestTimer& timer, Status s);
 
   Engine& engine_;
   Telemetry& telemetry_;

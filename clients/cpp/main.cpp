@@ -589,7 +589,7 @@ int main(int argc, char** argv) {
         if (!in) return report(invalid_argument("--seeds-file: cannot read " + seeds_file));
         text.append(",").append(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
       }
-      std::vector<std::uint64_t> list;
+      std::vector<std::uint64_t> seed_list;
       std::string item;
       for (char ch : text + ",") {
         if (ch == ',' || std::isspace(static_cast<unsigned char>(ch))) {
@@ -597,18 +597,18 @@ int main(int argc, char** argv) {
           char* end = nullptr;
           const unsigned long long v = std::strtoull(item.c_str(), &end, 10);
           if (*end != '\0' || item[0] == '-') {
-            return report(invalid_argument("--seeds: '" + item + "' (seed " + std::to_string(list.size()) +
+            return report(invalid_argument("--seeds: '" + item + "' (seed " + std::to_string(seed_list.size()) +
                                            ") is not a seed index"));
           }
-          list.push_back(v);
+          seed_list.push_back(v);
           item.clear();
         } else {
           item += ch;
         }
       }
-      if (list.empty()) return report(invalid_argument("batch: give seeds with --seeds or --seeds-file"));
+      if (seed_list.empty()) return report(invalid_argument("batch: give seeds with --seeds or --seeds-file"));
       const std::string mode = !approx_flags.enabled ? "exact" : approx_flags.mode == "spokes" ? "spokes" : "approximate";
-      return remote::batch(o, input, batch_kind, list, mode, approx_flags.enabled ? approx_flags.misses : 0,
+      return remote::batch(o, input, batch_kind, seed_list, mode, approx_flags.enabled ? approx_flags.misses : 0,
                            approx_flags.enabled ? approx_flags.max_vertices : 0, domain_flags.box,
                            domain_flags.halfspaces);
     }

@@ -225,6 +225,18 @@ Result<int> dimension_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const s
   return static_cast<int>(info.dimension());
 }
 
+// Fills `out` from --box / --halfspaces for the set's dimension; an exit code.
+int set_domain(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, const std::string& box,
+               const std::string& halfspaces, pb::Domain& out) {
+  grpc::Status status;
+  auto d = dimension_of(o, stub, id, status);
+  if (!d.is_ok()) return report(o, status);
+  auto domain = domain_proto(box, halfspaces, d.value());
+  if (!domain.is_ok()) return report(domain.status());
+  out = domain.value();
+  return kExitOk;
+}
+
 }  // namespace
 
 int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json, const std::string& box,
@@ -234,12 +246,7 @@ int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool
   request.set_seed(seed);
   if (!box.empty() || !halfspaces.empty()) {
     auto stub = pb::Mesher::NewStub(channel(o));
-    grpc::Status status;
-    auto d = dimension_of(o, *stub, id, status);
-    if (!d.is_ok()) return report(o, status);
-    auto domain = domain_proto(box, halfspaces, d.value());
-    if (!domain.is_ok()) return report(domain.status());
-    *request.mutable_domain() = domain.value();
+    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *request.mutable_domain()); rc != kExitOk) return rc;
   }
   pb::VoronoiCell c;
   const int rc = unary(
@@ -306,12 +313,7 @@ int batch(const RemoteOptions& o, const std::string& id, const std::string& kind
   r.set_max_consecutive_misses(misses);
   r.set_max_vertices(max_vertices);
   if (!box.empty() || !halfspaces.empty()) {
-    grpc::Status status;
-    auto d = dimension_of(o, *stub, id, status);
-    if (!d.is_ok()) return report(o, status);
-    auto domain = domain_proto(box, halfspaces, d.value());
-    if (!domain.is_ok()) return report(domain.status());
-    *r.mutable_domain() = domain.value();
+    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *r.mutable_domain()); rc != kExitOk) return rc;
   }
   grpc::ClientContext ctx;
   prepare(o, ctx);

@@ -40,6 +40,21 @@ Result<std::FILE*> scratch_file(const std::string& dir) {
   return f;
 }
 
+// Closes `out` (written to `temp`) and renames it to `path`; on any failure removes
+// the temporary file, so no partial output is left behind.
+Status close_and_rename(std::FILE* out, const std::string& temp, const std::string& path) {
+  const bool failed = std::ferror(out) != 0;
+  if (std::fclose(out) != 0 || failed) {
+    std::remove(temp.c_str());
+    return internal_error("writing " + temp + ": " + std::strerror(errno));
+  }
+  if (std::rename(temp.c_str(), path.c_str()) != 0) {
+    std::remove(temp.c_str());
+    return internal_error("cannot rename " + temp + " to " + path + ": " + std::strerror(errno));
+  }
+  return Status::ok();
+}
+
 // One .npy array written row by row to a scratch file; the 128-byte header, which
 // holds the row count, is written last.
 class NpyColumn {
@@ -286,16 +301,7 @@ class VtuCellWriter final : public CellWriter {
     array("<DataArray type=\"Int64\" Name=\"seed\" format=\"ascii\">", kSeed);
     array("<DataArray type=\"Float64\" Name=\"volume\" format=\"ascii\">", kVolume);
     std::fprintf(out, "</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
-    const bool failed = std::ferror(out) != 0;
-    if (std::fclose(out) != 0 || failed) {
-      std::remove(temp.c_str());
-      return internal_error("writing " + temp + ": " + std::strerror(errno));
-    }
-    if (std::rename(temp.c_str(), path_.c_str()) != 0) {
-      std::remove(temp.c_str());
-      return internal_error("cannot rename " + temp + " to " + path_ + ": " + std::strerror(errno));
-    }
-    return Status::ok();
+    return close_and_rename(out, temp, path_);
   }
 
  private:
@@ -380,16 +386,7 @@ class SvgCellWriter final : public CellWriter {
     std::free(line);
     std::fprintf(out, "</g>\n<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\" fill=\"#c00\">\n%s</g>\n</svg>\n",
                  h * scale, scale, -scale, -lo_[0], -lo_[1], dots.c_str());
-    const bool failed = std::ferror(out) != 0;
-    if (std::fclose(out) != 0 || failed) {
-      std::remove(temp.c_str());
-      return internal_error("writing " + temp + ": " + std::strerror(errno));
-    }
-    if (std::rename(temp.c_str(), path_.c_str()) != 0) {
-      std::remove(temp.c_str());
-      return internal_error("cannot rename " + temp + " to " + path_ + ": " + std::strerror(errno));
-    }
-    return Status::ok();
+    return close_and_rename(out, temp, path_);
   }
 
  private:

@@ -61,6 +61,9 @@ class Domain {
   std::vector<double> offsets_;
 };
 
+// Comma-separated finite numbers ("0,0,1.5"); errors name `what` and the value's index.
+Result<std::vector<double>> parse_number_list(const std::string& text, const std::string& what, std::size_t max_count);
+
 // Exact sign of a . x - b for doubles a, x (d each) and b: -1, 0 or +1. A filter in
 // double with a bound on its rounding error, then rationals where it cannot decide.
 int plane_side(const double* a, double b, const double* x, int d);
