@@ -65,8 +65,9 @@ struct PolytopeMeasures {
 
 class CellPolytope {
  public:
-  // The unclipped cell of star.seed; vertex i < star.size() is star simplex i. With
-  // `exact_rays`, ideal vertices carry exact directions (needed for clipping).
+  // The unclipped cell of star.seed; vertex i < star.size() is star simplex i, and an
+  // unbounded cell's ideal vertices (exact rational directions) follow. `domain`
+  // (nullptr: none) is what clip_all() cuts by; it must outlive the polytope.
   CellPolytope(const PointSet& points, const Star& star, const Domain* domain);
 
   // Clips by every wall of the domain given to the constructor, in order.
