@@ -60,8 +60,15 @@ def check(method: str, url: str, status: int, headers: dict, body: bytes) -> Non
         _validate(schema, json.loads(body), method, url, status)
 
 
+_VALIDATORS: dict = {}
+
+
 def _validate(schema: dict, value, method: str, url: str, status: int) -> None:
-    validator = Draft202012Validator(schema, resolver=_RESOLVER)
+    # One validator per schema (the hardening tests send thousands of requests).
+    key = json.dumps(schema, sort_keys=True)
+    validator = _VALIDATORS.get(key)
+    if validator is None:
+        validator = _VALIDATORS[key] = Draft202012Validator(schema, resolver=_RESOLVER)
     errors = sorted(validator.iter_errors(value), key=lambda e: list(e.path))
     if errors:
         e = errors[0]
