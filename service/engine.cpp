@@ -272,12 +272,16 @@ Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const
   const auto& [set, s] = target.value();
   auto star = compute_star(*set, s, control);
   if (!star.is_ok()) return star.status();
+  return star_answer(set->points, std::move(star).value());
+}
+
+StarAnswer Engine::star_answer(const PointSet& points, Star star) {
   StarAnswer answer;
-  answer.star = std::move(star).value();
-  const int d = set->points.dimension();
+  answer.star = std::move(star);
+  const int d = points.dimension();
   answer.circumcentres.reserve(answer.star.size() * d);
   for (std::size_t i = 0; i < answer.star.size(); ++i) {
-    const std::vector<double> c = circumcentre(set->points, answer.star.simplex(i), d + 1);
+    const std::vector<double> c = circumcentre(points, answer.star.simplex(i), d + 1);
     answer.circumcentres.insert(answer.circumcentres.end(), c.begin(), c.end());
   }
   return answer;
@@ -426,13 +430,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
           if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
           if (s.is_ok()) {
             if (kind == BatchKind::kStars) {
-              a.star.star = scratch[t];
-              const int d = set->points.dimension();
-              a.star.circumcentres.reserve(a.star.star.size() * d);
-              for (std::size_t k = 0; k < a.star.star.size(); ++k) {
-                const std::vector<double> c = circumcentre(set->points, a.star.star.simplex(k), d + 1);
-                a.star.circumcentres.insert(a.star.circumcentres.end(), c.begin(), c.end());
-              }
+              a.star = star_answer(set->points, scratch[t]);
             } else if (kind == BatchKind::kNeighbors) {
               a.neighbors.neighbors = star_neighbors(scratch[t]);
             } else if (!domain) {

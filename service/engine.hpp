@@ -240,6 +240,8 @@ class Engine {
  private:
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  // A star with its circumcentres, as GetStar answers it (single and batched).
+  static StarAnswer star_answer(const PointSet& points, Star star);
   Result<VoronoiCell> cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
                               const CallControl& control);
   // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT.
