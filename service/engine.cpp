@@ -362,10 +362,20 @@ Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, cons
 
 Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
                                     const CallControl& control) {
-  auto star = compute_star(set, seed, control);
-  if (!star.is_ok()) return star.status();
-  if (domain == nullptr) return voronoi_cell(set.points, star.value());
-  return voronoi_cell(set.points, star.value(), *domain);
+  if (domain == nullptr) {
+    auto star = compute_star(set, seed, control);
+    if (!star.is_ok()) return star.status();
+    return voronoi_cell(set.points, star.value());
+  }
+  // Clipped: the same builder as StreamCells and `spokemesh cells`, so every route
+  // gives the same bytes.
+  if (Status s = exact_allowed(set, "this request"); !s.is_ok()) return s;
+  StarOptions options;
+  options.cancel = control.stop_flag();
+  ClippedCellBuilder builder(*set.tree, *domain, options);
+  auto cell = builder.cell(seed);
+  if (cell.status().code() == Code::kCancelled) return control.stopped_status("the cell of seed " + std::to_string(seed));
+  return cell;
 }
 
 Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
@@ -409,6 +419,11 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   std::vector<std::unique_ptr<StarWalker>> walkers;
   std::vector<Star> scratch(threads);
   for (unsigned t = 0; t < threads; ++t) walkers.push_back(std::make_unique<StarWalker>(*set->tree, star_options));
+  // Clipped cells come from one ClippedCellBuilder per thread, as in StreamCells.
+  std::vector<std::unique_ptr<ClippedCellBuilder>> builders(threads);
+  if (kind == BatchKind::kCells && domain) {
+    for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
+  }
   for (std::size_t at = 0; at < seeds.size();) {
     const std::size_t end = std::min(seeds.size(), at + slice * threads);
     round.assign(end - at, BatchAnswer{});
@@ -423,6 +438,11 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
           auto r = neighbors(id, seeds[i], query, control);
           s = r.status();
           if (r.is_ok()) a.neighbors = std::move(r).value();
+        } else if (builders[t]) {
+          auto r = builders[t]->cell(seed);
+          s = r.status();
+          if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
+          if (r.is_ok()) a.cell = std::move(r).value();
         } else {
           // The exact answers from one walker per thread, kept across the batch (the
           // star is the same from any walker; reuse saves its set-up per seed).

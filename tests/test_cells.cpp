@@ -15,6 +15,7 @@
 #include <map>
 #include <random>
 
+#include "spokemesh/cells.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "support.hpp"
@@ -24,7 +25,8 @@ namespace {
 
 using namespace testing;
 
-std::vector<VoronoiCell> all_cells(const PointSet& ps, const Domain& domain) {
+// Every cell from the star (voronoi_cell), the route every domain can take.
+std::vector<VoronoiCell> star_cells(const PointSet& ps, const Domain& domain) {
   const KdTree tree(ps);
   StarWalker walker(tree);
   Star star;
@@ -36,6 +38,35 @@ std::vector<VoronoiCell> all_cells(const PointSet& ps, const Domain& domain) {
     cells.push_back(std::move(cell.value()));
   }
   return cells;
+}
+
+// Every cell from ClippedCellBuilder (boxes: clipped directly by bisectors, falling
+// back to the star at ties), as `spokemesh cells` and the service compute them.
+// (Forced to the direct route in every dimension, to test it everywhere.)
+std::vector<VoronoiCell> builder_cells(const PointSet& ps, const Domain& domain, std::uint64_t* fallbacks = nullptr) {
+  const KdTree tree(ps);
+  ClippedCellBuilder builder(tree, domain, {}, CellRoute::kDirect);
+  std::vector<VoronoiCell> cells;
+  for (std::uint32_t s = 0; s < ps.size(); ++s) {
+    auto cell = builder.cell(s);
+    EXPECT_TRUE(cell.is_ok()) << cell.status().message();
+    if (cell.is_ok()) cells.push_back(std::move(cell.value()));
+  }
+  if (fallbacks) *fallbacks = builder.star_fallbacks();
+  return cells;
+}
+
+// Both routes, with the invariants below checked on each (check_tiling).
+template <class Check>
+void for_both_routes(const PointSet& ps, const Domain& domain, Check check) {
+  {
+    SCOPED_TRACE("from stars");
+    check(star_cells(ps, domain));
+  }
+  if (ps.dimension() <= 6) {  // (above, a box's 2^d corners make the direct route slow; never used there)
+    SCOPED_TRACE("ClippedCellBuilder");
+    check(builder_cells(ps, domain));
+  }
 }
 
 // Checks every invariant above; `volume` and `centroid` are the domain's.
@@ -113,7 +144,9 @@ void check_box_tiling(const PointSet& ps, const Domain& box) {
     centroid[c] = 0.5 * (lo[c] + hi[c]);
   }
   for (int c = 0; c < d; ++c) walls[c] = walls[d + c] = volume / (hi[c] - lo[c]);
-  check_tiling(ps, all_cells(ps, box), volume, centroid, &walls);
+  for_both_routes(ps, box, [&](const std::vector<VoronoiCell>& cells) {
+    check_tiling(ps, cells, volume, centroid, &walls);
+  });
 }
 
 int max_dimension() { return std::getenv("SPOKEMESH_HIGH_D") ? 8 : 6; }
@@ -154,18 +187,79 @@ TEST(ClippedCells, GridsInTheirBoundingBoxAreUnitCellsAndFractions) {
     const int side = d == 2 ? 6 : d == 3 ? 4 : 3;
     const PointSet ps = make_points(d, grid_points(d, side));
     const Domain box = Domain::bounding_box(ps);
-    const std::vector<VoronoiCell> cells = all_cells(ps, box);
-    for (const VoronoiCell& cell : cells) {
-      // A grid point's cell is the product of [x - 1/2, x + 1/2] cut to [0, side - 1].
-      double expected = 1;
-      for (int c = 0; c < d; ++c) {
-        const double x = ps.point(cell.seed)[c];
-        expected *= (x == 0 || x == side - 1) ? 0.5 : 1.0;
+    for_both_routes(ps, box, [&](const std::vector<VoronoiCell>& cells) {
+      for (const VoronoiCell& cell : cells) {
+        // A grid point's cell is the product of [x - 1/2, x + 1/2] cut to [0, side - 1].
+        double expected = 1;
+        for (int c = 0; c < d; ++c) {
+          const double x = ps.point(cell.seed)[c];
+          expected *= (x == 0 || x == side - 1) ? 0.5 : 1.0;
+        }
+        EXPECT_NEAR(cell.volume, expected, 1e-14) << "seed " << cell.seed;
       }
-      EXPECT_NEAR(cell.volume, expected, 1e-14) << "seed " << cell.seed;
+      std::vector<double> centroid(d, 0.5 * (side - 1)), walls(2 * d, std::pow(side - 1.0, d - 1));
+      check_tiling(ps, cells, std::pow(side - 1.0, d), centroid, &walls);
+    });
+  }
+}
+
+// The two routes give the same cell: the same facets (neighbours and walls, decided
+// exactly), and measures that agree to rounding. Random points take the direct route
+// throughout; grids tie everywhere and go to the star, so there they are identical.
+void expect_same_cells(const std::vector<VoronoiCell>& a, const std::vector<VoronoiCell>& b) {
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    SCOPED_TRACE("seed " + std::to_string(a[i].seed));
+    ASSERT_EQ(a[i].facets.size(), b[i].facets.size());
+    const double scale = std::pow(std::max(a[i].volume, 1e-300), 1.0 / a[i].dimension);
+    EXPECT_NEAR(a[i].volume, b[i].volume, 1e-11 * a[i].volume);
+    for (int c = 0; c < a[i].dimension; ++c) EXPECT_NEAR(a[i].centroid[c], b[i].centroid[c], 1e-11 * scale + 1e-15);
+    for (std::size_t k = 0; k < a[i].facets.size(); ++k) {
+      const VoronoiFacet& f = a[i].facets[k];
+      const VoronoiFacet& g = b[i].facets[k];
+      ASSERT_EQ(f.neighbor, g.neighbor) << "facet " << k;
+      EXPECT_EQ(f.vertices.size(), g.vertices.size()) << "facet " << k;
+      EXPECT_NEAR(f.area, g.area, 1e-10 * std::pow(scale, a[i].dimension - 1)) << "facet " << k;
     }
-    std::vector<double> centroid(d, 0.5 * (side - 1)), walls(2 * d, std::pow(side - 1.0, d - 1));
-    check_tiling(ps, cells, std::pow(side - 1.0, d), centroid, &walls);
+  }
+}
+
+TEST(ClippedCellBuilder, DirectRouteEqualsTheStarsRoute) {
+  for (int d = 2; d <= 5; ++d) {
+    for (const bool bounding : {false, true}) {
+      const std::uint64_t seed = 300 + d + (bounding ? 50 : 0);
+      SCOPED_TRACE("d " + std::to_string(d) + ", seed " + std::to_string(seed) + (bounding ? ", bounding box" : ""));
+      const PointSet ps = make_points(d, uniform_points(d, points_for(d) * 2, seed));
+      const Domain box = bounding ? Domain::bounding_box(ps)
+                                  : Domain::box(std::vector<double>(d, -0.25), std::vector<double>(d, 1.5)).value();
+      std::uint64_t fallbacks = 0;
+      const std::vector<VoronoiCell> direct = builder_cells(ps, box, &fallbacks);
+      EXPECT_EQ(fallbacks, 0u) << "random points in general position never tie";
+      expect_same_cells(direct, star_cells(ps, box));
+    }
+  }
+}
+
+TEST(ClippedCellBuilder, TiesGoToTheStarAndNearTiesStayExact) {
+  // A grid ties at every Voronoi vertex; the same grid jittered by 1e-9 ties nowhere,
+  // but every decision there is within rounding of a tie: the filters must defer to
+  // exact arithmetic, and the cells must still be the stars' cells.
+  for (int d = 2; d <= 4; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const int side = d == 2 ? 7 : d == 3 ? 5 : 3;
+    std::vector<double> grid = grid_points(d, side);
+    const PointSet exact_grid = make_points(d, grid);
+    const Domain box = Domain::bounding_box(exact_grid);
+    std::uint64_t fallbacks = 0;
+    const std::vector<VoronoiCell> tied = builder_cells(exact_grid, box, &fallbacks);
+    EXPECT_GT(fallbacks, 0u);
+    expect_same_cells(tied, star_cells(exact_grid, box));
+    std::mt19937_64 rng(4242 + d);
+    std::uniform_real_distribution<double> jitter(-1e-9, 1e-9);
+    for (double& v : grid) v += jitter(rng);
+    const PointSet jittered = make_points(d, grid);
+    const Domain big = Domain::box(std::vector<double>(d, -1.0), std::vector<double>(d, side + 0.0)).value();
+    expect_same_cells(builder_cells(jittered, big), star_cells(jittered, big));
   }
 }
 
@@ -188,7 +282,7 @@ TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
     }
     const PointSet ps = make_points(d, inside);
     const double volume = 6 * 0.45 * 0.45 * std::tan(M_PI / 6);
-    check_tiling(ps, all_cells(ps, hexagon), volume, {0.5, 0.5}, nullptr);
+    check_tiling(ps, builder_cells(ps, hexagon), volume, {0.5, 0.5}, nullptr);
   }
   {
     const int d = 3;
@@ -213,7 +307,7 @@ TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
       if (cube.violated_wall(p.data()) < 0) inside.insert(inside.end(), p.begin(), p.end());
     }
     const PointSet ps = make_points(d, inside);
-    check_tiling(ps, all_cells(ps, cube), 0.8 * 0.8 * 0.8, {0.5, 0.5, 0.5}, nullptr);
+    check_tiling(ps, builder_cells(ps, cube), 0.8 * 0.8 * 0.8, {0.5, 0.5, 0.5}, nullptr);
   }
 }
 
@@ -248,7 +342,7 @@ TEST(ClippedCells, SeedsOutsideTheDomainAreNamed) {
 TEST(ClippedCells, AnUnboundedHalfspaceDomainLeavesCellsUnbounded) {
   const PointSet ps = make_points(2, uniform_points(2, 60, 8));
   const Domain half = Domain::halfspaces(2, {1.0, 0.0}, {2.0}).value();  // x <= 2
-  const std::vector<VoronoiCell> cells = all_cells(ps, half);
+  const std::vector<VoronoiCell> cells = builder_cells(ps, half);
   int unbounded = 0;
   for (const VoronoiCell& cell : cells) {
     if (cell.bounded) continue;

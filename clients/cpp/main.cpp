@@ -291,7 +291,11 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
     if (!domain.is_ok()) return report(domain.status());
     VoronoiCell cell;
     if (domain.value().has_value()) {
-      auto clipped = voronoi_cell(loaded.points, star, *domain.value());
+      // The builder `cells` uses, so that both print the same cell.
+      StarOptions options;
+      options.random_seed = common.random_seed;
+      ClippedCellBuilder builder(*loaded.tree, *domain.value(), options);
+      auto clipped = builder.cell(star.seed);
       if (!clipped.is_ok()) return report(clipped.status());
       cell = std::move(clipped).value();
     } else {

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <cstdio>
+#include <cstdlib>
 
 #include "invariant.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -94,6 +96,7 @@ std::size_t CellPolytope::add_vertex() {
   next_.resize(next_.size() + d_, 0);
   error_.push_back(0.0);
   ideal_.push_back(-1);
+  if (from_box_) radius_.push_back(0.0);
   return v;
 }
 
@@ -110,7 +113,7 @@ void CellPolytope::normal_of(std::uint32_t label, double* out) const {
     std::copy(a, a + d_, out);
     return;
   }
-  const double* p = ps_.point(label);
+  const double* p = point_of(label);
   const double* s = ps_.point(seed_);
   for (int c = 0; c < d_; ++c) out[c] = p[c] - s[c];
 }
@@ -124,7 +127,7 @@ void CellPolytope::exact_plane(std::uint32_t label, std::vector<mpq_class>& n, m
     return;
   }
   // The bisector of s and p: |x - s|^2 <= |x - p|^2, i.e. (p - s) . x <= (|p|^2 - |s|^2) / 2.
-  const double* p = ps_.point(label);
+  const double* p = point_of(label);
   const double* s = ps_.point(seed_);
   c = 0;
   for (int i = 0; i < d_; ++i) {
@@ -248,63 +251,102 @@ bool CellPolytope::bounded() const {
   return std::all_of(ideal_.begin(), ideal_.end(), [](int r) { return r < 0; });
 }
 
-int CellPolytope::side(std::size_t v, std::size_t wall, const std::vector<int>& sides) const {
-  const double* a = domain_->normal(wall);
-  const double b = domain_->offset(wall);
+CellPolytope::Plane CellPolytope::plane_of(std::uint32_t label) const {
+  Plane pl;
+  pl.label = label;
+  if (is_wall_label(label)) {
+    const std::size_t k = label - kWallLabel0;
+    std::copy(domain_->normal(k), domain_->normal(k) + d_, pl.a.begin());
+    pl.b = domain_->offset(k);
+  } else {
+    // The bisector relative to the seed s: q . (x - s) <= |q|^2 / 2 with q = p - s.
+    const double* p = point_of(label);
+    pl.origin = ps_.point(seed_);
+    double q2 = 0;
+    for (int c = 0; c < d_; ++c) {
+      pl.a[c] = p[c] - pl.origin[c];
+      q2 += pl.a[c] * pl.a[c];
+    }
+    pl.b = q2 / 2;
+  }
+  pl.a_norm = norm(pl.a.data(), d_);
+  return pl;
+}
+
+double CellPolytope::plane_value(const Plane& pl, const double* x, double& rounding) const {
+  double f = -pl.b, magnitude = std::abs(pl.b);
+  if (pl.origin == nullptr) {
+    for (int c = 0; c < d_; ++c) {
+      f += pl.a[c] * x[c];
+      magnitude += std::abs(pl.a[c] * x[c]);
+    }
+    // A dot product of d terms and an offset: 2 (d + 2) units of its magnitude.
+    rounding = 2 * (d_ + 2) * kUnit * magnitude;
+    return f;
+  }
+  for (int c = 0; c < d_; ++c) {
+    const double w = x[c] - pl.origin[c];
+    f += pl.a[c] * w;
+    magnitude += std::abs(pl.a[c] * w);
+  }
+  // Besides the sum's own rounding, q = p - s and x - s are rounded (one unit of each
+  // coordinate) and |q|^2 / 2 is a rounded sum: each perturbs f by at most a few units
+  // of sum |q_c| |w_c| + |q|^2, which is at most 2 x magnitude.
+  rounding = 4 * (d_ + 4) * kUnit * (magnitude + pl.b);
+  return f;
+}
+
+int CellPolytope::side(std::size_t v, const Plane& pl, const std::vector<int>& sides) const {
   if (ideal_[v] >= 0) {
     const std::vector<mpq_class>& r = rays_[ideal_[v]];
+    std::vector<mpq_class> n;
+    mpq_class c;
+    exact_plane(pl.label, n, c);
     mpq_class s = 0;
-    for (int c = 0; c < d_; ++c) {
-      if (a[c] != 0) s += mpq_class(a[c]) * r[c];
+    for (int i = 0; i < d_; ++i) {
+      if (sgn(n[i]) != 0) s += n[i] * r[i];
     }
     if (sgn(s) != 0) return sgn(s);
     // Along the wall: the ray stays on its base's side.
     return sides[next_[v * d_ + position_of(v, kInfinityLabel)]];
   }
-  const double* x = &x_[v * d_];
-  double f = -b, magnitude = std::abs(b);
-  for (int c = 0; c < d_; ++c) {
-    f += a[c] * x[c];
-    magnitude += std::abs(a[c] * x[c]);
-  }
-  // |computed f - a . exact x| <= rounding of the sum + |a| |x - exact x|.
-  const double bound = 2 * (d_ + 2) * kUnit * magnitude + norm(a, d_) * error_[v] * (1 + 4 * d_ * kUnit);
+  double rounding = 0;
+  const double f = plane_value(pl, &x_[v * d_], rounding);
+  // |computed f - exact value at the exact vertex| <= rounding + |a| |x - exact x|.
+  const double bound = rounding + pl.a_norm * error_[v] * (1 + 4 * d_ * kUnit);
   if (f > bound) return 1;
   if (f < -bound) return -1;
   const auto exact = exact_vertex(v);
   if (!exact) return f > 0 ? 1 : f < 0 ? -1 : 0;  // planes that coincide: the double value
-  mpq_class g = -mpq_class(b);
-  for (int c = 0; c < d_; ++c) g += mpq_class(a[c]) * (*exact)[c];
+  std::vector<mpq_class> n;
+  mpq_class g;
+  exact_plane(pl.label, n, g);
+  g = -g;
+  for (int c = 0; c < d_; ++c) g += n[c] * (*exact)[c];
   return sgn(g);
 }
 
-std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, std::size_t wall) {
+std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, const Plane& pl) {
   const int d = d_;
   const std::size_t u = add_vertex();
   for (int j = 0; j < d; ++j) label_[u * d + j] = label_[in * d + j];
-  label_[u * d + position] = kWallLabel0 + static_cast<std::uint32_t>(wall);
+  label_[u * d + position] = pl.label;
   next_[u * d + position] = static_cast<std::uint32_t>(in);
   next_[in * d + position] = static_cast<std::uint32_t>(u);
-  const double* a = domain_->normal(wall);
-  const double b = domain_->offset(wall);
-  const double a_norm = norm(a, d);
-  auto value = [&](std::size_t v, double& rounding) {
-    double f = -b, mag = std::abs(b);
-    for (int c = 0; c < d; ++c) {
-      f += a[c] * x_[v * d + c];
-      mag += std::abs(a[c] * x_[v * d + c]);
-    }
-    rounding = 2 * (d + 2) * kUnit * mag;
-    return f;
-  };
+  const double* a = pl.a.data();
+  const double a_norm = pl.a_norm;
+  auto value = [&](std::size_t v, double& rounding) { return plane_value(pl, &x_[v * d], rounding); };
   if (ideal_[in] >= 0 && ideal_[out] >= 0) {
     // Two directions on either side of the wall: their combination along it.
     const std::vector<mpq_class>& rv = rays_[ideal_[in]];
     const std::vector<mpq_class>& rw = rays_[ideal_[out]];
+    std::vector<mpq_class> n;
+    mpq_class offset;
+    exact_plane(pl.label, n, offset);
     mpq_class av = 0, aw = 0;
     for (int c = 0; c < d; ++c) {
-      av += mpq_class(a[c]) * rv[c];
-      aw += mpq_class(a[c]) * rw[c];
+      av += n[c] * rv[c];
+      aw += n[c] * rw[c];
     }
     std::vector<mpq_class> r(static_cast<std::size_t>(d));
     for (int c = 0; c < d; ++c) r[c] = aw * rv[c] - av * rw[c];
@@ -318,6 +360,12 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, std
     return u;
   }
   double* x = &x_[u * d];
+  // The direct route in 3-d: a vertex on three bisectors is solved in closed form,
+  // which needs no interpolation.
+  if (from_box_ && d == 3 && ideal_[in] < 0 && ideal_[out] < 0 && solve_bisectors_3d(u)) {
+    radius_[u] = vertex_radius(u);
+    return u;
+  }
   double error = kInf;
   if (ideal_[in] < 0 && ideal_[out] < 0) {
     double rv = 0, rw = 0;
@@ -349,20 +397,212 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, std
     }
   }
   // On an axis-aligned wall (a box's) the coordinate across it is known exactly.
-  int axis = -1, nonzero = 0;
-  for (int c = 0; c < d; ++c) {
-    if (a[c] != 0) axis = c, ++nonzero;
+  if (pl.origin == nullptr) {
+    int axis = -1, nonzero = 0;
+    for (int c = 0; c < d; ++c) {
+      if (a[c] != 0) axis = c, ++nonzero;
+    }
+    if (nonzero == 1 && std::abs(a[axis]) == 1) x[axis] = a[axis] * pl.b;
   }
-  if (nonzero == 1 && std::abs(a[axis]) == 1) x[axis] = a[axis] * b;
   error_[u] = error;
+  // Built from a box (the direct route), vertices descend from long chains of cuts,
+  // whose interpolation bounds compound: solve each from its own d planes instead.
+  if (from_box_ && !is_ideal(u) && !(error_[u] <= 1e-11 * scale_)) solve_vertex(u);
   // Where the bound is loose (edges nearly parallel to the wall), construct exactly.
-  if (!(error <= 1e-10 * scale_)) {
+  if (!(error_[u] <= 1e-10 * scale_)) {
     if (const auto exact = exact_vertex(u)) {
       for (int c = 0; c < d; ++c) x[c] = (*exact)[c].get_d();
       error_[u] = std::sqrt(d) * 2 * kUnit * max_abs(x, d);
     }
   }
+  if (from_box_) radius_[u] = vertex_radius(u);
   return u;
+}
+
+const double* CellPolytope::point_of(std::uint32_t label) const {
+  // From the back: the label just clipped, or one of a new vertex's recent planes.
+  for (auto it = known_points_.rbegin(); it != known_points_.rend(); ++it) {
+    if (it->first == label) return it->second;
+  }
+  return ps_.point(label);
+}
+
+double CellPolytope::vertex_radius(std::size_t v) const {
+  const double* s = ps_.point(seed_);
+  double r2 = 0;
+  for (int c = 0; c < d_; ++c) {
+    const double t = x_[v * d_ + c] - s[c];
+    r2 += t * t;
+  }
+  // sqrt of a rounded sum of d rounded squares of rounded differences: a relative
+  // error below (d + 3) units; 1e-12 covers it for every d <= 8 with room to spare.
+  return std::sqrt(r2) * (1 + 1e-12) + error_[v];
+}
+
+bool CellPolytope::solve_bisectors_3d(std::size_t v) {
+  // The vertex on the bisectors of s with a, b, c (relative: q_i = p_i - s) is
+  // s + y with y = (|qa|^2 (qb x qc) + |qb|^2 (qc x qa) + |qc|^2 (qa x qb)) / (2 D),
+  // D = qa . (qb x qc): the circumcentre of the tetrahedron, by Cramer's rule.
+  // Error bound, first order with a factor 2 to spare: each q carries one rounding
+  // (relative u per coordinate), each cross product, norm and sum a few more; so the
+  // numerator N and D are off by at most gamma times their absolute-value sums (NA,
+  // DA), and y by (|dN| + |y| |dD|) / |2 D|. The rounding of q itself moves the
+  // exact vertex by at most |A^-1| u (|A| |y| + 2 |b|) (A's rows q, b = |q|^2 / 2),
+  // with |A^-1| <= |adj A| / |D| from the same cross products.
+  const std::uint32_t* l = &label_[v * 3];
+  if (is_wall_label(l[0]) || is_wall_label(l[1]) || is_wall_label(l[2])) return false;
+  const double* s = ps_.point(seed_);
+  double q[3][3], n2[3], n2a[3];
+  for (int i = 0; i < 3; ++i) {
+    const double* p = point_of(l[i]);
+    n2[i] = 0;
+    for (int c = 0; c < 3; ++c) {
+      q[i][c] = p[c] - s[c];
+      n2[i] += q[i][c] * q[i][c];
+    }
+    n2a[i] = n2[i];
+  }
+  double cr[3][3], cra[3][3];  // cr[i] = q[i+1] x q[i+2]; cra: its absolute-value sums
+  for (int i = 0; i < 3; ++i) {
+    const double* a = q[(i + 1) % 3];
+    const double* b = q[(i + 2) % 3];
+    for (int c = 0; c < 3; ++c) {
+      const int c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+      cr[i][c] = a[c1] * b[c2] - a[c2] * b[c1];
+      cra[i][c] = std::abs(a[c1] * b[c2]) + std::abs(a[c2] * b[c1]);
+    }
+  }
+  const double D = q[0][0] * cr[0][0] + q[0][1] * cr[0][1] + q[0][2] * cr[0][2];
+  const double DA = std::abs(q[0][0]) * cra[0][0] + std::abs(q[0][1]) * cra[0][1] + std::abs(q[0][2]) * cra[0][2];
+  if (!(std::abs(D) > 64 * kUnit * DA)) return false;  // nearly flat: the generic path decides
+  double y[3], na[3];
+  for (int c = 0; c < 3; ++c) {
+    y[c] = (n2[0] * cr[0][c] + n2[1] * cr[1][c] + n2[2] * cr[2][c]) / (2 * D);
+    na[c] = n2a[0] * cra[0][c] + n2a[1] * cra[1][c] + n2a[2] * cra[2][c];
+  }
+  const double gamma = 16 * kUnit;
+  const double inv_d = 1 / (std::abs(D) - gamma * DA);
+  double y_norm = 0, err_round = 0, adj_norm = 0, a_norm = 0, b_norm = 0;
+  for (int c = 0; c < 3; ++c) y_norm = std::max(y_norm, std::abs(y[c]));
+  for (int c = 0; c < 3; ++c) {
+    err_round = std::max(err_round, (gamma * na[c] / 2 + y_norm * gamma * DA) * inv_d);
+  }
+  for (int r = 0; r < 3; ++r) {  // adj A's rows are the cross products' components
+    adj_norm = std::max(adj_norm, std::abs(cr[0][r]) + std::abs(cr[1][r]) + std::abs(cr[2][r]));
+    a_norm = std::max(a_norm, std::abs(q[r][0]) + std::abs(q[r][1]) + std::abs(q[r][2]));
+    b_norm = std::max(b_norm, n2[r] / 2);
+  }
+  const double err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * b_norm);
+  const double forward = 2 * (err_round + err_input);
+  double* x = &x_[v * 3];
+  for (int c = 0; c < 3; ++c) x[c] = s[c] + y[c];
+  const double bound = std::sqrt(3.0) * (forward + 2 * kUnit * max_abs(x, 3));
+  error_[v] = bound;
+  return true;
+}
+
+void CellPolytope::solve_vertex(std::size_t v) {
+  // Rows a_k . y = c_k for y = x - s: a bisector q . y = |q|^2 / 2 (q = p - s), a
+  // wall a . y = b - a . s. Gaussian elimination with partial pivoting in double is
+  // backward stable: the computed y solves a system whose every entry is off by at
+  // most eta = 3 d rho u relative (rho = 2^(d-1), the worst growth), on top of the
+  // rounding of the rows themselves (a few units). The forward error is then at most
+  // kappa (eta' |y| + |dc| / |A|), kappa = |A| |A^-1| (infinity norms), estimated
+  // from the computed inverse with a factor 2 to spare.
+  const int d = d_;
+  const double* s = ps_.point(seed_);
+  std::array<double, kMaxDimension * kMaxDimension> a{}, inv{};
+  std::array<double, kMaxDimension> c{}, dc{}, y{};
+  double a_norm = 0;
+  for (int k = 0; k < d; ++k) {
+    const Plane pl = plane_of(label_[v * d + k]);
+    double row = 0, cs = pl.b, mag = std::abs(pl.b);
+    for (int i = 0; i < d; ++i) {
+      a[k * d + i] = pl.a[i];
+      row += std::abs(pl.a[i]);
+      if (pl.origin == nullptr) {
+        cs -= pl.a[i] * s[i];
+        mag += std::abs(pl.a[i] * s[i]);
+      }
+    }
+    // Rows scaled by a power of two (exactly) to similar sizes: a wall's unit normal
+    // next to bisectors of length |q| would otherwise inflate the condition number.
+    const int e = row > 0 ? std::ilogb(row) : 0;
+    for (int i = 0; i < d; ++i) a[k * d + i] = std::ldexp(a[k * d + i], -e);
+    c[k] = std::ldexp(cs, -e);
+    dc[k] = std::ldexp(4 * (d + 4) * kUnit * (mag + std::abs(cs)), -e);
+    a_norm = std::max(a_norm, std::ldexp(row, -e));
+  }
+  // LU with partial pivoting, in place; then y and the inverse's columns.
+  std::array<int, kMaxDimension> perm{};
+  for (int i = 0; i < d; ++i) perm[i] = i;
+  std::array<double, kMaxDimension * kMaxDimension> lu = a;
+  for (int col = 0; col < d; ++col) {
+    int p = col;
+    for (int r = col + 1; r < d; ++r) {
+      if (std::abs(lu[r * d + col]) > std::abs(lu[p * d + col])) p = r;
+    }
+    if (lu[p * d + col] == 0) return;  // singular in double: keep the interpolation
+    if (p != col) {
+      for (int i = 0; i < d; ++i) std::swap(lu[p * d + i], lu[col * d + i]);
+      std::swap(perm[p], perm[col]);
+    }
+    for (int r = col + 1; r < d; ++r) {
+      const double f = lu[r * d + col] / lu[col * d + col];
+      lu[r * d + col] = f;
+      for (int i = col + 1; i < d; ++i) lu[r * d + i] -= f * lu[col * d + i];
+    }
+  }
+  auto solve = [&](const double* rhs, double* out) {
+    std::array<double, kMaxDimension> z{};
+    for (int r = 0; r < d; ++r) {
+      double t = rhs[perm[r]];
+      for (int i = 0; i < r; ++i) t -= lu[r * d + i] * z[i];
+      z[r] = t;
+    }
+    for (int r = d - 1; r >= 0; --r) {
+      double t = z[r];
+      for (int i = r + 1; i < d; ++i) t -= lu[r * d + i] * out[i];
+      out[r] = t / lu[r * d + r];
+    }
+  };
+  solve(c.data(), y.data());
+  std::array<double, kMaxDimension> e{}, column{};
+  for (int j = 0; j < d; ++j) {
+    e.fill(0);
+    e[j] = 1;
+    solve(e.data(), column.data());
+    for (int i = 0; i < d; ++i) inv[i * d + j] = column[i];
+  }
+  double inv_norm = 0, y_norm = 0, dc_norm = 0;
+  for (int i = 0; i < d; ++i) {
+    double row = 0;
+    for (int j = 0; j < d; ++j) row += std::abs(inv[i * d + j]);
+    inv_norm = std::max(inv_norm, row);
+    y_norm = std::max(y_norm, std::abs(y[i]));
+    dc_norm = std::max(dc_norm, dc[i]);
+  }
+  inv_norm *= 2;
+  const double eta = (3.0 * d * static_cast<double>(1 << (d - 1)) + 8) * kUnit;
+  const double kappa = a_norm * inv_norm;
+  if (!(kappa * eta < 1e-3) || !std::isfinite(y_norm)) return;  // ill-conditioned: keep the interpolation
+  const double forward = inv_norm * (eta * a_norm * y_norm + dc_norm) / (1 - kappa * eta);
+  double* x = &x_[v * d];
+  for (int i = 0; i < d; ++i) x[i] = s[i] + y[i];
+  // An axis-aligned wall fixes its coordinate exactly.
+  for (int k = 0; k < d; ++k) {
+    const std::uint32_t l = label_[v * d + k];
+    if (!is_wall_label(l)) continue;
+    const double* n = domain_->normal(l - kWallLabel0);
+    int axis = -1, nonzero = 0;
+    for (int i = 0; i < d; ++i) {
+      if (n[i] != 0) axis = i, ++nonzero;
+    }
+    if (nonzero == 1 && std::abs(n[axis]) == 1) x[axis] = n[axis] * domain_->offset(l - kWallLabel0);
+  }
+  // Euclidean: sqrt(d) x the infinity-norm bound, plus the rounding of s + y.
+  const double bound = std::sqrt(d) * (forward + 2 * kUnit * max_abs(x, d));
+  if (bound < error_[v]) error_[v] = bound;
 }
 
 std::size_t CellPolytope::walk_to_partner(std::size_t u, int wall_position, int m, std::size_t first_new) const {
@@ -391,34 +631,53 @@ std::size_t CellPolytope::walk_to_partner(std::size_t u, int wall_position, int 
   return u;
 }
 
-void CellPolytope::clip(std::size_t wall) {
+bool CellPolytope::clip(std::uint32_t label, const double* coordinates) {
+  if (coordinates != nullptr) known_points_.emplace_back(label, coordinates);
   const int d = d_;
   const std::size_t n = size();
-  std::vector<int> sides(n, 0);
+  const Plane pl = plane_of(label);
+  std::vector<int>& sides = sides_;
+  sides.assign(n, 0);
+  bool tie = false, any_out = false;
+  // A bisector lies |q| / 2 from the seed: a vertex closer than that (with its error)
+  // is strictly inside, with no need to evaluate the plane.
+  const double reach = from_box_ && pl.origin != nullptr ? pl.a_norm / 2 * (1 - 1e-12) : -1.0;
   for (std::size_t v = 0; v < n; ++v) {
-    if (ideal_[v] < 0) sides[v] = side(v, wall, sides);
+    if (ideal_[v] < 0) {
+      if (radius_.size() == n && radius_[v] < reach) {
+        sides[v] = -1;
+        continue;
+      }
+      sides[v] = side(v, pl, sides);
+      tie |= sides[v] == 0;
+      any_out |= sides[v] > 0;
+    }
   }
   for (std::size_t v = 0; v < n; ++v) {
-    if (ideal_[v] >= 0) sides[v] = side(v, wall, sides);
+    if (ideal_[v] >= 0) {
+      sides[v] = side(v, pl, sides);
+      any_out |= sides[v] > 0;
+    }
   }
-  if (std::none_of(sides.begin(), sides.end(), [](int s) { return s > 0; })) return;
+  changed_ = any_out;
+  if (!any_out) return !tie;
   const std::size_t first_new = n;
   for (std::size_t v = 0; v < n; ++v) {
     if (sides[v] > 0) continue;
     for (int k = 0; k < d; ++k) {
       const std::size_t w = next_[v * d + k];
-      if (w < first_new && sides[w] > 0) cut(v, k, w, wall);
+      if (w < first_new && sides[w] > 0) cut(v, k, w, pl);
     }
   }
-  const std::uint32_t wall_label = kWallLabel0 + static_cast<std::uint32_t>(wall);
   for (std::size_t u = first_new; u < size(); ++u) {
-    const int p = position_of(u, wall_label);
+    const int p = position_of(u, label);
     for (int k = 0; k < d; ++k) {
       if (k != p) next_[u * d + k] = static_cast<std::uint32_t>(walk_to_partner(u, p, k, first_new));
     }
   }
   // Drop the vertices outside; renumber.
-  std::vector<std::uint32_t> index(size(), 0);
+  std::vector<std::uint32_t>& index = index_;
+  index.assign(size(), 0);
   std::size_t kept = 0;
   for (std::size_t v = 0; v < size(); ++v) {
     if (v >= n || sides[v] <= 0) index[v] = static_cast<std::uint32_t>(kept++);
@@ -433,6 +692,7 @@ void CellPolytope::clip(std::size_t wall) {
     }
     error_[w] = error_[v];
     ideal_[w] = ideal_[v];
+    if (from_box_) radius_[w] = radius_[v];
     ++w;
   }
   x_.resize(w * d);
@@ -440,10 +700,78 @@ void CellPolytope::clip(std::size_t wall) {
   next_.resize(w * d);
   error_.resize(w);
   ideal_.resize(w);
+  if (from_box_) radius_.resize(w);
+  return !tie;
 }
 
 void CellPolytope::clip_all() {
-  for (std::size_t k = 0; k < domain_->wall_count(); ++k) clip(k);
+  for (std::size_t k = 0; k < domain_->wall_count(); ++k) clip(kWallLabel0 + static_cast<std::uint32_t>(k));
+}
+
+CellPolytope::CellPolytope(const PointSet& points, std::uint32_t seed, const Domain& box)
+    : ps_(points), domain_(&box), seed_(seed), d_(points.dimension()) {
+  reset_to_box(seed);
+}
+
+void CellPolytope::reset_to_box(std::uint32_t seed) {
+  const int d = d_;
+  seed_ = seed;
+  const std::size_t corners = std::size_t{1} << d;
+  x_.resize(corners * d);
+  label_.resize(corners * d);
+  next_.resize(corners * d);
+  error_.assign(corners, 0.0);
+  ideal_.assign(corners, -1);
+  rays_.clear();
+  memo_.clear();
+  known_points_.clear();
+  from_box_ = true;
+  // Corner v has bit c set when it lies on the upper wall of axis c (wall d + c);
+  // leaving that wall flips the bit.
+  double diagonal2 = 0;
+  for (int c = 0; c < d; ++c) {
+    const double lo = -domain_->offset(static_cast<std::size_t>(c));
+    const double hi = domain_->offset(static_cast<std::size_t>(d + c));
+    diagonal2 += (hi - lo) * (hi - lo);
+    for (std::size_t v = 0; v < corners; ++v) {
+      const bool upper = (v >> c) & 1;
+      x_[v * d + c] = upper ? hi : lo;
+      label_[v * d + c] = kWallLabel0 + static_cast<std::uint32_t>(upper ? d + c : c);
+      next_[v * d + c] = static_cast<std::uint32_t>(v ^ (std::size_t{1} << c));
+    }
+  }
+  scale_ = diagonal2 > 0 ? std::sqrt(diagonal2) : 1.0;
+  radius_.resize(corners);
+  for (std::size_t v = 0; v < corners; ++v) radius_[v] = vertex_radius(v);
+}
+
+double CellPolytope::radius2_upper() const {
+  double r = 0;
+  for (std::size_t v = 0; v < size(); ++v) r = std::max(r, from_box_ ? radius_[v] : vertex_radius(v));
+  return r * r * (1 + 1e-12);
+}
+
+void CellPolytope::refine_voronoi_vertices() {
+  std::array<std::uint32_t, kMaxDimension + 1> ids{};
+  for (std::size_t v = 0; v < size(); ++v) {
+    if (ideal_[v] >= 0) continue;
+    const std::uint32_t* l = &label_[v * d_];
+    if (std::any_of(l, l + d_, [](std::uint32_t x) { return is_wall_label(x) || x == kInfinityLabel; })) continue;
+    // Already within circumcentre()'s bound (1e-12 of the radius plus an ulp): keep.
+    double r2 = 0;
+    for (int c = 0; c < d_; ++c) {
+      const double t = x_[v * d_ + c] - ps_.point(seed_)[c];
+      r2 += t * t;
+    }
+    if (error_[v] <= 1e-12 * std::sqrt(r2)) continue;
+    ids[0] = seed_;
+    std::copy(l, l + d_, ids.begin() + 1);
+    for (int i = 1; i <= d_; ++i) {  // insertion sort: at most 9 ids
+      for (int j = i; j > 0 && ids[j - 1] > ids[j]; --j) std::swap(ids[j - 1], ids[j]);
+    }
+    const std::vector<double> c = circumcentre(ps_, ids.data(), d_ + 1);
+    std::copy(c.begin(), c.end(), &x_[v * d_]);
+  }
 }
 
 std::vector<double> CellPolytope::facet_normal(std::uint32_t label) const {

@@ -41,6 +41,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/star.hpp"
+#include "spokemesh/voronoi.hpp"
 
 namespace spokemesh::detail {
 
@@ -70,8 +71,31 @@ class CellPolytope {
   // (nullptr: none) is what clip_all() cuts by; it must outlive the polytope.
   CellPolytope(const PointSet& points, const Star& star, const Domain* domain);
 
+  // The box domain itself (2^d vertices, labels its walls), to be clipped by the
+  // bisectors of seed's neighbours (voronoi.hpp, ClippedCellBuilder). Preconditions:
+  // box.is_box() with lower < upper on every axis; box outlives the polytope.
+  CellPolytope(const PointSet& points, std::uint32_t seed, const Domain& box);
+  // Starts over from the box, for another seed (keeps the memory).
+  void reset_to_box(std::uint32_t seed);
+
   // Clips by every wall of the domain given to the constructor, in order.
   void clip_all();
+  // Clips by the plane `label` (a wall, or the bisector of the seed and point
+  // `label`). Returns false when a real vertex lies exactly on that plane (it is kept:
+  // the domain is closed); a caller that needs general position starts over elsewhere.
+  // `coordinates`, if given, are point label's (equal to the PointSet's, e.g. the k-d
+  // tree's copy, which neighbours share cache lines in); they must outlive the polytope.
+  bool clip(std::uint32_t label, const double* coordinates = nullptr);
+  // An upper bound on the squared distance from the seed to every real vertex (the
+  // security radius: a bisector farther than this from the seed cuts nothing).
+  double radius2_upper() const;
+  // Whether the last clip() removed any vertex.
+  bool changed() const { return changed_; }
+  // Recomputes vertices on d bisectors as their simplex's circumcentre (circumcentre()'s
+  // accuracy, and the same bits as a cell built from the star).
+  void refine_voronoi_vertices();
+  // Threshold scale for constructing cut vertices exactly (the cell's size).
+  void set_scale(double scale) { scale_ = scale; }
 
   std::size_t size() const { return ideal_.size(); }
   bool is_ideal(std::size_t v) const { return ideal_[v] >= 0; }
@@ -100,9 +124,30 @@ class CellPolytope {
   void exact_plane(std::uint32_t label, std::vector<mpq_class>& n, mpq_class& c) const;
   std::optional<std::vector<mpq_class>> exact_vertex(std::size_t v) const;
   std::vector<mpq_class> exact_ray(const std::uint32_t* labels, std::uint32_t away_from) const;
-  int side(std::size_t v, std::size_t wall, const std::vector<int>& sides) const;
-  void clip(std::size_t wall);
-  std::size_t cut(std::size_t in, int position, std::size_t out, std::size_t wall);
+  // A clipping plane in double: a . (x - origin) <= b, origin the seed for a bisector
+  // (then a = p - s, b = |a|^2 / 2, both rounded) or none (a wall: the domain's a, b).
+  struct Plane {
+    std::uint32_t label = 0;
+    std::array<double, kMaxDimension> a{};
+    double b = 0;
+    double a_norm = 0;
+    const double* origin = nullptr;
+  };
+  Plane plane_of(std::uint32_t label) const;
+  // The plane's value at x and a bound on its rounding error (against the exact plane).
+  double plane_value(const Plane& pl, const double* x, double& rounding) const;
+  int side(std::size_t v, const Plane& pl, const std::vector<int>& sides) const;
+  std::size_t cut(std::size_t in, int position, std::size_t out, const Plane& pl);
+  // Recomputes real vertex v from its d planes (LU in double with a forward error
+  // bound), keeping whichever of that and its current bound is tighter.
+  void solve_vertex(std::size_t v);
+  // 3-d, a vertex on three bisectors: its circumcentre in closed form with a forward
+  // error bound. False (nothing changed) for wall vertices and near-flat tetrahedra.
+  bool solve_bisectors_3d(std::size_t v);
+  // An upper bound on the distance from the seed to real vertex v.
+  double vertex_radius(std::size_t v) const;
+  // Point `label`'s coordinates: as given to clip(), else the PointSet's.
+  const double* point_of(std::uint32_t label) const;
   std::size_t walk_to_partner(std::size_t u, int wall_position, int m, std::size_t first_new) const;
   std::size_t add_vertex();
   int position_of(std::size_t v, std::uint32_t label) const;
@@ -114,14 +159,24 @@ class CellPolytope {
   std::uint32_t seed_;
   int d_;
   double scale_ = 0;                 // the cell's size, for error thresholds
+  bool from_box_ = false;
+  bool changed_ = false;             // the last clip() cut something
+  std::vector<double> radius_;       // from_box_: vertex_radius() of each vertex
+  std::vector<std::pair<std::uint32_t, const double*>> known_points_;  // clip()'s coordinates            // built by reset_to_box (the direct route)
   std::vector<double> x_;            // d per vertex: coordinates, or an ideal vertex's direction
   std::vector<std::uint32_t> label_;  // d per vertex
   std::vector<std::uint32_t> next_;   // d per vertex
   std::vector<double> error_;        // bound on |x - exact| (real vertices)
   std::vector<int> ideal_;           // -1, or the index of the exact direction in rays_
   std::vector<std::vector<mpq_class>> rays_;
+  std::vector<int> sides_;               // clip() scratch
+  std::vector<std::uint32_t> index_;     // clip() scratch
   // measures(): faces of dimension 1 .. d - 3 already measured, by sorted planes.
   mutable std::map<std::vector<std::uint32_t>, std::pair<double, std::array<double, kMaxDimension>>> memo_;
 };
+
+// The VoronoiCell of a clipped polytope (voronoi.cpp): 2-d vertices counter-clockwise,
+// otherwise in polytope order; facets with their measures.
+VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, int d);
 
 }  // namespace spokemesh::detail

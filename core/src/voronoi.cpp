@@ -227,8 +227,14 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
   }
   detail::CellPolytope polytope(points, star, &domain);
   polytope.clip_all();
+  return detail::assemble_clipped(polytope, star.seed, d);
+}
+
+namespace detail {
+
+VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, int d) {
   VoronoiCell cell;
-  cell.seed = star.seed;
+  cell.seed = seed;
   cell.dimension = d;
   cell.clipped = true;
   cell.bounded = polytope.bounded();
@@ -249,5 +255,7 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
   add_facets(polytope, index, cell);
   return cell;
 }
+
+}  // namespace detail
 
 }  // namespace spokemesh

@@ -244,11 +244,20 @@ class Triangulation {
   py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
                 const std::optional<Points>& halfspaces) const {
     const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
-    const Star star = star_of(seed);
-    if (!domain) return cell_dict(voronoi_cell(points_, star));
-    auto c = voronoi_cell(points_, star, *domain);
-    if (!c.is_ok()) raise(c.status());
-    return cell_dict(c.value());
+    if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed)));
+    if (seed >= points_.size()) {
+      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
+                            " points)");
+    }
+    // The builder cells() uses, so that both give the same cell.
+    std::optional<Result<VoronoiCell>> c;
+    {
+      py::gil_scoped_release release;
+      ClippedCellBuilder builder(*tree_, *domain);
+      c.emplace(builder.cell(seed));
+    }
+    if (!c->is_ok()) raise(c->status());
+    return cell_dict(c->value());
   }
 
   // All cells' measures as the .npz of `spokemesh cells` holds them.

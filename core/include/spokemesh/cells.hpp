@@ -12,6 +12,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <span>
 
 #include "spokemesh/domain.hpp"
@@ -22,6 +23,58 @@
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh {
+
+// Clipped Voronoi cells of one point set, one seed at a time, by either of two exact
+// routes that give the same polytope:
+//   * directly, for a box domain: the box clipped by the bisectors of the seed's
+//     nearest points in order of distance until the next bisector lies beyond the
+//     cell's farthest vertex (Voro++'s construction and the security radius of
+//     geogram's clip_by_cell_SR), each keep/drop decided exactly (cell_polytope.hpp);
+//   * from the seed's Delaunay star (StarWalker), clipped by the domain's walls.
+// In general position both give the one clipped cell, so the direct route is taken
+// when it applies and meets no tie; a vertex exactly on a bisector or wall (grids,
+// cospherical points, seeds whose cells touch box corners exactly) sends that seed to
+// the star, whose symbolic perturbation decides the degenerate faces. Which route a
+// seed takes depends only on the point set, the domain and the seed, so every cell
+// is a function of them, whatever the threads, order or caller.
+//
+// The direct route is taken in 3-d (CellRoute::kAuto), where it is the faster; tests
+// force either route in any dimension to check that they agree.
+//
+// Ownership: borrows the tree and the domain, which must outlive the builder.
+// Thread safety: NOT thread-safe; one builder per thread (they share nothing).
+enum class CellRoute { kAuto, kDirect, kStar };
+
+class ClippedCellBuilder {
+ public:
+  // Errors from cell(): INVALID_ARGUMENT when the domain's dimension is not the
+  // points' or the seed lies outside it (naming both); OUT_OF_RANGE; CANCELLED (from
+  // star_options.cancel).
+  ClippedCellBuilder(const KdTree& tree, const Domain& domain, StarOptions star_options = {},
+                     CellRoute route = CellRoute::kAuto);
+  ~ClippedCellBuilder();
+  ClippedCellBuilder(const ClippedCellBuilder&) = delete;
+  ClippedCellBuilder& operator=(const ClippedCellBuilder&) = delete;
+
+  Result<VoronoiCell> cell(std::uint32_t seed);
+
+  // Seeds that went the star's way (for benchmarks and tests).
+  std::uint64_t star_fallbacks() const { return star_fallbacks_; }
+  StarWalker& walker();
+
+ private:
+  bool direct(std::uint32_t seed, VoronoiCell& out);
+
+  const KdTree& tree_;
+  const Domain& domain_;
+  StarOptions star_options_;
+  bool direct_ok_ = false;
+  std::unique_ptr<StarWalker> walker_;  // made on first need
+  Star star_;
+  struct Scratch;
+  std::unique_ptr<Scratch> scratch_;
+  std::uint64_t star_fallbacks_ = 0;
+};
 
 struct CellsOptions {
   unsigned threads = 1;                   // worker threads (>= 1)
