@@ -5,8 +5,6 @@
 #include <cmath>
 #include <limits>
 #include <map>
-#include <cstdio>
-#include <cstdlib>
 
 #include "invariant.hpp"
 #include "spokemesh/voronoi.hpp"

@@ -23,6 +23,13 @@
 // vertex is kept when its direction points into the halfspace, or along the wall
 // with its ray's base kept: the limit of truncating the cell far away.
 //
+// The direct route (ClippedCellBuilder, cells.hpp) starts instead from a box domain
+// itself and clips it by bisectors the same way; its new vertices are then solved from
+// their d planes (in closed form in 3-d) with a forward error bound, rather than
+// interpolated along edges whose bounds would compound over many cuts, and a vertex
+// exactly on a cutting plane is reported (clip() returns false) so that the caller can
+// take the star route, whose symbolic perturbation handles it.
+//
 // Measures: a face's k-measure is the sum over its facets of height x measure / k
 // (cones from the mean of its vertices), recursively down to edges; centroids
 // likewise (a cone's centroid lies k/(k+1) of the way from apex to base centroid).

@@ -60,9 +60,9 @@ class ClippedCellBuilder {
 
   // Seeds that went the star's way (for benchmarks and tests).
   std::uint64_t star_fallbacks() const { return star_fallbacks_; }
-  StarWalker& walker();
 
  private:
+  StarWalker& walker();
   bool direct(std::uint32_t seed, VoronoiCell& out);
 
   const KdTree& tree_;
