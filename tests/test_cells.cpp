@@ -206,20 +206,24 @@ TEST(ClippedCells, GridsInTheirBoundingBoxAreUnitCellsAndFractions) {
 // The two routes give the same cell: the same facets (neighbours and walls, decided
 // exactly), and measures that agree to rounding. Random points take the direct route
 // throughout; grids tie everywhere and go to the star, so there they are identical.
-void expect_same_cells(const std::vector<VoronoiCell>& a, const std::vector<VoronoiCell>& b) {
+// `relative`: the measures' tolerance relative to the cell's size (coordinates far
+// from the origin keep fewer digits of a small cell, in both routes).
+void expect_same_cells(const std::vector<VoronoiCell>& a, const std::vector<VoronoiCell>& b, double relative = 1e-11) {
   ASSERT_EQ(a.size(), b.size());
   for (std::size_t i = 0; i < a.size(); ++i) {
     SCOPED_TRACE("seed " + std::to_string(a[i].seed));
     ASSERT_EQ(a[i].facets.size(), b[i].facets.size());
     const double scale = std::pow(std::max(a[i].volume, 1e-300), 1.0 / a[i].dimension);
-    EXPECT_NEAR(a[i].volume, b[i].volume, 1e-11 * a[i].volume);
-    for (int c = 0; c < a[i].dimension; ++c) EXPECT_NEAR(a[i].centroid[c], b[i].centroid[c], 1e-11 * scale + 1e-15);
+    EXPECT_NEAR(a[i].volume, b[i].volume, relative * a[i].volume);
+    for (int c = 0; c < a[i].dimension; ++c) {
+      EXPECT_NEAR(a[i].centroid[c], b[i].centroid[c], relative * scale + 4 * std::abs(a[i].centroid[c]) * 1.2e-16);
+    }
     for (std::size_t k = 0; k < a[i].facets.size(); ++k) {
       const VoronoiFacet& f = a[i].facets[k];
       const VoronoiFacet& g = b[i].facets[k];
       ASSERT_EQ(f.neighbor, g.neighbor) << "facet " << k;
       EXPECT_EQ(f.vertices.size(), g.vertices.size()) << "facet " << k;
-      EXPECT_NEAR(f.area, g.area, 1e-10 * std::pow(scale, a[i].dimension - 1)) << "facet " << k;
+      EXPECT_NEAR(f.area, g.area, 10 * relative * std::pow(scale, a[i].dimension - 1)) << "facet " << k;
     }
   }
 }
@@ -261,6 +265,39 @@ TEST(ClippedCellBuilder, TiesGoToTheStarAndNearTiesStayExact) {
     const Domain big = Domain::box(std::vector<double>(d, -1.0), std::vector<double>(d, side + 0.0)).value();
     expect_same_cells(builder_cells(jittered, big), star_cells(jittered, big));
   }
+}
+
+TEST(ClippedCellBuilder, TinyCellsFarFromTheOriginStayExact) {
+  // A 3-d lattice of spacing 1e-3 jittered by 2e-9 (a few ulps of its coordinates), a
+  // million units from the origin: coordinates keep about 7 digits of the cell's size,
+  // so nearly every decision is within a few ulps of a tie and left to the filters'
+  // bounds and the exact fallback. Also points rounded onto a sphere with its centre,
+  // in a box that cuts their cells.
+  const int d = 3;
+  std::vector<double> lattice = grid_points(d, 5);
+  std::mt19937_64 rng(977);
+  std::uniform_real_distribution<double> jitter(-2e-9, 2e-9);
+  for (double& v : lattice) v = 1e6 + v * 1e-3 + jitter(rng);
+  const PointSet far = make_points(d, lattice);
+  const Domain box = Domain::box({1e6 - 1e-3, 1e6 - 1e-3, 1e6 - 1e-3}, {1e6 + 5e-3, 1e6 + 5e-3, 1e6 + 5e-3}).value();
+  std::uint64_t fallbacks = 0;
+  const std::vector<VoronoiCell> direct = builder_cells(far, box, &fallbacks);
+  EXPECT_LT(fallbacks, far.size() / 2) << "the jitter breaks the lattice's ties";
+  // Facets identical (exact); measures to the coordinates' precision: an ulp of 1e6 is
+  // 1.2e-7 of the spacing.
+  expect_same_cells(direct, star_cells(far, box), 1e-5);
+
+  std::vector<double> sphere = {0, 0, 0};
+  std::uniform_real_distribution<double> u(-1, 1);
+  while (sphere.size() < 3 * 60) {
+    double p[3] = {u(rng), u(rng), u(rng)};
+    const double r = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+    if (r < 0.1) continue;
+    for (double c : p) sphere.push_back(c / r);  // rounded onto the unit sphere
+  }
+  const PointSet cospherical = make_points(d, sphere);
+  const Domain cut = Domain::box({-1.2, -1.2, -1.2}, {1.2, 1.2, 1.2}).value();
+  expect_same_cells(builder_cells(cospherical, cut), star_cells(cospherical, cut));
 }
 
 TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
