@@ -2,6 +2,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -117,13 +118,26 @@ int upload(const RemoteOptions& o, const std::string& input, const std::string& 
 
 namespace {
 
+// gRPC's own retries stop once an answer has begun. A unary call that this client
+// never cancels yet ends CANCELLED (or UNAVAILABLE) was cut off in transit: a replica
+// died mid-answer and a proxy reset the stream. Every RPC is idempotent, so it is sent
+// again, twice at most, within the same deadline.
 template <class Response, class Call>
 int unary(const RemoteOptions& o, Call&& call, Response& response) {
   auto stub = pb::Mesher::NewStub(channel(o));
-  grpc::ClientContext ctx;
-  prepare(o, ctx);
-  const grpc::Status s = call(*stub, ctx, response);
-  return s.ok() ? kExitOk : report(o, s);
+  const auto deadline = std::chrono::system_clock::now() + o.deadline;
+  for (int attempt = 0;; ++attempt) {
+    grpc::ClientContext ctx;
+    prepare(o, ctx);
+    ctx.set_deadline(deadline);
+    response.Clear();
+    const grpc::Status s = call(*stub, ctx, response);
+    if (s.ok()) return kExitOk;
+    const auto backoff = std::chrono::milliseconds(100 * (attempt + 1));
+    const bool cut_off = s.error_code() == grpc::StatusCode::CANCELLED || s.error_code() == grpc::StatusCode::UNAVAILABLE;
+    if (!cut_off || attempt == 2 || std::chrono::system_clock::now() + backoff >= deadline) return report(o, s);
+    std::this_thread::sleep_for(backoff);
+  }
 }
 
 pb::SeedRequest seed_request(const std::string& id, std::uint64_t seed) {

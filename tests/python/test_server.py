@@ -168,6 +168,49 @@ def test_cli_remote_mode_upload_health_list_delete(server, tmp_path):
     assert down.returncode == 1 and "UNAVAILABLE" in down.stderr
 
 
+def test_unary_calls_cut_off_in_transit_are_sent_again(server):
+    """A unary call that ends CANCELLED or UNAVAILABLE after gRPC's own retries gave up
+    (a replica killed mid-answer, the proxy resetting the stream) is sent again by the
+    client, twice at most, within its deadline; other errors are not."""
+    client = spokemesh.Client(server.grpc, timeout=5)
+    ps = client.upload(uniform(200, 3, 7))
+    stub = pb_grpc.MesherStub(client._channel)
+
+    class CutOff(grpc.RpcError):
+        def __init__(self, code):
+            self._code = code
+
+        def code(self):
+            return self._code
+
+        def details(self):
+            return self._code.name
+
+    def failing(times, code):
+        calls = []
+
+        def method(request, timeout, metadata):
+            calls.append(timeout)
+            if len(calls) <= times:
+                raise CutOff(code)
+            return stub.GetStar(request, timeout=timeout, metadata=metadata)
+        return method, calls
+
+    request = pb.SeedRequest(point_set_id=ps.id, seed=3)
+    for code in (grpc.StatusCode.CANCELLED, grpc.StatusCode.UNAVAILABLE):
+        method, calls = failing(2, code)
+        assert client._call(method, request).simplices == stub.GetStar(request).simplices
+        assert len(calls) == 3 and all(0 < t <= 5 for t in calls)
+        method, calls = failing(3, code)
+        with pytest.raises(spokemesh.Error) as e:
+            client._call(method, request)
+        assert e.value.code == code and len(calls) == 3
+    method, calls = failing(1, grpc.StatusCode.INVALID_ARGUMENT)
+    with pytest.raises(spokemesh.Error):
+        client._call(method, request)
+    assert len(calls) == 1
+
+
 def test_list_clamps_page_size_and_only_uploads_say_already_existed(server):
     client = spokemesh.Client(server.grpc)
     first = client.upload(uniform(20, 2, 30))

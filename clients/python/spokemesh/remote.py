@@ -5,6 +5,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import json
+import time
 from typing import Iterator, List, Optional, Sequence
 
 import grpc
@@ -140,10 +141,20 @@ class Client:
         self.close()
 
     def _call(self, method, request, timeout: Optional[float] = None):
-        try:
-            return method(request, timeout=timeout or self._timeout, metadata=self._metadata)
-        except grpc.RpcError as e:  # one exception type for callers, with the code kept
-            raise Error(e.code(), e.details()) from None
+        # gRPC's own retries stop once an answer has begun. A unary call that this client
+        # never cancels yet ends CANCELLED (or UNAVAILABLE) was cut off in transit: a
+        # replica died mid-answer and the proxy reset the stream. Every RPC is idempotent,
+        # so it is sent again, twice at most, within the same deadline.
+        deadline = time.monotonic() + (timeout or self._timeout)
+        for attempt in range(3):
+            try:
+                return method(request, timeout=max(0.001, deadline - time.monotonic()), metadata=self._metadata)
+            except grpc.RpcError as e:  # one exception type for callers, with the code kept
+                retry = e.code() in (grpc.StatusCode.CANCELLED, grpc.StatusCode.UNAVAILABLE)
+                if not retry or attempt == 2 or time.monotonic() + 0.1 * (attempt + 1) >= deadline:
+                    raise Error(e.code(), e.details()) from None
+            time.sleep(0.1 * (attempt + 1))
+        raise AssertionError("unreachable")
 
     # ---- point sets -------------------------------------------------------------
 
