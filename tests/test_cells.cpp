@@ -43,7 +43,10 @@ std::vector<VoronoiCell> star_cells(const PointSet& ps, const Domain& domain) {
 // Every cell from ClippedCellBuilder (boxes: clipped directly by bisectors, falling
 // back to the star at ties), as `spokemesh cells` and the service compute them.
 // (Forced to the direct route in every dimension, to test it everywhere.)
-std::vector<VoronoiCell> builder_cells(const PointSet& ps, const Domain& domain, std::uint64_t* fallbacks = nullptr) {
+// `fallbacks`: seeds built from the star; `generic`: 3-d seeds the specialised cell
+// left to the generic polytope.
+std::vector<VoronoiCell> builder_cells(const PointSet& ps, const Domain& domain, std::uint64_t* fallbacks = nullptr,
+                                       std::uint64_t* generic = nullptr) {
   const KdTree tree(ps);
   ClippedCellBuilder builder(tree, domain, {}, CellRoute::kDirect);
   std::vector<VoronoiCell> cells;
@@ -53,6 +56,7 @@ std::vector<VoronoiCell> builder_cells(const PointSet& ps, const Domain& domain,
     if (cell.is_ok()) cells.push_back(std::move(cell.value()));
   }
   if (fallbacks) *fallbacks = builder.star_fallbacks();
+  if (generic) *generic = builder.generic_fallbacks();
   return cells;
 }
 
@@ -236,9 +240,10 @@ TEST(ClippedCellBuilder, DirectRouteEqualsTheStarsRoute) {
       const PointSet ps = make_points(d, uniform_points(d, points_for(d) * 2, seed));
       const Domain box = bounding ? Domain::bounding_box(ps)
                                   : Domain::box(std::vector<double>(d, -0.25), std::vector<double>(d, 1.5)).value();
-      std::uint64_t fallbacks = 0;
-      const std::vector<VoronoiCell> direct = builder_cells(ps, box, &fallbacks);
+      std::uint64_t fallbacks = 0, generic = 0;
+      const std::vector<VoronoiCell> direct = builder_cells(ps, box, &fallbacks, &generic);
       EXPECT_EQ(fallbacks, 0u) << "random points in general position never tie";
+      EXPECT_EQ(generic, 0u) << "the specialised 3-d cell certifies every decision on random points";
       expect_same_cells(direct, star_cells(ps, box));
     }
   }
@@ -264,6 +269,18 @@ TEST(ClippedCellBuilder, TiesGoToTheStarAndNearTiesStayExact) {
     const PointSet jittered = make_points(d, grid);
     const Domain big = Domain::box(std::vector<double>(d, -1.0), std::vector<double>(d, side + 0.0)).value();
     expect_same_cells(builder_cells(jittered, big), star_cells(jittered, big));
+    if (d == 3) {
+      // Jittered by a few ulps: the specialised 3-d cell cannot certify these decisions
+      // and must leave them to the generic polytope's exact arithmetic.
+      std::vector<double> close = grid_points(d, side);
+      std::uniform_real_distribution<double> ulps(-2e-15, 2e-15);
+      for (double& v : close) v += ulps(rng);
+      const PointSet nearly = make_points(d, close);
+      std::uint64_t generic = 0;
+      const std::vector<VoronoiCell> cells = builder_cells(nearly, big, nullptr, &generic);
+      EXPECT_GT(generic, 0u);
+      expect_same_cells(cells, star_cells(nearly, big));
+    }
   }
 }
 

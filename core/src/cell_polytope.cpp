@@ -347,7 +347,28 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, con
       aw += n[c] * rw[c];
     }
     std::vector<mpq_class> r(static_cast<std::size_t>(d));
-    for (int c = 0; c < d; ++c) r[c] = aw * rv[c] - av * rw[c];
+    if (sgn(av) == 0 && sgn(aw) == 0) {
+      // Both rays run along the wall, kept or dropped by their bases' sides (side()).
+      // Truncate the cell far away, each ray at the same L1 length R from its base:
+      // the wall crosses the edge between the two far ends at the fraction t of the
+      // bases' plane values, whatever R, so the direction is (1 - t) rv + t rw with
+      // both unit in L1. (aw rv - av rw would be the zero vector here.)
+      auto base_value = [&](std::size_t v) {
+        const std::size_t base = next_[v * d + position_of(v, kInfinityLabel)];
+        double rounding = 0;
+        return ideal_[base] >= 0 ? 0.0 : plane_value(pl, &x_[base * d], rounding);
+      };
+      const double fv = std::min(base_value(in), 0.0), fw = std::max(base_value(out), 0.0);
+      const mpq_class t = fw - fv > 0 ? mpq_class(std::clamp(-fv / (fw - fv), 1.0 / 1024, 1 - 1.0 / 1024)) : mpq_class(1, 2);
+      mpq_class lv = 0, lw = 0;
+      for (int c = 0; c < d; ++c) {
+        lv += abs(rv[c]);
+        lw += abs(rw[c]);
+      }
+      for (int c = 0; c < d; ++c) r[c] = (1 - t) * rv[c] / lv + t * rw[c] / lw;
+    } else {
+      for (int c = 0; c < d; ++c) r[c] = aw * rv[c] - av * rw[c];
+    }
     ideal_[u] = static_cast<int>(rays_.size());
     rays_.push_back(std::move(r));
     double len = 0;

@@ -1,5 +1,6 @@
 #include "spokemesh/cells.hpp"
 
+#include "box_cell_3d.hpp"
 #include "cell_polytope.hpp"
 
 #include <algorithm>
@@ -12,6 +13,7 @@
 namespace spokemesh {
 
 struct ClippedCellBuilder::Scratch {
+  std::optional<detail::BoxCell3d> box_cell_3d;
   std::optional<detail::CellPolytope> polytope;
   std::vector<std::uint32_t> ids;
   std::vector<double> dist2;
@@ -65,15 +67,37 @@ Result<VoronoiCell> ClippedCellBuilder::cell(std::uint32_t seed) {
 
 bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
   const PointSet& points = tree_.points();
-  const int d = points.dimension();
-  const std::uint32_t n = static_cast<std::uint32_t>(points.size());
   Scratch& sc = *scratch_;
+  if (points.dimension() == 3) {
+    // The specialised 3-d cell first; it gives up (rarely, off grids) where its error
+    // bounds cannot certify a decision, and the generic polytope decides exactly.
+    if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_);
+    detail::BoxCell3d& cell = *sc.box_cell_3d;
+    cell.reset(seed);
+    if (clip_by_neighbours(seed, cell)) {
+      cell.assemble(out, measures_only_);
+      return true;
+    }
+    ++generic_fallbacks_;
+  }
   if (!sc.polytope) {
     sc.polytope.emplace(points, seed, domain_);
   } else {
     sc.polytope->reset_to_box(seed);
   }
   detail::CellPolytope& poly = *sc.polytope;
+  if (!clip_by_neighbours(seed, poly)) return false;
+  poly.refine_voronoi_vertices();
+  out = detail::assemble_clipped(poly, seed, points.dimension());
+  return true;
+}
+
+template <class Polytope>
+bool ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) {
+  const PointSet& points = tree_.points();
+  const int d = points.dimension();
+  const std::uint32_t n = static_cast<std::uint32_t>(points.size());
+  Scratch& sc = *scratch_;
   const double* x = points.point(seed);
   sc.applied.clear();
   // Whether every point not yet applied lies farther than twice the security radius,
@@ -101,7 +125,7 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
         break;
       }
       if (round > 0 && std::find(sc.applied.begin(), sc.applied.end(), j) != sc.applied.end()) continue;
-      if (!poly.clip(j, sc.coords[i])) return false;  // a vertex on the bisector: degenerate here
+      if (!poly.clip(j, sc.coords[i])) return false;  // a vertex on (or too near) the bisector
       sc.applied.push_back(j);
       if (poly.changed()) r2 = poly.radius2_upper();
     }
@@ -109,8 +133,6 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
     if (k >= kMaxDirectCandidates) return false;
     k = std::min<std::size_t>(2 * k, n);
   }
-  poly.refine_voronoi_vertices();
-  out = detail::assemble_clipped(poly, seed, d);
   return true;
 }
 
@@ -148,6 +170,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
       w.walker = std::make_unique<StarWalker>(tree, star_options);
     } else {
       w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
+      w.builder->set_measures_only(options.measures_only);
     }
   }
   auto run = [&](Worker& w, std::uint64_t from, std::uint64_t to) {

@@ -58,12 +58,20 @@ class ClippedCellBuilder {
 
   Result<VoronoiCell> cell(std::uint32_t seed);
 
+  // Leave out vertex coordinates and facet vertex loops (measures and neighbours
+  // only): cheaper where the caller drops them anyway. Off by default.
+  void set_measures_only(bool measures_only) { measures_only_ = measures_only; }
   // Seeds that went the star's way (for benchmarks and tests).
   std::uint64_t star_fallbacks() const { return star_fallbacks_; }
+  // 3-d seeds the specialised cell gave up on (a decision within its error bounds),
+  // built by the generic polytope instead (for tests).
+  std::uint64_t generic_fallbacks() const { return generic_fallbacks_; }
 
  private:
   StarWalker& walker();
   bool direct(std::uint32_t seed, VoronoiCell& out);
+  template <class Polytope>
+  bool clip_by_neighbours(std::uint32_t seed, Polytope& polytope);
 
   const KdTree& tree_;
   const Domain& domain_;
@@ -74,6 +82,8 @@ class ClippedCellBuilder {
   struct Scratch;
   std::unique_ptr<Scratch> scratch_;
   std::uint64_t star_fallbacks_ = 0;
+  std::uint64_t generic_fallbacks_ = 0;
+  bool measures_only_ = false;
 };
 
 struct CellsOptions {

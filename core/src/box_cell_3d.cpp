@@ -1,0 +1,331 @@
+#include "box_cell_3d.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "cell_polytope.hpp"  // kWallLabel0
+#include "invariant.hpp"
+
+namespace spokemesh::detail {
+
+namespace {
+constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
+constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+
+double norm3(const std::array<double, 3>& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
+}  // namespace
+
+BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box) {
+  v_.reserve(256);
+  spare_.reserve(256);
+  planes_.reserve(128);
+}
+
+void BoxCell3d::reset(std::uint32_t seed) {
+  seed_ = seed;
+  s_ = points_.point(seed);
+  planes_.clear();
+  // Walls 0..2 are the lower ones (normal -e_c, offset -lo_c), 3..5 the upper ones.
+  for (std::uint32_t w = 0; w < 6; ++w) {
+    Plane pl;
+    pl.axis = static_cast<int>(w % 3);
+    pl.a[pl.axis] = w < 3 ? -1.0 : 1.0;
+    pl.c = box_.offset(w) - pl.a[pl.axis] * s_[pl.axis];  // the seed's distance to the wall
+    pl.a_norm = 1;
+    pl.label = kWallLabel0 + w;
+    planes_.push_back(pl);
+  }
+  v_.resize(8);
+  rmax_ = 0;
+  for (std::uint32_t v = 0; v < 8; ++v) {
+    Vertex& x = v_[v];
+    for (int c = 0; c < 3; ++c) {
+      const bool upper = (v >> c) & 1;
+      const Plane& wall = planes_[upper ? 3 + c : c];
+      x.y[c] = upper ? wall.c : -wall.c;
+      x.plane[c] = upper ? 3 + c : c;
+      x.next[c] = v ^ (1u << c);
+    }
+    // Each coordinate is one rounding from the exact wall minus seed.
+    x.error = 2 * kUnit * norm3(x.y);
+    x.radius = norm3(x.y) * (1 + 1e-12) + x.error;
+    rmax_ = std::max(rmax_, x.radius);
+  }
+  changed_ = false;
+}
+
+bool BoxCell3d::solve(Vertex& v) const {
+  // Rows a_i . y = c_i. Cramer's rule: y = (c_0 X_0 + c_1 X_1 + c_2 X_2) / D with X_i
+  // = a_{i+1} x a_{i+2} and D = a_0 . X_0 (for three bisectors, the circumcentre of the
+  // seed's tetrahedron; CellPolytope::solve_bisectors_3d). Error bound, first order with
+  // a factor 2 to spare: the numerators and D are off by at most gamma times their
+  // absolute-value sums, so y by (|dN| + |y| |dD|) / (|D| - |dD|); the rows and right
+  // sides themselves carry a few units of rounding each (q = p - s, |q|^2 / 2, a wall's
+  // distance), which move the exact solution by at most |A^-1| 4u (|A| |y| + 2 |c|),
+  // |A^-1| <= |adj A| / |D|. A wall's unit row is scaled by a power of two to the
+  // bisectors' size, exactly, so that it does not inflate the bound.
+  double a[3][3], c[3];
+  double scale = 0;
+  for (int i = 0; i < 3; ++i) {
+    const Plane& pl = planes_[v.plane[i]];
+    if (pl.axis < 0) scale = std::max(scale, pl.a_norm);
+  }
+  const int e = scale > 0 ? std::ilogb(scale) : 0;
+  for (int i = 0; i < 3; ++i) {
+    const Plane& pl = planes_[v.plane[i]];
+    const double f = pl.axis < 0 ? 1.0 : std::ldexp(1.0, e);
+    for (int k = 0; k < 3; ++k) a[i][k] = pl.a[k] * f;
+    c[i] = pl.c * f;
+  }
+  double cr[3][3], cra[3][3];
+  for (int i = 0; i < 3; ++i) {
+    const double* p = a[(i + 1) % 3];
+    const double* q = a[(i + 2) % 3];
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+      cr[i][k] = p[k1] * q[k2] - p[k2] * q[k1];
+      cra[i][k] = std::abs(p[k1] * q[k2]) + std::abs(p[k2] * q[k1]);
+    }
+  }
+  const double D = a[0][0] * cr[0][0] + a[0][1] * cr[0][1] + a[0][2] * cr[0][2];
+  const double DA = std::abs(a[0][0]) * cra[0][0] + std::abs(a[0][1]) * cra[0][1] + std::abs(a[0][2]) * cra[0][2];
+  if (!(std::abs(D) > 64 * kUnit * DA)) return false;  // nearly flat: the generic route decides
+  const double gamma = 16 * kUnit;
+  const double inv_d = 1 / (std::abs(D) - gamma * DA);
+  double y_norm = 0, na_norm = 0;
+  for (int k = 0; k < 3; ++k) {
+    v.y[k] = (c[0] * cr[0][k] + c[1] * cr[1][k] + c[2] * cr[2][k]) / D;
+    y_norm = std::max(y_norm, std::abs(v.y[k]));
+    na_norm = std::max(na_norm, std::abs(c[0]) * cra[0][k] + std::abs(c[1]) * cra[1][k] + std::abs(c[2]) * cra[2][k]);
+  }
+  double adj_norm = 0, a_norm = 0, c_norm = 0;
+  for (int r = 0; r < 3; ++r) {  // adj A's rows are the cross products' components
+    adj_norm = std::max(adj_norm, std::abs(cr[0][r]) + std::abs(cr[1][r]) + std::abs(cr[2][r]));
+    a_norm = std::max(a_norm, std::abs(a[r][0]) + std::abs(a[r][1]) + std::abs(a[r][2]));
+    c_norm = std::max(c_norm, std::abs(c[r]));
+  }
+  const double err_round = (gamma * na_norm + y_norm * gamma * DA) * inv_d;
+  const double err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * c_norm);
+  const double forward = 2 * (err_round + err_input);
+  if (!std::isfinite(forward)) return false;
+  v.error = std::sqrt(3.0) * forward;
+  v.radius = norm3(v.y) * (1 + 1e-12) + v.error;
+  return true;
+}
+
+std::uint32_t BoxCell3d::walk_to_partner(std::uint32_t u, int at, int keep, std::uint32_t first_new) const {
+  // The face S (u's plane other than the new one at `at` and the one at `keep`): walk
+  // its kept boundary from u's kept end until the other new vertex on it.
+  const std::uint32_t face = v_[u].plane[3 - at - keep];
+  std::uint32_t prev = u, cur = v_[u].next[at];
+  for (std::size_t steps = 0; steps <= v_.size(); ++steps) {
+    const Vertex& x = v_[cur];
+    std::uint32_t ways[2] = {prev, prev};
+    int found = 0;
+    for (int k = 0; k < 3; ++k) {
+      if (x.plane[k] != face && found < 2) ways[found++] = x.next[k];
+    }
+    const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
+    if (nxt >= first_new) return nxt;
+    prev = cur;
+    cur = nxt;
+  }
+  SPOKEMESH_INVARIANT(false, "the kept part of a face ends at a new vertex");
+  return u;
+}
+
+bool BoxCell3d::clip(std::uint32_t label, const double* p) {
+  changed_ = false;
+  Plane pl;
+  pl.label = label;
+  double q2 = 0;
+  for (int k = 0; k < 3; ++k) {
+    pl.a[k] = p[k] - s_[k];
+    q2 += pl.a[k] * pl.a[k];
+  }
+  pl.c = q2 / 2;
+  pl.a_norm = std::sqrt(q2);
+  // The bisector lies |q| / 2 from the seed: vertices closer (with their error) are
+  // strictly inside, and if all are, it cuts nothing.
+  const double reach = pl.a_norm / 2 * (1 - 1e-12);
+  if (reach > rmax_) return true;
+  const std::size_t n = v_.size();
+  side_.resize(n);
+  bool any_out = false;
+  for (std::size_t v = 0; v < n; ++v) {
+    const Vertex& x = v_[v];
+    if (x.radius < reach) {
+      side_[v] = -1;
+      continue;
+    }
+    double f = -pl.c, magnitude = pl.c;
+    for (int k = 0; k < 3; ++k) {
+      f += pl.a[k] * x.y[k];
+      magnitude += std::abs(pl.a[k] * x.y[k]);
+    }
+    // The sum's rounding and that of q and |q|^2 / 2 against the exact bisector (as
+    // CellPolytope::plane_value), plus the vertex's own error along the normal.
+    const double bound = 28 * kUnit * (magnitude + pl.c) + pl.a_norm * x.error * (1 + 16 * kUnit);
+    if (f > bound) {
+      side_[v] = 1;
+      any_out = true;
+    } else if (f < -bound) {
+      side_[v] = -1;
+    } else {
+      return false;  // within rounding of the plane: the exact route decides
+    }
+  }
+  if (!any_out) return true;
+  const auto pid = static_cast<std::uint32_t>(planes_.size());
+  planes_.push_back(pl);
+  const auto first_new = static_cast<std::uint32_t>(n);
+  for (std::uint32_t v = 0; v < first_new; ++v) {
+    if (side_[v] > 0) continue;
+    for (int k = 0; k < 3; ++k) {
+      const std::uint32_t w = v_[v].next[k];
+      if (w >= first_new || side_[w] < 0) continue;
+      Vertex u;
+      u.plane = v_[v].plane;
+      u.plane[k] = pid;
+      u.next[k] = v;
+      if (!solve(u)) return false;
+      v_[v].next[k] = static_cast<std::uint32_t>(v_.size());
+      v_.push_back(u);
+    }
+  }
+  for (std::uint32_t u = first_new; u < v_.size(); ++u) {
+    const int at = v_[u].plane[0] == pid ? 0 : v_[u].plane[1] == pid ? 1 : 2;
+    for (int k = 0; k < 3; ++k) {
+      if (k != at) v_[u].next[k] = walk_to_partner(u, at, k, first_new);
+    }
+  }
+  // Keep the vertices inside and the new ones, renumbered.
+  index_.resize(v_.size());
+  std::uint32_t kept = 0;
+  for (std::uint32_t v = 0; v < v_.size(); ++v) index_[v] = v >= first_new || side_[v] < 0 ? kept++ : kNone;
+  spare_.resize(kept);
+  rmax_ = 0;
+  for (std::uint32_t v = 0; v < v_.size(); ++v) {
+    if (index_[v] == kNone) continue;
+    Vertex& x = spare_[index_[v]];
+    x = v_[v];
+    for (int k = 0; k < 3; ++k) x.next[k] = index_[x.next[k]];
+    rmax_ = std::max(rmax_, x.radius);
+  }
+  v_.swap(spare_);
+  changed_ = true;
+  return true;
+}
+
+void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
+  out.seed = seed_;
+  out.dimension = 3;
+  out.clipped = true;
+  out.bounded = true;
+  out.facets.clear();
+  out.vertices.clear();
+  out.vertex_simplices.clear();
+  const std::size_t n = v_.size();
+  if (!measures_only) {
+    out.vertices.resize(n * 3);
+    for (std::size_t v = 0; v < n; ++v) {
+      const Vertex& x = v_[v];
+      double* o = &out.vertices[v * 3];
+      for (int k = 0; k < 3; ++k) o[k] = s_[k] + x.y[k];
+      bool on_wall = false;
+      for (int k = 0; k < 3; ++k) {
+        const Plane& pl = planes_[x.plane[k]];
+        if (pl.axis >= 0) {  // a box wall fixes its coordinate exactly
+          o[pl.axis] = pl.a[pl.axis] * box_.offset(pl.label - kWallLabel0);
+          on_wall = true;
+        }
+      }
+      // A Voronoi vertex: within circumcentre()'s bound (1e-12 of its radius plus an
+      // ulp), or recomputed by it.
+      if (!on_wall && x.error > 1e-12 * norm3(x.y)) {
+        std::uint32_t ids[4] = {seed_, planes_[x.plane[0]].label, planes_[x.plane[1]].label, planes_[x.plane[2]].label};
+        std::sort(ids, ids + 4);
+        const std::vector<double> cc = circumcentre(points_, ids, 4);
+        std::copy(cc.begin(), cc.end(), o);
+      }
+    }
+  }
+  // One facet per plane that still has a vertex: its loop, area, centre.
+  first_on_plane_.assign(planes_.size(), kNone);
+  for (std::uint32_t v = 0; v < n; ++v) {
+    for (int k = 0; k < 3; ++k) {
+      std::uint32_t& f = first_on_plane_[v_[v].plane[k]];
+      if (f == kNone) f = v;
+    }
+  }
+  double volume = 0;
+  std::array<double, 3> moment{};
+  for (std::uint32_t pid = 0; pid < planes_.size(); ++pid) {
+    const std::uint32_t start = first_on_plane_[pid];
+    if (start == kNone) continue;
+    const Plane& pl = planes_[pid];
+    loop_.clear();
+    std::uint32_t prev = start, cur = start;
+    do {
+      loop_.push_back(cur);
+      const Vertex& x = v_[cur];
+      std::uint32_t ways[2] = {cur, cur};
+      int found = 0;
+      for (int k = 0; k < 3; ++k) {
+        if (x.plane[k] != pid && found < 2) ways[found++] = x.next[k];
+      }
+      const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
+      prev = cur;
+      cur = nxt;
+    } while (cur != start && loop_.size() <= n);
+    SPOKEMESH_INVARIANT(cur == start, "a face's boundary is a cycle");
+    std::array<double, 3> normal{};
+    for (int k = 0; k < 3; ++k) normal[k] = pl.a[k] / pl.a_norm;
+    // Fan from the loop's first vertex (relative coordinates: small numbers).
+    const std::array<double, 3>& p0 = v_[loop_[0]].y;
+    double area = 0;
+    std::array<double, 3> centre{};
+    for (std::size_t i = 1; i + 1 < loop_.size(); ++i) {
+      const std::array<double, 3>& a = v_[loop_[i]].y;
+      const std::array<double, 3>& b = v_[loop_[i + 1]].y;
+      const double u[3] = {a[0] - p0[0], a[1] - p0[1], a[2] - p0[2]};
+      const double w[3] = {b[0] - p0[0], b[1] - p0[1], b[2] - p0[2]};
+      const double t = 0.5 * ((u[1] * w[2] - u[2] * w[1]) * normal[0] + (u[2] * w[0] - u[0] * w[2]) * normal[1] +
+                              (u[0] * w[1] - u[1] * w[0]) * normal[2]);
+      area += t;
+      for (int k = 0; k < 3; ++k) centre[k] += t * (p0[k] + a[k] + b[k]) / 3;
+    }
+    if (area < 0) {  // walked clockwise seen from outside
+      std::reverse(loop_.begin() + 1, loop_.end());
+      area = -area;
+      for (double& x : centre) x = -x;
+    }
+    VoronoiFacet facet;
+    facet.neighbor = pl.axis >= 0 ? -1 - static_cast<std::int64_t>(pl.label - kWallLabel0)
+                                  : static_cast<std::int64_t>(pl.label);
+    facet.area = area;
+    facet.normal.assign(normal.begin(), normal.end());
+    if (!measures_only) facet.vertices.assign(loop_.begin(), loop_.end());
+    out.facets.push_back(std::move(facet));
+    if (area > 0) {
+      // The cone from the seed: its height is the plane's distance from the seed
+      // (|q| / 2 for a bisector, the wall's distance), its centroid 3/4 of the way to
+      // the face's centroid.
+      const double h = pl.c / pl.a_norm;
+      const double cone = area * h / 3;
+      volume += cone;
+      for (int k = 0; k < 3; ++k) moment[k] += cone * 0.75 * (centre[k] / area);
+    }
+  }
+  // Neighbours ascending, then walls ascending.
+  std::sort(out.facets.begin(), out.facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
+    if (a.is_wall() != b.is_wall()) return !a.is_wall();
+    return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
+  });
+  out.volume = volume;
+  out.centroid.assign(3, 0.0);
+  for (int k = 0; k < 3; ++k) out.centroid[k] = s_[k] + (volume > 0 ? moment[k] / volume : 0.0);
+}
+
+}  // namespace spokemesh::detail

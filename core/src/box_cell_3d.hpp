@@ -1,0 +1,95 @@
+// BoxCell3d: the direct route's cell in 3-d (cells.hpp, ClippedCellBuilder), specialised.
+//
+// The same construction as CellPolytope built from a box (cell_polytope.hpp): a simple
+// polytope, each vertex on exactly three planes with its three edges stored, cut by the
+// bisectors of the seed's nearest points. Specialised for the one case that dominates
+// `spokemesh cells` (profiled on 1M uniform points, bench/README.md): 64-byte vertex
+// records in coordinates relative to the seed, planes in a small table, no heap
+// allocation after the first cells, and measures taken from cones at the seed.
+//
+// It never decides a tie or a near-tie: every keep/drop decision is certified by a
+// forward error bound (the plane's rounding plus the vertex's error), and every new
+// vertex is solved from its three planes by Cramer's rule with a bound. When a bound
+// cannot certify a decision, or a vertex's system is nearly singular, clip() returns
+// false and the caller builds the cell by the generic CellPolytope (exact fallback),
+// and from the star at true ties. So the polytope, whenever this class finishes it,
+// is the exact clipped cell, and its measures are double values of it.
+//
+// Thread safety: a value type with scratch buffers; one per thread.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "spokemesh/domain.hpp"
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/voronoi.hpp"
+
+namespace spokemesh::detail {
+
+class BoxCell3d {
+ public:
+  // `box`: a 3-d box domain with lower < upper (is_box()); borrowed, with `points`.
+  BoxCell3d(const PointSet& points, const Domain& box);
+
+  // Starts over from the box around `seed` (which must lie in the closed box).
+  void reset(std::uint32_t seed);
+  // Cuts by the bisector of the seed and point `label`, whose coordinates are `p`
+  // (they must stay valid until assemble()). False when a decision or a new vertex
+  // could not be certified: the cell must then be built another way.
+  bool clip(std::uint32_t label, const double* p);
+  // Whether the last clip() removed any vertex.
+  bool changed() const { return changed_; }
+  // An upper bound on the squared distance from the seed to every vertex: a bisector
+  // farther than twice this cuts nothing (the security radius).
+  double radius2_upper() const { return rmax_ * rmax_ * (1 + 1e-12); }
+  // Unused (CellPolytope's threshold); kept so both polytopes drive the same loop.
+  void set_scale(double) {}
+
+  // The finished cell: facets (neighbours ascending, then walls), measures, and unless
+  // `measures_only`, the vertices and each facet's loop, counter-clockwise seen from
+  // outside. Vertices on three bisectors within circumcentre()'s bound of the exact
+  // circumcentre (recomputed by it where the solve's bound is looser).
+  void assemble(VoronoiCell& out, bool measures_only);
+
+  std::size_t size() const { return v_.size(); }
+
+ private:
+  // A plane a . y <= c in coordinates relative to the seed (y = x - s). Bisectors: a =
+  // q = p - s rounded, c = |q|^2 / 2 rounded. Box walls: a = +-e_axis, c the wall's
+  // distance from the seed, rounded (their coordinate is restored exactly on output).
+  struct Plane {
+    std::array<double, 3> a{};
+    double c = 0;
+    double a_norm = 0;
+    std::uint32_t label = 0;  // point index, or kWallLabel0 + wall
+    int axis = -1;            // walls: the axis; bisectors: -1
+  };
+  struct alignas(64) Vertex {
+    std::array<double, 3> y{};       // relative to the seed
+    double error = 0;                // bound on |y - exact vertex - s| (Euclidean)
+    double radius = 0;               // bound on |exact vertex - s|
+    std::array<std::uint32_t, 3> plane{};  // indices into planes_
+    std::array<std::uint32_t, 3> next{};   // next[k]: the neighbour reached by leaving plane[k]
+  };
+  static_assert(sizeof(Vertex) == 64);
+
+  bool solve(Vertex& v) const;
+  std::uint32_t walk_to_partner(std::uint32_t u, int at, int keep, std::uint32_t first_new) const;
+
+  const PointSet& points_;
+  const Domain& box_;
+  std::uint32_t seed_ = 0;
+  const double* s_ = nullptr;
+  double rmax_ = 0;
+  bool changed_ = false;
+  std::vector<Plane> planes_;
+  std::vector<Vertex> v_, spare_;
+  std::vector<std::int8_t> side_;
+  std::vector<std::uint32_t> index_;
+  // assemble() scratch.
+  std::vector<std::uint32_t> first_on_plane_, loop_;
+};
+
+}  // namespace spokemesh::detail
