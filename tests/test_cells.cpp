@@ -393,6 +393,77 @@ TEST(ClippedCells, SeedsOutsideTheDomainAreNamed) {
   EXPECT_FALSE(Domain::halfspaces(2, {0.0, 0.0}, {1.0}).is_ok());
 }
 
+// compute_cells visits each round's seeds in the tree's leaf order, split among the
+// threads, and hands them over in seed order: the same bytes whatever the threads and
+// block size, and the same error (the lowest seed outside the domain).
+TEST(ComputeCells, ThreadsAndBlocksChangeNothing) {
+  for (const int d : {2, 3}) {
+    SCOPED_TRACE("d " + std::to_string(d));
+    const PointSet ps = make_points(d, uniform_points(d, 700, 60 + d));
+    const KdTree tree(ps);
+    const Domain box = Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 1.0)).value();
+    auto run = [&](unsigned threads, std::uint32_t block, bool measures_only) {
+      CellsOptions options;
+      options.threads = threads;
+      options.block_size = block;
+      options.measures_only = measures_only;
+      std::vector<VoronoiCell> all;
+      std::uint64_t reported = 0;
+      const Status st = compute_cells(tree, &box, options, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+        for (const VoronoiCell& c : cells) {
+          EXPECT_EQ(c.seed, all.size());
+          all.push_back(c);
+        }
+        EXPECT_EQ(done, all.size());
+        reported = done;
+        return Status::ok();
+      });
+      EXPECT_TRUE(st.is_ok()) << st.message();
+      EXPECT_EQ(reported, ps.size());
+      return all;
+    };
+    const std::vector<VoronoiCell> one = run(1, 5000, false);
+    for (const auto& [threads, block] : {std::pair{2u, 7u}, std::pair{3u, 64u}, std::pair{2u, 1u}}) {
+      SCOPED_TRACE(std::to_string(threads) + " threads, blocks of " + std::to_string(block));
+      const std::vector<VoronoiCell> other = run(threads, block, false);
+      ASSERT_EQ(one.size(), other.size());
+      for (std::size_t i = 0; i < one.size(); ++i) {
+        ASSERT_EQ(one[i].vertices, other[i].vertices) << "seed " << i;
+        ASSERT_EQ(one[i].volume, other[i].volume) << "seed " << i;
+        ASSERT_EQ(one[i].centroid, other[i].centroid) << "seed " << i;
+        ASSERT_EQ(one[i].facets.size(), other[i].facets.size()) << "seed " << i;
+        for (std::size_t k = 0; k < one[i].facets.size(); ++k) {
+          EXPECT_EQ(one[i].facets[k].neighbor, other[i].facets[k].neighbor);
+          EXPECT_EQ(one[i].facets[k].area, other[i].facets[k].area);
+          EXPECT_EQ(one[i].facets[k].normal, other[i].facets[k].normal);
+          EXPECT_EQ(one[i].facets[k].vertices, other[i].facets[k].vertices);
+        }
+      }
+      const std::vector<VoronoiCell> measures = run(threads, block, true);
+      for (std::size_t i = 0; i < one.size(); ++i) {
+        EXPECT_TRUE(measures[i].vertices.empty());
+        ASSERT_EQ(one[i].volume, measures[i].volume) << "seed " << i;
+        ASSERT_EQ(one[i].facets.size(), measures[i].facets.size()) << "seed " << i;
+      }
+    }
+    // Seeds outside a smaller box: the lowest one is named, whatever the threads.
+    const Domain half = Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 0.6)).value();
+    std::uint32_t first_outside = 0;
+    while (half.violated_wall(ps.point(first_outside)) < 0) ++first_outside;
+    for (const unsigned threads : {1u, 2u, 3u}) {
+      CellsOptions options;
+      options.threads = threads;
+      options.block_size = 256;
+      const Status st = compute_cells(tree, &half, options, [](std::span<const VoronoiCell>, std::uint64_t) {
+        return Status::ok();
+      });
+      EXPECT_EQ(st.code(), Code::kInvalidArgument);
+      EXPECT_NE(st.message().find("seed " + std::to_string(first_outside) + " lies outside"), std::string::npos)
+          << st.message();
+    }
+  }
+}
+
 TEST(ClippedCells, AnUnboundedHalfspaceDomainLeavesCellsUnbounded) {
   const PointSet ps = make_points(2, uniform_points(2, 60, 8));
   const Domain half = Domain::halfspaces(2, {1.0, 0.0}, {2.0}).value();  // x <= 2

@@ -18,7 +18,6 @@ double norm3(const std::array<double, 3>& a) { return std::sqrt(a[0] * a[0] + a[
 
 BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box) {
   v_.reserve(256);
-  spare_.reserve(256);
   planes_.reserve(128);
 }
 
@@ -114,27 +113,6 @@ bool BoxCell3d::solve(Vertex& v) const {
   return true;
 }
 
-std::uint32_t BoxCell3d::walk_to_partner(std::uint32_t u, int at, int keep, std::uint32_t first_new) const {
-  // The face S (u's plane other than the new one at `at` and the one at `keep`): walk
-  // its kept boundary from u's kept end until the other new vertex on it.
-  const std::uint32_t face = v_[u].plane[3 - at - keep];
-  std::uint32_t prev = u, cur = v_[u].next[at];
-  for (std::size_t steps = 0; steps <= v_.size(); ++steps) {
-    const Vertex& x = v_[cur];
-    std::uint32_t ways[2] = {prev, prev};
-    int found = 0;
-    for (int k = 0; k < 3; ++k) {
-      if (x.plane[k] != face && found < 2) ways[found++] = x.next[k];
-    }
-    const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
-    if (nxt >= first_new) return nxt;
-    prev = cur;
-    cur = nxt;
-  }
-  SPOKEMESH_INVARIANT(false, "the kept part of a face ends at a new vertex");
-  return u;
-}
-
 bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   changed_ = false;
   Plane pl;
@@ -179,41 +157,80 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   if (!any_out) return true;
   const auto pid = static_cast<std::uint32_t>(planes_.size());
   planes_.push_back(pl);
+  // A new vertex on every edge from a kept vertex v to a dropped one w; w's pointer
+  // back to v is redirected to it, so that walks through the dropped part find it.
   const auto first_new = static_cast<std::uint32_t>(n);
+  dropped_end_.clear();
+  double rmax = 0;
   for (std::uint32_t v = 0; v < first_new; ++v) {
     if (side_[v] > 0) continue;
+    rmax = std::max(rmax, v_[v].radius);
     for (int k = 0; k < 3; ++k) {
       const std::uint32_t w = v_[v].next[k];
       if (w >= first_new || side_[w] < 0) continue;
       Vertex u;
       u.plane = v_[v].plane;
       u.plane[k] = pid;
+      u.next = {kNone, kNone, kNone};
       u.next[k] = v;
       if (!solve(u)) return false;
-      v_[v].next[k] = static_cast<std::uint32_t>(v_.size());
+      rmax = std::max(rmax, u.radius);
+      const auto id = static_cast<std::uint32_t>(v_.size());
+      v_[v].next[k] = id;
+      Vertex& x = v_[w];
+      x.next[x.next[0] == v ? 0 : x.next[1] == v ? 1 : 2] = id;
       v_.push_back(u);
+      dropped_end_.push_back(w);
     }
   }
+  // Join the new vertices: the one reached from u by leaving plane m lies on u's face S
+  // (its third plane) at the far end of S's dropped part; walk that part from u's
+  // dropped end (Voro++'s way: caps are small). Each join is made from both ends.
   for (std::uint32_t u = first_new; u < v_.size(); ++u) {
     const int at = v_[u].plane[0] == pid ? 0 : v_[u].plane[1] == pid ? 1 : 2;
-    for (int k = 0; k < 3; ++k) {
-      if (k != at) v_[u].next[k] = walk_to_partner(u, at, k, first_new);
+    for (int m = 0; m < 3; ++m) {
+      if (m == at || v_[u].next[m] != kNone) continue;
+      const std::uint32_t face = v_[u].plane[3 - at - m];
+      std::uint32_t prev = u, cur = dropped_end_[u - first_new];
+      for (std::size_t steps = 0;; ++steps) {
+        SPOKEMESH_INVARIANT(steps <= n, "the dropped part of a face ends at a new vertex");
+        const Vertex& x = v_[cur];
+        std::uint32_t ways[2] = {prev, prev};
+        int found = 0;
+        for (int k = 0; k < 3; ++k) {
+          if (x.plane[k] != face && found < 2) ways[found++] = x.next[k];
+        }
+        const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
+        prev = cur;
+        cur = nxt;
+        if (cur >= first_new) break;
+      }
+      Vertex& partner = v_[cur];
+      v_[u].next[m] = cur;
+      for (int k = 0; k < 3; ++k) {
+        if (partner.plane[k] != face && partner.plane[k] != pid) partner.next[k] = u;
+      }
     }
   }
-  // Keep the vertices inside and the new ones, renumbered.
-  index_.resize(v_.size());
-  std::uint32_t kept = 0;
-  for (std::uint32_t v = 0; v < v_.size(); ++v) index_[v] = v >= first_new || side_[v] < 0 ? kept++ : kNone;
-  spare_.resize(kept);
-  rmax_ = 0;
-  for (std::uint32_t v = 0; v < v_.size(); ++v) {
-    if (index_[v] == kNone) continue;
-    Vertex& x = spare_[index_[v]];
-    x = v_[v];
-    for (int k = 0; k < 3; ++k) x.next[k] = index_[x.next[k]];
-    rmax_ = std::max(rmax_, x.radius);
+  // Fill the dropped vertices' slots with the last live vertices, redirecting the
+  // pointers to each moved one.
+  std::uint32_t end = static_cast<std::uint32_t>(v_.size());
+  for (std::uint32_t h = 0; h < end; ++h) {
+    if (h >= first_new || side_[h] < 0) continue;  // live
+    while (end - 1 > h && end - 1 < first_new && side_[end - 1] > 0) --end;
+    if (end - 1 == h) {  // only dropped vertices from here on
+      end = h;
+      break;
+    }
+    const std::uint32_t from = --end;
+    v_[h] = v_[from];
+    for (int k = 0; k < 3; ++k) {
+      Vertex& b = v_[v_[h].next[k]];
+      b.next[b.next[0] == from ? 0 : b.next[1] == from ? 1 : 2] = h;
+    }
   }
-  v_.swap(spare_);
+  v_.resize(end);
+  rmax_ = rmax;
   changed_ = true;
   return true;
 }
@@ -223,7 +240,7 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
   out.dimension = 3;
   out.clipped = true;
   out.bounded = true;
-  out.facets.clear();
+  std::size_t facet_count = 0;  // out.facets is reused, buffers and all
   out.vertices.clear();
   out.vertex_simplices.clear();
   const std::size_t n = v_.size();
@@ -301,13 +318,17 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
       area = -area;
       for (double& x : centre) x = -x;
     }
-    VoronoiFacet facet;
+    if (out.facets.size() == facet_count) out.facets.emplace_back();
+    VoronoiFacet& facet = out.facets[facet_count++];
     facet.neighbor = pl.axis >= 0 ? -1 - static_cast<std::int64_t>(pl.label - kWallLabel0)
                                   : static_cast<std::int64_t>(pl.label);
     facet.area = area;
     facet.normal.assign(normal.begin(), normal.end());
-    if (!measures_only) facet.vertices.assign(loop_.begin(), loop_.end());
-    out.facets.push_back(std::move(facet));
+    if (measures_only) {
+      facet.vertices.clear();
+    } else {
+      facet.vertices.assign(loop_.begin(), loop_.end());
+    }
     if (area > 0) {
       // The cone from the seed: its height is the plane's distance from the seed
       // (|q| / 2 for a bisector, the wall's distance), its centroid 3/4 of the way to
@@ -318,13 +339,14 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
       for (int k = 0; k < 3; ++k) moment[k] += cone * 0.75 * (centre[k] / area);
     }
   }
+  out.facets.resize(facet_count);
   // Neighbours ascending, then walls ascending.
   std::sort(out.facets.begin(), out.facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
     if (a.is_wall() != b.is_wall()) return !a.is_wall();
     return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
   });
   out.volume = volume;
-  out.centroid.assign(3, 0.0);
+  out.centroid.resize(3);
   for (int k = 0; k < 3; ++k) out.centroid[k] = s_[k] + (volume > 0 ? moment[k] / volume : 0.0);
 }
 

@@ -76,7 +76,6 @@ class BoxCell3d {
   static_assert(sizeof(Vertex) == 64);
 
   bool solve(Vertex& v) const;
-  std::uint32_t walk_to_partner(std::uint32_t u, int at, int keep, std::uint32_t first_new) const;
 
   const PointSet& points_;
   const Domain& box_;
@@ -85,9 +84,9 @@ class BoxCell3d {
   double rmax_ = 0;
   bool changed_ = false;
   std::vector<Plane> planes_;
-  std::vector<Vertex> v_, spare_;
+  std::vector<Vertex> v_;
   std::vector<std::int8_t> side_;
-  std::vector<std::uint32_t> index_;
+  std::vector<std::uint32_t> dropped_end_;  // clip(): per new vertex, its dropped neighbour
   // assemble() scratch.
   std::vector<std::uint32_t> first_on_plane_, loop_;
 };

@@ -181,7 +181,10 @@ class NpzCellWriter final : public CellWriter {
         return s;
       }
       const zip_int64_t index = zip_file_add(zip, c->name().c_str(), source, ZIP_FL_OVERWRITE);
-      if (index < 0 || zip_set_file_compression(zip, static_cast<zip_uint64_t>(index), ZIP_CM_STORE, 0) != 0) {
+      // A fixed time stamp (1980-01-02, the start of zip's range in any time zone),
+      // so that the same cells make the same bytes.
+      if (index < 0 || zip_set_file_compression(zip, static_cast<zip_uint64_t>(index), ZIP_CM_STORE, 0) != 0 ||
+          zip_file_set_mtime(zip, static_cast<zip_uint64_t>(index), 315619200, 0) != 0) {
         if (index < 0) zip_source_free(source);
         Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
         zip_discard(zip);

@@ -193,6 +193,14 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
 
 }  // namespace
 
+Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain) {
+  if (const long wall = domain.violated_wall(points.point(seed)); wall >= 0) {
+    return invalid_argument("seed " + std::to_string(seed) + " lies outside the domain (" + domain.describe() +
+                            "): beyond wall " + std::to_string(wall));
+  }
+  return Status::ok();
+}
+
 VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
   VoronoiCell cell;
   const int d = points.dimension();
@@ -221,10 +229,7 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
     return invalid_argument("domain: dimension " + std::to_string(domain.dimension()) + " does not match the points' " +
                             std::to_string(d));
   }
-  if (const long wall = domain.violated_wall(points.point(star.seed)); wall >= 0) {
-    return invalid_argument("seed " + std::to_string(star.seed) + " lies outside the domain (" + domain.describe() +
-                            "): beyond wall " + std::to_string(wall));
-  }
+  if (Status st = check_seed_in_domain(points, star.seed, domain); !st.is_ok()) return st;
   detail::CellPolytope polytope(points, star, &domain);
   polytope.clip_all();
   return detail::assemble_clipped(polytope, star.seed, d);

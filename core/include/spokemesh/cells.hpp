@@ -57,6 +57,8 @@ class ClippedCellBuilder {
   ClippedCellBuilder& operator=(const ClippedCellBuilder&) = delete;
 
   Result<VoronoiCell> cell(std::uint32_t seed);
+  // The same into `out`, reusing its buffers (a loop over many seeds allocates little).
+  Status cell(std::uint32_t seed, VoronoiCell& out);
 
   // Leave out vertex coordinates and facet vertex loops (measures and neighbours
   // only): cheaper where the caller drops them anyway. Off by default.

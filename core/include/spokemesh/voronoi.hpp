@@ -62,6 +62,10 @@ VoronoiCell voronoi_cell(const PointSet& points, const Star& star);
 // the points', or when the seed lies outside the domain (naming seed and wall).
 Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain);
 
+// INVALID_ARGUMENT naming the seed and the wall when point `seed` lies outside the
+// domain (whose dimension must be the points'); OK otherwise.
+Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain);
+
 // Circumcentre of the points `ids` (2..d+1 of them): the centre of the smallest
 // sphere through them, which lies in their affine hull. Solved on the coordinate
 // differences by column-pivoting QR, and in exact rationals where the condition
