@@ -152,7 +152,6 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   const std::uint64_t begin = std::min<std::uint64_t>(options.seed_begin, n);
   const std::uint64_t end = std::clamp<std::uint64_t>(options.seed_end, begin, n);
   const unsigned threads = std::max(1u, options.threads);
-  const std::uint64_t block = std::max<std::uint32_t>(1, options.block_size);
   if (domain != nullptr && domain->dimension() != points.dimension()) {
     return invalid_argument("domain: dimension " + std::to_string(domain->dimension()) + " does not match the points' " +
                             std::to_string(points.dimension()));
@@ -164,11 +163,13 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     Status status;            // the error of the lowest failing seed in its slice
     std::uint64_t failed = 0;  // that seed
   };
-  // Seeds go in rounds of `block` per thread. A round's seeds are visited in the
-  // tree's leaf order, each thread a contiguous slice of it, so that consecutive
-  // cells search the same part of the tree and read the same coordinates (measured,
-  // bench/README.md: 12% of a 3-d million's time in file order); the round's cells
-  // are then handed over in seed order.
+  // Seeds go in rounds of `block` per thread. Where cells are built directly, a
+  // round's seeds are visited in the tree's leaf order, each thread a contiguous slice
+  // of it, so that consecutive cells search the same part of the tree and read the
+  // same coordinates (bench/README.md: 12% of a 3-d million's time in file order);
+  // either way the round's cells are handed over in seed order.
+  const bool space_order = domain != nullptr && ClippedCellBuilder(tree, *domain).direct_route();
+  const std::uint64_t block = options.block_size != 0 ? options.block_size : space_order ? 8192 : 2048;
   const std::uint64_t round_size = block * threads;
   // The run's stars share their wraps through a RunCache, as whole meshes do
   // (mesh.hpp): each star is the same with or without it. (Clipped cells in a box
@@ -226,8 +227,10 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     const std::size_t count = to - at;
     order.resize(count);
     for (std::size_t i = 0; i < count; ++i) order[i] = static_cast<std::uint32_t>(at + i);
-    std::sort(order.begin(), order.end(),
-              [&](std::uint32_t a, std::uint32_t b) { return tree.leaf_rank(a) < tree.leaf_rank(b); });
+    if (space_order) {
+      std::sort(order.begin(), order.end(),
+                [&](std::uint32_t a, std::uint32_t b) { return tree.leaf_rank(a) < tree.leaf_rank(b); });
+    }
     cells.resize(count);
     const unsigned used = static_cast<unsigned>(std::min<std::uint64_t>(threads, count));
     std::vector<std::thread> pool;

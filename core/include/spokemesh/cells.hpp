@@ -1,10 +1,10 @@
 // All Voronoi cells of a point set (or of a range of seeds), clipped to a domain,
 // computed by worker threads and handed over in seed order (docs/cells.md).
 //
-// compute_cells() works in rounds of threads x block consecutive seeds: the round's
-// seeds are sorted into the k-d tree's leaf order (space order), each worker computes
-// one contiguous slice of them, then the calling thread hands the round's cells to
-// `sink` in seed order. Memory is the tree plus one round's cells, never all cells.
+// compute_cells() works in rounds of threads x block consecutive seeds: each worker
+// computes one contiguous slice of the round (for cells built directly, of the round's
+// seeds sorted into the k-d tree's leaf order: space order), then the calling thread
+// hands the round's cells to `sink` in seed order. Memory is the tree plus one round's cells, never all cells.
 // Each cell is the same whatever the threads or block size (a function of the point
 // set and the domain), and so are the bytes of every output.
 //
@@ -65,6 +65,8 @@ class ClippedCellBuilder {
   // Leave out vertex coordinates and facet vertex loops (measures and neighbours
   // only): cheaper where the caller drops them anyway. Off by default.
   void set_measures_only(bool measures_only) { measures_only_ = measures_only; }
+  // Whether cells are built directly (then seeds visited in space order run faster).
+  bool direct_route() const { return direct_ok_; }
   // Seeds that went the star's way (for benchmarks and tests).
   std::uint64_t star_fallbacks() const { return star_fallbacks_; }
   // 3-d seeds the specialised cell gave up on (a decision within its error bounds),
@@ -94,10 +96,11 @@ struct CellsOptions {
   unsigned threads = 1;                   // worker threads (>= 1)
   std::uint32_t seed_begin = 0;           // cells of seeds [seed_begin, seed_end)
   std::uint32_t seed_end = 0xFFFFFFFFu;   // clamped to n
-  // Seeds per worker and round. A round (threads x block_size seeds) is visited in
-  // space order: larger rounds search the tree with more locality (8192 x 2 threads
-  // on 1M points: 1/61 of the set per round), at the cost of holding its cells.
-  std::uint32_t block_size = 8192;
+  // Seeds per worker and round; 0 = automatic: 8192 where cells are built directly
+  // (3-d boxes), whose rounds are visited in space order and gain locality with size
+  // (1M points, 2 threads: 1/61 of the set per round), else 2048, in seed order (the
+  // stars' shared cache is tuned to it; space order made 2-d 15% slower).
+  std::uint32_t block_size = 0;
   // Drop each cell's vertex coordinates and facet vertex lists before the sink sees
   // them (measures only: what `spokemesh cells ... -o x.npz` writes).
   bool measures_only = false;
