@@ -167,10 +167,19 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // round's seeds are visited in the tree's leaf order, each thread a contiguous slice
   // of it, so that consecutive cells search the same part of the tree and read the
   // same coordinates (bench/README.md: 12% of a 3-d million's time in file order);
-  // either way the round's cells are handed over in seed order.
-  const bool space_order = domain != nullptr && ClippedCellBuilder(tree, *domain).direct_route();
-  const std::uint64_t block = options.block_size != 0 ? options.block_size : space_order ? 8192 : 2048;
-  const std::uint64_t round_size = block * threads;
+  // either way the round's cells are handed over in seed order. Seeds that go to the
+  // star after all (grids: ties everywhere) run faster in seed order and smaller rounds,
+  // as star runs do (a 50^3 grid: 9.7 s in space order, 8.5 s so), so the first
+  // round_size seeds go that way, and space order follows only if most of them were
+  // built directly (and stops when a round was not). Only speed depends on it.
+  const bool direct = domain != nullptr && ClippedCellBuilder(tree, *domain).direct_route();
+  // (A caller's block_size fixes the rounds: space order from the start, if direct.)
+  const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
+  const std::uint64_t round_size = options.block_size != 0 ? small_rounds : direct ? 8192 * threads : small_rounds;
+  bool space_order = direct && options.block_size != 0;
+  bool probing = direct && !space_order;  // until the first round_size seeds are done
+  std::uint64_t round_now = small_rounds;
+  std::uint64_t stars_before = 0, seeds_before = 0;
   // The run's stars share their wraps through a RunCache, as whole meshes do
   // (mesh.hpp): each star is the same with or without it. (Clipped cells in a box
   // mostly need no star; the cache's pages are only committed where stars touch them.)
@@ -223,7 +232,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     }
   };
   for (std::uint64_t at = begin; at < end;) {
-    const std::uint64_t to = std::min(end, at + round_size);
+    const std::uint64_t to = std::min(end, at + round_now);
     const std::size_t count = to - at;
     order.resize(count);
     for (std::size_t i = 0; i < count; ++i) order[i] = static_cast<std::uint32_t>(at + i);
@@ -239,6 +248,23 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     }
     run(workers[0], at, 0, count / used);
     for (std::thread& th : pool) th.join();
+    if (probing || space_order) {
+      std::uint64_t to_star = 0;
+      for (const Worker& w : workers) to_star += w.builder->star_fallbacks();
+      const std::uint64_t seeds = to - begin;
+      if (probing && seeds % round_size == 0) {  // rounds of round_size tile the RunCache's blocks from here
+        probing = false;
+        space_order = 2 * (to_star - stars_before) <= seeds - seeds_before;
+        round_now = space_order ? round_size : small_rounds;
+      } else if (space_order && 2 * (to_star - stars_before) > seeds - seeds_before) {
+        space_order = false;
+        round_now = small_rounds;
+      }
+      if (!probing) {
+        stars_before = to_star;
+        seeds_before = seeds;
+      }
+    }
     const Worker* first_error = nullptr;
     for (unsigned t = 0; t < used; ++t) {
       const Worker& w = workers[t];
