@@ -32,9 +32,10 @@ ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain,
                                        CellRoute route)
     : tree_(tree), domain_(domain), star_options_(star_options), scratch_(std::make_unique<Scratch>()) {
   const int d = tree.points().dimension();
-  // The one dispatch point. Measured (bench/README.md, single thread): in 3-d the
-  // direct route is faster than the star's and needs no facet cache (1M points: 36 s
-  // and 150 MB against 38 s and 396 MB on 2 threads); in 2-d the star's ring walk is
+  // The one dispatch point. Measured (bench/README.md): in 3-d the direct route is
+  // faster than the star's and needs no facet cache (1M points on 2 threads, before
+  // its specialised 3-d stage: 36 s and 150 MB against 38 s and 396 MB; with it,
+  // 18-19 s and 159 MB); in 2-d the star's ring walk is
   // 2.5x faster; in 4-d they tie; from 6-d on the box's 2^d corners and the clipped
   // polytope's vertex count make the direct route far slower.
   const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && d == 3);
