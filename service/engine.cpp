@@ -3,6 +3,8 @@
 #include "spokemesh/cells.hpp"
 
 #include <algorithm>
+#include <atomic>
+#include <mutex>
 #include <cstring>
 
 #include "spokemesh/facet_cache.hpp"
@@ -402,14 +404,19 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     if (!d.is_ok()) return d.status();
     domain = std::move(d).value();
   }
-  // A round: each worker answers a slice of consecutive seeds; then the round is
-  // emitted in order. Memory: one round of answers, charged like a stream's window.
+  // Rounds of consecutive seeds: the workers take the round's seeds one at a time from
+  // a shared counter, while the calling thread emits the round before (in order), so
+  // the answers' encoding and the client's reading overlap the work. (Before, rounds of
+  // 32 with the emission in between kept 2 workers 1 core busy on average.) Memory:
+  // two rounds of answers, charged like a stream's window; rounds shrink with the
+  // dimension, where one star can hold many simplices.
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
-  const std::size_t slice = 16;
-  std::vector<BatchAnswer> round;
-  std::vector<Status> failures(threads);
+  const int dimension = set->points.dimension();
+  const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
+  const std::size_t round_size = per_thread * threads;
+  std::vector<BatchAnswer> round, previous;
   const bool exact = kind != BatchKind::kNeighbors || query.mode == NeighborQuery::Mode::kExact;
   if (exact) {
     if (Status s = exact_allowed(*set, "this batch"); !s.is_ok()) return s;
@@ -424,59 +431,73 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   if (kind == BatchKind::kCells && domain) {
     for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
   }
-  for (std::size_t at = 0; at < seeds.size();) {
-    const std::size_t end = std::min(seeds.size(), at + slice * threads);
+  // The failure of the lowest seed position (so the error is the same whatever the
+  // threads); the workers stop taking seeds after any.
+  std::mutex failure_mutex;
+  std::size_t failed_at = seeds.size();
+  Status failure;
+  std::atomic<bool> failed{false};
+  auto answer = [&](unsigned t, std::size_t i, BatchAnswer& a) -> Status {
+    a.seed = seeds[i];
+    const auto seed = static_cast<std::uint32_t>(seeds[i]);
+    if (kind == BatchKind::kNeighbors && query.mode != NeighborQuery::Mode::kExact) {
+      auto r = neighbors(id, seeds[i], query, control);
+      if (r.is_ok()) a.neighbors = std::move(r).value();
+      return r.status();
+    }
+    if (builders[t]) {
+      auto r = builders[t]->cell(seed);
+      if (!r.is_ok()) return r.status();
+      a.cell = std::move(r).value();
+      return Status::ok();
+    }
+    // The exact answers from one walker per thread, kept across the batch (the star is
+    // the same from any walker; reuse saves its set-up per seed).
+    if (Status s = walkers[t]->compute(seed, scratch[t]); !s.is_ok()) return s;
+    if (kind == BatchKind::kStars) {
+      a.star = star_answer(set->points, scratch[t]);
+    } else if (kind == BatchKind::kNeighbors) {
+      a.neighbors.neighbors = star_neighbors(scratch[t]);
+    } else if (!domain) {
+      a.cell = voronoi_cell(set->points, scratch[t]);
+    } else {
+      auto r = voronoi_cell(set->points, scratch[t], *domain);
+      if (!r.is_ok()) return r.status();
+      a.cell = std::move(r).value();
+    }
+    return Status::ok();
+  };
+  Status emitted = Status::ok();
+  std::size_t previous_end = 0;
+  for (std::size_t at = 0; at < seeds.size() || !previous.empty();) {
+    const std::size_t end = std::min(seeds.size(), at + round_size);
     round.assign(end - at, BatchAnswer{});
+    std::atomic<std::size_t> next{at};
     auto work = [&](unsigned t) {
-      StarWalker& walker = *walkers[t];
-      for (std::size_t i = at + t * slice; i < std::min(end, at + (t + 1) * slice); ++i) {
-        BatchAnswer& a = round[i - at];
-        a.seed = seeds[i];
-        const auto seed = static_cast<std::uint32_t>(seeds[i]);
-        Status s;
-        if (kind == BatchKind::kNeighbors && query.mode != NeighborQuery::Mode::kExact) {
-          auto r = neighbors(id, seeds[i], query, control);
-          s = r.status();
-          if (r.is_ok()) a.neighbors = std::move(r).value();
-        } else if (builders[t]) {
-          auto r = builders[t]->cell(seed);
-          s = r.status();
-          if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
-          if (r.is_ok()) a.cell = std::move(r).value();
-        } else {
-          // The exact answers from one walker per thread, kept across the batch (the
-          // star is the same from any walker; reuse saves its set-up per seed).
-          s = walker.compute(seed, scratch[t]);
-          if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
-          if (s.is_ok()) {
-            if (kind == BatchKind::kStars) {
-              a.star = star_answer(set->points, scratch[t]);
-            } else if (kind == BatchKind::kNeighbors) {
-              a.neighbors.neighbors = star_neighbors(scratch[t]);
-            } else if (!domain) {
-              a.cell = voronoi_cell(set->points, scratch[t]);
-            } else {
-              auto r = voronoi_cell(set->points, scratch[t], *domain);
-              s = r.status();
-              if (r.is_ok()) a.cell = std::move(r).value();
-            }
-          }
+      for (std::size_t i; !failed.load(std::memory_order_relaxed) && (i = next.fetch_add(1)) < end;) {
+        Status s = answer(t, i, round[i - at]);
+        if (s.is_ok()) continue;
+        if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
+        const std::lock_guard<std::mutex> lock(failure_mutex);
+        if (i < failed_at) {
+          failed_at = i;
+          failure = std::move(s);
         }
-        if (!s.is_ok()) {
-          failures[t] = std::move(s);
-          return;
-        }
+        failed = true;
       }
     };
     std::vector<std::thread> pool;
-    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work, t);
-    work(0);
-    for (std::thread& th : pool) th.join();
-    for (Status& f : failures) {
-      if (!f.is_ok()) return f;
+    if (end > at) {
+      for (unsigned t = 0; t < threads; ++t) pool.emplace_back(work, t);
     }
-    if (Status s = emit(round, end); !s.is_ok()) return s;
+    if (!previous.empty() && emitted.is_ok()) emitted = emit(previous, previous_end);
+    for (std::thread& th : pool) th.join();
+    if (!failure.is_ok()) return failure;
+    if (!emitted.is_ok()) return emitted;
+    std::swap(previous, round);
+    previous_end = end;
     at = end;
+    if (end == seeds.size() && previous.empty()) break;
   }
   return Status::ok();
 }

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "cell_polytope.hpp"  // kWallLabel0
+#include "cramer.hpp"
 #include "invariant.hpp"
 
 namespace spokemesh::detail {
@@ -55,16 +56,11 @@ void BoxCell3d::reset(std::uint32_t seed) {
 }
 
 bool BoxCell3d::solve(Vertex& v) const {
-  // Rows a_i . y = c_i. Cramer's rule: y = (c_0 X_0 + c_1 X_1 + c_2 X_2) / D with X_i
-  // = a_{i+1} x a_{i+2} and D = a_0 . X_0 (for three bisectors, the circumcentre of the
-  // seed's tetrahedron; CellPolytope::solve_bisectors_3d). Error bound, first order with
-  // a factor 2 to spare: the numerators and D are off by at most gamma times their
-  // absolute-value sums, so y by (|dN| + |y| |dD|) / (|D| - |dD|); the rows and right
-  // sides themselves carry a few units of rounding each (q = p - s, |q|^2 / 2, a wall's
-  // distance), which move the exact solution by at most |A^-1| 4u (|A| |y| + 2 |c|),
-  // |A^-1| <= |adj A| / |D|. A wall's unit row is scaled by a power of two to the
-  // bisectors' size, exactly, so that it does not inflate the bound.
-  double a[3][3], c[3];
+  // Rows a_i . y = c_i, by Cramer's rule with its forward error bound (cramer.hpp; for
+  // three bisectors, the circumcentre of the seed's tetrahedron). A wall's unit row is
+  // scaled by a power of two to the bisectors' size, exactly, so that it does not
+  // inflate the bound.
+  double a[3][3], c[3], y[3];
   double scale = 0;
   for (int i = 0; i < 3; ++i) {
     const Plane& pl = planes_[v.plane[i]];
@@ -77,37 +73,9 @@ bool BoxCell3d::solve(Vertex& v) const {
     for (int k = 0; k < 3; ++k) a[i][k] = pl.a[k] * f;
     c[i] = pl.c * f;
   }
-  double cr[3][3], cra[3][3];
-  for (int i = 0; i < 3; ++i) {
-    const double* p = a[(i + 1) % 3];
-    const double* q = a[(i + 2) % 3];
-    for (int k = 0; k < 3; ++k) {
-      const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
-      cr[i][k] = p[k1] * q[k2] - p[k2] * q[k1];
-      cra[i][k] = std::abs(p[k1] * q[k2]) + std::abs(p[k2] * q[k1]);
-    }
-  }
-  const double D = a[0][0] * cr[0][0] + a[0][1] * cr[0][1] + a[0][2] * cr[0][2];
-  const double DA = std::abs(a[0][0]) * cra[0][0] + std::abs(a[0][1]) * cra[0][1] + std::abs(a[0][2]) * cra[0][2];
-  if (!(std::abs(D) > 64 * kUnit * DA)) return false;  // nearly flat: the generic route decides
-  const double gamma = 16 * kUnit;
-  const double inv_d = 1 / (std::abs(D) - gamma * DA);
-  double y_norm = 0, na_norm = 0;
-  for (int k = 0; k < 3; ++k) {
-    v.y[k] = (c[0] * cr[0][k] + c[1] * cr[1][k] + c[2] * cr[2][k]) / D;
-    y_norm = std::max(y_norm, std::abs(v.y[k]));
-    na_norm = std::max(na_norm, std::abs(c[0]) * cra[0][k] + std::abs(c[1]) * cra[1][k] + std::abs(c[2]) * cra[2][k]);
-  }
-  double adj_norm = 0, a_norm = 0, c_norm = 0;
-  for (int r = 0; r < 3; ++r) {  // adj A's rows are the cross products' components
-    adj_norm = std::max(adj_norm, std::abs(cr[0][r]) + std::abs(cr[1][r]) + std::abs(cr[2][r]));
-    a_norm = std::max(a_norm, std::abs(a[r][0]) + std::abs(a[r][1]) + std::abs(a[r][2]));
-    c_norm = std::max(c_norm, std::abs(c[r]));
-  }
-  const double err_round = (gamma * na_norm + y_norm * gamma * DA) * inv_d;
-  const double err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * c_norm);
-  const double forward = 2 * (err_round + err_input);
-  if (!std::isfinite(forward)) return false;
+  double forward = 0;
+  if (!cramer_solve(a, c, y, forward)) return false;  // nearly flat: the generic route decides
+  for (int k = 0; k < 3; ++k) v.y[k] = y[k];
   v.error = std::sqrt(3.0) * forward;
   v.radius = norm3(v.y) * (1 + 1e-12) + v.error;
   return true;

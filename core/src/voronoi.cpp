@@ -10,6 +10,7 @@
 #include <numeric>
 
 #include "cell_polytope.hpp"
+#include "cramer.hpp"
 #include "invariant.hpp"
 
 namespace spokemesh {
@@ -84,6 +85,37 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   std::vector<double> centre(p0, p0 + d);
   if (k == 0) return centre;
   if (d > kMaxCols) return circumcentre_exact(points, ids, k);
+  // Triangles in 2-d and tetrahedra in 3-d (k = d): Cramer's rule on the same
+  // differences, with its forward error bound (cramer.hpp), where that bound meets the
+  // target; about 10x cheaper than the QR below, which takes the rest.
+  if (k == d && (d == 2 || d == 3)) {
+    bool solved = false;
+    double y[3] = {0, 0, 0};
+    double bound = 0;
+    if (d == 2) {
+      double a[2][2], c[2], y2[2];
+      for (int i = 0; i < 2; ++i) {
+        for (int j = 0; j < 2; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
+        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1]);
+      }
+      solved = detail::cramer_solve(a, c, y2, bound);
+      y[0] = y2[0], y[1] = y2[1];
+    } else {
+      double a[3][3], c[3];
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
+        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2]);
+      }
+      solved = detail::cramer_solve(a, c, y, bound);
+    }
+    double radius = 0;
+    for (int j = 0; j < d; ++j) radius += y[j] * y[j];
+    // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
+    if (solved && std::sqrt(static_cast<double>(d)) * bound <= 1e-12 * std::sqrt(radius)) {
+      for (int j = 0; j < d; ++j) centre[j] += y[j];
+      return centre;
+    }
+  }
   // Dynamic sizes with fixed capacity: no heap allocation per vertex.
   using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxCols, kMaxCols>;
   using Vector = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxCols, 1>;

@@ -6,7 +6,7 @@ import concurrent.futures
 import dataclasses
 import json
 import time
-from typing import Iterator, List, Optional, Sequence
+from typing import Any, Iterator, List, Optional, Sequence
 
 import grpc
 import numpy as np
@@ -83,15 +83,15 @@ def _cell(r: pb.VoronoiCell) -> Cell:
     d = r.dimension
     inf = float("inf")
     return Cell(seed=r.seed,
-                vertices=np.array(r.vertices, dtype=np.float64).reshape(-1, d),
-                vertex_simplices=np.array(r.vertex_simplices, dtype=np.uint32).reshape(-1, d + 1),
+                vertices=_array(r.vertices, np.float64).reshape(-1, d),
+                vertex_simplices=_array(r.vertex_simplices, np.uint32).reshape(-1, d + 1),
                 facets=[Facet(neighbor=None if f.HasField("wall") else f.neighbor,
                               wall=f.wall if f.HasField("wall") else None,
-                              vertices=np.array(f.vertices, dtype=np.uint32),
-                              area=f.area, normal=np.array(f.normal, dtype=np.float64)) for f in r.facets],
+                              vertices=_array(f.vertices, np.uint32),
+                              area=f.area, normal=_array(f.normal, np.float64)) for f in r.facets],
                 bounded=r.bounded,
                 volume=r.volume if r.bounded else inf,
-                centroid=np.array(r.centroid, dtype=np.float64) if r.bounded else None,
+                centroid=_array(r.centroid, np.float64) if r.bounded else None,
                 clipped=r.clipped)
 
 
@@ -334,14 +334,20 @@ def _mode(mode: str) -> int:
     return modes[mode]
 
 
+def _array(values: Any, dtype: Any) -> np.ndarray:
+    # A repeated protobuf field as an array: fromiter with its length is about 30%
+    # faster than np.array, which inspects each element (10,000 stars: 0.14 s, 0.20 s).
+    return np.fromiter(values, dtype, len(values))
+
+
 def _star(r: pb.Star) -> Star:
     d = r.dimension
-    return Star(seed=r.seed, simplices=np.array(r.simplices, dtype=np.uint32).reshape(-1, d + 1),
-                circumcenters=np.array(r.circumcenters, dtype=np.float64).reshape(-1, d), hull_facets=r.hull_facets)
+    return Star(seed=r.seed, simplices=_array(r.simplices, np.uint32).reshape(-1, d + 1),
+                circumcenters=_array(r.circumcenters, np.float64).reshape(-1, d), hull_facets=r.hull_facets)
 
 
 def _neighbors(r: pb.Neighbors, mode: str) -> Neighbors:
-    return Neighbors(seed=r.seed, neighbors=np.array(r.neighbors, dtype=np.uint32), exact=r.exact,
+    return Neighbors(seed=r.seed, neighbors=_array(r.neighbors, np.uint32), exact=r.exact,
                      vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
                      rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode)
 
