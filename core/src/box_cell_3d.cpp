@@ -55,6 +55,18 @@ void BoxCell3d::reset(std::uint32_t seed) {
   changed_ = false;
 }
 
+std::uint32_t BoxCell3d::step_around(std::uint32_t face, std::uint32_t prev, std::uint32_t cur) const {
+  // cur lies on `face`; of its three edges, the two that leave its other planes stay
+  // on the face.
+  const Vertex& x = v_[cur];
+  std::uint32_t ways[2] = {cur, cur};
+  int found = 0;
+  for (int k = 0; k < 3; ++k) {
+    if (x.plane[k] != face && found < 2) ways[found++] = x.next[k];
+  }
+  return ways[0] == prev ? ways[1] : ways[0];
+}
+
 bool BoxCell3d::solve(Vertex& v) const {
   // Rows a_i . y = c_i, by Cramer's rule with its forward error bound (cramer.hpp; for
   // three bisectors, the circumcentre of the seed's tetrahedron). A wall's unit row is
@@ -162,13 +174,7 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
       std::uint32_t prev = u, cur = dropped_end_[u - first_new];
       for (std::size_t steps = 0;; ++steps) {
         SPOKEMESH_INVARIANT(steps <= n, "the dropped part of a face ends at a new vertex");
-        const Vertex& x = v_[cur];
-        std::uint32_t ways[2] = {prev, prev};
-        int found = 0;
-        for (int k = 0; k < 3; ++k) {
-          if (x.plane[k] != face && found < 2) ways[found++] = x.next[k];
-        }
-        const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
+        const std::uint32_t nxt = step_around(face, prev, cur);
         prev = cur;
         cur = nxt;
         if (cur >= first_new) break;
@@ -254,13 +260,7 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
     std::uint32_t prev = start, cur = start;
     do {
       loop_.push_back(cur);
-      const Vertex& x = v_[cur];
-      std::uint32_t ways[2] = {cur, cur};
-      int found = 0;
-      for (int k = 0; k < 3; ++k) {
-        if (x.plane[k] != pid && found < 2) ways[found++] = x.next[k];
-      }
-      const std::uint32_t nxt = ways[0] == prev ? ways[1] : ways[0];
+      const std::uint32_t nxt = step_around(pid, prev, cur);
       prev = cur;
       cur = nxt;
     } while (cur != start && loop_.size() <= n);

@@ -76,6 +76,9 @@ class BoxCell3d {
   static_assert(sizeof(Vertex) == 64);
 
   bool solve(Vertex& v) const;
+  // The vertex after cur around face (a plane index), coming from prev; from a vertex
+  // where the walk starts (prev == cur), either way round.
+  std::uint32_t step_around(std::uint32_t face, std::uint32_t prev, std::uint32_t cur) const;
 
   const PointSet& points_;
   const Domain& box_;

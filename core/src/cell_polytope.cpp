@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 
+#include "cramer.hpp"
 #include "invariant.hpp"
 #include "spokemesh/voronoi.hpp"
 
@@ -459,64 +460,27 @@ double CellPolytope::vertex_radius(std::size_t v) const {
 }
 
 bool CellPolytope::solve_bisectors_3d(std::size_t v) {
-  // The vertex on the bisectors of s with a, b, c (relative: q_i = p_i - s) is
-  // s + y with y = (|qa|^2 (qb x qc) + |qb|^2 (qc x qa) + |qc|^2 (qa x qb)) / (2 D),
-  // D = qa . (qb x qc): the circumcentre of the tetrahedron, by Cramer's rule.
-  // Error bound, first order with a factor 2 to spare: each q carries one rounding
-  // (relative u per coordinate), each cross product, norm and sum a few more; so the
-  // numerator N and D are off by at most gamma times their absolute-value sums (NA,
-  // DA), and y by (|dN| + |y| |dD|) / |2 D|. The rounding of q itself moves the
-  // exact vertex by at most |A^-1| u (|A| |y| + 2 |b|) (A's rows q, b = |q|^2 / 2),
-  // with |A^-1| <= |adj A| / |D| from the same cross products.
+  // The vertex on the bisectors of s with a, b, c (relative: q_i = p_i - s) is s + y
+  // with q_i . y = |q_i|^2 / 2: the circumcentre of the tetrahedron, by Cramer's rule
+  // with its forward error bound (cramer.hpp).
   const std::uint32_t* l = &label_[v * 3];
   if (is_wall_label(l[0]) || is_wall_label(l[1]) || is_wall_label(l[2])) return false;
   const double* s = ps_.point(seed_);
-  double q[3][3], n2[3], n2a[3];
+  double q[3][3], half_n2[3], y[3];
   for (int i = 0; i < 3; ++i) {
     const double* p = point_of(l[i]);
-    n2[i] = 0;
+    double n2 = 0;
     for (int c = 0; c < 3; ++c) {
       q[i][c] = p[c] - s[c];
-      n2[i] += q[i][c] * q[i][c];
+      n2 += q[i][c] * q[i][c];
     }
-    n2a[i] = n2[i];
+    half_n2[i] = n2 / 2;
   }
-  double cr[3][3], cra[3][3];  // cr[i] = q[i+1] x q[i+2]; cra: its absolute-value sums
-  for (int i = 0; i < 3; ++i) {
-    const double* a = q[(i + 1) % 3];
-    const double* b = q[(i + 2) % 3];
-    for (int c = 0; c < 3; ++c) {
-      const int c1 = (c + 1) % 3, c2 = (c + 2) % 3;
-      cr[i][c] = a[c1] * b[c2] - a[c2] * b[c1];
-      cra[i][c] = std::abs(a[c1] * b[c2]) + std::abs(a[c2] * b[c1]);
-    }
-  }
-  const double D = q[0][0] * cr[0][0] + q[0][1] * cr[0][1] + q[0][2] * cr[0][2];
-  const double DA = std::abs(q[0][0]) * cra[0][0] + std::abs(q[0][1]) * cra[0][1] + std::abs(q[0][2]) * cra[0][2];
-  if (!(std::abs(D) > 64 * kUnit * DA)) return false;  // nearly flat: the generic path decides
-  double y[3], na[3];
-  for (int c = 0; c < 3; ++c) {
-    y[c] = (n2[0] * cr[0][c] + n2[1] * cr[1][c] + n2[2] * cr[2][c]) / (2 * D);
-    na[c] = n2a[0] * cra[0][c] + n2a[1] * cra[1][c] + n2a[2] * cra[2][c];
-  }
-  const double gamma = 16 * kUnit;
-  const double inv_d = 1 / (std::abs(D) - gamma * DA);
-  double y_norm = 0, err_round = 0, adj_norm = 0, a_norm = 0, b_norm = 0;
-  for (int c = 0; c < 3; ++c) y_norm = std::max(y_norm, std::abs(y[c]));
-  for (int c = 0; c < 3; ++c) {
-    err_round = std::max(err_round, (gamma * na[c] / 2 + y_norm * gamma * DA) * inv_d);
-  }
-  for (int r = 0; r < 3; ++r) {  // adj A's rows are the cross products' components
-    adj_norm = std::max(adj_norm, std::abs(cr[0][r]) + std::abs(cr[1][r]) + std::abs(cr[2][r]));
-    a_norm = std::max(a_norm, std::abs(q[r][0]) + std::abs(q[r][1]) + std::abs(q[r][2]));
-    b_norm = std::max(b_norm, n2[r] / 2);
-  }
-  const double err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * b_norm);
-  const double forward = 2 * (err_round + err_input);
+  double forward = 0;
+  if (!cramer_solve(q, half_n2, y, forward)) return false;  // nearly flat: the generic path decides
   double* x = &x_[v * 3];
   for (int c = 0; c < 3; ++c) x[c] = s[c] + y[c];
-  const double bound = std::sqrt(3.0) * (forward + 2 * kUnit * max_abs(x, 3));
-  error_[v] = bound;
+  error_[v] = std::sqrt(3.0) * (forward + 2 * kUnit * max_abs(x, 3));
   return true;
 }
 
