@@ -4,8 +4,8 @@
 
 #include <algorithm>
 #include <atomic>
-#include <mutex>
 #include <cstring>
+#include <mutex>
 
 #include "spokemesh/facet_cache.hpp"
 #include "spokemesh/mesh.hpp"

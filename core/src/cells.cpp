@@ -4,7 +4,6 @@
 #include "cell_polytope.hpp"
 
 #include <algorithm>
-#include <numeric>
 #include <limits>
 #include <memory>
 #include <optional>

@@ -68,8 +68,9 @@ Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Do
 
 // Circumcentre of the points `ids` (2..d+1 of them): the centre of the smallest
 // sphere through them, which lies in their affine hull. Solved on the coordinate
-// differences by column-pivoting QR, and in exact rationals where the condition
-// estimate says double could miss the bound: within 1e-12 of the circumradius plus
+// differences: a triangle in 2-d or a tetrahedron in 3-d by Cramer's rule where its
+// forward error bound meets the target, otherwise by column-pivoting QR, and in exact
+// rationals where the QR's condition estimate says double could miss the bound: within 1e-12 of the circumradius plus
 // one ulp of each coordinate. No heap allocation but the result (d <= 8).
 std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count);
 
