@@ -467,9 +467,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     }
     return Status::ok();
   };
-  Status emitted = Status::ok();
   std::size_t previous_end = 0;
-  for (std::size_t at = 0; at < seeds.size() || !previous.empty();) {
+  for (std::size_t at = 0; at < seeds.size(); at = previous_end) {
     const std::size_t end = std::min(seeds.size(), at + round_size);
     round.assign(end - at, BatchAnswer{});
     std::atomic<std::size_t> next{at};
@@ -487,19 +486,15 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
       }
     };
     std::vector<std::thread> pool;
-    if (end > at) {
-      for (unsigned t = 0; t < threads; ++t) pool.emplace_back(work, t);
-    }
-    if (!previous.empty() && emitted.is_ok()) emitted = emit(previous, previous_end);
+    for (unsigned t = 0; t < threads; ++t) pool.emplace_back(work, t);
+    const Status emitted = previous.empty() ? Status::ok() : emit(previous, previous_end);
     for (std::thread& th : pool) th.join();
     if (!failure.is_ok()) return failure;
     if (!emitted.is_ok()) return emitted;
     std::swap(previous, round);
     previous_end = end;
-    at = end;
-    if (end == seeds.size() && previous.empty()) break;
   }
-  return Status::ok();
+  return emit(previous, previous_end);
 }
 
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {

@@ -268,19 +268,8 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
     std::array<double, 3> normal{};
     for (int k = 0; k < 3; ++k) normal[k] = pl.a[k] / pl.a_norm;
     // Fan from the loop's first vertex (relative coordinates: small numbers).
-    const std::array<double, 3>& p0 = v_[loop_[0]].y;
-    double area = 0;
     std::array<double, 3> centre{};
-    for (std::size_t i = 1; i + 1 < loop_.size(); ++i) {
-      const std::array<double, 3>& a = v_[loop_[i]].y;
-      const std::array<double, 3>& b = v_[loop_[i + 1]].y;
-      const double u[3] = {a[0] - p0[0], a[1] - p0[1], a[2] - p0[2]};
-      const double w[3] = {b[0] - p0[0], b[1] - p0[1], b[2] - p0[2]};
-      const double t = 0.5 * ((u[1] * w[2] - u[2] * w[1]) * normal[0] + (u[2] * w[0] - u[0] * w[2]) * normal[1] +
-                              (u[0] * w[1] - u[1] * w[0]) * normal[2]);
-      area += t;
-      for (int k = 0; k < 3; ++k) centre[k] += t * (p0[k] + a[k] + b[k]) / 3;
-    }
+    double area = fan_area(loop_, [&](std::uint32_t v) { return v_[v].y.data(); }, normal.data(), centre.data());
     if (area < 0) {  // walked clockwise seen from outside
       std::reverse(loop_.begin() + 1, loop_.end());
       area = -area;
@@ -308,11 +297,7 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
     }
   }
   out.facets.resize(facet_count);
-  // Neighbours ascending, then walls ascending.
-  std::sort(out.facets.begin(), out.facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
-    if (a.is_wall() != b.is_wall()) return !a.is_wall();
-    return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
-  });
+  sort_facets(out.facets);
   out.volume = volume;
   out.centroid.resize(3);
   for (int k = 0; k < 3; ++k) out.centroid[k] = s_[k] + (volume > 0 ? moment[k] / volume : 0.0);

@@ -943,19 +943,8 @@ PolytopeMeasures CellPolytope::measures_3d() const {
     normal_of(l, n.data());
     const double nn = norm(n.data(), 3);
     for (double& c : n) c /= nn;
-    const double* p0 = &x_[f.vertices[0] * 3];
-    double area = 0;
     std::array<double, 3> centre{};
-    for (std::size_t k = 1; k + 1 < f.vertices.size(); ++k) {
-      const double* a = &x_[f.vertices[k] * 3];
-      const double* b = &x_[f.vertices[k + 1] * 3];
-      const double u[3] = {a[0] - p0[0], a[1] - p0[1], a[2] - p0[2]};
-      const double w[3] = {b[0] - p0[0], b[1] - p0[1], b[2] - p0[2]};
-      const double cross[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
-      const double t = 0.5 * (cross[0] * n[0] + cross[1] * n[1] + cross[2] * n[2]);
-      area += t;
-      for (int c = 0; c < 3; ++c) centre[c] += t * (p0[c] + a[c] + b[c]) / 3;
-    }
+    const double area = fan_area(f.vertices, [&](std::uint32_t v) { return &x_[v * 3]; }, n.data(), centre.data());
     f.area = std::max(area, 0.0);
     if (closed && area > 0) {
       for (double& c : centre) c /= area;

@@ -182,6 +182,31 @@ class CellPolytope {
   mutable std::map<std::vector<std::uint32_t>, std::pair<double, std::array<double, kMaxDimension>>> memo_;
 };
 
+// Facets in VoronoiCell's order: neighbours ascending, then walls ascending (voronoi.cpp).
+void sort_facets(std::vector<VoronoiFacet>& facets);
+
+// 3-d: the area of the planar polygon `loop` along its unit normal `n`, by a fan from
+// its first vertex (negative when the loop turns clockwise seen from the normal's
+// side), and in `weighted_centre` the sum of each fan triangle's signed area times its
+// centroid (over the area: the polygon's centroid). point(v): v's 3 coordinates.
+template <class Point>
+double fan_area(const std::vector<std::uint32_t>& loop, Point point, const double* n, double* weighted_centre) {
+  const double* p0 = point(loop[0]);
+  double area = 0;
+  weighted_centre[0] = weighted_centre[1] = weighted_centre[2] = 0;
+  for (std::size_t k = 1; k + 1 < loop.size(); ++k) {
+    const double* a = point(loop[k]);
+    const double* b = point(loop[k + 1]);
+    const double u[3] = {a[0] - p0[0], a[1] - p0[1], a[2] - p0[2]};
+    const double w[3] = {b[0] - p0[0], b[1] - p0[1], b[2] - p0[2]};
+    const double cross[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+    const double t = 0.5 * (cross[0] * n[0] + cross[1] * n[1] + cross[2] * n[2]);
+    area += t;
+    for (int c = 0; c < 3; ++c) weighted_centre[c] += t * (p0[c] + a[c] + b[c]) / 3;
+  }
+  return area;
+}
+
 // The VoronoiCell of a clipped polytope (voronoi.cpp): 2-d vertices counter-clockwise,
 // otherwise in polytope order; facets with their measures.
 VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, int d);

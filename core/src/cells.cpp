@@ -27,23 +27,29 @@ namespace {
 constexpr std::size_t kMaxDirectCandidates = 16384;
 }  // namespace
 
-ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain, StarOptions star_options,
-                                       CellRoute route)
-    : tree_(tree), domain_(domain), star_options_(star_options), scratch_(std::make_unique<Scratch>()) {
-  const int d = tree.points().dimension();
+bool ClippedCellBuilder::takes_direct_route(int dimension, const Domain& domain, CellRoute route) {
   // The one dispatch point. Measured (bench/README.md): in 3-d the direct route is
   // faster than the star's and needs no facet cache (1M points on 2 threads, before
   // its specialised 3-d stage: 36 s and 150 MB against 38 s and 396 MB; with it,
-  // 18-19 s and 159 MB); in 2-d the star's ring walk is
-  // 2.5x faster; in 4-d they tie; from 6-d on the box's 2^d corners and the clipped
-  // polytope's vertex count make the direct route far slower.
-  const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && d == 3);
-  direct_ok_ = wanted && domain.is_box() && domain.dimension() == d;
-  if (direct_ok_) {
-    const std::vector<double> lo = domain.lower(), hi = domain.upper();
-    for (int c = 0; c < d; ++c) direct_ok_ = direct_ok_ && lo[c] < hi[c];
+  // 18-19 s and 159 MB); in 2-d the star's ring walk is 2.5x faster; in 4-d they tie;
+  // from 6-d on the box's 2^d corners and the clipped polytope's vertex count make the
+  // direct route far slower.
+  const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && dimension == 3);
+  if (!wanted || !domain.is_box() || domain.dimension() != dimension) return false;
+  const std::vector<double> lo = domain.lower(), hi = domain.upper();
+  for (int c = 0; c < dimension; ++c) {
+    if (!(lo[c] < hi[c])) return false;
   }
+  return true;
 }
+
+ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain, StarOptions star_options,
+                                       CellRoute route)
+    : tree_(tree),
+      domain_(domain),
+      star_options_(star_options),
+      direct_ok_(takes_direct_route(tree.points().dimension(), domain, route)),
+      scratch_(std::make_unique<Scratch>()) {}
 
 ClippedCellBuilder::~ClippedCellBuilder() = default;
 
@@ -172,7 +178,8 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // as star runs do (a 50^3 grid: 9.7 s in space order, 8.5 s so), so the first
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
-  const bool direct = domain != nullptr && ClippedCellBuilder(tree, *domain).direct_route();
+  const bool direct =
+      domain != nullptr && ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
   // (A caller's block_size fixes the rounds: space order from the start, if direct.)
   const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
   const std::uint64_t round_size = options.block_size != 0 ? small_rounds : direct ? 8192 * threads : small_rounds;

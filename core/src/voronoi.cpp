@@ -215,12 +215,7 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
     facet.normal = polytope.facet_normal(m.label);
     cell.facets.push_back(std::move(facet));
   }
-  // Neighbours ascending, then walls ascending.
-  std::stable_partition(cell.facets.begin(), cell.facets.end(), [](const VoronoiFacet& f) { return !f.is_wall(); });
-  std::sort(cell.facets.begin(), cell.facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
-    if (a.is_wall() != b.is_wall()) return !a.is_wall();
-    return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
-  });
+  detail::sort_facets(cell.facets);
 }
 
 }  // namespace
@@ -268,6 +263,13 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
 }
 
 namespace detail {
+
+void sort_facets(std::vector<VoronoiFacet>& facets) {
+  std::sort(facets.begin(), facets.end(), [](const VoronoiFacet& a, const VoronoiFacet& b) {
+    if (a.is_wall() != b.is_wall()) return !a.is_wall();
+    return a.is_wall() ? a.wall() < b.wall() : a.neighbor < b.neighbor;
+  });
+}
 
 VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, int d) {
   VoronoiCell cell;

@@ -65,8 +65,9 @@ class ClippedCellBuilder {
   // Leave out vertex coordinates and facet vertex loops (measures and neighbours
   // only): cheaper where the caller drops them anyway. Off by default.
   void set_measures_only(bool measures_only) { measures_only_ = measures_only; }
-  // Whether cells are built directly (then seeds visited in space order run faster).
-  bool direct_route() const { return direct_ok_; }
+  // Whether a builder for these points and this domain builds cells directly (then
+  // seeds visited in space order run faster).
+  static bool takes_direct_route(int dimension, const Domain& domain, CellRoute route);
   // Seeds that went the star's way (for benchmarks and tests).
   std::uint64_t star_fallbacks() const { return star_fallbacks_; }
   // 3-d seeds the specialised cell gave up on (a decision within its error bounds),
