@@ -83,8 +83,10 @@ inline PointSet make_points(int d, std::vector<double> coords) {
 
 inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_t begin = 0,
                           std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed,
-                          std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes) {
+                          std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes,
+                          std::uint32_t block_size = 0) {
   MeshOptions options;
+  options.block_size = block_size;
   options.facet_cache_bytes = facet_cache_bytes;
   options.threads = threads;
   options.seed_begin = begin;
@@ -96,6 +98,17 @@ inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_
     return Status::ok();
   });
   EXPECT_TRUE(r.is_ok()) << r.status().message();
+  return out;
+}
+
+// The rows of a mesh (width indices each, as written) in lexicographic order of the
+// rows themselves: equal for two meshes with the same oriented rows in any order.
+inline Simplices sorted_rows(const Simplices& flat, int width) {
+  std::vector<std::vector<std::uint32_t>> rows;
+  for (std::size_t i = 0; i + width <= flat.size(); i += width) rows.emplace_back(flat.begin() + i, flat.begin() + i + width);
+  std::sort(rows.begin(), rows.end());
+  Simplices out;
+  for (const auto& r : rows) out.insert(out.end(), r.begin(), r.end());
   return out;
 }
 

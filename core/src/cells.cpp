@@ -195,7 +195,8 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   if (options.facet_cache_bytes != 0) {
     cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
                   static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round_size));
-    if (cache->enabled()) star_options.cache = &*cache;
+    star_options.facets = cache->facets();
+    star_options.edges = cache->edges();
   }
   std::vector<Worker> workers(threads);
   for (Worker& w : workers) {

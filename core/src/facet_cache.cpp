@@ -96,7 +96,7 @@ std::size_t FacetCache::bytes_for(int d, std::uint32_t n, std::size_t max_bytes)
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                        std::uint32_t block)
-    : d_(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
+    : FacetMemo(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
   if (order_.begin >= order_.end) return;
   const std::size_t slots = slots_for(d, n, max_bytes);
   if (slots == 0) return;
@@ -129,13 +129,13 @@ bool FacetCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_
   return false;
 }
 
-std::uint64_t FacetCache::hash(const std::uint32_t* facet) const {
+std::uint64_t FacetMemo::hash(const std::uint32_t* facet) const {
   std::uint64_t sum = 0;
   for (int i = 0; i < d_; ++i) sum += detail::set_hash_term(facet[i]);
   return detail::set_hash_finish(sum);
 }
 
-void FacetCache::facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const {
+void FacetMemo::facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const {
   std::array<std::uint64_t, kMaxDimension> terms;
   std::uint64_t sum = detail::set_hash_term(x);
   for (int k = 0; k < d_; ++k) {
@@ -238,9 +238,8 @@ std::size_t EdgeCache::bytes_for(std::uint32_t n, std::size_t max_bytes) {
   return bytes > max_bytes ? 0 : bytes;
 }
 
-EdgeCache::EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
-                     std::uint32_t block)
-    : n_(n), order_{begin, std::min(end, n), std::max(block, 1u)} {
+EdgeCache::EdgeCache(std::uint32_t n, RunOrder order, std::size_t max_bytes) : n_(n), order_(order) {
+  order_.end = std::min(order_.end, n);
   if (order_.begin >= order_.end || bytes_for(n, max_bytes) == 0) return;
   boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords);
 }

@@ -254,6 +254,22 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
   return at;
 }
 
+std::vector<KdTree::Subtree> KdTree::subtrees_of_at_most(std::uint32_t max_points) const {
+  // Preorder over the box tree: a small enough subtree is taken whole and skipped.
+  std::vector<Subtree> out;
+  for (std::size_t i = 0; i < box_nodes_.size();) {
+    const BoxNode& node = box_nodes_[i];
+    const bool leaf = node.skip == i + 1;
+    if (leaf || node.end - node.begin <= max_points) {
+      out.push_back({node.begin, node.end, &box_bounds_[i * 2 * d_]});
+      i = node.skip;
+    } else {
+      ++i;
+    }
+  }
+  return out;
+}
+
 // nanoflann's searchLevel (1.4.3, eps = 0, L2_Simple_Adaptor), with the dimension a
 // compile-time constant for d <= 8 (D = 0: the runtime d). The index is built with a
 // runtime dimension (one type for every d), so its own search cannot unroll its

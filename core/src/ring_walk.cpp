@@ -20,7 +20,7 @@ namespace spokemesh {
 // end of an open gap).
 Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
   constexpr std::uint32_t kUnknown = 0xFFFFFFFEu, kHull = EdgeCache::kHull;
-  EdgeCache* const cache = w_.options_.cache != nullptr ? w_.options_.cache->edges() : nullptr;
+  EdgeCache* const cache = w_.options_.edges;
   ring_.clear();
   ring_open_.clear();
   ring_triangles_.clear();

@@ -813,14 +813,12 @@ void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, BoundedDouble* o
 void StarWalker::prefetch(std::uint32_t seed) const {
   if (seed >= ps_.size()) return;
   __builtin_prefetch(ps_.point(seed));
-  if (options_.cache == nullptr) return;
-  if (EdgeCache* edges = options_.cache->edges()) edges->prefetch(seed);
-  if (FacetCache* facets = options_.cache->facets()) facets->prefetch_start(seed);
+  if (options_.edges != nullptr) options_.edges->prefetch(seed);
+  if (options_.facets != nullptr) options_.facets->prefetch_start(seed);
 }
 
 void StarWalker::prefetch_start(std::uint32_t seed) const {
-  if (options_.cache == nullptr) return;
-  if (FacetCache* facets = options_.cache->facets()) facets->prefetch_start_entry(seed);
+  if (options_.facets != nullptr) options_.facets->prefetch_start_entry(seed);
 }
 
 Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
@@ -836,7 +834,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   missed_candidates_ = 0;
   grown_ = false;
   if (ring_walk_) return ring_walk_->compute(out, part);
-  FacetCache* const cache = options_.cache != nullptr ? options_.cache->facets() : nullptr;
+  FacetMemo* const cache = options_.facets;
 
   work_.clear();
   work_planes_.clear();
@@ -957,7 +955,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     // The start facet is answered (by the cache, so not recorded again): closed.
     bool first = false;
     facet_open_[facet_seen_.position(key.data(), facet_seen_.hash(key.data()), first)] = 0;
-    if (apex_b == FacetCache::kHull) {
+    if (apex_b == FacetMemo::kHull) {
       ++hull;
     } else {
       key[d - 1] = apex_b;
@@ -996,7 +994,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
           if (cache->lookup(x_, whole.data(), work_hashes_[at], simplex[k], across)) {
             ++stats_.cached_wraps;
             open = 0;
-            if (across == FacetCache::kHull) {
+            if (across == FacetMemo::kHull) {
               ++hull;
             } else {
               others[d - 1] = across;
@@ -1030,7 +1028,7 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
     for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(others[j]);
     const WrapResult hit = wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
     if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
-    if (cache != nullptr) record(others.data(), work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetCache::kHull);
+    if (cache != nullptr) record(others.data(), work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetMemo::kHull);
     if (!hit.is_hit()) {
       ++hull;
       continue;

@@ -26,10 +26,13 @@
 // the entry and compute the wrap itself; it never sees a partial one.
 #pragma once
 
+#include <algorithm>
 #include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+
+#include "spokemesh/kd_tree.hpp"
 
 namespace spokemesh {
 
@@ -47,25 +50,79 @@ using MappedWords = std::unique_ptr<std::uint32_t[], UnmapWords>;
 std::size_t mapped_cache_bytes();
 
 // The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
-// `block`, blocks in order, a block's seeds in any order.
+// `block` consecutive indices, blocks in order, a block's seeds in any order; or, for
+// a sweep (`sweep` set), in the tree's leaf order, several blocks of it at once.
 struct RunOrder {
   std::uint32_t begin = 0, end = 0, block = 1;
-  // Seeds v != x of this run that may be meshed before (after) x: in an earlier
-  // (later) block, or in x's own block, whose order is unknown.
+  const KdTree* sweep = nullptr;
+  bool is_seed(std::uint32_t v) const { return v >= begin && v < end; }
+  // Seeds v != x of this run that may be meshed before (after) x.
   bool maybe_before(std::uint32_t v, std::uint32_t x) const {
-    if (v == x || v < begin || v >= end) return false;
+    if (v == x || !is_seed(v)) return false;
+    if (sweep != nullptr) return sweep->leaf_rank(v) < sweep->leaf_rank(x);
     return v < x || (v - begin) / block == (x - begin) / block;
   }
   bool maybe_after(std::uint32_t v, std::uint32_t x) const {
-    if (v == x || v < begin || v >= end) return false;
+    if (v == x || !is_seed(v)) return false;
+    if (sweep != nullptr) return sweep->leaf_rank(v) > sweep->leaf_rank(x);
     return v > x || (v - begin) / block == (x - begin) / block;
   }
 };
 
-class FacetCache {
+// What a star walk asks of the wraps other stars of its run found (FacetCache below,
+// shared by a run's workers; FrontCache in front_cache.hpp, one per worker of a
+// sweep). Facets are d ascending indices, the walking seed x among them; a memo only
+// saves work: a walk that finds nothing computes the wrap, and every star is the same.
+class FacetMemo {
  public:
   // The apex of a hull facet's missing side.
   static constexpr std::uint32_t kHull = 0xFFFFFFFFu;
+
+  explicit FacetMemo(int d) : d_(d) {}
+  virtual ~FacetMemo() = default;
+  FacetMemo(const FacetMemo&) = delete;
+  FacetMemo& operator=(const FacetMemo&) = delete;
+
+  int dimension() const { return d_; }
+  // A facet's hash (d ascending indices), for the calls below.
+  std::uint64_t hash(const std::uint32_t* facet) const;
+  // The same hashes for the d facets through x of the simplex x + others (d indices,
+  // any order, x not among them): out[k] is the hash of the facet without others[k].
+  // O(d) for all d (a set hash: a member is dropped by one subtraction).
+  void facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const;
+
+  // Starts loading the facet's first slot into the CPU cache: a walker announces a
+  // simplex's facets before it looks them up, so their memory latencies overlap.
+  virtual void prefetch(std::uint64_t hash) const = 0;
+  // Starts loading point v's start (insert() may set it, start() reads it), and a few
+  // seeds later the entry it names. Hints only.
+  virtual void prefetch_start(std::uint32_t v) const = 0;
+  virtual void prefetch_start_entry(std::uint32_t v) const = 0;
+  // The apex across `facet` (x among it) from apex `from`, as found by an earlier
+  // star; kHull when the facet is on the convex hull. False when unknown (then the
+  // caller wraps and records the answer).
+  virtual bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
+                      std::uint32_t& across) const = 0;
+  // Reserves up to `count` entries for the caller's inserts (fewer, or none, once
+  // full). Callers reserve in batches so that threads do not contend on every insert.
+  virtual std::size_t reserve(std::size_t count) = 0;
+  // Whether the wrap from x's star across `facet` is worth recording: some other
+  // vertex of the facet is a seed that may come later in this run.
+  virtual bool wanted(std::uint32_t x, const std::uint32_t* facet) const = 0;
+  // Records that wrap: across `facet`, apexes a and b (b may be kHull). Uses one
+  // reserved entry; only call it when wanted().
+  virtual void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
+                      std::uint32_t b) = 0;
+  // A facet recorded by another star that contains x, with its two apexes: the
+  // simplices facet + a and facet + b (unless b is kHull) are in x's star.
+  virtual bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const = 0;
+
+ protected:
+  int d_;
+};
+
+class FacetCache final : public FacetMemo {
+ public:
 
   // d: dimension (2..8); n: point count; the run meshes seeds [begin, end) in blocks
   // of `block` seeds, in block order, each block's seeds in any order; max_bytes caps
@@ -73,9 +130,7 @@ class FacetCache {
   // disabled cache (every call a no-op).
   FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
              std::uint32_t block = 1);
-  ~FacetCache();
-  FacetCache(const FacetCache&) = delete;
-  FacetCache& operator=(const FacetCache&) = delete;
+  ~FacetCache() override;
 
   bool enabled() const { return capacity_ != 0; }
   // Bytes reserved (address space; pages are committed as they are touched).
@@ -84,40 +139,18 @@ class FacetCache {
   // would be disabled), without building it: for charging a memory budget first.
   static std::size_t bytes_for(int d, std::uint32_t n, std::size_t max_bytes);
 
-  // A facet's hash (d ascending indices), for the calls below.
-  std::uint64_t hash(const std::uint32_t* facet) const;
-  // The same hashes for the d facets through x of the simplex x + others (d indices,
-  // any order, x not among them): out[k] is the hash of the facet without others[k].
-  // O(d) for all d (a set hash: a member is dropped by one subtraction).
-  void facet_hashes(std::uint32_t x, const std::uint32_t* others, std::uint64_t* out) const;
-  // Starts loading the facet's first slot into the CPU cache: a walker announces a
-  // simplex's facets before it looks them up, so their memory latencies overlap.
-  void prefetch(std::uint64_t hash) const;
-  // Starts loading point v's start index (insert() may set it, start() reads it).
-  void prefetch_start(std::uint32_t v) const {
+  void prefetch(std::uint64_t hash) const override;
+  void prefetch_start(std::uint32_t v) const override {
     if (enabled() && v < n_) __builtin_prefetch(starts_.get() + v);
   }
-  // Starts loading the entry v's start index points to, if set (best read after
-  // prefetch_start(v) has had time to land).
-  void prefetch_start_entry(std::uint32_t v) const;
-  // The apex across `facet` (d ascending indices, x among them) from apex `from`, as
-  // found by an earlier star; kHull when the facet is on the convex hull. False when
-  // unknown (then the caller wraps and inserts the answer).
+  void prefetch_start_entry(std::uint32_t v) const override;
   bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
-              std::uint32_t& across) const;
-  // Reserves up to `count` entries for the caller's inserts (fewer, or none, once the
-  // table is full). Callers reserve in batches so that threads do not contend for one
-  // shared counter on every insert.
-  std::size_t reserve(std::size_t count);
-  // Whether the wrap from x's star across `facet` is worth recording: some other
-  // vertex of the facet is a seed that may come later in this run.
-  bool wanted(std::uint32_t x, const std::uint32_t* facet) const;
-  // Records that wrap: across `facet`, apexes a and b (b may be kHull). Uses one
-  // reserved entry; only call it when wanted().
-  void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
-  // A facet recorded by another star that contains x, with its two apexes: the
-  // simplices facet + a and facet + b (unless b is kHull) are in x's star.
-  bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const;
+              std::uint32_t& across) const override;
+  std::size_t reserve(std::size_t count) override;
+  bool wanted(std::uint32_t x, const std::uint32_t* facet) const override;
+  void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
+              std::uint32_t b) override;
+  bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const override;
 
  private:
   static std::size_t slots_for(int d, std::uint32_t n, std::size_t max_bytes);
@@ -130,7 +163,6 @@ class FacetCache {
   std::size_t next(std::size_t s) const { return s + 1 == capacity_ ? 0 : s + 1; }
   bool find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& s) const;
 
-  int d_;
   std::uint32_t n_;
   RunOrder order_;
   std::size_t stride_ = 0;    // words per slot: state, d ids, 2 apexes
@@ -173,7 +205,10 @@ class EdgeCache {
   // n: point count; the run meshes seeds [begin, end) in blocks of `block` seeds (see
   // RunOrder); max_bytes caps the memory (too small a cap disables the cache).
   EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
-            std::uint32_t block = 1);
+            std::uint32_t block = 1)
+      : EdgeCache(n, RunOrder{begin, end, std::max(block, 1u)}, max_bytes) {}
+  // The same for any order of the run's seeds (a sweep's, for one).
+  EdgeCache(std::uint32_t n, RunOrder order, std::size_t max_bytes);
 
   bool enabled() const { return static_cast<bool>(boxes_); }
   // What a cache for n points would reserve within max_bytes (0: disabled).

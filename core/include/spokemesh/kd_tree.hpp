@@ -69,6 +69,17 @@ class KdTree {
   // Position of point `id` in the tree's leaf order: points close in this order are
   // close in space (for visiting seeds in a cache-friendly order).
   std::uint32_t leaf_rank(std::uint32_t id) const { return rank_of_[id]; }
+  // The point at a leaf-order position (the inverse of leaf_rank).
+  std::uint32_t point_at_rank(std::uint32_t rank) const { return id_of_[rank]; }
+  // A subtree of the tree: the leaf-order positions [begin, end) and their tight box
+  // (d lows, then d highs; floats rounded outwards, so every point lies inside).
+  struct Subtree {
+    std::uint32_t begin = 0, end = 0;
+    const float* box = nullptr;  // valid for the tree's lifetime
+  };
+  // The maximal subtrees holding at most max_points points each (a leaf when even a
+  // leaf holds more), in leaf order: their ranges tile [0, n). Empty for an empty set.
+  std::vector<Subtree> subtrees_of_at_most(std::uint32_t max_points) const;
 
   // Every point p with nanoflann's squared distance to `query` < r2 (strictly, as
   // nanoflann's radius search; unsorted).

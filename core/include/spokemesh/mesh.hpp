@@ -3,14 +3,19 @@
 // Every Delaunay simplex is emitted by exactly one seed, its owner: its smallest
 // vertex index. Meshing seeds [begin, end) emits exactly the simplices owned there;
 // the union over any partition of [0, n) is the whole mesh, each simplex once.
-// Because a simplex's first (smallest) index is its owner, concatenating the owned
-// simplices seed by seed is already lexicographic order: the output is canonical.
 //
-// mesh_seeds() runs worker threads over blocks of seeds and hands finished blocks to
-// `sink` in seed order, on the calling thread. At most a fixed window of blocks is in
-// flight, so memory is the point set, the tree, a bounded buffer and the FacetCache
-// (in 2-d the EdgeCache; capped by facet_cache_bytes), never the mesh. The workers' stars share their wraps
-// through that cache; each star, and so the output, is the same without it.
+// mesh_seeds() sweeps the point set's BlockDecomposition (blocks.hpp): worker threads
+// take blocks in leaf order, each computes its block's seeds in leaf order, and the
+// finished blocks go to `sink` in that order, on the calling thread. The rows are
+// therefore in sweep order: seeds by their k-d tree leaf rank, each seed's owned
+// simplices lexicographic. That order is a function of the point set alone (not of
+// the thread count or the block size), so the bytes of every output are too; sort
+// the rows for lexicographic order.
+//
+// Memory is the point set, the tree, a bounded window of blocks in flight and the
+// front (front_cache.hpp: the wraps recorded for blocks still to come; in 2-d the
+// EdgeCache, 64 bytes per point), never the mesh. The stars share their wraps through
+// it; each star, and so the output, is the same without it.
 //
 // Thread safety: mesh_seeds() is safe to call concurrently on the same tree.
 #pragma once
@@ -30,10 +35,9 @@ struct MeshOptions {
   unsigned threads = 1;             // worker threads (>= 1)
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
-  std::uint32_t block_size = 0;     // seeds per block; 0 = automatic
-  // Cap on the FacetCache (in 2-d the EdgeCache) that lets the stars of this run share
-  // their wraps (see facet_cache.hpp): bytes, 0 to mesh without it. The output is the
-  // same either way.
+  std::uint32_t block_size = 0;     // points per block at most; 0 = automatic (output is the same)
+  // Cap on what the stars of this run share (the front's mailboxes; in 2-d the
+  // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
 };
@@ -41,13 +45,16 @@ struct MeshOptions {
 struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
-  std::size_t facet_cache_bytes = 0;  // reserved by the run's FacetCache or EdgeCache
+  std::uint64_t blocks = 0;
+  // The most the front held at once (mailboxes, plus each worker's table at its
+  // largest); in 2-d the EdgeCache's reservation.
+  std::size_t facet_cache_bytes = 0;
   StarStats star;
 };
 
 // Receives a block of owned simplices ((d + 1) indices each, positively oriented as in
-// Star, the owner first; lexicographic by sorted vertex lists)
-// and the number of seeds finished so far. A non-OK status stops the run.
+// Star, the owner first; in sweep order, see above) and the number of seeds finished
+// so far. A non-OK status stops the run.
 using SimplexSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;
 
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink);

@@ -50,9 +50,11 @@ struct StarOptions {
   std::size_t initial_candidates = 0;
   // Checked between wraps; a set flag makes compute() return CANCELLED.
   const std::atomic<bool>* cancel = nullptr;
-  // What other stars of the same run found (not owned; may be shared by many
-  // walkers; see RunCache). Only saves work: every star is the same with or without it.
-  RunCache* cache = nullptr;
+  // What other stars of the same run found (not owned; see FacetMemo, used for
+  // d >= 3, and EdgeCache, for d = 2). Only saves work: every star is the same with or
+  // without them.
+  FacetMemo* facets = nullptr;
+  EdgeCache* edges = nullptr;
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).

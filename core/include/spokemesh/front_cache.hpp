@@ -1,0 +1,120 @@
+// The memo of a sweep: what a whole mesh's stars share when its seeds run block by
+// block along a BlockDecomposition, held only for the front.
+//
+// A wrap across facet F, found in the star of one vertex of F, answers the same wrap
+// in the stars of F's other vertices (see FacetMemo). In a sweep the vertices that
+// still need it are the seeds of F with a later leaf rank: in the same block, met by
+// the same worker a few stars later, or in a later block. So each worker keeps one
+// small table for the block it is meshing (FrontCache), and answers meant for later
+// blocks go to those blocks' mailboxes (FrontMail), read once when the block starts
+// and then dropped. A recorded facet therefore lives until the last block that wants
+// it begins: memory follows the front between the blocks done and the blocks to come
+// (O(n^((d-1)/d)) facets), not the mesh.
+//
+// Blocks run concurrently (one per worker): a post to a block that has already begun
+// is dropped, and that block's stars compute the wrap themselves. Every star, and so
+// the mesh, is the same with or without any memo.
+#pragma once
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <mutex>
+#include <span>
+#include <vector>
+
+#include "spokemesh/blocks.hpp"
+#include "spokemesh/facet_cache.hpp"
+
+namespace spokemesh {
+
+// The mailboxes of a sweep's blocks: facets recorded for blocks not yet begun.
+// Memory: d + 2 words per held entry (what a block's mailbox holds is dropped when the
+// block begins); at most max_bytes, beyond which posts are dropped.
+// Thread safety: all methods are safe to call concurrently (one mutex, taken once per
+// block by each of post_all() and take()).
+class FrontMail {
+ public:
+  // d: dimension (>= 3); one mailbox per block of `blocks` (borrowed).
+  FrontMail(int d, const BlockDecomposition& blocks, std::size_t max_bytes);
+
+  // Appends each record (a block index, then an entry of d + 2 words: the facet's d
+  // ascending indices and its two apexes) to that block's mailbox, unless the block has
+  // begun or the cap is reached.
+  void post_all(std::span<const std::uint32_t> records);
+  // Marks block b begun and moves its mailbox's entries (d + 2 words each) into `out`.
+  void take(std::uint32_t b, std::vector<std::uint32_t>& out);
+
+  // Bytes of entries held now, and the most ever held at once.
+  std::size_t held_bytes() const { return held_.load(std::memory_order_relaxed); }
+  std::size_t peak_bytes() const { return peak_.load(std::memory_order_relaxed); }
+
+ private:
+  struct Mailbox {
+    bool begun = false;
+    std::vector<std::uint32_t> words;
+  };
+  std::size_t entry_words_;
+  std::size_t max_bytes_;
+  std::mutex mu_;
+  std::vector<Mailbox> boxes_;
+  std::atomic<std::size_t> held_{0}, peak_{0};
+};
+
+// One worker's memo in a sweep: the facets wanted by seeds of the block it is
+// meshing, in a table of its own (no atomics), and the records for later blocks, which
+// end_block() posts. Seeds of the run are [seed_begin, seed_end); within a block they
+// must be computed in leaf order.
+// Memory: the table grows to a block's facets and is reused block after block.
+// Ownership: borrows the decomposition and the mail. Thread safety: NOT thread-safe;
+// one per worker.
+class FrontCache final : public FacetMemo {
+ public:
+  FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, std::uint32_t seed_begin,
+             std::uint32_t seed_end);
+
+  // Starts block b: forgets the last block's table and loads b's mailbox.
+  void begin_block(std::uint32_t b);
+  // Posts what this block recorded for later blocks.
+  void end_block();
+  // Bytes of the table and its buffers (capacity), for the run's statistics.
+  std::size_t held_bytes() const;
+
+  void prefetch(std::uint64_t hash) const override;
+  void prefetch_start(std::uint32_t) const override {}  // a block's starts are few and hot
+  void prefetch_start_entry(std::uint32_t) const override {}
+  bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
+              std::uint32_t& across) const override;
+  std::size_t reserve(std::size_t count) override { return count; }  // bounded by the block
+  bool wanted(std::uint32_t x, const std::uint32_t* facet) const override;
+  void insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
+              std::uint32_t b) override;
+  bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const override;
+
+ private:
+  bool is_seed(std::uint32_t v) const { return v >= seed_begin_ && v < seed_end_; }
+  // The entry of `facet` in the table, or -1.
+  std::int64_t find(const std::uint32_t* facet, std::uint64_t hash) const;
+  // Adds an entry (facet, a, b) to the table unless present; sets the starts of its
+  // seeds in this block that have none. Returns false if it was present.
+  bool add(const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
+  void grow();
+
+  const BlockDecomposition& blocks_;
+  const KdTree& tree_;
+  FrontMail& mail_;
+  std::uint32_t seed_begin_, seed_end_;
+  std::size_t entry_words_;             // d ids, then apexes a and b
+  std::uint32_t block_ = 0, lo_ = 0, hi_ = 0;  // the block and its leaf-order range
+  std::vector<std::uint32_t> entries_;  // this block's entries
+  // Open addressing over entries: generation << 32 | (entry + 1); a slot of another
+  // generation is empty, so a new block forgets the table without clearing it.
+  std::vector<std::uint64_t> slots_;
+  std::uint64_t generation_ = 0;
+  std::size_t count_ = 0;
+  std::vector<std::uint32_t> starts_;    // per leaf position in the block: entry + 1, or 0
+  std::vector<std::uint32_t> outgoing_;  // records for later blocks (see FrontMail::post_all)
+  std::vector<std::uint32_t> incoming_;
+};
+
+}  // namespace spokemesh
