@@ -617,8 +617,8 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);
   options.facet_cache_bytes = cache_bytes;
-  options.seed_begin = range.begin;
-  options.seed_end = range.end;
+  options.sweep_begin = range.begin;  // shards of simplices are parts of the sweep
+  options.sweep_end = range.end;
   options.star.cancel = control.stop_flag();
 
   std::vector<std::uint32_t> pending;  // less than one batch, carried between blocks

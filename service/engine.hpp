@@ -214,7 +214,9 @@ class Engine {
                            const CallControl& control);
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
-  // shard, lexicographic, on the calling thread. A non-OK status from emit stops the
+  // shard's seeds, in sweep order, on the calling thread. Shard k of S holds the seeds
+  // at sweep positions (k-d tree leaf order) shard_range(n, k, S), so the shards in
+  // order concatenate to the whole mesh as mesh_seeds writes it. A non-OK status from emit stops the
   // run (and is returned). Only a bounded window is computed ahead of emit.
   using BatchSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;
   Status stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,

@@ -243,7 +243,9 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
       // Sweep order: owners by leaf rank, an owner's simplices lexicographic.
       if (i + w < one.size()) {
         ASSERT_LE(tree.leaf_rank(one[i]), tree.leaf_rank(one[i + w]));
-        if (one[i] == one[i + w]) ASSERT_LT(sorted(i), sorted(i + w));
+        if (one[i] == one[i + w]) {
+          ASSERT_LT(sorted(i), sorted(i + w));
+        }
       }
     }
   }

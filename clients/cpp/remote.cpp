@@ -404,8 +404,8 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
   if (!writer.is_ok()) return report(writer.status());
 
   // One stream per shard, each spooled to an anonymous temporary file so memory stays
-  // bounded; shards are concatenated in order (shard k's seeds precede shard k+1's,
-  // so the result is lexicographic, as from the local command).
+  // bounded; shards are concatenated in order (shard k is the part of the sweep
+  // before shard k+1's, so the result is the local command's, byte for byte).
   if (shards == 0) shards = 1;
   struct Shard {
     std::FILE* spool = nullptr;

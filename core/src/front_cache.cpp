@@ -38,14 +38,12 @@ void FrontMail::take(std::uint32_t b, std::vector<std::uint32_t>& out) {
   held_.fetch_sub(out.capacity() * sizeof(std::uint32_t), std::memory_order_relaxed);
 }
 
-FrontCache::FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, std::uint32_t seed_begin,
-                       std::uint32_t seed_end)
+FrontCache::FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, const RunOrder& seeds)
     : FacetMemo(d),
       blocks_(blocks),
       tree_(blocks.tree()),
       mail_(mail),
-      seed_begin_(seed_begin),
-      seed_end_(seed_end),
+      seeds_(seeds),
       entry_words_(static_cast<std::size_t>(d) + 2),
       slots_(std::size_t{1} << 12, 0) {}
 
@@ -100,9 +98,7 @@ bool FrontCache::add(const std::uint32_t* facet, std::uint64_t hash, std::uint32
   slots_[s] = generation_ << 32 | (e + 1);
   if (++count_ * 2 > slots_.size()) grow();
   for (int i = 0; i < d_; ++i) {
-    const std::uint32_t v = facet[i];
-    if (!is_seed(v)) continue;
-    const std::uint32_t r = tree_.leaf_rank(v);
+    const std::uint32_t r = seed_rank(facet[i]);
     if (r >= lo_ && r < hi_ && starts_[r - lo_] == 0) starts_[r - lo_] = static_cast<std::uint32_t>(e + 1);
   }
   return true;
@@ -140,8 +136,8 @@ bool FrontCache::lookup(std::uint32_t, const std::uint32_t* facet, std::uint64_t
 bool FrontCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
   const std::uint32_t rx = tree_.leaf_rank(x);
   for (int i = 0; i < d_; ++i) {
-    const std::uint32_t v = facet[i];
-    if (v != x && is_seed(v) && tree_.leaf_rank(v) > rx) return true;
+    const std::uint32_t r = seed_rank(facet[i]);
+    if (facet[i] != x && r != kNotSeed && r > rx) return true;
   }
   return false;
 }
@@ -155,10 +151,8 @@ void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
   std::array<std::uint32_t, kMaxDimension> later{};
   int count = 0;
   for (int i = 0; i < d_; ++i) {
-    const std::uint32_t v = facet[i];
-    if (v == x || !is_seed(v)) continue;
-    const std::uint32_t r = tree_.leaf_rank(v);
-    if (r <= rx) continue;
+    const std::uint32_t r = seed_rank(facet[i]);
+    if (facet[i] == x || r == kNotSeed || r <= rx) continue;
     if (r < hi_) {
       here = true;
       continue;

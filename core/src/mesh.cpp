@@ -43,7 +43,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   const std::uint32_t block_points =
       options.block_size != 0 ? options.block_size : BlockDecomposition::default_max_points(d, n);
   const BlockDecomposition blocks(tree, block_points);
-  const std::uint64_t count = begin < end ? blocks.size() : 0;
+  const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
+  const auto sweep_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.sweep_end, sweep_begin, n));
+  const RunOrder run{begin, end, 1, &tree, sweep_begin, sweep_end};
+  // The blocks that meet the sweep range.
+  const std::uint32_t first_block = sweep_begin < sweep_end ? blocks.block_of_rank(sweep_begin) : 0;
+  const std::uint64_t count =
+      begin < end && sweep_begin < sweep_end ? blocks.block_of_rank(sweep_end - 1) + 1 - first_block : 0;
   // Blocks in flight beyond the next one to write: 4 per worker, and no more points
   // than 4 blocks of 32,768 per worker (this caps the large 2-d blocks), so that a
   // slow reader leaves at most a few MB of simplices buffered.
@@ -55,7 +61,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   std::optional<FrontMail> mail;
   if (options.facet_cache_bytes != 0 && count != 0) {
     if (d == 2) {
-      edges.emplace(static_cast<std::uint32_t>(n), RunOrder{begin, end, 1, &tree}, options.facet_cache_bytes);
+      edges.emplace(static_cast<std::uint32_t>(n), run, options.facet_cache_bytes);
       if (!edges->enabled()) edges.reset();
     } else {
       mail.emplace(d, blocks, options.facet_cache_bytes);
@@ -72,7 +78,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 
   auto worker = [&] {
     std::optional<FrontCache> front;
-    if (mail) front.emplace(d, blocks, *mail, begin, end);
+    if (mail) front.emplace(d, blocks, *mail, run);
     StarOptions star_options = options.star;
     star_options.facets = front ? &*front : nullptr;
     star_options.edges = edges ? &*edges : nullptr;
@@ -89,8 +95,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
         b = next_block++;
         if (ring.size() <= b - written) ring.resize(b - written + 1);
       }
-      const auto block = static_cast<std::uint32_t>(b);
-      const std::uint32_t lo = blocks.begin(block), hi = blocks.end(block);
+      const auto block = static_cast<std::uint32_t>(first_block + b);
+      const std::uint32_t lo = std::max(blocks.begin(block), sweep_begin);
+      const std::uint32_t hi = std::min(blocks.end(block), sweep_end);
       if (front) front->begin_block(block);
       out.clear();
       std::uint64_t seeds = 0;
@@ -156,7 +163,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   }
   for (auto& t : pool) t.join();
   if (!failure.is_ok()) return failure;
-  total.seeds = end - begin;
+  total.seeds = seeds_done;
   total.blocks = count;
   total.facet_cache_bytes = edges ? edges->reserved_bytes() : mail ? mail->peak_bytes() + worker_bytes : 0;
   return total;

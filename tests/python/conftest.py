@@ -143,6 +143,13 @@ def local_mesh(points: np.ndarray, tmp_path: Path) -> np.ndarray:
     return np.loadtxt(out, dtype=np.int64, ndmin=2)
 
 
+def star_of(mesh: np.ndarray, seed: int) -> np.ndarray:
+    """The rows of a whole mesh (in sweep order) that contain `seed`, in a star's order:
+    lexicographic by their sorted indices."""
+    rows = mesh[(mesh == seed).any(axis=1)]
+    return rows[np.lexsort(np.sort(rows, axis=1).T[::-1])]
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -61,7 +61,7 @@ class Delaunay:
         self.ndim: int = self.points.shape[1]
         self.npoints: int = self.points.shape[0]
         #: (nsimplex, ndim + 1) int32: vertex indices, each simplex positively oriented
-        #: (det[p1 - p0, ..., pd - p0] > 0), rows in lexicographic order.
+        #: (det[p1 - p0, ..., pd - p0] > 0), rows in sweep order (docs/algorithm.md), the same for any thread count.
         self.simplices: np.ndarray = self._tri.simplices()
         self.nsimplex: int = self.simplices.shape[0]
 

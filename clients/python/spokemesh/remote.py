@@ -42,7 +42,7 @@ class PointSet:
 class Star:
     """The Delaunay simplices incident to one seed, with their circumcentres."""
     seed: int
-    simplices: np.ndarray      # (m, d + 1) uint32, positively oriented rows, lexicographic
+    simplices: np.ndarray      # (m, d + 1) uint32, positively oriented rows, lexicographic by sorted indices
     circumcenters: np.ndarray  # (m, d) float64: the Voronoi vertices of the seed's cell
     hull_facets: int           # star facets on the convex hull (0 <=> bounded cell)
 
@@ -317,8 +317,10 @@ class Client:
         return flat.reshape(-1, width)
 
     def simplices(self, point_set_id: str, shards: int = 1, timeout: Optional[float] = None) -> np.ndarray:
-        """The whole Delaunay mesh, (m, d + 1) uint32, positively oriented rows in
-        lexicographic order, fetched as `shards` parallel streams (shard k owns seeds [k N / shards, (k + 1) N / shards))."""
+        """The whole Delaunay mesh, (m, d + 1) uint32, positively oriented rows in the
+        server's sweep order (the same for any `shards`; sort the rows for lexicographic
+        order), fetched as `shards` parallel streams (shard k holds the seeds at sweep
+        positions [k N / shards, (k + 1) N / shards))."""
         if shards < 1:
             raise ValueError("shards: must be at least 1")
         with concurrent.futures.ThreadPoolExecutor(max_workers=min(shards, 16)) as pool:

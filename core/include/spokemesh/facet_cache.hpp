@@ -51,11 +51,18 @@ std::size_t mapped_cache_bytes();
 
 // The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
 // `block` consecutive indices, blocks in order, a block's seeds in any order; or, for
-// a sweep (`sweep` set), in the tree's leaf order, several blocks of it at once.
+// a sweep (`sweep` set), the seeds among them at leaf-order positions [rank_begin,
+// rank_end), in the tree's leaf order, several blocks of it at once.
 struct RunOrder {
   std::uint32_t begin = 0, end = 0, block = 1;
   const KdTree* sweep = nullptr;
-  bool is_seed(std::uint32_t v) const { return v >= begin && v < end; }
+  std::uint32_t rank_begin = 0, rank_end = 0xFFFFFFFFu;
+  bool is_seed(std::uint32_t v) const {
+    if (v < begin || v >= end) return false;
+    if (sweep == nullptr) return true;
+    const std::uint32_t r = sweep->leaf_rank(v);
+    return r >= rank_begin && r < rank_end;
+  }
   // Seeds v != x of this run that may be meshed before (after) x.
   bool maybe_before(std::uint32_t v, std::uint32_t x) const {
     if (v == x || !is_seed(v)) return false;

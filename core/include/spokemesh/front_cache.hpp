@@ -63,15 +63,14 @@ class FrontMail {
 
 // One worker's memo in a sweep: the facets wanted by seeds of the block it is
 // meshing, in a table of its own (no atomics), and the records for later blocks, which
-// end_block() posts. Seeds of the run are [seed_begin, seed_end); within a block they
-// must be computed in leaf order.
+// end_block() posts. `seeds` says which points are seeds of the run (its `sweep` is
+// the decomposition's tree); within a block they must be computed in leaf order.
 // Memory: the table grows to a block's facets and is reused block after block.
 // Ownership: borrows the decomposition and the mail. Thread safety: NOT thread-safe;
 // one per worker.
 class FrontCache final : public FacetMemo {
  public:
-  FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, std::uint32_t seed_begin,
-             std::uint32_t seed_end);
+  FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, const RunOrder& seeds);
 
   // Starts block b: forgets the last block's table and loads b's mailbox.
   void begin_block(std::uint32_t b);
@@ -92,7 +91,13 @@ class FrontCache final : public FacetMemo {
   bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const override;
 
  private:
-  bool is_seed(std::uint32_t v) const { return v >= seed_begin_ && v < seed_end_; }
+  static constexpr std::uint32_t kNotSeed = 0xFFFFFFFFu;
+  // v's leaf-order position if v is a seed of the run, else kNotSeed.
+  std::uint32_t seed_rank(std::uint32_t v) const {
+    if (v < seeds_.begin || v >= seeds_.end) return kNotSeed;
+    const std::uint32_t r = tree_.leaf_rank(v);
+    return r >= seeds_.rank_begin && r < seeds_.rank_end ? r : kNotSeed;
+  }
   // The entry of `facet` in the table, or -1.
   std::int64_t find(const std::uint32_t* facet, std::uint64_t hash) const;
   // Adds an entry (facet, a, b) to the table unless present; sets the starts of its
@@ -103,7 +108,7 @@ class FrontCache final : public FacetMemo {
   const BlockDecomposition& blocks_;
   const KdTree& tree_;
   FrontMail& mail_;
-  std::uint32_t seed_begin_, seed_end_;
+  RunOrder seeds_;
   std::size_t entry_words_;             // d ids, then apexes a and b
   std::uint32_t block_ = 0, lo_ = 0, hi_ = 0;  // the block and its leaf-order range
   std::vector<std::uint32_t> entries_;  // this block's entries

@@ -1,8 +1,10 @@
 // Whole-mesh assembly with no communication between seeds.
 //
 // Every Delaunay simplex is emitted by exactly one seed, its owner: its smallest
-// vertex index. Meshing seeds [begin, end) emits exactly the simplices owned there;
-// the union over any partition of [0, n) is the whole mesh, each simplex once.
+// vertex index. Meshing a set of seeds emits exactly the simplices owned there; the
+// union over any partition of the points is the whole mesh, each simplex once. A run
+// takes the seeds in an index range [seed_begin, seed_end) (the CLI's --seeds) and in
+// a range of sweep positions [sweep_begin, sweep_end) (the service's shards).
 //
 // mesh_seeds() sweeps the point set's BlockDecomposition (blocks.hpp): worker threads
 // take blocks in leaf order, each computes its block's seeds in leaf order, and the
@@ -35,6 +37,11 @@ struct MeshOptions {
   unsigned threads = 1;             // worker threads (>= 1)
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
+  // ...and of those, only the seeds at leaf-order positions [sweep_begin, sweep_end)
+  // (clamped to n): a contiguous part of the sweep, so the parts of consecutive ranges
+  // concatenate to the whole run's output, byte for byte.
+  std::uint32_t sweep_begin = 0;
+  std::uint32_t sweep_end = 0xFFFFFFFFu;
   std::uint32_t block_size = 0;     // points per block at most; 0 = automatic (output is the same)
   // Cap on what the stars of this run share (the front's mailboxes; in 2-d the
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
