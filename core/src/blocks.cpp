@@ -1,6 +1,7 @@
 #include "spokemesh/blocks.hpp"
 
 #include <algorithm>
+#include <cstdlib>
 
 namespace spokemesh {
 
@@ -18,7 +19,8 @@ BlockDecomposition::BlockDecomposition(const KdTree& tree, std::uint32_t max_poi
 std::uint32_t BlockDecomposition::default_max_points(int d, std::uint64_t n) {
   // At least 32 blocks where the set allows, so two workers balance; at most a size
   // per dimension beyond which larger blocks gained nothing (bench/README.md).
-  const std::uint64_t cap = d == 2 ? 131072 : d == 3 ? 16384 : 1024;
+  std::uint64_t cap = d == 2 ? 131072 : d == 3 ? 16384 : 1024;
+  if (const char* e = std::getenv("SPOKEMESH_TUNE_BLOCK")) cap = std::strtoull(e, nullptr, 10);  // TEMP
   return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 32, 64, cap));
 }
 

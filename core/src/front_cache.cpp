@@ -44,19 +44,20 @@ FrontCache::FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail,
       tree_(blocks.tree()),
       mail_(mail),
       seeds_(seeds),
-      entry_words_(static_cast<std::size_t>(d) + 2),
-      slots_(std::size_t{1} << 12, 0) {}
+      stride_(static_cast<std::size_t>(d) + 3),
+      table_((std::size_t{1} << 12) * stride_, 0),
+      capacity_(std::size_t{1} << 12) {}
 
 void FrontCache::begin_block(std::uint32_t b) {
   ++generation_;  // every slot of the last block reads empty now
   count_ = 0;
-  entries_.clear();
   block_ = b;
   lo_ = blocks_.begin(b);
   hi_ = blocks_.end(b);
   starts_.assign(hi_ - lo_, 0);
   mail_.take(b, incoming_);
-  for (std::size_t at = 0; at + entry_words_ <= incoming_.size(); at += entry_words_) {
+  const std::size_t entry = static_cast<std::size_t>(d_) + 2;
+  for (std::size_t at = 0; at + entry <= incoming_.size(); at += entry) {
     const std::uint32_t* facet = &incoming_[at];
     add(facet, hash(facet), facet[d_], facet[d_ + 1]);
   }
@@ -69,59 +70,71 @@ void FrontCache::end_block() {
 }
 
 std::size_t FrontCache::held_bytes() const {
-  return (entries_.capacity() + starts_.capacity() + outgoing_.capacity() + incoming_.capacity()) *
-             sizeof(std::uint32_t) +
-         slots_.capacity() * sizeof(std::uint64_t);
+  return (table_.capacity() + starts_.capacity() + outgoing_.capacity() + incoming_.capacity()) *
+         sizeof(std::uint32_t);
 }
 
-std::int64_t FrontCache::find(const std::uint32_t* facet, std::uint64_t hash) const {
-  const std::size_t mask = slots_.size() - 1;
+std::int64_t FrontCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& empty) const {
+  const std::size_t mask = capacity_ - 1;
   for (std::size_t s = hash & mask;; s = (s + 1) & mask) {
-    const std::uint64_t slot = slots_[s];
-    if ((slot >> 32) != generation_) return -1;  // the load stays below 1/2: an empty slot ends every probe
-    const std::size_t e = (slot & 0xFFFFFFFFu) - 1;
-    if (detail::same_indices(facet, &entries_[e * entry_words_], static_cast<std::size_t>(d_))) {
-      return static_cast<std::int64_t>(e);
+    const std::uint32_t* w = slot(s);
+    if (w[0] != generation_) {  // the load stays below 1/2: an empty slot ends every probe
+      empty = s;
+      return -1;
     }
+    if (detail::same_indices(facet, w + 1, static_cast<std::size_t>(d_))) return static_cast<std::int64_t>(s);
   }
 }
 
 bool FrontCache::add(const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b) {
-  if (find(facet, hash) >= 0) return false;
-  const std::size_t e = entries_.size() / entry_words_;
-  entries_.insert(entries_.end(), facet, facet + d_);
-  entries_.push_back(a);
-  entries_.push_back(b);
-  const std::size_t mask = slots_.size() - 1;
-  std::size_t s = hash & mask;
-  while ((slots_[s] >> 32) == generation_) s = (s + 1) & mask;
-  slots_[s] = generation_ << 32 | (e + 1);
-  if (++count_ * 2 > slots_.size()) grow();
+  std::size_t s = 0;
+  if (find(facet, hash, s) >= 0) return false;
+  std::uint32_t* w = slot(s);
+  w[0] = generation_;
+  std::copy(facet, facet + d_, w + 1);
+  w[1 + d_] = a;
+  w[2 + d_] = b;
   for (int i = 0; i < d_; ++i) {
     const std::uint32_t r = seed_rank(facet[i]);
-    if (r >= lo_ && r < hi_ && starts_[r - lo_] == 0) starts_[r - lo_] = static_cast<std::uint32_t>(e + 1);
+    if (r >= lo_ && r < hi_ && starts_[r - lo_] == 0) starts_[r - lo_] = static_cast<std::uint32_t>(s + 1);
   }
+  if (++count_ * 2 > capacity_) grow();
   return true;
 }
 
 void FrontCache::grow() {
-  slots_.assign(slots_.size() * 2, 0);
-  const std::size_t mask = slots_.size() - 1;
-  for (std::size_t e = 0; e < count_; ++e) {
-    std::size_t s = hash(&entries_[e * entry_words_]) & mask;
-    while ((slots_[s] >> 32) == generation_) s = (s + 1) & mask;
-    slots_[s] = generation_ << 32 | (e + 1);
+  std::vector<std::uint32_t> old(capacity_ * 2 * stride_, 0);
+  old.swap(table_);
+  const std::size_t old_capacity = capacity_;
+  capacity_ *= 2;
+  const auto moved = [&](std::size_t s) {  // old slot s's place in the new table
+    const std::uint32_t* w = &old[s * stride_];
+    std::size_t to = 0;
+    find(w + 1, hash(w + 1), to);
+    return to;
+  };
+  for (std::size_t s = 0; s < old_capacity; ++s) {
+    const std::uint32_t* w = &old[s * stride_];
+    if (w[0] != generation_) continue;
+    std::copy(w, w + stride_, slot(moved(s)));
+  }
+  for (std::uint32_t& start : starts_) {
+    if (start == 0) continue;
+    std::size_t at = 0;
+    const std::uint32_t* w = &old[std::size_t{start - 1} * stride_];
+    start = static_cast<std::uint32_t>(find(w + 1, hash(w + 1), at) + 1);
   }
 }
 
-void FrontCache::prefetch(std::uint64_t hash) const { __builtin_prefetch(&slots_[hash & (slots_.size() - 1)]); }
+void FrontCache::prefetch(std::uint64_t hash) const { __builtin_prefetch(slot(hash & (capacity_ - 1))); }
 
 bool FrontCache::lookup(std::uint32_t, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
                         std::uint32_t& across) const {
-  const std::int64_t e = find(facet, hash);
-  if (e < 0) return false;
-  const std::uint32_t* w = &entries_[static_cast<std::size_t>(e) * entry_words_];
-  const std::uint32_t a = w[d_], b = w[d_ + 1];
+  std::size_t empty = 0;
+  const std::int64_t s = find(facet, hash, empty);
+  if (s < 0) return false;
+  const std::uint32_t* w = slot(static_cast<std::size_t>(s));
+  const std::uint32_t a = w[1 + d_], b = w[2 + d_];
   if (from == a) {
     across = b;
     return true;
@@ -173,12 +186,12 @@ void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
 bool FrontCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const {
   const std::uint32_t r = tree_.leaf_rank(x);
   if (r < lo_ || r >= hi_) return false;
-  const std::uint32_t e1 = starts_[r - lo_];
-  if (e1 == 0) return false;
-  const std::uint32_t* w = &entries_[std::size_t{e1 - 1} * entry_words_];
-  std::copy(w, w + d_, facet);
-  a = w[d_];
-  b = w[d_ + 1];
+  const std::uint32_t s1 = starts_[r - lo_];
+  if (s1 == 0) return false;
+  const std::uint32_t* w = slot(s1 - 1);
+  std::copy(w + 1, w + 1 + d_, facet);
+  a = w[1 + d_];
+  b = w[2 + d_];
   return true;
 }
 

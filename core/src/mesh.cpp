@@ -165,7 +165,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   if (!failure.is_ok()) return failure;
   total.seeds = seeds_done;
   total.blocks = count;
-  total.facet_cache_bytes = edges ? edges->reserved_bytes() : mail ? mail->peak_bytes() + worker_bytes : 0;
+  total.front_peak_bytes = mail ? mail->peak_bytes() : 0;
+  total.facet_cache_bytes = edges ? edges->reserved_bytes() : total.front_peak_bytes + worker_bytes;
   return total;
 }
 

@@ -98,26 +98,28 @@ class FrontCache final : public FacetMemo {
     const std::uint32_t r = tree_.leaf_rank(v);
     return r >= seeds_.rank_begin && r < seeds_.rank_end ? r : kNotSeed;
   }
-  // The entry of `facet` in the table, or -1.
-  std::int64_t find(const std::uint32_t* facet, std::uint64_t hash) const;
-  // Adds an entry (facet, a, b) to the table unless present; sets the starts of its
-  // seeds in this block that have none. Returns false if it was present.
+  // The slot holding `facet`, or -1; `empty` gets the empty slot that ended the probe.
+  std::int64_t find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& empty) const;
+  // Adds (facet, a, b) to the table unless present; sets the starts of its seeds in
+  // this block that have none. Returns false if it was present.
   bool add(const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
   void grow();
+  std::uint32_t* slot(std::size_t s) { return &table_[s * stride_]; }
+  const std::uint32_t* slot(std::size_t s) const { return &table_[s * stride_]; }
 
   const BlockDecomposition& blocks_;
   const KdTree& tree_;
   FrontMail& mail_;
   RunOrder seeds_;
-  std::size_t entry_words_;             // d ids, then apexes a and b
+  std::size_t stride_;                  // words per slot: generation, d ids, apexes a and b
   std::uint32_t block_ = 0, lo_ = 0, hi_ = 0;  // the block and its leaf-order range
-  std::vector<std::uint32_t> entries_;  // this block's entries
-  // Open addressing over entries: generation << 32 | (entry + 1); a slot of another
-  // generation is empty, so a new block forgets the table without clearing it.
-  std::vector<std::uint64_t> slots_;
-  std::uint64_t generation_ = 0;
+  // Open addressing, the entry in its slot (one cache line holds a probe). A slot of
+  // another generation is empty, so a new block forgets the table without clearing it.
+  std::vector<std::uint32_t> table_;
+  std::size_t capacity_ = 0;            // slots, a power of two
+  std::uint32_t generation_ = 0;
   std::size_t count_ = 0;
-  std::vector<std::uint32_t> starts_;    // per leaf position in the block: entry + 1, or 0
+  std::vector<std::uint32_t> starts_;    // per leaf position in the block: slot + 1, or 0
   std::vector<std::uint32_t> outgoing_;  // records for later blocks (see FrontMail::post_all)
   std::vector<std::uint32_t> incoming_;
 };

@@ -53,8 +53,11 @@ struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
   std::uint64_t blocks = 0;
-  // The most the front held at once (mailboxes, plus each worker's table at its
-  // largest); in 2-d the EdgeCache's reservation.
+  // The most the front's mailboxes held at once (d >= 3): grows with the surface
+  // between the blocks done and those to come, O(n^((d-1)/d)), not with n.
+  std::size_t front_peak_bytes = 0;
+  // All the stars shared: the front's peak plus each worker's block table at its
+  // largest (d >= 3); in 2-d the EdgeCache's reservation (64 bytes per point).
   std::size_t facet_cache_bytes = 0;
   StarStats star;
 };

@@ -1,0 +1,179 @@
+// The sweep's pieces: the block decomposition (tiling, boxes, maximality), the
+// front's memo (what a block records reaches later blocks once, and nothing reaches a
+// block that has begun), and the front's bound (it grows with the surface, not with n).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "spokemesh/blocks.hpp"
+#include "spokemesh/front_cache.hpp"
+#include "spokemesh/mesh.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using testing::make_points;
+using testing::mesh_all;
+using testing::uniform_points;
+
+TEST(Blocks, TileTheLeafOrderWithCompactBoxes) {
+  for (int d = 2; d <= 5; ++d) {
+    for (const std::uint32_t max_points : {1u, 7u, 64u, 500u, 1000000u}) {
+      SCOPED_TRACE("d " + std::to_string(d) + ", at most " + std::to_string(max_points) + " points (seed 90 + d)");
+      const PointSet ps = make_points(d, uniform_points(d, 3000, 90 + d));
+      const KdTree tree(ps);
+      const BlockDecomposition blocks(tree, max_points);
+      ASSERT_GE(blocks.size(), 1u);
+      EXPECT_EQ(blocks.begin(0), 0u);
+      EXPECT_EQ(blocks.end(blocks.size() - 1), 3000u);
+      std::size_t leaves_over = 0;
+      for (std::uint32_t b = 0; b < blocks.size(); ++b) {
+        ASSERT_LT(blocks.begin(b), blocks.end(b)) << "block " << b << " is empty";
+        if (b + 1 < blocks.size()) {
+          ASSERT_EQ(blocks.end(b), blocks.begin(b + 1));
+        }
+        const std::uint32_t size = blocks.end(b) - blocks.begin(b);
+        // Only a leaf (nanoflann's leaves hold at most 8 points) may exceed the cap.
+        if (size > max_points) {
+          ++leaves_over;
+          ASSERT_LE(size, 8u);
+        }
+        const auto box = blocks.box(b);
+        for (std::uint32_t r = blocks.begin(b); r < blocks.end(b); ++r) {
+          const std::uint32_t p = tree.point_at_rank(r);
+          ASSERT_EQ(tree.leaf_rank(p), r);
+          ASSERT_EQ(blocks.block_of(p), b);
+          ASSERT_EQ(blocks.block_of_rank(r), b);
+          for (int c = 0; c < d; ++c) {
+            ASSERT_LE(box[static_cast<std::size_t>(c)], ps.point(p)[c]);
+            ASSERT_GE(box[static_cast<std::size_t>(d + c)], ps.point(p)[c]);
+          }
+        }
+      }
+      if (max_points >= 8) {
+        EXPECT_EQ(leaves_over, 0u);
+      }
+      // Maximal subtrees: the median splits halve the points, so a block holds more
+      // than a quarter of the cap (two levels of rounding), and the count is bounded.
+      if (max_points >= 64 && max_points < 3000) {
+        EXPECT_LE(blocks.size(), 4 * 3000 / max_points + 1);
+      }
+      if (max_points >= 3000) {
+        EXPECT_EQ(blocks.size(), 1u);
+      }
+    }
+  }
+}
+
+TEST(Blocks, ConsecutiveBlocksAreCloseInSpace) {
+  // Leaf order is a space-filling order: on average consecutive blocks' boxes touch
+  // or overlap far more often than random pairs would.
+  const PointSet ps = make_points(3, uniform_points(3, 20000, 7));
+  const KdTree tree(ps);
+  const BlockDecomposition blocks(tree, 256);
+  const auto gap = [&](std::uint32_t a, std::uint32_t b) {
+    double g2 = 0;
+    const auto x = blocks.box(a), y = blocks.box(b);
+    for (int c = 0; c < 3; ++c) {
+      const double g = std::max({0.0, static_cast<double>(y[c] - x[3 + c]), static_cast<double>(x[c] - y[3 + c])});
+      g2 += g * g;
+    }
+    return std::sqrt(g2);
+  };
+  std::size_t touching = 0;
+  for (std::uint32_t b = 0; b + 1 < blocks.size(); ++b) touching += gap(b, b + 1) < 0.02 ? 1 : 0;
+  EXPECT_GT(touching, (blocks.size() - 1) * 9 / 10);
+}
+
+TEST(FrontCache, RecordsReachLaterSeedsOnceAndNeverABlockThatBegan) {
+  const PointSet ps = make_points(3, uniform_points(3, 2000, 11));
+  const KdTree tree(ps);
+  const BlockDecomposition blocks(tree, 100);
+  ASSERT_GE(blocks.size(), 4u);
+  FrontMail mail(3, blocks, 1 << 20);
+  const RunOrder run{0, 2000, 1, &tree, 0, 2000};
+  FrontCache first(3, blocks, mail, run), later(3, blocks, mail, run);
+  const auto at = [&](std::uint32_t block, std::uint32_t k) { return tree.point_at_rank(blocks.begin(block) + k); };
+  // A facet of two points of block 0 and one of block 2, recorded by block 0's first.
+  std::array<std::uint32_t, 3> f{at(0, 0), at(0, 1), at(2, 0)};
+  std::sort(f.begin(), f.end());
+  const std::uint32_t x = tree.leaf_rank(at(0, 0)) < tree.leaf_rank(at(0, 1)) ? at(0, 0) : at(0, 1);
+  const std::uint32_t y = x == at(0, 0) ? at(0, 1) : at(0, 0);
+  first.begin_block(0);
+  EXPECT_TRUE(first.wanted(x, f.data()));
+  EXPECT_FALSE(first.wanted(at(2, 0), f.data())) << "block 2's point is the facet's last";
+  first.insert(x, f.data(), first.hash(f.data()), 17, FacetMemo::kHull);
+  std::uint32_t across = 0;
+  ASSERT_TRUE(first.lookup(y, f.data(), first.hash(f.data()), 17, across)) << "a later seed of the same block";
+  EXPECT_EQ(across, FacetMemo::kHull);
+  std::array<std::uint32_t, 3> facet{};
+  std::uint32_t a = 0, b = 0;
+  ASSERT_TRUE(first.start(y, facet.data(), a, b));
+  EXPECT_EQ(facet, f);
+  EXPECT_EQ(a, 17u);
+  EXPECT_FALSE(first.start(at(1, 0), facet.data(), a, b)) << "not in the block";
+  // Recorded twice (a facet closed without a wrap): still one entry, one post.
+  first.insert(x, f.data(), first.hash(f.data()), 17, FacetMemo::kHull);
+  // A facet of block 0 and block 1, recorded while block 1 has already begun.
+  std::array<std::uint32_t, 3> g{at(0, 0), at(0, 1), at(1, 0)};
+  std::sort(g.begin(), g.end());
+  later.begin_block(1);
+  first.insert(x, g.data(), first.hash(g.data()), 5, 6);
+  first.end_block();
+  EXPECT_GT(mail.held_bytes(), 0u);
+  EXPECT_FALSE(later.lookup(at(1, 0), g.data(), later.hash(g.data()), 5, across)) << "posted after block 1 began";
+  later.end_block();
+  // Block 2 reads its post once: its point finds the facet and starts from it.
+  later.begin_block(2);
+  EXPECT_EQ(mail.held_bytes(), 0u) << "a block's mail is dropped when it begins";
+  ASSERT_TRUE(later.lookup(at(2, 0), f.data(), later.hash(f.data()), FacetMemo::kHull, across));
+  EXPECT_EQ(across, 17u);
+  ASSERT_TRUE(later.start(at(2, 0), facet.data(), a, b));
+  EXPECT_EQ(facet, f);
+  EXPECT_FALSE(later.lookup(at(2, 0), g.data(), later.hash(g.data()), 5, across)) << "g was not for block 2";
+  later.end_block();
+}
+
+TEST(FrontCache, TheMailCapDropsPostsAndChangesNoSimplex) {
+  const PointSet ps = make_points(3, uniform_points(3, 4000, 12));
+  const KdTree tree(ps);
+  const auto whole = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 200);
+  for (const std::size_t cap : {std::size_t{1}, std::size_t{4096}, std::size_t{1} << 16}) {
+    SCOPED_TRACE("cap " + std::to_string(cap));
+    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, cap, 200), whole);
+  }
+}
+
+// The front's bound: with blocks of a fixed size, the mailboxes' peak follows the
+// surface between the blocks done and the blocks to come. Eight times the points
+// give about 8^(2/3) = 4 times the front in 3-d; a memo kept for the whole run (as
+// the FacetCache was) grows 8 times.
+TEST(Sweep, TheFrontGrowsWithTheSurfaceNotWithTheMesh) {
+  auto front = [](std::size_t n) {
+    const PointSet ps = make_points(3, uniform_points(3, n, 5));
+    const KdTree tree(ps);
+    MeshOptions options;
+    options.threads = 2;
+    options.block_size = 512;
+    auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+    EXPECT_TRUE(r.is_ok());
+    std::printf("n %zu: front peak %zu bytes (%.1f per point), cache %zu bytes, %.2f cached wraps per seed\n", n,
+                r.value().front_peak_bytes, static_cast<double>(r.value().front_peak_bytes) / static_cast<double>(n),
+                r.value().facet_cache_bytes,
+                static_cast<double>(r.value().star.cached_wraps) / static_cast<double>(n));
+    return r.value();
+  };
+  const MeshStats small = front(25000), large = front(200000);
+  ASSERT_GT(small.front_peak_bytes, 0u);
+  const double growth = static_cast<double>(large.front_peak_bytes) / static_cast<double>(small.front_peak_bytes);
+  EXPECT_LT(growth, 6.0) << "the front grew " << growth << "x for 8x the points: it follows n, not the surface";
+  EXPECT_LT(large.front_peak_bytes, 200000u * 40) << "more than 40 bytes per point";
+  // And the memo still does its work: most wraps are answered, not recomputed.
+  EXPECT_GT(large.star.cached_wraps, 2 * large.star.wraps);
+}
+
+}  // namespace
+}  // namespace spokemesh
