@@ -232,14 +232,6 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   progress.finish();
   if (!result.is_ok()) return report(result.status());
   if (Status s = writer.commit(); !s.is_ok()) return report(s);
-  if (std::getenv("SPOKEMESH_TUNE_STATS")) {  // TEMP
-    const auto& st = result.value().star;
-    const double k = 1.0 / static_cast<double>(std::max<std::uint64_t>(st.seeds, 1));
-    std::fprintf(stderr, "TEMP wraps %.2f cached %.2f starts %.2f loads %.2f hull %.2f sphere %.2f exact %.2f tests %.1f front %zu blocks %llu\n",
-                 st.wraps * k, st.cached_wraps * k, st.cached_starts * k, st.candidate_loads * k, st.hull_queries * k,
-                 st.sphere_queries * k, st.exact_fallbacks * k, st.candidate_tests * k, result.value().facet_cache_bytes,
-                 static_cast<unsigned long long>(result.value().blocks));
-  }
   if (!common.quiet) {
     const double t = progress.seconds();
     std::fprintf(stderr, "spokemesh: %zu points, %llu simplices, %.2f s, %.0f simplices/s -> %s\n", n,

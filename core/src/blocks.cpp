@@ -1,7 +1,6 @@
 #include "spokemesh/blocks.hpp"
 
 #include <algorithm>
-#include <cstdlib>
 
 namespace spokemesh {
 
@@ -17,11 +16,11 @@ BlockDecomposition::BlockDecomposition(const KdTree& tree, std::uint32_t max_poi
 }
 
 std::uint32_t BlockDecomposition::default_max_points(int d, std::uint64_t n) {
-  // At least 32 blocks where the set allows, so two workers balance; at most a size
-  // per dimension beyond which larger blocks gained nothing (bench/README.md).
-  std::uint64_t cap = d == 2 ? 131072 : d == 3 ? 16384 : 1024;
-  if (const char* e = std::getenv("SPOKEMESH_TUNE_BLOCK")) cap = std::strtoull(e, nullptr, 10);  // TEMP
-  return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 32, 64, cap));
+  // At least 16 blocks where the set allows, so two workers balance; at most a size
+  // per dimension beyond which larger blocks gained nothing (bench/README.md, "Tuning
+  // history"): a block's table then outgrows the CPU's caches.
+  const std::uint64_t cap = d == 2 ? 16384 : d == 3 ? 4096 : 1024;
+  return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 16, 64, cap));
 }
 
 std::uint32_t BlockDecomposition::block_of_rank(std::uint32_t rank) const {

@@ -1,7 +1,6 @@
 #include "spokemesh/front_cache.hpp"
 
 #include <algorithm>
-#include <array>
 
 #include "mixing.hpp"
 
@@ -59,7 +58,8 @@ void FrontCache::begin_block(std::uint32_t b) {
   const std::size_t entry = static_cast<std::size_t>(d_) + 2;
   for (std::size_t at = 0; at + entry <= incoming_.size(); at += entry) {
     const std::uint32_t* facet = &incoming_[at];
-    add(facet, hash(facet), facet[d_], facet[d_ + 1]);
+    // Passed on to the next block that wants it (posted when this block ends).
+    if (add(facet, hash(facet), facet[d_], facet[d_ + 1])) post_next(facet, hi_, facet[d_], facet[d_ + 1]);
   }
   incoming_.clear();
 }
@@ -155,32 +155,33 @@ bool FrontCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
   return false;
 }
 
-void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
-                        std::uint32_t b) {
-  // Who still wants it: later seeds of this block (the table) and later blocks (one
-  // record per block, however many of the facet's vertices it holds).
-  const std::uint32_t rx = tree_.leaf_rank(x);
-  bool here = false;
-  std::array<std::uint32_t, kMaxDimension> later{};
-  int count = 0;
+void FrontCache::post_next(const std::uint32_t* facet, std::uint32_t after, std::uint32_t a, std::uint32_t b) {
+  std::uint32_t next = kNotSeed;  // the smallest leaf rank at or past `after` among its seeds
   for (int i = 0; i < d_; ++i) {
     const std::uint32_t r = seed_rank(facet[i]);
-    if (facet[i] == x || r == kNotSeed || r <= rx) continue;
-    if (r < hi_) {
-      here = true;
-      continue;
-    }
-    const std::uint32_t block = blocks_.block_of_rank(r);
-    if (std::find(later.begin(), later.begin() + count, block) == later.begin() + count) later[count++] = block;
+    if (r != kNotSeed && r >= after) next = std::min(next, r);
+  }
+  if (next == kNotSeed) return;
+  outgoing_.push_back(blocks_.block_of_rank(next));
+  outgoing_.insert(outgoing_.end(), facet, facet + d_);
+  outgoing_.push_back(a);
+  outgoing_.push_back(b);
+}
+
+void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a,
+                        std::uint32_t b) {
+  // Who still wants it: later seeds of this block (the table) and later blocks. Only
+  // the first of those blocks is sent it; that block passes it on (begin_block), so a
+  // facet waits in one mailbox at a time, however many blocks its vertices span.
+  const std::uint32_t rx = tree_.leaf_rank(x);
+  bool here = false;
+  for (int i = 0; i < d_; ++i) {
+    const std::uint32_t r = seed_rank(facet[i]);
+    here |= facet[i] != x && r != kNotSeed && r > rx && r < hi_;
   }
   // Already in the table: recorded, and posted, by an earlier star.
   if (here && !add(facet, hash, a, b)) return;
-  for (int k = 0; k < count; ++k) {
-    outgoing_.push_back(later[static_cast<std::size_t>(k)]);
-    outgoing_.insert(outgoing_.end(), facet, facet + d_);
-    outgoing_.push_back(a);
-    outgoing_.push_back(b);
-  }
+  post_next(facet, hi_, a, b);
 }
 
 bool FrontCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const {

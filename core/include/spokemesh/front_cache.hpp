@@ -6,9 +6,10 @@
 // still need it are the seeds of F with a later leaf rank: in the same block, met by
 // the same worker a few stars later, or in a later block. So each worker keeps one
 // small table for the block it is meshing (FrontCache), and answers meant for later
-// blocks go to those blocks' mailboxes (FrontMail), read once when the block starts
-// and then dropped. A recorded facet therefore lives until the last block that wants
-// it begins: memory follows the front between the blocks done and the blocks to come
+// blocks go to the mailbox (FrontMail) of the first of them, read once when that block
+// begins, which passes each on to the next block that wants it. A recorded facet
+// therefore waits in one mailbox at a time, until the last block that wants it
+// begins: memory follows the front between the blocks done and the blocks to come
 // (O(n^((d-1)/d)) facets), not the mesh.
 //
 // Blocks run concurrently (one per worker): a post to a block that has already begun
@@ -104,6 +105,9 @@ class FrontCache final : public FacetMemo {
   // this block that have none. Returns false if it was present.
   bool add(const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
   void grow();
+  // Posts (facet, a, b) to the first block holding one of its seeds at leaf rank
+  // `after` or later, if any.
+  void post_next(const std::uint32_t* facet, std::uint32_t after, std::uint32_t a, std::uint32_t b);
   std::uint32_t* slot(std::size_t s) { return &table_[s * stride_]; }
   const std::uint32_t* slot(std::size_t s) const { return &table_[s * stride_]; }
 

@@ -1,0 +1,57 @@
+// CGAL as a whole process on a point file, the peer of `spokemesh mesh FILE` in
+// bench/whole.py: reads the file with spokemesh's reader (text or .npy, the same
+// parse for both), builds CGAL's Delaunay triangulation (2-d, 3-d: the specialised
+// Delaunay_triangulation_2/_3 with Epick, which sort the input spatially; d >= 4: the
+// dD Delaunay_triangulation with Epick_d), and prints the number of finite simplices.
+// It writes no mesh file (spokemesh's time includes writing one).
+//
+//   build/bin/spokemesh_cgal_mesh FILE
+#include <CGAL/Delaunay_triangulation.h>
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Epick_d.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+
+#include <cstdio>
+#include <vector>
+
+#include "spokemesh/io.hpp"
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: spokemesh_cgal_mesh FILE\n");
+    return 2;
+  }
+  auto read = spokemesh::read_points(argv[1]);
+  if (!read.is_ok()) {
+    std::fprintf(stderr, "%s\n", read.status().message().c_str());
+    return 1;
+  }
+  const spokemesh::PointSet& ps = read.value();
+  const int d = ps.dimension();
+  std::size_t simplices = 0;
+  using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+  if (d == 2) {
+    std::vector<K::Point_2> p;
+    p.reserve(ps.size());
+    for (std::size_t i = 0; i < ps.size(); ++i) p.emplace_back(ps.point(i)[0], ps.point(i)[1]);
+    CGAL::Delaunay_triangulation_2<K> dt(p.begin(), p.end());
+    simplices = dt.number_of_faces();
+  } else if (d == 3) {
+    std::vector<K::Point_3> p;
+    p.reserve(ps.size());
+    for (std::size_t i = 0; i < ps.size(); ++i) p.emplace_back(ps.point(i)[0], ps.point(i)[1], ps.point(i)[2]);
+    CGAL::Delaunay_triangulation_3<K> dt(p.begin(), p.end());
+    simplices = dt.number_of_finite_cells();
+  } else {
+    using KD = CGAL::Epick_d<CGAL::Dynamic_dimension_tag>;
+    std::vector<KD::Point_d> p;
+    p.reserve(ps.size());
+    for (std::size_t i = 0; i < ps.size(); ++i) p.emplace_back(d, ps.point(i), ps.point(i) + d);
+    CGAL::Delaunay_triangulation<KD> dt(d);
+    dt.insert(p.begin(), p.end());
+    simplices = dt.number_of_finite_full_cells();
+  }
+  std::printf("%zu\n", simplices);
+  return 0;
+}
