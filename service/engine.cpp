@@ -8,6 +8,7 @@
 #include <mutex>
 
 #include "spokemesh/facet_cache.hpp"
+#include "spokemesh/front_cache.hpp"
 #include "spokemesh/mesh.hpp"
 
 namespace spokemesh::service {
@@ -511,6 +512,22 @@ std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBu
   return 0;
 }
 
+std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned threads, MemoryBudget::Charge& charge) {
+  if (dimension == 2) return charge_stream_cache(dimension, n, charge);  // the EdgeCache, as for cells
+  // The front's mail, capped at the estimate's mail part so that the charge bounds it,
+  // plus the workers' block tables. Less mail, or none, gives the same simplices.
+  const FrontMail::Estimate estimate =
+      FrontMail::estimate(dimension, n, threads, BlockDecomposition::default_max_points(dimension, n));
+  MemoryBudget& budget = store_->budget();
+  for (std::size_t mail = std::min(limits_.stream_cache_bytes, estimate.mail); mail >= (1u << 20); mail /= 2) {
+    if (auto c = budget.try_charge(mail + estimate.tables)) {
+      charge = std::move(*c);
+      return mail;
+    }
+  }
+  return 0;
+}
+
 Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                             std::uint32_t batch_size, const DomainSpec& spec, bool measures_only,
                             const CallControl& control, const CellBatchSink& emit, ShardRange* range_out) {
@@ -612,11 +629,9 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   auto window = budget.try_charge(kStreamWindowBytes);
   if (!window) return budget.over_budget("a streamed shard", kStreamWindowBytes);
   MemoryBudget::Charge cache_charge;
-  const std::size_t cache_bytes = charge_stream_cache(s.info.dimension, n32, cache_charge);
-
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);
-  options.facet_cache_bytes = cache_bytes;
+  options.facet_cache_bytes = charge_sweep_memo(s.info.dimension, n32, options.threads, cache_charge);
   options.sweep_begin = range.begin;  // shards of simplices are parts of the sweep
   options.sweep_end = range.end;
   options.star.cancel = control.stop_flag();

@@ -44,7 +44,7 @@ struct Limits {
   std::chrono::milliseconds default_deadline = defaults::kDefaultDeadline;
   std::chrono::milliseconds upload_idle_timeout = defaults::kUploadIdleTimeout;  // an idle upload stream ends
   unsigned stream_threads = 1;                                      // worker threads per StreamSimplices call
-  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // FacetCache cap per StreamSimplices call (0: none)
+  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // memo cap per streamed shard: the front's mail (0: none)
   std::size_t max_display_name = defaults::kMaxDisplayName;
 };
 
@@ -250,6 +250,9 @@ class Engine {
   static Result<std::optional<Domain>> resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box);
   // The facet cache a stream may have within the budget: its cap (0: none) and charge.
   std::size_t charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge);
+  // The same for a whole-mesh stream's sweep: charges its memo (the front's mail and
+  // the workers' tables) and returns the mail cap to run with (0: no memo).
+  std::size_t charge_sweep_memo(int dimension, std::uint32_t n, unsigned threads, MemoryBudget::Charge& charge);
   // RESOURCE_EXHAUSTED for exact work on a set above the exact dimension limit.
   static Status exact_allowed(const StoredSet& set, const char* what);
 

@@ -460,9 +460,12 @@ int main(int argc, char** argv) {
                    "Mesh file: .simplices/.txt (indices), .npy (int64), .vtu or .msh (2-d/3-d), .svg (2-d)")
       ->required();
   mesh->add_option("--threads", common.threads, "Worker threads")->capture_default_str()->check(CLI::Range(1u, 1024u));
-  mesh->add_option("--seeds", seeds, "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index");
+  mesh->add_option("--seeds", seeds,
+                   "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index. Rows are in sweep "
+                   "order (the k-d tree's leaf order; the same for any --threads): sort them for lexicographic order");
   mesh->add_option("--cache-mb", common.cache_mb,
-                   "Memory cap (MiB) for sharing facets between the seeds' stars; 0 = none (same output, slower)")
+                   "Memory cap (MiB) on the front: facets shared with blocks still to come (2-d: 64 bytes per point); "
+                   "0 = none (same output, slower)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
   mesh->add_flag("-q,--quiet", common.quiet, "No progress or summary on stderr");

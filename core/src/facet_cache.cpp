@@ -51,8 +51,9 @@ MappedWords allocate_zeroed(std::size_t words) {
   return MappedWords(static_cast<std::uint32_t*>(p), UnmapWords{bytes});
 }
 
-// Expected Delaunay facets per point for uniform points in dimension d (the table is
-// sized from it).
+
+}  // namespace
+
 double expected_facets_per_point(int d) {
   // Delaunay simplices per point of uniform random points in the unit cube, as
   // meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to 8-d: rough, they rise
@@ -62,8 +63,6 @@ double expected_facets_per_point(int d) {
   const int c = std::clamp(d, 2, kMaxDimension);
   return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
 }
-
-}  // namespace
 
 void UnmapWords::operator()(std::uint32_t* p) const {
   if (p == nullptr) return;

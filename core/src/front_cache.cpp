@@ -1,6 +1,7 @@
 #include "spokemesh/front_cache.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 #include "mixing.hpp"
 
@@ -8,6 +9,20 @@ namespace spokemesh {
 
 FrontMail::FrontMail(int d, const BlockDecomposition& blocks, std::size_t max_bytes)
     : entry_words_(static_cast<std::size_t>(d) + 2), max_bytes_(max_bytes), boxes_(blocks.size()) {}
+
+FrontMail::Estimate FrontMail::estimate(int d, std::uint64_t n, unsigned threads, std::uint32_t block_points) {
+  const double facets = expected_facets_per_point(d);
+  const double words = d + 2;
+  // Measured (tests/test_sweep.cpp, docs/algorithm.md): the mail peaks at about 2 to 3
+  // entries per facet-per-point per n^((d-1)/d) in 3-d; 8 leaves room for clustered
+  // sets and for higher d, where the surface is most of the set.
+  const double surface = std::min(static_cast<double>(n), 8 * std::pow(static_cast<double>(n), (d - 1.0) / d));
+  // A table at most half full, grown by doubling: up to 4 slots of d + 3 words per entry.
+  const double table = std::min<double>(static_cast<double>(block_points), static_cast<double>(n)) * facets *
+                       4 * (d + 3) * sizeof(std::uint32_t);
+  return {static_cast<std::size_t>(surface * facets * words * sizeof(std::uint32_t)),
+          static_cast<std::size_t>(table) * std::max(threads, 1u)};
+}
 
 void FrontMail::post_all(std::span<const std::uint32_t> records) {
   const std::size_t stride = 1 + entry_words_;

@@ -44,6 +44,10 @@ struct UnmapWords {
 };
 using MappedWords = std::unique_ptr<std::uint32_t[], UnmapWords>;
 
+// Expected Delaunay facets per point for uniform points in dimension d (2..8), as
+// meshed here: for sizing tables. An underestimate only fills a table sooner.
+double expected_facets_per_point(int d);
+
 // Bytes mapped by all FacetCaches and EdgeCaches alive in this process (0 once every
 // cache is destroyed). For tests and the server's memory accounting.
 // Thread safety: safe to call concurrently.

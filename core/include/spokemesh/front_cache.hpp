@@ -39,6 +39,16 @@ class FrontMail {
   // d: dimension (>= 3); one mailbox per block of `blocks` (borrowed).
   FrontMail(int d, const BlockDecomposition& blocks, std::size_t max_bytes);
 
+  // A generous estimate of what a sweep of n uniform points in dimension d holds at
+  // most: its mail (the front, O(n^((d-1)/d)) facets) and `threads` workers' tables
+  // for blocks of `block_points`. For charging a memory budget before a run; the mail
+  // can be capped at the estimate's mail part (MeshOptions::facet_cache_bytes), so
+  // that a run never holds more.
+  struct Estimate {
+    std::size_t mail = 0, tables = 0;
+  };
+  static Estimate estimate(int d, std::uint64_t n, unsigned threads, std::uint32_t block_points);
+
   // Appends each record (a block index, then an entry of d + 2 words: the facet's d
   // ascending indices and its two apexes) to that block's mailbox, unless the block has
   // begun or the cap is reached.
