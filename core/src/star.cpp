@@ -821,58 +821,78 @@ void StarWalker::prefetch_start(std::uint32_t seed) const {
   if (options_.facets != nullptr) options_.facets->prefetch_start_entry(seed);
 }
 
-Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
-  const int d = d_;
-  if (seed >= ps_.size()) {
-    return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
-                        std::to_string(ps_.size()) + " points)");
-  }
-  ++stats_.seeds;
-  x_ = seed;
-  cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d);
-  loaded_ = false;
-  missed_candidates_ = 0;
-  grown_ = false;
-  if (ring_walk_) return ring_walk_->compute(out, part);
-  FacetMemo* const cache = options_.facets;
+// The walk of one star for d >= 3 (StarWalker::compute): its state and its steps, in
+// the order run() takes them. A start (a facet of x's star from the memo, or recursive
+// spokes), then the queue of simplices found: each open facet the memo answers is taken
+// at once, one it cannot answer is deferred, and deferred facets are wrapped only when
+// the queue has run dry and they are still open. The state is the walker's per-seed
+// arrays (work_ and the parallel arrays beside it), kept there between seeds so that
+// nothing is allocated once warm; this class names what each step does with them.
+class StarWalker::StarWalk {
+ public:
+  explicit StarWalk(StarWalker& walker) : w(walker), d(walker.d_), sd(static_cast<std::size_t>(walker.d_)), memo(walker.options_.facets) {}
 
-  work_.clear();
-  work_planes_.clear();
-  plane_known_.clear();
-  work_hashes_.clear();
-  work_facets_.clear();
-  facet_open_.clear();
-  facet_apex_.clear();
-  simplex_seen_.reset(d);
-  facet_seen_.reset(d - 1);
-  std::array<std::uint32_t, kMaxCols> simplex{};
-  std::array<std::uint32_t, kMaxCols> key{};
-  std::array<BoundedDouble, kMaxCols> plane;  // a simplex's lifted plane, every point on or above it
-  std::size_t hull = 0;
-  // The facet key of x's star: the d - 1 other vertices of a facet, ascending; the
-  // cache's key is the whole facet, x included.
-  auto whole_facet = [&](const std::uint32_t* others, std::uint32_t* facet) {
+  Status run(StarPart part, Star& out) {
+    reset();
+    if (Status s = begin(); !s.is_ok()) return s;
+    w.deferred_.clear();
+    std::size_t next_deferred = 0;
+    for (std::size_t i = 0;;) {
+      if (i * sd < w.work_.size()) {  // the queue first: memo answers, or defer
+        take_answers(i++);
+        continue;
+      }
+      while (next_deferred < w.deferred_.size() && !is_open(w.deferred_[next_deferred])) ++next_deferred;
+      if (next_deferred == w.deferred_.size()) break;  // every facet walked or closed
+      if (Status s = wrap_deferred(w.deferred_[next_deferred++]); !s.is_ok()) return s;
+    }
+    check_complete();
+    w.emit_canonical(hull, part, out);
+    return Status::ok();
+  }
+
+ private:
+  // The walker's per-seed arrays, emptied (their capacity kept).
+  void reset() {
+    w.work_.clear();
+    w.work_planes_.clear();
+    w.plane_known_.clear();
+    w.work_hashes_.clear();
+    w.work_facets_.clear();
+    w.facet_open_.clear();
+    w.facet_apex_.clear();
+    w.simplex_seen_.reset(d);
+    w.facet_seen_.reset(d - 1);
+  }
+
+  // Facet `at` (simplex at / d, without its vertex at % d) still has a side to walk.
+  bool is_open(std::size_t at) const { return w.facet_open_[w.work_facets_[at]] != 0; }
+
+  // The memo's key of a facet of x's star: x and the d - 1 other vertices (ascending),
+  // as the whole facet, ascending.
+  void whole_facet(const std::uint32_t* others, std::uint32_t* facet) const {
     int r = 0, i = 0;
-    for (; i < d - 1 && others[i] < x_; ++i) facet[r++] = others[i];
-    facet[r++] = x_;
+    for (; i < d - 1 && others[i] < w.x_; ++i) facet[r++] = others[i];
+    facet[r++] = w.x_;
     for (; i < d - 1; ++i) facet[r++] = others[i];
-  };
+  }
   // The d - 1 ids of a sorted simplex (d ids) without its k-th: still ascending.
-  auto drop = [&](const std::uint32_t* ids, int k, std::uint32_t* others) {
+  void drop(const std::uint32_t* ids, int k, std::uint32_t* others) const {
     std::copy(ids, ids + k, others);
     std::copy(ids + k + 1, ids + d, others + k);
-  };
-  // With a cache: records the two apexes a and b across the facet x + others (hash:
-  // its cache hash; b may be kHull), if another vertex of it may still come.
-  auto record = [&](const std::uint32_t* others, std::uint64_t hash, std::uint32_t a, std::uint32_t b) {
+  }
+
+  // With a memo: records the two apexes a and b across the facet x + others (hash: its
+  // memo hash; b may be kHull), if another vertex of it may still come.
+  void record(const std::uint32_t* others, std::uint64_t hash, std::uint32_t a, std::uint32_t b) {
     std::array<std::uint32_t, kMaxCols> whole;
     whole_facet(others, whole.data());
-    if (!cache->wanted(x_, whole.data())) return;
-    if (cache_credit_ == 0) cache_credit_ = cache->reserve(kCacheBatch);
-    if (cache_credit_ == 0) return;
-    --cache_credit_;
-    cache->insert(x_, whole.data(), hash, a, b);
-  };
+    if (!memo->wanted(w.x_, whole.data())) return;
+    if (w.cache_credit_ == 0) w.cache_credit_ = memo->reserve(kCacheBatch);
+    if (w.cache_credit_ == 0) return;
+    --w.cache_credit_;
+    memo->insert(w.x_, whole.data(), hash, a, b);
+  }
 
   // Adds a simplex (d ids without x) to the star unless known; its plane if given.
   // Its d facets through x are registered: a facet met for the second time has both
@@ -881,178 +901,197 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   // simplices along a spanning tree of their adjacency: m - 1 wraps or lookups for m
   // simplices, where walking every facet once took m d / 2 (3-d: a third fewer, 6-d:
   // two thirds).
-  auto add_simplex = [&](const std::uint32_t* ids, const BoundedDouble* with_plane) {
+  void add_simplex(const std::uint32_t* ids, const BoundedDouble* with_plane) {
     std::array<std::uint32_t, kMaxCols> sorted;
     std::copy(ids, ids + d, sorted.begin());
     detail::sort_small(sorted.data(), d);
-    if (!simplex_seen_.insert(sorted.data())) return;
+    if (!w.simplex_seen_.insert(sorted.data())) return;
     // Its walk will read these points' coordinates, scattered in input order: start
     // the loads now so they overlap the work queued before it.
-    for (int k = 0; k < d; ++k) __builtin_prefetch(ps_.point(sorted[k]));
-    work_.insert(work_.end(), sorted.begin(), sorted.begin() + d);
+    for (int k = 0; k < d; ++k) __builtin_prefetch(w.ps_.point(sorted[k]));
+    w.work_.insert(w.work_.end(), sorted.begin(), sorted.begin() + d);
     if (with_plane != nullptr) {
-      work_planes_.insert(work_planes_.end(), with_plane, with_plane + d + 1);
+      w.work_planes_.insert(w.work_planes_.end(), with_plane, with_plane + d + 1);
     } else {
-      work_planes_.resize(work_planes_.size() + static_cast<std::size_t>(d) + 1);
+      w.work_planes_.resize(w.work_planes_.size() + sd + 1);
     }
-    plane_known_.push_back(with_plane != nullptr ? 1 : 0);
-    const std::size_t hashes_at = work_hashes_.size();
-    if (cache != nullptr) {
+    w.plane_known_.push_back(with_plane != nullptr ? 1 : 0);
+    const std::size_t hashes_at = w.work_hashes_.size();
+    if (memo != nullptr) {
       // Its facets' hashes (facet k: without sorted[k], x included), for the prefetch
       // below and the lookups.
-      work_hashes_.resize(hashes_at + static_cast<std::size_t>(d));
-      cache->facet_hashes(x_, sorted.data(), &work_hashes_[hashes_at]);
+      w.work_hashes_.resize(hashes_at + sd);
+      memo->facet_hashes(w.x_, sorted.data(), &w.work_hashes_[hashes_at]);
     }
     for (int k = 0; k < d; ++k) {
       std::array<std::uint32_t, kMaxCols> others;
       drop(sorted.data(), k, others.data());
       bool first = false;
-      const std::uint32_t at = facet_seen_.position(others.data(), facet_seen_.hash(others.data()), first);
+      const std::uint32_t at = w.facet_seen_.position(others.data(), w.facet_seen_.hash(others.data()), first);
       if (first) {
-        facet_open_.push_back(1);
-        facet_apex_.push_back(sorted[k]);
-      } else if (facet_open_[at] != 0) {
+        w.facet_open_.push_back(1);
+        w.facet_apex_.push_back(sorted[k]);
+      } else if (w.facet_open_[at] != 0) {
         // Closed without a wrap: its answer is known, so record it for the facet's
         // other vertices as a walked wrap would have.
-        facet_open_[at] = 0;
-        if (cache != nullptr) {
-          record(others.data(), work_hashes_[hashes_at + static_cast<std::size_t>(k)], facet_apex_[at], sorted[k]);
+        w.facet_open_[at] = 0;
+        if (memo != nullptr) {
+          record(others.data(), w.work_hashes_[hashes_at + static_cast<std::size_t>(k)], w.facet_apex_[at], sorted[k]);
         }
       }
-      work_facets_.push_back(at);
+      w.work_facets_.push_back(at);
     }
-  };
-  // The cache entries of a queued simplex's facets are lookups at random in a large
-  // table: their loads start kCacheLookahead simplices before the walk reaches it, so
-  // the misses are over by then. (Loading them when the simplex is queued is too
-  // early in 5-d and 6-d, where thousands wait: the lines were evicted before use.)
-  constexpr std::size_t kCacheLookahead = 4;
-  std::size_t prefetched = 0;  // simplices of work_ whose entries are being loaded
-  auto prefetch_ahead = [&](std::size_t i) {
-    if (cache == nullptr) return;
-    const std::size_t queued = work_.size() / static_cast<std::size_t>(d);
-    for (; prefetched < queued && prefetched <= i + kCacheLookahead; ++prefetched) {
-      for (int k = 0; k < d; ++k) {
-        const std::size_t at = prefetched * static_cast<std::size_t>(d) + static_cast<std::size_t>(k);
-        if (facet_open_[work_facets_[at]] == 0) continue;  // both sides known by now
-        cache->prefetch(work_hashes_[at]);
-        if (work_[at] > x_) cache->prefetch_start(work_[at]);  // inserts set later vertices' starts
-      }
-    }
-  };
-
-  // A start: a facet of x's star found by an earlier star, or recursive spokes.
-  std::uint32_t apex_a = 0, apex_b = 0;
-  std::array<std::uint32_t, kMaxCols> facet{};
-  if (cache != nullptr && cache->start(x_, facet.data(), apex_a, apex_b)) {
-    ++stats_.cached_starts;
-    int r = 0;
-    for (int i = 0; i < d; ++i) {
-      if (facet[i] != x_) key[r++] = facet[i];
-    }
-    key[d - 1] = apex_a;
-    add_simplex(key.data(), nullptr);
-    // The start facet is answered (by the cache, so not recorded again): closed.
-    bool first = false;
-    facet_open_[facet_seen_.position(key.data(), facet_seen_.hash(key.data()), first)] = 0;
-    if (apex_b == FacetMemo::kHull) {
-      ++hull;
-    } else {
-      key[d - 1] = apex_b;
-      add_simplex(key.data(), nullptr);
-    }
-  } else {
-    ensure_candidates();
-    if (Status s = first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
-    add_simplex(simplex.data(), plane.data());
   }
 
-  // The walk. Queued simplices are scanned in order and each open facet the cache
-  // answers is taken at once; one it cannot answer is deferred, and wrapped only when
-  // the queue has run dry and the facet is still open. Cached answers cost a lookup,
-  // wraps a search: taking every cached answer first lets them close facets that a
-  // breadth-first walk would have wrapped (2-d: the far side of a ring often closes
-  // by itself).
-  std::array<Row, kMaxCols> pivot;
-  std::array<std::uint32_t, kMaxCols> others{}, whole{};
-  deferred_.clear();
-  std::size_t next_deferred = 0;
-  const auto sd = static_cast<std::size_t>(d);
-  for (std::size_t i = 0;;) {
-    if (i * sd < work_.size()) {
-      prefetch_ahead(i);
-      std::copy(work_.begin() + static_cast<std::ptrdiff_t>(i * sd),
-                work_.begin() + static_cast<std::ptrdiff_t>(i * sd + sd), simplex.begin());
-      for (int k = 0; k < d; ++k) {  // facet k drops simplex[k]
-        const std::size_t at = i * sd + static_cast<std::size_t>(k);
-        std::uint8_t& open = facet_open_[work_facets_[at]];
-        if (open == 0) continue;  // both sides known, or walked from the other side
-        std::uint32_t across = 0;
-        if (cache != nullptr) {
-          drop(simplex.data(), k, others.data());
-          whole_facet(others.data(), whole.data());
-          if (cache->lookup(x_, whole.data(), work_hashes_[at], simplex[k], across)) {
-            ++stats_.cached_wraps;
-            open = 0;
-            if (across == FacetMemo::kHull) {
-              ++hull;
-            } else {
-              others[d - 1] = across;
-              add_simplex(others.data(), nullptr);
-            }
-            continue;
-          }
-        }
-        deferred_.push_back(static_cast<std::uint32_t>(at));
+  // The memo's entries for a queued simplex's facets are loads at random: they start
+  // kCacheLookahead simplices before the walk reaches it, so the misses are over by
+  // then. (Loading them when the simplex is queued is too early in 5-d and 6-d, where
+  // thousands wait: the lines were evicted before use.)
+  void prefetch_ahead(std::size_t i) {
+    constexpr std::size_t kCacheLookahead = 4;
+    if (memo == nullptr) return;
+    const std::size_t queued = w.work_.size() / sd;
+    for (; prefetched < queued && prefetched <= i + kCacheLookahead; ++prefetched) {
+      for (std::size_t k = 0; k < sd; ++k) {
+        const std::size_t at = prefetched * sd + k;
+        if (!is_open(at)) continue;  // both sides known by now
+        memo->prefetch(w.work_hashes_[at]);
+        if (w.work_[at] > w.x_) memo->prefetch_start(w.work_[at]);  // inserts set later vertices' starts
       }
-      ++i;
-      continue;
     }
-    while (next_deferred < deferred_.size() && facet_open_[work_facets_[deferred_[next_deferred]]] == 0) {
-      ++next_deferred;
+  }
+
+  // The first simplices: a facet of x's star that an earlier star recorded (its two
+  // simplices, or one on the hull), or one simplex by recursive spokes.
+  Status begin() {
+    std::uint32_t apex_a = 0, apex_b = 0;
+    std::array<std::uint32_t, kMaxCols> facet{}, key{};
+    if (memo != nullptr && memo->start(w.x_, facet.data(), apex_a, apex_b)) {
+      ++w.stats_.cached_starts;
+      int r = 0;
+      for (int i = 0; i < d; ++i) {
+        if (facet[i] != w.x_) key[r++] = facet[i];
+      }
+      key[d - 1] = apex_a;
+      add_simplex(key.data(), nullptr);
+      // The start facet is answered (by the memo, so not recorded again): closed.
+      bool first = false;
+      w.facet_open_[w.facet_seen_.position(key.data(), w.facet_seen_.hash(key.data()), first)] = 0;
+      if (apex_b == FacetMemo::kHull) {
+        ++hull;
+      } else {
+        key[d - 1] = apex_b;
+        add_simplex(key.data(), nullptr);
+      }
+      return Status::ok();
     }
-    if (next_deferred == deferred_.size()) break;  // every facet walked or closed
-    const std::size_t at = deferred_[next_deferred++];
-    facet_open_[work_facets_[at]] = 0;
+    std::array<std::uint32_t, kMaxCols> simplex{};
+    std::array<BoundedDouble, kMaxCols> plane;  // every point on or above it
+    w.ensure_candidates();
+    if (Status s = w.first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
+    add_simplex(simplex.data(), plane.data());
+    return Status::ok();
+  }
+
+  // Queued simplex i: each open facet the memo answers is closed at once (its far
+  // simplex queued, or counted on the hull); the others are deferred to a wrap. Taking
+  // every memo answer first lets them close facets a breadth-first walk would have
+  // wrapped (2-d: the far side of a ring often closes by itself).
+  void take_answers(std::size_t i) {
+    prefetch_ahead(i);
+    std::array<std::uint32_t, kMaxCols> simplex, others, whole;
+    std::copy(w.work_.begin() + static_cast<std::ptrdiff_t>(i * sd),
+              w.work_.begin() + static_cast<std::ptrdiff_t>(i * sd + sd), simplex.begin());
+    for (int k = 0; k < d; ++k) {  // facet k drops simplex[k]
+      const std::size_t at = i * sd + static_cast<std::size_t>(k);
+      if (!is_open(at)) continue;  // both sides known, or walked from the other side
+      std::uint32_t across = 0;
+      if (memo != nullptr) {
+        drop(simplex.data(), k, others.data());
+        whole_facet(others.data(), whole.data());
+        if (memo->lookup(w.x_, whole.data(), w.work_hashes_[at], simplex[k], across)) {
+          ++w.stats_.cached_wraps;
+          w.facet_open_[w.work_facets_[at]] = 0;
+          if (across == FacetMemo::kHull) {
+            ++hull;
+          } else {
+            others[d - 1] = across;
+            add_simplex(others.data(), nullptr);
+          }
+          continue;
+        }
+      }
+      w.deferred_.push_back(static_cast<std::uint32_t>(at));
+    }
+  }
+
+  // Wraps deferred facet `at` away from its apex: the simplex beyond it is queued, or
+  // the facet is on the hull; the answer is recorded for the facet's other vertices.
+  Status wrap_deferred(std::size_t at) {
+    w.facet_open_[w.work_facets_[at]] = 0;
     const std::size_t owner = at / sd;
     const int k = static_cast<int>(at % sd);
-    const std::uint32_t* ids = &work_[owner * sd];
+    const std::uint32_t* ids = &w.work_[owner * sd];
     const std::uint32_t apex = ids[k];
+    std::array<std::uint32_t, kMaxCols> others;
     drop(ids, k, others.data());
-    prepare_wrap();
-    BoundedDouble* reference = &work_planes_[owner * (sd + 1)];
-    if (plane_known_[owner] == 0) {
-      simplex_plane(ids, reference);
-      plane_known_[owner] = 1;
+    w.prepare_wrap();
+    BoundedDouble* reference = &w.work_planes_[owner * (sd + 1)];
+    if (w.plane_known_[owner] == 0) {
+      w.simplex_plane(ids, reference);
+      w.plane_known_[owner] = 1;
     }
+    std::array<Row, kMaxCols> pivot;
     for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(others[j]);
-    const WrapResult hit = wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
+    std::array<BoundedDouble, kMaxCols> plane;
+    const WrapResult hit = w.wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
     if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
-    if (cache != nullptr) record(others.data(), work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetMemo::kHull);
+    if (memo != nullptr) record(others.data(), w.work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetMemo::kHull);
     if (!hit.is_hit()) {
       ++hull;
-      continue;
+      return Status::ok();
     }
     others[d - 1] = hit.point;
     add_simplex(others.data(), plane.data());
+    return Status::ok();
   }
 
+  // A complete star: every facet through x lies in two of its simplices, or in one
+  // when it is on the hull (then counted in `hull`), never in more.
+  void check_complete() const {
 #ifdef SPOKEMESH_CHECK_INVARIANTS
-  {
-    // A complete star: every facet through x lies in two of its simplices, or in one
-    // when it is on the hull (then counted in `hull`), never in more.
-    std::vector<std::uint32_t> uses(facet_open_.size(), 0);
-    for (const std::uint32_t at : work_facets_) ++uses[at];
+    std::vector<std::uint32_t> uses(w.facet_open_.size(), 0);
+    for (const std::uint32_t at : w.work_facets_) ++uses[at];
     std::size_t once = 0;
     for (const std::uint32_t u : uses) {
       SPOKEMESH_INVARIANT(u == 1 || u == 2, "a facet of a star lies in one or two of its simplices");
       once += u == 1 ? 1 : 0;
     }
     SPOKEMESH_INVARIANT(once == hull, "the facets in one simplex of a star are its hull facets");
-  }
 #endif
-  emit_canonical(hull, part, out);
-  return Status::ok();
+  }
+
+  StarWalker& w;
+  const int d;
+  const std::size_t sd;
+  FacetMemo* const memo;
+  std::size_t hull = 0;        // star facets on the hull
+  std::size_t prefetched = 0;  // simplices of work_ whose memo entries are being loaded
+};
+
+Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
+  if (seed >= ps_.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
+                        std::to_string(ps_.size()) + " points)");
+  }
+  ++stats_.seeds;
+  x_ = seed;
+  cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d_);
+  loaded_ = false;
+  missed_candidates_ = 0;
+  grown_ = false;
+  if (ring_walk_) return ring_walk_->compute(out, part);
+  return StarWalk(*this).run(part, out);
 }
 
 void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {

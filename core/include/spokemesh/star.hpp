@@ -206,6 +206,8 @@ class StarWalker {
   // The star walk for d = 2: x's star as a ring of neighbours (ring_walk.cpp), with
   // its own state; it wraps through this walker.
   class RingWalk;
+  // The walk for d >= 3: one star's steps over the per-seed arrays below (star.cpp).
+  class StarWalk;
   std::unique_ptr<RingWalk> ring_walk_;  // set when d == 2
   // Writes the simplices in work_ (d ids each, without x) to `out` in canonical form.
   void emit_canonical(std::size_t hull, StarPart part, Star& out);
