@@ -210,3 +210,48 @@ TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
 
 }  // namespace
 }  // namespace spokemesh
+
+namespace spokemesh {
+namespace {
+
+// The filter's bound is defined once (filter::) and evaluated by the scalar filters
+// and, from the same constants, by the pencil scan's SIMD lanes: the lanes' formula
+// must give the scalar bound bit for bit, and that bound must cover the true error of
+// a rounded dot product of the depth it claims (checked against GMP).
+TEST(Filter, LanesAndScalarShareTheBoundAndItCoversTheExactError) {
+  using Lanes = double __attribute__((vector_size(16)));
+  using Mask = std::int64_t __attribute__((vector_size(16)));
+  for (double depth = 0; depth <= 40; depth += 1) {
+    const Lanes q{depth, depth + 0.5};
+    const Lanes lanes = (q + filter::kDepthSlack) * filter::kErrorPerLevel;  // as star.cpp's pencil_filter
+    EXPECT_EQ(lanes[0], filter::relative_error(depth)) << "depth " << depth;
+    EXPECT_EQ(lanes[1], filter::relative_error(depth + 0.5)) << "depth " << depth + 0.5;
+  }
+  for (const double m : {0.0, 0x1p-1000, filter::kUnderflowGuard, 1.0, 1e300, DBL_MAX, HUGE_VAL}) {
+    const Lanes v{m, m};
+    const Mask mask = (v >= filter::kUnderflowGuard) & (v <= DBL_MAX);
+    EXPECT_EQ(mask[0] != 0, filter::is_certifiable(m)) << m;
+  }
+  // A d-term dot product of rounded differences, as the pencil scan evaluates nn . q:
+  // each q_c = fl(p_c - x_c) (one rounding), each product and each partial sum rounded.
+  // Its depth is d + 2 (BoundedDouble's rules); the bound must cover the exact error.
+  std::mt19937_64 rng(20261126);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int trial = 0; trial < 20000; ++trial) {
+    const int d = 2 + trial % 7;
+    double value = 0, magnitude = 0;
+    mpq_class exact = 0;
+    for (int c = 0; c < d; ++c) {
+      const double n = u(rng), p = u(rng) * std::ldexp(1.0, trial % 40 - 20), x = u(rng);
+      const double q = p - x;
+      value += n * q;
+      magnitude += std::fabs(n) * std::fabs(q);
+      exact += mpq_class(n) * (mpq_class(p) - mpq_class(x));
+    }
+    const mpq_class error = abs(mpq_class(value) - exact);
+    ASSERT_LE(error, mpq_class(filter::error_bound(magnitude, d + 2))) << "trial " << trial << " (seed 20261126)";
+  }
+}
+
+}  // namespace
+}  // namespace spokemesh

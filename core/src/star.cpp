@@ -95,10 +95,12 @@ template <int D, class V, class M>
     const V n_bound = pencil.n_mag * qn;
     const V en = n_bound * pencil.n_eps;
     const V h_bound = pencil.h_mag_d * q2 + pencil.h_mag * qn;
-    const V eh = h_bound * ((pencil.h_depth_base + qdepth) * (kUnit * 1.01));  // relative_error, per lane
+    // filter::relative_error and filter::is_certifiable, per lane (test_predicates'
+    // Filter test checks that these lanes compute what the scalar filter does).
+    const V eh = h_bound * ((pencil.h_depth_base + qdepth + filter::kDepthSlack) * filter::kErrorPerLevel);
     const V h_low = h - eh;
     const V lo_num = (h_low > 0 ? h_low : 0.0) * (1 - 1e-12), lo_den = n + en;
-    const M n_safe = (n_bound >= filter::kUnderflowGuard) & (n_bound <= DBL_MAX);  // is_certifiable, per lane
+    const M n_safe = (n_bound >= filter::kUnderflowGuard) & (n_bound <= DBL_MAX);
     const M h_safe = (h_bound >= filter::kUnderflowGuard) & (h_bound <= DBL_MAX);
     const M wrong_side = n < -en;
     const M after_best = h_safe & (lo_den > 0) & (lo_num > u_best * lo_den * (1 + 1e-15));
@@ -400,9 +402,8 @@ class StarWalker::WrapState {
     // certified()'s error factors for the two dot products (see spatial_side and
     // lifted_side; candidates with an unsafe |q|^2 depth are left to 1b).
     const double n_eps = relative_error(normal_depth + d + 3 + 1);
-    // relative_error(h_depth + d + 4 + 1 + the candidate's |q|^2 depth) is
-    // (h_depth_base + that depth) u (1.01).
-    const int h_depth_base = h_depth + d + 4 + 1 + 2;
+    // h(q)'s rounding depth is h_depth_base + the candidate's |q|^2 depth.
+    const int h_depth_base = h_depth + d + 4 + 1;
     double u_best = kInf;
     std::int64_t best_j = -1;
     w.contenders_.clear();
@@ -445,7 +446,7 @@ class StarWalker::WrapState {
         const double h_bound = h_mag_d * norm2 + h_mag * norm;
         double lo = 0, hi = kInf;
         if (is_certifiable(h_bound) && (n_certain || nv + en > 0)) {
-          const double eh = h_bound * relative_error(h_depth_base - 2 + w.cand_depth_[i]);
+          const double eh = h_bound * relative_error(h_depth_base + w.cand_depth_[i]);
           const double lo_den = nv + en;  // > 0
           // As in pencil_filter: lo > u_best without a division (the 1e-15 covers
           // the product's rounding; u_best = inf never rejects).

@@ -54,7 +54,10 @@ namespace filter {
 inline constexpr double kUnitRoundoff = 0x1p-53;
 inline constexpr double kUnderflowGuard = 0x1p-900;
 // (depth + 2) u (1.01): the bound's factor per unit of magnitude.
-inline constexpr double relative_error(double depth) { return (depth + 2) * kUnitRoundoff * 1.01; }
+inline constexpr double kErrorPerLevel = kUnitRoundoff * 1.01;
+inline constexpr double kDepthSlack = 2;
+// The pencil scan's SIMD lanes evaluate this formula per lane from these constants.
+inline constexpr double relative_error(double depth) { return (depth + kDepthSlack) * kErrorPerLevel; }
 inline constexpr double error_bound(double magnitude, int depth) {
   return magnitude * relative_error(static_cast<double>(depth));
 }
