@@ -332,7 +332,7 @@ TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
     std::vector<double> inside;
     for (std::size_t i = 0; inside.size() < 2 * 300; ++i) {
       const std::vector<double> p = uniform_points(2, 1, 300 + i);
-      if (hexagon.violated_wall(p.data()) < 0) inside.insert(inside.end(), p.begin(), p.end());
+      if (!hexagon.violated_wall(p.data())) inside.insert(inside.end(), p.begin(), p.end());
     }
     const PointSet ps = make_points(d, inside);
     const double volume = 6 * 0.45 * 0.45 * std::tan(M_PI / 6);
@@ -358,7 +358,7 @@ TEST(ClippedCells, HalfspaceDomainsTileTheirPolytope) {
     std::vector<double> inside;
     for (std::size_t i = 0; inside.size() < 3 * 150; ++i) {
       const std::vector<double> p = uniform_points(3, 1, 500 + i);
-      if (cube.violated_wall(p.data()) < 0) inside.insert(inside.end(), p.begin(), p.end());
+      if (!cube.violated_wall(p.data())) inside.insert(inside.end(), p.begin(), p.end());
     }
     const PointSet ps = make_points(d, inside);
     check_tiling(ps, builder_cells(ps, cube), 0.8 * 0.8 * 0.8, {0.5, 0.5, 0.5}, nullptr);
@@ -449,7 +449,7 @@ TEST(ComputeCells, ThreadsAndBlocksChangeNothing) {
     // Seeds outside a smaller box: the lowest one is named, whatever the threads.
     const Domain half = Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 0.6)).value();
     std::uint32_t first_outside = 0;
-    while (half.violated_wall(ps.point(first_outside)) < 0) ++first_outside;
+    while (!half.violated_wall(ps.point(first_outside))) ++first_outside;
     for (const unsigned threads : {1u, 2u, 3u}) {
       CellsOptions options;
       options.threads = threads;

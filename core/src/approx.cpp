@@ -707,30 +707,32 @@ class ApproxWalker::RsdWalk {
       Eigen::Map<VectorXd>(r_eq.data(), static_cast<Eigen::Index>(nf)).noalias() = F.transpose() * re;
       const double g_eq = gq.dot(re);
       double t_best = kInf;
-      std::int64_t hit = -1;  // index into found_q; -2: the goal
+      enum class Hit { kNone, kGoal, kFound } hit = Hit::kNone;  // kFound: found_q[hit_index]
+      std::int64_t hit_index = 0;
       if (g_eq > 0) {
         const double t = (gq2 - 2 * g_vq) / (2 * g_eq);
         if (t > 0) {
           t_best = t;
-          hit = -2;
+          hit = Hit::kGoal;
         }
       }
       if (const auto [t, i] = first_bisector(nf); t < t_best) {
         t_best = t;
-        hit = i;
+        hit = Hit::kFound;
+        hit_index = i;
       }
-      if (hit == -2 && step >= kAimAfterSteps) {
+      if (hit == Hit::kGoal && step >= kAimAfterSteps) {
         set_aim(gq, best, t_best, g_eq, nf);
         return false;
       }
-      if (hit < 0) return false;  // reaches the goal's bisector, or unbounded
+      if (hit != Hit::kFound) return false;  // reaches the goal's bisector, or unbounded
       // Move, and swap row `best` of B for the point hit (Sherman-Morrison):
       // B'^{-1} = B^{-1} - (B^{-1} e_k)(delta^T B^{-1}) / (1 + delta^T B^{-1} e_k), so
       // with E = -B^{-1}: E' = E + (E e_k)(delta^T E) / (1 - delta^T E e_k).
       rv += t_best * re;
       for (std::size_t i = 0; i < nf; ++i) r_vq[i] += t_best * r_eq[i];
       g_vq += t_best * g_eq;
-      const std::uint32_t out_i = rs[static_cast<std::size_t>(best)], in_i = static_cast<std::uint32_t>(hit);
+      const std::uint32_t out_i = rs[static_cast<std::size_t>(best)], in_i = static_cast<std::uint32_t>(hit_index);
       r_row = Eigen::Map<const VectorXd>(&found_q[in_i * sd], d) - Eigen::Map<const VectorXd>(&found_q[out_i * sd], d);
       r_col = rE.col(best);
       const double denom = 1 - r_row.dot(r_col);

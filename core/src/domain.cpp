@@ -152,11 +152,11 @@ std::vector<double> Domain::upper() const {
   return {offsets_.begin() + d_, offsets_.begin() + 2 * d_};
 }
 
-long Domain::violated_wall(const double* x) const {
+std::optional<std::size_t> Domain::violated_wall(const double* x) const {
   for (std::size_t k = 0; k < wall_count(); ++k) {
-    if (plane_side(normal(k), offset(k), x, d_) > 0) return static_cast<long>(k);
+    if (plane_side(normal(k), offset(k), x, d_) > 0) return k;
   }
-  return -1;
+  return std::nullopt;
 }
 
 std::string Domain::describe() const {

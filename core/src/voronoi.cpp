@@ -221,9 +221,9 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
 }  // namespace
 
 Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain) {
-  if (const long wall = domain.violated_wall(points.point(seed)); wall >= 0) {
+  if (const auto wall = domain.violated_wall(points.point(seed))) {
     return invalid_argument("seed " + std::to_string(seed) + " lies outside the domain (" + domain.describe() +
-                            "): beyond wall " + std::to_string(wall));
+                            "): beyond wall " + std::to_string(*wall));
   }
   return Status::ok();
 }

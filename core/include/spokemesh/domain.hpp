@@ -11,6 +11,7 @@
 #pragma once
 
 #include <cstddef>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -49,8 +50,8 @@ class Domain {
   std::vector<double> upper() const;
 
   // The first wall that x (d coordinates) lies strictly outside of, decided exactly,
-  // or -1 when x is in the closed domain.
-  long violated_wall(const double* x) const;
+  // or none when x is in the closed domain.
+  std::optional<std::size_t> violated_wall(const double* x) const;
   // "box [lo, hi]" or "N halfspaces", for messages.
   std::string describe() const;
 
