@@ -47,7 +47,7 @@ class ParallelBuildExt(build_ext):
 
 core = Extension(
     "spokemesh._core",
-    sources=[rel(os.path.join(HERE, "src", "core_module.cpp"))] + sorted(rel(p) for p in glob.glob(f"{ROOT}/core/src/*.cpp")),
+    sources=[rel(os.path.join(HERE, "src", "core_module.cpp"))] + sorted(rel(p) for p in glob.glob(f"{ROOT}/core/src/**/*.cpp", recursive=True)),
     include_dirs=[f"{ROOT}/core/include", f"{ROOT}/core/src", "/usr/include/eigen3", pybind11.get_include()],
     libraries=["gmpxx", "gmp", "zip"],
     extra_compile_args=["-std=c++20", "-O2", "-ffp-contract=off", "-fno-fast-math", "-DNDEBUG", "-fvisibility=hidden"],

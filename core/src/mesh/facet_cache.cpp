@@ -7,7 +7,7 @@
 
 #include <sys/mman.h>
 
-#include "mixing.hpp"
+#include "base/mixing.hpp"
 #include "spokemesh/point_set.hpp"
 
 namespace spokemesh {

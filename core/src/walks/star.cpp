@@ -6,11 +6,11 @@
 #include <limits>
 #include <numeric>
 
-#include "dimension.hpp"
-#include "invariant.hpp"
-#include "mixing.hpp"
-#include "ring_walk.hpp"
-#include "simd.hpp"
+#include "base/dimension.hpp"
+#include "base/invariant.hpp"
+#include "base/mixing.hpp"
+#include "walks/ring_walk.hpp"
+#include "base/simd.hpp"
 
 namespace spokemesh {
 namespace {

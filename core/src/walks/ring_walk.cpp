@@ -1,10 +1,10 @@
 // The star walk in 2-d (see StarWalker::RingWalk in ring_walk.hpp).
-#include "ring_walk.hpp"
+#include "walks/ring_walk.hpp"
 
 #include <algorithm>
 #include <array>
 
-#include "invariant.hpp"
+#include "base/invariant.hpp"
 
 namespace spokemesh {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "mixing.hpp"
+#include "base/mixing.hpp"
 
 namespace spokemesh {
 

@@ -9,7 +9,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
-#include "mixing.hpp"
+#include "base/mixing.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {

@@ -9,9 +9,9 @@
 #include <limits>
 #include <numeric>
 
-#include "cell_polytope.hpp"
-#include "cramer.hpp"
-#include "invariant.hpp"
+#include "cells/cell_polytope.hpp"
+#include "predicates/cramer.hpp"
+#include "base/invariant.hpp"
 
 namespace spokemesh {
 

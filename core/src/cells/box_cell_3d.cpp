@@ -1,12 +1,12 @@
-#include "box_cell_3d.hpp"
+#include "cells/box_cell_3d.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
-#include "cell_polytope.hpp"  // kWallLabel0
-#include "cramer.hpp"
-#include "invariant.hpp"
+#include "cells/cell_polytope.hpp"  // kWallLabel0
+#include "predicates/cramer.hpp"
+#include "base/invariant.hpp"
 
 namespace spokemesh::detail {
 

@@ -1,7 +1,7 @@
 #include "spokemesh/cells.hpp"
 
-#include "box_cell_3d.hpp"
-#include "cell_polytope.hpp"
+#include "cells/box_cell_3d.hpp"
+#include "cells/cell_polytope.hpp"
 
 #include <algorithm>
 #include <limits>

@@ -1,4 +1,4 @@
-#include "cell_polytope.hpp"
+#include "cells/cell_polytope.hpp"
 
 #include <algorithm>
 #include <array>
@@ -6,8 +6,8 @@
 #include <limits>
 #include <map>
 
-#include "cramer.hpp"
-#include "invariant.hpp"
+#include "predicates/cramer.hpp"
+#include "base/invariant.hpp"
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh::detail {

@@ -7,7 +7,7 @@
 #include <system_error>
 #include <thread>
 
-#include "dimension.hpp"
+#include "base/dimension.hpp"
 
 namespace spokemesh {
 

@@ -6,7 +6,7 @@
 #include <array>
 #include <numeric>
 
-#include "mixing.hpp"
+#include "base/mixing.hpp"
 
 namespace spokemesh {
 namespace {
