@@ -229,7 +229,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       unary<pb::ListPointSetsRequest>(h, "/spokemesh.v1.Mesher/ListPointSets", rest, [&](auto& ctx, auto& r) {
         pb::ListPointSetsResponse a;
         const grpc::Status s = stub.ListPointSets(&ctx, r, &a);
-        if (s.ok() && r.page_size() != 0 && a.point_sets_size() > static_cast<int>(r.page_size())) __builtin_trap();
+        // page_size is a uint32: compared as one (a size of 2^31 or more is no limit below 1000).
+        if (s.ok() && r.page_size() != 0 && static_cast<std::uint32_t>(a.point_sets_size()) > r.page_size()) {
+          __builtin_trap();
+        }
         return s;
       });
       break;
