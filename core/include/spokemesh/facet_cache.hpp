@@ -1,5 +1,7 @@
-// FacetCache: the Delaunay facets found during one whole-mesh run, shared by its
-// workers, so that each facet's wrap is computed once instead of once per vertex.
+// FacetCache: the Delaunay facets found during one run of many seeds' stars, shared by
+// its workers, so that each facet's wrap is computed once instead of once per vertex.
+// The cells command uses it (where a cell falls back to its star); whole meshes use
+// the sweep's FrontCache instead (front_cache.hpp), which holds only the front.
 //
 // In the star walk a seed x rotates about every facet F of its star (d vertices, x
 // among them) to find the simplex on the far side; each of F's d vertices does so in
@@ -129,6 +131,14 @@ class FacetMemo {
   virtual bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const = 0;
 
  protected:
+  // A lookup's answer from an entry's apexes a and b: the one across from `from`.
+  // False when `from` is neither, which exact answers never give: the caller then
+  // computes the wrap rather than trust the entry.
+  static bool across_from(std::uint32_t a, std::uint32_t b, std::uint32_t from, std::uint32_t& across) {
+    if (from != a && from != b) return false;
+    across = from == a ? b : a;
+    return true;
+  }
   int d_;
 };
 

@@ -126,7 +126,7 @@ class FrontCache final : public FacetMemo {
   FrontMail& mail_;
   RunOrder seeds_;
   std::size_t stride_;                  // words per slot: generation, d ids, apexes a and b
-  std::uint32_t block_ = 0, lo_ = 0, hi_ = 0;  // the block and its leaf-order range
+  std::uint32_t lo_ = 0, hi_ = 0;  // the block's leaf-order range
   // Open addressing, the entry in its slot (one cache line holds a probe). A slot of
   // another generation is empty, so a new block forgets the table without clearing it.
   std::vector<std::uint32_t> table_;

@@ -158,16 +158,7 @@ bool FacetCache::lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64
   std::size_t s;
   if (!find(facet, hash, s)) return false;
   const std::uint32_t* w = slot(s);
-  const std::uint32_t a = w[1 + d_], b = w[2 + d_];
-  if (from == a) {
-    across = b;
-    return true;
-  }
-  if (from == b) {
-    across = a;
-    return true;
-  }
-  return false;  // cannot happen for exact answers; compute rather than trust it
+  return across_from(w[1 + d_], w[2 + d_], from, across);
 }
 
 std::size_t FacetCache::reserve(std::size_t count) {

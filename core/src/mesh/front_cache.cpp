@@ -65,7 +65,6 @@ FrontCache::FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail,
 void FrontCache::begin_block(std::uint32_t b) {
   ++generation_;  // every slot of the last block reads empty now
   count_ = 0;
-  block_ = b;
   lo_ = blocks_.begin(b);
   hi_ = blocks_.end(b);
   starts_.assign(hi_ - lo_, 0);
@@ -149,16 +148,7 @@ bool FrontCache::lookup(std::uint32_t, const std::uint32_t* facet, std::uint64_t
   const std::int64_t s = find(facet, hash, empty);
   if (s < 0) return false;
   const std::uint32_t* w = slot(static_cast<std::size_t>(s));
-  const std::uint32_t a = w[1 + d_], b = w[2 + d_];
-  if (from == a) {
-    across = b;
-    return true;
-  }
-  if (from == b) {
-    across = a;
-    return true;
-  }
-  return false;  // cannot happen for exact answers; compute rather than trust it
+  return across_from(w[1 + d_], w[2 + d_], from, across);
 }
 
 bool FrontCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {

@@ -1,8 +1,5 @@
 #include "spokemesh/mesh.hpp"
 
-#include "spokemesh/blocks.hpp"
-#include "spokemesh/front_cache.hpp"
-
 #include <algorithm>
 #include <condition_variable>
 #include <deque>
@@ -10,6 +7,9 @@
 #include <optional>
 #include <thread>
 #include <vector>
+
+#include "spokemesh/blocks.hpp"
+#include "spokemesh/front_cache.hpp"
 
 namespace spokemesh {
 
