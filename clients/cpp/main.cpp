@@ -234,9 +234,11 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   if (Status s = writer.commit(); !s.is_ok()) return report(s);
   if (!common.quiet) {
     const double t = progress.seconds();
-    std::fprintf(stderr, "spokemesh: %zu points, %llu simplices, %.2f s, %.0f simplices/s -> %s\n", n,
+    // What the stars shared, at most at once: the sweep's front (docs/algorithm.md).
+    std::fprintf(stderr, "spokemesh: %zu points, %llu simplices, %.2f s, %.0f simplices/s, %.1f MB shared -> %s\n", n,
                  static_cast<unsigned long long>(result.value().simplices), t,
-                 t > 0 ? result.value().simplices / t : 0.0, output.c_str());
+                 t > 0 ? result.value().simplices / t : 0.0,
+                 static_cast<double>(result.value().facet_cache_bytes) / (1 << 20), output.c_str());
   }
   return kExitOk;
 }
