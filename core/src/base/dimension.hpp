@@ -7,11 +7,33 @@
 // adding or dropping a compiled dimension is a change here only.
 #pragma once
 
+#include <algorithm>
+#include <array>
+#include <cstddef>
+#include <cstdint>
 #include <type_traits>
 
 #include "spokemesh/point_set.hpp"
 
 namespace spokemesh::detail {
+
+// The core's per-dimension tuning, in one table (each value measured: bench/README.md,
+// "Tuning history"). Dimensions beyond kMaxDimension take the last row.
+struct DimensionTuning {
+  std::size_t candidates;            // a star's first k-NN candidates (StarWalker)
+  double simplices_per_point;        // Delaunay simplices per uniform point, for sizing tables
+  std::uint32_t sweep_block_points;  // a whole mesh's largest sweep block (BlockDecomposition)
+};
+inline const DimensionTuning& tuning(int d) {
+  // Simplices per point as meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to
+  // 8-d: rough, they rise with n as the hull's share falls).
+  static constexpr std::array<DimensionTuning, kMaxDimension + 1> kTable = {{
+      {0, 0, 0},             {8, 0, 0},            {16, 2.0, 16384},
+      {48, 6.8, 4096},       {100, 31, 1024},      {200, 160, 1024},
+      {400, 900, 1024},      {1280, 6000, 1024},   {2560, 40000, 1024},
+  }};
+  return kTable[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
+}
 
 // A compile-time dimension; 0 stands for "the runtime d" (the generic path).
 template <int D>

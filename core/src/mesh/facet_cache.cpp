@@ -7,6 +7,7 @@
 
 #include <sys/mman.h>
 
+#include "base/dimension.hpp"
 #include "base/mixing.hpp"
 #include "spokemesh/point_set.hpp"
 
@@ -55,13 +56,10 @@ MappedWords allocate_zeroed(std::size_t words) {
 }  // namespace
 
 double expected_facets_per_point(int d) {
-  // Delaunay simplices per point of uniform random points in the unit cube, as
-  // meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to 8-d: rough, they rise
-  // with n as the hull's share falls), times (d + 1) / 2 facets per simplex. An
-  // underestimate only fills the table sooner; then the walk computes the rest.
-  static constexpr std::array<double, kMaxDimension + 1> kSimplicesPerPoint = {0, 0, 2.0, 6.8, 31, 160, 900, 6000, 40000};
+  // Simplices per point times (d + 1) / 2 facets per simplex. An underestimate only
+  // fills a table sooner; then the walk computes the rest.
   const int c = std::clamp(d, 2, kMaxDimension);
-  return kSimplicesPerPoint[static_cast<std::size_t>(c)] * (c + 1) / 2.0;
+  return detail::tuning(c).simplices_per_point * (c + 1) / 2.0;
 }
 
 void UnmapWords::operator()(std::uint32_t* p) const {

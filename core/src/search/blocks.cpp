@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "base/dimension.hpp"
+
 namespace spokemesh {
 
 BlockDecomposition::BlockDecomposition(const KdTree& tree, std::uint32_t max_points) : tree_(tree) {
@@ -19,7 +21,7 @@ std::uint32_t BlockDecomposition::default_max_points(int d, std::uint64_t n) {
   // At least 16 blocks where the set allows, so two workers balance; at most a size
   // per dimension beyond which larger blocks gained nothing (bench/README.md, "Tuning
   // history"): a block's table then outgrows the CPU's caches.
-  const std::uint64_t cap = d == 2 ? 16384 : d == 3 ? 4096 : 1024;
+  const std::uint64_t cap = detail::tuning(d).sweep_block_points;
   return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 16, 64, cap));
 }
 

@@ -146,9 +146,8 @@ double random_unit(std::uint64_t& state) {
 
 std::size_t default_candidates(int d) {
   // Enough that most wraps are decided by the candidates, few enough that loading
-  // them stays cheap (tuned: bench/README.md, "Tuning history").
-  static constexpr std::array<std::size_t, kMaxDimension + 1> kDefault = {0, 8, 16, 48, 100, 200, 400, 1280, 2560};
-  return kDefault[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
+  // them stays cheap.
+  return detail::tuning(d).candidates;
 }
 
 // ---------------------------------------------------------------------------------
