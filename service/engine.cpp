@@ -519,11 +519,14 @@ std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned t
   const FrontMail::Estimate estimate =
       FrontMail::estimate(dimension, n, threads, BlockDecomposition::default_max_points(dimension, n));
   MemoryBudget& budget = store_->budget();
-  for (std::size_t mail = std::min(limits_.stream_cache_bytes, estimate.mail); mail >= (1u << 20); mail /= 2) {
+  // A small set's whole estimate (under 1 MiB) is tried as it is; a larger one is
+  // halved down to 1 MiB while the budget is short.
+  for (std::size_t mail = std::min(limits_.stream_cache_bytes, estimate.mail); mail != 0; mail /= 2) {
     if (auto c = budget.try_charge(mail + estimate.tables)) {
       charge = std::move(*c);
       return mail;
     }
+    if (mail < (std::size_t{2} << 20)) break;
   }
   return 0;
 }

@@ -338,6 +338,40 @@ TEST(Engine, HighDimensionalSetsServeApproximateNeighboursAndRefuseExactWork) {
   EXPECT_EQ(replica->neighbors(info->id, 0, q, control).value().neighbors, a->neighbors);
 }
 
+// A simplex stream charges its budget for the sweep's memo: the front's mail at an
+// estimate of the front plus the workers' block tables (a few MB for a small 3-d set,
+// not a table for the whole run), and nothing with --stream-cache 0.
+TEST(Engine, SimplexStreamsChargeTheFrontNotARunWideTable) {
+  for (const std::size_t cap : {std::size_t{256} << 20, std::size_t{0}}) {
+    SCOPED_TRACE("stream cache " + std::to_string(cap));
+    TempDir dir;
+    Limits limits;
+    limits.stream_cache_bytes = cap;
+    auto engine = make_engine(dir.path(), limits);
+    const std::string id = upload(*engine, 3, uniform_points(3, 2000, 8)).value().id;  // its front: under 1 MiB
+    const auto control = no_deadline();
+    std::uint64_t during = 0;
+    auto stream = [&] {
+      return engine->stream_simplices(id, 0, 1, 0, control, [&](std::span<const std::uint32_t>, std::uint64_t) {
+        during = std::max(during, engine->store().budget().used());
+        return Status::ok();
+      });
+    };
+    ASSERT_TRUE(stream().is_ok());  // loads the set and its tree, which stay charged
+    const std::uint64_t before = engine->store().budget().used();
+    during = 0;
+    ASSERT_TRUE(stream().is_ok());
+    const std::uint64_t memo = during - before - kStreamWindowBytes;
+    if (cap == 0) {
+      EXPECT_EQ(memo, 0u);
+    } else {
+      EXPECT_GT(memo, 0u) << "a small set's stream shares nothing";
+      EXPECT_LT(memo, std::uint64_t{16} << 20) << "charged like a run-wide table";
+    }
+    EXPECT_EQ(engine->store().budget().used(), before) << "the charge outlives the stream";
+  }
+}
+
 TEST(Engine, SeedAndIdErrors) {
   TempDir dir;
   auto engine = make_engine(dir.path());
