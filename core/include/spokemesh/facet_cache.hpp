@@ -63,11 +63,15 @@ struct RunOrder {
   std::uint32_t begin = 0, end = 0, block = 1;
   const KdTree* sweep = nullptr;
   std::uint32_t rank_begin = 0, rank_end = 0xFFFFFFFFu;
-  bool is_seed(std::uint32_t v) const {
-    if (v < begin || v >= end) return false;
-    if (sweep == nullptr) return true;
+  static constexpr std::uint32_t kNotSeed = 0xFFFFFFFFu;
+  // For a sweep: v's leaf rank if v is a seed of the run, else kNotSeed.
+  std::uint32_t sweep_rank(std::uint32_t v) const {
+    if (v < begin || v >= end) return kNotSeed;
     const std::uint32_t r = sweep->leaf_rank(v);
-    return r >= rank_begin && r < rank_end;
+    return r >= rank_begin && r < rank_end ? r : kNotSeed;
+  }
+  bool is_seed(std::uint32_t v) const {
+    return sweep != nullptr ? sweep_rank(v) != kNotSeed : v >= begin && v < end;
   }
   // Seeds v != x of this run that may be meshed before (after) x.
   bool maybe_before(std::uint32_t v, std::uint32_t x) const {

@@ -102,13 +102,9 @@ class FrontCache final : public FacetMemo {
   bool start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const override;
 
  private:
-  static constexpr std::uint32_t kNotSeed = 0xFFFFFFFFu;
+  static constexpr std::uint32_t kNotSeed = RunOrder::kNotSeed;
   // v's leaf-order position if v is a seed of the run, else kNotSeed.
-  std::uint32_t seed_rank(std::uint32_t v) const {
-    if (v < seeds_.begin || v >= seeds_.end) return kNotSeed;
-    const std::uint32_t r = tree_.leaf_rank(v);
-    return r >= seeds_.rank_begin && r < seeds_.rank_end ? r : kNotSeed;
-  }
+  std::uint32_t seed_rank(std::uint32_t v) const { return seeds_.sweep_rank(v); }
   // The slot holding `facet`, or -1; `empty` gets the empty slot that ended the probe.
   std::int64_t find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& empty) const;
   // Adds (facet, a, b) to the table unless present; sets the starts of its seeds in
