@@ -111,10 +111,8 @@ class FacetMemo {
   // Starts loading the facet's first slot into the CPU cache: a walker announces a
   // simplex's facets before it looks them up, so their memory latencies overlap.
   virtual void prefetch(std::uint64_t hash) const = 0;
-  // Starts loading point v's start (insert() may set it, start() reads it), and a few
-  // seeds later the entry it names. Hints only.
+  // Starts loading point v's start (insert() may set it, start() reads it). A hint.
   virtual void prefetch_start(std::uint32_t v) const = 0;
-  virtual void prefetch_start_entry(std::uint32_t v) const = 0;
   // The apex across `facet` (x among it) from apex `from`, as found by an earlier
   // star; kHull when the facet is on the convex hull. False when unknown (then the
   // caller wraps and records the answer).
@@ -168,7 +166,6 @@ class FacetCache final : public FacetMemo {
   void prefetch_start(std::uint32_t v) const override {
     if (enabled() && v < n_) __builtin_prefetch(starts_.get() + v);
   }
-  void prefetch_start_entry(std::uint32_t v) const override;
   bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
               std::uint32_t& across) const override;
   std::size_t reserve(std::size_t count) override;

@@ -92,7 +92,6 @@ class FrontCache final : public FacetMemo {
 
   void prefetch(std::uint64_t hash) const override;
   void prefetch_start(std::uint32_t) const override {}  // a block's starts are few and hot
-  void prefetch_start_entry(std::uint32_t) const override {}
   bool lookup(std::uint32_t x, const std::uint32_t* facet, std::uint64_t hash, std::uint32_t from,
               std::uint32_t& across) const override;
   std::size_t reserve(std::size_t count) override { return count; }  // bounded by the block

@@ -120,11 +120,9 @@ class StarWalker {
   // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set.
   Status compute(std::uint32_t seed, Star& out, StarPart part = StarPart::kAll);
 
-  // Hints for a caller that knows which seeds come next (no effect on any answer):
-  // prefetch(seed) starts loading the seed's point and facet-cache start index;
-  // prefetch_start(seed), a few seeds later, the cache entry that index points to.
+  // A hint for a caller that knows which seeds come next (no effect on any answer):
+  // starts loading the seed's point, its EdgeCache posts and its memo start.
   void prefetch(std::uint32_t seed) const;
-  void prefetch_start(std::uint32_t seed) const;
 
   const StarStats& stats() const { return stats_; }
 

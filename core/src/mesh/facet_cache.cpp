@@ -199,12 +199,6 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
   }
 }
 
-void FacetCache::prefetch_start_entry(std::uint32_t v) const {
-  if (!enabled() || v >= n_) return;
-  const std::uint32_t s1 = Word(starts_[v]).load(std::memory_order_relaxed);
-  if (s1 != 0) __builtin_prefetch(slot(s1 - 1));
-}
-
 bool FacetCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const {
   if (!enabled() || x >= n_) return false;
   const std::uint32_t s1 = Word(starts_[x]).load(std::memory_order_acquire);

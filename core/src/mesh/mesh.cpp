@@ -103,10 +103,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       std::uint64_t seeds = 0;
       Status status;
       for (std::uint32_t r = lo; r < hi; ++r) {
-        // The next seeds' points and starts are loads at random: begin them early, in
-        // two steps since a start's place is itself read from memory.
+        // The next seeds' points are loads at random (input order): begin them early.
+        // (A block's starts are in its worker's table, already in the CPU's caches.)
         if (r + 4 < hi) walker.prefetch(tree.point_at_rank(r + 4));
-        if (r + 2 < hi) walker.prefetch_start(tree.point_at_rank(r + 2));
         const std::uint32_t s = tree.point_at_rank(r);
         if (s < begin || s >= end) continue;
         ++seeds;

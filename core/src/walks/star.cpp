@@ -817,10 +817,6 @@ void StarWalker::prefetch(std::uint32_t seed) const {
   if (options_.facets != nullptr) options_.facets->prefetch_start(seed);
 }
 
-void StarWalker::prefetch_start(std::uint32_t seed) const {
-  if (options_.facets != nullptr) options_.facets->prefetch_start_entry(seed);
-}
-
 // The walk of one star for d >= 3 (StarWalker::compute): its state and its steps, in
 // the order run() takes them. A start (a facet of x's star from the memo, or recursive
 // spokes), then the queue of simplices found: each open facet the memo answers is taken
