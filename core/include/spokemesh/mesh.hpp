@@ -52,7 +52,6 @@ struct MeshOptions {
 struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
-  std::uint64_t blocks = 0;
   // The most the front's mailboxes held at once (d >= 3): grows with the surface
   // between the blocks done and those to come, O(n^((d-1)/d)), not with n.
   std::size_t front_peak_bytes = 0;

@@ -163,7 +163,6 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   for (auto& t : pool) t.join();
   if (!failure.is_ok()) return failure;
   total.seeds = seeds_done;
-  total.blocks = count;
   total.front_peak_bytes = mail ? mail->peak_bytes() : 0;
   total.facet_cache_bytes = edges ? edges->reserved_bytes() : total.front_peak_bytes + worker_bytes;
   return total;
