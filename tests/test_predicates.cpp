@@ -208,6 +208,70 @@ TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
   }
 }
 
+// Ties: the perturbed lifted sign (one pass over the spatial minors on scaled
+// integers, one elimination per coefficient on rationals) against the determinant with
+// concrete infinitesimals, heights |p - x|^2 + delta_p - delta_x with delta = t^(i+1)
+// for the point of i-th largest lexicographic rank and t = 2^-4000: far below any
+// ratio of two non-zero coefficients of these small grids, so the rational
+// determinant's sign is the perturbed one. Grids of 3 values per axis make most
+// configurations cospherical and many coplanar as well (several coefficients vanish).
+TEST(Predicates, PerturbedTiesEqualConcreteInfinitesimals) {
+  const std::vector<std::pair<const char*, std::function<double(int)>>> axes = {
+      {"integer", [](int i) { return static_cast<double>(i); }},
+      {"linspace", [](int i) { return i * (1.0 / 3.0); }},
+      {"wide range", [](int i) { return i == 0 ? 1e-30 : i * 1e10; }},
+  };
+  const mpq_class t(mpz_class(1), mpz_class(1) << 4000);
+  int ties = 0;
+  for (const auto& [name, axis] : axes) {
+    for (int d = 2; d <= 4; ++d) {
+      for (std::uint64_t seed = 1; seed <= 100; ++seed) {
+        SCOPED_TRACE(std::string(name) + " d " + std::to_string(d) + " seed " + std::to_string(seed));
+        std::mt19937_64 rng(seed * 131 + d);
+        std::uniform_int_distribution<int> pick(0, 2);
+        std::vector<double> c;
+        std::set<std::vector<double>> seen;
+        while (seen.size() < static_cast<std::size_t>(d + 2)) {
+          std::vector<double> p(d);
+          for (double& v : p) v = axis(pick(rng));
+          if (seen.insert(p).second) c.insert(c.end(), p.begin(), p.end());
+        }
+        for (int extra = 0; extra < d + 2; ++extra) {  // a full-dimensional set for validate()
+          for (int k = 0; k < d; ++k) c.push_back(k == extra ? 100.5 : 200.25 + extra);
+        }
+        const PointSet ps = testing::make_points(d, c);
+        const Predicates pred(ps);
+        const int k = d + 1;
+        std::vector<std::uint32_t> by_rank(k + 1);
+        std::iota(by_rank.begin(), by_rank.end(), 0u);
+        std::sort(by_rank.begin(), by_rank.end(), [&](auto a, auto b) { return ps.lex_rank(a) > ps.lex_rank(b); });
+        std::vector<mpq_class> delta(k + 1);
+        mpq_class power = t;
+        for (std::uint32_t id : by_rank) {
+          delta[id] = power;
+          power *= t;
+        }
+        std::vector<Row> rows;
+        std::vector<mpq_class> unperturbed(k * k), perturbed(k * k);
+        for (int i = 1; i <= k; ++i) {
+          rows.push_back(Row::of_point(i));
+          mpq_class norm2 = 0;
+          for (int col = 0; col < d; ++col) {
+            const mpq_class q = mpq_class(ps.point(i)[col]) - mpq_class(ps.point(0)[col]);
+            unperturbed[(i - 1) * k + col] = perturbed[(i - 1) * k + col] = q;
+            norm2 += q * q;
+          }
+          unperturbed[(i - 1) * k + d] = norm2;
+          perturbed[(i - 1) * k + d] = norm2 + delta[i] - delta[0];
+        }
+        ties += sgn(exact_determinant(unperturbed, k)) == 0 ? 1 : 0;
+        EXPECT_EQ(pred.lifted_sign_exact(0, rows, true), sgn(exact_determinant(perturbed, k)));
+      }
+    }
+  }
+  EXPECT_GT(ties, 100);  // the grids do tie
+}
+
 }  // namespace
 }  // namespace spokemesh
 

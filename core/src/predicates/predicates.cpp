@@ -60,20 +60,17 @@ __extension__ using i128 = __int128;  // 128-bit integers are a GCC/Clang extens
 __extension__ using u128 = unsigned __int128;
 
 // Sign of the determinant of a k x k integer matrix by fraction-free (Bareiss)
-// elimination in 128-bit integers. Every intermediate is a minor of the matrix, so
-// with Hadamard's bound H (product of row norms) below 2^61, the products formed
-// (two minors) stay below 2^122 and nothing overflows. Returns kUnknownSign when the
-// bound does not hold.
-int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) {
-  long double bound = 1;
-  for (int r = 0; r < k; ++r) {
-    long double norm2 = 0;
-    for (int c = 0; c < k; ++c) norm2 += static_cast<long double>(m[r * k + c]) * static_cast<long double>(m[r * k + c]);
-    bound *= std::sqrt(norm2) * 1.0001L + 1;
-  }
-  if (!(bound < 0x1p61L)) return BoundedDouble::kUnknownSign;
+// elimination. Every intermediate is a minor of the matrix, so with Hadamard's bound
+// H (product of row norms) each product formed (two minors) is below H^2: in 64-bit
+// integers when H < 2^30 (grids and near neighbours: almost every tie a mesh meets),
+// else in 128-bit integers when H < 2^61, where nothing overflows either. Returns
+// kUnknownSign when H >= 2^61.
+template <class Int>
+int bareiss_sign(const std::array<i128, kMaxCols * kMaxCols>& entries, int k) {
+  std::array<Int, kMaxCols * kMaxCols> m;
+  for (int i = 0; i < k * k; ++i) m[i] = static_cast<Int>(entries[i]);
   int sign = 1;
-  i128 previous = 1;
+  Int previous = 1;
   for (int col = 0; col < k; ++col) {
     int pivot = -1;
     for (int r = col; r < k; ++r) {
@@ -92,8 +89,37 @@ int sign_of_integer_determinant(std::array<i128, kMaxCols * kMaxCols> m, int k) 
     }
     previous = m[col * k + col];
   }
-  const i128 det = m[(k - 1) * k + (k - 1)];
+  const Int det = m[(k - 1) * k + (k - 1)];
   return det > 0 ? sign : det < 0 ? -sign : 0;
+}
+
+int sign_of_integer_determinant(const std::array<i128, kMaxCols * kMaxCols>& m, int k) {
+  // Entries here are below 2^63 (the caller checks 62 bits), so their doubles carry
+  // a relative error under 2^-52; 1.0001 and the +1 per row absorb it and sqrt's.
+  double bound = 1;
+  for (int r = 0; r < k; ++r) {
+    double norm2 = 0;
+    for (int c = 0; c < k; ++c) {
+      const double v = static_cast<double>(m[r * k + c]);
+      norm2 += v * v;
+    }
+    bound *= std::sqrt(norm2) * 1.0001 + 1;
+  }
+  if (bound < 0x1p30) return bareiss_sign<std::int64_t>(m, k);
+  if (bound < 0x1p61) return bareiss_sign<i128>(m, k);
+  return BoundedDouble::kUnknownSign;
+}
+
+// An integer-valued double below 2^120 as a 128-bit integer: by a 64-bit conversion
+// (one instruction) when it fits, the library's 128-bit one (a call) otherwise.
+inline i128 to_i128(double v) {
+  return std::fabs(v) < 0x1p62 ? i128{static_cast<std::int64_t>(v)} : static_cast<i128>(v);
+}
+
+// v 2^-e, exactly, for an integer-valued result: one multiplication by a power of two
+// when 2^-e is a normal double, ldexp otherwise.
+inline double unscale(double v, double inverse_scale, int e) {
+  return inverse_scale != 0 ? v * inverse_scale : std::ldexp(v, -e);
 }
 
 // Fixed-width integers for the determinants of scaled coordinates: stack storage,
@@ -230,7 +256,106 @@ class ExactMatrix {
     return sgn(exact_determinant(std::move(m), k));
   }
 
+ // The lifted determinant's sign and the signs of its derivatives in every height
+  // (the symbolic perturbation's coefficients), from one table of spatial minors, for
+  // a scaled matrix of k = d + 1 rows; false when the matrix is not scaled (the
+  // caller then takes the general route). Writes signs[0] = sign det M, signs[1] =
+  // d det / d delta_origin and signs[2 + r] = d det / d delta_r (0 for a direction row).
+  // Laplace along the height column: det M = sum_r (-1)^(r+d) h_r C_r, where C_r is
+  // the spatial determinant of the other rows; d/d delta_r = (-1)^(r+d) C_r and
+  // d/d delta_origin = -sum_r (-1)^(r+d) [r is a point] C_r. A grid's tie needs the
+  // determinant and often several coefficients (cospherical points are often coplanar
+  // too): one pass instead of a separate elimination for each.
+  bool lifted_signs(std::span<const Row> rows, std::array<int, kMaxCols + 2>& signs) const {
+    if (!scaled_ || k_ != cols_) return false;
+    const int d = cols_ - 1;
+    // Every C_r and partial minor is within Hadamard's bound on the spatial columns
+    // (sqrt(k) <= 3 < 2^2 per column); a product h_r C_r adds the height's bits, the
+    // sum of k <= 9 of them 4 more, and the sign one.
+    int bound = 5;
+    int height_bits = 0;
+    for (int r = 0; r < k_; ++r) height_bits = std::max(height_bits, bits_[r * cols_ + d]);
+    for (int c = 0; c < d; ++c) {
+      int widest = 0;
+      for (int r = 0; r < k_; ++r) widest = std::max(widest, bits_[r * cols_ + c]);
+      bound += widest + 2;
+    }
+    bound += height_bits;
+    if (bound <= 126 && wide_height_ == 0) return lifted_signs_in<i128>(rows, signs);
+    if (bound < 255) return lifted_signs_in<FixedInt<256>>(rows, signs);
+    if (bound < 511) return lifted_signs_in<FixedInt<512>>(rows, signs);
+    return lifted_signs_in<FixedInt<1536>>(rows, signs);
+  }
+
  private:
+  static bool is_zero(const i128& v) { return v == 0; }
+  template <class W>
+  static bool is_zero(const W& v) { return v.is_zero(); }
+  static int sign_of(const i128& v) { return v > 0 ? 1 : v < 0 ? -1 : 0; }
+  template <class W>
+  static int sign_of(const W& v) { return v.sign(); }
+
+  template <class W>
+  bool lifted_signs_in(std::span<const Row> rows, std::array<int, kMaxCols + 2>& signs) const {
+    const int d = cols_ - 1, k = k_;
+    thread_local FixedScratch<W> scratch;
+    // The transposed spatial part (d x k) and the minors of its bottom rows over
+    // every subset of its columns (the matrix's rows): those with d columns are C_r.
+    W* st = scratch.matrix.data();
+    W* table = scratch.table.data();
+    for (int r = 0; r < k; ++r) {
+      for (int c = 0; c < d; ++c) st[c * k + r] = ints_[r * cols_ + c];
+    }
+    const unsigned full = (1u << k) - 1u;
+    table[0] = 1;
+    for (unsigned mask = 1; mask < full; ++mask) {
+      const int j = detail::kPopCounts.of[mask];
+      if (j > d) continue;
+      const W* row = st + (d - j) * k;
+      W& acc = table[mask];
+      acc = 0;
+      int t = 0;
+      for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
+        const int c = __builtin_ctz(rest);
+        if (is_zero(row[c])) continue;
+        const W& minor = table[mask ^ (1u << c)];
+        if (is_zero(minor)) continue;
+        if (t % 2 == 0) {
+          acc += row[c] * minor;
+        } else {
+          acc -= row[c] * minor;
+        }
+      }
+    }
+    W det = 0, origin = 0;
+    for (int r = 0; r < k; ++r) {
+      const W& cofactor = table[full ^ (1u << r)];
+      const bool plus = (r + d) % 2 == 0;
+      const int s = sign_of(cofactor);
+      signs[2 + r] = rows[r].is_point() ? (plus ? s : -s) : 0;
+      if (s == 0) continue;
+      W height = ints_[r * cols_ + d];
+      if constexpr (!std::is_same_v<W, i128>) {
+        if (((wide_height_ >> r) & 1u) != 0) height = static_cast<W>(heights_[r]);
+      }
+      if (plus) {
+        det += height * cofactor;
+      } else {
+        det -= height * cofactor;
+      }
+      if (rows[r].is_point()) {
+        if (plus) {
+          origin -= cofactor;
+        } else {
+          origin += cofactor;
+        }
+      }
+    }
+    signs[0] = sign_of(det);
+    signs[1] = sign_of(origin);
+    return true;
+  }
+
   // Row r as scaled integers (see the class comment); false when a direction row
   // spans more than kMaxScaledBits bits. Spatial entries (< 2^122) are kept in 128
   // bits; a height in 128 bits when it fits, else in 256.
@@ -246,11 +371,13 @@ class ExactMatrix {
     if (row.is_point()) {
       // v 2^-E is an integer below 2^120: exact as a double, and so as an i128.
       const int e = ps.scale_exponent();
+      // 2^-e as a normal double, or 0 when it is not one (then ldexp scales).
+      const double inverse_scale = (e > -1023 && e < 1023) ? std::ldexp(1.0, -e) : 0.0;
       const double* p = ps.point(static_cast<std::size_t>(row.point));
       const double* x = ps.point(origin);
       int widest = 0;
       for (int c = 0; c < d; ++c) {
-        out[c] = static_cast<i128>(std::ldexp(p[c], -e)) - static_cast<i128>(std::ldexp(x[c], -e));
+        out[c] = to_i128(unscale(p[c], inverse_scale, e)) - to_i128(unscale(x[c], inverse_scale, e));
         bits[c] = bits_of(out[c]);
         widest = std::max(widest, bits[c]);
       }
@@ -274,7 +401,7 @@ class ExactMatrix {
     for (int c = 0; c < d; ++c) widen_binary_span(row.dir[c], lowest, highest);
     if (highest >= lowest && highest - lowest > kMaxScaledBits) return false;
     for (int c = 0; c < d; ++c) {
-      out[c] = row.dir[c] == 0 ? i128{0} : static_cast<i128>(std::ldexp(row.dir[c], -lowest));
+      out[c] = row.dir[c] == 0 ? i128{0} : to_i128(std::ldexp(row.dir[c], -lowest));
       bits[c] = bits_of(out[c]);
     }
     if (cols_ > d) {
@@ -349,7 +476,9 @@ int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> row
   std::array<int, kMaxCols> all;
   std::iota(all.begin(), all.begin() + k, 0);
   const std::span<const int> every(all.data(), k);
-  const int s = m.sign(every, every, rows);
+  std::array<int, kMaxCols + 2> signs{};
+  const bool one_pass = m.lifted_signs(rows, signs);
+  const int s = one_pass ? signs[0] : m.sign(every, every, rows);
   if (s != 0 || !perturb) return s;
 
   // Candidates for the dominant infinitesimal: the origin (-1) and every point row.
@@ -367,7 +496,9 @@ int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> row
   for (int i = 0; i < count; ++i) {
     const int w = who[i];
     int coefficient_sign = 0;
-    if (w < 0) {
+    if (one_pass) {
+      coefficient_sign = signs[w < 0 ? 1 : 2 + w];
+    } else if (w < 0) {
       std::array<int, kMaxCols> cols = all;
       cols[d] = -1;  // the height column replaced by the indicator
       coefficient_sign = -m.sign(every, std::span<const int>(cols.data(), k), rows);
