@@ -218,8 +218,16 @@ class Predicates {
   // The exact stages on their own (the filter is inlined by callers on hot paths).
   int spatial_sign_exact(std::uint32_t origin, std::span<const Row> rows) const;
   int lifted_sign_exact(std::uint32_t origin, std::span<const Row> rows, bool perturb) const;
+  // The perturbation's part alone: the sign of the leading coefficient of the lifted
+  // determinant in the infinitesimals. Its coefficients depend only on the rows'
+  // spatial parts, so a caller whose matrix differs from `rows` only in the heights of
+  // direction rows (a wall that misses the origin, in the cells' direct route), and
+  // whose exact determinant is zero, gets its perturbed sign here.
+  int perturbation_sign(std::uint32_t origin, std::span<const Row> rows) const;
 
  private:
+  enum class Stage { kExact, kPerturbed, kPerturbationOnly };
+  int lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const;
   const PointSet& ps_;
 };
 

@@ -17,7 +17,7 @@ constexpr std::uint32_t kNone = 0xFFFFFFFFu;
 double norm3(const std::array<double, 3>& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
 }  // namespace
 
-BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box) {
+BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box), predicates_(points) {
   v_.reserve(256);
   planes_.reserve(128);
 }
@@ -93,6 +93,61 @@ bool BoxCell3d::solve(Vertex& v) const {
   return true;
 }
 
+int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
+  // In y' = 2 (x - s) the bisector of s and p is q . y' = |q|^2, and with the star's
+  // perturbed heights |q|^2 + delta_p - delta_s it is the power bisector of the
+  // perturbed weights (docs/algorithm.md); a wall is e . y' = 2 c, c its exact distance
+  // from the seed, unperturbed. The vertex's three planes and p's bisector are the rows
+  // of a lifted matrix M (points as (q, |q|^2), walls as (e, 2 c)), and by the Schur
+  // complement det M = -det(A) f, with A the vertex's three normals and f = q . y' -
+  // |q|^2 the amount by which the vertex lies beyond p's bisector. Both signs come from
+  // the star's own predicates (walls through the seed are direction rows; a wall that
+  // misses it takes GMP for det M, and the perturbation's coefficients, which see only
+  // the spatial parts, from the same rows with the wall's height set to 0), so the
+  // cell's facets are those of the star's cell, the perturbation's zero-area facets
+  // included.
+  std::array<Row, 4> rows;
+  bool walls_off_seed = false;
+  for (int k = 0; k < 3; ++k) {
+    const Plane& plane = planes_[v.plane[k]];
+    if (plane.axis < 0) {
+      rows[k] = Row::of_point(plane.label);
+    } else {
+      rows[k] = Row::of_direction(plane.a.data());
+      walls_off_seed |= plane.c != 0;  // exact: the wall's offset minus the seed's coordinate
+    }
+  }
+  rows[3] = Row::of_point(bisector.label);
+  const int a = predicates_.spatial_sign(seed_, std::span<const Row>(rows.data(), 3));
+  if (a == 0) return 0;
+  int m = 0;
+  if (!walls_off_seed) {
+    m = predicates_.lifted_sign(seed_, std::span<const Row>(rows.data(), 4));
+  } else {
+    std::vector<mpq_class> matrix(16);
+    for (int k = 0; k < 4; ++k) {
+      const Plane& plane = k < 3 ? planes_[v.plane[k]] : bisector;
+      if (plane.axis < 0) {
+        const double* p = points_.point(plane.label);
+        mpq_class norm2 = 0;
+        for (int c = 0; c < 3; ++c) {
+          matrix[k * 4 + c] = mpq_class(p[c]) - mpq_class(s_[c]);
+          norm2 += matrix[k * 4 + c] * matrix[k * 4 + c];
+        }
+        matrix[k * 4 + 3] = norm2;
+      } else {
+        const auto wall = static_cast<std::size_t>(plane.label - kWallLabel0);
+        for (int c = 0; c < 3; ++c) matrix[k * 4 + c] = plane.a[c];
+        matrix[k * 4 + 3] = 2 * (mpq_class(box_.offset(wall)) - plane.a[plane.axis] * mpq_class(s_[plane.axis]));
+      }
+    }
+    m = sgn(exact_determinant(std::move(matrix), 4));
+    if (m == 0) m = predicates_.perturbation_sign(seed_, std::span<const Row>(rows.data(), 4));
+  }
+  if (m == 0) return 0;
+  return m == a ? -1 : 1;
+}
+
 bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   changed_ = false;
   Plane pl;
@@ -131,7 +186,11 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
     } else if (f < -bound) {
       side_[v] = -1;
     } else {
-      return false;  // within rounding of the plane: the exact route decides
+      // Within rounding of the plane: decided exactly, ties by the perturbation.
+      const int exact = exact_side(x, pl);
+      if (exact == 0) return false;  // a wall off the seed: the generic route decides
+      side_[v] = static_cast<std::int8_t>(exact);
+      any_out |= exact > 0;
     }
   }
   if (!any_out) return true;

@@ -24,6 +24,7 @@
 
 #include "spokemesh/domain.hpp"
 #include "spokemesh/point_set.hpp"
+#include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh::detail {
@@ -76,12 +77,17 @@ class BoxCell3d {
   static_assert(sizeof(Vertex) == 64);
 
   bool solve(Vertex& v) const;
+  // The side of `bisector` vertex v lies on, decided exactly with the star's symbolic
+  // perturbation (> 0 beyond: cut); 0 when v lies on a wall that misses the seed (the
+  // perturbation does not move walls; the generic route decides those).
+  int exact_side(const Vertex& v, const Plane& bisector) const;
   // The vertex after cur around face (a plane index), coming from prev; from a vertex
   // where the walk starts (prev == cur), either way round.
   std::uint32_t step_around(std::uint32_t face, std::uint32_t prev, std::uint32_t cur) const;
 
   const PointSet& points_;
   const Domain& box_;
+  Predicates predicates_;
   std::uint32_t seed_ = 0;
   const double* s_ = nullptr;
   double rmax_ = 0;

@@ -470,6 +470,14 @@ int Predicates::spatial_sign(std::uint32_t origin, std::span<const Row> rows) co
 // perturbed sign is the sign of the first non-zero derivative, taking the points in
 // decreasing lexicographic order (the largest point's delta dominates).
 int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> rows, bool perturb) const {
+  return lifted_sign_staged(origin, rows, perturb ? Stage::kPerturbed : Stage::kExact);
+}
+
+int Predicates::perturbation_sign(std::uint32_t origin, std::span<const Row> rows) const {
+  return lifted_sign_staged(origin, rows, Stage::kPerturbationOnly);
+}
+
+int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const {
   const int d = ps_.dimension();
   const int k = d + 1;
   const ExactMatrix m(ps_, origin, rows.first(k), k);
@@ -478,8 +486,10 @@ int Predicates::lifted_sign_exact(std::uint32_t origin, std::span<const Row> row
   const std::span<const int> every(all.data(), k);
   std::array<int, kMaxCols + 2> signs{};
   const bool one_pass = m.lifted_signs(rows, signs);
-  const int s = one_pass ? signs[0] : m.sign(every, every, rows);
-  if (s != 0 || !perturb) return s;
+  if (stage != Stage::kPerturbationOnly) {
+    const int s = one_pass ? signs[0] : m.sign(every, every, rows);
+    if (s != 0 || stage == Stage::kExact) return s;
+  }
 
   // Candidates for the dominant infinitesimal: the origin (-1) and every point row.
   std::array<int, kMaxCols + 1> who{};
