@@ -209,7 +209,7 @@ TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
 }
 
 // Ties: the perturbed lifted sign (one pass over the spatial minors on scaled
-// integers, one elimination per coefficient on rationals) against the determinant with
+// integers in 64 bits, 128 bits or wider, one elimination per coefficient on rationals) against the determinant with
 // concrete infinitesimals, heights |p - x|^2 + delta_p - delta_x with delta = t^(i+1)
 // for the point of i-th largest lexicographic rank and t = 2^-4000: far below any
 // ratio of two non-zero coefficients of these small grids, so the rational
@@ -218,6 +218,7 @@ TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
 TEST(Predicates, PerturbedTiesEqualConcreteInfinitesimals) {
   const std::vector<std::pair<const char*, std::function<double(int)>>> axes = {
       {"integer", [](int i) { return static_cast<double>(i); }},
+      {"large integer", [](int i) { return i * 1000003.0; }},  // the 128-bit route
       {"linspace", [](int i) { return i * (1.0 / 3.0); }},
       {"wide range", [](int i) { return i == 0 ? 1e-30 : i * 1e10; }},
   };

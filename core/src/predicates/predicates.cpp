@@ -281,6 +281,7 @@ class ExactMatrix {
       bound += widest + 2;
     }
     bound += height_bits;
+    if (bound <= 62 && wide_height_ == 0) return lifted_signs_in<std::int64_t>(rows, signs);
     if (bound <= 126 && wide_height_ == 0) return lifted_signs_in<i128>(rows, signs);
     if (bound < 255) return lifted_signs_in<FixedInt<256>>(rows, signs);
     if (bound < 511) return lifted_signs_in<FixedInt<512>>(rows, signs);
@@ -288,12 +289,24 @@ class ExactMatrix {
   }
 
  private:
-  static bool is_zero(const i128& v) { return v == 0; }
   template <class W>
-  static bool is_zero(const W& v) { return v.is_zero(); }
-  static int sign_of(const i128& v) { return v > 0 ? 1 : v < 0 ? -1 : 0; }
+  static constexpr bool kBuiltin = std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>;
   template <class W>
-  static int sign_of(const W& v) { return v.sign(); }
+  static bool is_zero(const W& v) {
+    if constexpr (kBuiltin<W>) {
+      return v == 0;
+    } else {
+      return v.is_zero();
+    }
+  }
+  template <class W>
+  static int sign_of(const W& v) {
+    if constexpr (kBuiltin<W>) {
+      return v > 0 ? 1 : v < 0 ? -1 : 0;
+    } else {
+      return v.sign();
+    }
+  }
 
   template <class W>
   bool lifted_signs_in(std::span<const Row> rows, std::array<int, kMaxCols + 2>& signs) const {
@@ -304,7 +317,7 @@ class ExactMatrix {
     W* st = scratch.matrix.data();
     W* table = scratch.table.data();
     for (int r = 0; r < k; ++r) {
-      for (int c = 0; c < d; ++c) st[c * k + r] = ints_[r * cols_ + c];
+      for (int c = 0; c < d; ++c) st[c * k + r] = static_cast<W>(ints_[r * cols_ + c]);
     }
     const unsigned full = (1u << k) - 1u;
     table[0] = 1;
@@ -334,8 +347,8 @@ class ExactMatrix {
       const int s = sign_of(cofactor);
       signs[2 + r] = rows[r].is_point() ? (plus ? s : -s) : 0;
       if (s == 0) continue;
-      W height = ints_[r * cols_ + d];
-      if constexpr (!std::is_same_v<W, i128>) {
+      W height = static_cast<W>(ints_[r * cols_ + d]);
+      if constexpr (!kBuiltin<W>) {
         if (((wide_height_ >> r) & 1u) != 0) height = static_cast<W>(heights_[r]);
       }
       if (plus) {
@@ -376,10 +389,21 @@ class ExactMatrix {
       const double* p = ps.point(static_cast<std::size_t>(row.point));
       const double* x = ps.point(origin);
       int widest = 0;
-      for (int c = 0; c < d; ++c) {
-        out[c] = to_i128(unscale(p[c], inverse_scale, e)) - to_i128(unscale(x[c], inverse_scale, e));
-        bits[c] = bits_of(out[c]);
-        widest = std::max(widest, bits[c]);
+      if (ps.integer_bits() <= 52 && inverse_scale != 0) {
+        // Small integers (grids): p - x = (k_p - k_x) 2^E with |k| < 2^52 is exact in
+        // double, and so is its scaling; the result fits 64 bits.
+        for (int c = 0; c < d; ++c) {
+          const auto v = static_cast<std::int64_t>((p[c] - x[c]) * inverse_scale);
+          out[c] = v;
+          bits[c] = v == 0 ? 0 : 64 - __builtin_clzll(static_cast<std::uint64_t>(v < 0 ? -v : v));
+          widest = std::max(widest, bits[c]);
+        }
+      } else {
+        for (int c = 0; c < d; ++c) {
+          out[c] = to_i128(unscale(p[c], inverse_scale, e)) - to_i128(unscale(x[c], inverse_scale, e));
+          bits[c] = bits_of(out[c]);
+          widest = std::max(widest, bits[c]);
+        }
       }
       if (cols_ > d) {
         if (widest <= 60) {  // d <= 8 squares below 2^120 each: the sum fits
