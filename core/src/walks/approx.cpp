@@ -9,6 +9,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
+#include "base/invariant.hpp"
 #include "base/mixing.hpp"
 #include "spokemesh/predicates.hpp"
 
@@ -395,6 +396,7 @@ class ApproxWalker::RsdWalk {
 
   // Records s, certified, as a neighbour.
   bool accept(std::uint32_t s) {
+    SPOKEMESH_INVARIANT(s != walker_.x_ && !found(s), "a neighbour is the seed's, certified once");
     out_.neighbors.push_back(s);
     const double* sp = walker_.ps_.point(s);
     double q2 = 0;
@@ -473,6 +475,10 @@ class ApproxWalker::RsdWalk {
       misses_here = -1;  // a new level
     }
     std::sort(S.begin(), S.end());
+    // Each level's point had an offset independent of the levels above it.
+    SPOKEMESH_INVARIANT(std::adjacent_find(S.begin(), S.end()) == S.end() &&
+                            std::find(S.begin(), S.end(), walker_.x_) == S.end(),
+                        "a descent ends at d distinct points other than the seed");
     return true;
   }
 
@@ -494,6 +500,8 @@ class ApproxWalker::RsdWalk {
   // Takes the candidate list as it is now: states from `settled` (id -> state, for
   // points listed before) or from what is found, and everything derived from the list.
   void relist(const std::unordered_map<std::uint32_t, std::uint8_t>& settled) {
+    SPOKEMESH_INVARIANT(walker_.cand_id_.size() >= static_cast<std::size_t>(listed),
+                        "the candidate list only grows (its earlier states are kept)");
     listed = static_cast<Eigen::Index>(walker_.cand_id_.size());
     state.assign(static_cast<std::size_t>(listed), kOpen);
     for (Eigen::Index j = 0; j < listed; ++j) {
@@ -542,6 +550,8 @@ class ApproxWalker::RsdWalk {
   // equidistant and moves away from the others, into the facet of (x, s); the witness
   // is halfway to the first point met that way. False when S is degenerate.
   bool visit(const std::vector<std::uint32_t>& vertex) {
+    SPOKEMESH_INVARIANT(vertex.size() == static_cast<std::size_t>(d) && std::is_sorted(vertex.begin(), vertex.end()),
+                        "a vertex is d points, sorted");
     ++out_.vertices;
     for (int m = 0; m < d; ++m) {
       const double* sp = walker_.ps_.point(vertex[m]);
@@ -610,6 +620,8 @@ class ApproxWalker::RsdWalk {
   // One target: refuted on the relaxed polytope, reached by an aimed spoke, or walked
   // to by a leg.
   void head_for(Eigen::Index target) {
+    SPOKEMESH_INVARIANT(target >= 0 && target < listed && state[static_cast<std::size_t>(target)] == kOpen,
+                        "a walk heads for an open listed candidate");
     const std::uint32_t goal = walker_.cand_id_[static_cast<std::size_t>(target)];
     if (std::find(S.begin(), S.end(), goal) != S.end()) {
       // Equidistant at this vertex already, so visit() has tried to certify it (it
@@ -741,6 +753,8 @@ class ApproxWalker::RsdWalk {
       in_rs[out_i] = 0;
       in_rs[in_i] = 1;
       rs[static_cast<std::size_t>(best)] = in_i;
+      SPOKEMESH_INVARIANT(std::count(in_rs.begin(), in_rs.end(), std::uint8_t{1}) == d,
+                          "the relaxed vertex stays on d found bisectors");
       if (!rE.allFinite()) return false;
     }
     return false;
@@ -812,6 +826,7 @@ class ApproxWalker::RsdWalk {
       double t = 0;
       const std::optional<std::uint32_t> hit = walker_.shoot(v.data(), e.data(), S.data(), d, t);
       if (!hit) break;  // unbounded: cannot happen with the goal listed
+      SPOKEMESH_INVARIANT(std::find(S.begin(), S.end(), *hit) == S.end(), "an edge leaves its vertex's points");
       next = S;
       next[static_cast<std::size_t>(best)] = *hit;
       std::sort(next.begin(), next.end());
