@@ -513,7 +513,7 @@ std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBu
 }
 
 std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned threads, MemoryBudget::Charge& charge) {
-  if (dimension == 2) return charge_stream_cache(dimension, n, charge);  // the EdgeCache, as for cells
+  if (RunCache::uses_edges(dimension)) return charge_stream_cache(dimension, n, charge);  // as for cells
   // The front's mail, capped at the estimate's mail part so that the charge bounds it,
   // plus the workers' block tables. Less mail, or none, gives the same simplices.
   const FrontMail::Estimate estimate =

@@ -270,10 +270,10 @@ class EdgeCache {
 // Ownership: owns the cache it holds. Thread safety: as the cache it holds.
 class RunCache {
  public:
-  // As FacetCache's constructor; d == 2 makes an EdgeCache.
+  // As FacetCache's constructor; an EdgeCache where uses_edges(d).
   RunCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
            std::uint32_t block = 1) {
-    if (d == 2) {
+    if (uses_edges(d)) {
       edges_ = std::make_unique<EdgeCache>(n, begin, end, max_bytes, block);
     } else {
       facets_ = std::make_unique<FacetCache>(d, n, begin, end, max_bytes, block);
@@ -285,8 +285,11 @@ class RunCache {
   }
   // What the cache of a run over n points would reserve within max_bytes.
   static std::size_t bytes_for(int d, std::uint32_t n, std::size_t max_bytes) {
-    return d == 2 ? EdgeCache::bytes_for(n, max_bytes) : FacetCache::bytes_for(d, n, max_bytes);
+    return uses_edges(d) ? EdgeCache::bytes_for(n, max_bytes) : FacetCache::bytes_for(d, n, max_bytes);
   }
+  // Whether stars in dimension d share edges per point (the ring walk's: 2-d) rather
+  // than facets; the core's dimension policy decides.
+  static bool uses_edges(int d);
   // The cache of this run's kind when enabled, else nullptr.
   FacetCache* facets() const { return facets_ && facets_->enabled() ? facets_.get() : nullptr; }
   EdgeCache* edges() const { return edges_ && edges_->enabled() ? edges_.get() : nullptr; }

@@ -17,20 +17,38 @@
 
 namespace spokemesh::detail {
 
-// The core's per-dimension tuning, in one table (each value measured: bench/README.md,
-// "Tuning history"). Dimensions beyond kMaxDimension take the last row.
-struct DimensionTuning {
+// The core's dimension policy, in one table: which specialised method each stage
+// takes in a dimension, and its measured tuning (each value: bench/README.md, "Tuning
+// history"). Dimensions beyond kMaxDimension take the last row. Kernels compiled per
+// dimension are reached by dispatch_dimension below; everything else that depends on
+// d asks policy(d), so a dimension's choices are read and changed here.
+struct DimensionPolicy {
   std::size_t candidates;            // a star's first k-NN candidates (StarWalker)
   double simplices_per_point;        // Delaunay simplices per uniform point, for sizing tables
   std::uint32_t sweep_block_points;  // a whole mesh's largest sweep block (BlockDecomposition)
+  // Stars by the ring walk around the seed (RingWalk: 2-d, where a star is a polygon),
+  // and what a run's stars share: edges per point (EdgeCache) instead of facets.
+  bool ring_walk;
+  // Clipped cells to a box by the direct route (clipping the box by bisectors, as
+  // Voro++) unless the caller chooses; the star's route otherwise. Measured: 3-d the
+  // direct route is faster; 2-d the ring walk is 2.5x faster; 4-d they tie; from 6-d
+  // the box's 2^d corners make clipping slow.
+  bool direct_cells;
+  std::size_t cell_candidates;  // the direct route's first k-NN round
 };
-inline const DimensionTuning& tuning(int d) {
+inline const DimensionPolicy& policy(int d) {
   // Simplices per point as meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to
   // 8-d: rough, they rise with n as the hull's share falls).
-  static constexpr std::array<DimensionTuning, kMaxDimension + 1> kTable = {{
-      {0, 0, 0},             {8, 0, 0},            {16, 2.0, 16384},
-      {48, 6.8, 4096},       {100, 31, 1024},      {200, 160, 1024},
-      {400, 900, 1024},      {1280, 6000, 1024},   {2560, 40000, 1024},
+  static constexpr std::array<DimensionPolicy, kMaxDimension + 1> kTable = {{
+      {0, 0, 0, false, false, 16},
+      {8, 0, 0, false, false, 16},
+      {16, 2.0, 16384, true, false, 16},
+      {48, 6.8, 4096, false, true, 40},
+      {100, 31, 1024, false, false, 64},
+      {200, 160, 1024, false, false, 128},
+      {400, 900, 1024, false, false, 256},
+      {1280, 6000, 1024, false, false, 512},
+      {2560, 40000, 1024, false, false, 1024},
   }};
   return kTable[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
 }

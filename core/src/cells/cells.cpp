@@ -1,5 +1,6 @@
 #include "spokemesh/cells.hpp"
 
+#include "base/dimension.hpp"
 #include "cells/box_cell_3d.hpp"
 #include "cells/cell_polytope.hpp"
 
@@ -28,13 +29,12 @@ constexpr std::size_t kMaxDirectCandidates = 16384;
 }  // namespace
 
 bool ClippedCellBuilder::takes_direct_route(int dimension, const Domain& domain, CellRoute route) {
-  // The one dispatch point. Measured (bench/README.md): in 3-d the direct route is
-  // faster than the star's and needs no facet cache (1M points on 2 threads, before
-  // its specialised 3-d stage: 36 s and 150 MB against 38 s and 396 MB; with it,
-  // 18-19 s and 159 MB); in 2-d the star's ring walk is 2.5x faster; in 4-d they tie;
-  // from 6-d on the box's 2^d corners and the clipped polytope's vertex count make the
-  // direct route far slower.
-  const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && dimension == 3);
+  // The one dispatch point; the dimension policy (base/dimension.hpp) says where the
+  // direct route is the default. Measured (bench/README.md): in 3-d it is faster than
+  // the star's and needs no facet cache (1M points on 2 threads, before its
+  // specialised 3-d stage: 36 s and 150 MB against 38 s and 396 MB; with it, 18-19 s
+  // and 159 MB).
+  const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && detail::policy(dimension).direct_cells);
   if (!wanted || !domain.is_box() || domain.dimension() != dimension) return false;
   const std::vector<double> lo = domain.lower(), hi = domain.upper();
   for (int c = 0; c < dimension; ++c) {
@@ -123,7 +123,7 @@ bool ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) 
   // cell's farthest vertex from the seed, bounded above) until the next point lies
   // beyond twice it. A later round lists only points within twice the radius it
   // starts with (which only shrinks) and repeats the earlier ones, skipped as applied.
-  std::size_t k = std::min<std::size_t>(n, d <= 2 ? 16 : d == 3 ? 40 : 32u << (d - 3));
+  std::size_t k = std::min<std::size_t>(n, detail::policy(d).cell_candidates);
   double r2 = poly.radius2_upper();
   for (int round = 0;; ++round) {
     sc.ids.resize(k);

@@ -59,7 +59,7 @@ double expected_facets_per_point(int d) {
   // Simplices per point times (d + 1) / 2 facets per simplex. An underestimate only
   // fills a table sooner; then the walk computes the rest.
   const int c = std::clamp(d, 2, kMaxDimension);
-  return detail::tuning(c).simplices_per_point * (c + 1) / 2.0;
+  return detail::policy(c).simplices_per_point * (c + 1) / 2.0;
 }
 
 void UnmapWords::operator()(std::uint32_t* p) const {
@@ -251,5 +251,7 @@ int EdgeCache::read(std::uint32_t t, Post* out) const {
   }
   return got;
 }
+
+bool RunCache::uses_edges(int d) { return detail::policy(d).ring_walk; }
 
 }  // namespace spokemesh

@@ -1,5 +1,7 @@
 #include "spokemesh/mesh.hpp"
 
+#include "base/dimension.hpp"
+
 #include <algorithm>
 #include <condition_variable>
 #include <deque>
@@ -60,7 +62,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   std::optional<EdgeCache> edges;
   std::optional<FrontMail> mail;
   if (options.facet_cache_bytes != 0 && count != 0) {
-    if (d == 2) {
+    if (detail::policy(d).ring_walk) {
       edges.emplace(static_cast<std::uint32_t>(n), run, options.facet_cache_bytes);
       if (!edges->enabled()) edges.reset();
     } else {

@@ -21,7 +21,7 @@ std::uint32_t BlockDecomposition::default_max_points(int d, std::uint64_t n) {
   // At least 16 blocks where the set allows, so two workers balance; at most a size
   // per dimension beyond which larger blocks gained nothing (bench/README.md, "Tuning
   // history"): a block's table then outgrows the CPU's caches.
-  const std::uint64_t cap = detail::tuning(d).sweep_block_points;
+  const std::uint64_t cap = detail::policy(d).sweep_block_points;
   return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 16, 64, cap));
 }
 

@@ -147,7 +147,7 @@ double random_unit(std::uint64_t& state) {
 std::size_t default_candidates(int d) {
   // Enough that most wraps are decided by the candidates, few enough that loading
   // them stays cheap.
-  return detail::tuning(d).candidates;
+  return detail::policy(d).candidates;
 }
 
 // ---------------------------------------------------------------------------------
@@ -222,7 +222,7 @@ std::uint32_t StarWalker::TupleSet::position(const std::uint32_t* key, std::uint
 
 StarWalker::StarWalker(const KdTree& tree, StarOptions options)
     : tree_(tree), ps_(tree.points()), predicates_(ps_), options_(options), d_(ps_.dimension()) {
-  if (d_ == 2) ring_walk_ = std::make_unique<RingWalk>(*this);
+  if (detail::policy(d_).ring_walk) ring_walk_ = std::make_unique<RingWalk>(*this);
   // The walker's one dispatch from the runtime dimension to its compiled kernels.
   detail::dispatch_dimension(d_, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
