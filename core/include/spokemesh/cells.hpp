@@ -33,10 +33,10 @@ namespace spokemesh {
 //     cell's farthest vertex (Voro++'s construction and the security radius of
 //     geogram's clip_by_cell_SR), each keep/drop decided exactly (cell_polytope.hpp);
 //   * from the seed's Delaunay star (StarWalker), clipped by the domain's walls.
-// In general position both give the one clipped cell, so the direct route is taken
-// when it applies and meets no tie; a vertex exactly on a bisector or wall (grids,
-// cospherical points, seeds whose cells touch box corners exactly) sends that seed to
-// the star, whose symbolic perturbation decides the degenerate faces. Which route a
+// In general position both give the one clipped cell. At a tie (a vertex exactly on
+// a bisector: grids, cospherical points) the 3-d direct route decides by the star's
+// own symbolic perturbation, so it still builds the star's cell; the generic polytope
+// (other dimensions) sends that seed to the star instead. Which route a
 // seed takes depends only on the point set, the domain and the seed, so every cell
 // is a function of them, whatever the threads, order or caller.
 //

@@ -7,13 +7,14 @@
 // records in coordinates relative to the seed, planes in a small table, no heap
 // allocation after the first cells, and measures taken from cones at the seed.
 //
-// It never decides a tie or a near-tie: every keep/drop decision is certified by a
-// forward error bound (the plane's rounding plus the vertex's error), and every new
-// vertex is solved from its three planes by Cramer's rule with a bound. When a bound
-// cannot certify a decision, or a vertex's system is nearly singular, clip() returns
-// false and the caller builds the cell by the generic CellPolytope (exact fallback),
-// and from the star at true ties. So the polytope, whenever this class finishes it,
-// is the exact clipped cell, and its measures are double values of it.
+// Every keep/drop decision is certified: by a forward error bound (the plane's
+// rounding plus the vertex's error) where it holds, otherwise exactly by the star's
+// predicates, ties by its symbolic perturbation (exact_side), so the cell is the
+// star's cell, zero-area facets included. Every new vertex is solved from its three
+// planes by Cramer's rule with a bound; when that system is nearly singular, clip()
+// returns false and the caller builds the cell by the generic CellPolytope. So the
+// polytope, whenever this class finishes it, is the exact clipped cell, and its
+// measures are double values of it.
 //
 // Thread safety: a value type with scratch buffers; one per thread.
 #pragma once
