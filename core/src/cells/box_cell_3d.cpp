@@ -15,6 +15,23 @@ constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
 constexpr std::uint32_t kNone = 0xFFFFFFFFu;
 
 double norm3(const std::array<double, 3>& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
+
+// Sign of det[a; b; c] for rows that are each fl(p - s) or an exact unit vector, when
+// certified; 0 otherwise. Shewchuk's orient3d filter: the rounded determinant is within
+// (7 + 56u) u times its permanent of the determinant of the exact differences (exact
+// rows only shrink the error). Taken as 8u: the margin also covers products that
+// underflow (absolute error 2^-1074 each) once the permanent is at least 2^-900.
+int certified_orientation(const std::array<double, 3>& a, const std::array<double, 3>& b,
+                          const std::array<double, 3>& c) {
+  const double m0 = b[1] * c[2] - b[2] * c[1], m1 = b[2] * c[0] - b[0] * c[2], m2 = b[0] * c[1] - b[1] * c[0];
+  const double det = a[0] * m0 + a[1] * m1 + a[2] * m2;
+  const double permanent = (std::abs(b[1] * c[2]) + std::abs(b[2] * c[1])) * std::abs(a[0]) +
+                           (std::abs(b[2] * c[0]) + std::abs(b[0] * c[2])) * std::abs(a[1]) +
+                           (std::abs(b[0] * c[1]) + std::abs(b[1] * c[0])) * std::abs(a[2]);
+  const double bound = 8 * kUnit * permanent;
+  if (!(permanent < 0x1p1000) || permanent < 0x1p-900) return 0;  // overflow or underflow: not certified
+  return det > bound ? 1 : det < -bound ? -1 : 0;
+}
 }  // namespace
 
 BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box), predicates_(points) {
@@ -118,11 +135,12 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
     }
   }
   rows[3] = Row::of_point(bisector.label);
-  const int a = predicates_.spatial_sign(seed_, std::span<const Row>(rows.data(), 3));
+  int a = certified_orientation(planes_[v.plane[0]].a, planes_[v.plane[1]].a, planes_[v.plane[2]].a);
+  if (a == 0) a = predicates_.spatial_sign_exact(seed_, std::span<const Row>(rows.data(), 3));
   if (a == 0) return 0;
   int m = 0;
   if (!walls_off_seed) {
-    m = predicates_.lifted_sign(seed_, std::span<const Row>(rows.data(), 4));
+    m = predicates_.lifted_sign_exact(seed_, std::span<const Row>(rows.data(), 4), /*perturb=*/true);
   } else {
     std::vector<mpq_class> matrix(16);
     for (int k = 0; k < 4; ++k) {
