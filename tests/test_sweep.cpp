@@ -175,5 +175,32 @@ TEST(Sweep, TheFrontGrowsWithTheSurfaceNotWithTheMesh) {
   EXPECT_GT(large.star.cached_wraps, 2 * large.star.wraps);
 }
 
+// In 2-d the memo is the EdgeCache: posts per point, kept in leaf order so that the
+// boxes behind the sweep go back to the OS. What stays resident is the blocks in
+// flight and the posts to points ahead (the front): about sqrt(8) = 2.8 times as much
+// for 8 times the points, where the boxes of every point (64 bytes each, as before)
+// would grow 8 times.
+TEST(Sweep, TwoDimensionalPostsFollowTheFrontNotTheMesh) {
+  auto resident = [](std::size_t n) {
+    const PointSet ps = make_points(2, uniform_points(2, n, 7));
+    const KdTree tree(ps);
+    MeshOptions options;
+    options.threads = 2;
+    options.block_size = 1024;
+    auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+    EXPECT_TRUE(r.is_ok());
+    std::printf("2-d n %zu: posts resident at most %zu bytes (%.1f per point), %.2f cached wraps per seed\n", n,
+                r.value().facet_cache_bytes, static_cast<double>(r.value().facet_cache_bytes) / static_cast<double>(n),
+                static_cast<double>(r.value().star.cached_wraps) / static_cast<double>(n));
+    return r.value();
+  };
+  const MeshStats small = resident(50000), large = resident(400000);
+  ASSERT_GT(small.facet_cache_bytes, 0u);
+  const double growth = static_cast<double>(large.facet_cache_bytes) / static_cast<double>(small.facet_cache_bytes);
+  EXPECT_LT(growth, 5.0) << "the posts grew " << growth << "x for 8x the points: they follow n, not the front";
+  EXPECT_LT(large.facet_cache_bytes, 400000u * 16) << "more than 16 bytes per point (every box is 64)";
+  EXPECT_GT(large.star.cached_wraps, large.star.wraps) << "the posts still answer most of the ring";
+}
+
 }  // namespace
 }  // namespace spokemesh

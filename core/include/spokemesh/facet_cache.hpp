@@ -33,6 +33,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "spokemesh/kd_tree.hpp"
 
@@ -236,6 +237,15 @@ class EdgeCache {
   // What a cache for n points would reserve within max_bytes (0: disabled).
   static std::size_t bytes_for(std::uint32_t n, std::size_t max_bytes);
   std::size_t reserved_bytes() const { return enabled() ? std::size_t{n_} * kBoxWords * sizeof(std::uint32_t) : 0; }
+  // A sweep's boxes are kept in leaf order: every seed at a leaf position below `rank`
+  // is done, so their boxes are given back to the OS (a single caller, the run's
+  // writer; posts and reads only touch later positions). Also samples the boxes'
+  // resident bytes. Nothing for a run in seed order.
+  void release_before(std::uint32_t rank);
+  // The most the boxes held resident at a sample of release_before (0 when never
+  // sampled): what a sweep's 2-d memo costs, the boxes near the sweep and the posts
+  // ahead of it.
+  std::size_t resident_peak_bytes() const { return resident_peak_; }
 
   // Whether a post from x's star to its neighbour t may be read: t may come later.
   bool wanted(std::uint32_t x, std::uint32_t t) const { return enabled() && order_.maybe_after(t, x); }
@@ -258,11 +268,19 @@ class EdgeCache {
   // published last; a, b).
   static constexpr std::size_t kBoxWords = 16;
   static_assert(1 + 3 * kPostsPerPoint <= kBoxWords);
-  std::uint32_t* box(std::uint32_t t) const { return boxes_.get() + std::size_t{t} * kBoxWords; }
+  // Point t's box: at its leaf position in a sweep (so that the boxes behind the sweep
+  // form one range to release), at its index otherwise.
+  std::uint32_t* box(std::uint32_t t) const {
+    const std::uint32_t at = order_.sweep != nullptr ? order_.sweep->leaf_rank(t) : t;
+    return boxes_.get() + std::size_t{at} * kBoxWords;
+  }
 
   std::uint32_t n_;
   RunOrder order_;
   MappedWords boxes_;
+  std::size_t released_ = 0;       // bytes from the start given back (whole pages)
+  std::size_t resident_peak_ = 0;  // see resident_peak_bytes()
+  std::vector<unsigned char> residency_;  // mincore's answer, kept between samples
 };
 
 // The cache one whole-mesh run shares among its walkers: an EdgeCache in 2-d (posts

@@ -56,7 +56,8 @@ struct MeshStats {
   // between the blocks done and those to come, O(n^((d-1)/d)), not with n.
   std::size_t front_peak_bytes = 0;
   // All the stars shared: the front's peak plus each worker's block table at its
-  // largest (d >= 3); in 2-d the EdgeCache's reservation (64 bytes per point).
+  // largest (d >= 3); in 2-d the EdgeCache's resident peak (its boxes are kept in leaf
+  // order and given back behind the sweep: the blocks in flight and the posts ahead).
   std::size_t facet_cache_bytes = 0;
   StarStats star;
 };

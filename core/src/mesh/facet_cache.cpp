@@ -6,6 +6,7 @@
 #include <cstdlib>
 
 #include <sys/mman.h>
+#include <unistd.h>
 
 #include "base/dimension.hpp"
 #include "base/mixing.hpp"
@@ -43,11 +44,11 @@ std::atomic<std::size_t> g_mapped_bytes{0};
 // pointer: an earlier version built `UnmapWords{bytes}` in the same call expression
 // as the allocation, so it captured the size before it was set and every munmap got
 // length 0 (EINVAL): each whole mesh leaked its cache.
-MappedWords allocate_zeroed(std::size_t words) {
+MappedWords allocate_zeroed(std::size_t words, bool huge = true) {
   const std::size_t bytes = words * sizeof(std::uint32_t);
   void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
   if (p == MAP_FAILED) return MappedWords(nullptr, UnmapWords{0});
-  ::madvise(p, bytes, MADV_HUGEPAGE);  // advice only: ignored where unsupported
+  if (huge) ::madvise(p, bytes, MADV_HUGEPAGE);  // advice only: ignored where unsupported
   g_mapped_bytes.fetch_add(bytes, std::memory_order_relaxed);
   return MappedWords(static_cast<std::uint32_t*>(p), UnmapWords{bytes});
 }
@@ -223,7 +224,32 @@ std::size_t EdgeCache::bytes_for(std::uint32_t n, std::size_t max_bytes) {
 EdgeCache::EdgeCache(std::uint32_t n, RunOrder order, std::size_t max_bytes) : n_(n), order_(order) {
   order_.end = std::min(order_.end, n);
   if (order_.begin >= order_.end || bytes_for(n, max_bytes) == 0) return;
-  boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords);
+  // A sweep touches its boxes in leaf order and releases them behind it: small pages,
+  // so that what is held is the boxes near the sweep and the front's posts ahead of it
+  // (a huge page would hold 2 MiB for each post far ahead).
+  boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords, /*huge=*/order_.sweep == nullptr);
+}
+
+void EdgeCache::release_before(std::uint32_t rank) {
+  if (!enabled() || order_.sweep == nullptr) return;
+  const std::size_t page = static_cast<std::size_t>(::sysconf(_SC_PAGESIZE));
+  const std::size_t bytes = std::size_t{n_} * kBoxWords * sizeof(std::uint32_t);
+  auto* base = reinterpret_cast<unsigned char*>(boxes_.get());
+  // What is resident now, before this release (sampled at each finished block: the
+  // peak between two samples is at most the blocks finished since).
+  residency_.resize((bytes + page - 1) / page);
+  if (::mincore(base, bytes, residency_.data()) == 0) {
+    std::size_t resident = 0;
+    for (const unsigned char r : residency_) resident += r & 1u;
+    resident_peak_ = std::max(resident_peak_, resident * page);
+  }
+  const std::size_t upto = std::min(std::size_t{rank} * kBoxWords * sizeof(std::uint32_t), bytes) / page * page;
+  if (upto > released_) {
+    // Anonymous private pages: freed now, and zero if ever read again (none is: every
+    // seed before `rank` is done, and posts go only to later ones).
+    ::madvise(base + released_, upto - released_, MADV_DONTNEED);
+    released_ = upto;
+  }
 }
 
 void EdgeCache::post(std::uint32_t t, const Post& p) {

@@ -151,6 +151,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       ++written;
       worker_cv.notify_all();
     }
+    // Every seed before the next block to write is done: its 2-d posts can go.
+    if (edges) edges->release_before(written < count ? blocks.begin(static_cast<std::uint32_t>(first_block + written))
+                                                     : static_cast<std::uint32_t>(n));
     if (failure.is_ok()) {
       total.simplices += current.size() / static_cast<std::size_t>(d + 1);
       failure = sink(current, seeds_done);
@@ -166,7 +169,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   if (!failure.is_ok()) return failure;
   total.seeds = seeds_done;
   total.front_peak_bytes = mail ? mail->peak_bytes() : 0;
-  total.facet_cache_bytes = edges ? edges->reserved_bytes() : total.front_peak_bytes + worker_bytes;
+  total.facet_cache_bytes = edges ? edges->resident_peak_bytes() : total.front_peak_bytes + worker_bytes;
   return total;
 }
 
