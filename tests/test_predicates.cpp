@@ -158,6 +158,25 @@ TEST(PointSet, IntegerScaleCoversEveryCoordinate) {
   EXPECT_EQ(std::ldexp(0.1, -tenths.scale_exponent()), std::trunc(std::ldexp(0.1, -tenths.scale_exponent())));
 }
 
+// d + 2 distinct points with coordinates axis(0..values-1) (point 0 the origin of the
+// predicates below), then d + 2 points far off that make the set full-dimensional for
+// validate(). Fixed by `seed`.
+PointSet grid_configuration(int d, const std::function<double(int)>& axis, int values, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> pick(0, values - 1);
+  std::vector<double> c;
+  std::set<std::vector<double>> seen;
+  while (seen.size() < static_cast<std::size_t>(d + 2)) {
+    std::vector<double> p(d);
+    for (double& v : p) v = axis(pick(rng));
+    if (seen.insert(p).second) c.insert(c.end(), p.begin(), p.end());
+  }
+  for (int extra = 0; extra < d + 2; ++extra) {
+    for (int k = 0; k < d; ++k) c.push_back(k == extra ? 100.5 : 200.25 + extra);
+  }
+  return testing::make_points(d, c);
+}
+
 // Lifted and spatial determinants on scaled integers (the 128-bit path, the Wide path
 // and, for coordinates spanning more than 2^120, GMP rationals) against a rational
 // determinant computed here from the doubles, on grids written three ways, with ties.
@@ -172,19 +191,7 @@ TEST(Predicates, ScaledIntegerSignsEqualRationalSigns) {
     for (int d = 2; d <= 5; ++d) {
       for (std::uint64_t seed = 1; seed <= 30; ++seed) {
         SCOPED_TRACE(std::string(name) + " d " + std::to_string(d) + " seed " + std::to_string(seed));
-        std::mt19937_64 rng(seed * 31 + d);
-        std::uniform_int_distribution<int> pick(0, 6);
-        std::vector<double> c;
-        std::set<std::vector<double>> seen;
-        while (seen.size() < static_cast<std::size_t>(d + 2)) {
-          std::vector<double> p(d);
-          for (double& v : p) v = axis(pick(rng));
-          if (seen.insert(p).second) c.insert(c.end(), p.begin(), p.end());
-        }
-        for (int extra = 0; extra < d + 2; ++extra) {  // a full-dimensional set for validate()
-          for (int k = 0; k < d; ++k) c.push_back(k == extra ? 100.5 : 200.25 + extra);
-        }
-        const PointSet ps = testing::make_points(d, c);
+        const PointSet ps = grid_configuration(d, axis, 7, seed * 31 + d);
         const Predicates pred(ps);
         const int k = d + 1;
         std::vector<Row> rows;
@@ -228,19 +235,7 @@ TEST(Predicates, PerturbedTiesEqualConcreteInfinitesimals) {
     for (int d = 2; d <= 4; ++d) {
       for (std::uint64_t seed = 1; seed <= 100; ++seed) {
         SCOPED_TRACE(std::string(name) + " d " + std::to_string(d) + " seed " + std::to_string(seed));
-        std::mt19937_64 rng(seed * 131 + d);
-        std::uniform_int_distribution<int> pick(0, 2);
-        std::vector<double> c;
-        std::set<std::vector<double>> seen;
-        while (seen.size() < static_cast<std::size_t>(d + 2)) {
-          std::vector<double> p(d);
-          for (double& v : p) v = axis(pick(rng));
-          if (seen.insert(p).second) c.insert(c.end(), p.begin(), p.end());
-        }
-        for (int extra = 0; extra < d + 2; ++extra) {  // a full-dimensional set for validate()
-          for (int k = 0; k < d; ++k) c.push_back(k == extra ? 100.5 : 200.25 + extra);
-        }
-        const PointSet ps = testing::make_points(d, c);
+        const PointSet ps = grid_configuration(d, axis, 3, seed * 131 + d);
         const Predicates pred(ps);
         const int k = d + 1;
         std::vector<std::uint32_t> by_rank(k + 1);

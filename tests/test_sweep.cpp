@@ -147,26 +147,30 @@ TEST(FrontCache, TheMailCapDropsPostsAndChangesNoSimplex) {
   }
 }
 
+// A whole mesh of n uniform points in d dimensions on two threads with blocks of
+// `block` points, its output discarded: the run's statistics, printed.
+MeshStats sweep_of_uniform(int d, std::size_t n, std::uint64_t seed, std::uint32_t block) {
+  const PointSet ps = make_points(d, uniform_points(d, n, seed));
+  const KdTree tree(ps);
+  MeshOptions options;
+  options.threads = 2;
+  options.block_size = block;
+  auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+  EXPECT_TRUE(r.is_ok());
+  const MeshStats stats = r.is_ok() ? r.value() : MeshStats{};
+  std::printf("%d-d n %zu: front peak %zu bytes (%.1f per point), memo %zu bytes (%.1f per point), %.2f cached wraps per seed\n",
+              d, n, stats.front_peak_bytes, static_cast<double>(stats.front_peak_bytes) / static_cast<double>(n),
+              stats.facet_cache_bytes, static_cast<double>(stats.facet_cache_bytes) / static_cast<double>(n),
+              static_cast<double>(stats.star.cached_wraps) / static_cast<double>(n));
+  return stats;
+}
+
 // The front's bound: with blocks of a fixed size, the mailboxes' peak follows the
 // surface between the blocks done and the blocks to come. Eight times the points
 // give about 8^(2/3) = 4 times the front in 3-d; a memo kept for the whole run (as
 // the FacetCache was) grows 8 times.
 TEST(Sweep, TheFrontGrowsWithTheSurfaceNotWithTheMesh) {
-  auto front = [](std::size_t n) {
-    const PointSet ps = make_points(3, uniform_points(3, n, 5));
-    const KdTree tree(ps);
-    MeshOptions options;
-    options.threads = 2;
-    options.block_size = 512;
-    auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
-    EXPECT_TRUE(r.is_ok());
-    std::printf("n %zu: front peak %zu bytes (%.1f per point), cache %zu bytes, %.2f cached wraps per seed\n", n,
-                r.value().front_peak_bytes, static_cast<double>(r.value().front_peak_bytes) / static_cast<double>(n),
-                r.value().facet_cache_bytes,
-                static_cast<double>(r.value().star.cached_wraps) / static_cast<double>(n));
-    return r.value();
-  };
-  const MeshStats small = front(25000), large = front(200000);
+  const MeshStats small = sweep_of_uniform(3, 25000, 5, 512), large = sweep_of_uniform(3, 200000, 5, 512);
   ASSERT_GT(small.front_peak_bytes, 0u);
   const double growth = static_cast<double>(large.front_peak_bytes) / static_cast<double>(small.front_peak_bytes);
   EXPECT_LT(growth, 6.0) << "the front grew " << growth << "x for 8x the points: it follows n, not the surface";
@@ -181,20 +185,7 @@ TEST(Sweep, TheFrontGrowsWithTheSurfaceNotWithTheMesh) {
 // for 8 times the points, where the boxes of every point (64 bytes each, as before)
 // would grow 8 times.
 TEST(Sweep, TwoDimensionalPostsFollowTheFrontNotTheMesh) {
-  auto resident = [](std::size_t n) {
-    const PointSet ps = make_points(2, uniform_points(2, n, 7));
-    const KdTree tree(ps);
-    MeshOptions options;
-    options.threads = 2;
-    options.block_size = 1024;
-    auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
-    EXPECT_TRUE(r.is_ok());
-    std::printf("2-d n %zu: posts resident at most %zu bytes (%.1f per point), %.2f cached wraps per seed\n", n,
-                r.value().facet_cache_bytes, static_cast<double>(r.value().facet_cache_bytes) / static_cast<double>(n),
-                static_cast<double>(r.value().star.cached_wraps) / static_cast<double>(n));
-    return r.value();
-  };
-  const MeshStats small = resident(50000), large = resident(400000);
+  const MeshStats small = sweep_of_uniform(2, 50000, 7, 1024), large = sweep_of_uniform(2, 400000, 7, 1024);
   ASSERT_GT(small.facet_cache_bytes, 0u);
   const double growth = static_cast<double>(large.facet_cache_bytes) / static_cast<double>(small.facet_cache_bytes);
   EXPECT_LT(growth, 5.0) << "the posts grew " << growth << "x for 8x the points: they follow n, not the front";

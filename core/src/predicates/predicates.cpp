@@ -148,6 +148,44 @@ struct FixedScratch {
   std::vector<W> table = std::vector<W>(std::size_t{1} << kMaxCols);
 };
 
+template <class W>
+bool is_zero_of(const W& v) {
+  if constexpr (std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>) {
+    return v == 0;
+  } else {
+    return v.is_zero();
+  }
+}
+
+// The minors of an rows x cols row-major matrix m (rows <= cols) by Laplace expansion
+// over column subsets, minors_table's recurrence on W: table[mask] (popcount j <=
+// rows) is the determinant of the bottom j rows on the columns in mask. No division:
+// every value is a minor or a partial sum of at most cols terms of one.
+template <class W>
+void fill_minors(const W* m, int rows, int cols, W* table) {
+  table[0] = 1;
+  const unsigned full = (1u << cols) - 1u;
+  for (unsigned mask = 1; mask <= full; ++mask) {
+    const int j = detail::kPopCounts.of[mask];
+    if (j > rows) continue;
+    const W* row = m + (rows - j) * cols;
+    W& acc = table[mask];
+    acc = 0;
+    int t = 0;
+    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
+      const int c = __builtin_ctz(rest);
+      if (is_zero_of(row[c])) continue;
+      const W& minor = table[mask ^ (1u << c)];
+      if (is_zero_of(minor)) continue;
+      if (t % 2 == 0) {
+        acc += row[c] * minor;
+      } else {
+        acc -= row[c] * minor;
+      }
+    }
+  }
+}
+
 // Sign of det(m) (k x k, row-major, set by entry(i, j, out)) by Laplace expansion
 // over column subsets (minors_table's recurrence on W): no division, so every
 // intermediate is a minor or a partial sum of at most k terms of one, all within the
@@ -160,27 +198,8 @@ int sign_of_fixed_determinant(int k, Entry&& entry) {
   for (int i = 0; i < k; ++i) {
     for (int j = 0; j < k; ++j) entry(i, j, m[i * k + j]);
   }
-  table[0] = 1;
-  const unsigned full = (1u << k) - 1u;
-  for (unsigned mask = 1; mask <= full; ++mask) {
-    const int j = detail::kPopCounts.of[mask];
-    const W* row = m + (k - j) * k;
-    W& acc = table[mask];
-    acc = 0;
-    int t = 0;
-    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
-      const int c = __builtin_ctz(rest);
-      if (row[c].is_zero()) continue;
-      const W& minor = table[mask ^ (1u << c)];
-      if (minor.is_zero()) continue;
-      if (t % 2 == 0) {
-        acc += row[c] * minor;
-      } else {
-        acc -= row[c] * minor;
-      }
-    }
-  }
-  return table[full].sign();
+  fill_minors(m, k, k, table);
+  return table[(1u << k) - 1u].sign();
 }
 
 // Exact entries of one predicate matrix. When the point set has an integer scale
@@ -292,14 +311,6 @@ class ExactMatrix {
   template <class W>
   static constexpr bool kBuiltin = std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>;
   template <class W>
-  static bool is_zero(const W& v) {
-    if constexpr (kBuiltin<W>) {
-      return v == 0;
-    } else {
-      return v.is_zero();
-    }
-  }
-  template <class W>
   static int sign_of(const W& v) {
     if constexpr (kBuiltin<W>) {
       return v > 0 ? 1 : v < 0 ? -1 : 0;
@@ -320,26 +331,7 @@ class ExactMatrix {
       for (int c = 0; c < d; ++c) st[c * k + r] = static_cast<W>(ints_[r * cols_ + c]);
     }
     const unsigned full = (1u << k) - 1u;
-    table[0] = 1;
-    for (unsigned mask = 1; mask < full; ++mask) {
-      const int j = detail::kPopCounts.of[mask];
-      if (j > d) continue;
-      const W* row = st + (d - j) * k;
-      W& acc = table[mask];
-      acc = 0;
-      int t = 0;
-      for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++t) {
-        const int c = __builtin_ctz(rest);
-        if (is_zero(row[c])) continue;
-        const W& minor = table[mask ^ (1u << c)];
-        if (is_zero(minor)) continue;
-        if (t % 2 == 0) {
-          acc += row[c] * minor;
-        } else {
-          acc -= row[c] * minor;
-        }
-      }
-    }
+    fill_minors(st, d, k, table);
     W det = 0, origin = 0;
     for (int r = 0; r < k; ++r) {
       const W& cofactor = table[full ^ (1u << r)];
