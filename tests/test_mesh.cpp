@@ -435,7 +435,10 @@ TEST(Mesh, EdgeCacheAnswersMostWrapsIn2d) {
   Simplices with, without;
   const MeshStats cached = run(MeshOptions{}.facet_cache_bytes, with), plain = run(0, without);
   EXPECT_EQ(with, without);
-  EXPECT_EQ(cached.facet_cache_bytes, 3000u * 64u);
+  // The posts' resident peak: some of the boxes (64 bytes a point), never more than all
+  // of them (whole pages), since those behind the sweep are given back.
+  EXPECT_GT(cached.facet_cache_bytes, 0u);
+  EXPECT_LE(cached.facet_cache_bytes, (3000u * 64u + 4095u) / 4096u * 4096u);
   EXPECT_EQ(plain.star.cached_wraps, 0u);
   EXPECT_GT(cached.star.cached_starts, 3000u / 2) << "most stars begin at an earlier star's posts";
   EXPECT_LT(cached.star.wraps * 10, plain.star.wraps * 6) << "posts answer the wraps of earlier stars";

@@ -1,0 +1,57 @@
+// SpaceSplit: a point set cut recursively by counts into compact blocks, an order of
+// the points that P processes can compute together (docs/distributed.md).
+//
+// A node's points are split along the widest side of their bounding box: the lower
+// floor(m / 2) of its m points in the total order along that axis go left, the rest
+// right, until a node holds at most `leaf` points. A leaf lists its points in
+// lexicographic order. The leaves in order give every point a position; the maximal
+// nodes of at most `block` points are the blocks, which tile the positions in order.
+//
+// The total order along axis c: coordinate c, then every coordinate in turn
+// (lexicographic), then the index. So a split is decided by counts and comparisons of
+// coordinates only: the result is a function of the point set (as a set) and the two
+// sizes, whatever the order the points come in, and every step has a distributed
+// form (bounding boxes by reductions, medians by rounds of counts).
+//
+// Unlike KdTree's leaf order (nanoflann's in-place partitions depend on the order
+// points arrive in), this order can be reproduced without holding the whole set.
+//
+// Ownership: copies what it needs (n indices, the blocks' boxes); the PointSet is
+// only read during construction. Thread safety: immutable after construction.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "spokemesh/point_set.hpp"
+
+namespace spokemesh {
+
+class SpaceSplit {
+ public:
+  // Preconditions: block >= leaf >= 1; `points` validated (no duplicates).
+  SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_t leaf = 8);
+
+  std::uint32_t size() const { return static_cast<std::uint32_t>(order_.size()); }
+  // The point at a position, and the position of a point (inverse permutations).
+  std::uint32_t point_at(std::uint32_t position) const { return order_[position]; }
+  std::uint32_t position_of(std::uint32_t id) const { return position_[id]; }
+
+  // Blocks: positions [begin(b), end(b)), in order; they tile [0, size()).
+  std::uint32_t block_count() const { return static_cast<std::uint32_t>(first_.size() - 1); }
+  std::uint32_t begin(std::uint32_t b) const { return first_[b]; }
+  std::uint32_t end(std::uint32_t b) const { return first_[b + 1]; }
+  // Block b's bounding box: d lows, then d highs (exact coordinates of its points).
+  std::span<const double> box(std::uint32_t b) const {
+    return {boxes_.data() + std::size_t{b} * 2 * static_cast<std::size_t>(d_), 2 * static_cast<std::size_t>(d_)};
+  }
+
+ private:
+  int d_;
+  std::vector<std::uint32_t> order_, position_;
+  std::vector<std::uint32_t> first_;  // block b starts at first_[b]; first_.back() == size()
+  std::vector<double> boxes_;
+};
+
+}  // namespace spokemesh

@@ -1,0 +1,135 @@
+// SpaceSplit (docs/distributed.md): the order and blocks a distributed run can
+// reproduce. It must be a permutation whose blocks tile it in compact, balanced,
+// non-overlapping boxes, and a function of the point set alone: the same coordinates
+// at every position whatever the input order, grids (ties along every axis) included.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "spokemesh/space_split.hpp"
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using testing::grid_points;
+using testing::make_points;
+using testing::uniform_points;
+
+// Gaussian clumps: most of the space empty, the points in a few dense balls.
+std::vector<double> clustered_points(int d, std::size_t n, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> where(0, 1);
+  std::normal_distribution<double> spread(0, 0.01);
+  std::vector<double> centres(10 * static_cast<std::size_t>(d));
+  for (double& c : centres) c = where(rng);
+  std::vector<double> c;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t k = i % 10;
+    for (int j = 0; j < d; ++j) c.push_back(centres[k * static_cast<std::size_t>(d) + static_cast<std::size_t>(j)] + spread(rng));
+  }
+  return c;
+}
+
+void expect_valid_split(const std::string& name, const PointSet& ps, std::uint32_t block) {
+  SCOPED_TRACE(name + ", block " + std::to_string(block));
+  const SpaceSplit split(ps, block, 8);
+  const std::uint32_t n = split.size();
+  ASSERT_EQ(n, ps.size());
+  std::vector<bool> seen(n, false);
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const std::uint32_t id = split.point_at(i);
+    ASSERT_LT(id, n);
+    ASSERT_FALSE(seen[id]) << "not a permutation at " << i;
+    seen[id] = true;
+    ASSERT_EQ(split.position_of(id), i);
+  }
+  const int d = ps.dimension();
+  ASSERT_GE(split.block_count(), 1u);
+  ASSERT_EQ(split.begin(0), 0u);
+  ASSERT_EQ(split.end(split.block_count() - 1), n);
+  for (std::uint32_t b = 0; b < split.block_count(); ++b) {
+    const std::uint32_t size = split.end(b) - split.begin(b);
+    ASSERT_GT(size, 0u);
+    ASSERT_LE(size, block);
+    // Maximal: the parent held more than `block`, so each half holds at least half.
+    if (n > block) {
+      EXPECT_GE(size, (block + 1) / 2) << "block " << b;
+    }
+    if (b + 1 < split.block_count()) {
+      ASSERT_EQ(split.end(b), split.begin(b + 1));
+    }
+    const std::span<const double> box = split.box(b);
+    for (std::uint32_t i = split.begin(b); i < split.end(b); ++i) {
+      const double* p = ps.point(split.point_at(i));
+      for (int c = 0; c < d; ++c) {
+        ASSERT_GE(p[c], box[static_cast<std::size_t>(c)]);
+        ASSERT_LE(p[c], box[static_cast<std::size_t>(d + c)]);
+      }
+    }
+  }
+  // Boxes never overlap: two blocks' boxes meet at most on a face (a split plane
+  // that points on both sides share, as on grids).
+  for (std::uint32_t a = 0; a < split.block_count(); ++a) {
+    for (std::uint32_t b = a + 1; b < split.block_count(); ++b) {
+      bool apart = false;
+      for (int c = 0; c < d && !apart; ++c) {
+        apart = split.box(a)[static_cast<std::size_t>(d + c)] <= split.box(b)[static_cast<std::size_t>(c)] ||
+                split.box(b)[static_cast<std::size_t>(d + c)] <= split.box(a)[static_cast<std::size_t>(c)];
+      }
+      ASSERT_TRUE(apart) << "blocks " << a << " and " << b << " overlap";
+    }
+  }
+}
+
+TEST(SpaceSplit, BlocksTileTheOrderInCompactBalancedBoxes) {
+  expect_valid_split("uniform 2-d", make_points(2, uniform_points(2, 5000, 1)), 256);
+  expect_valid_split("uniform 3-d", make_points(3, uniform_points(3, 6000, 2)), 300);
+  expect_valid_split("uniform 5-d", make_points(5, uniform_points(5, 3000, 3)), 100);
+  expect_valid_split("clustered 3-d", make_points(3, clustered_points(3, 6000, 4)), 256);
+  expect_valid_split("grid 2-d", make_points(2, grid_points(2, 40)), 64);
+  expect_valid_split("grid 3-d", make_points(3, grid_points(3, 12)), 100);
+  expect_valid_split("one block", make_points(3, uniform_points(3, 50, 5)), 64);
+  expect_valid_split("block of one leaf", make_points(2, uniform_points(2, 500, 6)), 8);
+}
+
+// The order depends on the point set only: input shuffled, the same coordinates come
+// at every position and the blocks are the same.
+TEST(SpaceSplit, TheOrderIsAFunctionOfThePointSet) {
+  for (const auto& [name, d, coords] : std::vector<std::tuple<std::string, int, std::vector<double>>>{
+           {"uniform 3-d", 3, uniform_points(3, 4000, 7)},
+           {"grid 3-d", 3, grid_points(3, 10)},
+           {"grid 2-d", 2, grid_points(2, 30)},
+           {"clustered 2-d", 2, clustered_points(2, 3000, 8)}}) {
+    for (std::uint64_t seed = 1; seed <= 3; ++seed) {
+      SCOPED_TRACE(name + ", shuffle " + std::to_string(seed));
+      const std::size_t n = coords.size() / static_cast<std::size_t>(d);
+      std::vector<std::size_t> perm(n);
+      std::iota(perm.begin(), perm.end(), std::size_t{0});
+      std::mt19937_64 rng(seed);
+      std::shuffle(perm.begin(), perm.end(), rng);
+      std::vector<double> shuffled;
+      for (const std::size_t i : perm) {
+        shuffled.insert(shuffled.end(), coords.begin() + static_cast<std::ptrdiff_t>(i * d),
+                        coords.begin() + static_cast<std::ptrdiff_t>((i + 1) * d));
+      }
+      const PointSet a = make_points(d, coords), b = make_points(d, shuffled);
+      const SpaceSplit sa(a, 128), sb(b, 128);
+      ASSERT_EQ(sa.block_count(), sb.block_count());
+      for (std::uint32_t k = 0; k < sa.block_count(); ++k) ASSERT_EQ(sa.end(k), sb.end(k));
+      for (std::uint32_t i = 0; i < sa.size(); ++i) {
+        const double* p = a.point(sa.point_at(i));
+        const double* q = b.point(sb.point_at(i));
+        for (int c = 0; c < d; ++c) ASSERT_EQ(p[c], q[c]) << "position " << i;
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace spokemesh
