@@ -206,7 +206,7 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
     } else {
       // Within rounding of the plane: decided exactly, ties by the perturbation.
       const int exact = exact_side(x, pl);
-      if (exact == 0) return false;  // a wall off the seed: the generic route decides
+      if (exact == 0) return false;  // undecidable (see exact_side): the generic route
       side_[v] = static_cast<std::int8_t>(exact);
       any_out |= exact > 0;
     }

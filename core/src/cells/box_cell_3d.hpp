@@ -79,8 +79,8 @@ class BoxCell3d {
 
   bool solve(Vertex& v) const;
   // The side of `bisector` vertex v lies on, decided exactly with the star's symbolic
-  // perturbation (> 0 beyond: cut); 0 when v lies on a wall that misses the seed (the
-  // perturbation does not move walls; the generic route decides those).
+  // perturbation (> 0 beyond: cut); 0 only if v's three planes were dependent, which a
+  // solved vertex's are not (the caller then leaves the cell to the generic route).
   int exact_side(const Vertex& v, const Plane& bisector) const;
   // The vertex after cur around face (a plane index), coming from prev; from a vertex
   // where the walk starts (prev == cur), either way round.
