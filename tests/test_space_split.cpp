@@ -1,16 +1,18 @@
-// SpaceSplit (docs/distributed.md): the order and blocks a distributed run can
-// reproduce. It must be a permutation whose blocks tile it in compact, balanced,
+// SpaceSplit and CountSelect (docs/distributed.md): the order and blocks a distributed
+// run can reproduce, and the median step it computes across processes. It must be a permutation whose blocks tile it in compact, balanced,
 // non-overlapping boxes, and a function of the point set alone: the same coordinates
 // at every position whatever the input order, grids (ties along every axis) included.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <numeric>
 #include <random>
 #include <string>
 #include <tuple>
 #include <vector>
 
+#include "spokemesh/count_select.hpp"
 #include "spokemesh/space_split.hpp"
 #include "support.hpp"
 
@@ -129,6 +131,102 @@ TEST(SpaceSplit, TheOrderIsAFunctionOfThePointSet) {
       }
     }
   }
+}
+
+// The k-th point across P parts by rounds of counts (CountSelect), simulated here part
+// by part in lockstep as MPI will run them: the point a sort of the whole set gives,
+// for every P and k, on uniform points and on a grid (ties along every axis), within
+// O(log n) rounds; and SpaceSplit's first cut is at the point it selects.
+struct SelectRun {
+  std::uint64_t id = 0;
+  int rounds = 0;
+};
+
+SelectRun select_across_parts(const PointSet& ps, int axis, std::uint64_t k, int parts, std::uint64_t seed) {
+  const int d = ps.dimension();
+  std::vector<std::vector<double>> coords(static_cast<std::size_t>(parts));
+  std::vector<std::vector<std::uint64_t>> ids(static_cast<std::size_t>(parts));
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> part_of(0, parts - 1);
+  for (std::uint64_t i = 0; i < ps.size(); ++i) {
+    const auto p = static_cast<std::size_t>(part_of(rng));
+    coords[p].insert(coords[p].end(), ps.point(i), ps.point(i) + d);
+    ids[p].push_back(i);
+  }
+  std::vector<CountSelect> selects;
+  for (int p = 0; p < parts; ++p) selects.emplace_back(d, axis, coords[static_cast<std::size_t>(p)], ids[static_cast<std::size_t>(p)]);
+  SelectRun run;
+  for (;;) {
+    ++run.rounds;
+    std::vector<CountSelect::Proposal> proposals;  // MPI_Allgather
+    for (const CountSelect& s : selects) proposals.push_back(s.propose());
+    const CountSelect::Key pivot = CountSelect::pivot_of(proposals, axis);
+    CountSelect::Counts total;  // MPI_Allreduce (sum)
+    for (const CountSelect& s : selects) {
+      const CountSelect::Counts c = s.count(pivot);
+      total.below += c.below;
+      total.at += c.at;
+    }
+    const CountSelect::Side side = CountSelect::decide(k, total);
+    if (side == CountSelect::Side::kFound) {
+      run.id = pivot.id;
+      return run;
+    }
+    for (CountSelect& s : selects) s.narrow(pivot, side);
+    if (run.rounds > 200) return run;  // a bug: the test fails below
+  }
+}
+
+TEST(CountSelect, FindsTheKthPointAcrossAnyNumberOfParts) {
+  for (const auto& [name, d, coords] : std::vector<std::tuple<std::string, int, std::vector<double>>>{
+           {"uniform 3-d", 3, uniform_points(3, 3000, 11)},
+           {"grid 3-d", 3, grid_points(3, 12)},
+           {"clustered 2-d", 2, clustered_points(2, 2000, 12)}}) {
+    const PointSet ps = make_points(d, coords);
+    const std::uint64_t n = ps.size();
+    for (int axis = 0; axis < d; ++axis) {
+      std::vector<CountSelect::Key> all;
+      for (std::uint64_t i = 0; i < n; ++i) all.push_back({std::vector<double>(ps.point(i), ps.point(i) + d), i});
+      std::sort(all.begin(), all.end(), [&](const auto& a, const auto& b) { return CountSelect::before(a, b, axis); });
+      for (const int parts : {1, 2, 3, 4, 7}) {
+        for (const std::uint64_t k : {std::uint64_t{0}, n / 2, n - 1, n / 3 + 1}) {
+          SCOPED_TRACE(name + ", axis " + std::to_string(axis) + ", " + std::to_string(parts) + " parts, k " +
+                       std::to_string(k));
+          const SelectRun run = select_across_parts(ps, axis, k, parts, 100 + static_cast<std::uint64_t>(parts));
+          EXPECT_EQ(run.id, all[k].id);
+          // Each round keeps at most three quarters of the candidates.
+          EXPECT_LE(run.rounds, static_cast<int>(std::ceil(std::log(static_cast<double>(n)) / std::log(4.0 / 3.0))) + 2);
+        }
+      }
+    }
+  }
+}
+
+TEST(CountSelect, SpaceSplitCutsAtTheSelectedMedian) {
+  const PointSet ps = make_points(3, uniform_points(3, 4000, 13));
+  const SpaceSplit split(ps, 64);
+  // The widest side of the whole set's box, as SpaceSplit chooses it.
+  int axis = 0;
+  double widest = -1;
+  for (int c = 0; c < 3; ++c) {
+    double lo = ps.point(0)[c], hi = lo;
+    for (std::uint64_t i = 0; i < ps.size(); ++i) {
+      lo = std::min(lo, ps.point(i)[c]);
+      hi = std::max(hi, ps.point(i)[c]);
+    }
+    if (hi - lo > widest) {
+      widest = hi - lo;
+      axis = c;
+    }
+  }
+  const std::uint64_t half = ps.size() / 2;
+  // The right half holds positions [n/2, n): its first point in the axis's order.
+  std::uint64_t first_right = split.point_at(static_cast<std::uint32_t>(half));
+  auto key = [&](std::uint64_t i) { return CountSelect::Key{std::vector<double>(ps.point(i), ps.point(i) + 3), i}; };
+  for (std::uint32_t pos = static_cast<std::uint32_t>(half); pos < split.size(); ++pos) {
+    if (CountSelect::before(key(split.point_at(pos)), key(first_right), axis)) first_right = split.point_at(pos);
+  }
+  for (const int parts : {1, 3, 7}) EXPECT_EQ(select_across_parts(ps, axis, half, parts, 7).id, first_right);
 }
 
 }  // namespace
