@@ -98,6 +98,8 @@ TEST(SpaceSplit, BlocksTileTheOrderInCompactBalancedBoxes) {
   expect_valid_split("grid 3-d", make_points(3, grid_points(3, 12)), 100);
   expect_valid_split("one block", make_points(3, uniform_points(3, 50, 5)), 64);
   expect_valid_split("block of one leaf", make_points(2, uniform_points(2, 500, 6)), 8);
+  // Large enough for the two halves to be split on two threads.
+  expect_valid_split("uniform 2-d, two threads", make_points(2, uniform_points(2, 70000, 9)), 512);
 }
 
 // The order depends on the point set only: input shuffled, the same coordinates come
@@ -107,7 +109,8 @@ TEST(SpaceSplit, TheOrderIsAFunctionOfThePointSet) {
            {"uniform 3-d", 3, uniform_points(3, 4000, 7)},
            {"grid 3-d", 3, grid_points(3, 10)},
            {"grid 2-d", 2, grid_points(2, 30)},
-           {"clustered 2-d", 2, clustered_points(2, 3000, 8)}}) {
+           {"clustered 2-d", 2, clustered_points(2, 3000, 8)},
+           {"uniform 3-d, two threads", 3, uniform_points(3, 70000, 10)}}) {
     for (std::uint64_t seed = 1; seed <= 3; ++seed) {
       SCOPED_TRACE(name + ", shuffle " + std::to_string(seed));
       const std::size_t n = coords.size() / static_cast<std::size_t>(d);

@@ -16,8 +16,14 @@
 // Unlike KdTree's leaf order (nanoflann's in-place partitions depend on the order
 // points arrive in), this order can be reproduced without holding the whole set.
 //
-// Ownership: copies what it needs (n indices, the blocks' boxes); the PointSet is
-// only read during construction. Thread safety: immutable after construction.
+// Cost: records of coordinates and index are partitioned in place (nth_element), the
+// two halves of the root on two threads from 65,536 points: 0.16 s for 1M 3-d points,
+// 0.70 s for 4M (the KdTree's build: 0.19 s and 0.84 s).
+//
+// Ownership: keeps the order both ways (2 n indices) and the blocks' boxes; the
+// PointSet is only read during construction (which copies it once, as records).
+// Thread safety: immutable after construction; the constructor uses one extra thread
+// for 65,536 points or more.
 #pragma once
 
 #include <cstdint>

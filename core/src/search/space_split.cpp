@@ -1,84 +1,170 @@
 #include "spokemesh/space_split.hpp"
 
 #include <algorithm>
+#include <array>
 #include <numeric>
+#include <thread>
+
+#include "base/dimension.hpp"
 
 namespace spokemesh {
 
 namespace {
 
-// The total order along `axis`: that coordinate, then all of them in turn, then the
-// index (never reached for a validated set, which has no duplicates).
-struct AlongAxis {
-  const PointSet& ps;
-  int axis;
-  bool operator()(std::uint32_t a, std::uint32_t b) const {
-    const double* p = ps.point(a);
-    const double* q = ps.point(b);
+// One split of the recursion's output: the blocks met in a range of positions, in
+// order (their ends and boxes).
+struct Blocks {
+  std::vector<std::uint32_t> ends;
+  std::vector<double> boxes;
+};
+
+// The split on records that carry their coordinates (D known at compile time, or the
+// runtime d for D = 0): nth_element then moves 32 to 72 contiguous bytes per point
+// instead of chasing an index into the PointSet, which made a 1M-point split 2.5x
+// slower than the k-d tree's build.
+template <int D>
+class Splitter {
+ public:
+  struct Record {
+    std::array<double, D == 0 ? 1 : D> x;  // D = 0: unused (coordinates in `wide`)
+    std::uint32_t id;
+  };
+
+  Splitter(const PointSet& points, std::uint32_t block, std::uint32_t leaf)
+      : ps_(points), d_(D > 0 ? D : points.dimension()), block_(block), leaf_(leaf) {}
+
+  // The total order along `axis`: that coordinate, then every coordinate, then the id.
+  bool before(const Record& a, const Record& b, int axis) const {
+    const double* p = coords(a);
+    const double* q = coords(b);
     if (p[axis] != q[axis]) return p[axis] < q[axis];
-    for (int c = 0; c < ps.dimension(); ++c) {
+    for (int c = 0; c < d_; ++c) {
       if (p[c] != q[c]) return p[c] < q[c];
     }
-    return a < b;
+    return a.id < b.id;
   }
+  const double* coords(const Record& r) const {
+    if constexpr (D > 0) {
+      return r.x.data();
+    } else {
+      return ps_.point(r.id);
+    }
+  }
+
+  void fill(std::vector<Record>& recs) const {
+    recs.resize(ps_.size());
+    for (std::uint32_t i = 0; i < recs.size(); ++i) {
+      recs[i].id = i;
+      if constexpr (D > 0) std::copy(ps_.point(i), ps_.point(i) + D, recs[i].x.begin());
+    }
+  }
+
+  // Splits recs[begin, end) (a node below a block if in_block), appending the blocks it
+  // meets to `out` in order. Depth first, left before right.
+  void split(std::vector<Record>& recs, std::uint32_t begin, std::uint32_t end, bool in_block, Blocks& out) const {
+    struct Node {
+      std::uint32_t begin, end;
+      bool in_block;
+    };
+    std::vector<Node> stack{{begin, end, in_block}};
+    std::vector<double> lo(static_cast<std::size_t>(d_)), hi(static_cast<std::size_t>(d_));
+    while (!stack.empty()) {
+      const Node node = stack.back();
+      stack.pop_back();
+      const std::uint32_t m = node.end - node.begin;
+      const bool block_here = !node.in_block && m <= block_;
+      if (block_here || m > leaf_) bound(recs, node.begin, node.end, lo, hi);
+      if (block_here) {
+        out.boxes.insert(out.boxes.end(), lo.begin(), lo.end());
+        out.boxes.insert(out.boxes.end(), hi.begin(), hi.end());
+        out.ends.push_back(node.end);
+      }
+      auto first = recs.begin() + node.begin, last = recs.begin() + node.end;
+      if (m <= leaf_) {
+        std::sort(first, last, [&](const Record& a, const Record& b) { return before(a, b, 0); });
+        continue;
+      }
+      const int axis = widest(lo, hi);
+      const std::uint32_t mid = node.begin + m / 2;
+      std::nth_element(first, recs.begin() + mid, last,
+                       [&](const Record& a, const Record& b) { return before(a, b, axis); });
+      stack.push_back({mid, node.end, node.in_block || block_here});  // right, after the left
+      stack.push_back({node.begin, mid, node.in_block || block_here});
+    }
+  }
+
+  // The root cut, then its two halves on two threads (each half's blocks in order).
+  void split_in_halves(std::vector<Record>& recs, Blocks& out) const {
+    const auto n = static_cast<std::uint32_t>(recs.size());
+    if (n <= block_ || n < kTwoThreadsAtLeast) {
+      split(recs, 0, n, false, out);
+      return;
+    }
+    std::vector<double> lo(static_cast<std::size_t>(d_)), hi(static_cast<std::size_t>(d_));
+    bound(recs, 0, n, lo, hi);
+    const int axis = widest(lo, hi);
+    const std::uint32_t mid = n / 2;
+    std::nth_element(recs.begin(), recs.begin() + mid, recs.end(),
+                     [&](const Record& a, const Record& b) { return before(a, b, axis); });
+    Blocks right;
+    std::thread other([&] { split(recs, mid, n, false, right); });
+    split(recs, 0, mid, false, out);
+    other.join();
+    out.ends.insert(out.ends.end(), right.ends.begin(), right.ends.end());
+    out.boxes.insert(out.boxes.end(), right.boxes.begin(), right.boxes.end());
+  }
+
+ private:
+  static constexpr std::uint32_t kTwoThreadsAtLeast = 65536;
+
+  void bound(const std::vector<Record>& recs, std::uint32_t begin, std::uint32_t end, std::vector<double>& lo,
+             std::vector<double>& hi) const {
+    const double* first = coords(recs[begin]);
+    std::copy(first, first + d_, lo.begin());
+    std::copy(first, first + d_, hi.begin());
+    for (std::uint32_t i = begin + 1; i < end; ++i) {
+      const double* p = coords(recs[i]);
+      for (int c = 0; c < d_; ++c) {
+        lo[static_cast<std::size_t>(c)] = std::min(lo[static_cast<std::size_t>(c)], p[c]);
+        hi[static_cast<std::size_t>(c)] = std::max(hi[static_cast<std::size_t>(c)], p[c]);
+      }
+    }
+  }
+  // The widest side; the lowest axis among equals.
+  int widest(const std::vector<double>& lo, const std::vector<double>& hi) const {
+    int axis = 0;
+    for (int c = 1; c < d_; ++c) {
+      const auto a = static_cast<std::size_t>(axis), k = static_cast<std::size_t>(c);
+      if (hi[k] - lo[k] > hi[a] - lo[a]) axis = c;
+    }
+    return axis;
+  }
+
+  const PointSet& ps_;
+  int d_;
+  std::uint32_t block_, leaf_;
 };
 
 }  // namespace
 
 SpaceSplit::SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_t leaf) : d_(points.dimension()) {
   const auto n = static_cast<std::uint32_t>(points.size());
-  const std::size_t d = static_cast<std::size_t>(d_);
   leaf = std::max<std::uint32_t>(leaf, 1);
   block = std::max(block, leaf);
-  order_.resize(n);
-  std::iota(order_.begin(), order_.end(), 0u);
   first_.push_back(0);
-  std::vector<double> lo(d), hi(d);
-  auto bound = [&](std::uint32_t begin, std::uint32_t end) {
-    for (std::size_t c = 0; c < d; ++c) lo[c] = hi[c] = points.point(order_[begin])[c];
-    for (std::uint32_t i = begin + 1; i < end; ++i) {
-      const double* p = points.point(order_[i]);
-      for (std::size_t c = 0; c < d; ++c) {
-        lo[c] = std::min(lo[c], p[c]);
-        hi[c] = std::max(hi[c], p[c]);
-      }
-    }
-  };
-  // Depth first, left before right: nodes are met in position order, so blocks and
-  // leaves are appended in order too.
-  struct Node {
-    std::uint32_t begin, end;
-    bool in_block;  // an ancestor (or the node itself) is a block already
-  };
-  std::vector<Node> stack;
-  if (n != 0) stack.push_back({0, n, false});
-  while (!stack.empty()) {
-    const Node node = stack.back();
-    stack.pop_back();
-    const std::uint32_t m = node.end - node.begin;
-    bool in_block = node.in_block;
-    if (!in_block && m <= block) {
-      in_block = true;  // a maximal node of at most `block` points: a block
-      bound(node.begin, node.end);
-      boxes_.insert(boxes_.end(), lo.begin(), lo.end());
-      boxes_.insert(boxes_.end(), hi.begin(), hi.end());
-      first_.push_back(node.end);  // blocks are met in order: this one ends here
-    }
-    auto first = order_.begin() + node.begin, last = order_.begin() + node.end;
-    if (m <= leaf) {
-      std::sort(first, last, AlongAxis{points, 0});
-      continue;
-    }
-    bound(node.begin, node.end);
-    int axis = 0;
-    for (std::size_t c = 1; c < d; ++c) {
-      if (hi[c] - lo[c] > hi[static_cast<std::size_t>(axis)] - lo[static_cast<std::size_t>(axis)]) axis = static_cast<int>(c);
-    }
-    const std::uint32_t mid = node.begin + m / 2;
-    std::nth_element(first, order_.begin() + mid, last, AlongAxis{points, axis});
-    stack.push_back({mid, node.end, in_block});  // right, taken after the left
-    stack.push_back({node.begin, mid, in_block});
-  }
+  if (n == 0) return;
+  Blocks blocks;
+  detail::dispatch_dimension(d_, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    const Splitter<D> splitter(points, block, leaf);
+    std::vector<typename Splitter<D>::Record> recs;
+    splitter.fill(recs);
+    splitter.split_in_halves(recs, blocks);
+    order_.resize(n);
+    for (std::uint32_t i = 0; i < n; ++i) order_[i] = recs[i].id;
+  });
+  first_.insert(first_.end(), blocks.ends.begin(), blocks.ends.end());
+  boxes_ = std::move(blocks.boxes);
   position_.resize(n);
   for (std::uint32_t i = 0; i < n; ++i) position_[order_[i]] = i;
 }
