@@ -34,6 +34,16 @@
 
 namespace spokemesh {
 
+// The total order along `axis` of d-dimensional points p and q with indices i and j:
+// coordinate `axis`, then every coordinate in turn (lexicographic), then the index.
+inline bool before_along(int axis, int d, const double* p, std::uint64_t i, const double* q, std::uint64_t j) {
+  if (p[axis] != q[axis]) return p[axis] < q[axis];
+  for (int c = 0; c < d; ++c) {
+    if (p[c] != q[c]) return p[c] < q[c];
+  }
+  return i < j;
+}
+
 class SpaceSplit {
  public:
   // Preconditions: block >= leaf >= 1; `points` validated (no duplicates).

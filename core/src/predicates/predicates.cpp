@@ -148,9 +148,13 @@ struct FixedScratch {
   std::vector<W> table = std::vector<W>(std::size_t{1} << kMaxCols);
 };
 
+// The integer types the hardware has (else a Boost.Multiprecision number).
+template <class W>
+constexpr bool kBuiltinInt = std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>;
+
 template <class W>
 bool is_zero_of(const W& v) {
-  if constexpr (std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>) {
+  if constexpr (kBuiltinInt<W>) {
     return v == 0;
   } else {
     return v.is_zero();
@@ -309,10 +313,8 @@ class ExactMatrix {
 
  private:
   template <class W>
-  static constexpr bool kBuiltin = std::is_same_v<W, std::int64_t> || std::is_same_v<W, i128>;
-  template <class W>
   static int sign_of(const W& v) {
-    if constexpr (kBuiltin<W>) {
+    if constexpr (kBuiltinInt<W>) {
       return v > 0 ? 1 : v < 0 ? -1 : 0;
     } else {
       return v.sign();
@@ -340,7 +342,7 @@ class ExactMatrix {
       signs[2 + r] = rows[r].is_point() ? (plus ? s : -s) : 0;
       if (s == 0) continue;
       W height = static_cast<W>(ints_[r * cols_ + d]);
-      if constexpr (!kBuiltin<W>) {
+      if constexpr (!kBuiltinInt<W>) {
         if (((wide_height_ >> r) & 1u) != 0) height = static_cast<W>(heights_[r]);
       }
       if (plus) {

@@ -3,31 +3,23 @@
 #include <algorithm>
 #include <numeric>
 
+#include "spokemesh/space_split.hpp"
+
 namespace spokemesh {
 
 CountSelect::CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids)
     : d_(d), axis_(axis), coords_(coords.begin(), coords.end()), ids_(ids.begin(), ids.end()) {
   sorted_.resize(ids_.size());
   std::iota(sorted_.begin(), sorted_.end(), 0u);
+  const auto d_size = static_cast<std::size_t>(d_);
   std::sort(sorted_.begin(), sorted_.end(), [&](std::uint32_t a, std::uint32_t b) {
-    const double* p = &coords_[std::size_t{a} * static_cast<std::size_t>(d_)];
-    const double* q = &coords_[std::size_t{b} * static_cast<std::size_t>(d_)];
-    if (p[axis_] != q[axis_]) return p[axis_] < q[axis_];
-    for (int c = 0; c < d_; ++c) {
-      if (p[c] != q[c]) return p[c] < q[c];
-    }
-    return ids_[a] < ids_[b];
+    return before_along(axis_, d_, &coords_[a * d_size], ids_[a], &coords_[b * d_size], ids_[b]);
   });
   hi_ = sorted_.size();
 }
 
 bool CountSelect::before(const Key& a, const Key& b, int axis) {
-  const auto c = static_cast<std::size_t>(axis);
-  if (a.coords[c] != b.coords[c]) return a.coords[c] < b.coords[c];
-  for (std::size_t i = 0; i < a.coords.size(); ++i) {
-    if (a.coords[i] != b.coords[i]) return a.coords[i] < b.coords[i];
-  }
-  return a.id < b.id;
+  return before_along(axis, static_cast<int>(a.coords.size()), a.coords.data(), a.id, b.coords.data(), b.id);
 }
 
 CountSelect::Key CountSelect::key_at(std::size_t i) const {

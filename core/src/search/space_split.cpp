@@ -33,15 +33,8 @@ class Splitter {
   Splitter(const PointSet& points, std::uint32_t block, std::uint32_t leaf)
       : ps_(points), d_(D > 0 ? D : points.dimension()), block_(block), leaf_(leaf) {}
 
-  // The total order along `axis`: that coordinate, then every coordinate, then the id.
   bool before(const Record& a, const Record& b, int axis) const {
-    const double* p = coords(a);
-    const double* q = coords(b);
-    if (p[axis] != q[axis]) return p[axis] < q[axis];
-    for (int c = 0; c < d_; ++c) {
-      if (p[c] != q[c]) return p[c] < q[c];
-    }
-    return a.id < b.id;
+    return before_along(axis, d_, coords(a), a.id, coords(b), b.id);
   }
   const double* coords(const Record& r) const {
     if constexpr (D > 0) {
