@@ -24,6 +24,8 @@ packages=(
   python3-yaml python3-jsonschema
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
+  # spokemesh-mpi (issue 26): Open MPI 4.1, its compilers' wrappers and mpirun
+  libopenmpi-dev openmpi-bin
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers
   clang libfuzzer-14-dev libclang-rt-14-dev
   # the container system test (scripts/container-test.sh): rootful podman with runc,

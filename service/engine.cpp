@@ -517,7 +517,7 @@ std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned t
   // The front's mail, capped at the estimate's mail part so that the charge bounds it,
   // plus the workers' block tables. Less mail, or none, gives the same simplices.
   const FrontMail::Estimate estimate =
-      FrontMail::estimate(dimension, n, threads, BlockDecomposition::default_max_points(dimension, n));
+      FrontMail::estimate(dimension, n, threads, SpaceSplit::default_block_points(dimension, n));
   MemoryBudget& budget = store_->budget();
   // A small set's whole estimate (under 1 MiB) is tried as it is; a larger one is
   // halved down to 1 MiB while the budget is short.
@@ -660,6 +660,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     }
     return Status::ok();
   };
+  options.split = s.split.get();
   auto result = mesh_seeds(*s.tree, options, sink);
   if (!result.is_ok()) {
     if (result.status().code() == Code::kCancelled && control.stopped()) {

@@ -215,7 +215,7 @@ class Engine {
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
   // shard's seeds, in sweep order, on the calling thread. Shard k of S holds the seeds
-  // at sweep positions (k-d tree leaf order) shard_range(n, k, S), so the shards in
+  // at sweep positions (SpaceSplit order) shard_range(n, k, S), so the shards in
   // order concatenate to the whole mesh as mesh_seeds writes it. A non-OK status from emit stops the
   // run (and is returned). Only a bounded window is computed ahead of emit.
   using BatchSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;

@@ -175,9 +175,11 @@ bool is_valid_id(const std::string& id) {
 std::uint64_t estimated_memory(std::uint64_t n, int d) {
   // Per point: the coordinates (8 d), the tree's leaf-ordered copy (8 d) and its box
   // tree (about 0.36 nodes of 2 d floats and 12 bytes: 3 d + 5), lexicographic ranks
-  // and the permutations (4 + 4 + 4 + 4), nanoflann's nodes (about 0.36 of 40 bytes).
+  // and the permutations (4 + 4 + 4 + 4), nanoflann's nodes (about 0.36 of 40 bytes),
+  // the sweep's order both ways (4 + 4; its records, 8 d + 8 while it is built, are
+  // freed before the tree's build copies the coordinates, so they add no peak).
   const auto dd = static_cast<std::uint64_t>(d);
-  return n * (8 * dd + 8 * dd + 3 * dd + 5 + 16 + 15);
+  return n * (8 * dd + 8 * dd + 3 * dd + 5 + 16 + 15 + 8);
 }
 
 PointSetStore::PointSetStore(std::string dir, std::uint64_t budget, LogFn log)
@@ -427,7 +429,12 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   set->info.count = n;
   std::string name;
   if (read_file(name_path(id), name)) set->info.display_name = name;
-  set->tree = std::make_unique<KdTree>(set->points);
+  if (d <= static_cast<std::uint64_t>(kMaxDimension)) {
+    set->split = std::make_unique<SpaceSplit>(set->points, SpaceSplit::default_block_points(static_cast<int>(d), n));
+    set->tree = std::make_unique<KdTree>(set->points, set->split->order());
+  } else {
+    set->tree = std::make_unique<KdTree>(set->points);
+  }
   set->memory_bytes = estimated_memory(n, static_cast<int>(d));
   set->charge = std::move(charge);
   return std::shared_ptr<const StoredSet>(std::move(set));

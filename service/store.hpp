@@ -31,6 +31,7 @@
 
 #include "memory_budget.hpp"
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/space_split.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
 
@@ -48,8 +49,11 @@ struct PointSetInfo {
 struct StoredSet {
   PointSetInfo info;
   PointSet points;
+  // The whole mesh's sweep order (exact dimensions only; null above kMaxDimension),
+  // built before the tree, which is laid out in it.
+  std::unique_ptr<SpaceSplit> split;
   std::unique_ptr<KdTree> tree;
-  std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + tree
+  std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + split + tree
   MemoryBudget::Charge charge;     // memory_bytes against the server's budget, while the set lives
 };
 

@@ -230,6 +230,7 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
     }
     const int w = d + 1;
     const Predicates pred(ps);
+    const SpaceSplit split(ps, 64);
     const auto sorted = [&](std::size_t i) {
       std::vector<std::uint32_t> s(one.begin() + i, one.begin() + i + w);
       std::sort(s.begin(), s.end());
@@ -240,9 +241,9 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
       ASSERT_GT(pred.orientation(std::span<const std::uint32_t>(one.data() + i, w)), 0);
       ASSERT_TRUE(std::is_sorted(one.begin() + i, one.begin() + i + w - 1));
       ASSERT_EQ(one[i], sorted(i)[0]);
-      // Sweep order: owners by leaf rank, an owner's simplices lexicographic.
+      // Sweep order: owners by SpaceSplit position, an owner's simplices lexicographic.
       if (i + w < one.size()) {
-        ASSERT_LE(tree.leaf_rank(one[i]), tree.leaf_rank(one[i + w]));
+        ASSERT_LE(split.position_of(one[i]), split.position_of(one[i + w]));
         if (one[i] == one[i + w]) {
           ASSERT_LT(sorted(i), sorted(i + w));
         }

@@ -491,7 +491,8 @@ TEST(Rest, EveryRoute) {
                 body += chunk;
                 return true;
               }).is_ok());
-  EXPECT_EQ(body, "[0,1,4]\n[0,4,2]\n[1,3,4]\n[2,4,3]\n");
+  // Sweep order: five points are one leaf, seeds in lexicographic order of coordinates.
+  EXPECT_EQ(body, "[0,1,4]\n[0,4,2]\n[2,4,3]\n[1,3,4]\n");
 
   EXPECT_EQ(rest.get("/healthz")["status"], "SERVING");
   EXPECT_EQ(rest.get("/readyz")["status"], "READY");

@@ -68,6 +68,8 @@ void expect_valid_split(const std::string& name, const PointSet& ps, std::uint32
     }
     const std::span<const double> box = split.box(b);
     for (std::uint32_t i = split.begin(b); i < split.end(b); ++i) {
+      ASSERT_EQ(split.block_of(i), b);
+      ASSERT_EQ(split.position_of(split.point_at(i)), i);
       const double* p = ps.point(split.point_at(i));
       for (int c = 0; c < d; ++c) {
         ASSERT_GE(p[c], box[static_cast<std::size_t>(c)]);

@@ -7,7 +7,6 @@
 #include <cmath>
 #include <cstdio>
 
-#include "spokemesh/blocks.hpp"
 #include "spokemesh/front_cache.hpp"
 #include "spokemesh/mesh.hpp"
 #include "support.hpp"
@@ -19,61 +18,11 @@ using testing::make_points;
 using testing::mesh_all;
 using testing::uniform_points;
 
-TEST(Blocks, TileTheLeafOrderWithCompactBoxes) {
-  for (int d = 2; d <= 5; ++d) {
-    for (const std::uint32_t max_points : {1u, 7u, 64u, 500u, 1000000u}) {
-      SCOPED_TRACE("d " + std::to_string(d) + ", at most " + std::to_string(max_points) + " points (seed 90 + d)");
-      const PointSet ps = make_points(d, uniform_points(d, 3000, 90 + d));
-      const KdTree tree(ps);
-      const BlockDecomposition blocks(tree, max_points);
-      ASSERT_GE(blocks.size(), 1u);
-      EXPECT_EQ(blocks.begin(0), 0u);
-      EXPECT_EQ(blocks.end(blocks.size() - 1), 3000u);
-      std::size_t leaves_over = 0;
-      for (std::uint32_t b = 0; b < blocks.size(); ++b) {
-        ASSERT_LT(blocks.begin(b), blocks.end(b)) << "block " << b << " is empty";
-        if (b + 1 < blocks.size()) {
-          ASSERT_EQ(blocks.end(b), blocks.begin(b + 1));
-        }
-        const std::uint32_t size = blocks.end(b) - blocks.begin(b);
-        // Only a leaf (nanoflann's leaves hold at most 8 points) may exceed the cap.
-        if (size > max_points) {
-          ++leaves_over;
-          ASSERT_LE(size, 8u);
-        }
-        const auto box = blocks.box(b);
-        for (std::uint32_t r = blocks.begin(b); r < blocks.end(b); ++r) {
-          const std::uint32_t p = tree.point_at_rank(r);
-          ASSERT_EQ(tree.leaf_rank(p), r);
-          ASSERT_EQ(blocks.block_of(p), b);
-          ASSERT_EQ(blocks.block_of_rank(r), b);
-          for (int c = 0; c < d; ++c) {
-            ASSERT_LE(box[static_cast<std::size_t>(c)], ps.point(p)[c]);
-            ASSERT_GE(box[static_cast<std::size_t>(d + c)], ps.point(p)[c]);
-          }
-        }
-      }
-      if (max_points >= 8) {
-        EXPECT_EQ(leaves_over, 0u);
-      }
-      // Maximal subtrees: the median splits halve the points, so a block holds more
-      // than a quarter of the cap (two levels of rounding), and the count is bounded.
-      if (max_points >= 64 && max_points < 3000) {
-        EXPECT_LE(blocks.size(), 4 * 3000 / max_points + 1);
-      }
-      if (max_points >= 3000) {
-        EXPECT_EQ(blocks.size(), 1u);
-      }
-    }
-  }
-}
-
-TEST(Blocks, ConsecutiveBlocksAreCloseInSpace) {
-  // Leaf order is a space-filling order: on average consecutive blocks' boxes touch
-  // or overlap far more often than random pairs would.
+TEST(SweepOrder, ConsecutiveBlocksAreCloseInSpace) {
+  // The sweep's order is a space-filling order: on average consecutive blocks' boxes
+  // touch far more often than random pairs would.
   const PointSet ps = make_points(3, uniform_points(3, 20000, 7));
-  const KdTree tree(ps);
-  const BlockDecomposition blocks(tree, 256);
+  const SpaceSplit blocks(ps, 256);
   const auto gap = [&](std::uint32_t a, std::uint32_t b) {
     double g2 = 0;
     const auto x = blocks.box(a), y = blocks.box(b);
@@ -83,24 +32,30 @@ TEST(Blocks, ConsecutiveBlocksAreCloseInSpace) {
     }
     return std::sqrt(g2);
   };
-  std::size_t touching = 0;
-  for (std::uint32_t b = 0; b + 1 < blocks.size(); ++b) touching += gap(b, b + 1) < 0.02 ? 1 : 0;
-  EXPECT_GT(touching, (blocks.size() - 1) * 9 / 10);
+  // Consecutive blocks are siblings or cousins in the split: most touch (a depth-first
+  // order of a k-d split jumps across a subtree now and then, as a Z order does).
+  const std::uint32_t m = blocks.block_count();
+  std::size_t touching = 0, random_touching = 0;
+  for (std::uint32_t b = 0; b + 1 < m; ++b) {
+    touching += gap(b, b + 1) < 0.02 ? 1 : 0;
+    random_touching += gap(b, (b * 7919u + 13u) % m) < 0.02 ? 1 : 0;
+  }
+  EXPECT_GT(touching, (m - 1) * 3 / 4);
+  EXPECT_GT(touching, 4 * random_touching) << touching << " consecutive, " << random_touching << " random pairs touch";
 }
 
 TEST(FrontCache, RecordsReachLaterSeedsOnceAndNeverABlockThatBegan) {
   const PointSet ps = make_points(3, uniform_points(3, 2000, 11));
-  const KdTree tree(ps);
-  const BlockDecomposition blocks(tree, 100);
-  ASSERT_GE(blocks.size(), 4u);
+  const SpaceSplit blocks(ps, 100);
+  ASSERT_GE(blocks.block_count(), 4u);
   FrontMail mail(3, blocks, 1 << 20);
-  const RunOrder run{0, 2000, 1, &tree, 0, 2000};
+  const RunOrder run{0, 2000, 1, &blocks, 0, 2000};
   FrontCache first(3, blocks, mail, run), later(3, blocks, mail, run);
-  const auto at = [&](std::uint32_t block, std::uint32_t k) { return tree.point_at_rank(blocks.begin(block) + k); };
+  const auto at = [&](std::uint32_t block, std::uint32_t k) { return blocks.point_at(blocks.begin(block) + k); };
   // A facet of two points of block 0 and one of block 2, recorded by block 0's first.
   std::array<std::uint32_t, 3> f{at(0, 0), at(0, 1), at(2, 0)};
   std::sort(f.begin(), f.end());
-  const std::uint32_t x = tree.leaf_rank(at(0, 0)) < tree.leaf_rank(at(0, 1)) ? at(0, 0) : at(0, 1);
+  const std::uint32_t x = blocks.position_of(at(0, 0)) < blocks.position_of(at(0, 1)) ? at(0, 0) : at(0, 1);
   const std::uint32_t y = x == at(0, 0) ? at(0, 1) : at(0, 0);
   first.begin_block(0);
   EXPECT_TRUE(first.wanted(x, f.data()));
@@ -179,7 +134,7 @@ TEST(Sweep, TheFrontGrowsWithTheSurfaceNotWithTheMesh) {
   EXPECT_GT(large.star.cached_wraps, 2 * large.star.wraps);
 }
 
-// In 2-d the memo is the EdgeCache: posts per point, kept in leaf order so that the
+// In 2-d the memo is the EdgeCache: posts per point, kept in sweep order so that the
 // boxes behind the sweep go back to the OS. What stays resident is the blocks in
 // flight and the posts to points ahead (the front): about sqrt(8) = 2.8 times as much
 // for 8 times the points, where the boxes of every point (64 bytes each, as before)

@@ -182,8 +182,12 @@ class Triangulation {
   Triangulation(const Points& array, std::optional<unsigned> threads)
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
     py::gil_scoped_release release;
-    tree_ = std::make_unique<KdTree>(points_);
+    // The sweep's split first (its records are freed before the tree copies the
+    // points), and the tree laid out in its order; the split is dropped after the run.
+    auto split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size()));
+    tree_ = std::make_unique<KdTree>(points_, split->order());
     MeshOptions options;
+    options.split = split.get();
     options.threads = threads_;
     auto stats = mesh_seeds(*tree_, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
       simplices_.insert(simplices_.end(), block.begin(), block.end());

@@ -36,6 +36,7 @@
 #include <vector>
 
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/space_split.hpp"
 
 namespace spokemesh {
 
@@ -58,17 +59,17 @@ std::size_t mapped_cache_bytes();
 
 // The order of a run's seeds as the caches see it: seeds [begin, end) in blocks of
 // `block` consecutive indices, blocks in order, a block's seeds in any order; or, for
-// a sweep (`sweep` set), the seeds among them at leaf-order positions [rank_begin,
-// rank_end), in the tree's leaf order, several blocks of it at once.
+// a sweep (`sweep` set), the seeds among them at sweep positions [rank_begin,
+// rank_end), in the SpaceSplit's order, several blocks of it at once.
 struct RunOrder {
   std::uint32_t begin = 0, end = 0, block = 1;
-  const KdTree* sweep = nullptr;
+  const SpaceSplit* sweep = nullptr;
   std::uint32_t rank_begin = 0, rank_end = 0xFFFFFFFFu;
   static constexpr std::uint32_t kNotSeed = 0xFFFFFFFFu;
-  // For a sweep: v's leaf rank if v is a seed of the run, else kNotSeed.
+  // For a sweep: v's sweep position if v is a seed of the run, else kNotSeed.
   std::uint32_t sweep_rank(std::uint32_t v) const {
     if (v < begin || v >= end) return kNotSeed;
-    const std::uint32_t r = sweep->leaf_rank(v);
+    const std::uint32_t r = sweep->position_of(v);
     return r >= rank_begin && r < rank_end ? r : kNotSeed;
   }
   bool is_seed(std::uint32_t v) const {
@@ -77,12 +78,12 @@ struct RunOrder {
   // Seeds v != x of this run that may be meshed before (after) x.
   bool maybe_before(std::uint32_t v, std::uint32_t x) const {
     if (v == x || !is_seed(v)) return false;
-    if (sweep != nullptr) return sweep->leaf_rank(v) < sweep->leaf_rank(x);
+    if (sweep != nullptr) return sweep->position_of(v) < sweep->position_of(x);
     return v < x || (v - begin) / block == (x - begin) / block;
   }
   bool maybe_after(std::uint32_t v, std::uint32_t x) const {
     if (v == x || !is_seed(v)) return false;
-    if (sweep != nullptr) return sweep->leaf_rank(v) > sweep->leaf_rank(x);
+    if (sweep != nullptr) return sweep->position_of(v) > sweep->position_of(x);
     return v > x || (v - begin) / block == (x - begin) / block;
   }
 };
@@ -237,7 +238,7 @@ class EdgeCache {
   // What a cache for n points would reserve within max_bytes (0: disabled).
   static std::size_t bytes_for(std::uint32_t n, std::size_t max_bytes);
   std::size_t reserved_bytes() const { return enabled() ? std::size_t{n_} * kBoxWords * sizeof(std::uint32_t) : 0; }
-  // A sweep's boxes are kept in leaf order: every seed at a leaf position below `rank`
+  // A sweep's boxes are kept in sweep order: every seed at a position below `rank`
   // is done, so their boxes are given back to the OS (a single caller, the run's
   // writer; posts and reads only touch later positions). Also samples the boxes'
   // resident bytes. Nothing for a run in seed order.
@@ -268,10 +269,10 @@ class EdgeCache {
   // published last; a, b).
   static constexpr std::size_t kBoxWords = 16;
   static_assert(1 + 3 * kPostsPerPoint <= kBoxWords);
-  // Point t's box: at its leaf position in a sweep (so that the boxes behind the sweep
+  // Point t's box: at its sweep position (so that the boxes behind the sweep
   // form one range to release), at its index otherwise.
   std::uint32_t* box(std::uint32_t t) const {
-    const std::uint32_t at = order_.sweep != nullptr ? order_.sweep->leaf_rank(t) : t;
+    const std::uint32_t at = order_.sweep != nullptr ? order_.sweep->position_of(t) : t;
     return boxes_.get() + std::size_t{at} * kBoxWords;
   }
 

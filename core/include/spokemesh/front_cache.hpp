@@ -1,9 +1,9 @@
 // The memo of a sweep: what a whole mesh's stars share when its seeds run block by
-// block along a BlockDecomposition, held only for the front.
+// block along a SpaceSplit's blocks, held only for the front.
 //
 // A wrap across facet F, found in the star of one vertex of F, answers the same wrap
 // in the stars of F's other vertices (see FacetMemo). In a sweep the vertices that
-// still need it are the seeds of F with a later leaf rank: in the same block, met by
+// still need it are the seeds of F at a later sweep position: in the same block, met by
 // the same worker a few stars later, or in a later block. So each worker keeps one
 // small table for the block it is meshing (FrontCache), and answers meant for later
 // blocks go to the mailbox (FrontMail) of the first of them, read once when that block
@@ -24,7 +24,7 @@
 #include <span>
 #include <vector>
 
-#include "spokemesh/blocks.hpp"
+#include "spokemesh/space_split.hpp"
 #include "spokemesh/facet_cache.hpp"
 
 namespace spokemesh {
@@ -37,7 +37,7 @@ namespace spokemesh {
 class FrontMail {
  public:
   // d: dimension (>= 3); one mailbox per block of `blocks` (borrowed).
-  FrontMail(int d, const BlockDecomposition& blocks, std::size_t max_bytes);
+  FrontMail(int d, const SpaceSplit& blocks, std::size_t max_bytes);
 
   // A generous estimate of what a sweep of n uniform points in dimension d holds at
   // most: its mail (the front, O(n^((d-1)/d)) facets) and `threads` workers' tables
@@ -75,13 +75,13 @@ class FrontMail {
 // One worker's memo in a sweep: the facets wanted by seeds of the block it is
 // meshing, in a table of its own (no atomics), and the records for later blocks, which
 // end_block() posts. `seeds` says which points are seeds of the run (its `sweep` is
-// the decomposition's tree); within a block they must be computed in leaf order.
+// the same SpaceSplit); within a block they must be computed in sweep order.
 // Memory: the table grows to a block's facets and is reused block after block.
 // Ownership: borrows the decomposition and the mail. Thread safety: NOT thread-safe;
 // one per worker.
 class FrontCache final : public FacetMemo {
  public:
-  FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, const RunOrder& seeds);
+  FrontCache(int d, const SpaceSplit& blocks, FrontMail& mail, const RunOrder& seeds);
 
   // Starts block b: forgets the last block's table and loads b's mailbox.
   void begin_block(std::uint32_t b);
@@ -102,7 +102,7 @@ class FrontCache final : public FacetMemo {
 
  private:
   static constexpr std::uint32_t kNotSeed = RunOrder::kNotSeed;
-  // v's leaf-order position if v is a seed of the run, else kNotSeed.
+  // v's sweep position if v is a seed of the run, else kNotSeed.
   std::uint32_t seed_rank(std::uint32_t v) const { return seeds_.sweep_rank(v); }
   // The slot holding `facet`, or -1; `empty` gets the empty slot that ended the probe.
   std::int64_t find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& empty) const;
@@ -110,18 +110,17 @@ class FrontCache final : public FacetMemo {
   // this block that have none. Returns false if it was present.
   bool add(const std::uint32_t* facet, std::uint64_t hash, std::uint32_t a, std::uint32_t b);
   void grow();
-  // Posts (facet, a, b) to the first block holding one of its seeds at leaf rank
+  // Posts (facet, a, b) to the first block holding one of its seeds at position
   // `after` or later, if any.
   void post_next(const std::uint32_t* facet, std::uint32_t after, std::uint32_t a, std::uint32_t b);
   std::uint32_t* slot(std::size_t s) { return &table_[s * stride_]; }
   const std::uint32_t* slot(std::size_t s) const { return &table_[s * stride_]; }
 
-  const BlockDecomposition& blocks_;
-  const KdTree& tree_;
+  const SpaceSplit& blocks_;
   FrontMail& mail_;
   RunOrder seeds_;
   std::size_t stride_;                  // words per slot: generation, d ids, apexes a and b
-  std::uint32_t lo_ = 0, hi_ = 0;  // the block's leaf-order range
+  std::uint32_t lo_ = 0, hi_ = 0;  // the block's range of sweep positions
   // Open addressing, the entry in its slot (one cache line holds a probe). A slot of
   // another generation is empty, so a new block forgets the table without clearing it.
   std::vector<std::uint32_t> table_;

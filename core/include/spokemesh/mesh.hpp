@@ -6,13 +6,14 @@
 // takes the seeds in an index range [seed_begin, seed_end) (the CLI's --seeds) and in
 // a range of sweep positions [sweep_begin, sweep_end) (the service's shards).
 //
-// mesh_seeds() sweeps the point set's BlockDecomposition (blocks.hpp): worker threads
-// take blocks in leaf order, each computes its block's seeds in leaf order, and the
-// finished blocks go to `sink` in that order, on the calling thread. The rows are
-// therefore in sweep order: seeds by their k-d tree leaf rank, each seed's owned
+// mesh_seeds() sweeps the blocks of the point set's SpaceSplit (space_split.hpp):
+// worker threads take blocks in order, each computes its block's seeds in order, and
+// the finished blocks go to `sink` in that order, on the calling thread. The rows are
+// therefore in sweep order: seeds by their SpaceSplit position, each seed's owned
 // simplices lexicographic. That order is a function of the point set alone (not of
-// the thread count or the block size), so the bytes of every output are too; sort
-// the rows for lexicographic order.
+// the thread count or the block size), so the bytes of every output are too, and P
+// processes can compute it together without holding the whole set (the MPI job,
+// docs/distributed.md); sort the rows for lexicographic order.
 //
 // Memory is the point set, the tree, a bounded window of blocks in flight and the
 // front (front_cache.hpp: the wraps recorded for blocks still to come; in 2-d the
@@ -28,6 +29,7 @@
 #include <span>
 
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/space_split.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/status.hpp"
 
@@ -37,12 +39,16 @@ struct MeshOptions {
   unsigned threads = 1;             // worker threads (>= 1)
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
-  // ...and of those, only the seeds at leaf-order positions [sweep_begin, sweep_end)
+  // ...and of those, only the seeds at sweep positions [sweep_begin, sweep_end)
   // (clamped to n): a contiguous part of the sweep, so the parts of consecutive ranges
   // concatenate to the whole run's output, byte for byte.
   std::uint32_t sweep_begin = 0;
   std::uint32_t sweep_end = 0xFFFFFFFFu;
   std::uint32_t block_size = 0;     // points per block at most; 0 = automatic (output is the same)
+  // The sweep's order and blocks, over the tree's points (borrowed; it must outlive the
+  // run); null: built by the run from the tree's points and block_size, 8 bytes per
+  // point while the run lasts (and 32 to 72 more while it is built).
+  const SpaceSplit* split = nullptr;
   // Cap on what the stars of this run share (the front's mailboxes; in 2-d the
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
@@ -56,7 +62,7 @@ struct MeshStats {
   // between the blocks done and those to come, O(n^((d-1)/d)), not with n.
   std::size_t front_peak_bytes = 0;
   // All the stars shared: the front's peak plus each worker's block table at its
-  // largest (d >= 3); in 2-d the EdgeCache's resident peak (its boxes are kept in leaf
+  // largest (d >= 3); in 2-d the EdgeCache's resident peak (its boxes are kept in sweep
   // order and given back behind the sweep: the blocks in flight and the posts ahead).
   std::size_t facet_cache_bytes = 0;
   StarStats star;

@@ -47,17 +47,34 @@ inline bool before_along(int axis, int d, const double* p, std::uint64_t i, cons
 class SpaceSplit {
  public:
   // Preconditions: block >= leaf >= 1; `points` validated (no duplicates).
-  SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_t leaf = 8);
+  SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_t leaf = kLeafPoints);
+
+  // The leaf size every sweep uses: positions depend on it (and not on `block`), so
+  // one value is the contract between a whole mesh on one process and on many.
+  static constexpr std::uint32_t kLeafPoints = 8;
+
+  // The block size a whole mesh of n points in dimension d uses: large enough that
+  // most facets of a block's stars stay inside it (a block's surface is a small part
+  // of its volume), small enough to balance two workers and to bound what is buffered
+  // (measured: bench/README.md, "Tuning history"). A function of d and n only; the
+  // rows' order does not depend on it.
+  static std::uint32_t default_block_points(int d, std::uint64_t n);
+
+  int dimension() const { return d_; }
 
   std::uint32_t size() const { return static_cast<std::uint32_t>(order_.size()); }
   // The point at a position, and the position of a point (inverse permutations).
   std::uint32_t point_at(std::uint32_t position) const { return order_[position]; }
   std::uint32_t position_of(std::uint32_t id) const { return position_[id]; }
+  // Every point in order (point_at of each position): a layout for KdTree.
+  std::span<const std::uint32_t> order() const { return order_; }
 
   // Blocks: positions [begin(b), end(b)), in order; they tile [0, size()).
   std::uint32_t block_count() const { return static_cast<std::uint32_t>(first_.size() - 1); }
   std::uint32_t begin(std::uint32_t b) const { return first_[b]; }
   std::uint32_t end(std::uint32_t b) const { return first_[b + 1]; }
+  // The block holding `position` (< size()); O(log block_count()).
+  std::uint32_t block_of(std::uint32_t position) const;
   // Block b's bounding box: d lows, then d highs (exact coordinates of its points).
   std::span<const double> box(std::uint32_t b) const {
     return {boxes_.data() + std::size_t{b} * 2 * static_cast<std::size_t>(d_), 2 * static_cast<std::size_t>(d_)};

@@ -224,7 +224,7 @@ std::size_t EdgeCache::bytes_for(std::uint32_t n, std::size_t max_bytes) {
 EdgeCache::EdgeCache(std::uint32_t n, RunOrder order, std::size_t max_bytes) : n_(n), order_(order) {
   order_.end = std::min(order_.end, n);
   if (order_.begin >= order_.end || bytes_for(n, max_bytes) == 0) return;
-  // A sweep touches its boxes in leaf order and releases them behind it: small pages,
+  // A sweep touches its boxes in sweep order and releases them behind it: small pages,
   // so that what is held is the boxes near the sweep and the front's posts ahead of it
   // (a huge page would hold 2 MiB for each post far ahead).
   boxes_ = allocate_zeroed(std::size_t{n} * kBoxWords, /*huge=*/order_.sweep == nullptr);

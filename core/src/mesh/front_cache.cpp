@@ -7,8 +7,8 @@
 
 namespace spokemesh {
 
-FrontMail::FrontMail(int d, const BlockDecomposition& blocks, std::size_t max_bytes)
-    : entry_words_(static_cast<std::size_t>(d) + 2), max_bytes_(max_bytes), boxes_(blocks.size()) {}
+FrontMail::FrontMail(int d, const SpaceSplit& blocks, std::size_t max_bytes)
+    : entry_words_(static_cast<std::size_t>(d) + 2), max_bytes_(max_bytes), boxes_(blocks.block_count()) {}
 
 FrontMail::Estimate FrontMail::estimate(int d, std::uint64_t n, unsigned threads, std::uint32_t block_points) {
   const double facets = expected_facets_per_point(d);
@@ -52,10 +52,9 @@ void FrontMail::take(std::uint32_t b, std::vector<std::uint32_t>& out) {
   held_.fetch_sub(out.capacity() * sizeof(std::uint32_t), std::memory_order_relaxed);
 }
 
-FrontCache::FrontCache(int d, const BlockDecomposition& blocks, FrontMail& mail, const RunOrder& seeds)
+FrontCache::FrontCache(int d, const SpaceSplit& blocks, FrontMail& mail, const RunOrder& seeds)
     : FacetMemo(d),
       blocks_(blocks),
-      tree_(blocks.tree()),
       mail_(mail),
       seeds_(seeds),
       stride_(static_cast<std::size_t>(d) + 3),
@@ -152,7 +151,7 @@ bool FrontCache::lookup(std::uint32_t, const std::uint32_t* facet, std::uint64_t
 }
 
 bool FrontCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
-  const std::uint32_t rx = tree_.leaf_rank(x);
+  const std::uint32_t rx = blocks_.position_of(x);
   for (int i = 0; i < d_; ++i) {
     const std::uint32_t r = seed_rank(facet[i]);
     if (facet[i] != x && r != kNotSeed && r > rx) return true;
@@ -161,13 +160,13 @@ bool FrontCache::wanted(std::uint32_t x, const std::uint32_t* facet) const {
 }
 
 void FrontCache::post_next(const std::uint32_t* facet, std::uint32_t after, std::uint32_t a, std::uint32_t b) {
-  std::uint32_t next = kNotSeed;  // the smallest leaf rank at or past `after` among its seeds
+  std::uint32_t next = kNotSeed;  // the smallest position at or past `after` among its seeds
   for (int i = 0; i < d_; ++i) {
     const std::uint32_t r = seed_rank(facet[i]);
     if (r != kNotSeed && r >= after) next = std::min(next, r);
   }
   if (next == kNotSeed) return;
-  outgoing_.push_back(blocks_.block_of_rank(next));
+  outgoing_.push_back(blocks_.block_of(next));
   outgoing_.insert(outgoing_.end(), facet, facet + d_);
   outgoing_.push_back(a);
   outgoing_.push_back(b);
@@ -178,7 +177,7 @@ void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
   // Who still wants it: later seeds of this block (the table) and later blocks. Only
   // the first of those blocks is sent it; that block passes it on (begin_block), so a
   // facet waits in one mailbox at a time, however many blocks its vertices span.
-  const std::uint32_t rx = tree_.leaf_rank(x);
+  const std::uint32_t rx = blocks_.position_of(x);
   bool here = false;
   for (int i = 0; i < d_; ++i) {
     const std::uint32_t r = seed_rank(facet[i]);
@@ -190,7 +189,7 @@ void FrontCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
 }
 
 bool FrontCache::start(std::uint32_t x, std::uint32_t* facet, std::uint32_t& a, std::uint32_t& b) const {
-  const std::uint32_t r = tree_.leaf_rank(x);
+  const std::uint32_t r = blocks_.position_of(x);
   if (r < lo_ || r >= hi_) return false;
   const std::uint32_t s1 = starts_[r - lo_];
   if (s1 == 0) return false;

@@ -10,7 +10,6 @@
 #include <thread>
 #include <vector>
 
-#include "spokemesh/blocks.hpp"
 #include "spokemesh/front_cache.hpp"
 
 namespace spokemesh {
@@ -39,19 +38,25 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   const auto end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.seed_end, begin, n));
   const unsigned threads = std::max(1u, options.threads);
   const int d = tree.points().dimension();
-  // The sweep: blocks of space in leaf order, each meshed by one worker with its seeds
-  // in leaf order. The rows come out in that order, which depends on the point set
-  // alone (not on the block size or the thread count).
-  const std::uint32_t block_points =
-      options.block_size != 0 ? options.block_size : BlockDecomposition::default_max_points(d, n);
-  const BlockDecomposition blocks(tree, block_points);
+  // The sweep: blocks of space in SpaceSplit's order, each meshed by one worker with
+  // its seeds in that order. The rows come out in that order, which depends on the
+  // point set alone (not on the block size or the thread count).
+  std::optional<SpaceSplit> own_split;
+  if (options.split == nullptr) {
+    own_split.emplace(tree.points(), options.block_size != 0 ? options.block_size
+                                                             : SpaceSplit::default_block_points(d, n));
+  }
+  const SpaceSplit& blocks = options.split != nullptr ? *options.split : *own_split;
+  if (blocks.size() != n) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  std::uint32_t block_points = 1;
+  for (std::uint32_t b = 0; b < blocks.block_count(); ++b) block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
   const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
   const auto sweep_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.sweep_end, sweep_begin, n));
-  const RunOrder run{begin, end, 1, &tree, sweep_begin, sweep_end};
+  const RunOrder run{begin, end, 1, &blocks, sweep_begin, sweep_end};
   // The blocks that meet the sweep range.
-  const std::uint32_t first_block = sweep_begin < sweep_end ? blocks.block_of_rank(sweep_begin) : 0;
+  const std::uint32_t first_block = sweep_begin < sweep_end ? blocks.block_of(sweep_begin) : 0;
   const std::uint64_t count =
-      begin < end && sweep_begin < sweep_end ? blocks.block_of_rank(sweep_end - 1) + 1 - first_block : 0;
+      begin < end && sweep_begin < sweep_end ? blocks.block_of(sweep_end - 1) + 1 - first_block : 0;
   // Blocks in flight beyond the next one to write: 4 per worker, and no more points
   // than 4 blocks of 32,768 per worker (this caps the large 2-d blocks), so that a
   // slow reader leaves at most a few MB of simplices buffered.
@@ -107,8 +112,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       for (std::uint32_t r = lo; r < hi; ++r) {
         // The next seeds' points are loads at random (input order): begin them early.
         // (A block's starts are in its worker's table, already in the CPU's caches.)
-        if (r + 4 < hi) walker.prefetch(tree.point_at_rank(r + 4));
-        const std::uint32_t s = tree.point_at_rank(r);
+        if (r + 4 < hi) walker.prefetch(blocks.point_at(r + 4));
+        const std::uint32_t s = blocks.point_at(r);
         if (s < begin || s >= end) continue;
         ++seeds;
         status = walker.compute(s, star, StarPart::kOwned);

@@ -162,4 +162,18 @@ SpaceSplit::SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_
   for (std::uint32_t i = 0; i < n; ++i) position_[order_[i]] = i;
 }
 
+std::uint32_t SpaceSplit::default_block_points(int d, std::uint64_t n) {
+  // At least 16 blocks where the set allows, so two workers balance; at most a size
+  // per dimension beyond which larger blocks gained nothing (bench/README.md, "Tuning
+  // history"): a block's table then outgrows the CPU's caches.
+  const std::uint64_t cap = detail::policy(d).sweep_block_points;
+  return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 16, 64, cap));
+}
+
+std::uint32_t SpaceSplit::block_of(std::uint32_t position) const {
+  // The last block that begins at or before `position`.
+  const auto it = std::upper_bound(first_.begin(), first_.end() - 1, position);
+  return static_cast<std::uint32_t>(it - first_.begin()) - 1;
+}
+
 }  // namespace spokemesh

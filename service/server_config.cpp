@@ -1,0 +1,212 @@
+// spokemesh-server's flags and the ServerConfig they make (server.hpp).
+#include <unistd.h>
+
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "server.hpp"
+#include "spokemesh/approx.hpp"
+#include "spokemesh/units.hpp"
+
+namespace spokemesh::service {
+
+Result<std::string> read_text_file(const std::string& path, const std::string& flag) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return invalid_argument(flag + ": cannot read " + path);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+namespace {
+
+// The default memory budget: half of what this process may use, the smaller of the
+// cgroup's limit (v2 memory.max, or v1 memory.limit_in_bytes) and physical memory;
+// `why` says which.
+std::uint64_t default_memory_budget(std::string& why) {
+  const auto pages = static_cast<std::uint64_t>(::sysconf(_SC_PHYS_PAGES));
+  const auto page = static_cast<std::uint64_t>(::sysconf(_SC_PAGE_SIZE));
+  std::uint64_t limit = pages * page;
+  why = "physical memory " + std::to_string(limit);
+  for (const char* path : {"/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"}) {
+    std::ifstream in(path);
+    std::string text;
+    if (!(in >> text) || text == "max") continue;
+    try {
+      const std::uint64_t cgroup = std::stoull(text);
+      if (cgroup < limit) {
+        limit = cgroup;
+        why = std::string("the cgroup limit ") + std::to_string(cgroup) + " (" + path + ")";
+      }
+    } catch (const std::exception&) {
+    }
+    break;
+  }
+  return limit / 2;
+}
+
+}  // namespace
+
+void add_server_flags(CLI::App& app, ServerFlags& f) {
+  // Every default from limits.hpp (sizes and durations as the flags write them).
+  using defaults::bytes_text;
+  using defaults::duration_text;
+  f.threads = std::max(1u, std::thread::hardware_concurrency());
+  f.max_points = defaults::kMaxPoints;
+  f.max_dimension = defaults::kMaxDimension;
+  f.max_concurrent = defaults::kMaxConcurrentRpcs;
+  f.stream_cache = bytes_text(defaults::kStreamCacheBytes);
+  f.default_deadline = duration_text(defaults::kDefaultDeadline);
+  f.grace = duration_text(defaults::kGracePeriod);
+  f.drain = duration_text(defaults::kDrainDelay);
+  f.max_body = bytes_text(defaults::kMaxBodyBytes);
+  f.upload_idle = duration_text(defaults::kUploadIdleTimeout);
+  f.http_max_connections = defaults::kHttpMaxConnections;
+  f.http_per_address = defaults::kHttpMaxConnectionsPerAddress;
+  f.http_in_flight = defaults::kHttpMaxInFlight;
+  f.http_header_timeout = duration_text(defaults::kHttpHeaderTimeout);
+  f.http_body_timeout = duration_text(defaults::kHttpBodyTimeout);
+  f.http_idle_timeout = duration_text(defaults::kHttpIdleTimeout);
+  f.http_write_timeout = duration_text(defaults::kHttpWriteTimeout);
+  f.tls_handshake_timeout = duration_text(defaults::kTlsHandshakeTimeout);
+
+  app.add_option("--grpc-listen", f.grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
+  app.add_option("--http-listen", f.http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
+  app.add_option("--data-dir", f.data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
+  app.add_option("--threads", f.threads, "Worker threads per streamed shard")
+      ->check(CLI::Range(1u, 1024u))
+      ->capture_default_str();
+  app.add_option("--max-points", f.max_points, "Largest point set accepted")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--max-concurrent-rpcs", f.max_concurrent,
+                 "gRPC calls served at once; beyond it gRPC answers RESOURCE_EXHAUSTED (load shedding)")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  app.add_option("--max-dimension", f.max_dimension,
+                 "Largest dimension accepted (exact answers need d <= 8; above, approximate neighbours only)")
+      ->check(CLI::Range(2, kMaxApproxDimension))
+      ->capture_default_str();
+  app.add_option("--max-memory", f.max_memory,
+                 "The one memory budget: loaded point sets and trees (the least recently used leave memory, "
+                 "they stay on disk), stream caches and windows, upload buffers; over it requests get 503 / "
+                 "RESOURCE_EXHAUSTED. auto: half the cgroup limit or physical memory")
+      ->capture_default_str();
+  app.add_option("--stream-cache", f.stream_cache,
+                 "Memory per streamed shard for sharing facets between its seeds' stars (0 = none: same "
+                 "simplices, slower)")
+      ->capture_default_str();
+  app.add_option("--default-deadline", f.default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
+      ->capture_default_str();
+  app.add_option("--upload-idle-timeout", f.upload_idle,
+                 "An upload that sends nothing for this long is ended and its memory returned (gRPC "
+                 "upload streams; 1s, 30s, 2m)")
+      ->capture_default_str();
+  app.add_option("--http-max-connections", f.http_max_connections,
+                 "REST connections open at once; beyond it a complete 503 with Retry-After")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{1000000}))
+      ->capture_default_str();
+  app.add_option("--http-max-connections-per-address", f.http_per_address,
+                 "REST connections open at once from one client address")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{1000000}))
+      ->capture_default_str();
+  app.add_option("--http-max-in-flight", f.http_in_flight, "REST requests handled at once (one thread each)")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{100000}))
+      ->capture_default_str();
+  app.add_option("--http-header-timeout", f.http_header_timeout, "Time for a REST request's header to arrive")
+      ->capture_default_str();
+  app.add_option("--http-body-timeout", f.http_body_timeout, "Time for a REST request's body to arrive")
+      ->capture_default_str();
+  app.add_option("--http-idle-timeout", f.http_idle_timeout, "A keep-alive REST connection with no request is closed")
+      ->capture_default_str();
+  app.add_option("--http-write-timeout", f.http_write_timeout,
+                 "A REST client that reads nothing of a response this long is disconnected")
+      ->capture_default_str();
+  app.add_option("--tls-handshake-timeout", f.tls_handshake_timeout, "Time for a REST client's TLS handshake")
+      ->capture_default_str();
+  app.add_option("--drain-delay", f.drain,
+                 "On SIGTERM, keep serving this long while health says NOT_SERVING (lets load balancers "
+                 "move traffic away), then stop accepting")
+      ->capture_default_str();
+  app.add_option("--grace-period", f.grace, "On SIGTERM, how long in-flight requests may then finish")
+      ->capture_default_str();
+  app.add_option("--max-body-bytes", f.max_body, "Largest REST request body")->capture_default_str();
+  app.add_option("--tls-cert", f.tls_cert, "PEM certificate chain: serve TLS on both ports");
+  app.add_option("--tls-key", f.tls_key, "PEM private key for --tls-cert");
+  app.add_option("--tls-client-ca", f.tls_client_ca, "PEM CA bundle: require client certificates signed by it (mTLS)");
+  app.add_option("--auth-token-file", f.auth_token_file,
+                 "File holding a bearer token that every request must carry (health and readiness exempt); it "
+                 "acts as one admin key");
+  app.add_option("--keys", f.keys_file,
+                 "API keys with tenants, one `key tenant [admin]` per line (re-read on SIGHUP): a tenant sees only "
+                 "its own point sets, an admin all");
+}
+
+Result<ServerConfig> make_config(const ServerFlags& f) {
+  ServerConfig c;
+  c.grpc_listen = f.grpc_listen;
+  c.data_dir = f.data_dir;
+  c.max_concurrent_rpcs = f.max_concurrent;
+  c.limits.max_points = f.max_points;
+  c.limits.max_dimension = f.max_dimension;
+  c.limits.stream_threads = f.threads;
+  c.memory_why = "--max-memory";
+  auto memory = f.max_memory == "auto" ? Result<std::uint64_t>(default_memory_budget(c.memory_why))
+                                       : parse_bytes(f.max_memory, "--max-memory");
+  if (f.max_memory == "auto") c.memory_why = "half of " + c.memory_why;
+  auto deadline = parse_duration(f.default_deadline, "--default-deadline");
+  auto grace_ms = parse_duration(f.grace, "--grace-period");
+  auto idle_ms = parse_duration(f.upload_idle, "--upload-idle-timeout");
+  auto header_ms = parse_duration(f.http_header_timeout, "--http-header-timeout");
+  auto body_ms = parse_duration(f.http_body_timeout, "--http-body-timeout");
+  auto keepalive_ms = parse_duration(f.http_idle_timeout, "--http-idle-timeout");
+  auto write_ms = parse_duration(f.http_write_timeout, "--http-write-timeout");
+  auto handshake_ms = parse_duration(f.tls_handshake_timeout, "--tls-handshake-timeout");
+  auto drain_ms = f.drain == "0" || f.drain == "0s" ? Result<std::chrono::milliseconds>(std::chrono::milliseconds(0))
+                                                    : parse_duration(f.drain, "--drain-delay");
+  auto body = parse_bytes(f.max_body, "--max-body-bytes");
+  auto cache =
+      f.stream_cache == "0" ? Result<std::uint64_t>(std::uint64_t{0}) : parse_bytes(f.stream_cache, "--stream-cache");
+  for (const Status* s : {&memory.status(), &deadline.status(), &grace_ms.status(), &drain_ms.status(), &body.status(),
+                          &cache.status(), &idle_ms.status(), &header_ms.status(), &body_ms.status(),
+                          &keepalive_ms.status(), &write_ms.status(), &handshake_ms.status()}) {
+    if (!s->is_ok()) return *s;
+  }
+  c.limits.max_memory = memory.value();
+  c.limits.stream_cache_bytes = static_cast<std::size_t>(cache.value());
+  c.limits.default_deadline = deadline.value();
+  c.limits.upload_idle_timeout = idle_ms.value();
+  c.drain = drain_ms.value();
+  c.grace = grace_ms.value();
+  c.drain_text = f.drain;
+  c.grace_text = f.grace;
+
+  c.http.listen = f.http_listen;
+  c.http.max_body_bytes = body.value();
+  c.http.max_connections = f.http_max_connections;
+  c.http.max_connections_per_address = f.http_per_address;
+  c.http.max_in_flight = f.http_in_flight;
+  c.http.header_timeout = header_ms.value();
+  c.http.body_timeout = body_ms.value();
+  c.http.idle_timeout = keepalive_ms.value();
+  c.http.write_timeout = write_ms.value();
+  c.http.handshake_timeout = handshake_ms.value();
+
+  if (f.tls_cert.empty() != f.tls_key.empty()) return invalid_argument("--tls-cert and --tls-key go together");
+  if (!f.tls_client_ca.empty() && f.tls_cert.empty()) {
+    return invalid_argument("--tls-client-ca needs --tls-cert and --tls-key");
+  }
+  c.tls_cert = f.tls_cert;
+  c.tls_key = f.tls_key;
+  c.tls_client_ca = f.tls_client_ca;
+  if (!f.auth_token_file.empty()) {
+    auto text = read_text_file(f.auth_token_file, "--auth-token-file");
+    if (!text.is_ok()) return text.status();
+    c.token = text.value();
+    while (!c.token.empty() && std::isspace(static_cast<unsigned char>(c.token.back()))) c.token.pop_back();
+    if (c.token.empty()) return invalid_argument("--auth-token-file: " + f.auth_token_file + " is empty");
+  }
+  c.keys_file = f.keys_file;
+  return c;
+}
+
+}  // namespace spokemesh::service
