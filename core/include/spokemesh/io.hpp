@@ -30,6 +30,25 @@ Result<PointSet> read_points(const std::string& path);
 Result<PointSet> parse_text_points(const std::string& text, const std::string& source);
 Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& source);
 
+// A .npy of points as stored: for readers that take rows in slices (spokemesh-mpi
+// reads its share with MPI-IO). `head`: the file's first bytes (enough for the header;
+// 64 KiB always is for version 1), `file_size`: its size. Errors as read_points.
+struct NpyPoints {
+  std::uint64_t count = 0;
+  int dimension = 0;
+  int item_bytes = 8;           // float64 (8) or float32 (4)
+  std::size_t data_offset = 0;  // where row 0 begins
+};
+Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_size, const std::string& source);
+// Rows [first_row, first_row + rows) from their bytes at `data`, as float64; errors name
+// the element as read_points does.
+Status decode_npy_rows(const NpyPoints& layout, const char* data, std::uint64_t first_row, std::uint64_t rows,
+                       std::vector<double>& out, const std::string& source);
+
+// The 128-byte header MeshWriter writes before .npy rows (version 1.0, C order).
+constexpr std::size_t kNpyHeaderBytes = 128;
+std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64_t cols);
+
 // Reads a mesh (.npy int64/int32, else text) of simplices with `width` indices each.
 Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int width);
 

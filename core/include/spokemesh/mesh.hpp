@@ -53,6 +53,12 @@ struct MeshOptions {
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
+  // When set, every seed's whole star (all its simplices) is given to `accept`, on the
+  // worker thread that computed it; a seed whose star it refuses emits nothing. A
+  // process meshing its part of a larger set refuses the stars it cannot certify from
+  // the points it holds, and computes them again with more (spokemesh-mpi). Called
+  // concurrently from the workers.
+  std::function<bool(const Star&)> accept;
 };
 
 struct MeshStats {

@@ -61,8 +61,15 @@ class PointSet {
   // coordinates (the readers refuse others).
   std::vector<std::uint32_t> merge_duplicates();
 
- private:
+  // Indices of points that span the set's affine hull: the first point, then each point
+  // that raises the rank of the differences from it (exact, over the rationals); at
+  // most d + 1. The hull of a union of parts is spanned by the union of the parts'
+  // bases, which is how a distributed run checks full dimension.
+  std::vector<std::uint32_t> affine_basis() const;
+  // INVALID_ARGUMENT unless the points span R^d (validate's last check).
   Status check_affine_span(const std::string& source) const;
+
+ private:
 
   int d_ = 0;
   std::vector<double> coords_;

@@ -60,7 +60,21 @@ class SpaceSplit {
   // rows' order does not depend on it.
   static std::uint32_t default_block_points(int d, std::uint64_t n);
 
+  // The same order for a part of a larger set, as one process of a distributed run
+  // holds it: `pieces` are nodes of the whole set's split, in its order, each given as
+  // the indices (into `points`) of its points: piece p is members[piece_ends[p - 1],
+  // piece_ends[p]) (from 0 for p = 0). Each piece is split on exactly as the whole
+  // set's recursion splits that node, so positions follow the whole set's order
+  // restricted to the pieces. Points in no piece (another process's, held to complete
+  // stars) come after them, in index order, as one trailing block no sweep takes.
+  // Preconditions: the pieces are disjoint; each is a node of the whole set's split
+  // with the same leaf size.
+  SpaceSplit(const PointSet& points, std::span<const std::uint32_t> members, std::span<const std::uint32_t> piece_ends,
+             std::uint32_t block, std::uint32_t leaf = kLeafPoints);
+
   int dimension() const { return d_; }
+  // Positions [0, swept()) are the pieces' points (all of them for a whole set).
+  std::uint32_t swept() const { return swept_; }
 
   std::uint32_t size() const { return static_cast<std::uint32_t>(order_.size()); }
   // The point at a position, and the position of a point (inverse permutations).
@@ -81,7 +95,11 @@ class SpaceSplit {
   }
 
  private:
+  void build(const PointSet& points, std::span<const std::uint32_t> members, std::span<const std::uint32_t> piece_ends,
+             std::uint32_t block, std::uint32_t leaf);
+
   int d_;
+  std::uint32_t swept_ = 0;
   std::vector<std::uint32_t> order_, position_;
   std::vector<std::uint32_t> first_;  // block b starts at first_[b]; first_.back() == size()
   std::vector<double> boxes_;

@@ -120,8 +120,11 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
 // Exact rank of {p_i - p_0} by incremental row echelon over the rationals. For
 // non-degenerate inputs it reaches rank d after a few points and stops; only a
 // degenerate set is scanned whole, and that is an error path.
-Status PointSet::check_affine_span(const std::string& source) const {
+std::vector<std::uint32_t> PointSet::affine_basis() const {
   const std::size_t n = size();
+  std::vector<std::uint32_t> kept;
+  if (n == 0) return kept;
+  kept.push_back(0);
   std::vector<std::vector<mpq_class>> basis;  // rows in echelon form
   std::vector<int> pivot_col;
   std::vector<mpq_class> v(static_cast<std::size_t>(d_));
@@ -140,9 +143,14 @@ Status PointSet::check_affine_span(const std::string& source) const {
     if (pc >= 0) {
       basis.push_back(v);
       pivot_col.push_back(pc);
+      kept.push_back(static_cast<std::uint32_t>(i));
     }
   }
-  const int rank = static_cast<int>(basis.size());
+  return kept;
+}
+
+Status PointSet::check_affine_span(const std::string& source) const {
+  const int rank = static_cast<int>(affine_basis().size()) - 1;
   if (rank < d_) {
     return invalid_argument(source + ": the points span only a " + std::to_string(rank) +
                             "-dimensional affine subspace of R^" + std::to_string(d_) +

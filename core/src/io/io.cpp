@@ -182,8 +182,8 @@ Result<PointSet> parse_text_points(const std::string& text, const std::string& s
   return PointSet(d, std::move(coords));
 }
 
-Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& source) {
-  auto header = parse_npy_header(bytes, source);
+Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_size, const std::string& source) {
+  auto header = parse_npy_header(head, source);
   if (!header.is_ok()) return header.status();
   const NpyHeader& h = header.value();
   const bool f8 = h.descr == "<f8" || h.descr == "=f8";
@@ -194,17 +194,23 @@ Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& s
   const std::uint64_t n = h.shape[0], d = h.shape[1];
   if (n == 0 || d == 0) return invalid_argument(source + ": no points (the input is empty)");
   if (d > 1000) return invalid_argument(source + ": dimension " + std::to_string(d) + " is too large");
-  const std::size_t item = f8 ? 8 : 4;
-  const std::uint64_t need = n * d * item;
-  if (bytes.size() - h.data_offset < need) {
+  NpyPoints layout{n, static_cast<int>(d), f8 ? 8 : 4, h.data_offset};
+  const std::uint64_t need = n * d * layout.item_bytes;
+  if (file_size - h.data_offset < need) {
     return invalid_argument(source + ": truncated .npy data: expected " + std::to_string(need) + " bytes, found " +
-                            std::to_string(bytes.size() - h.data_offset));
+                            std::to_string(file_size - h.data_offset));
   }
-  std::vector<double> coords(static_cast<std::size_t>(n * d));
-  const char* data = bytes.data() + h.data_offset;
-  for (std::size_t k = 0; k < coords.size(); ++k) {
+  return layout;
+}
+
+Status decode_npy_rows(const NpyPoints& layout, const char* data, std::uint64_t first_row, std::uint64_t rows,
+                       std::vector<double>& out, const std::string& source) {
+  const auto d = static_cast<std::uint64_t>(layout.dimension);
+  const std::size_t count = static_cast<std::size_t>(rows * d);
+  out.resize(count);
+  for (std::size_t k = 0; k < count; ++k) {
     double v;
-    if (f8) {
+    if (layout.item_bytes == 8) {
       std::memcpy(&v, data + k * 8, 8);
     } else {
       float f;
@@ -212,12 +218,22 @@ Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& s
       v = f;
     }
     if (!std::isfinite(v) || std::fabs(v) > kMaxCoordinate) {
-      return invalid_argument(source + ": element [" + std::to_string(k / d) + ", " + std::to_string(k % d) + "] " +
+      return invalid_argument(source + ": element [" + std::to_string(first_row + k / d) + ", " +
+                              std::to_string(k % d) + "] " +
                               (std::isfinite(v) ? "has magnitude above 1e100" : "is not finite"));
     }
-    coords[k] = v;
+    out[k] = v;
   }
-  return PointSet(static_cast<int>(d), std::move(coords));
+  return Status::ok();
+}
+
+Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& source) {
+  auto layout = npy_points_layout(bytes, bytes.size(), source);
+  if (!layout.is_ok()) return layout.status();
+  const NpyPoints& l = layout.value();
+  std::vector<double> coords;
+  if (Status s = decode_npy_rows(l, bytes.data() + l.data_offset, 0, l.count, coords, source); !s.is_ok()) return s;
+  return PointSet(l.dimension, std::move(coords));
 }
 
 Result<PointSet> read_points(const std::string& path) {
@@ -292,6 +308,18 @@ void append_index_lines(std::string& out, std::span<const std::uint32_t> tuples,
 // ---------------------------------------------------------------------------------
 // Writers
 
+std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64_t cols) {
+  std::string dict = "{'descr': '" + descr + "', 'fortran_order': False, 'shape': (" + std::to_string(rows) + ", " +
+                     std::to_string(cols) + "), }";
+  dict.resize(kNpyHeaderBytes - 10 - 1, ' ');
+  dict.push_back('\n');
+  std::string out("\x93NUMPY\x01\x00", 8);
+  out.push_back(static_cast<char>(dict.size() & 0xFF));
+  out.push_back(static_cast<char>(dict.size() >> 8));
+  return out + dict;
+}
+
+
 namespace {
 
 std::string temp_name_for(const std::string& path) {
@@ -313,19 +341,6 @@ class TextWriter final : public MeshWriter {
   Status finish() override { return Status::ok(); }
   std::string buffer_;
 };
-
-constexpr std::size_t kNpyHeaderBytes = 128;
-
-std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64_t cols) {
-  std::string dict = "{'descr': '" + descr + "', 'fortran_order': False, 'shape': (" + std::to_string(rows) + ", " +
-                     std::to_string(cols) + "), }";
-  dict.resize(kNpyHeaderBytes - 10 - 1, ' ');
-  dict.push_back('\n');
-  std::string out("\x93NUMPY\x01\x00", 8);
-  out.push_back(static_cast<char>(dict.size() & 0xFF));
-  out.push_back(static_cast<char>(dict.size() >> 8));
-  return out + dict;
-}
 
 class NpyWriter final : public MeshWriter {
  public:

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <numeric>
+#include <span>
 #include <thread>
 
 #include "base/dimension.hpp"
@@ -49,6 +50,14 @@ class Splitter {
     for (std::uint32_t i = 0; i < recs.size(); ++i) {
       recs[i].id = i;
       if constexpr (D > 0) std::copy(ps_.point(i), ps_.point(i) + D, recs[i].x.begin());
+    }
+  }
+  // Records of the listed points, in the list's order.
+  void fill(std::vector<Record>& recs, std::span<const std::uint32_t> ids) const {
+    recs.resize(ids.size());
+    for (std::size_t k = 0; k < ids.size(); ++k) {
+      recs[k].id = ids[k];
+      if constexpr (D > 0) std::copy(ps_.point(ids[k]), ps_.point(ids[k]) + D, recs[k].x.begin());
     }
   }
 
@@ -141,25 +150,65 @@ class Splitter {
 }  // namespace
 
 SpaceSplit::SpaceSplit(const PointSet& points, std::uint32_t block, std::uint32_t leaf) : d_(points.dimension()) {
+  build(points, {}, {}, block, leaf);
+}
+
+SpaceSplit::SpaceSplit(const PointSet& points, std::span<const std::uint32_t> members,
+                       std::span<const std::uint32_t> piece_ends, std::uint32_t block, std::uint32_t leaf)
+    : d_(points.dimension()) {
+  build(points, members, piece_ends, block, leaf);
+}
+
+void SpaceSplit::build(const PointSet& points, std::span<const std::uint32_t> members,
+                       std::span<const std::uint32_t> piece_ends, std::uint32_t block, std::uint32_t leaf) {
   const auto n = static_cast<std::uint32_t>(points.size());
+  const bool whole = piece_ends.empty();
   leaf = std::max<std::uint32_t>(leaf, 1);
   block = std::max(block, leaf);
   first_.push_back(0);
   if (n == 0) return;
   Blocks blocks;
+  order_.reserve(n);
   detail::dispatch_dimension(d_, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
     const Splitter<D> splitter(points, block, leaf);
     std::vector<typename Splitter<D>::Record> recs;
-    splitter.fill(recs);
-    splitter.split_in_halves(recs, blocks);
-    order_.resize(n);
-    for (std::uint32_t i = 0; i < n; ++i) order_[i] = recs[i].id;
+    if (whole) {
+      splitter.fill(recs);
+      splitter.split_in_halves(recs, blocks);
+    } else {
+      splitter.fill(recs, members);
+      std::uint32_t begin = 0;
+      for (const std::uint32_t end : piece_ends) {
+        splitter.split(recs, begin, end, false, blocks);
+        begin = end;
+      }
+    }
+    for (const auto& r : recs) order_.push_back(r.id);
   });
+  swept_ = static_cast<std::uint32_t>(order_.size());
   first_.insert(first_.end(), blocks.ends.begin(), blocks.ends.end());
   boxes_ = std::move(blocks.boxes);
-  position_.resize(n);
-  for (std::uint32_t i = 0; i < n; ++i) position_[order_[i]] = i;
+  position_.assign(n, 0xFFFFFFFFu);
+  for (std::uint32_t i = 0; i < swept_; ++i) position_[order_[i]] = i;
+  if (swept_ < n) {  // the points of no piece: one trailing block, in index order
+    std::vector<double> lo(points.point(0), points.point(0) + d_), hi = lo;
+    bool first = true;
+    for (std::uint32_t i = 0; i < n; ++i) {
+      if (position_[i] != 0xFFFFFFFFu) continue;
+      position_[i] = static_cast<std::uint32_t>(order_.size());
+      order_.push_back(i);
+      for (int c = 0; c < d_; ++c) {
+        const auto k = static_cast<std::size_t>(c);
+        lo[k] = first ? points.point(i)[c] : std::min(lo[k], points.point(i)[c]);
+        hi[k] = first ? points.point(i)[c] : std::max(hi[k], points.point(i)[c]);
+      }
+      first = false;
+    }
+    first_.push_back(n);
+    boxes_.insert(boxes_.end(), lo.begin(), lo.end());
+    boxes_.insert(boxes_.end(), hi.begin(), hi.end());
+  }
 }
 
 std::uint32_t SpaceSplit::default_block_points(int d, std::uint64_t n) {

@@ -1,0 +1,1023 @@
+// spokemesh-mpi: one point set meshed by many processes, the same bytes as
+// `spokemesh` writes (docs/distributed.md).
+//
+//   mpirun -np P spokemesh-mpi {mesh|graph} IN -o OUT [flags]
+//
+// Every rank reads a slice of IN (MPI-IO for .npy; rank 0 reads text and scatters);
+// the ranks cut the set together into the nodes of SpaceSplit's recursion and deal
+// them out in order; each rank fetches the others' points in a halo around its own,
+// meshes its points' stars (RSD, the single-process sweep) and keeps the stars it can
+// certify (certify.hpp); the others fetch a halo twice as deep, in rounds, until a
+// reduction says none is left. Rows go to their place in the file by MPI-IO at computed
+// offsets, written under a temporary name that rank 0 renames into OUT only after
+// every rank succeeded.
+//
+// Exit codes (the CLI's): 0 success, 1 failure, 2 bad usage or bad input.
+#include <malloc.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <numeric>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <set>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "commands.hpp"
+#include "comm.hpp"
+#include "split.hpp"
+#include "spokemesh/certify.hpp"
+#include "spokemesh/io.hpp"
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/mesh.hpp"
+#include "spokemesh/space_split.hpp"
+#include "spokemesh/star.hpp"
+
+namespace {
+
+using namespace spokemesh;
+using namespace spokemesh::cli;
+using spokemesh::mpi::Comm;
+using spokemesh::mpi::Points;
+using spokemesh::mpi::TopSplit;
+using Clock = std::chrono::steady_clock;
+
+constexpr const char* kProgram = "spokemesh-mpi";
+
+// ------------------------------------------------------------------ reading
+
+// This rank's rows of IN: [first, first + count) of n, d coordinates each.
+struct Slice {
+  std::uint64_t n = 0, first = 0;
+  Points points;
+};
+
+std::uint64_t slice_begin(std::uint64_t n, int rank, int size) {
+  // (n < 2^32 and P < 2^20: the product fits 64 bits.)
+  return n * static_cast<std::uint64_t>(rank) / static_cast<std::uint64_t>(size);
+}
+
+Status read_at(MPI_File file, std::uint64_t offset, char* into, std::uint64_t bytes, const std::string& path) {
+  constexpr std::uint64_t kPiece = std::uint64_t{1} << 30;  // no large-count calls in Open MPI 4.1
+  while (bytes > 0) {
+    const std::uint64_t piece = std::min(bytes, kPiece);
+    MPI_Status st;
+    if (MPI_File_read_at(file, static_cast<MPI_Offset>(offset), into, static_cast<int>(piece), MPI_CHAR, &st) !=
+        MPI_SUCCESS) {
+      return invalid_argument(path + ": read error");
+    }
+    int got = 0;
+    MPI_Get_count(&st, MPI_CHAR, &got);
+    if (static_cast<std::uint64_t>(got) != piece) return invalid_argument(path + ": truncated .npy data");
+    offset += piece;
+    into += piece;
+    bytes -= piece;
+  }
+  return Status::ok();
+}
+
+Result<Slice> read_npy_slice(Comm& comm, const std::string& path) {
+  MPI_File file;
+  if (MPI_File_open(comm.comm, path.c_str(), MPI_MODE_RDONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) {
+    return invalid_argument(path + ": cannot open");  // every rank fails alike
+  }
+  Slice out;
+  Status status;
+  MPI_Offset size = 0;
+  MPI_File_get_size(file, &size);
+  std::string head(static_cast<std::size_t>(std::min<MPI_Offset>(size, 1 << 16)), '\0');
+  status = read_at(file, 0, head.data(), head.size(), path);
+  NpyPoints layout;
+  if (status.is_ok()) {
+    auto l = npy_points_layout(head, static_cast<std::uint64_t>(size), path);
+    if (l.is_ok()) layout = l.value();
+    else status = l.status();
+  }
+  if (status.is_ok()) {
+    out.n = layout.count;
+    out.first = slice_begin(out.n, comm.rank, comm.size);
+    const std::uint64_t rows = slice_begin(out.n, comm.rank + 1, comm.size) - out.first;
+    const std::uint64_t row_bytes = static_cast<std::uint64_t>(layout.dimension) * static_cast<std::uint64_t>(layout.item_bytes);
+    std::vector<char> bytes(rows * row_bytes);
+    status = read_at(file, layout.data_offset + out.first * row_bytes, bytes.data(), bytes.size(), path);
+    out.points.d = layout.dimension;
+    if (status.is_ok()) status = decode_npy_rows(layout, bytes.data(), out.first, rows, out.points.coords, path);
+    out.points.ids.resize(rows);
+    for (std::uint64_t k = 0; k < rows; ++k) out.points.ids[k] = out.first + k;
+  }
+  MPI_File_close(&file);
+  if (Status s = comm.agree(status); !s.is_ok()) return s;
+  return out;
+}
+
+// Text: rank 0 parses the file (the CLI's reader and errors) and sends each rank its
+// slice.
+Result<Slice> read_text_slice(Comm& comm, const std::string& path) {
+  PointSet all;
+  Status status;
+  if (comm.rank == 0) {
+    auto read = read_points(path);
+    if (read.is_ok()) all = std::move(read).value();
+    else status = read.status();
+  }
+  if (Status s = comm.agree(status); !s.is_ok()) return s;
+  std::uint64_t shape[2] = {all.size(), static_cast<std::uint64_t>(all.dimension())};
+  MPI_Bcast(shape, 2, MPI_UINT64_T, 0, comm.comm);
+  Slice out;
+  out.n = shape[0];
+  out.points.d = static_cast<int>(shape[1]);
+  out.first = slice_begin(out.n, comm.rank, comm.size);
+  std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+  if (comm.rank == 0) {
+    for (int r = 0; r < comm.size; ++r) {
+      const std::uint64_t a = slice_begin(out.n, r, comm.size), b = slice_begin(out.n, r + 1, comm.size);
+      const char* from = reinterpret_cast<const char*>(all.point(a));
+      outgoing[static_cast<std::size_t>(r)].assign(from, from + (b - a) * shape[1] * sizeof(double));
+    }
+    all = PointSet();
+  }
+  const std::vector<char> in = comm.alltoall_bytes(outgoing);
+  out.points.coords.resize(in.size() / sizeof(double));
+  std::memcpy(out.points.coords.data(), in.data(), in.size());
+  const std::uint64_t rows = out.points.coords.size() / shape[1];
+  out.points.ids.resize(rows);
+  for (std::uint64_t k = 0; k < rows; ++k) out.points.ids[k] = out.first + k;
+  return out;
+}
+
+// What PointSet::validate checks of a whole set, on slices: the dimension, the count
+// and the affine span (the union of the slices' affine bases spans what the set
+// spans). Duplicates are found by the split.
+Status check_set(Comm& comm, const Slice& slice, const std::string& path) {
+  const int d = slice.points.d;
+  Status status;
+  if (d < 2 || d > 3) {
+    status = invalid_argument(path + ": dimension " + std::to_string(d) +
+                              " is not supported by spokemesh-mpi (2 or 3; mesh higher dimensions on one process "
+                              "with spokemesh)");
+  } else if (slice.n < static_cast<std::uint64_t>(d) + 1) {
+    status = invalid_argument(path + ": " + std::to_string(slice.n) + " points given; a " + std::to_string(d) +
+                              "-d mesh needs at least " + std::to_string(d + 1));
+  } else if (slice.n > 0xFFFFFFF0u) {
+    status = invalid_argument(path + ": more than 2^32 - 16 points");
+  }
+  if (!status.is_ok()) return status;  // the same on every rank
+  const PointSet mine(d, std::vector<double>(slice.points.coords));
+  std::vector<char> basis;
+  for (const std::uint32_t k : mine.affine_basis()) {
+    const char* p = reinterpret_cast<const char*>(mine.point(k));
+    basis.insert(basis.end(), p, p + d * sizeof(double));
+  }
+  std::vector<std::uint64_t> sizes;
+  const std::vector<char> all = comm.allgather_bytes(basis, sizes);
+  std::vector<double> coords(all.size() / sizeof(double));
+  std::memcpy(coords.data(), all.data(), all.size());
+  const PointSet union_of_bases(d, std::move(coords));
+  const int rank = static_cast<int>(union_of_bases.affine_basis().size()) - 1;
+  if (rank < d) {
+    return invalid_argument(path + ": the points span only a " + std::to_string(rank) +
+                            "-dimensional affine subspace of R^" + std::to_string(d) + " (a " + std::to_string(d) +
+                            "-d mesh needs full dimension)");
+  }
+  return Status::ok();
+}
+
+// ------------------------------------------------------------------ halos
+
+// The rank's points (owned, then the others' fetched so far) and what it has asked for.
+class Halo {
+ public:
+  Halo(Comm& comm, const TopSplit& split, std::vector<double> global_box)
+      : comm_(comm), split_(split), d_(split.owned.d), global_(std::move(global_box)) {
+    const std::size_t pieces = split.owned_nodes.size();
+    held_.resize(pieces);
+    depth_.resize(pieces);
+    for (std::size_t p = 0; p < pieces; ++p) {
+      const std::vector<double>& b = split.nodes[split.owned_nodes[p]].box;
+      // A first halo of about 2.5 mean spacings of the node's points (a star's balls
+      // reach about twice the spacing), or none when asked (tests of the rounds).
+      double volume = 1, widest = 0;
+      for (int c = 0; c < d_; ++c) {
+        const double side = b[static_cast<std::size_t>(d_ + c)] - b[static_cast<std::size_t>(c)];
+        widest = std::max(widest, side);
+        volume *= side;
+      }
+      const double count = static_cast<double>(split.nodes[split.owned_nodes[p]].count);
+      const double spacing = volume > 0 ? std::pow(volume / count, 1.0 / d_) : widest / count;
+      spacing_.push_back(std::max(spacing, widest * 1e-9));
+      depth_[p] = first_halo_factor_ * spacing_[p];
+      held_[p] = grown(p);
+    }
+  }
+
+  static void set_first_halo_factor(double f) { first_halo_factor_ = f; }
+
+  std::span<const double> held_box(std::size_t piece) const { return held_[piece]; }
+  // Boxes covering every point of the set that piece's seeds do not see: the other
+  // ranks' nodes less the piece's held box.
+  std::vector<double> unheld(std::size_t piece) const {
+    std::vector<double> out;
+    const std::vector<double>& q = held_[piece];
+    const auto d = static_cast<std::size_t>(d_);
+    for (const mpi::TopNode& node : split_.nodes) {
+      if (node.owner == comm_.rank) continue;
+      std::vector<double> rest = node.box;  // what is left of the node's box
+      bool empty = false;
+      for (std::size_t c = 0; c < d && !empty; ++c) {
+        if (rest[c] < q[c]) {  // the part below the held box along c
+          std::vector<double> part = rest;
+          part[d + c] = std::min(rest[d + c], q[c]);
+          out.insert(out.end(), part.begin(), part.end());
+        }
+        if (rest[d + c] > q[d + c]) {
+          std::vector<double> part = rest;
+          part[c] = std::max(rest[c], q[d + c]);
+          out.insert(out.end(), part.begin(), part.end());
+        }
+        rest[c] = std::max(rest[c], q[c]);
+        rest[d + c] = std::min(rest[d + c], q[d + c]);
+        empty = rest[c] > rest[d + c];
+      }
+    }
+    return out;
+  }
+  // Doubles the halo of the given pieces (at most up to the whole set's box, where
+  // every star is certified: so the rounds end).
+  void deepen(const std::vector<std::size_t>& pieces) {
+    for (const std::size_t p : pieces) {
+      depth_[p] = depth_[p] > 0 ? 2 * depth_[p] : spacing_[p];
+      held_[p] = grown(p);
+    }
+  }
+
+  // The held boxes of the given pieces, as requests for fetch().
+  std::vector<double> requests_of(const std::vector<std::size_t>& pieces) const {
+    std::vector<double> out;
+    for (const std::size_t p : pieces) out.insert(out.end(), held_[p].begin(), held_[p].end());
+    return out;
+  }
+
+  // Exchanges this round's requests: boxes (2 d doubles each), every point inside
+  // wanted; and hull facets (d points, the inner apex, then a box: (d + 3) d doubles
+  // each), every point inside the box beyond or on the facet's plane wanted. Every rank answers each other
+  // rank's requests with the points of its own that it has not sent that rank before,
+  // found in a k-d tree of its own points.
+  void fetch(const std::vector<double>& boxes, const std::vector<double>& facets) {
+    const auto d = static_cast<std::size_t>(d_);
+    std::vector<char> mine;
+    mpi::put<std::uint64_t>(mine, boxes.size());
+    for (const double v : boxes) mpi::put<double>(mine, v);
+    mpi::put<std::uint64_t>(mine, facets.size());
+    for (const double v : facets) mpi::put<double>(mine, v);
+    std::vector<std::uint64_t> sizes;
+    const std::vector<char> all = comm_.allgather_bytes(mine, sizes);
+    std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm_.size));
+    const Points& own = split_.owned;
+    if (sent_.empty()) sent_.resize(static_cast<std::size_t>(comm_.size));
+    if (!own_tree_ && own.size() != 0) {
+      own_points_ = PointSet(d_, std::vector<double>(own.coords));
+      own_tree_ = std::make_unique<KdTree>(own_points_);
+    }
+    const char* at = all.data();
+    for (int r = 0; r < comm_.size; ++r) {
+      std::vector<double> box_list(mpi::get<std::uint64_t>(at));
+      for (double& v : box_list) v = mpi::get<double>(at);
+      std::vector<double> facet_list(mpi::get<std::uint64_t>(at));
+      for (double& v : facet_list) v = mpi::get<double>(at);
+      if (r == comm_.rank || !own_tree_) continue;
+      std::vector<char>& sent = sent_[static_cast<std::size_t>(r)];
+      if (sent.empty()) sent.assign(own.size(), 0);
+      std::vector<char>& o = outgoing[static_cast<std::size_t>(r)];
+      auto give = [&](std::uint32_t k) {
+        if (sent[k] != 0) return;
+        sent[k] = 1;
+        mpi::put<std::uint64_t>(o, own.ids[k]);
+        for (std::size_t c = 0; c < d; ++c) mpi::put<double>(o, own.point(k)[c]);
+      };
+      for (std::size_t b = 0; b + 2 * d <= box_list.size(); b += 2 * d) {
+        const double* q = &box_list[b];
+        own_tree_->find_first(
+            [&](const float* lo, const float* hi) {
+              for (std::size_t c = 0; c < d; ++c) {
+                if (static_cast<double>(hi[c]) < q[c] || static_cast<double>(lo[c]) > q[d + c]) return false;
+              }
+              return true;
+            },
+            [&](std::uint32_t k, const double* x) {
+              if (contains(q, x)) give(k);
+              return false;  // every one, not the first
+            });
+      }
+      const std::size_t facet_words = (d + 3) * d;
+      for (std::size_t f = 0; f + facet_words <= facet_list.size(); f += facet_words) {
+        std::array<const double*, 3> vertex{};
+        for (std::size_t v = 0; v < d; ++v) vertex[v] = &facet_list[f + v * d];
+        const double* inner = &facet_list[f + d * d];
+        const double* region = &facet_list[f + (d + 1) * d];
+        own_tree_->find_first(
+            [&](const float* lo, const float* hi) {
+              double box[6];
+              for (std::size_t c = 0; c < d; ++c) {
+                box[c] = lo[c];
+                box[d + c] = hi[c];
+                if (box[d + c] < region[c] || box[c] > region[d + c]) return false;
+              }
+              return StarCertifier::may_be_beyond(d_, vertex.data(), inner, box);
+            },
+            [&](std::uint32_t k, const double* x) {
+              if (contains(region, x) && StarCertifier::may_be_beyond_point(d_, vertex.data(), inner, x)) give(k);
+              return false;
+            });
+      }
+    }
+    const std::vector<char> in = comm_.alltoall_bytes(outgoing);
+    ghosts_.d = d_;
+    for (const char* p = in.data(); p < in.data() + in.size();) {
+      ghosts_.ids.push_back(mpi::get<std::uint64_t>(p));
+      for (int c = 0; c < d_; ++c) ghosts_.coords.push_back(mpi::get<double>(p));
+    }
+  }
+
+  const Points& ghosts() const { return ghosts_; }
+
+ private:
+  std::vector<double> grown(std::size_t p) const {
+    std::vector<double> q = split_.nodes[split_.owned_nodes[p]].box;
+    const auto d = static_cast<std::size_t>(d_);
+    for (std::size_t c = 0; c < d; ++c) {
+      q[c] = std::max(global_[c], q[c] - depth_[p]);
+      q[d + c] = std::min(global_[d + c], q[d + c] + depth_[p]);
+    }
+    return q;
+  }
+  bool meets(const std::vector<double>& a, const std::vector<double>& b) const {
+    const auto d = static_cast<std::size_t>(d_);
+    for (std::size_t c = 0; c < d; ++c) {
+      if (a[d + c] < b[c] || b[d + c] < a[c]) return false;
+    }
+    return true;
+  }
+  bool contains(const std::vector<double>& q, const double* x) const {
+    const auto d = static_cast<std::size_t>(d_);
+    for (std::size_t c = 0; c < d; ++c) {
+      if (x[c] < q[c] || x[c] > q[d + c]) return false;
+    }
+    return true;
+  }
+
+  bool contains(const double* q, const double* x) const {
+    const auto d = static_cast<std::size_t>(d_);
+    for (std::size_t c = 0; c < d; ++c) {
+      if (x[c] < q[c] || x[c] > q[d + c]) return false;
+    }
+    return true;
+  }
+
+  static inline double first_halo_factor_ = 2.5;
+  PointSet own_points_;
+  std::unique_ptr<KdTree> own_tree_;
+  Comm& comm_;
+  const TopSplit& split_;
+  int d_;
+  std::vector<double> global_;
+  std::vector<std::vector<double>> held_;
+  std::vector<double> depth_, spacing_;
+  Points ghosts_;
+  std::vector<std::vector<char>> sent_;  // per rank: which owned points it has had
+};
+
+// The held points as one PointSet in global index order (so that every comparison of
+// indices, and so every row, is as on one process).
+struct LocalSet {
+  PointSet points;
+  std::vector<std::uint64_t> global;        // local index -> global index
+  std::vector<std::uint32_t> local_of_own;  // owned k -> local index
+  std::vector<std::int32_t> piece_of;       // local index -> owned piece, -1 for ghosts
+};
+
+LocalSet gather_local(const TopSplit& split, const Points& ghosts) {
+  const Points& own = split.owned;
+  const std::size_t n_own = own.size(), total = n_own + ghosts.size();
+  const auto d = static_cast<std::size_t>(own.d);
+  std::vector<std::pair<std::uint64_t, std::int64_t>> order(total);  // (global, own k or -1 - ghost k)
+  for (std::size_t k = 0; k < n_own; ++k) order[k] = {own.ids[k], static_cast<std::int64_t>(k)};
+  for (std::size_t k = 0; k < ghosts.size(); ++k) order[n_own + k] = {ghosts.ids[k], -1 - static_cast<std::int64_t>(k)};
+  std::sort(order.begin(), order.end());
+  LocalSet out;
+  std::vector<double> coords(total * d);
+  out.global.resize(total);
+  out.local_of_own.resize(n_own);
+  out.piece_of.assign(total, -1);
+  std::vector<std::int32_t> piece_of_own(n_own);
+  std::uint32_t begin = 0;
+  for (std::size_t p = 0; p < split.piece_ends.size(); ++p) {
+    for (std::uint32_t k = begin; k < split.piece_ends[p]; ++k) piece_of_own[k] = static_cast<std::int32_t>(p);
+    begin = split.piece_ends[p];
+  }
+  for (std::size_t i = 0; i < total; ++i) {
+    out.global[i] = order[i].first;
+    const double* from;
+    if (order[i].second >= 0) {
+      const auto k = static_cast<std::size_t>(order[i].second);
+      from = own.point(k);
+      out.local_of_own[k] = static_cast<std::uint32_t>(i);
+      out.piece_of[i] = piece_of_own[k];
+    } else {
+      from = ghosts.point(static_cast<std::size_t>(-1 - order[i].second));
+    }
+    std::copy(from, from + d, &coords[i * d]);
+  }
+  out.points = PointSet(own.d, std::move(coords));
+  return out;
+}
+
+// ------------------------------------------------------------------ writing
+
+// Writes every rank's bytes at its offset (after `header`, rank 0's) into a temporary
+// file beside `path`, renamed into place by rank 0 once every rank succeeded.
+// `header` is rank 0's; every rank gives its size as header_bytes.
+Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_bytes, const std::string& header,
+                     const std::string& body) {
+  std::string temp;
+  if (comm.rank == 0) {
+    temp = path + ".spokemesh-mpi-" + std::to_string(::getpid()) + ".tmp";
+    std::remove(temp.c_str());
+  }
+  std::uint64_t len = temp.size();
+  MPI_Bcast(&len, 1, MPI_UINT64_T, 0, comm.comm);
+  temp.resize(len);
+  MPI_Bcast(temp.data(), static_cast<int>(len), MPI_CHAR, 0, comm.comm);
+  MPI_File file;
+  Status status;
+  if (MPI_File_open(comm.comm, temp.c_str(), MPI_MODE_CREATE | MPI_MODE_WRONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) {
+    return internal_error(path + ": cannot create " + temp);
+  }
+  const std::uint64_t offset = header_bytes + comm.exscan_sum<std::uint64_t>(body.size());
+  constexpr std::uint64_t kPiece = std::uint64_t{1} << 30;  // under 2 GiB a call
+  const std::uint64_t calls = comm.allreduce<std::uint64_t>((body.size() + kPiece - 1) / kPiece, MPI_MAX);
+  auto write = [&](std::uint64_t at, const char* data, std::uint64_t bytes) {
+    MPI_Status st;
+    char text[MPI_MAX_ERROR_STRING];
+    int text_len = 0;
+    const int rc = MPI_File_write_at_all(file, static_cast<MPI_Offset>(at), data, static_cast<int>(bytes), MPI_CHAR, &st);
+    if (rc != MPI_SUCCESS && status.is_ok()) {
+      MPI_Error_string(rc, text, &text_len);
+      status = internal_error(path + ": write failed (" + std::string(text, static_cast<std::size_t>(text_len)) +
+                              "); " + path + " is left as it was");
+    }
+  };
+  if (comm.rank == 0 && !header.empty()) {
+    MPI_Status st;
+    if (MPI_File_write_at(file, 0, header.data(), static_cast<int>(header.size()), MPI_CHAR, &st) != MPI_SUCCESS) {
+      status = internal_error(path + ": write failed; " + path + " is left as it was");
+    }
+  }
+  for (std::uint64_t c = 0; c < calls; ++c) {
+    const std::uint64_t from = std::min<std::uint64_t>(body.size(), c * kPiece);
+    const std::uint64_t to = std::min<std::uint64_t>(body.size(), from + kPiece);
+    write(offset + from, body.data() + from, to - from);
+  }
+  if (MPI_File_close(&file) != MPI_SUCCESS && status.is_ok()) status = internal_error(path + ": close failed");
+  status = comm.agree(status);
+  if (comm.rank == 0) {
+    if (status.is_ok() && std::rename(temp.c_str(), path.c_str()) != 0) {
+      status = internal_error(path + ": cannot rename " + temp + " into place");
+    }
+    if (!status.is_ok()) std::remove(temp.c_str());
+  }
+  return comm.agree(status);
+}
+
+// ------------------------------------------------------------------ the run
+
+struct RankStats {
+  std::uint64_t owned = 0, ghosts = 0, rounds = 0, bytes_sent = 0, bytes_received = 0, peak_rss = 0;
+  double seconds = 0;
+};
+
+std::uint64_t peak_rss_bytes() {
+  rusage u{};
+  ::getrusage(RUSAGE_SELF, &u);
+  return static_cast<std::uint64_t>(u.ru_maxrss) * 1024;
+}
+
+enum class Job { kMesh, kGraph };
+
+struct Output {
+  // kMesh: rows (d + 1 global indices each) in sweep order; kGraph: edges (i < j).
+  std::vector<std::uint32_t> rows;
+};
+
+int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_path) {
+  const auto start = Clock::now();
+  const std::string& input = w.input;
+  const bool quiet = w.common.quiet || comm.rank != 0;
+  auto report_all = [&](const Status& s) {
+    if (comm.rank == 0) return report(s, kProgram);
+    return exit_code(s);
+  };
+  // Usage checks, alike on every rank.
+  Status usage;
+  if (w.common.merge_duplicates) usage = invalid_argument("--merge-duplicates: spokemesh-mpi does not merge duplicates; remove them, or mesh on one process with spokemesh");
+  if (job == Job::kGraph && w.approx.enabled) usage = invalid_argument("--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh graph --approx)");
+  const int width = job == Job::kMesh ? -1 : 2;
+  {
+    auto format = MeshWriter::format_for(w.output, 3);
+    if (usage.is_ok() && format.is_ok() && format.value() != MeshWriter::Format::kText &&
+        format.value() != MeshWriter::Format::kNpy) {
+      usage = invalid_argument(w.output + ": spokemesh-mpi writes text (.simplices, .txt, .edges) and .npy; write "
+                               ".vtu, .msh and .svg on one process with spokemesh");
+    } else if (usage.is_ok() && !format.is_ok()) {
+      usage = format.status();
+    }
+  }
+  if (usage.is_ok() && comm.rank == 0) usage = check_not_input(input, w.output);
+  if (Status s = comm.agree(usage); !s.is_ok()) return report_all(s);
+
+  const bool npy = input.size() >= 4 && input.compare(input.size() - 4, 4, ".npy") == 0;
+  auto slice_or = npy ? read_npy_slice(comm, input) : read_text_slice(comm, input);
+  if (!slice_or.is_ok()) return report_all(slice_or.status());
+  Slice slice = std::move(slice_or).value();
+  if (Status s = check_set(comm, slice, input); !s.is_ok()) return report_all(s);
+  const int d = slice.points.d;
+  const auto dd = static_cast<std::size_t>(d);
+  const std::uint64_t n = slice.n;
+  std::pair<std::uint32_t, std::uint32_t> seed_range{0, static_cast<std::uint32_t>(n)};
+  if (job == Job::kMesh && !w.seeds.empty()) {
+    auto range = parse_seed_range(w.seeds, n);
+    if (!range.is_ok()) return report_all(range.status());
+    seed_range = range.value();
+  }
+  // The whole set's box (the halos stop at it).
+  std::vector<double> global_box(2 * dd, std::numeric_limits<double>::infinity());
+  for (std::size_t k = 0; k < slice.points.size(); ++k) {
+    for (std::size_t c = 0; c < dd; ++c) {
+      global_box[c] = std::min(global_box[c], slice.points.point(k)[c]);
+      global_box[dd + c] = std::min(global_box[dd + c], -slice.points.point(k)[c]);
+    }
+  }
+  comm.allreduce(global_box, MPI_MIN);
+  for (std::size_t c = 0; c < dd; ++c) global_box[dd + c] = -global_box[dd + c];
+
+  // The top of the split, dealt out: nodes of at most n / (32 P) points keep every
+  // rank within 1/32 of its share.
+  const std::uint64_t target =
+      std::max<std::uint64_t>(SpaceSplit::kLeafPoints, (n + 32ull * static_cast<unsigned>(comm.size) - 1) /
+                                                           (32ull * static_cast<unsigned>(comm.size)));
+  auto split_or = mpi::split_across_ranks(comm, std::move(slice.points), n, target, input);
+  if (!split_or.is_ok()) return report_all(split_or.status());
+  const TopSplit split = std::move(split_or).value();
+  const std::size_t owned = split.owned.size();
+
+  Halo halo(comm, split, global_box);
+  std::vector<std::size_t> all_pieces(split.owned_nodes.size());
+  std::iota(all_pieces.begin(), all_pieces.end(), std::size_t{0});
+  halo.fetch(halo.requests_of(all_pieces), {});
+
+  // Rows of certified seeds, by the owner's sweep position; stars refused are done again
+  // with more points, in rounds.
+  struct Rows {
+    std::uint32_t position;
+    std::vector<std::uint32_t> rows;  // global indices
+  };
+  std::vector<Rows> done;          // seeds certified after the first round
+  std::vector<std::uint32_t> rows;  // the first round's rows, in sweep order
+  std::vector<std::uint32_t> row_position;
+  std::vector<std::uint32_t> position_of_own(owned);
+  // What a refused seed asks for: the box around its uncertified balls (doubling each
+  // round it is refused again), and its hull facets' outer sides.
+  std::map<std::uint32_t, std::vector<double>> reach;  // owned k -> box
+  std::set<std::vector<std::uint64_t>> known_hull;       // facets (global indices) whose outer side was fetched
+  // The region of each asked hull facet's outer side fetched so far: it doubles round by
+  // round; once it holds the whole set's box, the facet is known (a true hull facet's
+  // outer side is empty, so the answers stay empty and cheap).
+  std::map<std::vector<std::uint64_t>, std::vector<double>> hull_region;
+  std::vector<std::uint32_t> pending;                    // owned k refused in the last round
+  RankStats stats;
+  std::mutex mu;
+  Status failure;
+  Progress progress(quiet, owned, "meshing (rank 0's share)");
+  const std::size_t w1 = job == Job::kMesh ? dd + 1 : 2;
+
+  // Emits the certified star's rows (mesh: its owned simplices; graph: edges to larger
+  // indices), in global indices.
+  auto rows_of = [&](const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) {
+    const auto to_global = [&](std::uint32_t v) { return static_cast<std::uint32_t>(local.global[v]); };
+    if (job == Job::kMesh) {
+      const std::uint64_t g = local.global[star.seed];
+      if (g < seed_range.first || g >= seed_range.second) return;
+      for (const std::uint32_t v : owned_simplices(star)) out.push_back(to_global(v));
+    } else {
+      std::vector<std::uint32_t> next;
+      for (const std::uint32_t v : star.simplices) {
+        if (v > star.seed) next.push_back(v);
+      }
+      std::sort(next.begin(), next.end());
+      next.erase(std::unique(next.begin(), next.end()), next.end());
+      for (const std::uint32_t v : next) {
+        out.push_back(to_global(star.seed));
+        out.push_back(to_global(v));
+      }
+    }
+  };
+  auto covers_all = [&](const std::vector<double>& box) {
+    for (std::size_t c = 0; c < dd; ++c) {
+      if (box[c] > global_box[c] || box[dd + c] < global_box[dd + c]) return false;
+    }
+    return true;
+  };
+
+  for (int round = 1;; ++round) {
+    stats.rounds = static_cast<std::uint64_t>(round);
+    LocalSet local = gather_local(split, halo.ghosts());
+    PointSet& points = local.points;
+    const bool spans = points.size() > dd && points.validate(input, 3, false).is_ok() &&
+                       points.check_affine_span(input).is_ok();
+    std::vector<std::vector<double>> unheld(split.owned_nodes.size());
+    for (std::size_t p = 0; p < unheld.size(); ++p) unheld[p] = halo.unheld(p);
+    std::vector<std::uint32_t> own_of_local(points.size(), 0xFFFFFFFFu);
+    for (std::size_t k = 0; k < owned; ++k) own_of_local[local.local_of_own[k]] = static_cast<std::uint32_t>(k);
+    std::vector<std::pair<std::uint32_t, StarCertificate>> refused;  // owned k
+    const StarCertifier certifier(points, global_box);
+    auto is_known = [&](std::span<const std::uint32_t> facet) {
+      std::vector<std::uint64_t> key(facet.size());
+      for (std::size_t i = 0; i < facet.size(); ++i) key[i] = local.global[facet[i]];
+      return known_hull.count(key) != 0;
+    };
+    auto certify = [&](const Star& star) {
+      const std::uint32_t k = own_of_local[star.seed];
+      const auto piece = static_cast<std::size_t>(local.piece_of[star.seed]);
+      std::vector<double> held(halo.held_box(piece).begin(), halo.held_box(piece).end());
+      bool everything = false;
+      if (const auto it = reach.find(k); it != reach.end()) {
+        held.insert(held.end(), it->second.begin(), it->second.end());
+        everything = covers_all(it->second);
+      }
+      const std::vector<double> none;
+      return certifier.certify(star, held, everything ? none : unheld[piece], is_known);
+    };
+    if (owned != 0 && spans) {
+      if (round == 1) {
+        // The first round is the single-process sweep over this rank's pieces.
+        std::vector<std::uint32_t> members(owned);
+        for (std::size_t k = 0; k < owned; ++k) members[k] = local.local_of_own[k];
+        const SpaceSplit sweep(points, members, split.piece_ends, SpaceSplit::default_block_points(d, n));
+        for (std::size_t k = 0; k < owned; ++k) position_of_own[k] = sweep.position_of(local.local_of_own[k]);
+        const KdTree tree(points, sweep.order());
+        MeshOptions options;
+        options.threads = w.common.threads;
+        options.split = &sweep;
+        options.sweep_end = sweep.swept();
+        options.star.random_seed = w.common.random_seed;
+        options.facet_cache_bytes = w.common.cache_mb << 20;
+        // The stars share their wraps (the sweep's memo): a wrap a refused star found
+        // is still one of the held points' Delaunay triangulation, which every star
+        // here is computed in.
+        options.accept = [&](const Star& star) {
+          StarCertificate c = certify(star);
+          std::vector<std::uint32_t> out;
+          if (c.certified && job == Job::kGraph) rows_of(local, star, out);
+          std::lock_guard lock(mu);
+          if (!c.certified) {
+            refused.emplace_back(own_of_local[star.seed], std::move(c));
+            return false;
+          }
+          rows.insert(rows.end(), out.begin(), out.end());
+          return true;
+        };
+        std::uint64_t written = 0;
+        auto result = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
+          progress.update(seeds_done, written);
+          if (job != Job::kMesh) return Status::ok();
+          for (std::size_t i = 0; i < block.size(); i += w1) {
+            const std::uint64_t g = local.global[block[i]];
+            if (g < seed_range.first || g >= seed_range.second) continue;
+            row_position.push_back(sweep.position_of(block[i]));
+            for (std::size_t j = 0; j < w1; ++j) rows.push_back(static_cast<std::uint32_t>(local.global[block[i + j]]));
+            ++written;
+          }
+          return Status::ok();
+        });
+        if (!result.is_ok()) failure = result.status();
+      } else {
+        // Later rounds: only the refused seeds, each star on its own.
+        const KdTree tree(points);
+        std::vector<std::thread> pool;
+        std::size_t next = 0;
+        for (unsigned t = 0; t < std::max(1u, w.common.threads); ++t) {
+          pool.emplace_back([&] {
+            StarOptions star_options;
+            star_options.random_seed = w.common.random_seed;
+            StarWalker walker(tree, star_options);
+            Star star;
+            std::vector<std::uint32_t> out;
+            for (;;) {
+              std::uint32_t k;
+              {
+                std::lock_guard lock(mu);
+                if (next >= pending.size() || !failure.is_ok()) return;
+                k = pending[next++];
+              }
+              Status s = walker.compute(local.local_of_own[k], star, StarPart::kAll);
+              StarCertificate c;
+              if (s.is_ok()) c = certify(star);
+              out.clear();
+              if (c.certified) rows_of(local, star, out);
+              std::lock_guard lock(mu);
+              if (!s.is_ok()) {
+                failure = s;
+                return;
+              }
+              if (c.certified) {
+                done.push_back({position_of_own[k], out});
+              } else {
+                refused.emplace_back(k, std::move(c));
+              }
+            }
+          });
+        }
+        for (auto& t : pool) t.join();
+      }
+    } else if (owned != 0) {
+      // Too few held points to span the space: every star waits for more.
+      if (round == 1) {
+        std::vector<std::uint32_t> members(owned);
+        for (std::size_t k = 0; k < owned; ++k) members[k] = local.local_of_own[k];
+        const SpaceSplit sweep(points, members, split.piece_ends, SpaceSplit::default_block_points(d, n));
+        for (std::size_t k = 0; k < owned; ++k) position_of_own[k] = sweep.position_of(local.local_of_own[k]);
+        for (std::size_t k = 0; k < owned; ++k) pending.push_back(static_cast<std::uint32_t>(k));
+      }
+      for (const std::uint32_t k : pending) {
+        StarCertificate c;
+        const double* x = split.owned.point(k);
+        c.reach.assign(x, x + d);
+        c.reach.insert(c.reach.end(), x, x + d);
+        refused.emplace_back(k, std::move(c));
+      }
+    }
+    stats.ghosts = halo.ghosts().size();
+    if (Status s = comm.agree(failure); !s.is_ok()) return report_all(s);
+    pending.clear();
+    std::vector<double> boxes, facets;
+    std::vector<std::vector<std::uint64_t>> asked;
+    for (auto& [k, c] : refused) {
+      pending.push_back(k);
+      if (!c.reach.empty()) {
+        // The new box holds the balls that failed and, refused again, twice the last
+        // box around the seed: the boxes grow until every ball fits (or the whole set
+        // is held).
+        std::vector<double>& box = reach[k];
+        const double* x = split.owned.point(k);
+        if (!box.empty()) {
+          for (std::size_t c2 = 0; c2 < dd; ++c2) {
+            const double half = std::max(x[c2] - box[c2], box[dd + c2] - x[c2]);
+            c.reach[c2] = std::min(c.reach[c2], x[c2] - 2 * half);
+            c.reach[dd + c2] = std::max(c.reach[dd + c2], x[c2] + 2 * half);
+          }
+        } else {
+          // A first box a little beyond the balls, so that a ball grown by a new point
+          // of it is often still inside.
+          for (std::size_t c2 = 0; c2 < dd; ++c2) {
+            const double pad = (c.reach[dd + c2] - c.reach[c2]) * 0.25;
+            c.reach[c2] -= pad;
+            c.reach[dd + c2] += pad;
+          }
+        }
+        box = c.reach;
+        boxes.insert(boxes.end(), box.begin(), box.end());
+      }
+      for (std::size_t f = 0; f + dd + 1 <= c.hull_facets.size(); f += dd + 1) {
+        std::vector<std::uint64_t> key(dd);
+        for (std::size_t v = 0; v < dd; ++v) {
+          const std::uint32_t local_v = c.hull_facets[f + v];
+          key[v] = local.global[local_v];
+          facets.insert(facets.end(), points.point(local_v), points.point(local_v) + d);
+        }
+        const std::uint32_t apex = c.hull_facets[f + dd];
+        facets.insert(facets.end(), points.point(apex), points.point(apex) + d);
+        std::vector<double>& region = hull_region[key];
+        const double* x = split.owned.point(k);
+        const std::span<const double> q = halo.held_box(static_cast<std::size_t>(
+            std::upper_bound(split.piece_ends.begin(), split.piece_ends.end(), k) - split.piece_ends.begin()));
+        // A first region of four times the facet's size around the seed (a facet facing
+        // other points fetches what lies just beyond it), growing fourfold while it is
+        // asked again (a true hull facet's answers are empty, so only rounds are spent).
+        std::vector<double> last = region;
+        if (last.empty()) {
+          last.assign(x, x + d);
+          last.insert(last.end(), x, x + d);
+          for (std::size_t v = 0; v <= dd; ++v) {
+            const double* p = points.point(c.hull_facets[f + v]);
+            for (std::size_t c2 = 0; c2 < dd; ++c2) {
+              last[c2] = std::min(last[c2], p[c2]);
+              last[dd + c2] = std::max(last[dd + c2], p[c2]);
+            }
+          }
+        }
+        (void)q;
+        region.assign(2 * dd, 0);
+        for (std::size_t c2 = 0; c2 < dd; ++c2) {
+          const double half = std::max({x[c2] - last[c2], last[dd + c2] - x[c2], 0.0});
+          region[c2] = x[c2] - 4 * half;
+          region[dd + c2] = x[c2] + 4 * half;
+        }
+        facets.insert(facets.end(), region.begin(), region.end());
+        if (covers_all(region)) asked.push_back(std::move(key));
+      }
+    }
+    std::sort(pending.begin(), pending.end());
+    pending.erase(std::unique(pending.begin(), pending.end()), pending.end());
+    const std::uint64_t left = comm.allreduce<std::uint64_t>(pending.size(), MPI_SUM);
+    if (std::getenv("SPOKEMESH_MPI_DEBUG") != nullptr) {
+      std::fprintf(stderr, "rank %d round %d: %zu owned, %zu held, %zu refused (all ranks: %llu), %zu boxes, %zu facets asked\n",
+                   comm.rank, round, owned, points.size(), pending.size(), static_cast<unsigned long long>(left),
+                   boxes.size() / (2 * dd), asked.size());
+    }
+    if (left == 0) break;
+    halo.fetch(boxes, facets);
+    // Every point beyond or on an asked facet's plane is held now: if the facet is
+    // still on the hull of the held points, it is on the whole set's.
+    for (auto& key : asked) known_hull.insert(std::move(key));
+  }
+  progress.finish();
+
+  // The rows in order: the first round's, with the later rounds' seeds in place.
+  std::vector<std::uint32_t> all_rows;
+  if (job == Job::kMesh) {
+    std::sort(done.begin(), done.end(), [](const Rows& a, const Rows& b) { return a.position < b.position; });
+    all_rows.reserve(rows.size() + done.size() * 8 * w1);
+    std::size_t next_done = 0;
+    for (std::size_t r = 0; r < row_position.size(); ++r) {
+      while (next_done < done.size() && done[next_done].position < row_position[r]) {
+        all_rows.insert(all_rows.end(), done[next_done].rows.begin(), done[next_done].rows.end());
+        ++next_done;
+      }
+      all_rows.insert(all_rows.end(), rows.begin() + static_cast<std::ptrdiff_t>(r * w1),
+                      rows.begin() + static_cast<std::ptrdiff_t>((r + 1) * w1));
+    }
+    for (; next_done < done.size(); ++next_done) {
+      all_rows.insert(all_rows.end(), done[next_done].rows.begin(), done[next_done].rows.end());
+    }
+  } else {
+    // Edges to the rank holding their first index's slice of the index range, sorted
+    // there: the file is then the ranks' parts in order.
+    for (const Rows& r : done) rows.insert(rows.end(), r.rows.begin(), r.rows.end());
+    std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+    for (std::size_t i = 0; i < rows.size(); i += 2) {
+      int r = static_cast<int>(std::uint64_t{rows[i]} * static_cast<std::uint64_t>(comm.size) / n);
+      while (r + 1 < comm.size && slice_begin(n, r + 1, comm.size) <= rows[i]) ++r;
+      while (r > 0 && slice_begin(n, r, comm.size) > rows[i]) --r;
+      mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i]);
+      mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i + 1]);
+    }
+    rows = {};
+    const std::vector<char> in = comm.alltoall_bytes(outgoing);
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges(in.size() / 8);
+    const char* at = in.data();
+    for (auto& e : edges) {
+      e.first = mpi::get<std::uint32_t>(at);
+      e.second = mpi::get<std::uint32_t>(at);
+    }
+    std::sort(edges.begin(), edges.end());
+    for (const auto& [a, b] : edges) {
+      all_rows.push_back(a);
+      all_rows.push_back(b);
+    }
+  }
+  rows = {};
+  done = {};
+
+  // The file: the CLI's bytes.
+  const std::uint64_t total_rows = comm.allreduce<std::uint64_t>(all_rows.size() / w1, MPI_SUM);
+  auto format = MeshWriter::format_for(w.output, d);
+  std::string header, body;
+  std::uint64_t header_bytes = 0;
+  if (format.is_ok() && format.value() == MeshWriter::Format::kNpy) {
+    if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
+    header_bytes = kNpyHeaderBytes;
+    body.resize(all_rows.size() * sizeof(std::int64_t));
+    for (std::size_t i = 0; i < all_rows.size(); ++i) {
+      const std::int64_t v = all_rows[i];
+      std::memcpy(body.data() + i * 8, &v, 8);
+    }
+  } else {
+    append_index_lines(body, all_rows, static_cast<int>(w1));
+  }
+  all_rows = {};
+  (void)width;
+  if (Status s = write_ordered(comm, w.output, header_bytes, header, body); !s.is_ok()) return report_all(s);
+
+  stats.owned = owned;
+  stats.bytes_sent = comm.bytes_sent;
+  stats.bytes_received = comm.bytes_received;
+  stats.peak_rss = peak_rss_bytes();
+  stats.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  std::vector<double> mine{static_cast<double>(stats.owned),      static_cast<double>(stats.ghosts),
+                           static_cast<double>(stats.rounds),     static_cast<double>(stats.bytes_sent),
+                           static_cast<double>(stats.bytes_received), static_cast<double>(stats.peak_rss),
+                           stats.seconds};
+  std::vector<double> every(comm.rank == 0 ? mine.size() * static_cast<std::size_t>(comm.size) : 0);
+  MPI_Gather(mine.data(), static_cast<int>(mine.size()), MPI_DOUBLE, every.data(), static_cast<int>(mine.size()),
+             MPI_DOUBLE, 0, comm.comm);
+  Status stats_status;
+  if (comm.rank == 0) {
+    std::uint64_t ghosts = 0, most_rounds = 0;
+    nlohmann::json ranks = nlohmann::json::array();
+    for (int r = 0; r < comm.size; ++r) {
+      const double* v = &every[static_cast<std::size_t>(r) * mine.size()];
+      ghosts += static_cast<std::uint64_t>(v[1]);
+      most_rounds = std::max(most_rounds, static_cast<std::uint64_t>(v[2]));
+      ranks.push_back({{"rank", r},
+                       {"owned", static_cast<std::uint64_t>(v[0])},
+                       {"ghosts", static_cast<std::uint64_t>(v[1])},
+                       {"rounds", static_cast<std::uint64_t>(v[2])},
+                       {"bytes_sent", static_cast<std::uint64_t>(v[3])},
+                       {"bytes_received", static_cast<std::uint64_t>(v[4])},
+                       {"peak_rss_bytes", static_cast<std::uint64_t>(v[5])},
+                       {"seconds", v[6]}});
+    }
+    if (!stats_path.empty()) {
+      std::ofstream out(stats_path);
+      out << nlohmann::json{{"ranks", ranks}, {"joint_levels", split.joint_levels}, {"select_rounds", split.select_rounds}}.dump(2)
+          << "\n";
+      if (!out) stats_status = internal_error("--stats: cannot write " + stats_path);
+    }
+    if (!w.common.quiet) {
+      const double t = std::chrono::duration<double>(Clock::now() - start).count();
+      if (job == Job::kMesh) {
+        std::fprintf(stderr,
+                     "spokemesh-mpi: %llu points, %llu simplices, %.2f s on %d processes (%llu halo points, %llu "
+                     "rounds) -> %s\n",
+                     static_cast<unsigned long long>(n), static_cast<unsigned long long>(total_rows), t, comm.size,
+                     static_cast<unsigned long long>(ghosts), static_cast<unsigned long long>(most_rounds),
+                     w.output.c_str());
+      } else {
+        print_graph_summary(n, total_rows, false, t, w.output);
+      }
+    }
+  }
+  if (Status s = comm.agree(stats_status); !s.is_ok()) return report_all(s);
+  return kExitOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ::mallopt(M_MMAP_THRESHOLD, 4 << 20);  // as the CLI (main.cpp there says why)
+  int provided = 0;
+  MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
+  Comm comm = Comm::world();
+  CLI::App app{"spokemesh-mpi: the Delaunay mesh or graph of one point set by many processes (Open MPI), the same "
+               "bytes as spokemesh writes.\nRun as: mpirun -np P spokemesh-mpi {mesh|graph} INPUT -o OUTPUT [flags]"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "spokemesh-mpi 0.1.0");
+  WholeCommands w;
+  w.common.threads = 1;  // one worker per process unless asked: mpirun places processes on cores
+  define_whole_commands(app, w, /*one_process=*/false);
+  std::string stats_path;
+  double first_halo = 2.5;
+  for (CLI::App* cmd : {w.mesh, w.graph}) {
+    cmd->add_option("--stats", stats_path,
+                    "Write JSON {\"ranks\": [{rank, owned, ghosts, rounds, bytes_sent, bytes_received, "
+                    "peak_rss_bytes, seconds}]}");
+    cmd->add_option("--first-halo", first_halo,
+                    "Depth of the first halo in mean point spacings (deeper halos are fetched in rounds where stars "
+                    "need them; 0 starts from none)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0, 1000.0));
+  }
+  w.cells->group("");  // not distributed yet: hidden, and refused below
+  int code = kExitOk;
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (comm.rank == 0) {
+      code = app.exit(e);
+    } else {
+      code = e.get_exit_code();
+    }
+    if (code != 0) code = kExitUsage;
+    MPI_Finalize();
+    return code;
+  }
+  Halo::set_first_halo_factor(first_halo);
+  if (*w.cells) {
+    if (comm.rank == 0) {
+      report(invalid_argument("cells: not distributed yet; compute cells on one process with spokemesh cells"), kProgram);
+    }
+    code = kExitUsage;
+  } else {
+    code = run(comm, *w.mesh ? Job::kMesh : Job::kGraph, w, stats_path);
+  }
+  MPI_Finalize();
+  return code;
+}

@@ -1,0 +1,275 @@
+#include "split.hpp"
+
+#include <algorithm>
+#include <limits>
+#include <numeric>
+
+#include "spokemesh/count_select.hpp"
+#include "spokemesh/space_split.hpp"
+
+namespace spokemesh::mpi {
+
+namespace {
+
+Status duplicate(const std::string& source, std::uint64_t a, std::uint64_t b) {
+  return invalid_argument(source + ": points " + std::to_string(std::min(a, b)) + " and " + std::to_string(std::max(a, b)) +
+                          " are equal (spokemesh-mpi does not merge duplicates: remove them, or mesh on one process "
+                          "with spokemesh mesh --merge-duplicates)");
+}
+
+// Proposal records on the wire: count, id, d coordinates.
+void put_proposal(std::vector<char>& out, const CountSelect::Proposal& p, int d) {
+  put<std::uint64_t>(out, p.count);
+  put<std::uint64_t>(out, p.key.id);
+  for (int c = 0; c < d; ++c) put<double>(out, p.count != 0 ? p.key.coords[static_cast<std::size_t>(c)] : 0.0);
+}
+CountSelect::Proposal get_proposal(const char*& at, int d) {
+  CountSelect::Proposal p;
+  p.count = get<std::uint64_t>(at);
+  p.key.id = get<std::uint64_t>(at);
+  p.key.coords.resize(static_cast<std::size_t>(d));
+  for (int c = 0; c < d; ++c) p.key.coords[static_cast<std::size_t>(c)] = get<double>(at);
+  return p;
+}
+
+}  // namespace
+
+Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, std::uint64_t target,
+                                    const std::string& source) {
+  const int d = mine.d;
+  const auto dd = static_cast<std::size_t>(d);
+  TopSplit out;
+  std::vector<std::uint64_t> counts{n};
+  std::vector<std::uint32_t> node_of(mine.size(), 0);
+  Status failure;
+  for (;;) {
+    std::vector<std::uint32_t> active;
+    for (std::uint32_t i = 0; i < counts.size(); ++i) {
+      if (counts[i] > target) active.push_back(i);
+    }
+    if (active.empty()) break;
+    ++out.joint_levels;
+    const std::size_t m = active.size();
+    std::vector<int> slot(counts.size(), -1);
+    for (std::size_t a = 0; a < m; ++a) slot[active[a]] = static_cast<int>(a);
+    std::vector<std::vector<std::uint32_t>> members(m);
+    for (std::uint32_t k = 0; k < mine.size(); ++k) {
+      if (slot[node_of[k]] >= 0) members[static_cast<std::size_t>(slot[node_of[k]])].push_back(k);
+    }
+    // Each node's bounding box: lows and negated highs, one MIN reduction.
+    std::vector<double> box(m * 2 * dd, std::numeric_limits<double>::infinity());
+    for (std::size_t a = 0; a < m; ++a) {
+      for (const std::uint32_t k : members[a]) {
+        for (std::size_t c = 0; c < dd; ++c) {
+          box[a * 2 * dd + c] = std::min(box[a * 2 * dd + c], mine.point(k)[c]);
+          box[a * 2 * dd + dd + c] = std::min(box[a * 2 * dd + dd + c], -mine.point(k)[c]);
+        }
+      }
+    }
+    comm.allreduce(box, MPI_MIN);
+    // The widest side, the lowest axis among equals (SpaceSplit's rule, on the same box).
+    std::vector<int> axis(m, 0);
+    for (std::size_t a = 0; a < m; ++a) {
+      const double* lo = &box[a * 2 * dd];
+      const double* neg_hi = lo + dd;
+      for (int c = 1; c < d; ++c) {
+        const auto k = static_cast<std::size_t>(c), best = static_cast<std::size_t>(axis[a]);
+        if (-neg_hi[k] - lo[k] > -neg_hi[best] - lo[best]) axis[a] = c;
+      }
+    }
+    // The medians, all nodes in lockstep: a round is one gather and one sum.
+    std::vector<CountSelect> selects;
+    selects.reserve(m);
+    std::vector<double> coords;
+    std::vector<std::uint64_t> ids;
+    for (std::size_t a = 0; a < m; ++a) {
+      coords.clear();
+      ids.clear();
+      for (const std::uint32_t k : members[a]) {
+        coords.insert(coords.end(), mine.point(k), mine.point(k) + d);
+        ids.push_back(mine.ids[k]);
+      }
+      selects.emplace_back(d, axis[a], coords, ids);
+    }
+    std::vector<std::uint64_t> k(m);
+    for (std::size_t a = 0; a < m; ++a) k[a] = counts[active[a]] / 2;
+    std::vector<CountSelect::Key> pivot(m);
+    std::vector<char> found(m, 0);
+    for (;;) {
+      std::vector<std::size_t> pending;
+      for (std::size_t a = 0; a < m; ++a) {
+        if (found[a] == 0) pending.push_back(a);
+      }
+      if (pending.empty()) break;
+      ++out.select_rounds;
+      std::vector<char> bytes;
+      for (const std::size_t a : pending) put_proposal(bytes, selects[a].propose(), d);
+      std::vector<std::uint64_t> sizes;
+      const std::vector<char> all = comm.allgather_bytes(bytes, sizes);
+      std::vector<std::vector<CountSelect::Proposal>> proposals(pending.size());
+      const char* at = all.data();
+      for (int r = 0; r < comm.size; ++r) {
+        for (std::size_t i = 0; i < pending.size(); ++i) proposals[i].push_back(get_proposal(at, d));
+      }
+      std::vector<CountSelect::Key> pivots(pending.size());
+      std::vector<std::uint64_t> below_at(2 * pending.size());
+      for (std::size_t i = 0; i < pending.size(); ++i) {
+        pivots[i] = CountSelect::pivot_of(proposals[i], axis[pending[i]]);
+        const CountSelect::Counts c = selects[pending[i]].count(pivots[i]);
+        below_at[2 * i] = c.below;
+        below_at[2 * i + 1] = c.at;
+      }
+      comm.allreduce(below_at, MPI_SUM);
+      for (std::size_t i = 0; i < pending.size(); ++i) {
+        const std::size_t a = pending[i];
+        const CountSelect::Side side = CountSelect::decide(k[a], {below_at[2 * i], below_at[2 * i + 1]});
+        if (side == CountSelect::Side::kFound) {
+          found[a] = 1;
+          pivot[a] = pivots[i];
+        } else {
+          selects[a].narrow(pivots[i], side);
+        }
+      }
+    }
+    // The cut: the left side is every point before the pivot. Two equal points are
+    // neighbours in every axis's order, so a cut can only separate equal points as the
+    // left side's last and the pivot: each rank offers its last left point.
+    std::vector<char> last_left;
+    std::vector<std::uint32_t> left_of_node(m, 0);
+    for (std::size_t a = 0; a < m; ++a) {
+      std::int64_t best = -1;
+      for (const std::uint32_t kk : members[a]) {
+        if (!before_along(axis[a], d, mine.point(kk), mine.ids[kk], pivot[a].coords.data(), pivot[a].id)) continue;
+        if (best < 0 || before_along(axis[a], d, mine.point(static_cast<std::size_t>(best)), mine.ids[static_cast<std::size_t>(best)],
+                                     mine.point(kk), mine.ids[kk])) {
+          best = kk;
+        }
+      }
+      CountSelect::Proposal p;
+      if (best >= 0) {
+        p.count = 1;
+        p.key.id = mine.ids[static_cast<std::size_t>(best)];
+        p.key.coords.assign(mine.point(static_cast<std::size_t>(best)), mine.point(static_cast<std::size_t>(best)) + d);
+      }
+      put_proposal(last_left, p, d);
+    }
+    std::vector<std::uint64_t> sizes;
+    const std::vector<char> lasts = comm.allgather_bytes(last_left, sizes);
+    const char* at = lasts.data();
+    std::vector<CountSelect::Proposal> last(m);
+    for (int r = 0; r < comm.size; ++r) {
+      for (std::size_t a = 0; a < m; ++a) {
+        const CountSelect::Proposal p = get_proposal(at, d);
+        if (p.count == 0) continue;
+        if (last[a].count == 0 || CountSelect::before(last[a].key, p.key, axis[a])) last[a] = p;
+      }
+    }
+    for (std::size_t a = 0; a < m && failure.is_ok(); ++a) {
+      if (last[a].count != 0 && last[a].key.coords == pivot[a].coords) failure = duplicate(source, last[a].key.id, pivot[a].id);
+    }
+    if (!failure.is_ok()) return failure;  // every rank found the same
+    // The children replace their parent, left then right: the list stays in order.
+    std::vector<std::uint64_t> next;
+    std::vector<std::uint32_t> renumber(counts.size());
+    for (std::uint32_t i = 0; i < counts.size(); ++i) {
+      renumber[i] = static_cast<std::uint32_t>(next.size());
+      if (slot[i] < 0) {
+        next.push_back(counts[i]);
+      } else {
+        next.push_back(counts[i] / 2);
+        next.push_back(counts[i] - counts[i] / 2);
+      }
+    }
+    for (std::uint32_t kk = 0; kk < mine.size(); ++kk) {
+      const std::uint32_t i = node_of[kk];
+      std::uint32_t to = renumber[i];
+      if (slot[i] >= 0) {
+        const auto a = static_cast<std::size_t>(slot[i]);
+        const bool left = before_along(axis[a], d, mine.point(kk), mine.ids[kk], pivot[a].coords.data(), pivot[a].id);
+        if (!left) ++to;
+      }
+      node_of[kk] = to;
+    }
+    counts.swap(next);
+  }
+
+  // The nodes' boxes, starts and owners: consecutive nodes to each rank, a node to the
+  // rank its middle position falls to.
+  const std::size_t nodes = counts.size();
+  std::vector<double> box(nodes * 2 * dd, std::numeric_limits<double>::infinity());
+  for (std::uint32_t kk = 0; kk < mine.size(); ++kk) {
+    double* b = &box[node_of[kk] * 2 * dd];
+    for (std::size_t c = 0; c < dd; ++c) {
+      b[c] = std::min(b[c], mine.point(kk)[c]);
+      b[dd + c] = std::min(b[dd + c], -mine.point(kk)[c]);
+    }
+  }
+  comm.allreduce(box, MPI_MIN);
+  out.nodes.resize(nodes);
+  std::uint64_t start = 0;
+  for (std::size_t i = 0; i < nodes; ++i) {
+    TopNode& t = out.nodes[i];
+    t.count = counts[i];
+    t.start = start;
+    // (n < 2^32 and P < 2^20: the product fits 64 bits.)
+    const std::uint64_t middle = (2 * start + t.count) * static_cast<std::uint64_t>(comm.size);
+    t.owner = static_cast<int>(std::min<std::uint64_t>(middle / (2 * n), static_cast<std::uint64_t>(comm.size - 1)));
+    t.box.assign(box.begin() + static_cast<std::ptrdiff_t>(i * 2 * dd), box.begin() + static_cast<std::ptrdiff_t>((i + 1) * 2 * dd));
+    for (std::size_t c = 0; c < dd; ++c) t.box[dd + c] = -t.box[dd + c];
+    start += t.count;
+  }
+
+  // Each point to its node's owner: node, index, coordinates.
+  std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+  for (std::uint32_t kk = 0; kk < mine.size(); ++kk) {
+    std::vector<char>& o = outgoing[static_cast<std::size_t>(out.nodes[node_of[kk]].owner)];
+    put<std::uint32_t>(o, node_of[kk]);
+    put<std::uint64_t>(o, mine.ids[kk]);
+    for (std::size_t c = 0; c < dd; ++c) put<double>(o, mine.point(kk)[c]);
+  }
+  mine = Points{};
+  node_of = {};
+  const std::vector<char> in = comm.alltoall_bytes(outgoing);
+  outgoing = {};
+  const std::size_t record = 4 + 8 + 8 * dd;
+  const std::size_t got = in.size() / record;
+  struct Arrival {
+    std::uint32_t node;
+    std::uint64_t id;
+    std::size_t at;
+  };
+  std::vector<Arrival> arrivals(got);
+  for (std::size_t i = 0; i < got; ++i) {
+    const char* at = in.data() + i * record;
+    arrivals[i].node = get<std::uint32_t>(at);
+    arrivals[i].id = get<std::uint64_t>(at);
+    arrivals[i].at = i * record + 12;
+  }
+  std::sort(arrivals.begin(), arrivals.end(),
+            [](const Arrival& a, const Arrival& b) { return a.node != b.node ? a.node < b.node : a.id < b.id; });
+  out.owned.d = d;
+  out.owned.coords.resize(got * dd);
+  out.owned.ids.resize(got);
+  for (std::size_t i = 0; i < got; ++i) {
+    std::memcpy(&out.owned.coords[i * dd], in.data() + arrivals[i].at, 8 * dd);
+    out.owned.ids[i] = arrivals[i].id;
+    if (i == 0 || arrivals[i].node != arrivals[i - 1].node) out.owned_nodes.push_back(arrivals[i].node);
+    if (i + 1 == got || arrivals[i + 1].node != arrivals[i].node) out.piece_ends.push_back(static_cast<std::uint32_t>(i + 1));
+  }
+  // Equal points that no joint cut separated are both here: neighbours in
+  // lexicographic order.
+  std::vector<std::uint32_t> lex(got);
+  std::iota(lex.begin(), lex.end(), 0u);
+  std::sort(lex.begin(), lex.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return before_along(0, d, out.owned.point(a), out.owned.ids[a], out.owned.point(b), out.owned.ids[b]);
+  });
+  for (std::size_t i = 1; i < got && failure.is_ok(); ++i) {
+    if (std::equal(out.owned.point(lex[i - 1]), out.owned.point(lex[i - 1]) + d, out.owned.point(lex[i]))) {
+      failure = duplicate(source, out.owned.ids[lex[i - 1]], out.owned.ids[lex[i]]);
+    }
+  }
+  if (Status s = comm.agree(failure); !s.is_ok()) return s;
+  return out;
+}
+
+}  // namespace spokemesh::mpi

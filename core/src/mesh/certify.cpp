@@ -1,0 +1,307 @@
+#include "spokemesh/certify.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace spokemesh {
+
+namespace {
+
+// Relative error bound of every filtered quantity below, times its magnitude (see the
+// header): far above the worst rounding chain for d <= 3.
+constexpr double kGamma = 1e-14;
+// Outward rounding of a few further operations on bounds.
+constexpr double kUlps = 8 * std::numeric_limits<double>::epsilon();
+
+double down(double v) { return std::nextafter(v - std::fabs(v) * kUlps, -std::numeric_limits<double>::infinity()); }
+double up(double v) { return std::nextafter(v + std::fabs(v) * kUlps, std::numeric_limits<double>::infinity()); }
+
+struct Interval {
+  double lo, hi;
+};
+
+// n / d for intervals with 0 outside d, rounded outwards.
+Interval divide(Interval n, Interval d) {
+  const double q[4] = {n.lo / d.lo, n.lo / d.hi, n.hi / d.lo, n.hi / d.hi};
+  return {down(*std::min_element(q, q + 4)), up(*std::max_element(q, q + 4))};
+}
+
+// A value and the magnitude that bounds its rounding error (error <= kGamma * mag).
+struct Filtered {
+  double value = 0, mag = 0;
+  Interval interval() const {
+    const double e = kGamma * mag;
+    return {down(value - e), up(value + e)};
+  }
+};
+
+// The circumcentre of a star simplex, as an interval box around the exact one, and an
+// upper bound on the squared circumradius. False when the bounds cannot separate D
+// from 0 (a nearly flat simplex).
+template <int D>
+bool circumball(const double* s, const std::array<const double*, D>& v, std::array<Interval, D>& centre,
+                double& radius2_up) {
+  // Offsets from the seed (rounded: the input error is in kGamma's chain).
+  std::array<std::array<double, D>, D> a{};
+  std::array<std::array<double, D>, D> m{};  // their magnitudes
+  std::array<double, D> w{}, wm{};           // |a_i|^2
+  for (int i = 0; i < D; ++i) {
+    for (int k = 0; k < D; ++k) {
+      a[i][k] = v[i][k] - s[k];
+      m[i][k] = std::fabs(a[i][k]);
+      w[i] += a[i][k] * a[i][k];
+    }
+    wm[i] = w[i];
+  }
+  std::array<Filtered, D> n{};
+  Filtered den;
+  if constexpr (D == 2) {
+    den.value = 2 * (a[0][0] * a[1][1] - a[0][1] * a[1][0]);
+    den.mag = 2 * (m[0][0] * m[1][1] + m[0][1] * m[1][0]);
+    n[0] = {w[0] * a[1][1] - w[1] * a[0][1], wm[0] * m[1][1] + wm[1] * m[0][1]};
+    n[1] = {w[1] * a[0][0] - w[0] * a[1][0], wm[1] * m[0][0] + wm[0] * m[1][0]};
+  } else {
+    // N = |a|^2 (b x c) + |b|^2 (c x a) + |c|^2 (a x b), D = 2 a . (b x c).
+    auto cross = [](const std::array<double, 3>& p, const std::array<double, 3>& q, bool absolute) {
+      if (absolute) {
+        return std::array<double, 3>{p[1] * q[2] + p[2] * q[1], p[2] * q[0] + p[0] * q[2], p[0] * q[1] + p[1] * q[0]};
+      }
+      return std::array<double, 3>{p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0]};
+    };
+    const auto bc = cross(a[1], a[2], false), ca = cross(a[2], a[0], false), ab = cross(a[0], a[1], false);
+    const auto bcm = cross(m[1], m[2], true), cam = cross(m[2], m[0], true), abm = cross(m[0], m[1], true);
+    den.value = 2 * (a[0][0] * bc[0] + a[0][1] * bc[1] + a[0][2] * bc[2]);
+    den.mag = 2 * (m[0][0] * bcm[0] + m[0][1] * bcm[1] + m[0][2] * bcm[2]);
+    for (int k = 0; k < 3; ++k) {
+      n[k] = {w[0] * bc[k] + w[1] * ca[k] + w[2] * ab[k], wm[0] * bcm[k] + wm[1] * cam[k] + wm[2] * abm[k]};
+    }
+  }
+  const Interval dd = den.interval();
+  if (dd.lo <= 0 && dd.hi >= 0) return false;
+  radius2_up = 0;
+  for (int k = 0; k < D; ++k) {
+    const Interval x = divide(n[k].interval(), dd);  // the centre's offset from the seed
+    centre[k] = {down(s[k] + x.lo), up(s[k] + x.hi)};
+    const double big = std::max(std::fabs(x.lo), std::fabs(x.hi));
+    radius2_up += big * big;
+  }
+  radius2_up = up(radius2_up);
+  return true;
+}
+
+// Whether the closed ball (centre interval, radius^2 <= radius2_up) misses box b.
+template <int D>
+bool misses(const std::array<Interval, D>& centre, double radius2_up, const double* box) {
+  double gap2 = 0;
+  for (int k = 0; k < D; ++k) {
+    const double below = box[k] - centre[k].hi, above = centre[k].lo - box[D + k];
+    const double g = std::max({0.0, down(below), down(above)});
+    gap2 += g * g;
+  }
+  return down(gap2) > radius2_up;
+}
+
+// The box around the part of the ball inside the whole set's box g (where points can
+// be): along axis k, the ball's chord over the nearest point of g's other axes. The
+// huge balls of nearly flat simplices at the hull cut only a thin cap out of g.
+template <int D>
+std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& centre, double radius2_up, const double* g) {
+  std::array<double, D> gap{};
+  for (int j = 0; j < D; ++j) {
+    gap[static_cast<std::size_t>(j)] = std::max({0.0, down(g[j] - centre[j].hi), down(centre[j].lo - g[D + j])});
+  }
+  std::array<double, 2 * D> out{};
+  for (int k = 0; k < D; ++k) {
+    double gap2 = 0;
+    for (int j = 0; j < D; ++j) gap2 += j == k ? 0.0 : gap[static_cast<std::size_t>(j)] * gap[static_cast<std::size_t>(j)];
+    const double h = up(std::sqrt(std::max(0.0, up(radius2_up - down(gap2)))));
+    out[static_cast<std::size_t>(k)] = std::max(g[k], down(centre[k].lo - h));
+    out[static_cast<std::size_t>(D + k)] = std::min(g[D + k], up(centre[k].hi + h));
+  }
+  return out;
+}
+
+// Whether the part of the ball inside g lies inside the box (every point of it is held).
+template <int D>
+bool inside(const std::array<double, 2 * D>& extent, const double* box) {
+  for (int k = 0; k < D; ++k) {
+    if (extent[static_cast<std::size_t>(k)] < box[k] || extent[static_cast<std::size_t>(D + k)] > box[D + k]) return false;
+  }
+  return true;
+}
+
+// The sign of det[f_1 - s, ..., f_{D-1} - s, q - s] when the filter decides it, else 0.
+template <int D>
+int side(const double* s, const std::array<const double*, D - 1>& f, const double* q) {
+  std::array<std::array<double, D>, D> a{};
+  for (int i = 0; i < D - 1; ++i) {
+    for (int k = 0; k < D; ++k) a[i][k] = f[i][k] - s[k];
+  }
+  for (int k = 0; k < D; ++k) a[D - 1][k] = q[k] - s[k];
+  Filtered det;
+  if constexpr (D == 2) {
+    det = {a[0][0] * a[1][1] - a[0][1] * a[1][0],
+           std::fabs(a[0][0] * a[1][1]) + std::fabs(a[0][1] * a[1][0])};
+  } else {
+    double v = 0, m = 0;
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+      const double minor = a[1][k1] * a[2][k2] - a[1][k2] * a[2][k1];
+      const double minor_mag = std::fabs(a[1][k1] * a[2][k2]) + std::fabs(a[1][k2] * a[2][k1]);
+      v += a[0][k] * minor;
+      m += std::fabs(a[0][k]) * minor_mag;
+    }
+    det = {v, m};
+  }
+  const Interval i = det.interval();
+  return i.lo > 0 ? 1 : i.hi < 0 ? -1 : 0;
+}
+
+template <int D>
+StarCertificate certify(const PointSet& ps, const double* global, const Star& star,
+                        std::span<const double> held_boxes, std::span<const double> unheld,
+                        const std::function<bool(std::span<const std::uint32_t>)>& known_hull) {
+  StarCertificate out;
+  const std::size_t box_words = 2 * D, boxes = unheld.size() / box_words;
+  const double* s = ps.point(star.seed);
+  const std::size_t w = D + 1;
+  bool failed = false;
+  std::array<double, 2 * D> reach{};
+  for (int k = 0; k < D; ++k) {
+    reach[static_cast<std::size_t>(k)] = std::numeric_limits<double>::infinity();
+    reach[static_cast<std::size_t>(D + k)] = -std::numeric_limits<double>::infinity();
+  }
+  // Hull facets: the facets through the seed that only one simplex of the star has.
+  struct Facet {
+    std::array<std::uint32_t, D> vertices;  // ascending, the seed among them
+    std::uint32_t apex;                     // the simplex's vertex off the facet
+  };
+  std::vector<Facet> facets;
+  facets.reserve(star.hull_facets != 0 ? star.size() * D : 0);
+  for (std::size_t t = 0; t < star.size(); ++t) {
+    const std::uint32_t* simplex = star.simplex(t);
+    std::array<const double*, D> v{};
+    int at = 0;
+    for (std::size_t j = 0; j < w; ++j) {
+      if (simplex[j] != star.seed) v[static_cast<std::size_t>(at++)] = ps.point(simplex[j]);
+    }
+    std::array<Interval, D> centre{};
+    double radius2 = 0;
+    bool ok = circumball<D>(s, v, centre, radius2);
+    std::array<double, 2 * D> extent{};
+    if (ok) {
+      extent = clipped_extent<D>(centre, radius2, global);
+      bool held = false;
+      for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
+        held = inside<D>(extent, held_boxes.data() + b);
+      }
+      for (std::size_t b = 0; b < boxes && ok && !held; ++b) ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
+    }
+    if (!ok) {
+      failed = true;
+      // What would certify it: every point in the ball's part of the whole set's box.
+      // A nearly flat simplex's centre is unbounded here: then the box is the
+      // simplex's own (the caller doubles a seed's box each time it is refused again,
+      // until everything is held).
+      for (int k = 0; k < D; ++k) {
+        const auto lo = static_cast<std::size_t>(k), hi = static_cast<std::size_t>(D + k);
+        if (circumball<D>(s, v, centre, radius2)) {
+          reach[lo] = std::min(reach[lo], extent[lo]);
+          reach[hi] = std::max(reach[hi], extent[hi]);
+        }
+        reach[lo] = std::min(reach[lo], s[k]);
+        reach[hi] = std::max(reach[hi], s[k]);
+        for (const double* p : v) {
+          reach[lo] = std::min(reach[lo], p[k]);
+          reach[hi] = std::max(reach[hi], p[k]);
+        }
+      }
+    }
+    if (star.hull_facets == 0) continue;
+    for (std::size_t skip = 0; skip < w; ++skip) {
+      if (simplex[skip] == star.seed) continue;
+      Facet f{};
+      int k = 0;
+      for (std::size_t j = 0; j < w; ++j) {
+        if (j != skip) f.vertices[static_cast<std::size_t>(k++)] = simplex[j];
+      }
+      std::sort(f.vertices.begin(), f.vertices.end());
+      f.apex = simplex[skip];
+      facets.push_back(f);
+    }
+  }
+  if (failed) out.reach.assign(reach.begin(), reach.end());
+  std::sort(facets.begin(), facets.end(), [](const Facet& a, const Facet& b) { return a.vertices < b.vertices; });
+  for (std::size_t i = 0; i < facets.size();) {
+    std::size_t j = i + 1;
+    while (j < facets.size() && facets[j].vertices == facets[i].vertices) ++j;
+    if (j - i == 1 && !known_hull(facets[i].vertices)) {  // a hull facet: its outer side must miss every unheld box
+      std::array<const double*, D> f{};
+      for (int k = 0; k < D; ++k) f[static_cast<std::size_t>(k)] = ps.point(facets[i].vertices[static_cast<std::size_t>(k)]);
+      bool ok = true;
+      for (std::size_t b = 0; b < boxes && ok; ++b) {
+        ok = !StarCertifier::may_be_beyond(D, f.data(), ps.point(facets[i].apex), unheld.data() + b * box_words);
+      }
+      if (!ok) {
+        out.hull_facets.insert(out.hull_facets.end(), facets[i].vertices.begin(), facets[i].vertices.end());
+        out.hull_facets.push_back(facets[i].apex);
+      }
+    }
+    i = j;
+  }
+  out.certified = !failed && out.hull_facets.empty();
+  return out;
+}
+
+// The filtered orientation of q against the facet through f (side<D> with the facet's
+// first point as the origin).
+template <int D>
+int facet_side(const double* const* f, const double* q) {
+  std::array<const double*, D - 1> rest{};
+  for (int k = 1; k < D; ++k) rest[static_cast<std::size_t>(k - 1)] = f[k];
+  return side<D>(f[0], rest, q);
+}
+
+template <int D>
+bool beyond_box(const double* const* f, const double* inner, const double* box) {
+  const int in = facet_side<D>(f, inner);
+  if (in == 0) return true;
+  for (unsigned corner = 0; corner < (1u << D); ++corner) {
+    std::array<double, D> q{};
+    for (int k = 0; k < D; ++k) q[static_cast<std::size_t>(k)] = box[(corner >> k & 1u) != 0 ? D + k : k];
+    if (facet_side<D>(f, q.data()) != in) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+StarCertificate StarCertifier::certify(const Star& star, std::span<const double> held_boxes,
+                                      std::span<const double> unheld,
+                                      const std::function<bool(std::span<const std::uint32_t>)>& known_hull) const {
+  if (unheld.empty()) return {true, {}, {}};
+  switch (points_.dimension()) {
+    case 2:
+      return spokemesh::certify<2>(points_, global_.data(), star, held_boxes, unheld, known_hull);
+    case 3:
+      return spokemesh::certify<3>(points_, global_.data(), star, held_boxes, unheld, known_hull);
+    default:
+      return {};
+  }
+}
+
+bool StarCertifier::may_be_beyond(int d, const double* const* f, const double* inner, const double* box) {
+  return d == 2 ? beyond_box<2>(f, inner, box) : d == 3 ? beyond_box<3>(f, inner, box) : true;
+}
+
+bool StarCertifier::may_be_beyond_point(int d, const double* const* f, const double* inner, const double* q) {
+  if (d != 2 && d != 3) return true;
+  const int in = d == 2 ? facet_side<2>(f, inner) : facet_side<3>(f, inner);
+  const int at = d == 2 ? facet_side<2>(f, q) : facet_side<3>(f, q);
+  return in == 0 || at != in;
+}
+
+}  // namespace spokemesh
