@@ -14,6 +14,7 @@
 //
 // Exit codes (the CLI's): 0 success, 1 failure, 2 bad usage or bad input.
 #include <malloc.h>
+#include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -22,7 +23,10 @@
 #include <array>
 #include <chrono>
 #include <numeric>
+#include <cerrno>
 #include <cmath>
+#include <csignal>
+#include <cstring>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
@@ -86,6 +90,14 @@ Status read_at(MPI_File file, std::uint64_t offset, char* into, std::uint64_t by
 }
 
 Result<Slice> read_npy_slice(Comm& comm, const std::string& path) {
+  // The CLI's words for a file that cannot be read (rank 0 looks; every rank agrees).
+  Status readable;
+  if (comm.rank == 0) {
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    if (f == nullptr) readable = invalid_argument(path + ": cannot open for reading (" + std::strerror(errno) + ")");
+    else std::fclose(f);
+  }
+  if (Status s = comm.agree(readable); !s.is_ok()) return s;
   MPI_File file;
   if (MPI_File_open(comm.comm, path.c_str(), MPI_MODE_RDONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) {
     return invalid_argument(path + ": cannot open");  // every rank fails alike
@@ -541,6 +553,16 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     }
   }
   if (usage.is_ok() && comm.rank == 0) usage = check_not_input(input, w.output);
+  if (usage.is_ok() && comm.rank == 0) {
+    // The CLI opens its output before meshing: a run that cannot write says so first.
+    const std::string probe = w.output + ".spokemesh-mpi-probe-" + std::to_string(::getpid());
+    if (std::FILE* f = std::fopen(probe.c_str(), "wb"); f != nullptr) {
+      std::fclose(f);
+      std::remove(probe.c_str());
+    } else {
+      usage = invalid_argument(w.output + ": cannot open for writing (" + std::strerror(errno) + ")");
+    }
+  }
   if (Status s = comm.agree(usage); !s.is_ok()) return report_all(s);
 
   const bool npy = input.size() >= 4 && input.compare(input.size() - 4, 4, ".npy") == 0;
@@ -973,6 +995,9 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
 
 int main(int argc, char** argv) {
   ::mallopt(M_MMAP_THRESHOLD, 4 << 20);  // as the CLI (main.cpp there says why)
+  // A file-size limit (ulimit -f) makes writes fail with EFBIG, reported as a full
+  // disk is, instead of killing the process.
+  std::signal(SIGXFSZ, SIG_IGN);
   int provided = 0;
   MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
   Comm comm = Comm::world();

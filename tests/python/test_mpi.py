@@ -1,0 +1,217 @@
+"""spokemesh-mpi against spokemesh: the same bytes for every number of processes.
+
+Real processes: Open MPI's mpirun (oversubscribed on small machines) runs
+build/bin/spokemesh-mpi; the single-process CLI writes the reference files. Point sets
+are made here with fixed seeds (printed on failure through the test ids).
+"""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+BIN = os.environ.get("SPOKEMESH_BIN_DIR", os.path.join(os.path.dirname(__file__), "..", "..", "build", "bin"))
+CLI = os.path.join(BIN, "spokemesh")
+MPI = os.path.join(BIN, "spokemesh-mpi")
+MPIRUN = shutil.which("mpirun")
+
+pytestmark = pytest.mark.skipif(
+    MPIRUN is None or not os.path.exists(MPI),
+    reason="Open MPI is not installed (scripts/install-deps.sh installs libopenmpi-dev openmpi-bin), "
+    "so spokemesh-mpi was not built",
+)
+
+RANKS = [1, 2, 3, 4, 7]
+
+
+def mpi_env():
+    env = dict(os.environ)
+    # As root (containers, CI runners) Open MPI wants both variables; on 2 cores, 7
+    # ranks need oversubscription (--oversubscribe below).
+    env["OMPI_ALLOW_RUN_AS_ROOT"] = "1"
+    env["OMPI_ALLOW_RUN_AS_ROOT_CONFIRM"] = "1"
+    env["OMPI_MCA_btl_vader_single_copy_mechanism"] = "none"
+    env["OMPI_MCA_rmaps_base_oversubscribe"] = "1"
+    return env
+
+
+def run_mpi(ranks, *args, check=True, timeout=600):
+    cmd = [MPIRUN, "--oversubscribe", "-np", str(ranks), MPI, *args]
+    done = subprocess.run(cmd, capture_output=True, text=True, env=mpi_env(), timeout=timeout)
+    if check and done.returncode != 0:
+        raise AssertionError(f"{' '.join(cmd)} exited {done.returncode}:\n{done.stderr}")
+    return done
+
+
+def run_cli(*args):
+    done = subprocess.run([CLI, *args], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return done
+
+
+def uniform(n, d, seed):
+    return np.random.default_rng(seed).random((n, d))
+
+
+def clustered(n, seed):
+    rng = np.random.default_rng(seed)
+    centres = rng.random((100, 3))
+    pts = centres[rng.integers(0, 100, n)] + rng.normal(scale=0.01, size=(n, 3))
+    return pts
+
+
+def linspace_grid(k):
+    g = np.linspace(0.0, 1.0, k)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), z.ravel()], 1)
+
+
+SETS = {
+    "3d-uniform-50k": lambda: uniform(50_000, 3, 1),
+    "3d-clustered-50k": lambda: clustered(50_000, 2),
+    "3d-linspace-grid-37": lambda: linspace_grid(37),
+    "2d-uniform-50k": lambda: uniform(50_000, 2, 3),
+}
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("mpi")
+
+
+@pytest.fixture(scope="module")
+def reference(work):
+    """Each set's file and the single process's mesh and graph of it."""
+    out = {}
+    for name, make in SETS.items():
+        pts = make()
+        # The 2-d set as text (read by rank 0 and scattered), the others as .npy (read
+        # in slices by MPI-IO).
+        path = work / (name + (".txt" if name.startswith("2d") else ".npy"))
+        if path.suffix == ".txt":
+            np.savetxt(path, pts, fmt="%.17g")
+        else:
+            np.save(path, pts)
+        mesh = work / f"{name}.simplices"
+        graph = work / f"{name}.edges"
+        run_cli("mesh", str(path), "-o", str(mesh), "-q", "--threads", "2")
+        run_cli("graph", str(path), "-o", str(graph), "-q", "--threads", "2")
+        out[name] = (path, mesh.read_bytes(), graph.read_bytes(), len(pts))
+    return out
+
+
+@pytest.mark.parametrize("name", list(SETS))
+@pytest.mark.parametrize("ranks", RANKS)
+def test_mesh_is_byte_identical(reference, work, name, ranks):
+    path, mesh, _, n = reference[name]
+    out = work / f"{name}-{ranks}.simplices"
+    stats = work / f"{name}-{ranks}.json"
+    run_mpi(ranks, "mesh", str(path), "-o", str(out), "-q", "--stats", str(stats))
+    assert out.read_bytes() == mesh, f"{name}: {ranks} ranks wrote other bytes than one process"
+    report = json.loads(stats.read_text())
+    rows = report["ranks"]
+    assert [r["rank"] for r in rows] == list(range(ranks))
+    for r in rows:
+        assert set(r) == {"rank", "owned", "ghosts", "rounds", "bytes_sent", "bytes_received", "peak_rss_bytes",
+                          "seconds"}
+    owned = [r["owned"] for r in rows]
+    assert sum(owned) == n
+    # Balance by counts, whatever the distribution (clumps included).
+    assert max(owned) / (n / ranks) <= 1.05, owned
+
+
+@pytest.mark.parametrize("name", ["3d-uniform-50k", "3d-linspace-grid-37", "2d-uniform-50k"])
+@pytest.mark.parametrize("ranks", [2, 7])
+def test_graph_is_byte_identical(reference, work, name, ranks):
+    path, _, graph, _ = reference[name]
+    out = work / f"{name}-{ranks}.edges"
+    run_mpi(ranks, "graph", str(path), "-o", str(out), "-q")
+    assert out.read_bytes() == graph
+
+
+def test_npy_output_and_seed_ranges_are_byte_identical(reference, work):
+    path, _, _, _ = reference["3d-uniform-50k"]
+    one = work / "one.npy"
+    run_cli("mesh", str(path), "-o", str(one), "-q")
+    many = work / "many.npy"
+    run_mpi(3, "mesh", str(path), "-o", str(many), "-q")
+    assert many.read_bytes() == one.read_bytes()
+    one_part = work / "one-part.simplices"
+    run_cli("mesh", str(path), "--seeds", "1000:20000", "-o", str(one_part), "-q")
+    many_part = work / "many-part.simplices"
+    run_mpi(4, "mesh", str(path), "--seeds", "1000:20000", "-o", str(many_part), "-q")
+    assert many_part.read_bytes() == one_part.read_bytes()
+
+
+def test_halos_grow_in_rounds_when_the_first_is_empty(reference, work):
+    # No first halo: every star near a rank's boundary is refused at first and fetches
+    # what its balls and hull facets need, round after round.
+    path, mesh, _, _ = reference["3d-clustered-50k"]
+    out = work / "rounds.simplices"
+    stats = work / "rounds.json"
+    run_mpi(3, "mesh", str(path), "-o", str(out), "-q", "--first-halo", "0", "--stats", str(stats))
+    assert out.read_bytes() == mesh
+    rounds = max(r["rounds"] for r in json.loads(stats.read_text())["ranks"])
+    assert rounds > 1
+
+
+def test_bad_input_is_reported_once_with_the_cli_exit_code(work):
+    bad = work / "dup.txt"
+    bad.write_text("0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 1\n0.5 0.5 0.5\n1 0 0\n0.2 0.3 0.9\n")
+    out = work / "dup.simplices"
+    done = run_mpi(3, "mesh", str(bad), "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("points 1 and 6 are equal") == 1, done.stderr
+    assert not out.exists()
+    text = work / "bad.txt"
+    text.write_text("0 0 0\n1 0 0\n0 1 zz\n0 0 1\n")
+    done = run_mpi(3, "mesh", str(text), "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count(f"{text}:3: cannot parse 'zz' as a number") == 1, done.stderr
+    flat = work / "flat.npy"
+    np.save(flat, np.c_[np.random.default_rng(4).random((1000, 2)), np.zeros(1000)])
+    done = run_mpi(2, "mesh", str(flat), "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("span only a 2-dimensional affine subspace") == 1, done.stderr
+    done = run_mpi(2, "mesh", str(work / "missing.npy"), "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("cannot open for reading (No such file or directory)") == 1, done.stderr
+    done = run_mpi(2, "cells", str(flat), "-o", str(work / "c.npz"), check=False)
+    assert done.returncode == 2 and "not distributed yet" in done.stderr
+
+
+def test_an_unwritable_output_fails_before_meshing(reference, work):
+    path, _, _, _ = reference["3d-uniform-50k"]
+    done = run_mpi(2, "mesh", str(path), "-o", str(work / "no-such-dir" / "m.simplices"), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("cannot open for writing (No such file or directory)") == 1, done.stderr
+
+
+def test_a_killed_rank_fails_the_job_and_leaves_the_output_as_it_was(work):
+    pts = uniform(400_000, 3, 9)
+    path = work / "big.npy"
+    np.save(path, pts)
+    out = work / "kept.simplices"
+    out.write_text("the previous contents\n")
+    cmd = [MPIRUN, "--oversubscribe", "-np", "3", MPI, "mesh", str(path), "-o", str(out), "-q", "--threads", "1"]
+    job = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=mpi_env(), text=True)
+    # Kill one rank while it meshes (the ranks are mpirun's children).
+    victim = None
+    deadline = time.time() + 30
+    while victim is None and time.time() < deadline:
+        time.sleep(0.3)
+        found = subprocess.run(["pgrep", "-P", str(job.pid), "-f", "spokemesh-mpi"], capture_output=True, text=True)
+        pids = found.stdout.split()
+        if len(pids) == 3:
+            victim = int(pids[-1])
+    assert victim is not None, "the ranks did not start"
+    time.sleep(1.0)
+    os.kill(victim, signal.SIGKILL)
+    _, err = job.communicate(timeout=120)
+    assert job.returncode != 0, err
+    assert out.read_text() == "the previous contents\n"
