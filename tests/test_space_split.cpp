@@ -236,3 +236,35 @@ TEST(CountSelect, SpaceSplitCutsAtTheSelectedMedian) {
 
 }  // namespace
 }  // namespace spokemesh
+
+namespace spokemesh {
+namespace {
+
+using testing::make_points;
+using testing::uniform_points;
+
+// A part of a larger split: the pieces' points come in the whole split's order.
+TEST(SpaceSplit, PiecesOfTheWholeSplitKeepItsOrder) {
+  const PointSet ps = make_points(3, uniform_points(3, 5000, 21));
+  const SpaceSplit whole(ps, 300);
+  // Pieces: the whole split's nodes of [0, 1250) and [2500, 5000) positions (the first
+  // quarter and the second half are nodes: halving), the rest as held points.
+  std::vector<std::uint32_t> members;
+  for (std::uint32_t p = 0; p < 1250; ++p) members.push_back(whole.point_at(p));
+  for (std::uint32_t p = 2500; p < 5000; ++p) members.push_back(whole.point_at(p));
+  std::mt19937 rng(5);
+  std::shuffle(members.begin(), members.begin() + 1250, rng);  // any order within a piece
+  std::shuffle(members.begin() + 1250, members.end(), rng);
+  const std::vector<std::uint32_t> ends{1250, 3750};
+  const SpaceSplit part(ps, members, ends, 300);
+  ASSERT_EQ(part.swept(), 3750u);
+  for (std::uint32_t p = 0; p < 1250; ++p) ASSERT_EQ(part.point_at(p), whole.point_at(p)) << "position " << p;
+  for (std::uint32_t p = 1250; p < 3750; ++p) ASSERT_EQ(part.point_at(p), whole.point_at(p + 1250)) << "position " << p;
+  // The others trail, in index order, as one block.
+  for (std::uint32_t p = 3751; p < 5000; ++p) ASSERT_LT(part.point_at(p - 1), part.point_at(p));
+  EXPECT_EQ(part.end(part.block_count() - 1), 5000u);
+  EXPECT_EQ(part.begin(part.block_count() - 1), 3750u);
+}
+
+}  // namespace
+}  // namespace spokemesh

@@ -4,9 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 
+#include "spokemesh/certify.hpp"
 #include "spokemesh/front_cache.hpp"
 #include "spokemesh/mesh.hpp"
 #include "support.hpp"
@@ -146,6 +148,109 @@ TEST(Sweep, TwoDimensionalPostsFollowTheFrontNotTheMesh) {
   EXPECT_LT(growth, 5.0) << "the posts grew " << growth << "x for 8x the points: they follow n, not the front";
   EXPECT_LT(large.facet_cache_bytes, 400000u * 16) << "more than 16 bytes per point (every box is 64)";
   EXPECT_GT(large.star.cached_wraps, large.star.wraps) << "the posts still answer most of the ring";
+}
+
+}  // namespace
+}  // namespace spokemesh
+
+namespace spokemesh {
+namespace {
+
+using testing::make_points;
+using testing::mesh_all;
+using testing::Simplices;
+using testing::sorted_rows;
+using testing::uniform_points;
+
+// A whole mesh whose stars are all offered to `accept`: the same rows when every star
+// is accepted, and none of a refused seed's.
+TEST(Sweep, AcceptSeesWholeStarsAndRefusedSeedsEmitNothing) {
+  const PointSet ps = make_points(3, uniform_points(3, 3000, 31));
+  const KdTree tree(ps);
+  const auto whole = mesh_all(tree, 2);
+  MeshOptions options;
+  options.threads = 2;
+  std::atomic<std::uint64_t> whole_stars{0};
+  options.accept = [&](const Star& star) {
+    // The whole star: every simplex through the seed, the owned ones last.
+    const Star reference = [&] {
+      StarWalker walker(tree);
+      Star s;
+      EXPECT_TRUE(walker.compute(star.seed, s).is_ok());
+      return s;
+    }();
+    whole_stars += star.size() == reference.size() ? 1 : 0;
+    return star.seed % 7 != 3;
+  };
+  Simplices kept;
+  auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+    kept.insert(kept.end(), block.begin(), block.end());
+    return Status::ok();
+  });
+  ASSERT_TRUE(r.is_ok());
+  EXPECT_EQ(whole_stars.load(), 3000u);
+  Simplices expected;
+  for (std::size_t i = 0; i < whole.size(); i += 4) {
+    if (whole[i] % 7 != 3) expected.insert(expected.end(), whole.begin() + static_cast<std::ptrdiff_t>(i), whole.begin() + static_cast<std::ptrdiff_t>(i + 4));
+  }
+  EXPECT_EQ(kept, expected);
+}
+
+// A star computed from the points in a box is certified only if it is the whole set's
+// star: against brute force over every seed, in 2-d and 3-d.
+TEST(StarCertifier, CertifiesOnlyTheWholeSetsStars) {
+  for (int d = 2; d <= 3; ++d) {
+    SCOPED_TRACE("d " + std::to_string(d) + " (seed 40 + d)");
+    const std::size_t n = d == 2 ? 4000 : 12000;
+    const std::vector<double> coords = uniform_points(d, n, 40 + static_cast<std::uint64_t>(d));
+    const PointSet all = make_points(d, coords);
+    const KdTree all_tree(all);
+    // Held: the points in [0.2, 0.7]^d; unheld: the unit box less that, as slabs.
+    std::vector<double> held_box, sub, unheld;
+    std::vector<std::uint32_t> global;
+    for (int c = 0; c < d; ++c) held_box.push_back(0.2);
+    for (int c = 0; c < d; ++c) held_box.push_back(0.7);
+    for (std::uint32_t i = 0; i < n; ++i) {
+      bool in = true;
+      for (int c = 0; c < d; ++c) in = in && all.point(i)[c] >= 0.2 && all.point(i)[c] <= 0.7;
+      if (!in) continue;
+      sub.insert(sub.end(), all.point(i), all.point(i) + d);
+      global.push_back(i);
+    }
+    for (int c = 0; c < d; ++c) {
+      std::vector<double> lo_slab(2 * static_cast<std::size_t>(d)), hi_slab;
+      for (int k = 0; k < d; ++k) {
+        lo_slab[static_cast<std::size_t>(k)] = 0;
+        lo_slab[static_cast<std::size_t>(d + k)] = 1;
+      }
+      hi_slab = lo_slab;
+      lo_slab[static_cast<std::size_t>(d + c)] = 0.2;
+      hi_slab[static_cast<std::size_t>(c)] = 0.7;
+      unheld.insert(unheld.end(), lo_slab.begin(), lo_slab.end());
+      unheld.insert(unheld.end(), hi_slab.begin(), hi_slab.end());
+    }
+    PointSet part = make_points(d, sub);
+    const KdTree part_tree(part);
+    std::vector<double> whole_box;
+    for (int c = 0; c < d; ++c) whole_box.push_back(0);
+    for (int c = 0; c < d; ++c) whole_box.push_back(1);
+    const StarCertifier certifier(part, whole_box);
+    StarWalker part_walker(part_tree), all_walker(all_tree);
+    std::size_t certified = 0;
+    for (std::uint32_t k = 0; k < part.size(); ++k) {
+      Star mine, truth;
+      ASSERT_TRUE(part_walker.compute(k, mine).is_ok());
+      if (!certifier.certified(mine, held_box, unheld)) continue;
+      ++certified;
+      ASSERT_TRUE(all_walker.compute(global[k], truth).is_ok());
+      std::vector<std::uint32_t> mapped = mine.simplices;
+      for (auto& v : mapped) v = global[v];
+      ASSERT_EQ(sorted_rows(mapped, d + 1), sorted_rows(truth.simplices, d + 1)) << "point " << global[k];
+    }
+    // Many held points are far enough from the box's sides (in 3-d about a third: a
+    // star reaches a few spacings).
+    EXPECT_GT(certified, part.size() / 4);
+  }
 }
 
 }  // namespace

@@ -29,6 +29,8 @@
 #include <cstring>
 #include <cstdio>
 #include <fstream>
+#include <functional>
+#include <string_view>
 #include <iostream>
 #include <map>
 #include <mutex>
@@ -283,21 +285,28 @@ class Halo {
   // each), every point inside the box beyond or on the facet's plane wanted. Every rank answers each other
   // rank's requests with the points of its own that it has not sent that rank before,
   // found in a k-d tree of its own points.
-  void fetch(const std::vector<double>& boxes, const std::vector<double>& facets) {
+  void fetch(const std::vector<double>& boxes, const std::vector<double>& facets, const std::vector<double>& balls) {
     const auto d = static_cast<std::size_t>(d_);
     std::vector<char> mine;
-    mpi::put<std::uint64_t>(mine, boxes.size());
-    for (const double v : boxes) mpi::put<double>(mine, v);
-    mpi::put<std::uint64_t>(mine, facets.size());
-    for (const double v : facets) mpi::put<double>(mine, v);
+    for (const std::vector<double>* list : {&boxes, &facets, &balls}) {
+      mpi::put<std::uint64_t>(mine, list->size());
+      for (const double v : *list) mpi::put<double>(mine, v);
+    }
     std::vector<std::uint64_t> sizes;
     const std::vector<char> all = comm_.allgather_bytes(mine, sizes);
     std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm_.size));
     const Points& own = split_.owned;
     if (sent_.empty()) sent_.resize(static_cast<std::size_t>(comm_.size));
-    if (!own_tree_ && own.size() != 0) {
-      own_points_ = PointSet(d_, std::vector<double>(own.coords));
-      own_tree_ = std::make_unique<KdTree>(own_points_);
+    // A tree of this rank's own points answers the requests; built for this exchange
+    // and dropped after it, when the round's own structures are gone (it would
+    // otherwise be the largest thing a rank keeps between rounds).
+    bool asked = false;
+    for (int r = 0; r < comm_.size; ++r) asked |= r != comm_.rank && sizes[static_cast<std::size_t>(r)] > 16;
+    PointSet own_points;
+    std::unique_ptr<KdTree> own_tree;
+    if (asked && own.size() != 0) {
+      own_points = PointSet(d_, std::vector<double>(own.coords));
+      own_tree = std::make_unique<KdTree>(own_points);
     }
     const char* at = all.data();
     for (int r = 0; r < comm_.size; ++r) {
@@ -305,7 +314,9 @@ class Halo {
       for (double& v : box_list) v = mpi::get<double>(at);
       std::vector<double> facet_list(mpi::get<std::uint64_t>(at));
       for (double& v : facet_list) v = mpi::get<double>(at);
-      if (r == comm_.rank || !own_tree_) continue;
+      std::vector<double> ball_list(mpi::get<std::uint64_t>(at));
+      for (double& v : ball_list) v = mpi::get<double>(at);
+      if (r == comm_.rank || !own_tree) continue;
       std::vector<char>& sent = sent_[static_cast<std::size_t>(r)];
       if (sent.empty()) sent.assign(own.size(), 0);
       std::vector<char>& o = outgoing[static_cast<std::size_t>(r)];
@@ -317,7 +328,7 @@ class Halo {
       };
       for (std::size_t b = 0; b + 2 * d <= box_list.size(); b += 2 * d) {
         const double* q = &box_list[b];
-        own_tree_->find_first(
+        own_tree->find_first(
             [&](const float* lo, const float* hi) {
               for (std::size_t c = 0; c < d; ++c) {
                 if (static_cast<double>(hi[c]) < q[c] || static_cast<double>(lo[c]) > q[d + c]) return false;
@@ -329,13 +340,21 @@ class Halo {
               return false;  // every one, not the first
             });
       }
+      // Balls: every point within the radius, and a relative 1e-9 more (beyond the
+      // radius search's rounding), so that no point on a sphere is missed.
+      std::vector<std::pair<std::uint32_t, double>> found;
+      for (std::size_t b = 0; b + d + 1 <= ball_list.size(); b += d + 1) {
+        const double radius = ball_list[b + d] * (1 + 1e-9);
+        own_tree->within(&ball_list[b], radius * radius, found);
+        for (const auto& [k, dist2] : found) give(k);
+      }
       const std::size_t facet_words = (d + 3) * d;
       for (std::size_t f = 0; f + facet_words <= facet_list.size(); f += facet_words) {
         std::array<const double*, 3> vertex{};
         for (std::size_t v = 0; v < d; ++v) vertex[v] = &facet_list[f + v * d];
         const double* inner = &facet_list[f + d * d];
         const double* region = &facet_list[f + (d + 1) * d];
-        own_tree_->find_first(
+        own_tree->find_first(
             [&](const float* lo, const float* hi) {
               double box[6];
               for (std::size_t c = 0; c < d; ++c) {
@@ -395,8 +414,6 @@ class Halo {
   }
 
   static inline double first_halo_factor_ = 2.5;
-  PointSet own_points_;
-  std::unique_ptr<KdTree> own_tree_;
   Comm& comm_;
   const TopSplit& split_;
   int d_;
@@ -454,11 +471,14 @@ LocalSet gather_local(const TopSplit& split, const Points& ghosts) {
 
 // ------------------------------------------------------------------ writing
 
-// Writes every rank's bytes at its offset (after `header`, rank 0's) into a temporary
-// file beside `path`, renamed into place by rank 0 once every rank succeeded.
-// `header` is rank 0's; every rank gives its size as header_bytes.
+// Writes every rank's part at its offset (after rank 0's `header`; every rank gives
+// its size as header_bytes) into a temporary file beside `path`, renamed into place by
+// rank 0 once every rank succeeded. A rank's part is `body_bytes` long and produced
+// piece by piece by `body`, which hands each piece to the writer it is given (pieces
+// of at most a few MB: nothing of the size of the output is held).
+using PieceWriter = std::function<Status(std::string_view)>;
 Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_bytes, const std::string& header,
-                     const std::string& body) {
+                     std::uint64_t body_bytes, const std::function<Status(const PieceWriter&)>& body) {
   std::string temp;
   if (comm.rank == 0) {
     temp = path + ".spokemesh-mpi-" + std::to_string(::getpid()) + ".tmp";
@@ -469,35 +489,38 @@ Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_b
   temp.resize(len);
   MPI_Bcast(temp.data(), static_cast<int>(len), MPI_CHAR, 0, comm.comm);
   MPI_File file;
-  Status status;
   if (MPI_File_open(comm.comm, temp.c_str(), MPI_MODE_CREATE | MPI_MODE_WRONLY, MPI_INFO_NULL, &file) != MPI_SUCCESS) {
-    return internal_error(path + ": cannot create " + temp);
+    return comm.agree(internal_error(path + ": cannot create " + temp));
   }
-  const std::uint64_t offset = header_bytes + comm.exscan_sum<std::uint64_t>(body.size());
-  constexpr std::uint64_t kPiece = std::uint64_t{1} << 30;  // under 2 GiB a call
-  const std::uint64_t calls = comm.allreduce<std::uint64_t>((body.size() + kPiece - 1) / kPiece, MPI_MAX);
-  auto write = [&](std::uint64_t at, const char* data, std::uint64_t bytes) {
-    MPI_Status st;
-    char text[MPI_MAX_ERROR_STRING];
-    int text_len = 0;
-    const int rc = MPI_File_write_at_all(file, static_cast<MPI_Offset>(at), data, static_cast<int>(bytes), MPI_CHAR, &st);
-    if (rc != MPI_SUCCESS && status.is_ok()) {
-      MPI_Error_string(rc, text, &text_len);
-      status = internal_error(path + ": write failed (" + std::string(text, static_cast<std::size_t>(text_len)) +
-                              "); " + path + " is left as it was");
+  Status status;
+  auto write_at = [&](std::uint64_t at, std::string_view bytes) {
+    constexpr std::size_t kPiece = std::size_t{1} << 30;  // under 2 GiB a call (no large counts in 4.1)
+    for (std::size_t from = 0; from < bytes.size() && status.is_ok(); from += kPiece) {
+      const std::size_t count = std::min(kPiece, bytes.size() - from);
+      MPI_Status st;
+      const int rc = MPI_File_write_at(file, static_cast<MPI_Offset>(at + from), bytes.data() + from,
+                                       static_cast<int>(count), MPI_CHAR, &st);
+      if (rc != MPI_SUCCESS) {
+        char text[MPI_MAX_ERROR_STRING];
+        int text_len = 0;
+        MPI_Error_string(rc, text, &text_len);
+        status = internal_error(path + ": write failed (" + std::string(text, static_cast<std::size_t>(text_len)) +
+                                "); " + path + " is left as it was");
+      }
     }
+    return status;
   };
-  if (comm.rank == 0 && !header.empty()) {
-    MPI_Status st;
-    if (MPI_File_write_at(file, 0, header.data(), static_cast<int>(header.size()), MPI_CHAR, &st) != MPI_SUCCESS) {
-      status = internal_error(path + ": write failed; " + path + " is left as it was");
-    }
+  if (comm.rank == 0 && !header.empty()) status = write_at(0, header);
+  std::uint64_t at = header_bytes + comm.exscan_sum<std::uint64_t>(body_bytes);
+  const std::uint64_t end = at + body_bytes;
+  if (status.is_ok()) {
+    status = body([&](std::string_view piece) {
+      Status s = write_at(at, piece);
+      at += piece.size();
+      return s;
+    });
   }
-  for (std::uint64_t c = 0; c < calls; ++c) {
-    const std::uint64_t from = std::min<std::uint64_t>(body.size(), c * kPiece);
-    const std::uint64_t to = std::min<std::uint64_t>(body.size(), from + kPiece);
-    write(offset + from, body.data() + from, to - from);
-  }
+  if (status.is_ok() && at != end) status = internal_error(path + ": internal error: a part changed size while written");
   if (MPI_File_close(&file) != MPI_SUCCESS && status.is_ok()) status = internal_error(path + ": close failed");
   status = comm.agree(status);
   if (comm.rank == 0) {
@@ -509,12 +532,60 @@ Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_b
   return comm.agree(status);
 }
 
+// Rows kept on disk until the end (an anonymous temporary file, as the CLI spools
+// .vtu): each row's d + 1 indices, then its owner's sweep position.
+class Spool {
+ public:
+  explicit Spool(std::size_t width) : width_(width), file_(std::tmpfile()) {}
+  ~Spool() {
+    if (file_ != nullptr) std::fclose(file_);
+  }
+  Spool(const Spool&) = delete;
+  Spool& operator=(const Spool&) = delete;
+  bool ok() const { return file_ != nullptr && std::ferror(file_) == 0; }
+  void append(std::span<const std::uint32_t> words) {
+    if (file_ != nullptr) std::fwrite(words.data(), sizeof(std::uint32_t), words.size(), file_);
+    rows_ += words.size() / (width_ + 1);
+  }
+  std::uint64_t rows() const { return rows_; }
+  // Calls f(row, position) for every row in order.
+  template <class F>
+  void for_each(F&& f) {
+    if (file_ == nullptr) return;
+    std::fflush(file_);
+    std::rewind(file_);
+    std::vector<std::uint32_t> chunk((width_ + 1) * 65536);
+    for (;;) {
+      const std::size_t got = std::fread(chunk.data(), sizeof(std::uint32_t), chunk.size(), file_);
+      for (std::size_t at = 0; at + width_ + 1 <= got; at += width_ + 1) {
+        f(std::span<const std::uint32_t>(chunk.data() + at, width_), chunk[at + width_]);
+      }
+      if (got < chunk.size()) break;
+    }
+  }
+
+ private:
+  std::size_t width_;
+  std::FILE* file_;
+  std::uint64_t rows_ = 0;
+};
+
 // ------------------------------------------------------------------ the run
 
 struct RankStats {
   std::uint64_t owned = 0, ghosts = 0, rounds = 0, bytes_sent = 0, bytes_received = 0, peak_rss = 0;
   double seconds = 0;
 };
+
+// Debugging aid (SPOKEMESH_MPI_DEBUG): the peak so far at a named point.
+void note_peak(const Comm& comm, const char* where) {
+  if (std::getenv("SPOKEMESH_MPI_DEBUG") == nullptr) return;
+  rusage u{};
+  ::getrusage(RUSAGE_SELF, &u);
+  static const auto t0 = Clock::now();
+  std::fprintf(stderr, "rank %d peak %ld MB at %s, %.2f s\n", comm.rank, u.ru_maxrss / 1024, where,
+               std::chrono::duration<double>(Clock::now() - t0).count());
+}
 
 std::uint64_t peak_rss_bytes() {
   rusage u{};
@@ -523,11 +594,6 @@ std::uint64_t peak_rss_bytes() {
 }
 
 enum class Job { kMesh, kGraph };
-
-struct Output {
-  // kMesh: rows (d + 1 global indices each) in sweep order; kGraph: edges (i < j).
-  std::vector<std::uint32_t> rows;
-};
 
 int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_path) {
   const auto start = Clock::now();
@@ -565,6 +631,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   }
   if (Status s = comm.agree(usage); !s.is_ok()) return report_all(s);
 
+  note_peak(comm, "start");
   const bool npy = input.size() >= 4 && input.compare(input.size() - 4, 4, ".npy") == 0;
   auto slice_or = npy ? read_npy_slice(comm, input) : read_text_slice(comm, input);
   if (!slice_or.is_ok()) return report_all(slice_or.status());
@@ -592,18 +659,21 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
 
   // The top of the split, dealt out: nodes of at most n / (32 P) points keep every
   // rank within 1/32 of its share.
+  // (One process takes the whole set as one piece.)
   const std::uint64_t target =
-      std::max<std::uint64_t>(SpaceSplit::kLeafPoints, (n + 32ull * static_cast<unsigned>(comm.size) - 1) /
-                                                           (32ull * static_cast<unsigned>(comm.size)));
+      comm.size == 1 ? n
+                     : std::max<std::uint64_t>(SpaceSplit::kLeafPoints, (n + 32ull * static_cast<unsigned>(comm.size) - 1) /
+                                                                            (32ull * static_cast<unsigned>(comm.size)));
   auto split_or = mpi::split_across_ranks(comm, std::move(slice.points), n, target, input);
   if (!split_or.is_ok()) return report_all(split_or.status());
   const TopSplit split = std::move(split_or).value();
+  note_peak(comm, "split");
   const std::size_t owned = split.owned.size();
 
   Halo halo(comm, split, global_box);
   std::vector<std::size_t> all_pieces(split.owned_nodes.size());
   std::iota(all_pieces.begin(), all_pieces.end(), std::size_t{0});
-  halo.fetch(halo.requests_of(all_pieces), {});
+  halo.fetch(halo.requests_of(all_pieces), {}, {});
 
   // Rows of certified seeds, by the owner's sweep position; stars refused are done again
   // with more points, in rounds.
@@ -612,12 +682,13 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     std::vector<std::uint32_t> rows;  // global indices
   };
   std::vector<Rows> done;          // seeds certified after the first round
-  std::vector<std::uint32_t> rows;  // the first round's rows, in sweep order
-  std::vector<std::uint32_t> row_position;
+  std::vector<std::uint32_t> rows;  // graph: the edges found
+  Spool spool(job == Job::kMesh ? dd + 1 : 2);  // mesh: the first round's rows, in sweep order
   std::vector<std::uint32_t> position_of_own(owned);
   // What a refused seed asks for: the box around its uncertified balls (doubling each
   // round it is refused again), and its hull facets' outer sides.
   std::map<std::uint32_t, std::vector<double>> reach;  // owned k -> box
+  std::map<std::uint32_t, std::vector<double>> asked_balls;  // owned k -> balls fetched (d + 1 doubles each)
   std::set<std::vector<std::uint64_t>> known_hull;       // facets (global indices) whose outer side was fetched
   // The region of each asked hull facet's outer side fetched so far: it doubles round by
   // round; once it holds the whole set's box, the facet is known (a true hull facet's
@@ -660,6 +731,12 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
 
   for (int round = 1;; ++round) {
     stats.rounds = static_cast<std::uint64_t>(round);
+    // This round's requests; the round's own structures are gone before they are sent
+    // (the answers build a tree of the rank's points: no two such trees at once).
+    std::vector<double> boxes, facets, balls;
+    std::vector<std::vector<std::uint64_t>> asked;
+    std::uint64_t left = 0;
+    {
     LocalSet local = gather_local(split, halo.ghosts());
     PointSet& points = local.points;
     const bool spans = points.size() > dd && points.validate(input, 3, false).is_ok() &&
@@ -685,7 +762,9 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         everything = covers_all(it->second);
       }
       const std::vector<double> none;
-      return certifier.certify(star, held, everything ? none : unheld[piece], is_known);
+      const auto fetched = asked_balls.find(k);
+      return certifier.certify(star, held, fetched != asked_balls.end() ? fetched->second : none,
+                               everything ? none : unheld[piece], is_known);
     };
     if (owned != 0 && spans) {
       if (round == 1) {
@@ -694,7 +773,9 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         for (std::size_t k = 0; k < owned; ++k) members[k] = local.local_of_own[k];
         const SpaceSplit sweep(points, members, split.piece_ends, SpaceSplit::default_block_points(d, n));
         for (std::size_t k = 0; k < owned; ++k) position_of_own[k] = sweep.position_of(local.local_of_own[k]);
+        note_peak(comm, "local split");
         const KdTree tree(points, sweep.order());
+        note_peak(comm, "tree");
         MeshOptions options;
         options.threads = w.common.threads;
         options.split = &sweep;
@@ -706,8 +787,9 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         // here is computed in.
         options.accept = [&](const Star& star) {
           StarCertificate c = certify(star);
+          if (c.certified && job == Job::kMesh) return true;  // its rows come through the sink
           std::vector<std::uint32_t> out;
-          if (c.certified && job == Job::kGraph) rows_of(local, star, out);
+          if (c.certified) rows_of(local, star, out);
           std::lock_guard lock(mu);
           if (!c.certified) {
             refused.emplace_back(own_of_local[star.seed], std::move(c));
@@ -720,16 +802,20 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         auto result = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
           progress.update(seeds_done, written);
           if (job != Job::kMesh) return Status::ok();
+          std::vector<std::uint32_t> words;
+          words.reserve(block.size() / w1 * (w1 + 1));
           for (std::size_t i = 0; i < block.size(); i += w1) {
             const std::uint64_t g = local.global[block[i]];
             if (g < seed_range.first || g >= seed_range.second) continue;
-            row_position.push_back(sweep.position_of(block[i]));
-            for (std::size_t j = 0; j < w1; ++j) rows.push_back(static_cast<std::uint32_t>(local.global[block[i + j]]));
+            for (std::size_t j = 0; j < w1; ++j) words.push_back(static_cast<std::uint32_t>(local.global[block[i + j]]));
+            words.push_back(sweep.position_of(block[i]));
             ++written;
           }
-          return Status::ok();
+          spool.append(words);
+          return spool.ok() ? Status::ok() : internal_error("cannot write the temporary spool file");
         });
         if (!result.is_ok()) failure = result.status();
+        note_peak(comm, "mesh");
       } else {
         // Later rounds: only the refused seeds, each star on its own.
         const KdTree tree(points);
@@ -789,10 +875,13 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     stats.ghosts = halo.ghosts().size();
     if (Status s = comm.agree(failure); !s.is_ok()) return report_all(s);
     pending.clear();
-    std::vector<double> boxes, facets;
-    std::vector<std::vector<std::uint64_t>> asked;
     for (auto& [k, c] : refused) {
       pending.push_back(k);
+      if (!c.balls.empty()) {
+        std::vector<double>& mine = asked_balls[k];
+        mine.insert(mine.end(), c.balls.begin(), c.balls.end());
+        balls.insert(balls.end(), c.balls.begin(), c.balls.end());
+      }
       if (!c.reach.empty()) {
         // The new box holds the balls that failed and, refused again, twice the last
         // box around the seed: the boxes grow until every ball fits (or the whole set
@@ -858,41 +947,48 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     }
     std::sort(pending.begin(), pending.end());
     pending.erase(std::unique(pending.begin(), pending.end()), pending.end());
-    const std::uint64_t left = comm.allreduce<std::uint64_t>(pending.size(), MPI_SUM);
+    left = comm.allreduce<std::uint64_t>(pending.size(), MPI_SUM);
     if (std::getenv("SPOKEMESH_MPI_DEBUG") != nullptr) {
-      std::fprintf(stderr, "rank %d round %d: %zu owned, %zu held, %zu refused (all ranks: %llu), %zu boxes, %zu facets asked\n",
+      std::fprintf(stderr,
+                   "rank %d round %d: %zu owned, %zu held, %zu refused (all ranks: %llu), %zu boxes, %zu balls, %zu "
+                   "facets asked\n",
                    comm.rank, round, owned, points.size(), pending.size(), static_cast<unsigned long long>(left),
-                   boxes.size() / (2 * dd), asked.size());
+                   boxes.size() / (2 * dd), balls.size() / (dd + 1), facets.size() / ((dd + 3) * dd));
+    }
     }
     if (left == 0) break;
-    halo.fetch(boxes, facets);
+    halo.fetch(boxes, facets, balls);
     // Every point beyond or on an asked facet's plane is held now: if the facet is
     // still on the hull of the held points, it is on the whole set's.
     for (auto& key : asked) known_hull.insert(std::move(key));
   }
   progress.finish();
 
-  // The rows in order: the first round's, with the later rounds' seeds in place.
-  std::vector<std::uint32_t> all_rows;
+  // The rows in order (mesh: the first round's, with the later rounds' seeds in
+  // place), handed to `emit` one by one.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;
+  std::function<void(const std::function<void(std::span<const std::uint32_t>)>&)> for_each_row;
+  std::uint64_t my_rows = 0;
   if (job == Job::kMesh) {
     std::sort(done.begin(), done.end(), [](const Rows& a, const Rows& b) { return a.position < b.position; });
-    all_rows.reserve(rows.size() + done.size() * 8 * w1);
-    std::size_t next_done = 0;
-    for (std::size_t r = 0; r < row_position.size(); ++r) {
-      while (next_done < done.size() && done[next_done].position < row_position[r]) {
-        all_rows.insert(all_rows.end(), done[next_done].rows.begin(), done[next_done].rows.end());
-        ++next_done;
-      }
-      all_rows.insert(all_rows.end(), rows.begin() + static_cast<std::ptrdiff_t>(r * w1),
-                      rows.begin() + static_cast<std::ptrdiff_t>((r + 1) * w1));
-    }
-    for (; next_done < done.size(); ++next_done) {
-      all_rows.insert(all_rows.end(), done[next_done].rows.begin(), done[next_done].rows.end());
-    }
+    for (const Rows& r : done) my_rows += r.rows.size() / w1;
+    my_rows += spool.rows();
+    for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
+      std::size_t next_done = 0;
+      auto late = [&](const Rows& r) {
+        for (std::size_t i = 0; i < r.rows.size(); i += w1) emit(std::span<const std::uint32_t>(r.rows.data() + i, w1));
+      };
+      spool.for_each([&](std::span<const std::uint32_t> row, std::uint32_t position) {
+        while (next_done < done.size() && done[next_done].position < position) late(done[next_done++]);
+        emit(row);
+      });
+      while (next_done < done.size()) late(done[next_done++]);
+    };
   } else {
     // Edges to the rank holding their first index's slice of the index range, sorted
     // there: the file is then the ranks' parts in order.
     for (const Rows& r : done) rows.insert(rows.end(), r.rows.begin(), r.rows.end());
+    done = {};
     std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
     for (std::size_t i = 0; i < rows.size(); i += 2) {
       int r = static_cast<int>(std::uint64_t{rows[i]} * static_cast<std::uint64_t>(comm.size) / n);
@@ -903,40 +999,68 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     }
     rows = {};
     const std::vector<char> in = comm.alltoall_bytes(outgoing);
-    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges(in.size() / 8);
+    outgoing = {};
+    edges.resize(in.size() / 8);
     const char* at = in.data();
     for (auto& e : edges) {
       e.first = mpi::get<std::uint32_t>(at);
       e.second = mpi::get<std::uint32_t>(at);
     }
     std::sort(edges.begin(), edges.end());
-    for (const auto& [a, b] : edges) {
-      all_rows.push_back(a);
-      all_rows.push_back(b);
-    }
+    my_rows = edges.size();
+    for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
+      for (const auto& e : edges) {
+        const std::uint32_t pair[2] = {e.first, e.second};
+        emit(pair);
+      }
+    };
   }
-  rows = {};
-  done = {};
 
-  // The file: the CLI's bytes.
-  const std::uint64_t total_rows = comm.allreduce<std::uint64_t>(all_rows.size() / w1, MPI_SUM);
+  note_peak(comm, "rounds done");
+  // The file: the CLI's bytes, sized in a first pass over the rows and written in a
+  // second, a few MB at a time.
+  const std::uint64_t total_rows = comm.allreduce<std::uint64_t>(my_rows, MPI_SUM);
   auto format = MeshWriter::format_for(w.output, d);
-  std::string header, body;
-  std::uint64_t header_bytes = 0;
-  if (format.is_ok() && format.value() == MeshWriter::Format::kNpy) {
+  const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
+  std::string header;
+  std::uint64_t header_bytes = 0, body_bytes = 0;
+  if (as_npy) {
     if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
     header_bytes = kNpyHeaderBytes;
-    body.resize(all_rows.size() * sizeof(std::int64_t));
-    for (std::size_t i = 0; i < all_rows.size(); ++i) {
-      const std::int64_t v = all_rows[i];
-      std::memcpy(body.data() + i * 8, &v, 8);
-    }
+    body_bytes = my_rows * w1 * sizeof(std::int64_t);
   } else {
-    append_index_lines(body, all_rows, static_cast<int>(w1));
+    std::string line;
+    for_each_row([&](std::span<const std::uint32_t> row) {
+      line.clear();
+      append_index_lines(line, row, static_cast<int>(w1));
+      body_bytes += line.size();
+    });
   }
-  all_rows = {};
   (void)width;
-  if (Status s = write_ordered(comm, w.output, header_bytes, header, body); !s.is_ok()) return report_all(s);
+  Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
+    constexpr std::size_t kChunk = std::size_t{8} << 20;
+    std::string chunk;
+    Status s;
+    for_each_row([&](std::span<const std::uint32_t> row) {
+      if (!s.is_ok()) return;
+      if (as_npy) {
+        for (const std::uint32_t v : row) {
+          const std::int64_t wide = v;
+          chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+        }
+      } else {
+        append_index_lines(chunk, row, static_cast<int>(w1));
+      }
+      if (chunk.size() >= kChunk) {
+        s = put_piece(chunk);
+        chunk.clear();
+      }
+    });
+    if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
+    return s;
+  });
+  if (!written.is_ok()) return report_all(written);
+  note_peak(comm, "written");
 
   stats.owned = owned;
   stats.bytes_sent = comm.bytes_sent;

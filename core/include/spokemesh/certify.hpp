@@ -44,6 +44,10 @@ struct StarCertificate {
   // The box (d lows, d highs) around every circumball that could not be certified:
   // with every point inside it held, those balls are (empty if none failed).
   std::vector<double> reach;
+  // The failing circumballs themselves, each as d centre coordinates and a radius
+  // (rounded outwards): with every point inside them held, they are. (Nearly flat
+  // simplices, whose centre the bounds cannot place, are only in `reach`.)
+  std::vector<double> balls;
   // Hull facets whose outer side could not be shown empty: d indices each (the seed's
   // included, ascending), then the facet's inner apex.
   std::vector<std::uint32_t> hull_facets;
@@ -63,10 +67,13 @@ class StarCertifier {
   // hull facet (d ascending indices) is known to be one of the whole set (every point
   // beyond or on its plane was fetched, and it is still a hull facet). Certified when
   // the bounds prove the star is the whole set's.
-  StarCertificate certify(const Star& star, std::span<const double> held_boxes, std::span<const double> unheld,
+  // held_balls: balls (d centre coordinates, then the radius) inside each of which
+  // every point is held, likewise.
+  StarCertificate certify(const Star& star, std::span<const double> held_boxes, std::span<const double> held_balls,
+                          std::span<const double> unheld,
                           const std::function<bool(std::span<const std::uint32_t>)>& known_hull) const;
   bool certified(const Star& star, std::span<const double> held_boxes, std::span<const double> unheld) const {
-    return certify(star, held_boxes, unheld, [](std::span<const std::uint32_t>) { return false; }).certified;
+    return certify(star, held_boxes, {}, unheld, [](std::span<const std::uint32_t>) { return false; }).certified;
   }
 
   // Whether box (2 D doubles) may hold a point beyond or on the plane of the facet

@@ -105,8 +105,12 @@ struct Star {
 };
 
 // Which simplices of a star compute() returns: all, or only those the seed owns (its
-// other vertices all have larger indices), which is all a whole mesh needs.
-enum class StarPart { kAll, kOwned };
+// other vertices all have larger indices), which is all a whole mesh needs; or all
+// of them with only the owned ones in canonical form (ordered, positively oriented, a
+// suffix) and the others as sorted vertex lists in any order: what a whole mesh
+// needs when each whole star is also certified (spokemesh-mpi), without the cost of
+// ordering and orienting what is not written.
+enum class StarPart { kAll, kOwned, kWhole };
 
 class StarWalker {
  public:
@@ -209,7 +213,8 @@ class StarWalker {
   std::unique_ptr<RingWalk> ring_walk_;  // set when d == 2
   // Writes the simplices in work_ (d ids each, without x) to `out` in canonical form.
   void emit_canonical(std::size_t hull, StarPart part, Star& out);
-  void orient_positively(Star& out) const;
+  // Orients simplices [first, size()).
+  void orient_positively(Star& out, std::size_t first = 0) const;
 
   // The kernels compiled for this walker's dimension (chosen once, in the constructor).
   struct Kernels {

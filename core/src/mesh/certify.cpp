@@ -16,8 +16,11 @@ constexpr double kGamma = 1e-14;
 // Outward rounding of a few further operations on bounds.
 constexpr double kUlps = 8 * std::numeric_limits<double>::epsilon();
 
-double down(double v) { return std::nextafter(v - std::fabs(v) * kUlps, -std::numeric_limits<double>::infinity()); }
-double up(double v) { return std::nextafter(v + std::fabs(v) * kUlps, std::numeric_limits<double>::infinity()); }
+// Outward rounding: each moves v by 8 ulps and a little more than the least
+// subnormal; the subtraction's own rounding (half an ulp) cannot undo that.
+constexpr double kTiny = 1e-300;
+inline double down(double v) { return v - std::fabs(v) * kUlps - kTiny; }
+inline double up(double v) { return v + std::fabs(v) * kUlps + kTiny; }
 
 struct Interval {
   double lo, hi;
@@ -124,6 +127,18 @@ std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& centre, 
   return out;
 }
 
+// Whether the ball (centre interval, radius^2 <= radius2_up) lies inside ball h (d
+// centre coordinates, then its radius).
+template <int D>
+bool inside_ball(const std::array<Interval, D>& centre, double radius2_up, const double* h) {
+  double far2 = 0;
+  for (int k = 0; k < D; ++k) {
+    const double far = std::max(std::fabs(centre[k].lo - h[k]), std::fabs(centre[k].hi - h[k]));
+    far2 += up(far) * up(far);
+  }
+  return up(up(std::sqrt(up(far2))) + up(std::sqrt(radius2_up))) <= h[D];
+}
+
 // Whether the part of the ball inside g lies inside the box (every point of it is held).
 template <int D>
 bool inside(const std::array<double, 2 * D>& extent, const double* box) {
@@ -162,13 +177,14 @@ int side(const double* s, const std::array<const double*, D - 1>& f, const doubl
 
 template <int D>
 StarCertificate certify(const PointSet& ps, const double* global, const Star& star,
-                        std::span<const double> held_boxes, std::span<const double> unheld,
+                        std::span<const double> held_boxes, std::span<const double> held_balls,
+                        std::span<const double> unheld,
                         const std::function<bool(std::span<const std::uint32_t>)>& known_hull) {
   StarCertificate out;
   const std::size_t box_words = 2 * D, boxes = unheld.size() / box_words;
   const double* s = ps.point(star.seed);
   const std::size_t w = D + 1;
-  bool failed = false;
+  bool failed = false, has_reach = false;
   std::array<double, 2 * D> reach{};
   for (int k = 0; k < D; ++k) {
     reach[static_cast<std::size_t>(k)] = std::numeric_limits<double>::infinity();
@@ -190,28 +206,51 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
     }
     std::array<Interval, D> centre{};
     double radius2 = 0;
-    bool ok = circumball<D>(s, v, centre, radius2);
+    const bool placed = circumball<D>(s, v, centre, radius2);
+    bool ok = placed;
     std::array<double, 2 * D> extent{};
     if (ok) {
-      extent = clipped_extent<D>(centre, radius2, global);
+      // Most balls lie well inside the first held box: the ball's own box says so.
       bool held = false;
-      for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
-        held = inside<D>(extent, held_boxes.data() + b);
+      if (!held_boxes.empty()) {
+        const double r = up(std::sqrt(radius2));
+        held = true;
+        for (int k = 0; k < D && held; ++k) {
+          held = down(centre[k].lo - r) >= held_boxes[static_cast<std::size_t>(k)] &&
+                 up(centre[k].hi + r) <= held_boxes[static_cast<std::size_t>(D + k)];
+        }
+      }
+      if (!held) {
+        extent = clipped_extent<D>(centre, radius2, global);
+        for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
+          held = inside<D>(extent, held_boxes.data() + b);
+        }
+        for (std::size_t b = 0; b + D + 1 <= held_balls.size() && !held; b += D + 1) {
+          held = inside_ball<D>(centre, radius2, held_balls.data() + b);
+        }
       }
       for (std::size_t b = 0; b < boxes && ok && !held; ++b) ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
     }
-    if (!ok) {
-      failed = true;
-      // What would certify it: every point in the ball's part of the whole set's box.
-      // A nearly flat simplex's centre is unbounded here: then the box is the
-      // simplex's own (the caller doubles a seed's box each time it is refused again,
-      // until everything is held).
+    if (!ok && placed) {
+      // Ask for the ball itself: a ball query returns only what lies inside (near the
+      // hull a ball's part of the set's box is a wide thin cap, a box around it many
+      // points).
+      double spread2 = 0;
+      for (int k = 0; k < D; ++k) {
+        const double mid = centre[k].lo / 2 + centre[k].hi / 2;
+        out.balls.push_back(mid);
+        const double half = std::max(up(centre[k].hi - mid), up(mid - centre[k].lo));
+        spread2 += half * half;
+      }
+      out.balls.push_back(up(up(up(std::sqrt(radius2)) + up(std::sqrt(up(spread2)))) * (1 + 1e-12)));
+    }
+    if (!ok) failed = true;
+    if (!placed) {
+      // A nearly flat simplex: the bounds cannot place its centre, so the box to hold
+      // is the simplex's own to begin with (the caller doubles a seed's box each time
+      // it is refused again, until everything is held).
       for (int k = 0; k < D; ++k) {
         const auto lo = static_cast<std::size_t>(k), hi = static_cast<std::size_t>(D + k);
-        if (circumball<D>(s, v, centre, radius2)) {
-          reach[lo] = std::min(reach[lo], extent[lo]);
-          reach[hi] = std::max(reach[hi], extent[hi]);
-        }
         reach[lo] = std::min(reach[lo], s[k]);
         reach[hi] = std::max(reach[hi], s[k]);
         for (const double* p : v) {
@@ -219,6 +258,7 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
           reach[hi] = std::max(reach[hi], p[k]);
         }
       }
+      has_reach = true;
     }
     if (star.hull_facets == 0) continue;
     for (std::size_t skip = 0; skip < w; ++skip) {
@@ -233,7 +273,7 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
       facets.push_back(f);
     }
   }
-  if (failed) out.reach.assign(reach.begin(), reach.end());
+  if (has_reach) out.reach.assign(reach.begin(), reach.end());
   std::sort(facets.begin(), facets.end(), [](const Facet& a, const Facet& b) { return a.vertices < b.vertices; });
   for (std::size_t i = 0; i < facets.size();) {
     std::size_t j = i + 1;
@@ -280,14 +320,18 @@ bool beyond_box(const double* const* f, const double* inner, const double* box) 
 }  // namespace
 
 StarCertificate StarCertifier::certify(const Star& star, std::span<const double> held_boxes,
-                                      std::span<const double> unheld,
+                                      std::span<const double> held_balls, std::span<const double> unheld,
                                       const std::function<bool(std::span<const std::uint32_t>)>& known_hull) const {
-  if (unheld.empty()) return {true, {}, {}};
+  if (unheld.empty()) {
+    StarCertificate all_held;
+    all_held.certified = true;
+    return all_held;
+  }
   switch (points_.dimension()) {
     case 2:
-      return spokemesh::certify<2>(points_, global_.data(), star, held_boxes, unheld, known_hull);
+      return spokemesh::certify<2>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
     case 3:
-      return spokemesh::certify<3>(points_, global_.data(), star, held_boxes, unheld, known_hull);
+      return spokemesh::certify<3>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
     default:
       return {};
   }

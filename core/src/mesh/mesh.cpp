@@ -116,7 +116,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
         const std::uint32_t s = blocks.point_at(r);
         if (s < begin || s >= end) continue;
         ++seeds;
-        status = walker.compute(s, star, options.accept ? StarPart::kAll : StarPart::kOwned);
+        status = walker.compute(s, star, options.accept ? StarPart::kWhole : StarPart::kOwned);
         if (!status.is_ok()) break;
         if (options.accept && !options.accept(star)) continue;
         const auto owned = owned_simplices(star);

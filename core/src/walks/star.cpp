@@ -1108,7 +1108,15 @@ void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   std::vector<std::uint32_t>& order = sort_order_;
   order.resize(m);
   std::iota(order.begin(), order.end(), 0u);
-  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+  // kWhole: the simplices the seed does not own (their first vertex is smaller) first,
+  // as they come; only the owned suffix is ordered.
+  const auto owned_from =
+      part == StarPart::kWhole
+          ? static_cast<std::size_t>(std::stable_partition(order.begin(), order.end(),
+                                                           [&](std::uint32_t a) { return flat[a * w] != x_; }) -
+                                     order.begin())
+          : std::size_t{0};
+  std::sort(order.begin() + static_cast<std::ptrdiff_t>(owned_from), order.end(), [&](std::uint32_t a, std::uint32_t b) {
     return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);
   });
   out.seed = x_;
@@ -1116,10 +1124,10 @@ void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   out.hull_facets = hull;
   out.simplices.resize(m * w);
   for (std::size_t i = 0; i < m; ++i) std::copy(&flat[order[i] * w], &flat[order[i] * w] + w, &out.simplices[i * w]);
-  orient_positively(out);
+  orient_positively(out, part == StarPart::kWhole ? owned_from : 0);
 }
 
-void StarWalker::orient_positively(Star& out) const {
+void StarWalker::orient_positively(Star& out, std::size_t first) const {
   // Positive orientation, det[s_1 - s_0, ..., s_d - s_0] > 0, as finite-element codes
   // require: by the exact predicate (a Delaunay simplex is never flat, so the sign is
   // never 0), a negative simplex gets its last two vertices swapped. That keeps s_0,
@@ -1127,7 +1135,7 @@ void StarWalker::orient_positively(Star& out) const {
   // (by their sorted vertex lists) unchanged.
   const int d = d_;
   const Predicates pred(ps_);
-  for (std::size_t i = 0; i < out.size(); ++i) {
+  for (std::size_t i = first; i < out.size(); ++i) {
     std::uint32_t* s = &out.simplices[i * static_cast<std::size_t>(d + 1)];
     const int sign = pred.orientation(std::span<const std::uint32_t>(s, static_cast<std::size_t>(d + 1)));
     SPOKEMESH_INVARIANT(sign != 0, "a Delaunay simplex is full-dimensional");
