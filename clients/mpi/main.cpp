@@ -23,6 +23,7 @@
 #include <array>
 #include <chrono>
 #include <numeric>
+#include <optional>
 #include <cerrno>
 #include <cmath>
 #include <csignal>
@@ -284,8 +285,12 @@ class Halo {
   // wanted; and hull facets (d points, the inner apex, then a box: (d + 3) d doubles
   // each), every point inside the box beyond or on the facet's plane wanted. Every rank answers each other
   // rank's requests with the points of its own that it has not sent that rank before,
-  // found in a k-d tree of its own points.
-  void fetch(const std::vector<double>& boxes, const std::vector<double>& facets, const std::vector<double>& balls) {
+  // found in `held_tree` (the round's tree of the held points; own_of_held maps its
+  // indices to the rank's own points, kNone for the others') or, without one, in a
+  // tree of its own points built for this exchange.
+  static constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  void fetch(const std::vector<double>& boxes, const std::vector<double>& facets, const std::vector<double>& balls,
+             const KdTree* held_tree = nullptr, const std::vector<std::uint32_t>* own_of_held = nullptr) {
     const auto d = static_cast<std::size_t>(d_);
     std::vector<char> mine;
     for (const std::vector<double>* list : {&boxes, &facets, &balls}) {
@@ -304,10 +309,14 @@ class Halo {
     for (int r = 0; r < comm_.size; ++r) asked |= r != comm_.rank && sizes[static_cast<std::size_t>(r)] > 16;
     PointSet own_points;
     std::unique_ptr<KdTree> own_tree;
-    if (asked && own.size() != 0) {
+    const KdTree* search = held_tree;
+    if (search == nullptr && asked && own.size() != 0) {
       own_points = PointSet(d_, std::vector<double>(own.coords));
       own_tree = std::make_unique<KdTree>(own_points);
+      search = own_tree.get();
     }
+    // The rank's own index of a point of the searched tree, or kNone.
+    auto own_index = [&](std::uint32_t id) { return held_tree == nullptr ? id : (*own_of_held)[id]; };
     const char* at = all.data();
     for (int r = 0; r < comm_.size; ++r) {
       std::vector<double> box_list(mpi::get<std::uint64_t>(at));
@@ -316,19 +325,20 @@ class Halo {
       for (double& v : facet_list) v = mpi::get<double>(at);
       std::vector<double> ball_list(mpi::get<std::uint64_t>(at));
       for (double& v : ball_list) v = mpi::get<double>(at);
-      if (r == comm_.rank || !own_tree) continue;
+      if (r == comm_.rank || search == nullptr) continue;
       std::vector<char>& sent = sent_[static_cast<std::size_t>(r)];
       if (sent.empty()) sent.assign(own.size(), 0);
       std::vector<char>& o = outgoing[static_cast<std::size_t>(r)];
-      auto give = [&](std::uint32_t k) {
-        if (sent[k] != 0) return;
+      auto give = [&](std::uint32_t id) {
+        const std::uint32_t k = own_index(id);
+        if (k == kNone || sent[k] != 0) return;
         sent[k] = 1;
         mpi::put<std::uint64_t>(o, own.ids[k]);
         for (std::size_t c = 0; c < d; ++c) mpi::put<double>(o, own.point(k)[c]);
       };
       for (std::size_t b = 0; b + 2 * d <= box_list.size(); b += 2 * d) {
         const double* q = &box_list[b];
-        own_tree->find_first(
+        search->find_first(
             [&](const float* lo, const float* hi) {
               for (std::size_t c = 0; c < d; ++c) {
                 if (static_cast<double>(hi[c]) < q[c] || static_cast<double>(lo[c]) > q[d + c]) return false;
@@ -345,7 +355,7 @@ class Halo {
       std::vector<std::pair<std::uint32_t, double>> found;
       for (std::size_t b = 0; b + d + 1 <= ball_list.size(); b += d + 1) {
         const double radius = ball_list[b + d] * (1 + 1e-9);
-        own_tree->within(&ball_list[b], radius * radius, found);
+        search->within(&ball_list[b], radius * radius, found);
         for (const auto& [k, dist2] : found) give(k);
       }
       const std::size_t facet_words = (d + 3) * d;
@@ -354,7 +364,7 @@ class Halo {
         for (std::size_t v = 0; v < d; ++v) vertex[v] = &facet_list[f + v * d];
         const double* inner = &facet_list[f + d * d];
         const double* region = &facet_list[f + (d + 1) * d];
-        own_tree->find_first(
+        search->find_first(
             [&](const float* lo, const float* hi) {
               double box[6];
               for (std::size_t c = 0; c < d; ++c) {
@@ -729,22 +739,35 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     return true;
   };
 
+  // The held points and their tree, kept from round to round until new points
+  // arrive (the rounds of hull facets mostly fetch none); the tree also answers the
+  // other ranks' requests.
+  std::optional<LocalSet> held_set;
+  std::unique_ptr<KdTree> held_tree;
+  std::vector<std::uint32_t> own_of_local;
+  std::size_t ghosts_held = 0;
+  bool spans = false;
   for (int round = 1;; ++round) {
     stats.rounds = static_cast<std::uint64_t>(round);
-    // This round's requests; the round's own structures are gone before they are sent
-    // (the answers build a tree of the rank's points: no two such trees at once).
-    std::vector<double> boxes, facets, balls;
+    std::vector<double> boxes, facets, balls;  // this round's requests
     std::vector<std::vector<std::uint64_t>> asked;
     std::uint64_t left = 0;
     {
-    LocalSet local = gather_local(split, halo.ghosts());
+    if (!held_set || halo.ghosts().size() != ghosts_held) {
+      held_tree.reset();
+      held_set.reset();
+      held_set.emplace(gather_local(split, halo.ghosts()));
+      ghosts_held = halo.ghosts().size();
+      PointSet& fresh = held_set->points;
+      spans = fresh.size() > dd && fresh.validate(input, 3, false).is_ok() && fresh.check_affine_span(input).is_ok();
+      own_of_local.assign(fresh.size(), Halo::kNone);
+      for (std::size_t k = 0; k < owned; ++k) own_of_local[held_set->local_of_own[k]] = static_cast<std::uint32_t>(k);
+      if (round > 1 && spans) held_tree = std::make_unique<KdTree>(fresh);
+    }
+    LocalSet& local = *held_set;
     PointSet& points = local.points;
-    const bool spans = points.size() > dd && points.validate(input, 3, false).is_ok() &&
-                       points.check_affine_span(input).is_ok();
     std::vector<std::vector<double>> unheld(split.owned_nodes.size());
     for (std::size_t p = 0; p < unheld.size(); ++p) unheld[p] = halo.unheld(p);
-    std::vector<std::uint32_t> own_of_local(points.size(), 0xFFFFFFFFu);
-    for (std::size_t k = 0; k < owned; ++k) own_of_local[local.local_of_own[k]] = static_cast<std::uint32_t>(k);
     std::vector<std::pair<std::uint32_t, StarCertificate>> refused;  // owned k
     const StarCertifier certifier(points, global_box);
     auto is_known = [&](std::span<const std::uint32_t> facet) {
@@ -774,7 +797,8 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         const SpaceSplit sweep(points, members, split.piece_ends, SpaceSplit::default_block_points(d, n));
         for (std::size_t k = 0; k < owned; ++k) position_of_own[k] = sweep.position_of(local.local_of_own[k]);
         note_peak(comm, "local split");
-        const KdTree tree(points, sweep.order());
+        held_tree = std::make_unique<KdTree>(points, sweep.order());
+        const KdTree& tree = *held_tree;
         note_peak(comm, "tree");
         MeshOptions options;
         options.threads = w.common.threads;
@@ -818,7 +842,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         note_peak(comm, "mesh");
       } else {
         // Later rounds: only the refused seeds, each star on its own.
-        const KdTree tree(points);
+        const KdTree& tree = *held_tree;
         std::vector<std::thread> pool;
         std::size_t next = 0;
         for (unsigned t = 0; t < std::max(1u, w.common.threads); ++t) {
@@ -957,7 +981,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     }
     }
     if (left == 0) break;
-    halo.fetch(boxes, facets, balls);
+    halo.fetch(boxes, facets, balls, held_tree.get(), &own_of_local);
     // Every point beyond or on an asked facet's plane is held now: if the facet is
     // still on the hull of the held points, it is on the whole set's.
     for (auto& key : asked) known_hull.insert(std::move(key));
