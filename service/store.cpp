@@ -431,7 +431,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   if (read_file(name_path(id), name)) set->info.display_name = name;
   if (d <= static_cast<std::uint64_t>(kMaxDimension)) {
     set->split = std::make_unique<SpaceSplit>(set->points, SpaceSplit::default_block_points(static_cast<int>(d), n));
-    set->tree = std::make_unique<KdTree>(set->points, set->split->order());
+    set->tree = std::make_unique<KdTree>(set->points);
   } else {
     set->tree = std::make_unique<KdTree>(set->points);
   }

@@ -50,7 +50,7 @@ struct StoredSet {
   PointSetInfo info;
   PointSet points;
   // The whole mesh's sweep order (exact dimensions only; null above kMaxDimension),
-  // built before the tree, which is laid out in it.
+  // built before the tree (its transient records are freed before the tree's build).
   std::unique_ptr<SpaceSplit> split;
   std::unique_ptr<KdTree> tree;
   std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + split + tree

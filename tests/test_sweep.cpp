@@ -165,35 +165,46 @@ using testing::uniform_points;
 // A whole mesh whose stars are all offered to `accept`: the same rows when every star
 // is accepted, and none of a refused seed's.
 TEST(Sweep, AcceptSeesWholeStarsAndRefusedSeedsEmitNothing) {
-  const PointSet ps = make_points(3, uniform_points(3, 3000, 31));
-  const KdTree tree(ps);
-  const auto whole = mesh_all(tree, 2);
-  MeshOptions options;
-  options.threads = 2;
-  std::atomic<std::uint64_t> whole_stars{0};
-  options.accept = [&](const Star& star) {
-    // The whole star: every simplex through the seed, the owned ones last.
-    const Star reference = [&] {
+  for (int d = 2; d <= 3; ++d) {  // the 2-d ring walk and the general walk
+    SCOPED_TRACE("d " + std::to_string(d) + " (seed 31)");
+    const PointSet ps = make_points(d, uniform_points(d, 3000, 31));
+    const KdTree tree(ps);
+    const auto whole = mesh_all(tree, 2);
+    MeshOptions options;
+    options.threads = 2;
+    std::atomic<std::uint64_t> whole_stars{0};
+    options.accept = [&](const Star& star) {
+      // The whole star: every simplex through the seed, the owned ones last.
       StarWalker walker(tree);
-      Star s;
-      EXPECT_TRUE(walker.compute(star.seed, s).is_ok());
-      return s;
-    }();
-    whole_stars += star.size() == reference.size() ? 1 : 0;
-    return star.seed % 7 != 3;
-  };
-  Simplices kept;
-  auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
-    kept.insert(kept.end(), block.begin(), block.end());
-    return Status::ok();
-  });
-  ASSERT_TRUE(r.is_ok());
-  EXPECT_EQ(whole_stars.load(), 3000u);
-  Simplices expected;
-  for (std::size_t i = 0; i < whole.size(); i += 4) {
-    if (whole[i] % 7 != 3) expected.insert(expected.end(), whole.begin() + static_cast<std::ptrdiff_t>(i), whole.begin() + static_cast<std::ptrdiff_t>(i + 4));
+      Star reference;
+      EXPECT_TRUE(walker.compute(star.seed, reference).is_ok());
+      // The same simplices as vertex sets (only the owned ones need be oriented).
+      const auto as_sets = [&](std::vector<std::uint32_t> flat) {
+        for (std::size_t i = 0; i < flat.size(); i += static_cast<std::size_t>(d + 1)) {
+          std::sort(flat.begin() + static_cast<std::ptrdiff_t>(i), flat.begin() + static_cast<std::ptrdiff_t>(i + d + 1));
+        }
+        return sorted_rows(flat, d + 1);
+      };
+      whole_stars += as_sets(star.simplices) == as_sets(reference.simplices) ? 1 : 0;
+      return star.seed % 7 != 3;
+    };
+    Simplices kept;
+    auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+      kept.insert(kept.end(), block.begin(), block.end());
+      return Status::ok();
+    });
+    ASSERT_TRUE(r.is_ok());
+    EXPECT_EQ(whole_stars.load(), 3000u);
+    Simplices expected;
+    const auto w = static_cast<std::size_t>(d + 1);
+    for (std::size_t i = 0; i < whole.size(); i += w) {
+      if (whole[i] % 7 != 3) {
+        expected.insert(expected.end(), whole.begin() + static_cast<std::ptrdiff_t>(i),
+                        whole.begin() + static_cast<std::ptrdiff_t>(i + w));
+      }
+    }
+    EXPECT_EQ(kept, expected);
   }
-  EXPECT_EQ(kept, expected);
 }
 
 // A star computed from the points in a box is certified only if it is the whole set's

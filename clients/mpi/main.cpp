@@ -196,14 +196,9 @@ Status check_set(Comm& comm, const Slice& slice, const std::string& path) {
   const std::vector<char> all = comm.allgather_bytes(basis, sizes);
   std::vector<double> coords(all.size() / sizeof(double));
   std::memcpy(coords.data(), all.data(), all.size());
-  const PointSet union_of_bases(d, std::move(coords));
-  const int rank = static_cast<int>(union_of_bases.affine_basis().size()) - 1;
-  if (rank < d) {
-    return invalid_argument(path + ": the points span only a " + std::to_string(rank) +
-                            "-dimensional affine subspace of R^" + std::to_string(d) + " (a " + std::to_string(d) +
-                            "-d mesh needs full dimension)");
-  }
-  return Status::ok();
+  // The union of the slices' bases spans what the whole set spans: the same check,
+  // and the same words, as one process.
+  return PointSet(d, std::move(coords)).check_affine_span(path);
 }
 
 // ------------------------------------------------------------------ halos
@@ -265,15 +260,6 @@ class Halo {
     }
     return out;
   }
-  // Doubles the halo of the given pieces (at most up to the whole set's box, where
-  // every star is certified: so the rounds end).
-  void deepen(const std::vector<std::size_t>& pieces) {
-    for (const std::size_t p : pieces) {
-      depth_[p] = depth_[p] > 0 ? 2 * depth_[p] : spacing_[p];
-      held_[p] = grown(p);
-    }
-  }
-
   // The held boxes of the given pieces, as requests for fetch().
   std::vector<double> requests_of(const std::vector<std::size_t>& pieces) const {
     std::vector<double> out;
@@ -617,7 +603,6 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   Status usage;
   if (w.common.merge_duplicates) usage = invalid_argument("--merge-duplicates: spokemesh-mpi does not merge duplicates; remove them, or mesh on one process with spokemesh");
   if (job == Job::kGraph && w.approx.enabled) usage = invalid_argument("--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh graph --approx)");
-  const int width = job == Job::kMesh ? -1 : 2;
   {
     auto format = MeshWriter::format_for(w.output, 3);
     if (usage.is_ok() && format.is_ok() && format.value() != MeshWriter::Format::kText &&
@@ -797,7 +782,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         const SpaceSplit sweep(points, members, split.piece_ends, SpaceSplit::default_block_points(d, n));
         for (std::size_t k = 0; k < owned; ++k) position_of_own[k] = sweep.position_of(local.local_of_own[k]);
         note_peak(comm, "local split");
-        held_tree = std::make_unique<KdTree>(points, sweep.order());
+        held_tree = std::make_unique<KdTree>(points);
         const KdTree& tree = *held_tree;
         note_peak(comm, "tree");
         MeshOptions options;
@@ -941,8 +926,6 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         facets.insert(facets.end(), points.point(apex), points.point(apex) + d);
         std::vector<double>& region = hull_region[key];
         const double* x = split.owned.point(k);
-        const std::span<const double> q = halo.held_box(static_cast<std::size_t>(
-            std::upper_bound(split.piece_ends.begin(), split.piece_ends.end(), k) - split.piece_ends.begin()));
         // A first region of four times the facet's size around the seed (a facet facing
         // other points fetches what lies just beyond it), growing fourfold while it is
         // asked again (a true hull facet's answers are empty, so only rounds are spent).
@@ -958,7 +941,6 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
             }
           }
         }
-        (void)q;
         region.assign(2 * dd, 0);
         for (std::size_t c2 = 0; c2 < dd; ++c2) {
           const double half = std::max({x[c2] - last[c2], last[dd + c2] - x[c2], 0.0});
@@ -1060,7 +1042,6 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       body_bytes += line.size();
     });
   }
-  (void)width;
   Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
     constexpr std::size_t kChunk = std::size_t{8} << 20;
     std::string chunk;

@@ -183,9 +183,9 @@ class Triangulation {
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
     py::gil_scoped_release release;
     // The sweep's split first (its records are freed before the tree copies the
-    // points), and the tree laid out in its order; the split is dropped after the run.
+    // points); it is dropped after the run.
     auto split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size()));
-    tree_ = std::make_unique<KdTree>(points_, split->order());
+    tree_ = std::make_unique<KdTree>(points_);
     MeshOptions options;
     options.split = split.get();
     options.threads = threads_;

@@ -35,7 +35,6 @@
 #include <memory>
 #include <optional>
 #include <type_traits>
-#include <span>
 #include <vector>
 
 #include "spokemesh/point_set.hpp"
@@ -52,12 +51,6 @@ inline constexpr double kDistanceMargin = 1e-9;
 class KdTree {
  public:
   explicit KdTree(const PointSet& points);
-  // The same tree, built over the points laid out in `layout` (a permutation of
-  // [0, n) in space order, such as SpaceSplit's) instead of the Z order: the tree's
-  // leaves then follow that order closely, so a sweep in it reads nearby leaves one
-  // after the other. Searches answer the same; only the memory layout differs.
-  // Precondition: layout is empty (Z order) or a permutation of the points' indices.
-  KdTree(const PointSet& points, std::span<const std::uint32_t> layout);
   KdTree(const KdTree&) = delete;
   KdTree& operator=(const KdTree&) = delete;
 

@@ -68,10 +68,7 @@ void in_two_halves(std::size_t n, bool parallel, Fn&& fn) {
 
 }  // namespace
 
-KdTree::KdTree(const PointSet& points) : KdTree(points, {}) {}
-
-KdTree::KdTree(const PointSet& points, std::span<const std::uint32_t> layout)
-    : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
+KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
   const std::size_t n = points.size(), d = d_;
   // The bounding box (the Z order's grid, the search's initial distances) and the
   // top split: the widest side, at the median point along it. The two halves are
@@ -89,11 +86,9 @@ KdTree::KdTree(const PointSet& points, std::span<const std::uint32_t> layout)
       bbox_[d + c] = std::max(bbox_[d + c], points.point(i)[c]);
     }
   }
-  // nanoflann builds over a copy in Z-order (see z_order) or the given layout, then
-  // reads nothing more;
+  // nanoflann builds over a copy in Z-order (see z_order), then reads nothing more;
   // the copy is gathered into leaf order afterwards and becomes the tree's own array.
-  std::vector<std::uint32_t> order = layout.size() == n ? std::vector<std::uint32_t>(layout.begin(), layout.end())
-                                                        : z_order(points, bbox_.data(), bbox_.data() + d);
+  std::vector<std::uint32_t> order = z_order(points, bbox_.data(), bbox_.data() + d);
   std::size_t split_dim = 0;
   for (std::size_t c = 1; c < d; ++c) {
     if (bbox_[d + c] - bbox_[c] > bbox_[d + split_dim] - bbox_[split_dim]) split_dim = c;

@@ -35,7 +35,16 @@ class Splitter {
       : ps_(points), d_(D > 0 ? D : points.dimension()), block_(block), leaf_(leaf) {}
 
   bool before(const Record& a, const Record& b, int axis) const {
-    return before_along(axis, d_, coords(a), a.id, coords(b), b.id);
+    if constexpr (D > 0) {  // before_along with the dimension known (grids tie often)
+      const double *p = a.x.data(), *q = b.x.data();
+      if (p[axis] != q[axis]) return p[axis] < q[axis];
+      for (int c = 0; c < D; ++c) {
+        if (p[c] != q[c]) return p[c] < q[c];
+      }
+      return a.id < b.id;
+    } else {
+      return before_along(axis, d_, coords(a), a.id, coords(b), b.id);
+    }
   }
   const double* coords(const Record& r) const {
     if constexpr (D > 0) {

@@ -146,10 +146,10 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
     }
   }
 
-  // Canonical output. The whole star as any star's; the owned triangles (the whole
-  // mesh's hot path) are x, low, high with x < low, so sorting (low, high) words orders
-  // them.
-  if (part == StarPart::kAll) {
+  // Canonical output. The whole star (kAll, kWhole) as any star's; the owned triangles
+  // (the whole mesh's hot path) are x, low, high with x < low, so sorting (low, high)
+  // words orders them.
+  if (part != StarPart::kOwned) {
     w_.work_.clear();
     for (const std::uint64_t t : ring_triangles_) {
       w_.work_.push_back(static_cast<std::uint32_t>(t >> 32));
