@@ -930,6 +930,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         // other points fetches what lies just beyond it), growing fourfold while it is
         // asked again (a true hull facet's answers are empty, so only rounds are spent).
         std::vector<double> last = region;
+        const bool last_was_asked = !last.empty();
         if (last.empty()) {
           last.assign(x, x + d);
           last.insert(last.end(), x, x + d);
@@ -944,8 +945,11 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         region.assign(2 * dd, 0);
         for (std::size_t c2 = 0; c2 < dd; ++c2) {
           const double half = std::max({x[c2] - last[c2], last[dd + c2] - x[c2], 0.0});
-          region[c2] = x[c2] - 4 * half;
-          region[dd + c2] = x[c2] + 4 * half;
+          // Asked again, the facet is likely a true hull facet, whose answers stay
+          // empty however large the region: 16x.
+          const double grow = last_was_asked ? 16 : 4;
+          region[c2] = x[c2] - grow * half;
+          region[dd + c2] = x[c2] + grow * half;
         }
         facets.insert(facets.end(), region.begin(), region.end());
         if (covers_all(region)) asked.push_back(std::move(key));
