@@ -8,8 +8,10 @@
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <string>
+#include <thread>
 
 #include "engine.hpp"
 #include "http_server.hpp"
@@ -33,20 +35,33 @@ struct ServerConfig {
   std::string drain_text, grace_text;  // as given, for the log
 };
 
-// The flags as given (text for sizes and durations, parsed by make_config).
+// The flags as given (text for sizes and durations, parsed by make_config), with every
+// default from limits.hpp written as the flags write them.
 struct ServerFlags {
   std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
-  unsigned threads = 0;  // 0: the machine's threads
-  std::uint64_t max_points = 0;
-  int max_dimension = 0;
-  int max_concurrent = 0;
-  std::string max_memory = "auto", stream_cache, default_deadline, grace, drain, max_body, upload_idle;
-  std::size_t http_max_connections = 0, http_per_address = 0, http_in_flight = 0;
-  std::string http_header_timeout, http_body_timeout, http_idle_timeout, http_write_timeout, tls_handshake_timeout;
+  unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  std::uint64_t max_points = defaults::kMaxPoints;
+  int max_dimension = defaults::kMaxDimension;
+  int max_concurrent = defaults::kMaxConcurrentRpcs;
+  std::string max_memory = "auto";
+  std::string stream_cache = defaults::bytes_text(defaults::kStreamCacheBytes);
+  std::string default_deadline = defaults::duration_text(defaults::kDefaultDeadline);
+  std::string grace = defaults::duration_text(defaults::kGracePeriod);
+  std::string drain = defaults::duration_text(defaults::kDrainDelay);
+  std::string max_body = defaults::bytes_text(defaults::kMaxBodyBytes);
+  std::string upload_idle = defaults::duration_text(defaults::kUploadIdleTimeout);
+  std::size_t http_max_connections = defaults::kHttpMaxConnections;
+  std::size_t http_per_address = defaults::kHttpMaxConnectionsPerAddress;
+  std::size_t http_in_flight = defaults::kHttpMaxInFlight;
+  std::string http_header_timeout = defaults::duration_text(defaults::kHttpHeaderTimeout);
+  std::string http_body_timeout = defaults::duration_text(defaults::kHttpBodyTimeout);
+  std::string http_idle_timeout = defaults::duration_text(defaults::kHttpIdleTimeout);
+  std::string http_write_timeout = defaults::duration_text(defaults::kHttpWriteTimeout);
+  std::string tls_handshake_timeout = defaults::duration_text(defaults::kTlsHandshakeTimeout);
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file, keys_file;
 };
 
-// Adds every flag to `app`, with the defaults of limits.hpp.
+// Adds every flag to `app` (its defaults are the fields' values).
 void add_server_flags(CLI::App& app, ServerFlags& flags);
 // INVALID_ARGUMENT naming the flag for a bad value.
 Result<ServerConfig> make_config(const ServerFlags& flags);

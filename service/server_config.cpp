@@ -49,28 +49,6 @@ std::uint64_t default_memory_budget(std::string& why) {
 }  // namespace
 
 void add_server_flags(CLI::App& app, ServerFlags& f) {
-  // Every default from limits.hpp (sizes and durations as the flags write them).
-  using defaults::bytes_text;
-  using defaults::duration_text;
-  f.threads = std::max(1u, std::thread::hardware_concurrency());
-  f.max_points = defaults::kMaxPoints;
-  f.max_dimension = defaults::kMaxDimension;
-  f.max_concurrent = defaults::kMaxConcurrentRpcs;
-  f.stream_cache = bytes_text(defaults::kStreamCacheBytes);
-  f.default_deadline = duration_text(defaults::kDefaultDeadline);
-  f.grace = duration_text(defaults::kGracePeriod);
-  f.drain = duration_text(defaults::kDrainDelay);
-  f.max_body = bytes_text(defaults::kMaxBodyBytes);
-  f.upload_idle = duration_text(defaults::kUploadIdleTimeout);
-  f.http_max_connections = defaults::kHttpMaxConnections;
-  f.http_per_address = defaults::kHttpMaxConnectionsPerAddress;
-  f.http_in_flight = defaults::kHttpMaxInFlight;
-  f.http_header_timeout = duration_text(defaults::kHttpHeaderTimeout);
-  f.http_body_timeout = duration_text(defaults::kHttpBodyTimeout);
-  f.http_idle_timeout = duration_text(defaults::kHttpIdleTimeout);
-  f.http_write_timeout = duration_text(defaults::kHttpWriteTimeout);
-  f.tls_handshake_timeout = duration_text(defaults::kTlsHandshakeTimeout);
-
   app.add_option("--grpc-listen", f.grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--http-listen", f.http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
   app.add_option("--data-dir", f.data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
