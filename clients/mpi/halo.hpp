@@ -44,8 +44,7 @@ class Halo {
       }
       const double count = static_cast<double>(split.nodes[split.owned_nodes[p]].count);
       const double spacing = volume > 0 ? std::pow(volume / count, 1.0 / d_) : widest / count;
-      spacing_.push_back(std::max(spacing, widest * 1e-9));
-      depth_[p] = first_halo_factor_ * spacing_[p];
+      depth_[p] = first_halo_factor_ * std::max(spacing, widest * 1e-9);
       held_[p] = grown(p);
     }
   }
@@ -207,21 +206,6 @@ class Halo {
     }
     return q;
   }
-  bool meets(const std::vector<double>& a, const std::vector<double>& b) const {
-    const auto d = static_cast<std::size_t>(d_);
-    for (std::size_t c = 0; c < d; ++c) {
-      if (a[d + c] < b[c] || b[d + c] < a[c]) return false;
-    }
-    return true;
-  }
-  bool contains(const std::vector<double>& q, const double* x) const {
-    const auto d = static_cast<std::size_t>(d_);
-    for (std::size_t c = 0; c < d; ++c) {
-      if (x[c] < q[c] || x[c] > q[d + c]) return false;
-    }
-    return true;
-  }
-
   bool contains(const double* q, const double* x) const {
     const auto d = static_cast<std::size_t>(d_);
     for (std::size_t c = 0; c < d; ++c) {
@@ -236,7 +220,7 @@ class Halo {
   int d_;
   std::vector<double> global_;
   std::vector<std::vector<double>> held_;
-  std::vector<double> depth_, spacing_;
+  std::vector<double> depth_;
   Points ghosts_;
   std::vector<std::vector<char>> sent_;  // per rank: which owned points it has had
 };
