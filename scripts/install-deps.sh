@@ -17,7 +17,7 @@ packages=(
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
   # clipped Voronoi cells: .npz output (libzip), and the oracles scipy and Voro++
-  libzip-dev python3-scipy voro++
+  libzip-dev zlib1g-dev python3-scipy voro++
   # the in-process Python module (pybind11) and its pip-installable package
   pybind11-dev python3-pybind11 python3-dev python3-venv python3-setuptools
   # the OpenAPI description: compiled in from YAML, and the schema check of REST answers

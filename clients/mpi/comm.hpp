@@ -144,6 +144,20 @@ struct Comm {
   }
 };
 
+// The ranks' slices of the index range [0, n): rank r reads, and writes the results of,
+// indices [slice_begin(n, r, P), slice_begin(n, r + 1, P)).
+inline std::uint64_t slice_begin(std::uint64_t n, int rank, int size) {
+  // (n < 2^32 and P < 2^20: the product fits 64 bits.)
+  return n * static_cast<std::uint64_t>(rank) / static_cast<std::uint64_t>(size);
+}
+// The rank whose slice holds index i.
+inline int slice_owner(std::uint64_t n, std::uint64_t i, int size) {
+  int r = static_cast<int>(i * static_cast<std::uint64_t>(size) / n);
+  while (r + 1 < size && slice_begin(n, r + 1, size) <= i) ++r;
+  while (r > 0 && slice_begin(n, r, size) > i) --r;
+  return r;
+}
+
 // Appending and reading plain values in byte buffers.
 template <class T>
 void put(std::vector<char>& out, const T& v) {

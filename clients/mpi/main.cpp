@@ -1,7 +1,7 @@
 // spokemesh-mpi: one point set meshed by many processes, the same bytes as
 // `spokemesh` writes (docs/distributed.md).
 //
-//   mpirun -np P spokemesh-mpi {mesh|graph} IN -o OUT [flags]
+//   mpirun -np P spokemesh-mpi {mesh|graph|cells} IN -o OUT [flags]
 //
 // Every rank reads a slice of IN (MPI-IO for .npy; rank 0 reads text and scatters);
 // the ranks cut the set together into the nodes of SpaceSplit's recursion and deal
@@ -43,7 +43,9 @@
 #include "comm.hpp"
 #include "halo.hpp"
 #include "output.hpp"
+#include "cell_output.hpp"
 #include "split.hpp"
+#include "spokemesh/cells.hpp"
 #include "spokemesh/certify.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
@@ -62,8 +64,10 @@ using spokemesh::mpi::Halo;
 using spokemesh::mpi::LocalSet;
 using spokemesh::mpi::PieceWriter;
 using spokemesh::mpi::Spool;
+using spokemesh::mpi::CellRecords;
 using spokemesh::mpi::gather_local;
 using spokemesh::mpi::write_ordered;
+using spokemesh::mpi::slice_begin;
 using Clock = std::chrono::steady_clock;
 
 constexpr const char* kProgram = "spokemesh-mpi";
@@ -75,11 +79,6 @@ struct Slice {
   std::uint64_t n = 0, first = 0;
   Points points;
 };
-
-std::uint64_t slice_begin(std::uint64_t n, int rank, int size) {
-  // (n < 2^32 and P < 2^20: the product fits 64 bits.)
-  return n * static_cast<std::uint64_t>(rank) / static_cast<std::uint64_t>(size);
-}
 
 Status read_at(MPI_File file, std::uint64_t offset, char* into, std::uint64_t bytes, const std::string& path) {
   constexpr std::uint64_t kPiece = std::uint64_t{1} << 30;  // no large-count calls in Open MPI 4.1
@@ -232,7 +231,7 @@ std::uint64_t peak_rss_bytes() {
   return static_cast<std::uint64_t>(u.ru_maxrss) * 1024;
 }
 
-enum class Job { kMesh, kGraph };
+enum class Job { kMesh, kGraph, kCells };
 
 int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_path) {
   const auto start = Clock::now();
@@ -246,7 +245,18 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   Status usage;
   if (w.common.merge_duplicates) usage = invalid_argument("--merge-duplicates: spokemesh-mpi does not merge duplicates; remove them, or mesh on one process with spokemesh");
   if (job == Job::kGraph && w.approx.enabled) usage = invalid_argument("--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh graph --approx)");
-  {
+  auto ends_with = [&](const char* suffix) {
+    const std::size_t k = std::strlen(suffix);
+    return w.output.size() >= k && w.output.compare(w.output.size() - k, k, suffix) == 0;
+  };
+  if (job == Job::kCells) {
+    if (ends_with(".vtu") || ends_with(".svg")) {
+      usage = invalid_argument(w.output + ": spokemesh-mpi writes cells as .npz; write .vtu and .svg on one process with "
+                               "spokemesh cells");
+    } else if (!ends_with(".npz")) {
+      usage = invalid_argument(w.output + ": unknown cell format (spokemesh-mpi writes .npz)");
+    }
+  } else {
     auto format = MeshWriter::format_for(w.output, 3);
     if (usage.is_ok() && format.is_ok() && format.value() != MeshWriter::Format::kText &&
         format.value() != MeshWriter::Format::kNpy) {
@@ -294,6 +304,17 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   }
   comm.allreduce(global_box, MPI_MIN);
   for (std::size_t c = 0; c < dd; ++c) global_box[dd + c] = -global_box[dd + c];
+  // cells: the domain, by default the whole set's bounding box (the CLI's).
+  std::optional<Domain> domain;
+  if (job == Job::kCells) {
+    auto whole = Domain::box(std::vector<double>(global_box.begin(), global_box.begin() + d),
+                             std::vector<double>(global_box.begin() + d, global_box.end()));
+    Result<std::optional<Domain>> chosen =
+        whole.is_ok() ? domain_for(w.domain, d, std::optional<Domain>(std::move(whole).value()))
+                      : Result<std::optional<Domain>>(whole.status());
+    if (Status s = comm.agree(chosen.status()); !s.is_ok()) return report_all(s);
+    domain = std::move(chosen).value();
+  }
 
   // The top of the split, dealt out: nodes of at most n / (32 P) points keep every
   // rank within 1/32 of its share.
@@ -307,6 +328,19 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   const TopSplit split = std::move(split_or).value();
   note_peak(comm, "split");
   const std::size_t owned = split.owned.size();
+  if (job == Job::kCells) {
+    // A seed outside the domain: the lowest one's error, as the CLI reports it.
+    std::uint64_t outside = n;
+    for (std::size_t k = 0; k < owned; ++k) {
+      if (split.owned.ids[k] < outside && domain->violated_wall(split.owned.point(k))) outside = split.owned.ids[k];
+    }
+    const std::uint64_t lowest = comm.allreduce<std::uint64_t>(outside, MPI_MIN);
+    Status mine;
+    for (std::size_t k = 0; k < owned && lowest < n; ++k) {
+      if (split.owned.ids[k] == lowest) mine = check_seed_in_domain(split.owned.point(k), lowest, *domain);
+    }
+    if (Status s = comm.agree(mine); !s.is_ok()) return report_all(s);
+  }
 
   Halo halo(comm, split, global_box);
   std::vector<std::size_t> all_pieces(split.owned_nodes.size());
@@ -333,10 +367,11 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   // outer side is empty, so the answers stay empty and cheap).
   std::map<std::vector<std::uint64_t>, std::vector<double>> hull_region;
   std::vector<std::uint32_t> pending;                    // owned k refused in the last round
+  CellRecords cell_records(d);                           // cells: the certified ones
   RankStats stats;
   std::mutex mu;
   Status failure;
-  Progress progress(quiet, owned, "meshing (rank 0's share)");
+  Progress progress(quiet, owned, job == Job::kCells ? "cells (rank 0's share)" : "meshing (rank 0's share)");
   const std::size_t w1 = job == Job::kMesh ? dd + 1 : 2;
 
   // Emits the certified star's rows (mesh: its owned simplices; graph: edges to larger
@@ -390,7 +425,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       spans = fresh.size() > dd && fresh.validate(input, 3, false).is_ok() && fresh.check_affine_span(input).is_ok();
       own_of_local.assign(fresh.size(), Halo::kNone);
       for (std::size_t k = 0; k < owned; ++k) own_of_local[held_set->local_of_own[k]] = static_cast<std::uint32_t>(k);
-      if (round > 1 && spans) held_tree = std::make_unique<KdTree>(fresh);
+      if ((round > 1 || job == Job::kCells) && spans) held_tree = std::make_unique<KdTree>(fresh);
     }
     LocalSet& local = *held_set;
     PointSet& points = local.points;
@@ -417,8 +452,47 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       return certifier.certify(star, held, fetched != asked_balls.end() ? fetched->second : none,
                                everything ? none : unheld[piece], is_known);
     };
+    // A cell is the whole set's when the points within the distance that decided it
+    // are all held (then the whole set's builder takes the same points in the same
+    // order) and, built from a star, the star is the whole set's.
+    auto certify_cell = [&](std::uint32_t k, std::uint32_t seed, const ClippedCellBuilder& builder) {
+      StarCertificate c;
+      c.certified = true;
+      if (const double r2 = builder.last_reach2(); r2 > 0) {
+        const auto piece = static_cast<std::size_t>(local.piece_of[seed]);
+        std::vector<double> held(halo.held_box(piece).begin(), halo.held_box(piece).end());
+        bool everything = false;
+        if (const auto it = reach.find(k); it != reach.end()) {
+          held.insert(held.end(), it->second.begin(), it->second.end());
+          everything = covers_all(it->second);
+        }
+        const std::vector<double> none;
+        const auto fetched = asked_balls.find(k);
+        // (nanoflann's distances are within kDistanceMargin of the exact ones.)
+        const double want = r2 * (1 + 4 * kDistanceMargin);
+        if (!everything && !certifier.ball_is_held(seed, want, held, fetched != asked_balls.end() ? fetched->second : none,
+                                                   unheld[piece])) {
+          c.certified = false;
+          const double* x = points.point(seed);
+          if (std::isfinite(want)) {
+            c.balls.assign(x, x + d);
+            c.balls.push_back(std::sqrt(want) * (1 + 1e-12));
+          } else {
+            c.reach = global_box;  // it rested on there being no other points: all of them
+          }
+        }
+      }
+      if (const Star* star = builder.last_star()) {
+        StarCertificate s = certify(*star);
+        c.certified = c.certified && s.certified;
+        c.balls.insert(c.balls.end(), s.balls.begin(), s.balls.end());
+        if (c.reach.empty()) c.reach = std::move(s.reach);
+        c.hull_facets = std::move(s.hull_facets);
+      }
+      return c;
+    };
     if (owned != 0 && spans) {
-      if (round == 1) {
+      if (round == 1 && job != Job::kCells) {
         // The first round is the single-process sweep over this rank's pieces.
         std::vector<std::uint32_t> members(owned);
         for (std::size_t k = 0; k < owned; ++k) members[k] = local.local_of_own[k];
@@ -469,40 +543,76 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         if (!result.is_ok()) failure = result.status();
         note_peak(comm, "mesh");
       } else {
-        // Later rounds: only the refused seeds, each star on its own.
+        // Later rounds: only the refused seeds, each star on its own; cells: every
+        // seed, in the first round in the tree's order (neighbours share their work in
+        // the caches), each cell certified by what decided it.
         const KdTree& tree = *held_tree;
+        if (job == Job::kCells && round == 1) {
+          pending.resize(owned);
+          std::iota(pending.begin(), pending.end(), 0u);
+          std::sort(pending.begin(), pending.end(), [&](std::uint32_t a, std::uint32_t b) {
+            return tree.leaf_rank(local.local_of_own[a]) < tree.leaf_rank(local.local_of_own[b]);
+          });
+        }
         std::vector<std::thread> pool;
         std::size_t next = 0;
+        std::uint64_t seeds_done = 0;
         for (unsigned t = 0; t < std::max(1u, w.common.threads); ++t) {
           pool.emplace_back([&] {
             StarOptions star_options;
             star_options.random_seed = w.common.random_seed;
-            StarWalker walker(tree, star_options);
+            std::optional<StarWalker> walker;
+            std::optional<ClippedCellBuilder> builder;
+            if (job == Job::kCells) {
+              builder.emplace(tree, *domain, star_options);
+              builder->set_measures_only(true);
+            } else {
+              walker.emplace(tree, star_options);
+            }
             Star star;
+            VoronoiCell cell;
+            CellRecords found(d);
             std::vector<std::uint32_t> out;
+            constexpr std::size_t kBatch = 64;
             for (;;) {
-              std::uint32_t k;
+              std::size_t from, to;
               {
                 std::lock_guard lock(mu);
-                if (next >= pending.size() || !failure.is_ok()) return;
-                k = pending[next++];
+                if (next >= pending.size() || !failure.is_ok()) break;
+                from = next;
+                to = std::min(pending.size(), next + kBatch);
+                next = to;
               }
-              Status s = walker.compute(local.local_of_own[k], star, StarPart::kAll);
-              StarCertificate c;
-              if (s.is_ok()) c = certify(star);
-              out.clear();
-              if (c.certified) rows_of(local, star, out);
+              std::vector<std::pair<std::uint32_t, StarCertificate>> refused_here;
+              Status s;
+              for (std::size_t i = from; i < to && s.is_ok(); ++i) {
+                const std::uint32_t k = pending[i];
+                const std::uint32_t seed = local.local_of_own[k];
+                StarCertificate c;
+                if (job == Job::kCells) {
+                  s = builder->cell(seed, cell);
+                  if (s.is_ok()) c = certify_cell(k, seed, *builder);
+                  if (c.certified) found.add(cell, local.global[seed], [&](std::uint32_t v) { return local.global[v]; });
+                } else {
+                  s = walker->compute(seed, star, StarPart::kAll);
+                  if (s.is_ok()) c = certify(star);
+                  out.clear();
+                  if (c.certified) rows_of(local, star, out);
+                  if (c.certified) {
+                    std::lock_guard lock(mu);
+                    done.push_back({position_of_own[k], out});
+                  }
+                }
+                if (s.is_ok() && !c.certified) refused_here.emplace_back(k, std::move(c));
+              }
               std::lock_guard lock(mu);
-              if (!s.is_ok()) {
-                failure = s;
-                return;
-              }
-              if (c.certified) {
-                done.push_back({position_of_own[k], out});
-              } else {
-                refused.emplace_back(k, std::move(c));
-              }
+              if (!s.is_ok() && failure.is_ok()) failure = s;
+              for (auto& r : refused_here) refused.push_back(std::move(r));
+              seeds_done += to - from;
+              if (job == Job::kCells && round == 1) progress.update(seeds_done, 0);
             }
+            std::lock_guard lock(mu);
+            cell_records.append(found);
           });
         }
         for (auto& t : pool) t.join();
@@ -617,101 +727,110 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   }
   progress.finish();
 
-  // The rows in order (mesh: the first round's, with the later rounds' seeds in
-  // place), handed to `emit` one by one.
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;
-  std::function<void(const std::function<void(std::span<const std::uint32_t>)>&)> for_each_row;
-  std::uint64_t my_rows = 0;
-  if (job == Job::kMesh) {
-    std::sort(done.begin(), done.end(), [](const Rows& a, const Rows& b) { return a.position < b.position; });
-    for (const Rows& r : done) my_rows += r.rows.size() / w1;
-    my_rows += spool.rows();
-    for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
-      std::size_t next_done = 0;
-      auto late = [&](const Rows& r) {
-        for (std::size_t i = 0; i < r.rows.size(); i += w1) emit(std::span<const std::uint32_t>(r.rows.data() + i, w1));
-      };
-      spool.for_each([&](std::span<const std::uint32_t> row, std::uint32_t position) {
-        while (next_done < done.size() && done[next_done].position < position) late(done[next_done++]);
-        emit(row);
-      });
-      while (next_done < done.size()) late(done[next_done++]);
-    };
+  std::uint64_t total_rows = 0;
+  mpi::CellsWritten cells_written;
+  if (job == Job::kCells) {
+    // Each cell to the rank whose slice of the index range holds its seed, written
+    // there into the .npz.
+    if (Status s = mpi::write_cells_npz(comm, w.output, n, cell_records, cells_written); !s.is_ok()) {
+      return report_all(s);
+    }
   } else {
-    // Edges to the rank holding their first index's slice of the index range, sorted
-    // there: the file is then the ranks' parts in order.
-    for (const Rows& r : done) rows.insert(rows.end(), r.rows.begin(), r.rows.end());
-    done = {};
-    std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
-    for (std::size_t i = 0; i < rows.size(); i += 2) {
-      int r = static_cast<int>(std::uint64_t{rows[i]} * static_cast<std::uint64_t>(comm.size) / n);
-      while (r + 1 < comm.size && slice_begin(n, r + 1, comm.size) <= rows[i]) ++r;
-      while (r > 0 && slice_begin(n, r, comm.size) > rows[i]) --r;
-      mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i]);
-      mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i + 1]);
-    }
-    rows = {};
-    const std::vector<char> in = comm.alltoall_bytes(outgoing);
-    outgoing = {};
-    edges.resize(in.size() / 8);
-    const char* at = in.data();
-    for (auto& e : edges) {
-      e.first = mpi::get<std::uint32_t>(at);
-      e.second = mpi::get<std::uint32_t>(at);
-    }
-    std::sort(edges.begin(), edges.end());
-    my_rows = edges.size();
-    for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
-      for (const auto& e : edges) {
-        const std::uint32_t pair[2] = {e.first, e.second};
-        emit(pair);
-      }
-    };
-  }
 
-  note_peak(comm, "rounds done");
-  // The file: the CLI's bytes, sized in a first pass over the rows and written in a
-  // second, a few MB at a time.
-  const std::uint64_t total_rows = comm.allreduce<std::uint64_t>(my_rows, MPI_SUM);
-  auto format = MeshWriter::format_for(w.output, d);
-  const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
-  std::string header;
-  std::uint64_t header_bytes = 0, body_bytes = 0;
-  if (as_npy) {
-    if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
-    header_bytes = kNpyHeaderBytes;
-    body_bytes = my_rows * w1 * sizeof(std::int64_t);
-  } else {
-    std::string line;
-    for_each_row([&](std::span<const std::uint32_t> row) {
-      line.clear();
-      append_index_lines(line, row, static_cast<int>(w1));
-      body_bytes += line.size();
-    });
-  }
-  Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
-    constexpr std::size_t kChunk = std::size_t{8} << 20;
-    std::string chunk;
-    Status s;
-    for_each_row([&](std::span<const std::uint32_t> row) {
-      if (!s.is_ok()) return;
-      if (as_npy) {
-        for (const std::uint32_t v : row) {
-          const std::int64_t wide = v;
-          chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+    // The rows in order (mesh: the first round's, with the later rounds' seeds in
+    // place), handed to `emit` one by one.
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;
+    std::function<void(const std::function<void(std::span<const std::uint32_t>)>&)> for_each_row;
+    std::uint64_t my_rows = 0;
+    if (job == Job::kMesh) {
+      std::sort(done.begin(), done.end(), [](const Rows& a, const Rows& b) { return a.position < b.position; });
+      for (const Rows& r : done) my_rows += r.rows.size() / w1;
+      my_rows += spool.rows();
+      for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
+        std::size_t next_done = 0;
+        auto late = [&](const Rows& r) {
+          for (std::size_t i = 0; i < r.rows.size(); i += w1) emit(std::span<const std::uint32_t>(r.rows.data() + i, w1));
+        };
+        spool.for_each([&](std::span<const std::uint32_t> row, std::uint32_t position) {
+          while (next_done < done.size() && done[next_done].position < position) late(done[next_done++]);
+          emit(row);
+        });
+        while (next_done < done.size()) late(done[next_done++]);
+      };
+    } else {
+      // Edges to the rank holding their first index's slice of the index range, sorted
+      // there: the file is then the ranks' parts in order.
+      for (const Rows& r : done) rows.insert(rows.end(), r.rows.begin(), r.rows.end());
+      done = {};
+      std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+      for (std::size_t i = 0; i < rows.size(); i += 2) {
+        const int r = mpi::slice_owner(n, rows[i], comm.size);
+        mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i]);
+        mpi::put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows[i + 1]);
+      }
+      rows = {};
+      const std::vector<char> in = comm.alltoall_bytes(outgoing);
+      outgoing = {};
+      edges.resize(in.size() / 8);
+      const char* at = in.data();
+      for (auto& e : edges) {
+        e.first = mpi::get<std::uint32_t>(at);
+        e.second = mpi::get<std::uint32_t>(at);
+      }
+      std::sort(edges.begin(), edges.end());
+      my_rows = edges.size();
+      for_each_row = [&](const std::function<void(std::span<const std::uint32_t>)>& emit) {
+        for (const auto& e : edges) {
+          const std::uint32_t pair[2] = {e.first, e.second};
+          emit(pair);
         }
-      } else {
-        append_index_lines(chunk, row, static_cast<int>(w1));
-      }
-      if (chunk.size() >= kChunk) {
-        s = put_piece(chunk);
-        chunk.clear();
-      }
+      };
+    }
+
+    note_peak(comm, "rounds done");
+    // The file: the CLI's bytes, sized in a first pass over the rows and written in a
+    // second, a few MB at a time.
+    total_rows = comm.allreduce<std::uint64_t>(my_rows, MPI_SUM);
+    auto format = MeshWriter::format_for(w.output, d);
+    const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
+    std::string header;
+    std::uint64_t header_bytes = 0, body_bytes = 0;
+    if (as_npy) {
+      if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
+      header_bytes = kNpyHeaderBytes;
+      body_bytes = my_rows * w1 * sizeof(std::int64_t);
+    } else {
+      std::string line;
+      for_each_row([&](std::span<const std::uint32_t> row) {
+        line.clear();
+        append_index_lines(line, row, static_cast<int>(w1));
+        body_bytes += line.size();
+      });
+    }
+    Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
+      constexpr std::size_t kChunk = std::size_t{8} << 20;
+      std::string chunk;
+      Status s;
+      for_each_row([&](std::span<const std::uint32_t> row) {
+        if (!s.is_ok()) return;
+        if (as_npy) {
+          for (const std::uint32_t v : row) {
+            const std::int64_t wide = v;
+            chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+          }
+        } else {
+          append_index_lines(chunk, row, static_cast<int>(w1));
+        }
+        if (chunk.size() >= kChunk) {
+          s = put_piece(chunk);
+          chunk.clear();
+        }
+      });
+      if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
+      return s;
     });
-    if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
-    return s;
-  });
-  if (!written.is_ok()) return report_all(written);
+    if (!written.is_ok()) return report_all(written);
+  }
   note_peak(comm, "written");
 
   stats.owned = owned;
@@ -758,6 +877,8 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
                      static_cast<unsigned long long>(n), static_cast<unsigned long long>(total_rows), t, comm.size,
                      static_cast<unsigned long long>(ghosts), static_cast<unsigned long long>(most_rounds),
                      w.output.c_str());
+      } else if (job == Job::kCells) {
+        print_cells_summary(n, domain->describe(), cells_written.facets, cells_written.volume, t, w.output);
       } else {
         print_graph_summary(n, total_rows, false, t, w.output);
       }
@@ -777,8 +898,9 @@ int main(int argc, char** argv) {
   int provided = 0;
   MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
   Comm comm = Comm::world();
-  CLI::App app{"spokemesh-mpi: the Delaunay mesh or graph of one point set by many processes (Open MPI), the same "
-               "bytes as spokemesh writes.\nRun as: mpirun -np P spokemesh-mpi {mesh|graph} INPUT -o OUTPUT [flags]"};
+  CLI::App app{"spokemesh-mpi: the Delaunay mesh, graph or clipped Voronoi cells of one point set by many processes "
+               "(Open MPI), the same bytes as spokemesh writes.\nRun as: mpirun -np P spokemesh-mpi {mesh|graph|cells} "
+               "INPUT -o OUTPUT [flags]"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "spokemesh-mpi 0.1.0");
   WholeCommands w;
@@ -786,7 +908,7 @@ int main(int argc, char** argv) {
   define_whole_commands(app, w, /*one_process=*/false);
   std::string stats_path;
   double first_halo = 2.5;
-  for (CLI::App* cmd : {w.mesh, w.graph}) {
+  for (CLI::App* cmd : {w.mesh, w.graph, w.cells}) {
     cmd->add_option("--stats", stats_path,
                     "Write JSON {\"ranks\": [{rank, owned, ghosts, rounds, bytes_sent, bytes_received, "
                     "peak_rss_bytes, seconds}]}");
@@ -796,7 +918,6 @@ int main(int argc, char** argv) {
         ->capture_default_str()
         ->check(CLI::Range(0.0, 1000.0));
   }
-  w.cells->group("");  // not distributed yet: hidden, and refused below
   int code = kExitOk;
   try {
     app.parse(argc, argv);
@@ -811,14 +932,7 @@ int main(int argc, char** argv) {
     return code;
   }
   Halo::set_first_halo_factor(first_halo);
-  if (*w.cells) {
-    if (comm.rank == 0) {
-      report(invalid_argument("cells: not distributed yet; compute cells on one process with spokemesh cells"), kProgram);
-    }
-    code = kExitUsage;
-  } else {
-    code = run(comm, *w.mesh ? Job::kMesh : Job::kGraph, w, stats_path);
-  }
+  code = run(comm, *w.mesh ? Job::kMesh : *w.graph ? Job::kGraph : Job::kCells, w, stats_path);
   MPI_Finalize();
   return code;
 }

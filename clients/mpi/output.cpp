@@ -6,8 +6,7 @@
 
 namespace spokemesh::mpi {
 
-Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_bytes, const std::string& header,
-                     std::uint64_t body_bytes, const std::function<Status(const PieceWriter&)>& body) {
+Status write_file(Comm& comm, const std::string& path, const std::function<Status(const WriteAt&)>& body) {
   std::string temp;
   if (comm.rank == 0) {
     temp = path + ".spokemesh-mpi-" + std::to_string(::getpid()) + ".tmp";
@@ -39,17 +38,10 @@ Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_b
     }
     return status;
   };
-  if (comm.rank == 0 && !header.empty()) status = write_at(0, header);
-  std::uint64_t at = header_bytes + comm.exscan_sum<std::uint64_t>(body_bytes);
-  const std::uint64_t end = at + body_bytes;
-  if (status.is_ok()) {
-    status = body([&](std::string_view piece) {
-      Status s = write_at(at, piece);
-      at += piece.size();
-      return s;
-    });
+  {
+    Status s = body(write_at);
+    if (status.is_ok()) status = s;
   }
-  if (status.is_ok() && at != end) status = internal_error(path + ": internal error: a part changed size while written");
   if (MPI_File_close(&file) != MPI_SUCCESS && status.is_ok()) status = internal_error(path + ": close failed");
   status = comm.agree(status);
   if (comm.rank == 0) {
@@ -59,6 +51,25 @@ Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_b
     if (!status.is_ok()) std::remove(temp.c_str());
   }
   return comm.agree(status);
+}
+
+Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_bytes, const std::string& header,
+                     std::uint64_t body_bytes, const std::function<Status(const PieceWriter&)>& body) {
+  std::uint64_t at = header_bytes + comm.exscan_sum<std::uint64_t>(body_bytes);
+  const std::uint64_t end = at + body_bytes;
+  return write_file(comm, path, [&](const WriteAt& write_at) {
+    Status status;
+    if (comm.rank == 0 && !header.empty()) status = write_at(0, header);
+    if (status.is_ok()) {
+      status = body([&](std::string_view piece) {
+        Status s = write_at(at, piece);
+        at += piece.size();
+        return s;
+      });
+    }
+    if (status.is_ok() && at != end) status = internal_error(path + ": internal error: a part changed size while written");
+    return status;
+  });
 }
 
 }  // namespace spokemesh::mpi

@@ -25,6 +25,11 @@ namespace spokemesh::mpi {
 // piece by piece by `body`, which hands each piece to the writer it is given (pieces
 // of at most a few MB: nothing of the size of the output is held).
 using PieceWriter = std::function<Status(std::string_view)>;
+// The general form: every rank writes what it likes where it likes (`at` bytes from
+// the start) through the writer `body` is given; the file is renamed into place by
+// rank 0 once every rank succeeded, else removed. Collective.
+using WriteAt = std::function<Status(std::uint64_t at, std::string_view bytes)>;
+Status write_file(Comm& comm, const std::string& path, const std::function<Status(const WriteAt&)>& body);
 Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_bytes, const std::string& header,
                      std::uint64_t body_bytes, const std::function<Status(const PieceWriter&)>& body);
 

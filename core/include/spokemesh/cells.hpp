@@ -74,6 +74,18 @@ class ClippedCellBuilder {
   // built by the generic polytope instead (for tests).
   std::uint64_t generic_fallbacks() const { return generic_fallbacks_; }
 
+  // What the last cell() depended on, for a caller whose tree holds only part of a
+  // point set (spokemesh-mpi, docs/distributed.md): the star the cell was built from
+  // (nullptr when it was built directly), and the squared distance (nanoflann's, see
+  // kDistanceMargin) from the seed within which the points decided the direct route,
+  // its result or its giving up (0 when it was not tried; infinity when the answer
+  // rested on there being no other points at all). A builder over a superset of the
+  // points holding the same points within that distance, and the same star, builds
+  // the same cell, bit for bit: candidates at equal distances are taken in index order,
+  // and a round never splits a group of them.
+  const Star* last_star() const { return last_from_star_ ? &star_ : nullptr; }
+  double last_reach2() const { return last_reach2_; }
+
  private:
   StarWalker& walker();
   bool direct(std::uint32_t seed, VoronoiCell& out);
@@ -91,6 +103,8 @@ class ClippedCellBuilder {
   std::uint64_t star_fallbacks_ = 0;
   std::uint64_t generic_fallbacks_ = 0;
   bool measures_only_ = false;
+  bool last_from_star_ = false;
+  double last_reach2_ = 0;
 };
 
 struct CellsOptions {

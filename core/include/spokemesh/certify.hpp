@@ -76,6 +76,13 @@ class StarCertifier {
     return certify(star, held_boxes, {}, unheld, [](std::span<const std::uint32_t>) { return false; }).certified;
   }
 
+  // Whether every point of the whole set within the closed ball around point `seed`
+  // (held) of squared radius radius2 is held, by the same boxes and balls as
+  // certify(): the ball's part inside the whole set's box lies in a held box or a held
+  // ball, or the ball misses every unheld box. Conservative (false when undecided).
+  bool ball_is_held(std::uint32_t seed, double radius2, std::span<const double> held_boxes,
+                    std::span<const double> held_balls, std::span<const double> unheld) const;
+
   // Whether box (2 D doubles) may hold a point beyond or on the plane of the facet
   // through points f (d of them) on the side away from `inner` (a conservative filter:
   // true when undecided). For answering hull queries. d = 2, 3.

@@ -45,9 +45,13 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
 Status decode_npy_rows(const NpyPoints& layout, const char* data, std::uint64_t first_row, std::uint64_t rows,
                        std::vector<double>& out, const std::string& source);
 
-// The 128-byte header MeshWriter writes before .npy rows (version 1.0, C order).
+// The 128-byte header MeshWriter and CellWriter write before .npy rows (version 1.0,
+// C order): of a (rows, cols) array, of a (rows,) vector, or of a shape given as the
+// text between its parentheses.
 constexpr std::size_t kNpyHeaderBytes = 128;
 std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64_t cols);
+std::string npy_vector_header(const std::string& descr, std::uint64_t rows);
+std::string npy_header_of_shape(const std::string& descr, const std::string& shape);
 
 // Reads a mesh (.npy int64/int32, else text) of simplices with `width` indices each.
 Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int width);

@@ -65,6 +65,8 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
 // INVALID_ARGUMENT naming the seed and the wall when point `seed` lies outside the
 // domain (whose dimension must be the points'); OK otherwise.
 Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain);
+// The same for a point given by its coordinates and the index to name it by.
+Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domain& domain);
 
 // Circumcentre of the points `ids` (2..d+1 of them): the centre of the smallest
 // sphere through them, which lies in their affine hull. Solved on the coordinate

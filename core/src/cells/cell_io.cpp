@@ -1,4 +1,5 @@
 #include "spokemesh/cell_io.hpp"
+#include "spokemesh/io.hpp"
 
 #include <unistd.h>
 #include <zip.h>
@@ -79,16 +80,7 @@ class NpyColumn {
   }
   // Writes the header; the file then holds the whole .npy, and is handed over.
   Result<std::FILE*> finish() {
-    std::string dict = "{'descr': '" + descr_ + "', 'fortran_order': False, 'shape': (" + std::to_string(rows_) +
-                       (width_ == 1 ? ",), }" : ", " + std::to_string(width_) + "), }");
-    std::string header = "\x93NUMPY";
-    header += '\x01';
-    header += '\x00';
-    const std::size_t len = kHeader - 10;
-    header += static_cast<char>(len & 0xff);
-    header += static_cast<char>(len >> 8);
-    dict.resize(len - 1, ' ');
-    header += dict + "\n";
+    const std::string header = width_ == 1 ? npy_vector_header(descr_, rows_) : npy_header(descr_, rows_, static_cast<std::uint64_t>(width_));
     if (std::fseek(file_, 0, SEEK_SET) != 0 || std::fwrite(header.data(), 1, header.size(), file_) != header.size() ||
         std::fflush(file_) != 0 || std::fseek(file_, 0, SEEK_SET) != 0) {
       return internal_error("writing " + name_ + ": " + std::strerror(errno));
@@ -100,7 +92,7 @@ class NpyColumn {
   const std::string& name() const { return name_; }
 
  private:
-  static constexpr std::size_t kHeader = 128;  // a multiple of 64, as the format asks
+  static constexpr std::size_t kHeader = kNpyHeaderBytes;  // a multiple of 64, as the format asks
   Status put(const void* data, std::size_t bytes, std::uint64_t rows) {
     if (bytes != 0 && std::fwrite(data, 1, bytes, file_) != bytes) {
       return internal_error("writing " + name_ + ": " + std::strerror(errno));

@@ -221,7 +221,11 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
 }  // namespace
 
 Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain) {
-  if (const auto wall = domain.violated_wall(points.point(seed))) {
+  return check_seed_in_domain(points.point(seed), seed, domain);
+}
+
+Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domain& domain) {
+  if (const auto wall = domain.violated_wall(point)) {
     return invalid_argument("seed " + std::to_string(seed) + " lies outside the domain (" + domain.describe() +
                             "): beyond wall " + std::to_string(*wall));
   }

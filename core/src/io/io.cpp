@@ -309,8 +309,15 @@ void append_index_lines(std::string& out, std::span<const std::uint32_t> tuples,
 // Writers
 
 std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64_t cols) {
-  std::string dict = "{'descr': '" + descr + "', 'fortran_order': False, 'shape': (" + std::to_string(rows) + ", " +
-                     std::to_string(cols) + "), }";
+  return npy_header_of_shape(descr, std::to_string(rows) + ", " + std::to_string(cols));
+}
+
+std::string npy_vector_header(const std::string& descr, std::uint64_t rows) {
+  return npy_header_of_shape(descr, std::to_string(rows) + ",");
+}
+
+std::string npy_header_of_shape(const std::string& descr, const std::string& shape) {
+  std::string dict = "{'descr': '" + descr + "', 'fortran_order': False, 'shape': (" + shape + "), }";
   dict.resize(kNpyHeaderBytes - 10 - 1, ' ');
   dict.push_back('\n');
   std::string out("\x93NUMPY\x01\x00", 8);

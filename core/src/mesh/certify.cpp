@@ -337,6 +337,44 @@ StarCertificate StarCertifier::certify(const Star& star, std::span<const double>
   }
 }
 
+namespace {
+
+// StarCertifier::ball_is_held in D dimensions: the ball's centre is exact.
+template <int D>
+bool ball_is_held(const double* s, double radius2, const double* global, std::span<const double> held_boxes,
+                  std::span<const double> held_balls, std::span<const double> unheld) {
+  std::array<Interval, D> centre{};
+  for (int k = 0; k < D; ++k) centre[static_cast<std::size_t>(k)] = {s[k], s[k]};
+  const double r2 = up(radius2);
+  const std::array<double, 2 * D> extent = clipped_extent<D>(centre, r2, global);
+  for (std::size_t b = 0; b + 2 * D <= held_boxes.size(); b += 2 * D) {
+    if (inside<D>(extent, held_boxes.data() + b)) return true;
+  }
+  for (std::size_t b = 0; b + D + 1 <= held_balls.size(); b += D + 1) {
+    if (inside_ball<D>(centre, r2, held_balls.data() + b)) return true;
+  }
+  for (std::size_t b = 0; b + 2 * D <= unheld.size(); b += 2 * D) {
+    if (!misses<D>(centre, r2, unheld.data() + b)) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool StarCertifier::ball_is_held(std::uint32_t seed, double radius2, std::span<const double> held_boxes,
+                                 std::span<const double> held_balls, std::span<const double> unheld) const {
+  if (unheld.empty()) return true;
+  const double* s = points_.point(seed);
+  switch (points_.dimension()) {
+    case 2:
+      return spokemesh::ball_is_held<2>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
+    case 3:
+      return spokemesh::ball_is_held<3>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
+    default:
+      return false;
+  }
+}
+
 bool StarCertifier::may_be_beyond(int d, const double* const* f, const double* inner, const double* box) {
   return d == 2 ? beyond_box<2>(f, inner, box) : d == 3 ? beyond_box<3>(f, inner, box) : true;
 }
