@@ -12,6 +12,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <map>
 #include <random>
 
@@ -246,6 +247,63 @@ TEST(ClippedCellBuilder, DirectRouteEqualsTheStarsRoute) {
       EXPECT_EQ(generic, 0u) << "the specialised 3-d cell certifies every decision on random points";
       expect_same_cells(direct, star_cells(ps, box));
     }
+  }
+}
+
+// What spokemesh-mpi relies on: a builder over a subset of the points that holds every
+// point within last_reach2 of the seed builds the whole set's cell bit for bit (3-d
+// direct route; the star route is certified by StarCertifier). Uniform points and an
+// integer grid (equal distances everywhere, whose order must not depend on the tree).
+TEST(ClippedCellBuilder, TheReachNamesEverythingThatDecidedTheCell) {
+  for (const bool grid : {false, true}) {
+    SCOPED_TRACE(grid ? "3-d integer grid 14^3" : "3-d uniform 6000, seed 77");
+    const PointSet all = make_points(3, grid ? grid_points(3, 14) : uniform_points(3, 6000, 77));
+    const Domain box = Domain::bounding_box(all);
+    const KdTree all_tree(all);
+    ClippedCellBuilder whole(all_tree, box);
+    std::mt19937_64 rng(78);
+    std::size_t direct = 0;
+    for (int trial = 0; trial < 60; ++trial) {
+      const auto seed = static_cast<std::uint32_t>(rng() % all.size());
+      VoronoiCell truth;
+      ASSERT_TRUE(whole.cell(seed, truth).is_ok());
+      if (whole.last_star() != nullptr) continue;
+      ++direct;
+      const double reach2 = whole.last_reach2();
+      ASSERT_GT(reach2, 0);
+      // The points within reach (with a margin over nanoflann's rounding), and every
+      // fifth other point, in index order.
+      std::vector<double> sub;
+      std::vector<std::uint32_t> global;
+      std::uint32_t mine = 0;
+      for (std::uint32_t i = 0; i < all.size(); ++i) {
+        double d2 = 0;
+        for (int c = 0; c < 3; ++c) d2 += (all.point(i)[c] - all.point(seed)[c]) * (all.point(i)[c] - all.point(seed)[c]);
+        if (d2 > reach2 * (1 + 1e-8) && i % 5 != 0) continue;
+        if (i == seed) mine = static_cast<std::uint32_t>(global.size());
+        sub.insert(sub.end(), all.point(i), all.point(i) + 3);
+        global.push_back(i);
+      }
+      const PointSet part = make_points(3, sub);
+      const KdTree part_tree(part);
+      ClippedCellBuilder builder(part_tree, box);
+      VoronoiCell cell;
+      ASSERT_TRUE(builder.cell(mine, cell).is_ok());
+      EXPECT_EQ(builder.last_star(), nullptr) << "seed " << seed;
+      EXPECT_EQ(std::memcmp(&cell.volume, &truth.volume, sizeof(double)), 0) << "seed " << seed;
+      ASSERT_EQ(cell.centroid.size(), truth.centroid.size());
+      EXPECT_EQ(std::memcmp(cell.centroid.data(), truth.centroid.data(), 3 * sizeof(double)), 0) << "seed " << seed;
+      ASSERT_EQ(cell.facets.size(), truth.facets.size()) << "seed " << seed;
+      for (std::size_t f = 0; f < cell.facets.size(); ++f) {
+        const VoronoiFacet& a = cell.facets[f];
+        const VoronoiFacet& b = truth.facets[f];
+        EXPECT_EQ(a.is_wall() ? a.neighbor : static_cast<std::int64_t>(global[static_cast<std::size_t>(a.neighbor)]),
+                  b.neighbor);
+        EXPECT_EQ(std::memcmp(&a.area, &b.area, sizeof(double)), 0) << "seed " << seed << " facet " << f;
+        EXPECT_EQ(std::memcmp(a.normal.data(), b.normal.data(), 3 * sizeof(double)), 0) << "seed " << seed;
+      }
+    }
+    if (!grid) EXPECT_EQ(direct, 60u) << "uniform points are built directly";
   }
 }
 
