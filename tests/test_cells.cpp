@@ -243,7 +243,13 @@ TEST(ClippedCellBuilder, DirectRouteEqualsTheStarsRoute) {
                                   : Domain::box(std::vector<double>(d, -0.25), std::vector<double>(d, 1.5)).value();
       std::uint64_t fallbacks = 0, generic = 0;
       const std::vector<VoronoiCell> direct = builder_cells(ps, box, &fallbacks, &generic);
-      EXPECT_EQ(fallbacks, 0u) << "random points in general position never tie";
+      if (bounding) {
+        EXPECT_EQ(fallbacks, 0u) << "random points in general position never tie";
+      } else {
+        // In a box far larger than the set, the cells of seeds near the hull reach deep
+        // into the empty margin; past 256 candidates they go to the star (cells.cpp).
+        EXPECT_LT(fallbacks, ps.size() / 4);
+      }
       EXPECT_EQ(generic, 0u) << "the specialised 3-d cell certifies every decision on random points";
       expect_same_cells(direct, star_cells(ps, box));
     }
@@ -303,7 +309,9 @@ TEST(ClippedCellBuilder, TheReachNamesEverythingThatDecidedTheCell) {
         EXPECT_EQ(std::memcmp(a.normal.data(), b.normal.data(), 3 * sizeof(double)), 0) << "seed " << seed;
       }
     }
-    if (!grid) EXPECT_EQ(direct, 60u) << "uniform points are built directly";
+    if (!grid) {
+      EXPECT_EQ(direct, 60u) << "uniform points are built directly";
+    }
   }
 }
 

@@ -2,7 +2,11 @@
 
 #include <zlib.h>
 
+#include <algorithm>
 #include <array>
+#include <cerrno>
+#include <cstring>
+#include <memory>
 #include <string_view>
 
 #include "npz.hpp"
@@ -13,14 +17,8 @@ namespace spokemesh::mpi {
 
 namespace {
 
-// A record's size from its facet count.
-std::size_t record_bytes(int d, std::uint32_t facets) {
-  const auto dd = static_cast<std::size_t>(d);
-  return 4 + 4 + 1 + 8 * (1 + dd) + facets * 8 * (2 + dd);
-}
-
 // One member of the archive: its name, npy header and data size, and this rank's part
-// of the data (produced piece by piece).
+// of the data.
 struct Member {
   std::string name, header;
   std::uint64_t data_bytes = 0;  // in all ranks
@@ -28,72 +26,108 @@ struct Member {
   std::uint64_t part_bytes = 0;
 };
 
+using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
+
+constexpr std::uint64_t kRoundBytes = std::uint64_t{8} << 20;    // records a rank sends per round
+constexpr std::uint64_t kBucketBytes = std::uint64_t{16} << 20;  // records a rank holds while writing
+
 }  // namespace
 
-Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, CellRecords& records,
-                       CellsWritten& written) {
-  const int d = records.dimension();
-  const auto dd = static_cast<std::size_t>(d);
-  const std::uint64_t first = slice_begin(n, comm.rank, comm.size), last = slice_begin(n, comm.rank + 1, comm.size);
-
-  // Each record to the rank whose slice holds its seed.
-  std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
-  {
-    const std::vector<char>& mine = records.bytes();
-    for (std::size_t at = 0; at < mine.size();) {
-      const char* p = mine.data() + at;
-      const std::uint32_t seed = get<std::uint32_t>(p);
-      const std::uint32_t facets = get<std::uint32_t>(p);
-      const std::size_t size = record_bytes(d, facets);
-      const int r = slice_owner(n, seed, comm.size);
-      std::vector<char>& to = outgoing[static_cast<std::size_t>(r)];
-      to.insert(to.end(), mine.data() + at, mine.data() + at + size);
-      at += size;
-    }
-    records.bytes() = {};
-  }
-  const std::vector<char> in = comm.alltoall_bytes(outgoing);
-  outgoing = {};
-
-  // The slice's records by seed.
-  Status status;
-  std::vector<const char*> cell(last - first, nullptr);
-  std::uint64_t my_facets = 0;
-  for (std::size_t at = 0; at < in.size();) {
-    const char* p = in.data() + at;
+void CellSpool::take(CellRecords& records) {
+  std::vector<char>& b = records.bytes();
+  for (std::size_t at = 0; at < b.size();) {
+    const char* p = b.data() + at;
     const std::uint32_t seed = get<std::uint32_t>(p);
     const std::uint32_t facets = get<std::uint32_t>(p);
-    if (seed < first || seed >= last || cell[seed - first] != nullptr) {
-      status = internal_error("internal error: cell " + std::to_string(seed) + " sent to the wrong rank or twice");
-      break;
+    const std::size_t size = cell_record_bytes(d_, facets);
+    to_rank_[static_cast<std::size_t>(slice_owner(n_, seed, static_cast<int>(to_rank_.size())))] += size;
+    at += size;
+  }
+  if (file_ != nullptr && !b.empty()) std::fwrite(b.data(), 1, b.size(), file_);
+  bytes_ += b.size();
+  b.clear();
+}
+
+Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, CellSpool& spool, CellsWritten& written) {
+  const int d = spool.d_;
+  const auto dd = static_cast<std::size_t>(d);
+  const std::uint64_t first = slice_begin(n, comm.rank, comm.size), last = slice_begin(n, comm.rank + 1, comm.size);
+  const std::uint64_t cells = last - first;
+  Status status;
+  if (!spool.ok()) status = internal_error("cannot write the temporary file of cells (" + std::string(std::strerror(errno)) + ")");
+  if (Status s = comm.agree(status); !s.is_ok()) return s;
+
+  // The slice's records go to buckets of consecutive seeds on disk, each small enough
+  // to hold while it is written.
+  std::vector<std::uint64_t> incoming(static_cast<std::size_t>(comm.size));
+  MPI_Alltoall(spool.to_rank_.data(), 1, MPI_UINT64_T, incoming.data(), 1, MPI_UINT64_T, comm.comm);
+  std::uint64_t total_in = 0;
+  for (const std::uint64_t b : incoming) total_in += b;
+  const std::uint64_t buckets = std::clamp<std::uint64_t>((total_in + kBucketBytes - 1) / kBucketBytes, 1, 4096);
+  std::vector<File> bucket;
+  for (std::uint64_t b = 0; b < buckets && status.is_ok(); ++b) {
+    bucket.emplace_back(std::tmpfile(), &std::fclose);
+    if (bucket.back() == nullptr) status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
+  }
+  if (Status s = comm.agree(status); !s.is_ok()) return s;
+  auto bucket_of = [&](std::uint64_t seed) { return (seed - first) * buckets / cells; };
+
+  // Rounds of at most kRoundBytes from each rank.
+  const std::uint64_t rounds = comm.allreduce<std::uint64_t>((spool.bytes_ + kRoundBytes - 1) / kRoundBytes, MPI_MAX);
+  if (spool.file_ != nullptr) std::rewind(spool.file_);
+  std::vector<char> chunk;
+  std::vector<bool> seen(cells, false);
+  std::uint64_t my_facets = 0, left = spool.bytes_;
+  for (std::uint64_t round = 0; round < rounds; ++round) {
+    const std::size_t carried = chunk.size();
+    const std::uint64_t want = std::min(left, kRoundBytes);
+    chunk.resize(carried + want);
+    if (want != 0 && std::fread(chunk.data() + carried, 1, want, spool.file_) != want && status.is_ok()) {
+      status = internal_error("cannot read back the temporary file of cells");
     }
-    cell[seed - first] = in.data() + at;
-    my_facets += facets;
-    at += record_bytes(d, facets);
+    left -= want;
+    std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+    std::size_t at = 0;
+    while (status.is_ok() && at + 8 <= chunk.size()) {
+      const char* p = chunk.data() + at;
+      const std::uint32_t seed = get<std::uint32_t>(p);
+      const std::uint32_t facets = get<std::uint32_t>(p);
+      const std::size_t size = cell_record_bytes(d, facets);
+      if (at + size > chunk.size()) break;  // the rest comes with the next round
+      std::vector<char>& to = outgoing[static_cast<std::size_t>(slice_owner(n, seed, comm.size))];
+      to.insert(to.end(), chunk.data() + at, chunk.data() + at + size);
+      at += size;
+    }
+    chunk.erase(chunk.begin(), chunk.begin() + static_cast<std::ptrdiff_t>(at));
+    const std::vector<char> in = comm.alltoall_bytes(outgoing);
+    for (std::size_t from = 0; from < in.size() && status.is_ok();) {
+      const char* p = in.data() + from;
+      const std::uint32_t seed = get<std::uint32_t>(p);
+      const std::uint32_t facets = get<std::uint32_t>(p);
+      const std::size_t size = cell_record_bytes(d, facets);
+      if (seed < first || seed >= last || seen[seed - first]) {
+        status = internal_error("internal error: cell " + std::to_string(seed) + " sent to the wrong rank or twice");
+        break;
+      }
+      seen[seed - first] = true;
+      my_facets += facets;
+      if (std::fwrite(in.data() + from, 1, size, bucket[bucket_of(seed)].get()) != size) {
+        status = internal_error("cannot write a temporary file of cells (" + std::string(std::strerror(errno)) + ")");
+      }
+      from += size;
+    }
   }
-  for (std::size_t i = 0; i < cell.size() && status.is_ok(); ++i) {
-    if (cell[i] == nullptr) status = internal_error("internal error: no rank computed cell " + std::to_string(first + i));
+  if (status.is_ok() && (!chunk.empty() || left != 0)) status = internal_error("internal error: cells left unsent");
+  for (std::uint64_t i = 0; i < cells && status.is_ok(); ++i) {
+    if (!seen[i]) status = internal_error("internal error: no rank computed cell " + std::to_string(first + i));
   }
+  seen = {};
   if (Status s = comm.agree(status); !s.is_ok()) return s;
   const std::uint64_t facets_before = comm.exscan_sum<std::uint64_t>(my_facets);
   const std::uint64_t facets_total = comm.allreduce<std::uint64_t>(my_facets, MPI_SUM);
   written.facets = facets_total;
 
-  // The volumes summed in seed order, passed from rank to rank: the CLI's sum, bit for bit.
-  {
-    double sum = 0;
-    if (comm.rank > 0) MPI_Recv(&sum, 1, MPI_DOUBLE, comm.rank - 1, 7, comm.comm, MPI_STATUS_IGNORE);
-    for (const char* c : cell) {
-      const char* p = c + 9;
-      sum += get<double>(p);
-    }
-    if (comm.rank + 1 < comm.size) MPI_Send(&sum, 1, MPI_DOUBLE, comm.rank + 1, 7, comm.comm);
-    MPI_Bcast(&sum, 1, MPI_DOUBLE, comm.size - 1, comm.comm);
-    written.volume = sum;
-  }
-
   // The members, as NpzCellWriter writes them.
-  const std::uint64_t cells = last - first;
   std::array<Member, 7> m;
   m[0] = {"volume.npy", npy_vector_header("<f8", n), 8 * n, 8 * first, 8 * cells};
   m[1] = {"centroid.npy", npy_header("<f8", n, dd), 8 * dd * n, 8 * dd * first, 8 * dd * cells};
@@ -115,81 +149,95 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
   }
   const std::uint64_t directory_at = offset;
 
-  // This rank's part of member k, a few MB at a time.
-  auto produce = [&](std::size_t k, const std::function<void(std::string_view)>& emit) {
-    std::string chunk;
-    constexpr std::size_t kChunk = std::size_t{4} << 20;
-    auto flush = [&](bool force) {
-      if (chunk.size() >= kChunk || (force && !chunk.empty())) {
-        emit(chunk);
-        chunk.clear();
-      }
-    };
-    auto put_raw = [&](const void* p, std::size_t bytes) { chunk.append(static_cast<const char*>(p), bytes); };
-    std::int64_t ptr = static_cast<std::int64_t>(facets_before);
-    if (k == 3 && comm.rank == 0) {
-      const std::int64_t zero = 0;
-      put_raw(&zero, 8);
-    }
-    for (const char* c : cell) {
-      const char* p = c + 4;
-      const std::uint32_t facets = get<std::uint32_t>(p);
-      const char* bounded = p;
-      const char* volume = p + 1;
-      const char* centroid = volume + 8;
-      const char* facet = centroid + 8 * dd;
-      const std::size_t facet_bytes = 8 * (2 + dd);
-      switch (k) {
-        case 0: put_raw(volume, 8); break;
-        case 1: put_raw(centroid, 8 * dd); break;
-        case 2: put_raw(bounded, 1); break;
-        case 3:
-          ptr += facets;
-          put_raw(&ptr, 8);
-          break;
-        default:
-          for (std::uint32_t f = 0; f < facets; ++f) {
-            const char* q = facet + f * facet_bytes;
-            if (k == 4) put_raw(q, 8);
-            else if (k == 5) put_raw(q + 8, 8);
-            else put_raw(q + 16, 8 * dd);
-          }
-      }
-      flush(false);
-    }
-    flush(true);
-  };
-
-  return write_file(comm, path, [&](const WriteAt& write_at) {
+  std::vector<double> volumes;  // the slice's, in seed order (for the summary's sum)
+  volumes.reserve(cells);
+  Status done = write_file(comm, path, [&](const WriteAt& write_at) {
     Status s;
-    // The data, each rank its parts, with their CRC-32s.
-    std::vector<std::uint64_t> crcs(2 * m.size());  // (crc, length) per member
+    std::array<uLong, 7> crc{};
+    std::array<std::uint64_t, 7> at{}, wrote{};
     for (std::size_t k = 0; k < m.size(); ++k) {
-      uLong crc = crc32(0L, Z_NULL, 0);
-      std::uint64_t at = zip[k].offset + zip_local_header_size(zip[k].name, zip[k].size) + m[k].header.size() + m[k].part_at;
-      std::uint64_t done = 0;
-      produce(k, [&](std::string_view piece) {
-        crc = crc32_z(crc, reinterpret_cast<const Bytef*>(piece.data()), piece.size());
-        if (s.is_ok()) s = write_at(at + done, piece);
-        done += piece.size();
+      crc[k] = crc32(0L, Z_NULL, 0);
+      at[k] = zip[k].offset + zip_local_header_size(zip[k].name, zip[k].size) + m[k].header.size() + m[k].part_at;
+    }
+    auto emit = [&](std::size_t k, const std::string& piece) {
+      if (piece.empty()) return;
+      crc[k] = crc32_z(crc[k], reinterpret_cast<const Bytef*>(piece.data()), piece.size());
+      if (s.is_ok()) s = write_at(at[k] + wrote[k], piece);
+      wrote[k] += piece.size();
+    };
+    std::int64_t ptr = static_cast<std::int64_t>(facets_before);
+    if (comm.rank == 0) {
+      const std::int64_t zero = 0;
+      emit(3, std::string(reinterpret_cast<const char*>(&zero), 8));
+    }
+    std::vector<char> held;
+    std::vector<const char*> in_order;
+    std::array<std::string, 7> piece;
+    for (std::uint64_t b = 0; b < buckets && s.is_ok(); ++b) {
+      std::FILE* file = bucket[b].get();
+      const long size = std::ftell(file);
+      held.resize(static_cast<std::size_t>(std::max(0L, size)));
+      std::rewind(file);
+      if (!held.empty() && std::fread(held.data(), 1, held.size(), file) != held.size()) {
+        s = internal_error("cannot read back a temporary file of cells");
+        break;
+      }
+      bucket[b].reset();  // (its disk space goes now)
+      in_order.clear();
+      for (std::size_t from = 0; from < held.size();) {
+        in_order.push_back(held.data() + from);
+        const char* p = held.data() + from + 4;
+        from += cell_record_bytes(d, get<std::uint32_t>(p));
+      }
+      std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
+        return get<std::uint32_t>(x) < get<std::uint32_t>(y);
       });
-      if (s.is_ok() && done != m[k].part_bytes) s = internal_error(path + ": internal error: a part changed size");
-      crcs[2 * k] = crc;
-      crcs[2 * k + 1] = done;
+      for (std::string& p : piece) p.clear();
+      for (const char* c : in_order) {
+        const char* p = c + 4;
+        const std::uint32_t facets = get<std::uint32_t>(p);
+        const char* bounded = p;
+        const char* volume = p + 1;
+        const char* centroid = volume + 8;
+        const char* facet = centroid + 8 * dd;
+        const std::size_t facet_bytes = 8 * (2 + dd);
+        piece[0].append(volume, 8);
+        piece[1].append(centroid, 8 * dd);
+        piece[2].append(bounded, 1);
+        ptr += facets;
+        piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
+        for (std::uint32_t f = 0; f < facets; ++f) {
+          const char* q = facet + f * facet_bytes;
+          piece[4].append(q, 8);
+          piece[5].append(q + 8, 8);
+          piece[6].append(q + 16, 8 * dd);
+        }
+        const char* v = volume;
+        volumes.push_back(get<double>(v));
+      }
+      for (std::size_t k = 0; k < m.size(); ++k) emit(k, piece[k]);
+    }
+    for (std::size_t k = 0; k < m.size() && s.is_ok(); ++k) {
+      if (wrote[k] != m[k].part_bytes) s = internal_error(path + ": internal error: a part changed size");
     }
     // Rank 0 combines the parts' CRCs in rank order after the header's, and writes the
     // local headers and the central directory.
+    std::vector<std::uint64_t> crcs(2 * m.size());  // (crc, length) per member
+    for (std::size_t k = 0; k < m.size(); ++k) {
+      crcs[2 * k] = crc[k];
+      crcs[2 * k + 1] = wrote[k];
+    }
     std::vector<std::uint64_t> all(comm.rank == 0 ? crcs.size() * static_cast<std::size_t>(comm.size) : 0);
     MPI_Gather(crcs.data(), static_cast<int>(crcs.size()), MPI_UINT64_T, all.data(), static_cast<int>(crcs.size()),
                MPI_UINT64_T, 0, comm.comm);
     if (comm.rank == 0) {
       for (std::size_t k = 0; k < m.size() && s.is_ok(); ++k) {
-        uLong crc = crc32_z(crc32(0L, Z_NULL, 0), reinterpret_cast<const Bytef*>(m[k].header.data()), m[k].header.size());
+        uLong c = crc32_z(crc32(0L, Z_NULL, 0), reinterpret_cast<const Bytef*>(m[k].header.data()), m[k].header.size());
         for (int r = 0; r < comm.size; ++r) {
           const std::uint64_t* part = &all[static_cast<std::size_t>(r) * crcs.size() + 2 * k];
-          crc = crc32_combine64(crc, static_cast<uLong>(part[0]), static_cast<z_off64_t>(part[1]));
+          c = crc32_combine64(c, static_cast<uLong>(part[0]), static_cast<z_off64_t>(part[1]));
         }
-        zip[k].crc = static_cast<std::uint32_t>(crc);
+        zip[k].crc = static_cast<std::uint32_t>(c);
         s = write_at(zip[k].offset, zip_local_header(zip[k]));
         if (s.is_ok()) s = write_at(zip[k].offset + zip_local_header_size(zip[k].name, zip[k].size), m[k].header);
       }
@@ -197,6 +245,16 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
     }
     return s;
   });
+  if (!done.is_ok()) return done;
+
+  // The volumes summed in seed order, passed from rank to rank: the CLI's sum, bit for bit.
+  double sum = 0;
+  if (comm.rank > 0) MPI_Recv(&sum, 1, MPI_DOUBLE, comm.rank - 1, 7, comm.comm, MPI_STATUS_IGNORE);
+  for (const double v : volumes) sum += v;
+  if (comm.rank + 1 < comm.size) MPI_Send(&sum, 1, MPI_DOUBLE, comm.rank + 1, 7, comm.comm);
+  MPI_Bcast(&sum, 1, MPI_DOUBLE, comm.size - 1, comm.comm);
+  written.volume = sum;
+  return Status::ok();
 }
 
 }  // namespace spokemesh::mpi

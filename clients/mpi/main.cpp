@@ -367,7 +367,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   // outer side is empty, so the answers stay empty and cheap).
   std::map<std::vector<std::uint64_t>, std::vector<double>> hull_region;
   std::vector<std::uint32_t> pending;                    // owned k refused in the last round
-  CellRecords cell_records(d);                           // cells: the certified ones
+  mpi::CellSpool cell_spool(d, n, comm.size);            // cells: the certified ones, on disk
   RankStats stats;
   std::mutex mu;
   Status failure;
@@ -608,11 +608,12 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
               std::lock_guard lock(mu);
               if (!s.is_ok() && failure.is_ok()) failure = s;
               for (auto& r : refused_here) refused.push_back(std::move(r));
+              if (found.size() >= (std::size_t{1} << 20)) cell_spool.take(found);
               seeds_done += to - from;
               if (job == Job::kCells && round == 1) progress.update(seeds_done, 0);
             }
             std::lock_guard lock(mu);
-            cell_records.append(found);
+            cell_spool.take(found);
           });
         }
         for (auto& t : pool) t.join();
@@ -730,9 +731,12 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   std::uint64_t total_rows = 0;
   mpi::CellsWritten cells_written;
   if (job == Job::kCells) {
+    note_peak(comm, "cells computed");
+    held_tree.reset();  // (what the rounds held goes before the cells move)
+    held_set.reset();
     // Each cell to the rank whose slice of the index range holds its seed, written
     // there into the .npz.
-    if (Status s = mpi::write_cells_npz(comm, w.output, n, cell_records, cells_written); !s.is_ok()) {
+    if (Status s = mpi::write_cells_npz(comm, w.output, n, cell_spool, cells_written); !s.is_ok()) {
       return report_all(s);
     }
   } else {

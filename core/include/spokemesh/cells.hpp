@@ -89,8 +89,11 @@ class ClippedCellBuilder {
  private:
   StarWalker& walker();
   bool direct(std::uint32_t seed, VoronoiCell& out);
+  // kDone, or why not: a decision at a tie (or within the error bounds), or more
+  // candidates than the direct route takes.
+  enum class Clipped { kDone, kUndecided, kTooMany };
   template <class Polytope>
-  bool clip_by_neighbours(std::uint32_t seed, Polytope& polytope);
+  Clipped clip_by_neighbours(std::uint32_t seed, Polytope& polytope);
 
   const KdTree& tree_;
   const Domain& domain_;

@@ -96,10 +96,12 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
     if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_);
     detail::BoxCell3d& cell = *sc.box_cell_3d;
     cell.reset(seed);
-    if (clip_by_neighbours(seed, cell)) {
+    const Clipped clipped = clip_by_neighbours(seed, cell);
+    if (clipped == Clipped::kDone) {
       cell.assemble(out, measures_only_);
       return true;
     }
+    if (clipped == Clipped::kTooMany) return false;  // the generic polytope would take as many
     ++generic_fallbacks_;
   }
   if (!sc.polytope) {
@@ -108,14 +110,14 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
     sc.polytope->reset_to_box(seed);
   }
   detail::CellPolytope& poly = *sc.polytope;
-  if (!clip_by_neighbours(seed, poly)) return false;
+  if (clip_by_neighbours(seed, poly) != Clipped::kDone) return false;
   poly.refine_voronoi_vertices();
   out = detail::assemble_clipped(poly, seed, points.dimension());
   return true;
 }
 
 template <class Polytope>
-bool ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) {
+ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) {
   const PointSet& points = tree_.points();
   const int d = points.dimension();
   const std::uint32_t n = static_cast<std::uint32_t>(points.size());
@@ -176,7 +178,7 @@ bool ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) 
       if (i >= usable) break;
       if (!poly.clip(j, sc.coords[i])) {  // a vertex on (or too near) the bisector
         last_reach2_ = std::max(last_reach2_, sc.dist2[i]);
-        return false;
+        return Clipped::kUndecided;
       }
       sc.applied.push_back(j);
       if (poly.changed()) r2 = poly.radius2_upper();
@@ -189,10 +191,10 @@ bool ClippedCellBuilder::clip_by_neighbours(std::uint32_t seed, Polytope& poly) 
                                           : count < k      ? bound2
                                                            : std::numeric_limits<double>::infinity());
     if (closed || !full) break;
-    if (k >= kMaxDirectCandidates) return false;
+    if (k >= kMaxDirectCandidates) return Clipped::kTooMany;
     k = std::min<std::size_t>(2 * k, n);
   }
-  return true;
+  return Clipped::kDone;
 }
 
 Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOptions& options, const CellSink& sink) {
