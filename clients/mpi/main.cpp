@@ -186,11 +186,8 @@ Status check_set(Comm& comm, const Slice& slice, const std::string& path) {
     status = invalid_argument(path + ": dimension " + std::to_string(d) +
                               " is not supported by spokemesh-mpi (2 or 3; mesh higher dimensions on one process "
                               "with spokemesh)");
-  } else if (slice.n < static_cast<std::uint64_t>(d) + 1) {
-    status = invalid_argument(path + ": " + std::to_string(slice.n) + " points given; a " + std::to_string(d) +
-                              "-d mesh needs at least " + std::to_string(d + 1));
-  } else if (slice.n > 0xFFFFFFF0u) {
-    status = invalid_argument(path + ": more than 2^32 - 16 points");
+  } else {
+    status = PointSet::check_count(slice.n, d, path);
   }
   if (!status.is_ok()) return status;  // the same on every rank
   const PointSet mine(d, std::vector<double>(slice.points.coords));

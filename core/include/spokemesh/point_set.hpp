@@ -66,6 +66,10 @@ class PointSet {
   // most d + 1. The hull of a union of parts is spanned by the union of the parts'
   // bases, which is how a distributed run checks full dimension.
   std::vector<std::uint32_t> affine_basis() const;
+  // INVALID_ARGUMENT unless n points of dimension d are enough for a mesh (d + 1) and
+  // few enough for 32-bit indices (validate's count check, for callers that hold a part
+  // of a set).
+  static Status check_count(std::uint64_t n, int d, const std::string& source);
   // INVALID_ARGUMENT unless the points span R^d (validate's last check).
   Status check_affine_span(const std::string& source) const;
 

@@ -65,6 +65,15 @@ bool equal_points(const double* a, const double* b, int d) {
 
 }  // namespace
 
+Status PointSet::check_count(std::uint64_t n, int d, const std::string& source) {
+  if (n < static_cast<std::uint64_t>(d) + 1) {
+    return invalid_argument(source + ": " + std::to_string(n) + " points given; a " + std::to_string(d) +
+                            "-d mesh needs at least " + std::to_string(d + 1));
+  }
+  if (n > 0xFFFFFFF0u) return invalid_argument(source + ": more than 2^32 - 16 points");
+  return Status::ok();
+}
+
 Status PointSet::validate(const std::string& source, int max_dimension, bool check_span) {
   const std::size_t n = size();
   if (d_ < 2 || d_ > max_dimension) {
@@ -85,12 +94,7 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
       }
     }
   }
-  if (n < static_cast<std::size_t>(d_) + 1) {
-    return invalid_argument(source + ": " + std::to_string(n) + " points given; a " +
-                            std::to_string(d_) + "-d mesh needs at least " +
-                            std::to_string(d_ + 1));
-  }
-  if (n > 0xFFFFFFF0u) return invalid_argument(source + ": more than 2^32 - 16 points");
+  if (Status count = check_count(n, d_, source); !count.is_ok()) return count;
 
   const std::vector<std::uint32_t> order = lex_order(*this);
   for (std::size_t k = 1; k < n; ++k) {
