@@ -435,19 +435,29 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       for (std::size_t i = 0; i < facet.size(); ++i) key[i] = local.global[facet[i]];
       return known_hull.count(key) != 0;
     };
-    auto certify = [&](const Star& star) {
-      const std::uint32_t k = own_of_local[star.seed];
-      const auto piece = static_cast<std::size_t>(local.piece_of[star.seed]);
-      std::vector<double> held(halo.held_box(piece).begin(), halo.held_box(piece).end());
+    // What a seed's certificate may count on: the boxes and balls fetched for it (every
+    // point inside them held), and the boxes that may hold points it does not have
+    // (none once its reach covers the whole set).
+    struct Regions {
+      std::vector<double> held;
+      std::span<const double> balls, unheld;
+    };
+    auto regions_of = [&](std::uint32_t k, std::uint32_t seed) {
+      Regions r;
+      const auto piece = static_cast<std::size_t>(local.piece_of[seed]);
+      r.held.assign(halo.held_box(piece).begin(), halo.held_box(piece).end());
       bool everything = false;
       if (const auto it = reach.find(k); it != reach.end()) {
-        held.insert(held.end(), it->second.begin(), it->second.end());
+        r.held.insert(r.held.end(), it->second.begin(), it->second.end());
         everything = covers_all(it->second);
       }
-      const std::vector<double> none;
-      const auto fetched = asked_balls.find(k);
-      return certifier.certify(star, held, fetched != asked_balls.end() ? fetched->second : none,
-                               everything ? none : unheld[piece], is_known);
+      if (const auto it = asked_balls.find(k); it != asked_balls.end()) r.balls = it->second;
+      if (!everything) r.unheld = unheld[piece];
+      return r;
+    };
+    auto certify = [&](const Star& star) {
+      const Regions r = regions_of(own_of_local[star.seed], star.seed);
+      return certifier.certify(star, r.held, r.balls, r.unheld, is_known);
     };
     // A cell is the whole set's when the points within the distance that decided it
     // are all held (then the whole set's builder takes the same points in the same
@@ -456,19 +466,10 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       StarCertificate c;
       c.certified = true;
       if (const double r2 = builder.last_reach2(); r2 > 0) {
-        const auto piece = static_cast<std::size_t>(local.piece_of[seed]);
-        std::vector<double> held(halo.held_box(piece).begin(), halo.held_box(piece).end());
-        bool everything = false;
-        if (const auto it = reach.find(k); it != reach.end()) {
-          held.insert(held.end(), it->second.begin(), it->second.end());
-          everything = covers_all(it->second);
-        }
-        const std::vector<double> none;
-        const auto fetched = asked_balls.find(k);
+        const Regions r = regions_of(k, seed);
         // (nanoflann's distances are within kDistanceMargin of the exact ones.)
         const double want = r2 * (1 + 4 * kDistanceMargin);
-        if (!everything && !certifier.ball_is_held(seed, want, held, fetched != asked_balls.end() ? fetched->second : none,
-                                                   unheld[piece])) {
+        if (!certifier.ball_is_held(seed, want, r.held, r.balls, r.unheld)) {
           c.certified = false;
           const double* x = points.point(seed);
           if (std::isfinite(want)) {

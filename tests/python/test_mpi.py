@@ -125,8 +125,8 @@ def test_mesh_is_byte_identical(reference, work, name, ranks):
     assert max(owned) / (n / ranks) <= 1.05, owned
 
 
-@pytest.mark.parametrize("name", ["3d-uniform-50k", "3d-linspace-grid-37", "2d-uniform-50k"])
-@pytest.mark.parametrize("ranks", [2, 7])
+@pytest.mark.parametrize("name", list(SETS))
+@pytest.mark.parametrize("ranks", RANKS)
 def test_graph_is_byte_identical(reference, work, name, ranks):
     path, _, graph, _ = reference[name]
     out = work / f"{name}-{ranks}.edges"
