@@ -266,3 +266,67 @@ TEST(StarCertifier, CertifiesOnlyTheWholeSetsStars) {
 
 }  // namespace
 }  // namespace spokemesh
+
+namespace spokemesh {
+namespace {
+
+using testing::grid_points;
+using testing::make_points;
+using testing::mesh_all;
+using testing::Simplices;
+using testing::uniform_points;
+
+// Incremental insertion equals the whole set meshed at once, byte for byte, chunk after
+// chunk: random points (2-d to 4-d, a chunk of one point among them) and a 3-d integer
+// grid (every sphere degenerate: the symbolic perturbation decides, as for the whole).
+TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
+  struct Case {
+    const char* name;
+    int d;
+    std::vector<double> coords;
+    std::vector<std::uint32_t> sizes;  // the set after each chunk
+  };
+  const std::vector<Case> cases = {
+      {"2-d uniform, seed 61", 2, uniform_points(2, 3000, 61), {2000, 2001, 2030, 2600, 3000}},
+      {"3-d uniform, seed 62", 3, uniform_points(3, 3000, 62), {1000, 1010, 3000}},
+      {"3-d integer grid 12^3", 3, grid_points(3, 12), {500, 1000, 1728}},
+      {"4-d uniform, seed 64", 4, uniform_points(4, 600, 64), {300, 301, 600}},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const auto w = static_cast<std::size_t>(c.d + 1);
+    Simplices rows;
+    {
+      const PointSet first = make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[0] * c.d));
+      const KdTree tree(first);
+      rows = mesh_all(tree, 2);
+    }
+    for (std::size_t k = 1; k < c.sizes.size(); ++k) {
+      SCOPED_TRACE(std::to_string(c.sizes[k - 1]) + " -> " + std::to_string(c.sizes[k]) + " points");
+      const PointSet now = make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[k] * c.d));
+      const KdTree tree(now);
+      const SpaceSplit split(now, SpaceSplit::default_block_points(c.d, now.size()));
+      MeshOptions options;
+      options.threads = 2;
+      options.star.random_seed = 0x5eed;
+      std::vector<std::uint32_t> out;
+      auto stats = insert_points(tree, split, c.sizes[k - 1], rows, options, out);
+      ASSERT_TRUE(stats.is_ok()) << stats.status().message();
+      const Simplices whole = mesh_all(tree, 2);
+      ASSERT_EQ(out.size(), whole.size());
+      EXPECT_TRUE(out == whole) << "the rows differ from the whole set's";
+      // Only the stars that change were computed: the new points' and some of the old
+      // (a small chunk leaves most stars alone; a large one may touch every old point).
+      EXPECT_LE(stats.value().stars, now.size());
+      if (c.sizes[k] - c.sizes[k - 1] <= c.sizes[k - 1] / 10) {
+        EXPECT_LT(stats.value().stars, now.size() / 2);
+        EXPECT_GT(stats.value().rows_kept, out.size() / w / 2);
+      }
+      EXPECT_EQ(out.size() % w, 0u);
+      rows = std::move(out);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace spokemesh

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import threading
 
+import pickle
+
 import numpy as np
 import pytest
 import spokemesh
@@ -143,8 +145,11 @@ def test_star_neighbors_cells_and_concurrent_use():
 
 
 def test_bad_input_raises_value_error_naming_the_index():
+    # Equal points are merged as scipy does (coplanar), but have no cells of their own.
+    dup = spokemesh.Delaunay(np.array([[0, 0], [1, 0], [0, 1], [1, 0.0], [1, 1]]))
+    assert dup.coplanar[:, 0].tolist() == [3] and dup.coplanar[0, 2] == 1
     with pytest.raises(ValueError, match="points 1 and 3 are equal"):
-        spokemesh.Delaunay(np.array([[0, 0], [1, 0], [0, 1], [1, 0.0]]))
+        dup.cells()
     p = uniform(10, 2, 1)
     p[4, 1] = np.nan
     with pytest.raises(ValueError, match="point 4, coordinate 1"):
@@ -178,3 +183,45 @@ def test_approximate_graph_is_certified_deterministic_and_flags_complete_walks()
     # High dimensions, beyond the exact limit.
     high = spokemesh.approximate_graph(uniform(300, 12, seed=10), misses=20)
     assert high.indptr.shape == (301,) and high.indptr[-1] > 300
+
+
+def test_incremental_insertion_equals_the_whole_set_and_computes_only_what_changes():
+    # scipy's incremental API on the engine's insertion (insert_points): the same
+    # simplices, in the same order, as the whole set at once; duplicates merged alike.
+    pts = uniform(20_000, 3, 41)
+    pts = np.concatenate([pts, pts[:50]])  # 50 equal to earlier points
+    inc = spokemesh.Delaunay(pts[:15_000], incremental=True, threads=2)
+    for a, b in ((15_000, 15_100), (15_100, 19_000), (19_000, len(pts))):
+        inc.add_points(pts[a:b])
+    whole = spokemesh.Delaunay(pts, threads=2)
+    assert np.array_equal(inc.simplices, whole.simplices)
+    assert np.array_equal(inc.coplanar, whole.coplanar) and len(whole.coplanar) == 50
+    # 100 points into 15,000: their stars and their neighbours' only.
+    small = spokemesh.Delaunay(pts[:15_000], incremental=True)
+    small.add_points(pts[15_000:15_100])
+    assert small._tri.stars_computed < 2_000
+    inc.close()
+    with pytest.raises(RuntimeError, match="incremental"):
+        inc.add_points(pts[:1])
+    with pytest.raises(RuntimeError, match="incremental"):
+        whole.add_points(pts[:1])
+
+
+def test_qhull_options_pickling_and_lifted_planes():
+    pts = uniform(200, 2, 42)
+    twice = np.concatenate([pts, pts])
+    joggled = spokemesh.Delaunay(twice, qhull_options="QJ Qbb Pp")
+    assert np.array_equal(np.unique(joggled.simplices), np.arange(400))  # every point a vertex
+    with pytest.raises(ValueError, match="'Qfoo' is not an option"):
+        spokemesh.Delaunay(pts, qhull_options="Qt Qfoo")
+    tri = spokemesh.Delaunay(pts)
+    again = pickle.loads(pickle.dumps(tri))
+    assert np.array_equal(again.simplices, tri.simplices)
+    # Each lifted vertex lies on its simplex's plane; the lifted points lie above every plane
+    # (the normals point down, scipy's convention: distances <= 0).
+    d = tri.plane_distance(pts)
+    rows = np.arange(tri.nsimplex)[:, None]
+    assert np.abs(d.T[rows, tri.simplices]).max() < 1e-12
+    assert d.max() < 1e-12
+    with pytest.warns(DeprecationWarning):
+        assert tri.vertices is tri.simplices

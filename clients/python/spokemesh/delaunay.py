@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
@@ -25,6 +26,47 @@ from . import _core
 from .types import Cell, Facet
 
 __all__ = ["Delaunay", "ApproximateGraph", "approximate_graph"]
+
+
+# Qhull's options that scipy users pass to Delaunay, and why none changes an exact
+# triangulation: Qt/QJ ask Qhull to triangulate or joggle degenerate facets (ours are
+# resolved by symbolic perturbation), Qbb/QbB/Qz/Qx/Q12 tune Qhull's floating-point
+# arithmetic, Qc/Qi keep coplanar or interior points (duplicates are refused here),
+# Pp silences precision warnings. They are accepted and have no effect.
+_IGNORED_QHULL_OPTIONS = {"Qt", "QJ", "Qbb", "QbB", "Qz", "Qx", "Q12", "Qc", "Qi", "Pp"}
+
+
+def _check_qhull_options(options) -> bool:
+    """Whether the options ask for QJ (then duplicates are joggled apart, as Qhull's
+    joggle makes every input point a vertex); unknown options raise ValueError."""
+    if options is None:
+        return False
+    text = options.decode() if isinstance(options, bytes) else str(options)
+    joggle = False
+    for word in text.split():
+        if word not in _IGNORED_QHULL_OPTIONS and not word.startswith("QJ"):
+            raise ValueError(f"qhull_options: '{word}' is not an option spokemesh accepts "
+                             f"(accepted and ignored: {' '.join(sorted(_IGNORED_QHULL_OPTIONS))})")
+        joggle = joggle or word.startswith("QJ")
+    return joggle
+
+
+def _joggled(points: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """The points with each one equal to an earlier one moved by about 1e-10 of its own
+    magnitude in a direction drawn from its index (so a whole build and an incremental
+    one move it alike), until no two points are equal."""
+    out = points.copy()
+    for j in np.flatnonzero(first != np.arange(len(points))):
+        rng = np.random.default_rng([0x5EED, int(j)])
+        scale = 1e-10 * max(float(np.abs(points[j]).max()), 1e-300)
+        out[j] = points[j] + scale * rng.uniform(-1.0, 1.0, points.shape[1])
+    if len(np.unique(out, axis=0)) != len(out):
+        raise ValueError("qhull_options QJ: could not joggle the equal points apart")
+    return out
+
+
+def _rebuild(points, incremental, qhull_options, threads):
+    return Delaunay(points, incremental=incremental, qhull_options=qhull_options, threads=threads)
 
 
 def _cell(c: dict) -> Cell:
@@ -39,31 +81,180 @@ def _cell(c: dict) -> Cell:
 class Delaunay:
     """The exact Delaunay triangulation of `points` ((n, d) array, 2 <= d <= 8).
 
-    Parameters: points (array_like, converted once to C-ordered float64); threads
-    (worker threads; None: all cores). The mesh is the same for any thread count.
-    Raises ValueError for bad input (NaN, duplicates, fewer than d + 1 points, points
-    in a lower-dimensional subspace), naming the index.
+    Parameters: points (array_like, converted once to C-ordered float64); incremental
+    (allow add_points, as scipy's); qhull_options (scipy's string of Qhull options:
+    accepted and ignored, since an exact triangulation needs none of them; unknown
+    options raise ValueError); threads (worker threads; None: all cores). The mesh is
+    the same for any thread count.
+    Raises ValueError for bad input (NaN, fewer than d + 1 points, points in a
+    lower-dimensional subspace), naming the index. Equal points are merged into their
+    first occurrence and listed in `coplanar`, as scipy does (with QJ in qhull_options
+    they are moved apart by about 1e-10 of their magnitude instead, so that every
+    point is a vertex, as Qhull's joggle does).
 
     Attributes, as scipy.spatial.Delaunay's: points, ndim, npoints, nsimplex,
-    simplices, neighbors, vertex_neighbor_vertices, convex_hull, transform; methods
-    find_simplex(xi). Beyond scipy: star(i), neighbors_of(i), cell(i, box, halfspaces),
+    simplices, neighbors, vertex_neighbor_vertices, vertex_to_simplex, convex_hull,
+    coplanar, transform (NaN rows for simplices too flat for it), equations,
+    paraboloid_scale, paraboloid_shift, min_bound, max_bound, vertices (deprecated);
+    methods find_simplex(xi, bruteforce, tol), lift_points(x), plane_distance(xi),
+    add_points(points, restart), close(); pickling. The rows' order is the sweep's,
+    not Qhull's (scipy leaves it unspecified). Beyond scipy: star(i), neighbors_of(i), cell(i, box, halfspaces),
     cells(box, halfspaces).
 
     Thread safety: immutable after construction; methods may be called from several
     threads (each releases the GIL while it works).
     """
 
-    def __init__(self, points: np.ndarray, threads: Optional[int] = None):
-        self.points: np.ndarray = np.ascontiguousarray(points, dtype=np.float64)
-        if self.points.ndim != 2:
-            raise ValueError(f"points: expected an (n, d) array, got shape {self.points.shape}")
-        self._tri = _core.Triangulation(self.points, threads)
+    def __init__(self, points: np.ndarray, incremental: bool = False, qhull_options: Optional[str] = None,
+                 threads: Optional[int] = None):
+        if np.ma.isMaskedArray(points):
+            raise ValueError("Input points cannot be a masked array")
+        self._joggle = _check_qhull_options(qhull_options)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2:
+            raise ValueError(f"points: expected an (n, d) array, got shape {pts.shape}")
+        self._incremental = bool(incremental)
+        self._threads = threads
+        #: Paraboloid of the lifted points (scipy's lift_points): z = scale |x|^2 + shift.
+        self.paraboloid_scale: float = 1.0
+        self.paraboloid_shift: float = 0.0
+        self._set(*self._triangulate(pts), pts)
+
+    def _triangulate(self, pts: np.ndarray):
+        """The core triangulation of pts and the first occurrence of each point (None
+        when no two points are equal). Equal points are merged (the first kept; scipy's
+        `coplanar` reports the others) or, with QJ, joggled apart."""
+        try:
+            return _core.Triangulation(pts, self._threads), None
+        except _core.DuplicatePointsError:
+            first = _core.first_occurrences(pts)
+            if self._joggle:
+                return _core.Triangulation(_joggled(pts, first), self._threads), None
+            return _core.Triangulation(pts[first == np.arange(len(pts))], self._threads), first
+
+    def _set(self, tri, first: Optional[np.ndarray], points: np.ndarray) -> None:
+        self._tri = tri
+        self._first = first
+        self.points: np.ndarray = points
         self.ndim: int = self.points.shape[1]
         self.npoints: int = self.points.shape[0]
         #: (nsimplex, ndim + 1) int32: vertex indices, each simplex positively oriented
         #: (det[p1 - p0, ..., pd - p0] > 0), rows in sweep order (docs/algorithm.md), the same for any thread count.
         self.simplices: np.ndarray = self._tri.simplices()
+        if first is not None:
+            self._kept = np.flatnonzero(first == np.arange(len(first)))  # the triangulated points
+            self.simplices = self._kept[self.simplices].astype(np.int32)
         self.nsimplex: int = self.simplices.shape[0]
+        #: The box of the points (scipy's min_bound, max_bound).
+        self.min_bound: np.ndarray = self.points.min(axis=0)
+        self.max_bound: np.ndarray = self.points.max(axis=0)
+        for cached in ("neighbors", "vertex_neighbor_vertices", "convex_hull", "transform", "equations",
+                       "vertex_to_simplex", "coplanar"):
+            self.__dict__.pop(cached, None)
+
+    def add_points(self, points: np.ndarray, restart: bool = False) -> None:
+        """Append points (shape (k, ndim)) to a triangulation made with incremental=True.
+
+        The result is the triangulation of all the points, the same simplices in the same
+        order as `Delaunay` of them at once. restart=False computes only the stars the
+        new points change (the new points' and their old neighbours'); restart=True
+        triangulates everything again. Raises RuntimeError when the triangulation was
+        not made incremental or was closed, ValueError for bad points (named by their
+        index in the whole set)."""
+        if not self._incremental:
+            raise RuntimeError("add_points: this triangulation was not made with incremental=True, or was closed")
+        more = np.ascontiguousarray(points, dtype=np.float64)
+        if more.ndim != 2 or more.shape[1] != self.ndim:
+            raise ValueError(f"points: expected shape (k, {self.ndim}), got {more.shape}")
+        everything = np.concatenate([self.points, more], axis=0)
+        if restart:
+            self._set(*self._triangulate(everything), everything)
+            return
+        n_old = self.npoints
+        if self._first is None:
+            try:
+                self._set(self._tri.inserted(more), None, everything)
+                return
+            except _core.DuplicatePointsError:
+                pass
+        # Equal points: each new point equal to an earlier one is merged into it (or,
+        # with QJ, moved apart by its own index, as a whole build moves it).
+        every_first = _core.first_occurrences(everything)
+        first = None
+        if self._joggle:
+            new = _joggled(everything, every_first)[n_old:]
+        else:
+            first = every_first
+            new = more[every_first[n_old:] == np.arange(n_old, len(everything))]
+        self._set(self._tri.inserted(new) if len(new) else self._tri, first, everything)
+
+    def close(self) -> None:
+        """Ends incremental mode: add_points raises RuntimeError from now on."""
+        self._incremental = False
+
+    def __reduce__(self):
+        # The triangulation is a function of the points: pickling keeps them and the
+        # mode, and unpickling triangulates again (the same simplices, the same order).
+        return (_rebuild, (self.points, self._incremental, "QJ" if self._joggle else None, self._threads))
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """Deprecated alias of simplices (as in scipy 1.10)."""
+        warnings.warn("Delaunay attribute 'vertices' is deprecated in favour of 'simplices' and will be removed "
+                      "in Scipy 1.11.0.", DeprecationWarning, stacklevel=2)
+        return self.simplices
+
+    @functools.cached_property
+    def coplanar(self) -> np.ndarray:
+        """(k, 3) int32, scipy's: points that are not vertices (here: points equal to an
+        earlier one), each with a simplex containing its twin and the twin's index."""
+        if self._first is None:
+            return np.zeros((0, 3), dtype=np.int32)
+        dup = np.flatnonzero(self._first != np.arange(self.npoints))
+        twin = self._first[dup]
+        return np.stack([dup, self.vertex_to_simplex[twin], twin], axis=1).astype(np.int32)
+
+    @functools.cached_property
+    def vertex_to_simplex(self) -> np.ndarray:
+        """(npoints,) int32: a simplex each point is a vertex of (a merged duplicate:
+        its twin's)."""
+        out = np.full(self.npoints, -1, dtype=np.int32)
+        out[self.simplices.ravel()] = np.repeat(np.arange(self.nsimplex, dtype=np.int32), self.ndim + 1)
+        if self._first is not None:
+            out = out[self._first]
+        return out
+
+    def lift_points(self, x: np.ndarray) -> np.ndarray:
+        """Points lifted onto the paraboloid: (..., ndim + 1), the last coordinate
+        paraboloid_scale |x|^2 + paraboloid_shift (scipy's)."""
+        x = np.asarray(x, dtype=np.float64)
+        z = self.paraboloid_scale * np.sum(x * x, axis=-1, keepdims=True) + self.paraboloid_shift
+        return np.concatenate([x, z], axis=-1)
+
+    @functools.cached_property
+    def equations(self) -> np.ndarray:
+        """(nsimplex, ndim + 2): each simplex's hyperplane through its lifted vertices,
+        unit normal (last component negative: the lower hull) and offset, as scipy's."""
+        lifted = self.lift_points(self.points[self.simplices])           # (m, d + 1, d + 1)
+        base = lifted[:, -1, :]
+        edges = lifted[:, :-1, :] - base[:, None, :]                     # (m, d, d + 1)
+        d1 = self.ndim + 1
+        # The normal: the cofactors of the edge matrix (a generalised cross product).
+        normal = np.empty((self.nsimplex, d1))
+        for k in range(d1):
+            minor = np.delete(edges, k, axis=2)
+            normal[:, k] = (-1) ** k * np.linalg.det(minor)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        normal *= -np.sign(normal[:, -1:])
+        offset = -np.einsum("ij,ij->i", normal, base)
+        return np.concatenate([normal, offset[:, None]], axis=1)
+
+    def plane_distance(self, xi: np.ndarray) -> np.ndarray:
+        """(..., nsimplex): the signed distance of each lifted point of xi to each
+        simplex's hyperplane in the lifted space (scipy's)."""
+        z = self.lift_points(np.asarray(xi, dtype=np.float64))
+        eq = self.equations
+        return z @ eq[:, :-1].T + eq[:, -1]
 
     @functools.cached_property
     def neighbors(self) -> np.ndarray:
@@ -94,27 +285,59 @@ class Delaunay:
     @functools.cached_property
     def transform(self) -> np.ndarray:
         """(nsimplex, ndim + 1, ndim): scipy's affine maps to barycentric coordinates:
-        c = T[:ndim] @ (x - T[ndim]) gives the first ndim of them, the last is 1 - sum(c)."""
+        c = T[:ndim] @ (x - T[ndim]) gives the first ndim of them, the last is 1 - sum(c).
+        A simplex too flat for them to mean anything in floating point (reciprocal
+        condition number in the 1-norm below 100 eps; scipy's rule with LAPACK's
+        estimate) gets NaN rows, as scipy's do."""
         v = self.points[self.simplices]
         r = v[:, -1, :]
-        t = np.linalg.inv(np.transpose(v[:, :-1, :] - r[:, None, :], (0, 2, 1)))
-        return np.concatenate([t, r[:, None, :]], axis=1)
+        a = np.transpose(v[:, :-1, :] - r[:, None, :], (0, 2, 1))
+        with np.errstate(all="ignore"):
+            # Exactly singular rows cannot be inverted: replaced by the identity first
+            # (their rows become NaN below).
+            singular = np.linalg.matrix_rank(a) < self.ndim if len(a) else np.zeros(0, dtype=bool)
+            a_safe = np.where(singular[:, None, None], np.eye(self.ndim), a)
+            t = np.linalg.inv(a_safe)
+            rcond = 1.0 / (np.abs(a).sum(axis=1).max(axis=1) * np.abs(t).sum(axis=1).max(axis=1))
+        bad = singular | ~(rcond >= 100 * np.finfo(np.float64).eps)
+        t[bad] = np.nan
+        out = np.concatenate([t, r[:, None, :]], axis=1)
+        out[bad, -1, :] = np.nan
+        return out
 
-    def find_simplex(self, xi: np.ndarray) -> np.ndarray:
+    def find_simplex(self, xi: np.ndarray, bruteforce: bool = False, tol: Optional[float] = None) -> np.ndarray:
         """The simplex containing each point of xi (shape (..., ndim)), -1 outside the
         hull; decided by exact orientation tests (a point on a shared face gets one of
-        its simplices)."""
+        its simplices). bruteforce and tol are scipy's and have no effect: the walk is
+        exact, so no point needs a tolerance or a second, exhaustive search."""
         q = np.ascontiguousarray(xi, dtype=np.float64)
         flat = q.reshape(-1, self.ndim)
         return self._tri.find_simplex(flat).reshape(q.shape[:-1])
 
+    def _vertex(self, i: int) -> int:
+        """The core's index of point i (equal points: their first occurrence's)."""
+        i = int(i)
+        if self._first is None:
+            return i
+        if not 0 <= i < self.npoints:
+            raise ValueError(f"point {i} is not one of the {self.npoints} points")
+        return int(np.searchsorted(self._kept, self._first[i]))
+
+    def _no_merged_points(self, what: str) -> None:
+        if self._first is not None:
+            dup = int(np.flatnonzero(self._first != np.arange(self.npoints))[0])
+            raise ValueError(f"{what}: points {int(self._first[dup])} and {dup} are equal, and equal points share "
+                             "one cell; remove duplicates first")
+
     def star(self, i: int) -> np.ndarray:
         """(k, ndim + 1) uint32: the simplices incident to vertex i (its Delaunay star)."""
-        return self._tri.star(int(i))
+        out = self._tri.star(self._vertex(i))
+        return out if self._first is None else self._kept[out].astype(np.uint32)
 
     def neighbors_of(self, i: int) -> np.ndarray:
         """uint32, ascending: the Delaunay neighbours of vertex i."""
-        return self._tri.neighbors_of(int(i))
+        out = self._tri.neighbors_of(self._vertex(i))
+        return out if self._first is None else self._kept[out].astype(np.uint32)
 
     def cell(self, i: int, box: Optional[Sequence[float]] = None,
              halfspaces: Optional[np.ndarray] = None) -> Cell:
@@ -122,6 +345,7 @@ class Delaunay:
         halfspaces ((m, ndim + 1) rows a, b with a.x <= b) when given, with its measures
         (docs/cells.md). Unbounded: volume inf, centroid None. A seed outside the domain
         raises ValueError."""
+        self._no_merged_points("cell")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
         return _cell(self._tri.cell(int(i), b, h))
@@ -132,6 +356,7 @@ class Delaunay:
         centroid (n, d), bounded (n,), facet_ptr (n + 1,), facet_neighbor (m,) (the
         neighbour, or -1 - k for wall k), facet_area (m,), facet_normal (m, d). Clipped
         to box or halfspaces, by default to the points' bounding box."""
+        self._no_merged_points("cells")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
         return self._tri.cells(b, h, True)

@@ -39,7 +39,15 @@ namespace {
 
 using Points = py::array_t<double, py::array::c_style | py::array::forcecast>;
 
+// _core.DuplicatePointsError (a ValueError): equal points, which spokemesh.Delaunay
+// merges and reports as scipy's `coplanar` points.
+PyObject* duplicate_points_error = nullptr;
+
 [[noreturn]] void raise(const Status& s) {
+  if (s.reason() == "DUPLICATE_POINTS" && duplicate_points_error != nullptr) {
+    PyErr_SetString(duplicate_points_error, s.message().c_str());
+    throw py::error_already_set();
+  }
   if (s.code() == Code::kInvalidArgument || s.code() == Code::kOutOfRange) throw py::value_error(s.message());
   throw std::runtime_error(s.message());
 }
@@ -199,8 +207,41 @@ class Triangulation {
     }
   }
 
+  // The triangulation of parent's points followed by `more`, from parent's mesh: only
+  // the stars that change are computed (insert_points), and the simplices are those,
+  // in the same order, that the whole set's triangulation has.
+  Triangulation(const Triangulation& parent, const Points& more)
+      : d_(parent.d_), threads_(parent.threads_) {
+    if (more.ndim() != 2 || more.shape(1) != parent.d_) {
+      throw py::value_error("points: expected shape (k, " + std::to_string(parent.d_) + ")");
+    }
+    const auto k = static_cast<std::size_t>(more.shape(0));
+    std::vector<double> coords(parent.points_.coordinates().begin(), parent.points_.coordinates().end());
+    coords.insert(coords.end(), more.data(), more.data() + k * static_cast<std::size_t>(d_));
+    points_ = PointSet(d_, std::move(coords));
+    if (const Status s = points_.validate("points"); !s.is_ok()) raise(s);
+    if (k == 0) {
+      tree_ = std::make_unique<KdTree>(points_);
+      simplices_ = parent.simplices_;
+      return;
+    }
+    py::gil_scoped_release release;
+    const auto n_old = static_cast<std::uint32_t>(parent.points_.size());
+    auto split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size()));
+    tree_ = std::make_unique<KdTree>(points_);
+    MeshOptions options;
+    options.threads = threads_;
+    auto stats = insert_points(*tree_, *split, n_old, parent.simplices_, options, simplices_);
+    if (!stats.is_ok()) {
+      py::gil_scoped_acquire acquire;
+      raise(stats.status());
+    }
+    stars_computed_ = stats.value().stars;
+  }
+
   int dimension() const { return d_; }
   std::size_t npoints() const { return points_.size(); }
+  std::uint64_t stars_computed() const { return stars_computed_; }
   std::size_t nsimplices() const { return simplices_.size() / (d_ + 1); }
 
   py::array_t<std::int32_t> simplices() const {
@@ -409,6 +450,7 @@ class Triangulation {
   unsigned threads_;
   std::unique_ptr<KdTree> tree_;
   std::vector<std::uint32_t> simplices_;
+  std::uint64_t stars_computed_ = 0;  // by the insertion that made it (0 when built at once)
   mutable std::once_flag adjacency_once_;
   mutable std::vector<std::int32_t> adjacency_;
   mutable std::vector<std::int32_t> first_simplex_;
@@ -483,8 +525,36 @@ py::tuple approximate_graph(const Points& array, std::uint32_t misses, std::uint
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "spokemesh's exact Delaunay/Voronoi core, in-process (see spokemesh.Delaunay)";
+  static py::exception<std::runtime_error> duplicates(m, "DuplicatePointsError", PyExc_ValueError);
+  duplicate_points_error = duplicates.ptr();
+  // Each point's first occurrence (an index into points): points equal to an earlier
+  // one map to it, the others to themselves.
+  m.def(
+      "first_occurrences",
+      [](const Points& array) {
+        if (array.ndim() != 2) throw py::value_error("points: expected a 2-d array of shape (n, d)");
+        const auto n = static_cast<std::size_t>(array.shape(0));
+        const int d = static_cast<int>(array.shape(1));
+        std::vector<std::int64_t> first(n);
+        {
+          py::gil_scoped_release release;
+          PointSet ps(d, std::vector<double>(array.data(), array.data() + n * static_cast<std::size_t>(d)));
+          const std::vector<std::uint32_t> to_reduced = ps.merge_duplicates();
+          std::vector<std::int64_t> original(ps.size(), -1);
+          for (std::size_t i = 0; i < n; ++i) {
+            std::int64_t& o = original[to_reduced[i]];
+            if (o < 0) o = static_cast<std::int64_t>(i);
+            first[i] = o;
+          }
+        }
+        return owned(std::move(first), {static_cast<py::ssize_t>(n)});
+      },
+      py::arg("points"));
   py::class_<Triangulation>(m, "Triangulation")
       .def(py::init<const Points&, std::optional<unsigned>>(), py::arg("points"), py::arg("threads") = py::none())
+      .def("inserted", [](const Triangulation& self, const Points& more) { return std::make_unique<Triangulation>(self, more); },
+           py::arg("points"), "The triangulation with `points` appended (only the stars that change are computed)")
+      .def_property_readonly("stars_computed", &Triangulation::stars_computed)
       .def_property_readonly("dimension", &Triangulation::dimension)
       .def_property_readonly("npoints", &Triangulation::npoints)
       .def_property_readonly("nsimplices", &Triangulation::nsimplices)

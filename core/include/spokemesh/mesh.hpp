@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <functional>
 #include <span>
+#include <vector>
 
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/space_split.hpp"
@@ -83,5 +84,27 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 
 // The simplices owned by `seed` within its star (a suffix of star.simplices).
 std::span<const std::uint32_t> owned_simplices(const Star& star);
+
+// Incremental insertion: the mesh of the tree's points [0, n) from the mesh of its
+// first n_old points, recomputing only the stars that change. Those are the new
+// points' and their old neighbours': an old point none of whose Delaunay neighbours is
+// new keeps its star (its simplices, all of old points, are Delaunay in the new set as
+// in the old, and cover a neighbourhood of the point as its old star does), and so its
+// owned rows; every other row is taken from a star computed in the whole set. The rows
+// come out in the sweep order of `split` (the SpaceSplit of all n points), so `out` is
+// byte for byte what mesh_seeds writes for the whole set.
+//
+// old_rows: mesh_seeds' output for the first n_old points (any sweep order: rows are
+// regrouped by owner, and an owner's rows are consecutive and lexicographic in every
+// sweep). options: threads and star options (seed and sweep ranges, split, accept and
+// the facet cache are not used). Errors: INVALID_ARGUMENT when n_old is not below n or
+// the rows name a point >= n_old; CANCELLED.
+struct InsertStats {
+  std::uint64_t stars = 0;          // stars computed (new points and old neighbours)
+  std::uint64_t rows_kept = 0;      // rows taken from old_rows
+};
+Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
+                                  std::span<const std::uint32_t> old_rows, const MeshOptions& options,
+                                  std::vector<std::uint32_t>& out);
 
 }  // namespace spokemesh
