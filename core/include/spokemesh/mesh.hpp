@@ -92,7 +92,9 @@ std::span<const std::uint32_t> owned_simplices(const Star& star);
 // in the old, and cover a neighbourhood of the point as its old star does), and so its
 // owned rows; every other row is taken from a star computed in the whole set. The rows
 // come out in the sweep order of `split` (the SpaceSplit of all n points), so `out` is
-// byte for byte what mesh_seeds writes for the whole set.
+// byte for byte what mesh_seeds writes for the whole set. When the new points would
+// change more than about a third of the stars, the whole set is swept instead
+// (mesh_seeds: its stars share their wraps), which is then faster.
 //
 // old_rows: mesh_seeds' output for the first n_old points (any sweep order: rows are
 // regrouped by owner, and an owner's rows are consecutive and lexicographic in every
@@ -102,6 +104,7 @@ std::span<const std::uint32_t> owned_simplices(const Star& star);
 struct InsertStats {
   std::uint64_t stars = 0;          // stars computed (new points and old neighbours)
   std::uint64_t rows_kept = 0;      // rows taken from old_rows
+  bool whole = false;               // so many points were new that the whole set was swept
 };
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options,

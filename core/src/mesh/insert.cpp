@@ -70,6 +70,29 @@ Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, s
     if (row_count[owner]++ == 0) first_row[owner] = r;
   }
 
+  // Many new points change most stars: then the whole sweep, whose stars share their
+  // wraps, is faster than stars one by one (3-d 1M on 2 threads: adding 10% star by
+  // star took 1.8x the whole mesh's time). The estimate: each new point changes the
+  // stars of its neighbours, about 6 in 2-d, 15 in 3-d, more above.
+  const std::uint64_t n_new = n - n_old;
+  const int d = points.dimension();
+  const std::uint64_t degree = d == 2 ? 6 : d == 3 ? 15 : std::uint64_t{3} << d;
+  if (n_new * (1 + degree) > n / 3) {
+    MeshOptions whole;
+    whole.threads = options.threads;
+    whole.star = options.star;
+    whole.split = &split;
+    out.clear();
+    auto run = mesh_seeds(tree, whole, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+      out.insert(out.end(), block.begin(), block.end());
+      return Status::ok();
+    });
+    if (!run.is_ok()) return run.status();
+    InsertStats stats;
+    stats.stars = n;
+    stats.whole = true;
+    return stats;
+  }
   // The new points' stars (every simplex: their vertices are the old points whose
   // stars change), then the changed old points' owned parts.
   std::vector<std::uint32_t> seeds;
