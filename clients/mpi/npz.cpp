@@ -21,6 +21,19 @@ void put64(std::string& s, std::uint64_t v) {
 }
 std::uint32_t low32(std::uint64_t v, bool saturate) { return saturate ? static_cast<std::uint32_t>(k32) : static_cast<std::uint32_t>(v); }
 
+// The fields a local header and a central entry share, from "version needed" to the
+// uncompressed size: no flags, stored, the fixed time stamp, the CRC and the sizes.
+void put_entry(std::string& s, std::uint16_t needed, const ZipMember& m, bool big) {
+  put16(s, needed);
+  put16(s, 0);  // flags
+  put16(s, 0);  // stored
+  put16(s, 0);  // time 00:00
+  put16(s, kDosDate);
+  put32(s, m.crc);
+  put32(s, low32(m.size, big));
+  put32(s, low32(m.size, big));
+}
+
 }  // namespace
 
 std::uint64_t zip_local_header_size(const std::string& name, std::uint64_t size) {
@@ -31,14 +44,7 @@ std::string zip_local_header(const ZipMember& m) {
   const bool big = m.size > k32;
   std::string s;
   put32(s, 0x04034B50);
-  put16(s, big ? 45 : 10);
-  put16(s, 0);  // flags
-  put16(s, 0);  // stored
-  put16(s, 0);
-  put16(s, kDosDate);
-  put32(s, m.crc);
-  put32(s, low32(m.size, big));
-  put32(s, low32(m.size, big));
+  put_entry(s, big ? 45 : 10, m, big);
   put16(s, static_cast<std::uint16_t>(m.name.size()));
   put16(s, big ? 20 : 0);
   s += m.name;
@@ -58,14 +64,7 @@ std::string zip_central_directory(const std::vector<ZipMember>& members, std::ui
     const std::uint16_t extra = static_cast<std::uint16_t>((big || far ? 4 : 0) + (big ? 16 : 0) + (far ? 8 : 0));
     put32(s, 0x02014B50);
     put16(s, kMadeBy);
-    put16(s, big || far ? 45 : 10);
-    put16(s, 0);
-    put16(s, 0);
-    put16(s, 0);
-    put16(s, kDosDate);
-    put32(s, m.crc);
-    put32(s, low32(m.size, big));
-    put32(s, low32(m.size, big));
+    put_entry(s, big || far ? 45 : 10, m, big);
     put16(s, static_cast<std::uint16_t>(m.name.size()));
     put16(s, extra);
     put16(s, 0);  // comment
