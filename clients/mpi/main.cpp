@@ -43,6 +43,7 @@
 #include "comm.hpp"
 #include "halo.hpp"
 #include "output.hpp"
+#include "mesh_output.hpp"
 #include "cell_output.hpp"
 #include "split.hpp"
 #include "spokemesh/cells.hpp"
@@ -254,13 +255,13 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       usage = invalid_argument(w.output + ": unknown cell format (spokemesh-mpi writes .npz)");
     }
   } else {
-    auto format = MeshWriter::format_for(w.output, 3);
-    if (usage.is_ok() && format.is_ok() && format.value() != MeshWriter::Format::kText &&
-        format.value() != MeshWriter::Format::kNpy) {
-      usage = invalid_argument(w.output + ": spokemesh-mpi writes text (.simplices, .txt, .edges) and .npy; write "
-                               ".vtu, .msh and .svg on one process with spokemesh");
-    } else if (usage.is_ok() && !format.is_ok()) {
+    // (The dimension is not known yet: .svg is checked against it once read.)
+    auto format = MeshWriter::format_for(w.output, 2);
+    if (usage.is_ok() && !format.is_ok()) {
       usage = format.status();
+    } else if (usage.is_ok() && job == Job::kGraph && format.value() != MeshWriter::Format::kText &&
+               format.value() != MeshWriter::Format::kNpy) {
+      usage = invalid_argument(w.output + ": graphs are written as text (.edges, .txt) or .npy");
     }
   }
   if (usage.is_ok() && comm.rank == 0) usage = check_not_input(input, w.output);
@@ -283,6 +284,16 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   Slice slice = std::move(slice_or).value();
   if (Status s = check_set(comm, slice, input); !s.is_ok()) return report_all(s);
   const int d = slice.points.d;
+  // .vtu, .msh and .svg list the points in index order: this rank keeps its slice's.
+  MeshWriter::Format mesh_format = MeshWriter::Format::kText;
+  if (job == Job::kMesh) {
+    auto format = MeshWriter::format_for(w.output, d);
+    if (Status s = comm.agree(format.status()); !s.is_ok()) return report_all(s);
+    mesh_format = format.value();
+  }
+  const bool sections = mesh_format == MeshWriter::Format::kVtu || mesh_format == MeshWriter::Format::kMsh ||
+                        mesh_format == MeshWriter::Format::kSvg;
+  const std::vector<double> slice_coords = sections ? slice.points.coords : std::vector<double>();
   const auto dd = static_cast<std::size_t>(d);
   const std::uint64_t n = slice.n;
   std::pair<std::uint32_t, std::uint32_t> seed_range{0, static_cast<std::uint32_t>(n)};
@@ -790,48 +801,59 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     }
 
     note_peak(comm, "rounds done");
-    // The file: the CLI's bytes, sized in a first pass over the rows and written in a
-    // second, a few MB at a time.
+    // The file: the CLI's bytes. .vtu, .msh and .svg section by section; text and .npy
+    // sized in a first pass over the rows and written in a second, a few MB at a time.
     total_rows = comm.allreduce<std::uint64_t>(my_rows, MPI_SUM);
-    auto format = MeshWriter::format_for(w.output, d);
-    const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
-    std::string header;
-    std::uint64_t header_bytes = 0, body_bytes = 0;
-    if (as_npy) {
-      if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
-      header_bytes = kNpyHeaderBytes;
-      body_bytes = my_rows * w1 * sizeof(std::int64_t);
+    if (sections) {
+      const LocalSet& held = *held_set;
+      const auto point = [&](std::uint32_t v) {
+        const auto at = std::lower_bound(held.global.begin(), held.global.end(), std::uint64_t{v});
+        return held.points.point(static_cast<std::size_t>(at - held.global.begin()));
+      };
+      Status written = mpi::write_mesh_sections(comm, w.output, mesh_format, d, n, global_box, slice_coords, my_rows,
+                                                for_each_row, point);
+      if (!written.is_ok()) return report_all(written);
     } else {
-      std::string line;
-      for_each_row([&](std::span<const std::uint32_t> row) {
-        line.clear();
-        append_index_lines(line, row, static_cast<int>(w1));
-        body_bytes += line.size();
-      });
-    }
-    Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
-      constexpr std::size_t kChunk = std::size_t{8} << 20;
-      std::string chunk;
-      Status s;
-      for_each_row([&](std::span<const std::uint32_t> row) {
-        if (!s.is_ok()) return;
-        if (as_npy) {
-          for (const std::uint32_t v : row) {
-            const std::int64_t wide = v;
-            chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+      auto format = MeshWriter::format_for(w.output, d);
+      const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
+      std::string header;
+      std::uint64_t header_bytes = 0, body_bytes = 0;
+      if (as_npy) {
+        if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
+        header_bytes = kNpyHeaderBytes;
+        body_bytes = my_rows * w1 * sizeof(std::int64_t);
+      } else {
+        std::string line;
+        for_each_row([&](std::span<const std::uint32_t> row) {
+          line.clear();
+          append_index_lines(line, row, static_cast<int>(w1));
+          body_bytes += line.size();
+        });
+      }
+      Status written = write_ordered(comm, w.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
+        constexpr std::size_t kChunk = std::size_t{8} << 20;
+        std::string chunk;
+        Status s;
+        for_each_row([&](std::span<const std::uint32_t> row) {
+          if (!s.is_ok()) return;
+          if (as_npy) {
+            for (const std::uint32_t v : row) {
+              const std::int64_t wide = v;
+              chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+            }
+          } else {
+            append_index_lines(chunk, row, static_cast<int>(w1));
           }
-        } else {
-          append_index_lines(chunk, row, static_cast<int>(w1));
-        }
-        if (chunk.size() >= kChunk) {
-          s = put_piece(chunk);
-          chunk.clear();
-        }
+          if (chunk.size() >= kChunk) {
+            s = put_piece(chunk);
+            chunk.clear();
+          }
+        });
+        if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
+        return s;
       });
-      if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
-      return s;
-    });
-    if (!written.is_ok()) return report_all(written);
+      if (!written.is_ok()) return report_all(written);
+    }
   }
   note_peak(comm, "written");
 

@@ -125,6 +125,21 @@ def test_mesh_is_byte_identical(reference, work, name, ranks):
     assert max(owned) / (n / ranks) <= 1.05, owned
 
 
+@pytest.mark.parametrize("name,suffix", [("3d-uniform-50k", ".vtu"), ("3d-linspace-grid-37", ".msh"),
+                                         ("2d-uniform-50k", ".svg"), ("2d-uniform-50k", ".vtu")])
+@pytest.mark.parametrize("ranks", [1, 3, 7])
+def test_vtu_msh_and_svg_meshes_are_byte_identical(reference, work, name, suffix, ranks):
+    # The points in index order from each rank's slice, the rows from each rank's part
+    # of the sweep, the fixed text from rank 0: the CLI's file.
+    path = reference[name][0]
+    one = work / f"{name}{suffix}"
+    if not one.exists():
+        run_cli("mesh", str(path), "-o", str(one), "-q", "--threads", "2")
+    many = work / f"{name}-{ranks}{suffix}"
+    run_mpi(ranks, "mesh", str(path), "-o", str(many), "-q")
+    assert many.read_bytes() == one.read_bytes(), f"{name}{suffix}: {ranks} ranks wrote other bytes"
+
+
 @pytest.mark.parametrize("name", list(SETS))
 @pytest.mark.parametrize("ranks", RANKS)
 def test_graph_is_byte_identical(reference, work, name, ranks):
@@ -197,7 +212,12 @@ def test_cells_in_a_box_and_in_halfspaces_are_byte_identical(reference, work):
     assert "lies outside the domain" in message
     assert done.stderr.count(message.split("spokemesh: ", 1)[-1]) == 1, (cli.stderr, done.stderr)
     assert not outside.exists()
-    # Formats one process writes.
+    # A mesh format the dimension refuses, and a graph format: the CLI's words, once.
+    done = run_mpi(2, "mesh", str(path), "-o", str(work / "m.svg"), check=False)
+    assert done.returncode == 2 and done.stderr.count(".svg output is for 2-d meshes") == 1, done.stderr
+    done = run_mpi(2, "graph", str(path), "-o", str(work / "g.vtu"), check=False)
+    assert done.returncode == 2 and done.stderr.count("graphs are written as text") == 1, done.stderr
+    # Cell formats one process writes.
     for name in ("c.vtu", "c.svg"):
         done = run_mpi(2, "cells", str(path), "-o", str(work / name), check=False)
         assert done.returncode == 2 and done.stderr.count("write .vtu and .svg on one process") == 1, done.stderr

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <memory>
+#include <functional>
 #include <span>
 #include <string>
 #include <vector>
@@ -83,6 +84,40 @@ class MeshWriter {
   std::FILE* file_;
   std::string temp_path_;
   bool committed_ = false;
+};
+
+// The .vtu, .msh and .svg mesh files as a sequence of sections, each fixed text, one
+// line per point (in index order) or one line per simplex (in the rows' order), so
+// that a writer holding only part of the points and rows (spokemesh-mpi: its slice of
+// the index range, its part of the sweep) writes, section by section at computed
+// offsets, the bytes MeshWriter writes.
+//
+// Thread safety: immutable; the format functions are const.
+class MeshFileLayout {
+ public:
+  struct Section {
+    enum Kind { kText, kPoints, kRows } kind;
+    std::string text;  // kText
+    int variant = 0;   // which line a point or row gets (the format's own)
+  };
+  // n points, `simplices` rows; box: the points' bounding box (d lows, d highs; .svg
+  // scales by it).
+  MeshFileLayout(MeshWriter::Format format, int d, std::uint64_t n, std::uint64_t simplices,
+                 std::span<const double> box);
+  const std::vector<Section>& sections() const { return sections_; }
+  // Appends point i's line (p: its d coordinates) for a kPoints section.
+  void point_line(int variant, std::string& out, std::uint64_t i, const double* p) const;
+  // Appends the line of row `index` (0-based in the file), vertices s (d + 1), for a
+  // kRows section; `point(v)` gives vertex v's coordinates (.svg draws them).
+  void row_line(int variant, std::string& out, const std::uint32_t* s, std::uint64_t index,
+                const std::function<const double*(std::uint32_t)>& point) const;
+
+ private:
+  MeshWriter::Format format_;
+  int d_;
+  std::uint64_t n_;
+  std::vector<Section> sections_;
+  double lo_[2] = {0, 0}, hi_[2] = {0, 0}, scale_ = 1, radius_ = 1;
 };
 
 // "i j k\n" lines for simplices (or any fixed-width index tuples).

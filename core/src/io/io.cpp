@@ -410,113 +410,41 @@ class SpooledWriter final : public MeshWriter {
     if (spool_ == nullptr) return internal_error("cannot create a temporary spool file");
     const int d = points_.dimension();
     const std::size_t n = points_.size();
+    std::vector<double> box(2 * static_cast<std::size_t>(d));
+    for (int c = 0; c < d; ++c) box[c] = box[d + c] = points_.point(0)[c];
+    for (std::size_t i = 1; i < n; ++i) {
+      for (int c = 0; c < d; ++c) {
+        box[c] = std::min(box[c], points_.point(i)[c]);
+        box[d + c] = std::max(box[d + c], points_.point(i)[c]);
+      }
+    }
+    const MeshFileLayout layout(format_, d, n, count_, box);
+    const auto point = [&](std::uint32_t v) { return points_.point(v); };
     std::string out;
-    auto flush = [&] {
-      std::fwrite(out.data(), 1, out.size(), file_);
-      out.clear();
-    };
-    auto coord = [&](double v) {
-      char buf[32];
-      const auto [end, ec] = std::to_chars(buf, buf + sizeof buf, v);
-      out.append(buf, end);
+    auto flush = [&](bool force) {
+      if (out.size() > (1 << 20) || force) {
+        std::fwrite(out.data(), 1, out.size(), file_);
+        out.clear();
+      }
     };
     Status status;
-    if (format_ == Format::kVtu) {
-      out += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
-             "<UnstructuredGrid>\n<Piece NumberOfPoints=\"" + std::to_string(n) + "\" NumberOfCells=\"" +
-             std::to_string(count_) + "\">\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n";
-      for (std::size_t i = 0; i < n; ++i) {
-        for (int c = 0; c < 3; ++c) {
-          coord(c < d ? points_.point(i)[c] : 0.0);
-          out.push_back(c == 2 ? '\n' : ' ');
+    for (const MeshFileLayout::Section& section : layout.sections()) {
+      if (section.kind == MeshFileLayout::Section::kText) {
+        out += section.text;
+      } else if (section.kind == MeshFileLayout::Section::kPoints) {
+        for (std::size_t i = 0; i < n; ++i) {
+          layout.point_line(section.variant, out, i, points_.point(i));
+          flush(false);
         }
-        if (out.size() > (1 << 20)) flush();
+      } else {
+        Status s = for_each_simplex([&](const std::uint32_t* simplex, std::uint64_t index) {
+          layout.row_line(section.variant, out, simplex, index, point);
+          flush(false);
+        });
+        if (status.is_ok()) status = s;
       }
-      out += "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n";
-      status = for_each_simplex([&](const std::uint32_t* s, std::uint64_t) {
-        append_index_lines(out, std::span<const std::uint32_t>(s, d + 1), d + 1);
-        if (out.size() > (1 << 20)) flush();
-      });
-      out += "</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n";
-      for (std::uint64_t i = 1; i <= count_; ++i) {
-        out += std::to_string(i * (d + 1));
-        out.push_back('\n');
-        if (out.size() > (1 << 20)) flush();
-      }
-      out += "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n";
-      const char* type = d == 2 ? "5\n" : "10\n";  // VTK_TRIANGLE, VTK_TETRA
-      for (std::uint64_t i = 0; i < count_; ++i) {
-        out += type;
-        if (out.size() > (1 << 20)) flush();
-      }
-      out += "</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n";
-    } else if (format_ == Format::kMsh) {
-      out += "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n" + std::to_string(n) + "\n";
-      for (std::size_t i = 0; i < n; ++i) {
-        out += std::to_string(i + 1);
-        for (int c = 0; c < 3; ++c) {
-          out.push_back(' ');
-          coord(c < d ? points_.point(i)[c] : 0.0);
-        }
-        out.push_back('\n');
-        if (out.size() > (1 << 20)) flush();
-      }
-      out += "$EndNodes\n$Elements\n" + std::to_string(count_) + "\n";
-      const char* type = d == 2 ? " 2 2 1 1" : " 4 2 1 1";  // triangle / tetrahedron, tags: physical, elementary
-      status = for_each_simplex([&](const std::uint32_t* s, std::uint64_t index) {
-        out += std::to_string(index + 1);
-        out += type;
-        for (int k = 0; k <= d; ++k) {
-          out.push_back(' ');
-          out += std::to_string(s[k] + 1);
-        }
-        out.push_back('\n');
-        if (out.size() > (1 << 20)) flush();
-      });
-      out += "$EndElements\n";
-    } else {  // SVG
-      double lo[2] = {points_.point(0)[0], points_.point(0)[1]}, hi[2] = {lo[0], lo[1]};
-      for (std::size_t i = 0; i < n; ++i) {
-        for (int c = 0; c < 2; ++c) {
-          lo[c] = std::min(lo[c], points_.point(i)[c]);
-          hi[c] = std::max(hi[c], points_.point(i)[c]);
-        }
-      }
-      const double span = std::max({hi[0] - lo[0], hi[1] - lo[1], 1e-300});
-      const double scale = 1000.0 / span, margin = 10;
-      auto px = [&](std::uint32_t i, int c) {
-        const double v = (points_.point(i)[c] - lo[c]) * scale;
-        return c == 0 ? margin + v : margin + (hi[1] - lo[1]) * scale - v;  // y up
-      };
-      const double w = (hi[0] - lo[0]) * scale + 2 * margin, h = (hi[1] - lo[1]) * scale + 2 * margin;
-      out += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + std::to_string(static_cast<int>(w)) + "\" height=\"" +
-             std::to_string(static_cast<int>(h)) + "\" viewBox=\"0 0 " + std::to_string(w) + " " + std::to_string(h) +
-             "\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
-             "<g fill=\"#cfe3f7\" stroke=\"#1f4e79\" stroke-width=\"0.6\" stroke-linejoin=\"round\">\n";
-      status = for_each_simplex([&](const std::uint32_t* s, std::uint64_t) {
-        out += "<polygon points=\"";
-        for (int k = 0; k < 3; ++k) {
-          coord(px(s[k], 0));
-          out.push_back(',');
-          coord(px(s[k], 1));
-          out.push_back(k == 2 ? '"' : ' ');
-        }
-        out += "/>\n";
-        if (out.size() > (1 << 20)) flush();
-      });
-      out += "</g>\n<g fill=\"#c0392b\">\n";
-      const double radius = std::clamp(300.0 / std::sqrt(static_cast<double>(n)), 0.5, 4.0);
-      for (std::size_t i = 0; i < n; ++i) {
-        out += "<circle cx=\"";
-        coord(px(static_cast<std::uint32_t>(i), 0));
-        out += "\" cy=\"";
-        coord(px(static_cast<std::uint32_t>(i), 1));
-        out += "\" r=\"" + std::to_string(radius) + "\"/>\n";
-        if (out.size() > (1 << 20)) flush();
-      }
-      out += "</g>\n</svg>\n";
     }
-    flush();
+    flush(true);
     if (!status.is_ok()) return status;
     return check_stream("write");
   }
@@ -527,6 +455,124 @@ class SpooledWriter final : public MeshWriter {
 };
 
 }  // namespace
+
+namespace {
+
+void append_coordinate(std::string& out, double v) {
+  char buf[32];
+  const auto [end, ec] = std::to_chars(buf, buf + sizeof buf, v);
+  out.append(buf, end);
+}
+
+}  // namespace
+
+MeshFileLayout::MeshFileLayout(MeshWriter::Format format, int d, std::uint64_t n, std::uint64_t simplices,
+                               std::span<const double> box)
+    : format_(format), d_(d), n_(n) {
+  using K = Section::Kind;
+  const std::string count = std::to_string(simplices);
+  if (format == MeshWriter::Format::kVtu) {
+    sections_ = {
+        {K::kText, "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
+                   "<UnstructuredGrid>\n<Piece NumberOfPoints=\"" + std::to_string(n) + "\" NumberOfCells=\"" + count +
+                   "\">\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n"},
+        {K::kPoints, "", 0},
+        {K::kText, "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n"},
+        {K::kRows, "", 0},
+        {K::kText, "</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n"},
+        {K::kRows, "", 1},
+        {K::kText, "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n"},
+        {K::kRows, "", 2},
+        {K::kText, "</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n"},
+    };
+  } else if (format == MeshWriter::Format::kMsh) {
+    sections_ = {
+        {K::kText, "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n" + std::to_string(n) + "\n"},
+        {K::kPoints, "", 0},
+        {K::kText, "$EndNodes\n$Elements\n" + count + "\n"},
+        {K::kRows, "", 0},
+        {K::kText, "$EndElements\n"},
+    };
+  } else {  // .svg (2-d): the triangles, then the points, scaled to 1000 units across
+    for (int c = 0; c < 2; ++c) {
+      lo_[c] = box[static_cast<std::size_t>(c)];
+      hi_[c] = box[static_cast<std::size_t>(d + c)];
+    }
+    const double span = std::max({hi_[0] - lo_[0], hi_[1] - lo_[1], 1e-300});
+    scale_ = 1000.0 / span;
+    const double margin = 10;
+    const double w = (hi_[0] - lo_[0]) * scale_ + 2 * margin, h = (hi_[1] - lo_[1]) * scale_ + 2 * margin;
+    radius_ = std::clamp(300.0 / std::sqrt(static_cast<double>(n)), 0.5, 4.0);
+    sections_ = {
+        {K::kText, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + std::to_string(static_cast<int>(w)) +
+                   "\" height=\"" + std::to_string(static_cast<int>(h)) + "\" viewBox=\"0 0 " + std::to_string(w) + " " +
+                   std::to_string(h) +
+                   "\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
+                   "<g fill=\"#cfe3f7\" stroke=\"#1f4e79\" stroke-width=\"0.6\" stroke-linejoin=\"round\">\n"},
+        {K::kRows, "", 0},
+        {K::kText, "</g>\n<g fill=\"#c0392b\">\n"},
+        {K::kPoints, "", 0},
+        {K::kText, "</g>\n</svg>\n"},
+    };
+  }
+}
+
+void MeshFileLayout::point_line(int /*variant*/, std::string& out, std::uint64_t i, const double* p) const {
+  if (format_ == MeshWriter::Format::kVtu) {
+    for (int c = 0; c < 3; ++c) {
+      append_coordinate(out, c < d_ ? p[c] : 0.0);
+      out.push_back(c == 2 ? '\n' : ' ');
+    }
+  } else if (format_ == MeshWriter::Format::kMsh) {
+    out += std::to_string(i + 1);
+    for (int c = 0; c < 3; ++c) {
+      out.push_back(' ');
+      append_coordinate(out, c < d_ ? p[c] : 0.0);
+    }
+    out.push_back('\n');
+  } else {
+    const double margin = 10;
+    out += "<circle cx=\"";
+    append_coordinate(out, margin + (p[0] - lo_[0]) * scale_);
+    out += "\" cy=\"";
+    append_coordinate(out, margin + (hi_[1] - lo_[1]) * scale_ - (p[1] - lo_[1]) * scale_);
+    out += "\" r=\"" + std::to_string(radius_) + "\"/>\n";
+  }
+}
+
+void MeshFileLayout::row_line(int variant, std::string& out, const std::uint32_t* s, std::uint64_t index,
+                              const std::function<const double*(std::uint32_t)>& point) const {
+  const auto w = static_cast<std::uint64_t>(d_ + 1);
+  if (format_ == MeshWriter::Format::kVtu) {
+    if (variant == 0) {
+      append_index_lines(out, std::span<const std::uint32_t>(s, w), d_ + 1);
+    } else if (variant == 1) {
+      out += std::to_string((index + 1) * w);
+      out.push_back('\n');
+    } else {
+      out += d_ == 2 ? "5\n" : "10\n";  // VTK_TRIANGLE, VTK_TETRA
+    }
+  } else if (format_ == MeshWriter::Format::kMsh) {
+    out += std::to_string(index + 1);
+    out += d_ == 2 ? " 2 2 1 1" : " 4 2 1 1";  // triangle / tetrahedron, tags: physical, elementary
+    for (std::uint64_t k = 0; k < w; ++k) {
+      out.push_back(' ');
+      out += std::to_string(s[k] + 1);
+    }
+    out.push_back('\n');
+  } else {
+    const double margin = 10;
+    out += "<polygon points=\"";
+    for (int k = 0; k < 3; ++k) {
+      const double* p = point(s[k]);
+      append_coordinate(out, margin + (p[0] - lo_[0]) * scale_);
+      out.push_back(',');
+      append_coordinate(out, margin + (hi_[1] - lo_[1]) * scale_ - (p[1] - lo_[1]) * scale_);
+      out.push_back(k == 2 ? '"' : ' ');
+    }
+    out += "/>\n";
+  }
+}
 
 Result<MeshWriter::Format> MeshWriter::format_for(const std::string& path, int dimension) {
   if (ends_with(path, ".simplices") || ends_with(path, ".txt") || ends_with(path, ".edges")) return Format::kText;
