@@ -18,7 +18,6 @@ struct ClippedCellBuilder::Scratch {
   std::optional<detail::CellPolytope> polytope;
   std::vector<std::uint32_t> ids;
   std::vector<double> dist2;
-  std::vector<std::uint32_t> applied;
   std::vector<const double*> coords;
 };
 
@@ -123,7 +122,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
   const std::uint32_t n = static_cast<std::uint32_t>(points.size());
   Scratch& sc = *scratch_;
   const double* x = points.point(seed);
-  sc.applied.clear();
+  std::size_t applied = 0;  // points clipped by so far: a prefix of every round's list
   // Whether every point not yet applied lies farther than twice the security radius,
   // given that none closer than dist2 (nanoflann's, kDistanceMargin) is left.
   auto beyond = [&](double dist2, double r2) { return dist2 * (1 - kDistanceMargin) > 4 * r2; };
@@ -167,7 +166,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
     // The points applied so far are the first of this list after the seed: the order
     // is the same total one every round, and earlier rounds applied a prefix of it (a
     // point since fallen beyond the bound is not listed, nor is anything after it).
-    std::size_t i = round == 0 ? 0 : std::min(count, sc.applied.size() + 1);
+    std::size_t i = round == 0 ? 0 : std::min(count, applied + 1);
     for (; i < count; ++i) {
       const std::uint32_t j = sc.ids[i];
       if (j == seed) continue;
@@ -180,7 +179,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
         last_reach2_ = std::max(last_reach2_, sc.dist2[i]);
         return Clipped::kUndecided;
       }
-      sc.applied.push_back(j);
+      ++applied;
       if (poly.changed()) r2 = poly.radius2_upper();
     }
     // What this round rested on: the points up to the distance where it stopped; a
