@@ -295,7 +295,7 @@ class Delaunay:
         with np.errstate(all="ignore"):
             # Exactly singular rows cannot be inverted: replaced by the identity first
             # (their rows become NaN below).
-            singular = np.linalg.matrix_rank(a) < self.ndim if len(a) else np.zeros(0, dtype=bool)
+            singular = np.linalg.det(a) == 0  # (an LU each; inv raises on these)
             a_safe = np.where(singular[:, None, None], np.eye(self.ndim), a)
             t = np.linalg.inv(a_safe)
             rcond = 1.0 / (np.abs(a).sum(axis=1).max(axis=1) * np.abs(t).sum(axis=1).max(axis=1))
