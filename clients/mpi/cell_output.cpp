@@ -36,12 +36,9 @@ constexpr std::uint64_t kBucketBytes = std::uint64_t{16} << 20;  // records a ra
 void CellSpool::take(CellRecords& records) {
   std::vector<char>& b = records.bytes();
   for (std::size_t at = 0; at < b.size();) {
-    const char* p = b.data() + at;
-    const std::uint32_t seed = get<std::uint32_t>(p);
-    const std::uint32_t facets = get<std::uint32_t>(p);
-    const std::size_t size = cell_record_bytes(d_, facets);
-    to_rank_[static_cast<std::size_t>(slice_owner(n_, seed, static_cast<int>(to_rank_.size())))] += size;
-    at += size;
+    const CellRecordHead h = cell_record_head(d_, b.data() + at);
+    to_rank_[static_cast<std::size_t>(slice_owner(n_, h.seed, static_cast<int>(to_rank_.size())))] += h.bytes;
+    at += h.bytes;
   }
   if (file_ != nullptr && !b.empty()) std::fwrite(b.data(), 1, b.size(), file_);
   bytes_ += b.size();
@@ -89,22 +86,16 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
     std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
     std::size_t at = 0;
     while (status.is_ok() && at + 8 <= chunk.size()) {
-      const char* p = chunk.data() + at;
-      const std::uint32_t seed = get<std::uint32_t>(p);
-      const std::uint32_t facets = get<std::uint32_t>(p);
-      const std::size_t size = cell_record_bytes(d, facets);
-      if (at + size > chunk.size()) break;  // the rest comes with the next round
-      std::vector<char>& to = outgoing[static_cast<std::size_t>(slice_owner(n, seed, comm.size))];
-      to.insert(to.end(), chunk.data() + at, chunk.data() + at + size);
-      at += size;
+      const CellRecordHead h = cell_record_head(d, chunk.data() + at);
+      if (at + h.bytes > chunk.size()) break;  // the rest comes with the next round
+      std::vector<char>& to = outgoing[static_cast<std::size_t>(slice_owner(n, h.seed, comm.size))];
+      to.insert(to.end(), chunk.data() + at, chunk.data() + at + h.bytes);
+      at += h.bytes;
     }
     chunk.erase(chunk.begin(), chunk.begin() + static_cast<std::ptrdiff_t>(at));
     const std::vector<char> in = comm.alltoall_bytes(outgoing);
     for (std::size_t from = 0; from < in.size() && status.is_ok();) {
-      const char* p = in.data() + from;
-      const std::uint32_t seed = get<std::uint32_t>(p);
-      const std::uint32_t facets = get<std::uint32_t>(p);
-      const std::size_t size = cell_record_bytes(d, facets);
+      const auto [seed, facets, size] = cell_record_head(d, in.data() + from);
       if (seed < first || seed >= last || seen[seed - first]) {
         status = internal_error("internal error: cell " + std::to_string(seed) + " sent to the wrong rank or twice");
         break;
@@ -186,8 +177,7 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
       in_order.clear();
       for (std::size_t from = 0; from < held.size();) {
         in_order.push_back(held.data() + from);
-        const char* p = held.data() + from + 4;
-        from += cell_record_bytes(d, get<std::uint32_t>(p));
+        from += cell_record_head(d, held.data() + from).bytes;
       }
       std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
         return get<std::uint32_t>(x) < get<std::uint32_t>(y);

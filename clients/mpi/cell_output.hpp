@@ -96,4 +96,17 @@ inline std::size_t cell_record_bytes(int d, std::uint32_t facets) {
   return 4 + 4 + 1 + 8 * (1 + dd) + facets * 8 * (2 + dd);
 }
 
+// What a record at `p` starts with, and its size.
+struct CellRecordHead {
+  std::uint32_t seed, facets;
+  std::size_t bytes;
+};
+inline CellRecordHead cell_record_head(int d, const char* p) {
+  CellRecordHead h;
+  h.seed = get<std::uint32_t>(p);
+  h.facets = get<std::uint32_t>(p);
+  h.bytes = cell_record_bytes(d, h.facets);
+  return h;
+}
+
 }  // namespace spokemesh::mpi

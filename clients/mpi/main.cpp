@@ -46,6 +46,7 @@
 #include "mesh_output.hpp"
 #include "cell_output.hpp"
 #include "split.hpp"
+#include "spokemesh/cell_io.hpp"
 #include "spokemesh/cells.hpp"
 #include "spokemesh/certify.hpp"
 #include "spokemesh/io.hpp"
@@ -243,16 +244,14 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   Status usage;
   if (w.common.merge_duplicates) usage = invalid_argument("--merge-duplicates: spokemesh-mpi does not merge duplicates; remove them, or mesh on one process with spokemesh");
   if (job == Job::kGraph && w.approx.enabled) usage = invalid_argument("--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh graph --approx)");
-  auto ends_with = [&](const char* suffix) {
-    const std::size_t k = std::strlen(suffix);
-    return w.output.size() >= k && w.output.compare(w.output.size() - k, k, suffix) == 0;
-  };
   if (job == Job::kCells) {
-    if (ends_with(".vtu") || ends_with(".svg")) {
+    // (The dimension is not known yet: 2 admits every extension.)
+    auto format = CellWriter::format_for(w.output, 2);
+    if (!format.is_ok()) {
+      usage = format.status();
+    } else if (format.value() != CellWriter::Format::kNpz) {
       usage = invalid_argument(w.output + ": spokemesh-mpi writes cells as .npz; write .vtu and .svg on one process with "
                                "spokemesh cells");
-    } else if (!ends_with(".npz")) {
-      usage = invalid_argument(w.output + ": unknown cell format (spokemesh-mpi writes .npz)");
     }
   } else {
     // (The dimension is not known yet: .svg is checked against it once read.)
@@ -593,6 +592,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
                 next = to;
               }
               std::vector<std::pair<std::uint32_t, StarCertificate>> refused_here;
+              std::vector<Rows> done_here;
               Status s;
               for (std::size_t i = from; i < to && s.is_ok(); ++i) {
                 const std::uint32_t k = pending[i];
@@ -605,11 +605,10 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
                 } else {
                   s = walker->compute(seed, star, StarPart::kAll);
                   if (s.is_ok()) c = certify(star);
-                  out.clear();
-                  if (c.certified) rows_of(local, star, out);
                   if (c.certified) {
-                    std::lock_guard lock(mu);
-                    done.push_back({position_of_own[k], out});
+                    out.clear();
+                    rows_of(local, star, out);
+                    done_here.push_back({position_of_own[k], out});
                   }
                 }
                 if (s.is_ok() && !c.certified) refused_here.emplace_back(k, std::move(c));
@@ -617,6 +616,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
               std::lock_guard lock(mu);
               if (!s.is_ok() && failure.is_ok()) failure = s;
               for (auto& r : refused_here) refused.push_back(std::move(r));
+              for (auto& r : done_here) done.push_back(std::move(r));
               if (found.size() >= (std::size_t{1} << 20)) cell_spool.take(found);
               seeds_done += to - from;
               if (job == Job::kCells && round == 1) progress.update(seeds_done, 0);

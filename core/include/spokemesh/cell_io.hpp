@@ -33,7 +33,11 @@ namespace spokemesh {
 
 class CellWriter {
  public:
-  // Refuses an unknown extension, or .vtu outside 2-d and 3-d (INVALID_ARGUMENT).
+  enum class Format { kNpz, kVtu, kSvg };
+  // The format for `path` by its extension; refuses an unknown extension, .vtu outside
+  // 2-d and 3-d, and .svg outside 2-d (INVALID_ARGUMENT).
+  static Result<Format> format_for(const std::string& path, int dimension);
+  // Refuses what format_for refuses.
   static Result<std::unique_ptr<CellWriter>> open(const std::string& path, int dimension);
   virtual ~CellWriter() = default;
   // Whether the format needs the cells' vertices (else measures suffice).

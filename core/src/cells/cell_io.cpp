@@ -393,31 +393,45 @@ class SvgCellWriter final : public CellWriter {
 
 }  // namespace
 
-Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension) {
-  if (ends_with(path, ".npz")) {
-    auto w = std::make_unique<NpzCellWriter>(path, dimension);
-    if (Status s = w->open(); !s.is_ok()) return s;
-    return std::unique_ptr<CellWriter>(std::move(w));
-  }
+Result<CellWriter::Format> CellWriter::format_for(const std::string& path, int dimension) {
+  if (ends_with(path, ".npz")) return Format::kNpz;
   if (ends_with(path, ".vtu")) {
     if (dimension != 2 && dimension != 3) {
       return invalid_argument(path + ": .vtu cells are 2-d polygons or 3-d polyhedra; these points are " +
                               std::to_string(dimension) + "-d (use .npz)");
     }
-    auto w = std::make_unique<VtuCellWriter>(path, dimension);
-    if (Status s = w->open(); !s.is_ok()) return s;
-    return std::unique_ptr<CellWriter>(std::move(w));
+    return Format::kVtu;
   }
   if (ends_with(path, ".svg")) {
     if (dimension != 2) {
       return invalid_argument(path + ": .svg pictures are of 2-d cells; these points are " + std::to_string(dimension) +
                               "-d (use .npz or .vtu)");
     }
-    auto w = std::make_unique<SvgCellWriter>(path);
-    if (Status s = w->open(); !s.is_ok()) return s;
-    return std::unique_ptr<CellWriter>(std::move(w));
+    return Format::kSvg;
   }
   return invalid_argument(path + ": unknown cell format (use .npz, .vtu in 2-d and 3-d, or .svg in 2-d)");
+}
+
+Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension) {
+  auto format = format_for(path, dimension);
+  if (!format.is_ok()) return format.status();
+  std::unique_ptr<CellWriter> writer;
+  Status s;
+  if (format.value() == Format::kNpz) {
+    auto w = std::make_unique<NpzCellWriter>(path, dimension);
+    s = w->open();
+    writer = std::move(w);
+  } else if (format.value() == Format::kVtu) {
+    auto w = std::make_unique<VtuCellWriter>(path, dimension);
+    s = w->open();
+    writer = std::move(w);
+  } else {
+    auto w = std::make_unique<SvgCellWriter>(path);
+    s = w->open();
+    writer = std::move(w);
+  }
+  if (!s.is_ok()) return s;
+  return writer;
 }
 
 Result<Domain> read_halfspaces(const std::string& path, int dimension) {
