@@ -21,9 +21,12 @@
 // Thread safety: a CellWriter is used by one thread.
 #pragma once
 
+#include <cmath>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "spokemesh/domain.hpp"
 #include "spokemesh/status.hpp"
@@ -45,6 +48,49 @@ class CellWriter {
   // Appends cells (consecutive seeds, from 0).
   virtual Status write(std::span<const VoronoiCell> cells) = 0;
   virtual Status commit() = 0;
+};
+
+// The text of .vtu and .svg cell files as sections: fixed text, and the cells' lines
+// in seed order in `parts()` streams (a .vtu's arrays; an .svg's polygons and dots).
+// CellWriter makes its files from it, and spokemesh-mpi's ranks make the same bytes
+// (each writing its slice's lines at offsets computed from every rank's sizes).
+//
+// A cell's lines depend on the cells before it only through counts (a .vtu numbers
+// the vertices and face values after the earlier cells'), and on all cells through
+// totals (a .vtu's header counts points and cells; an .svg is scaled to the cells'
+// extent and shaded by the range of their areas): both are a CellTally.
+//
+// Thread safety: value type; const methods may be called from any thread.
+struct CellTally {
+  std::int64_t cells = 0, points = 0, connectivity = 0, face_values = 0;  // add
+  double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};    // min, max (.svg)
+  double min_volume = INFINITY, max_volume = -INFINITY;                   // min, max (.svg)
+};
+
+class CellFileLayout {
+ public:
+  struct Section {
+    bool lines = false;  // false: `text`; true: every cell's lines of stream `part`
+    std::string text;
+    int part = 0;
+  };
+  // format: .vtu (d = 2 or 3) or .svg (d = 2).
+  CellFileLayout(CellWriter::Format format, int d);
+  int parts() const { return parts_; }
+  // Whether the file shows the cell at all (.vtu: bounded cells; .svg: bounded with 3
+  // or more vertices); a cell not shown has no lines and adds nothing to a tally.
+  bool shows(const VoronoiCell& cell) const;
+  // Adds the cell to `tally`.
+  void add(const VoronoiCell& cell, CellTally& tally) const;
+  // Appends the cell's lines to out[0 .. parts()), and adds it to `before` (the tally
+  // of the cells before it). `totals`: the tally of every cell in the file.
+  void lines(const VoronoiCell& cell, CellTally& before, const CellTally& totals, std::string* out) const;
+  // The file: text and the parts, in order.
+  std::vector<Section> sections(const CellTally& totals) const;
+
+ private:
+  CellWriter::Format format_;
+  int d_, parts_;
 };
 
 Result<Domain> read_halfspaces(const std::string& path, int dimension);

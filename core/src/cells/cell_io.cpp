@@ -4,6 +4,7 @@
 #include <unistd.h>
 #include <zip.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -199,196 +200,111 @@ class NpzCellWriter final : public CellWriter {
   std::int64_t facets_ = 0;
 };
 
-// VTK XML unstructured grid, ASCII. Each array goes to its own scratch file, since
-// the piece's header needs the totals; commit() writes header, arrays and footer.
-class VtuCellWriter final : public CellWriter {
+// .vtu and .svg cells (CellFileLayout). Each part's lines go to a scratch file, since
+// the fixed text before them needs the totals; commit() writes the sections in order.
+// A .vtu cell's lines are written as the cell comes (they depend only on the cells
+// before it); an .svg's need the totals, so its cells are spooled first (area,
+// centroid and vertices, in binary) and their lines written at commit().
+class SectionedCellWriter final : public CellWriter {
  public:
-  VtuCellWriter(std::string path, int d) : path_(std::move(path)), d_(d) {}
-
+  SectionedCellWriter(std::string path, Format format, int d) : path_(std::move(path)), format_(format), layout_(format, d) {}
+  ~SectionedCellWriter() override {
+    for (std::FILE* f : parts_) std::fclose(f);
+    if (spool_ != nullptr) std::fclose(spool_);
+  }
   Status open() {
     const std::string dir = directory_of(path_);
-    for (Part& p : parts()) {
+    for (int k = 0; k < layout_.parts(); ++k) {
       auto f = scratch_file(dir);
       if (!f.is_ok()) return f.status();
-      p.file = f.value();
+      parts_.push_back(f.value());
+    }
+    lines_.resize(parts_.size());
+    if (format_ == Format::kSvg) {
+      auto f = scratch_file(dir);
+      if (!f.is_ok()) return f.status();
+      spool_ = f.value();
     }
     return Status::ok();
-  }
-  ~VtuCellWriter() override {
-    for (Part& p : parts()) {
-      if (p.file != nullptr) std::fclose(p.file);
-    }
   }
   bool needs_vertices() const override { return true; }
 
   Status write(std::span<const VoronoiCell> cells) override {
     for (const VoronoiCell& c : cells) {
-      if (!c.bounded) {
-        ++skipped_;
-        continue;
+      if (!layout_.shows(c)) continue;
+      if (format_ == Format::kSvg) {
+        layout_.add(c, totals_);
+        const double head[4] = {c.volume, c.centroid[0], c.centroid[1], static_cast<double>(c.vertex_count())};
+        std::fwrite(head, sizeof(double), 4, spool_);
+        std::fwrite(c.vertices.data(), sizeof(double), c.vertices.size(), spool_);
+      } else {
+        // (A .vtu's lines read only the tally before the cell: the running one.)
+        layout_.lines(c, totals_, totals_, lines_.data());
       }
-      const std::size_t k = c.vertex_count();
-      const std::int64_t first = points_;
-      for (std::size_t v = 0; v < k; ++v) {
-        const double* x = &c.vertices[v * d_];
-        std::fprintf(points_f(), "%.17g %.17g %.17g\n", x[0], x[1], d_ == 3 ? x[2] : 0.0);
-      }
-      points_ += static_cast<std::int64_t>(k);
-      for (std::size_t v = 0; v < k; ++v) {
-        std::fprintf(part(kConnectivity), "%lld ", static_cast<long long>(first + static_cast<std::int64_t>(v)));
-      }
-      connectivity_ += static_cast<std::int64_t>(k);
-      std::fprintf(part(kOffsets), "%lld\n", static_cast<long long>(connectivity_));
-      std::fprintf(part(kTypes), "%d\n", d_ == 2 ? 7 : 42);  // VTK_POLYGON, VTK_POLYHEDRON
-      std::fprintf(part(kSeed), "%u\n", c.seed);
-      std::fprintf(part(kVolume), "%.17g\n", c.volume);
-      if (d_ == 3) {
-        std::size_t faces = 0;
-        for (const VoronoiFacet& f : c.facets) faces += f.vertices.size() >= 3 ? 1 : 0;
-        std::fprintf(part(kFaces), "%zu\n", faces);
-        face_values_ += 1;
-        for (const VoronoiFacet& f : c.facets) {
-          if (f.vertices.size() < 3) continue;  // a facet of measure zero
-          std::fprintf(part(kFaces), "%zu", f.vertices.size());
-          for (const std::uint32_t v : f.vertices) std::fprintf(part(kFaces), " %lld", static_cast<long long>(first + v));
-          std::fprintf(part(kFaces), "\n");
-          face_values_ += 1 + static_cast<std::int64_t>(f.vertices.size());
-        }
-        std::fprintf(part(kFaceOffsets), "%lld\n", static_cast<long long>(face_values_));
-      }
-      ++cells_;
     }
-    for (Part& p : parts()) {
-      if (std::ferror(p.file)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
-    }
-    return Status::ok();
+    if (spool_ != nullptr && std::ferror(spool_)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
+    return flush_lines(1 << 20);
   }
 
   Status commit() override {
+    if (format_ == Format::kSvg) {
+      std::fflush(spool_);
+      std::rewind(spool_);
+      VoronoiCell c;
+      c.dimension = 2;
+      c.bounded = true;
+      c.centroid.resize(2);
+      CellTally before;
+      double head[4];
+      while (std::fread(head, sizeof(double), 4, spool_) == 4) {
+        c.volume = head[0], c.centroid[0] = head[1], c.centroid[1] = head[2];
+        c.vertices.resize(2 * static_cast<std::size_t>(head[3]));
+        if (std::fread(c.vertices.data(), sizeof(double), c.vertices.size(), spool_) != c.vertices.size()) {
+          return internal_error("reading back the cells of " + path_);
+        }
+        layout_.lines(c, before, totals_, lines_.data());
+        if (Status s = flush_lines(1 << 20); !s.is_ok()) return s;
+      }
+    }
+    if (Status s = flush_lines(0); !s.is_ok()) return s;
     const std::string temp = path_ + ".partial";
     std::FILE* out = std::fopen(temp.c_str(), "wb");
     if (out == nullptr) return internal_error("cannot create " + temp + ": " + std::strerror(errno));
-    std::fprintf(out,
-                 "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
-                 "header_type=\"UInt64\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%lld\" NumberOfCells=\"%lld\">\n",
-                 static_cast<long long>(points_), static_cast<long long>(cells_));
-    auto array = [&](const char* head, int which) {
-      std::fprintf(out, "%s\n", head);
-      std::FILE* f = parts()[which].file;
+    for (const CellFileLayout::Section& section : layout_.sections(totals_)) {
+      if (!section.lines) {
+        std::fwrite(section.text.data(), 1, section.text.size(), out);
+        continue;
+      }
+      std::FILE* f = parts_[static_cast<std::size_t>(section.part)];
       std::fflush(f);
       std::rewind(f);
       char buf[1 << 16];
       std::size_t got;
       while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) std::fwrite(buf, 1, got, out);
-      std::fprintf(out, "\n</DataArray>\n");
-    };
-    std::fprintf(out, "<Points>\n");
-    array("<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">", kPoints);
-    std::fprintf(out, "</Points>\n<Cells>\n");
-    array("<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">", kConnectivity);
-    array("<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">", kOffsets);
-    array("<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">", kTypes);
-    if (d_ == 3) {
-      array("<DataArray type=\"Int64\" Name=\"faces\" format=\"ascii\">", kFaces);
-      array("<DataArray type=\"Int64\" Name=\"faceoffsets\" format=\"ascii\">", kFaceOffsets);
     }
-    std::fprintf(out, "</Cells>\n<CellData Scalars=\"volume\">\n");
-    array("<DataArray type=\"Int64\" Name=\"seed\" format=\"ascii\">", kSeed);
-    array("<DataArray type=\"Float64\" Name=\"volume\" format=\"ascii\">", kVolume);
-    std::fprintf(out, "</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
     return close_and_rename(out, temp, path_);
   }
 
  private:
-  enum { kPoints, kConnectivity, kOffsets, kTypes, kFaces, kFaceOffsets, kSeed, kVolume, kParts };
-  struct Part {
-    std::FILE* file = nullptr;
-  };
-  std::array<Part, kParts>& parts() { return parts_; }
-  std::FILE* part(int which) { return parts_[which].file; }
-  std::FILE* points_f() { return parts_[kPoints].file; }
-  std::string path_;
-  int d_;
-  std::array<Part, kParts> parts_{};
-  std::int64_t points_ = 0, connectivity_ = 0, face_values_ = 0, cells_ = 0, skipped_ = 0;
-};
-
-// 2-d cells as an SVG picture: each bounded cell a polygon shaded by its area
-// (light: small, dark: large), its centroid a dot. Polygons are spooled to a scratch
-// file (area, then the points), since the picture's extent and the shading's range
-// are known only at the end.
-class SvgCellWriter final : public CellWriter {
- public:
-  explicit SvgCellWriter(std::string path) : path_(std::move(path)) {}
-  ~SvgCellWriter() override {
-    if (spool_ != nullptr) std::fclose(spool_);
-  }
-  Status open() {
-    auto f = scratch_file(directory_of(path_));
-    if (!f.is_ok()) return f.status();
-    spool_ = f.value();
-    return Status::ok();
-  }
-  bool needs_vertices() const override { return true; }
-
-  Status write(std::span<const VoronoiCell> cells) override {
-    for (const VoronoiCell& c : cells) {
-      if (!c.bounded || c.vertex_count() < 3) continue;
-      std::fprintf(spool_, "%.17g %.17g %.17g", c.volume, c.centroid[0], c.centroid[1]);
-      for (std::size_t v = 0; v < c.vertex_count(); ++v) {
-        const double x = c.vertices[2 * v], y = c.vertices[2 * v + 1];
-        std::fprintf(spool_, " %.9g,%.9g", x, y);
-        lo_[0] = std::min(lo_[0], x), lo_[1] = std::min(lo_[1], y);
-        hi_[0] = std::max(hi_[0], x), hi_[1] = std::max(hi_[1], y);
+  // Moves the lines held to the parts' files once they pass `threshold` bytes.
+  Status flush_lines(std::size_t threshold) {
+    for (std::size_t k = 0; k < parts_.size(); ++k) {
+      if (lines_[k].size() <= threshold && threshold != 0) continue;
+      if (!lines_[k].empty() && std::fwrite(lines_[k].data(), 1, lines_[k].size(), parts_[k]) != lines_[k].size()) {
+        return internal_error("writing " + path_ + ": " + std::strerror(errno));
       }
-      std::fprintf(spool_, "\n");
-      min_ = std::min(min_, c.volume);
-      max_ = std::max(max_, c.volume);
+      lines_[k].clear();
     }
-    if (std::ferror(spool_)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
     return Status::ok();
   }
 
-  Status commit() override {
-    const std::string temp = path_ + ".partial";
-    std::FILE* out = std::fopen(temp.c_str(), "wb");
-    if (out == nullptr) return internal_error("cannot create " + temp + ": " + std::strerror(errno));
-    const double w = std::max(hi_[0] - lo_[0], 1e-300), h = std::max(hi_[1] - lo_[1], 1e-300);
-    const double size = 800, scale = size / std::max(w, h);
-    std::fprintf(out,
-                 "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" viewBox=\"0 0 %.0f %.0f\">\n"
-                 "<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\" stroke=\"#333\" "
-                 "stroke-width=\"%.9g\" stroke-linejoin=\"round\">\n",
-                 w * scale, h * scale, w * scale, h * scale, h * scale, scale, -scale, -lo_[0], -lo_[1], 0.75 / scale);
-    std::fflush(spool_);
-    std::rewind(spool_);
-    std::string dots;
-    char* line = nullptr;
-    std::size_t cap = 0;
-    while (::getline(&line, &cap, spool_) > 0) {
-      double volume = 0, cx = 0, cy = 0;
-      int used = 0;
-      if (std::sscanf(line, "%lf %lf %lf%n", &volume, &cx, &cy, &used) != 3) continue;
-      const double t = max_ > min_ ? (volume - min_) / (max_ - min_) : 0.5;
-      const int shade = static_cast<int>(235 - 150 * t);  // light small cells, darker large ones
-      std::string pts(line + used);
-      while (!pts.empty() && (pts.back() == '\n' || pts.back() == ' ')) pts.pop_back();
-      std::fprintf(out, "<polygon fill=\"rgb(%d,%d,255)\" points=\"%s\"/>\n", shade, shade, pts.c_str() + 1);
-      char dot[160];
-      std::snprintf(dot, sizeof dot, "<circle cx=\"%.9g\" cy=\"%.9g\" r=\"%.9g\"/>\n", cx, cy, 1.5 / scale);
-      dots += dot;
-    }
-    std::free(line);
-    std::fprintf(out, "</g>\n<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\" fill=\"#c00\">\n%s</g>\n</svg>\n",
-                 h * scale, scale, -scale, -lo_[0], -lo_[1], dots.c_str());
-    return close_and_rename(out, temp, path_);
-  }
-
- private:
   std::string path_;
+  Format format_;
+  CellFileLayout layout_;
+  std::vector<std::FILE*> parts_;
+  std::vector<std::string> lines_;
   std::FILE* spool_ = nullptr;
-  double lo_[2] = {INFINITY, INFINITY}, hi_[2] = {-INFINITY, -INFINITY};
-  double min_ = INFINITY, max_ = -INFINITY;
+  CellTally totals_;
 };
 
 }  // namespace
@@ -421,17 +337,172 @@ Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, in
     auto w = std::make_unique<NpzCellWriter>(path, dimension);
     s = w->open();
     writer = std::move(w);
-  } else if (format.value() == Format::kVtu) {
-    auto w = std::make_unique<VtuCellWriter>(path, dimension);
-    s = w->open();
-    writer = std::move(w);
   } else {
-    auto w = std::make_unique<SvgCellWriter>(path);
+    auto w = std::make_unique<SectionedCellWriter>(path, format.value(), dimension);
     s = w->open();
     writer = std::move(w);
   }
   if (!s.is_ok()) return s;
   return writer;
+}
+
+CellFileLayout::CellFileLayout(CellWriter::Format format, int d)
+    : format_(format), d_(d), parts_(format == CellWriter::Format::kSvg ? 2 : d == 3 ? 8 : 6) {}
+
+bool CellFileLayout::shows(const VoronoiCell& cell) const {
+  return cell.bounded && (format_ != CellWriter::Format::kSvg || cell.vertex_count() >= 3);
+}
+
+void CellFileLayout::add(const VoronoiCell& c, CellTally& t) const {
+  if (!shows(c)) return;
+  const std::size_t k = c.vertex_count();
+  t.cells += 1;
+  t.points += static_cast<std::int64_t>(k);
+  t.connectivity += static_cast<std::int64_t>(k);
+  if (format_ == CellWriter::Format::kSvg) {
+    for (std::size_t v = 0; v < k; ++v) {
+      const double x = c.vertices[2 * v], y = c.vertices[2 * v + 1];
+      t.lo[0] = std::min(t.lo[0], x), t.lo[1] = std::min(t.lo[1], y);
+      t.hi[0] = std::max(t.hi[0], x), t.hi[1] = std::max(t.hi[1], y);
+    }
+    t.min_volume = std::min(t.min_volume, c.volume);
+    t.max_volume = std::max(t.max_volume, c.volume);
+  } else if (d_ == 3) {
+    t.face_values += 1;
+    for (const VoronoiFacet& f : c.facets) {
+      if (f.vertices.size() >= 3) t.face_values += 1 + static_cast<std::int64_t>(f.vertices.size());
+    }
+  }
+}
+
+namespace {
+
+// An .svg's scale: 800 pixels across its longer side.
+struct SvgFrame {
+  double w, h, scale;
+  explicit SvgFrame(const CellTally& t)
+      : w(std::max(t.hi[0] - t.lo[0], 1e-300)), h(std::max(t.hi[1] - t.lo[1], 1e-300)), scale(800 / std::max(w, h)) {}
+};
+
+template <class... Args>
+void append_format(std::string& out, const char* format, Args... args) {
+  char buf[256];
+  const int n = std::snprintf(buf, sizeof buf, format, args...);
+  if (n < static_cast<int>(sizeof buf)) {
+    out.append(buf, static_cast<std::size_t>(n));
+    return;
+  }
+  const std::size_t at = out.size();
+  out.resize(at + static_cast<std::size_t>(n) + 1);
+  std::snprintf(out.data() + at, static_cast<std::size_t>(n) + 1, format, args...);
+  out.resize(at + static_cast<std::size_t>(n));
+}
+
+}  // namespace
+
+void CellFileLayout::lines(const VoronoiCell& c, CellTally& before, const CellTally& totals, std::string* out) const {
+  if (!shows(c)) return;
+  const std::size_t k = c.vertex_count();
+  if (format_ == CellWriter::Format::kSvg) {
+    const SvgFrame frame(totals);
+    const double t = totals.max_volume > totals.min_volume
+                         ? (c.volume - totals.min_volume) / (totals.max_volume - totals.min_volume)
+                         : 0.5;
+    const int shade = static_cast<int>(235 - 150 * t);  // light small cells, darker large ones
+    append_format(out[0], "<polygon fill=\"rgb(%d,%d,255)\" points=\"", shade, shade);
+    for (std::size_t v = 0; v < k; ++v) {
+      append_format(out[0], v == 0 ? "%.9g,%.9g" : " %.9g,%.9g", c.vertices[2 * v], c.vertices[2 * v + 1]);
+    }
+    out[0] += "\"/>\n";
+    append_format(out[1], "<circle cx=\"%.9g\" cy=\"%.9g\" r=\"%.9g\"/>\n", c.centroid[0], c.centroid[1], 1.5 / frame.scale);
+    add(c, before);
+    return;
+  }
+  // .vtu parts: points, connectivity, offsets, types, [faces, faceoffsets,] seed, volume.
+  const std::int64_t first = before.points;
+  for (std::size_t v = 0; v < k; ++v) {
+    const double* x = &c.vertices[v * static_cast<std::size_t>(d_)];
+    append_format(out[0], "%.17g %.17g %.17g\n", x[0], x[1], d_ == 3 ? x[2] : 0.0);
+  }
+  for (std::size_t v = 0; v < k; ++v) append_format(out[1], "%lld ", static_cast<long long>(first + static_cast<std::int64_t>(v)));
+  add(c, before);
+  append_format(out[2], "%lld\n", static_cast<long long>(before.connectivity));
+  append_format(out[3], "%d\n", d_ == 2 ? 7 : 42);  // VTK_POLYGON, VTK_POLYHEDRON
+  int next = 4;
+  if (d_ == 3) {
+    std::size_t faces = 0;
+    for (const VoronoiFacet& f : c.facets) faces += f.vertices.size() >= 3 ? 1 : 0;
+    append_format(out[4], "%zu\n", faces);
+    for (const VoronoiFacet& f : c.facets) {
+      if (f.vertices.size() < 3) continue;  // a facet of measure zero
+      append_format(out[4], "%zu", f.vertices.size());
+      for (const std::uint32_t v : f.vertices) append_format(out[4], " %lld", static_cast<long long>(first + v));
+      out[4] += "\n";
+    }
+    append_format(out[5], "%lld\n", static_cast<long long>(before.face_values));
+    next = 6;
+  }
+  append_format(out[next], "%u\n", c.seed);
+  append_format(out[next + 1], "%.17g\n", c.volume);
+}
+
+std::vector<CellFileLayout::Section> CellFileLayout::sections(const CellTally& totals) const {
+  std::vector<Section> s;
+  auto text = [&](std::string t) {
+    if (!s.empty() && !s.back().lines) {
+      s.back().text += t;
+    } else {
+      s.push_back({false, std::move(t), 0});
+    }
+  };
+  auto part = [&](int k) { s.push_back({true, {}, k}); };
+  if (format_ == CellWriter::Format::kSvg) {
+    const SvgFrame f(totals);
+    std::string head;
+    append_format(head,
+                  "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" viewBox=\"0 0 %.0f %.0f\">\n",
+                  f.w * f.scale, f.h * f.scale, f.w * f.scale, f.h * f.scale);
+    const std::string frame = [&] {
+      std::string g;
+      append_format(g, "<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\"", f.h * f.scale,
+                    f.scale, -f.scale, -totals.lo[0], -totals.lo[1]);
+      return g;
+    }();
+    head += frame;
+    append_format(head, " stroke=\"#333\" stroke-width=\"%.9g\" stroke-linejoin=\"round\">\n", 0.75 / f.scale);
+    text(head);
+    part(0);
+    text("</g>\n" + frame + " fill=\"#c00\">\n");
+    part(1);
+    text("</g>\n</svg>\n");
+    return s;
+  }
+  std::string head;
+  append_format(head,
+                "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
+                "header_type=\"UInt64\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%lld\" NumberOfCells=\"%lld\">\n",
+                static_cast<long long>(totals.points), static_cast<long long>(totals.cells));
+  text(head + "<Points>\n");
+  int k = 0;
+  auto array = [&](const char* head_line) {
+    text(std::string(head_line) + "\n");
+    part(k++);
+    text("\n</DataArray>\n");
+  };
+  array("<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">");
+  text("</Points>\n<Cells>\n");
+  array("<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">");
+  array("<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">");
+  array("<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">");
+  if (d_ == 3) {
+    array("<DataArray type=\"Int64\" Name=\"faces\" format=\"ascii\">");
+    array("<DataArray type=\"Int64\" Name=\"faceoffsets\" format=\"ascii\">");
+  }
+  text("</Cells>\n<CellData Scalars=\"volume\">\n");
+  array("<DataArray type=\"Int64\" Name=\"seed\" format=\"ascii\">");
+  array("<DataArray type=\"Float64\" Name=\"volume\" format=\"ascii\">");
+  text("</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
+  return s;
 }
 
 Result<Domain> read_halfspaces(const std::string& path, int dimension) {
