@@ -33,10 +33,38 @@ constexpr std::uint64_t kBucketBytes = std::uint64_t{16} << 20;  // records a ra
 
 }  // namespace
 
+void read_cell_record(int d, bool geometry, const char* p, VoronoiCell& cell) {
+  const auto dd = static_cast<std::size_t>(d);
+  cell.seed = get<std::uint32_t>(p);
+  const auto facets = get<std::uint32_t>(p);
+  const auto vertices = get<std::uint32_t>(p);
+  get<std::uint32_t>(p);  // (the loop values: the facets' counts say where each loop ends)
+  cell.dimension = d;
+  cell.bounded = get<std::uint8_t>(p) != 0;
+  cell.volume = get<double>(p);
+  cell.centroid.resize(dd);
+  for (double& c : cell.centroid) c = get<double>(p);
+  cell.facets.resize(facets);
+  for (VoronoiFacet& f : cell.facets) {
+    f.neighbor = get<std::int64_t>(p);
+    f.area = get<double>(p);
+    f.normal.resize(dd);
+    for (double& c : f.normal) c = get<double>(p);
+    f.vertices.clear();
+  }
+  cell.vertices.resize(geometry ? vertices * dd : 0);
+  if (!geometry) return;
+  for (double& c : cell.vertices) c = get<double>(p);
+  for (VoronoiFacet& f : cell.facets) f.vertices.resize(get<std::uint32_t>(p));
+  for (VoronoiFacet& f : cell.facets) {
+    for (std::uint32_t& v : f.vertices) v = get<std::uint32_t>(p);
+  }
+}
+
 void CellSpool::take(CellRecords& records) {
   std::vector<char>& b = records.bytes();
   for (std::size_t at = 0; at < b.size();) {
-    const CellRecordHead h = cell_record_head(d_, b.data() + at);
+    const CellRecordHead h = cell_record_head(d_, geometry_, b.data() + at);
     to_rank_[static_cast<std::size_t>(slice_owner(n_, h.seed, static_cast<int>(to_rank_.size())))] += h.bytes;
     at += h.bytes;
   }
@@ -45,10 +73,14 @@ void CellSpool::take(CellRecords& records) {
   b.clear();
 }
 
-Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, CellSpool& spool, CellsWritten& written) {
-  const int d = spool.d_;
-  const auto dd = static_cast<std::size_t>(d);
-  const std::uint64_t first = slice_begin(n, comm.rank, comm.size), last = slice_begin(n, comm.rank + 1, comm.size);
+Result<std::unique_ptr<SliceCells>> SliceCells::gather(Comm& comm, CellSpool& spool,
+                                                       const std::function<void(const char*)>& observe) {
+  auto slice = std::make_unique<SliceCells>();
+  const int d = slice->d_ = spool.d_;
+  const bool geometry = slice->geometry_ = spool.geometry_;
+  const std::uint64_t n = spool.n_;
+  const std::uint64_t first = slice->first_ = slice_begin(n, comm.rank, comm.size);
+  const std::uint64_t last = slice->last_ = slice_begin(n, comm.rank + 1, comm.size);
   const std::uint64_t cells = last - first;
   Status status;
   if (!spool.ok()) status = internal_error("cannot write the temporary file of cells (" + std::string(std::strerror(errno)) + ")");
@@ -61,7 +93,7 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
   std::uint64_t total_in = 0;
   for (const std::uint64_t b : incoming) total_in += b;
   const std::uint64_t buckets = std::clamp<std::uint64_t>((total_in + kBucketBytes - 1) / kBucketBytes, 1, 4096);
-  std::vector<File> bucket;
+  std::vector<File>& bucket = slice->buckets_;
   for (std::uint64_t b = 0; b < buckets && status.is_ok(); ++b) {
     bucket.emplace_back(std::tmpfile(), &std::fclose);
     if (bucket.back() == nullptr) status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
@@ -74,7 +106,7 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
   if (spool.file_ != nullptr) std::rewind(spool.file_);
   std::vector<char> chunk;
   std::vector<bool> seen(cells, false);
-  std::uint64_t my_facets = 0, left = spool.bytes_;
+  std::uint64_t left = spool.bytes_;
   for (std::uint64_t round = 0; round < rounds; ++round) {
     const std::size_t carried = chunk.size();
     const std::uint64_t want = std::min(left, kRoundBytes);
@@ -85,8 +117,8 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
     left -= want;
     std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
     std::size_t at = 0;
-    while (status.is_ok() && at + 8 <= chunk.size()) {
-      const CellRecordHead h = cell_record_head(d, chunk.data() + at);
+    while (status.is_ok() && at + 16 <= chunk.size()) {
+      const CellRecordHead h = cell_record_head(d, geometry, chunk.data() + at);
       if (at + h.bytes > chunk.size()) break;  // the rest comes with the next round
       std::vector<char>& to = outgoing[static_cast<std::size_t>(slice_owner(n, h.seed, comm.size))];
       to.insert(to.end(), chunk.data() + at, chunk.data() + at + h.bytes);
@@ -95,13 +127,14 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
     chunk.erase(chunk.begin(), chunk.begin() + static_cast<std::ptrdiff_t>(at));
     const std::vector<char> in = comm.alltoall_bytes(outgoing);
     for (std::size_t from = 0; from < in.size() && status.is_ok();) {
-      const auto [seed, facets, size] = cell_record_head(d, in.data() + from);
+      const auto [seed, facets, size] = cell_record_head(d, geometry, in.data() + from);
       if (seed < first || seed >= last || seen[seed - first]) {
         status = internal_error("internal error: cell " + std::to_string(seed) + " sent to the wrong rank or twice");
         break;
       }
       seen[seed - first] = true;
-      my_facets += facets;
+      slice->facets_ += facets;
+      if (observe) observe(in.data() + from);
       if (std::fwrite(in.data() + from, 1, size, bucket[bucket_of(seed)].get()) != size) {
         status = internal_error("cannot write a temporary file of cells (" + std::string(std::strerror(errno)) + ")");
       }
@@ -112,12 +145,65 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
   for (std::uint64_t i = 0; i < cells && status.is_ok(); ++i) {
     if (!seen[i]) status = internal_error("internal error: no rank computed cell " + std::to_string(first + i));
   }
-  seen = {};
   if (Status s = comm.agree(status); !s.is_ok()) return s;
+  return slice;
+}
+
+Status SliceCells::for_each(const std::function<Status(const char*)>& f) {
+  std::vector<char> held;
+  std::vector<const char*> in_order;
+  for (File& file : buckets_) {
+    const long size = std::ftell(file.get());
+    held.resize(static_cast<std::size_t>(std::max(0L, size)));
+    std::rewind(file.get());
+    if (!held.empty() && std::fread(held.data(), 1, held.size(), file.get()) != held.size()) {
+      return internal_error("cannot read back a temporary file of cells");
+    }
+    file.reset();  // (its disk space goes now)
+    in_order.clear();
+    for (std::size_t from = 0; from < held.size();) {
+      in_order.push_back(held.data() + from);
+      from += cell_record_head(d_, geometry_, held.data() + from).bytes;
+    }
+    std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
+      return get<std::uint32_t>(x) < get<std::uint32_t>(y);
+    });
+    for (const char* c : in_order) {
+      if (Status s = f(c); !s.is_ok()) return s;
+    }
+  }
+  buckets_.clear();
+  return Status::ok();
+}
+
+namespace {
+
+// The volumes summed in seed order, passed from rank to rank: the CLI's sum, bit for
+// bit. Collective.
+double sum_in_seed_order(Comm& comm, const std::vector<double>& volumes) {
+  double sum = 0;
+  if (comm.rank > 0) MPI_Recv(&sum, 1, MPI_DOUBLE, comm.rank - 1, 7, comm.comm, MPI_STATUS_IGNORE);
+  for (const double v : volumes) sum += v;
+  if (comm.rank + 1 < comm.size) MPI_Send(&sum, 1, MPI_DOUBLE, comm.rank + 1, 7, comm.comm);
+  MPI_Bcast(&sum, 1, MPI_DOUBLE, comm.size - 1, comm.comm);
+  return sum;
+}
+
+// A record's volume.
+double record_volume(const char* record) {
+  const char* p = record + 17;
+  return get<double>(p);
+}
+
+}  // namespace
+
+Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, SliceCells& slice, CellsWritten& written) {
+  const int d = slice.d();
+  const auto dd = static_cast<std::size_t>(d);
+  const std::uint64_t first = slice.first(), cells = slice.cells(), my_facets = slice.facets();
   const std::uint64_t facets_before = comm.exscan_sum<std::uint64_t>(my_facets);
   const std::uint64_t facets_total = comm.allreduce<std::uint64_t>(my_facets, MPI_SUM);
   written.facets = facets_total;
-
   // The members, as NpzCellWriter writes them.
   std::array<Member, 7> m;
   m[0] = {"volume.npy", npy_vector_header("<f8", n), 8 * n, 8 * first, 8 * cells};
@@ -161,52 +247,43 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
       const std::int64_t zero = 0;
       emit(3, std::string(reinterpret_cast<const char*>(&zero), 8));
     }
-    std::vector<char> held;
-    std::vector<const char*> in_order;
     std::array<std::string, 7> piece;
-    for (std::uint64_t b = 0; b < buckets && s.is_ok(); ++b) {
-      std::FILE* file = bucket[b].get();
-      const long size = std::ftell(file);
-      held.resize(static_cast<std::size_t>(std::max(0L, size)));
-      std::rewind(file);
-      if (!held.empty() && std::fread(held.data(), 1, held.size(), file) != held.size()) {
-        s = internal_error("cannot read back a temporary file of cells");
-        break;
+    auto flush = [&] {
+      for (std::size_t k = 0; k < m.size(); ++k) {
+        emit(k, piece[k]);
+        piece[k].clear();
       }
-      bucket[b].reset();  // (its disk space goes now)
-      in_order.clear();
-      for (std::size_t from = 0; from < held.size();) {
-        in_order.push_back(held.data() + from);
-        from += cell_record_head(d, held.data() + from).bytes;
+    };
+    std::size_t held = 0;
+    if (s.is_ok()) s = slice.for_each([&](const char* c) {
+      const char* p = c + 4;
+      const std::uint32_t facets = get<std::uint32_t>(p);
+      p += 8;  // (no geometry in an .npz's records)
+      const char* bounded = p;
+      const char* volume = p + 1;
+      const char* centroid = volume + 8;
+      const char* facet = centroid + 8 * dd;
+      const std::size_t facet_bytes = 8 * (2 + dd);
+      piece[0].append(volume, 8);
+      piece[1].append(centroid, 8 * dd);
+      piece[2].append(bounded, 1);
+      ptr += facets;
+      piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
+      for (std::uint32_t f = 0; f < facets; ++f) {
+        const char* q = facet + f * facet_bytes;
+        piece[4].append(q, 8);
+        piece[5].append(q + 8, 8);
+        piece[6].append(q + 16, 8 * dd);
       }
-      std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
-        return get<std::uint32_t>(x) < get<std::uint32_t>(y);
-      });
-      for (std::string& p : piece) p.clear();
-      for (const char* c : in_order) {
-        const char* p = c + 4;
-        const std::uint32_t facets = get<std::uint32_t>(p);
-        const char* bounded = p;
-        const char* volume = p + 1;
-        const char* centroid = volume + 8;
-        const char* facet = centroid + 8 * dd;
-        const std::size_t facet_bytes = 8 * (2 + dd);
-        piece[0].append(volume, 8);
-        piece[1].append(centroid, 8 * dd);
-        piece[2].append(bounded, 1);
-        ptr += facets;
-        piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
-        for (std::uint32_t f = 0; f < facets; ++f) {
-          const char* q = facet + f * facet_bytes;
-          piece[4].append(q, 8);
-          piece[5].append(q + 8, 8);
-          piece[6].append(q + 16, 8 * dd);
-        }
-        const char* v = volume;
-        volumes.push_back(get<double>(v));
+      volumes.push_back(record_volume(c));
+      held += cell_record_bytes(d, false, facets, 0, 0);
+      if (held >= kBucketBytes) {
+        flush();
+        held = 0;
       }
-      for (std::size_t k = 0; k < m.size(); ++k) emit(k, piece[k]);
-    }
+      return s;
+    });
+    flush();
     for (std::size_t k = 0; k < m.size() && s.is_ok(); ++k) {
       if (wrote[k] != m[k].part_bytes) s = internal_error(path + ": internal error: a part changed size");
     }
@@ -236,14 +313,93 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Cel
     return s;
   });
   if (!done.is_ok()) return done;
+  written.volume = sum_in_seed_order(comm, volumes);
+  return Status::ok();
+}
 
-  // The volumes summed in seed order, passed from rank to rank: the CLI's sum, bit for bit.
-  double sum = 0;
-  if (comm.rank > 0) MPI_Recv(&sum, 1, MPI_DOUBLE, comm.rank - 1, 7, comm.comm, MPI_STATUS_IGNORE);
-  for (const double v : volumes) sum += v;
-  if (comm.rank + 1 < comm.size) MPI_Send(&sum, 1, MPI_DOUBLE, comm.rank + 1, 7, comm.comm);
-  MPI_Bcast(&sum, 1, MPI_DOUBLE, comm.size - 1, comm.comm);
-  written.volume = sum;
+Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::Format format, SliceCells& slice,
+                            const CellTally& tally, CellsWritten& written) {
+  const CellFileLayout layout(format, slice.d());
+  const auto parts = static_cast<std::size_t>(layout.parts());
+  written.facets = comm.allreduce<std::uint64_t>(slice.facets(), MPI_SUM);
+  // The counts before this rank's cells, and the totals.
+  std::vector<std::int64_t> counts = {tally.cells, tally.points, tally.connectivity, tally.face_values};
+  const std::vector<std::int64_t> before_counts = comm.exscan_sum(counts);
+  comm.allreduce(counts, MPI_SUM);
+  std::vector<double> lows = {tally.lo[0], tally.lo[1], tally.min_volume}, highs = {tally.hi[0], tally.hi[1], tally.max_volume};
+  comm.allreduce(lows, MPI_MIN);
+  comm.allreduce(highs, MPI_MAX);
+  CellTally before, totals;
+  before.cells = before_counts[0], before.points = before_counts[1];
+  before.connectivity = before_counts[2], before.face_values = before_counts[3];
+  totals.cells = counts[0], totals.points = counts[1], totals.connectivity = counts[2], totals.face_values = counts[3];
+  totals.lo[0] = lows[0], totals.lo[1] = lows[1], totals.min_volume = lows[2];
+  totals.hi[0] = highs[0], totals.hi[1] = highs[1], totals.max_volume = highs[2];
+
+  // This rank's lines, part by part, on disk until their offsets are known.
+  Status status;
+  std::vector<File> part_files;
+  for (std::size_t k = 0; k < parts && status.is_ok(); ++k) {
+    part_files.emplace_back(std::tmpfile(), &std::fclose);
+    if (part_files.back() == nullptr) status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
+  }
+  std::vector<std::string> lines(parts);
+  std::vector<std::uint64_t> part_bytes(parts, 0);
+  auto flush = [&](std::size_t threshold) {
+    for (std::size_t k = 0; k < parts; ++k) {
+      if (lines[k].size() < threshold || lines[k].empty()) continue;
+      if (std::fwrite(lines[k].data(), 1, lines[k].size(), part_files[k].get()) != lines[k].size()) {
+        return internal_error("cannot write a temporary file of cells (" + std::string(std::strerror(errno)) + ")");
+      }
+      part_bytes[k] += lines[k].size();
+      lines[k].clear();
+    }
+    return Status::ok();
+  };
+  std::vector<double> volumes;
+  volumes.reserve(slice.cells());
+  VoronoiCell cell;
+  if (status.is_ok()) status = slice.for_each([&](const char* record) {
+    read_cell_record(slice.d(), true, record, cell);
+    volumes.push_back(cell.volume);
+    layout.lines(cell, before, totals, lines.data());
+    return flush(1 << 20);
+  });
+  if (status.is_ok()) status = flush(1);
+  if (Status s = comm.agree(status); !s.is_ok()) return s;
+
+  // The file: rank 0 writes the text; each part is every rank's lines in rank order.
+  const std::vector<std::uint64_t> part_before = comm.exscan_sum(part_bytes);
+  std::vector<std::uint64_t> part_total = part_bytes;
+  comm.allreduce(part_total, MPI_SUM);
+  Status done = write_file(comm, path, [&](const WriteAt& write_at) {
+    Status s;
+    std::uint64_t at = 0;
+    std::vector<char> buffer(std::size_t{8} << 20);
+    for (const CellFileLayout::Section& section : layout.sections(totals)) {
+      if (!section.lines) {
+        if (comm.rank == 0 && s.is_ok()) s = write_at(at, section.text);
+        at += section.text.size();
+        continue;
+      }
+      const auto k = static_cast<std::size_t>(section.part);
+      std::FILE* f = part_files[k].get();
+      std::rewind(f);
+      for (std::uint64_t done_bytes = 0; done_bytes < part_bytes[k] && s.is_ok();) {
+        const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(buffer.size(), part_bytes[k] - done_bytes));
+        if (std::fread(buffer.data(), 1, want, f) != want) {
+          s = internal_error("cannot read back a temporary file of cells");
+          break;
+        }
+        s = write_at(at + part_before[k] + done_bytes, std::string_view(buffer.data(), want));
+        done_bytes += want;
+      }
+      at += part_total[k];
+    }
+    return s;
+  });
+  if (!done.is_ok()) return done;
+  written.volume = sum_in_seed_order(comm, volumes);
   return Status::ok();
 }
 

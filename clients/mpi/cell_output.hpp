@@ -1,40 +1,78 @@
 // spokemesh-mpi's cells: a rank's certified cells as records, kept on disk, sent in
 // bounded rounds to the rank whose slice of the index range holds their seeds, and
-// written there into the CLI's .npz (cell_io.hpp: volume, centroid, bounded,
-// facet_ptr, facet_neighbor, facet_area, facet_normal) at offsets computed from every
-// rank's counts, the zip container around them as libzip makes it (npz.hpp). Memory
-// stays bounded whatever the number of cells: records go through temporary files, and
-// a rank sends 8 MB of records a round and holds one bucket of its slice (about 16 MB
-// of records) at a time.
+// written there into the CLI's file at offsets computed from every rank's counts:
+// the .npz's arrays (cell_io.hpp: volume, centroid, bounded, facet_ptr,
+// facet_neighbor, facet_area, facet_normal) in the zip container as libzip makes it
+// (npz.hpp), or the .vtu's or .svg's sections (CellFileLayout). Memory stays bounded
+// whatever the number of cells: records go through temporary files, and a rank sends
+// 8 MB of records a round and holds one bucket of its slice (about 16 MB of records)
+// at a time.
 //
 // Thread safety: CellRecords is used by one thread; CellSpool::take by one thread at
-// a time (the caller locks); write_cells_npz is collective (main thread).
+// a time (the caller locks); SliceCells and the writers are collective (main thread).
 #pragma once
 
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "comm.hpp"
+#include "spokemesh/cell_io.hpp"
 #include "spokemesh/status.hpp"
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh::mpi {
 
-// Cells measured (volume, centroid, facets' neighbours, areas and normals), in global
-// indices, as bytes. A record: seed (u32), facets (u32), bounded (u8), volume,
-// centroid (d doubles; NaN when empty), then per facet its neighbour (i64: an index,
-// or -1 - k for wall k), area and normal (d doubles).
+// A record: seed, facets, vertices, loop values (u32 each: the last two 0 without
+// geometry), bounded (u8), volume, centroid (d doubles; NaN when empty), per facet
+// its neighbour (i64: an index, or -1 - k for wall k), area and normal (d doubles);
+// then, with geometry (.vtu, .svg), the vertices (d doubles each), each facet's
+// vertex count (u32) and the facets' vertex indices (u32, into the cell's vertices).
+inline std::size_t cell_record_bytes(int d, bool geometry, std::uint32_t facets, std::uint32_t vertices,
+                                     std::uint32_t loop_values) {
+  const auto dd = static_cast<std::size_t>(d);
+  const std::size_t measures = 16 + 1 + 8 * (1 + dd) + std::size_t{facets} * 8 * (2 + dd);
+  return geometry ? measures + std::size_t{vertices} * 8 * dd + 4 * (std::size_t{facets} + loop_values) : measures;
+}
+
+// What a record at `p` starts with, and its size.
+struct CellRecordHead {
+  std::uint32_t seed, facets;
+  std::size_t bytes;
+};
+inline CellRecordHead cell_record_head(int d, bool geometry, const char* p) {
+  CellRecordHead h;
+  h.seed = get<std::uint32_t>(p);
+  h.facets = get<std::uint32_t>(p);
+  const auto vertices = get<std::uint32_t>(p);
+  const auto loop_values = get<std::uint32_t>(p);
+  h.bytes = cell_record_bytes(d, geometry, h.facets, vertices, loop_values);
+  return h;
+}
+
+// The cell a record holds (its indices global), for the CellFileLayout's lines.
+void read_cell_record(int d, bool geometry, const char* p, VoronoiCell& cell);
+
+// Cells (measures, and with `geometry` vertices and facet loops), in global indices,
+// as bytes.
 class CellRecords {
  public:
-  explicit CellRecords(int d) : d_(d) {}
+  CellRecords(int d, bool geometry) : d_(d), geometry_(geometry) {}
   // `global(i)` maps the cell's point indices to global ones.
   template <class Global>
   void add(const VoronoiCell& cell, std::uint64_t seed, Global&& global) {
+    std::uint32_t loop_values = 0;
+    if (geometry_) {
+      for (const VoronoiFacet& f : cell.facets) loop_values += static_cast<std::uint32_t>(f.vertices.size());
+    }
     put<std::uint32_t>(bytes_, static_cast<std::uint32_t>(seed));
     put<std::uint32_t>(bytes_, static_cast<std::uint32_t>(cell.facets.size()));
+    put<std::uint32_t>(bytes_, geometry_ ? static_cast<std::uint32_t>(cell.vertex_count()) : 0);
+    put<std::uint32_t>(bytes_, loop_values);
     put<std::uint8_t>(bytes_, cell.bounded ? 1 : 0);
     put<double>(bytes_, cell.volume);
     for (int c = 0; c < d_; ++c) {
@@ -47,12 +85,19 @@ class CellRecords {
       put<double>(bytes_, f.area);
       for (int c = 0; c < d_; ++c) put<double>(bytes_, f.normal[static_cast<std::size_t>(c)]);
     }
+    if (!geometry_) return;
+    for (std::size_t i = 0; i < cell.vertex_count() * static_cast<std::size_t>(d_); ++i) put<double>(bytes_, cell.vertices[i]);
+    for (const VoronoiFacet& f : cell.facets) put<std::uint32_t>(bytes_, static_cast<std::uint32_t>(f.vertices.size()));
+    for (const VoronoiFacet& f : cell.facets) {
+      for (const std::uint32_t v : f.vertices) put<std::uint32_t>(bytes_, v);
+    }
   }
   std::vector<char>& bytes() { return bytes_; }
   std::size_t size() const { return bytes_.size(); }
 
  private:
   int d_;
+  bool geometry_;
   std::vector<char> bytes_;
 };
 
@@ -60,7 +105,8 @@ class CellRecords {
 // each rank's slice.
 class CellSpool {
  public:
-  CellSpool(int d, std::uint64_t n, int ranks) : d_(d), n_(n), to_rank_(static_cast<std::size_t>(ranks)), file_(std::tmpfile()) {}
+  CellSpool(int d, bool geometry, std::uint64_t n, int ranks)
+      : d_(d), geometry_(geometry), n_(n), to_rank_(static_cast<std::size_t>(ranks)), file_(std::tmpfile()) {}
   ~CellSpool() {
     if (file_ != nullptr) std::fclose(file_);
   }
@@ -71,9 +117,9 @@ class CellSpool {
   bool ok() const { return file_ != nullptr && std::ferror(file_) == 0; }
 
  private:
-  friend Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, CellSpool& spool,
-                                struct CellsWritten& written);
+  friend class SliceCells;
   int d_;
+  bool geometry_;
   std::uint64_t n_;
   std::vector<std::uint64_t> to_rank_;
   std::uint64_t bytes_ = 0;
@@ -85,28 +131,35 @@ struct CellsWritten {
   double volume = 0;         // the cells' volumes summed in seed order (as the CLI sums)
 };
 
-// Sends the records to their slices' ranks (slice_begin), checks that every seed of
-// the set came exactly once, and writes PATH (under a temporary name, renamed once
-// every rank succeeded). Collective.
-Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, CellSpool& spool, CellsWritten& written);
+// This rank's slice of the index range (slice_begin) of the cells, after every rank
+// sent each record to its seed's slice (checking that every seed came exactly once):
+// on disk, in buckets of consecutive seeds.
+class SliceCells {
+ public:
+  // Collective. `observe` sees each record arriving (in no particular order).
+  static Result<std::unique_ptr<SliceCells>> gather(Comm& comm, CellSpool& spool,
+                                                    const std::function<void(const char*)>& observe = {});
+  // Calls f(record) for each record in seed order, reading each bucket once and
+  // releasing its disk space after.
+  Status for_each(const std::function<Status(const char*)>& f);
+  std::uint64_t first() const { return first_; }
+  std::uint64_t cells() const { return last_ - first_; }
+  std::uint64_t facets() const { return facets_; }  // this slice's
+  int d() const { return d_; }
+  bool geometry() const { return geometry_; }
 
-// A record's size from its facet count.
-inline std::size_t cell_record_bytes(int d, std::uint32_t facets) {
-  const auto dd = static_cast<std::size_t>(d);
-  return 4 + 4 + 1 + 8 * (1 + dd) + facets * 8 * (2 + dd);
-}
-
-// What a record at `p` starts with, and its size.
-struct CellRecordHead {
-  std::uint32_t seed, facets;
-  std::size_t bytes;
+ private:
+  using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
+  int d_ = 0;
+  bool geometry_ = false;
+  std::uint64_t first_ = 0, last_ = 0, facets_ = 0;
+  std::vector<File> buckets_;
 };
-inline CellRecordHead cell_record_head(int d, const char* p) {
-  CellRecordHead h;
-  h.seed = get<std::uint32_t>(p);
-  h.facets = get<std::uint32_t>(p);
-  h.bytes = cell_record_bytes(d, h.facets);
-  return h;
-}
+
+// Writes PATH (under a temporary name, renamed once every rank succeeded): the .npz,
+// or the .vtu or .svg (`format`), of the cells gathered. Collective.
+Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, SliceCells& slice, CellsWritten& written);
+Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::Format format, SliceCells& slice,
+                            const CellTally& tally, CellsWritten& written);
 
 }  // namespace spokemesh::mpi

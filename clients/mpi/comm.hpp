@@ -57,6 +57,14 @@ struct Comm {
     MPI_Exscan(&v, &out, 1, type<T>(), MPI_SUM, comm);
     return rank == 0 ? T{} : out;
   }
+  // Element by element: the sums over the ranks before this one.
+  template <class T>
+  std::vector<T> exscan_sum(const std::vector<T>& v) const {
+    std::vector<T> out(v.size(), T{});
+    if (!v.empty()) MPI_Exscan(v.data(), out.data(), static_cast<int>(v.size()), type<T>(), MPI_SUM, comm);
+    if (rank == 0) std::fill(out.begin(), out.end(), T{});
+    return out;
+  }
 
   // Every rank's bytes, concatenated in rank order (sizes of each in `counts`).
   std::vector<char> allgather_bytes(const std::vector<char>& mine, std::vector<std::uint64_t>& counts) const {

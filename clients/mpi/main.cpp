@@ -245,14 +245,9 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   if (w.common.merge_duplicates) usage = invalid_argument("--merge-duplicates: spokemesh-mpi does not merge duplicates; remove them, or mesh on one process with spokemesh");
   if (job == Job::kGraph && w.approx.enabled) usage = invalid_argument("--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh graph --approx)");
   if (job == Job::kCells) {
-    // (The dimension is not known yet: 2 admits every extension.)
+    // (The dimension is not known yet: 2 admits every extension; checked once read.)
     auto format = CellWriter::format_for(w.output, 2);
-    if (!format.is_ok()) {
-      usage = format.status();
-    } else if (format.value() != CellWriter::Format::kNpz) {
-      usage = invalid_argument(w.output + ": spokemesh-mpi writes cells as .npz; write .vtu and .svg on one process with "
-                               "spokemesh cells");
-    }
+    if (!format.is_ok()) usage = format.status();
   } else {
     // (The dimension is not known yet: .svg is checked against it once read.)
     auto format = MeshWriter::format_for(w.output, 2);
@@ -290,6 +285,14 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     if (Status s = comm.agree(format.status()); !s.is_ok()) return report_all(s);
     mesh_format = format.value();
   }
+  CellWriter::Format cell_format = CellWriter::Format::kNpz;
+  if (job == Job::kCells) {
+    auto format = CellWriter::format_for(w.output, d);
+    if (Status s = comm.agree(format.status()); !s.is_ok()) return report_all(s);
+    cell_format = format.value();
+  }
+  // .vtu and .svg cells are drawn: their records carry vertices and facet loops.
+  const bool cell_geometry = cell_format != CellWriter::Format::kNpz;
   const bool sections = mesh_format == MeshWriter::Format::kVtu || mesh_format == MeshWriter::Format::kMsh ||
                         mesh_format == MeshWriter::Format::kSvg;
   const std::vector<double> slice_coords = sections ? slice.points.coords : std::vector<double>();
@@ -374,7 +377,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
   // outer side is empty, so the answers stay empty and cheap).
   std::map<std::vector<std::uint64_t>, std::vector<double>> hull_region;
   std::vector<std::uint32_t> pending;                    // owned k refused in the last round
-  mpi::CellSpool cell_spool(d, n, comm.size);            // cells: the certified ones, on disk
+  mpi::CellSpool cell_spool(d, cell_geometry, n, comm.size);            // cells: the certified ones, on disk
   RankStats stats;
   std::mutex mu;
   Status failure;
@@ -573,13 +576,13 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
             std::optional<ClippedCellBuilder> builder;
             if (job == Job::kCells) {
               builder.emplace(tree, *domain, star_options);
-              builder->set_measures_only(true);
+              builder->set_measures_only(!cell_geometry);
             } else {
               walker.emplace(tree, star_options);
             }
             Star star;
             VoronoiCell cell;
-            CellRecords found(d);
+            CellRecords found(d, cell_geometry);
             std::vector<std::uint32_t> out;
             constexpr std::size_t kBatch = 64;
             for (;;) {
@@ -744,10 +747,21 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     held_tree.reset();  // (what the rounds held goes before the cells move)
     held_set.reset();
     // Each cell to the rank whose slice of the index range holds its seed, written
-    // there into the .npz.
-    if (Status s = mpi::write_cells_npz(comm, w.output, n, cell_spool, cells_written); !s.is_ok()) {
-      return report_all(s);
-    }
+    // there into the file.
+    CellTally tally;
+    std::optional<CellFileLayout> layout;
+    VoronoiCell arriving;
+    if (cell_geometry) layout.emplace(cell_format, d);
+    auto gathered = mpi::SliceCells::gather(comm, cell_spool, [&](const char* record) {
+      if (!layout) return;
+      mpi::read_cell_record(d, true, record, arriving);
+      layout->add(arriving, tally);
+    });
+    if (!gathered.is_ok()) return report_all(gathered.status());
+    mpi::SliceCells& cells = *gathered.value();
+    Status s = cell_geometry ? mpi::write_cells_sections(comm, w.output, cell_format, cells, tally, cells_written)
+                             : mpi::write_cells_npz(comm, w.output, n, cells, cells_written);
+    if (!s.is_ok()) return report_all(s);
   } else {
 
     // The rows in order (mesh: the first round's, with the later rounds' seeds in

@@ -217,10 +217,63 @@ def test_cells_in_a_box_and_in_halfspaces_are_byte_identical(reference, work):
     assert done.returncode == 2 and done.stderr.count(".svg output is for 2-d meshes") == 1, done.stderr
     done = run_mpi(2, "graph", str(path), "-o", str(work / "g.vtu"), check=False)
     assert done.returncode == 2 and done.stderr.count("graphs are written as text") == 1, done.stderr
-    # Cell formats one process writes.
-    for name in ("c.vtu", "c.svg"):
-        done = run_mpi(2, "cells", str(path), "-o", str(work / name), check=False)
-        assert done.returncode == 2 and done.stderr.count("write .vtu and .svg on one process") == 1, done.stderr
+    # A cell format the dimension refuses: the CLI's words, once, and nothing written.
+    cli = subprocess.run([CLI, "cells", str(path), "-o", str(work / "c.svg")], capture_output=True, text=True)
+    done = run_mpi(2, "cells", str(path), "-o", str(work / "c.svg"), check=False)
+    assert cli.returncode == 2 and done.returncode == 2
+    message = cli.stderr.strip().splitlines()[-1].split("spokemesh: ", 1)[-1]
+    assert ".svg pictures are of 2-d cells" in message
+    assert done.stderr.count(message) == 1, done.stderr
+    assert not (work / "c.svg").exists()
+
+
+DRAWN_CELL_SETS = {
+    "3d-uniform-8k": lambda: uniform(8_000, 3, 4),
+    "3d-linspace-grid-20": lambda: linspace_grid(20),
+    "2d-uniform-20k": lambda: uniform(20_000, 2, 5),
+}
+
+
+@pytest.mark.parametrize("name,suffix,flags", [
+    ("3d-uniform-8k", ".vtu", []),
+    ("3d-uniform-8k", ".vtu", ["--box", "-0.5,-0.25,0,1.5,1.25,1"]),
+    ("3d-linspace-grid-20", ".vtu", []),
+    ("2d-uniform-20k", ".vtu", []),
+    ("2d-uniform-20k", ".svg", []),
+    ("2d-uniform-20k", ".svg", ["--halfspaces", "walls-2d"]),
+])
+@pytest.mark.parametrize("ranks", [1, 3, 7])
+def test_vtu_and_svg_cells_are_byte_identical(work, name, suffix, flags, ranks):
+    # Each cell's vertices and facet loops go with its record to its seed's rank, which
+    # writes its slice's lines of every section at offsets from the ranks' counts: the
+    # CLI's file (numbering of vertices and faces, and an .svg's extent and shading,
+    # included).
+    path = work / f"{name}.npy"
+    if not path.exists():
+        np.save(path, DRAWN_CELL_SETS[name]())
+    walls = work / "walls-2d.txt"
+    walls.write_text("1 -1 1.005\n-1 0 0.01\n0 -1 0.01\n1 0 1.01\n0 1 1.01\n")
+    flags = [str(walls) if f == "walls-2d" else f for f in flags]
+    tag = "-".join(f.strip("-").replace(",", "_").replace("/", "_")[:12] for f in flags)
+    one = work / f"{name}{tag}.cells{suffix}"
+    if not one.exists():
+        run_cli("cells", str(path), "-o", str(one), "-q", *flags)
+    many = work / f"{name}{tag}-{ranks}.cells{suffix}"
+    run_mpi(ranks, "cells", str(path), "-o", str(many), "-q", *flags)
+    assert many.read_bytes() == one.read_bytes(), f"{name}{suffix} {flags}: {ranks} ranks wrote other bytes"
+
+
+def test_vtu_cells_fetched_in_rounds_are_byte_identical(work):
+    path = work / "3d-uniform-8k.npy"
+    if not path.exists():
+        np.save(path, DRAWN_CELL_SETS["3d-uniform-8k"]())
+    one = work / "rounds-one.cells.vtu"
+    run_cli("cells", str(path), "-o", str(one), "-q")
+    many = work / "rounds-many.cells.vtu"
+    stats = work / "rounds-cells-vtu.json"
+    run_mpi(4, "cells", str(path), "-o", str(many), "-q", "--first-halo", "0", "--stats", str(stats))
+    assert many.read_bytes() == one.read_bytes()
+    assert max(r["rounds"] for r in json.loads(stats.read_text())["ranks"]) > 1
 
 
 def test_cells_fetch_what_they_need_in_rounds(reference, cells_reference, work):
