@@ -6,6 +6,7 @@ In-process (the compiled module spokemesh._core; no server, no gRPC):
     import numpy as np, spokemesh
     tri = spokemesh.Delaunay(np.random.default_rng(1).random((10_000, 3)))
     tri.simplices, tri.neighbors, tri.find_simplex(q), tri.cell(0, box=[0, 0, 0, 1, 1, 1])
+    vor = spokemesh.Voronoi(points)   # scipy.spatial.Voronoi's attributes
     g = spokemesh.approximate_graph(points_in_20d, misses=100)
 
 Remote (spokemesh.remote.Client, also spokemesh.Client; needs python3-grpcio):
@@ -24,7 +25,7 @@ from typing import Any
 
 from .types import Cell, Facet
 
-__all__ = ["Delaunay", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+__all__ = ["Delaunay", "Voronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
            "Client", "Error", "PointSet", "Star", "Neighbors"]
 
 _REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors"}
@@ -34,10 +35,12 @@ _LOCAL = {"Delaunay", "ApproximateGraph", "approximate_graph"}
 def __getattr__(name: str) -> Any:
     # Imported on first use: in-process users need not have gRPC, remote users need not
     # have the compiled module.
+    if name == "Voronoi":
+        return getattr(importlib.import_module(".voronoi", __name__), name)
     if name in _LOCAL:
         return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
         return getattr(importlib.import_module(".remote", __name__), name)
-    if name in ("remote", "delaunay"):
+    if name in ("remote", "delaunay", "voronoi"):
         return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

@@ -31,6 +31,7 @@
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
+#include "spokemesh/voronoi_diagram.hpp"
 
 namespace py = pybind11;
 using namespace spokemesh;
@@ -239,6 +240,31 @@ class Triangulation {
     stars_computed_ = stats.value().stars;
   }
 
+  // scipy's Voronoi arrays (voronoi_diagram.hpp): vertices, vertex_of_simplex,
+  // ridge_points, ridge_ptr, ridge_vertices, region_ptr, regions.
+  py::dict voronoi() const {
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    VoronoiDiagram v;
+    {
+      py::gil_scoped_release release;
+      v = voronoi_diagram(points_, simplices_, adjacency_, threads_);
+    }
+    py::dict out;
+    const auto k = static_cast<py::ssize_t>(v.vertices.size() / static_cast<std::size_t>(d_));
+    const auto r = static_cast<py::ssize_t>(v.ridge_points.size() / 2);
+    const auto rv = static_cast<py::ssize_t>(v.ridge_vertices.size());
+    const auto rg = static_cast<py::ssize_t>(v.regions.size());
+    const auto m = static_cast<py::ssize_t>(v.vertex_of_simplex.size());
+    out["vertices"] = owned(std::move(v.vertices), {k, d_});
+    out["vertex_of_simplex"] = owned(std::move(v.vertex_of_simplex), {m});
+    out["ridge_points"] = owned(std::move(v.ridge_points), {r, 2});
+    out["ridge_ptr"] = owned(std::move(v.ridge_ptr), {r + 1});
+    out["ridge_vertices"] = owned(std::move(v.ridge_vertices), {rv});
+    out["region_ptr"] = owned(std::move(v.region_ptr), {static_cast<py::ssize_t>(points_.size()) + 1});
+    out["regions"] = owned(std::move(v.regions), {rg});
+    return out;
+  }
+
   int dimension() const { return d_; }
   std::size_t npoints() const { return points_.size(); }
   std::uint64_t stars_computed() const { return stars_computed_; }
@@ -385,34 +411,7 @@ class Triangulation {
   void build_adjacency() const {
     const std::size_t m = nsimplices();
     const int w = d_ + 1;
-    struct Facet {
-      std::array<std::uint32_t, kMaxDimension> key{};
-      std::uint32_t simplex;
-      std::uint8_t opposite;
-      bool operator<(const Facet& o) const { return key < o.key; }
-    };
-    std::vector<Facet> facets(m * w);
-    for (std::size_t s = 0; s < m; ++s) {
-      const std::uint32_t* v = &simplices_[s * w];
-      for (int k = 0; k < w; ++k) {
-        Facet& f = facets[s * w + k];
-        int at = 0;
-        for (int j = 0; j < w; ++j) {
-          if (j != k) f.key[at++] = v[j];
-        }
-        std::sort(f.key.begin(), f.key.begin() + std::min(at, kMaxDimension));
-        f.simplex = static_cast<std::uint32_t>(s);
-        f.opposite = static_cast<std::uint8_t>(k);
-      }
-    }
-    std::sort(facets.begin(), facets.end());
-    adjacency_.assign(m * w, -1);
-    for (std::size_t i = 0; i + 1 < facets.size(); ++i) {
-      if (facets[i].key != facets[i + 1].key) continue;
-      adjacency_[facets[i].simplex * w + facets[i].opposite] = static_cast<std::int32_t>(facets[i + 1].simplex);
-      adjacency_[facets[i + 1].simplex * w + facets[i + 1].opposite] = static_cast<std::int32_t>(facets[i].simplex);
-      ++i;
-    }
+    adjacency_ = simplex_adjacency(simplices_, d_);
     first_simplex_.assign(points_.size(), -1);
     for (std::size_t s = 0; s < m; ++s) {
       for (int k = 0; k < w; ++k) {
@@ -560,6 +559,7 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("nsimplices", &Triangulation::nsimplices)
       .def("simplices", &Triangulation::simplices)
       .def("neighbors", &Triangulation::neighbors)
+      .def("voronoi", &Triangulation::voronoi)
       .def("find_simplex", &Triangulation::find_simplex, py::arg("xi"))
       .def("star", &Triangulation::star, py::arg("seed"))
       .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))
