@@ -15,7 +15,7 @@ documentation, and ours is the sweep order (docs/algorithm.md). Likewise the ord
 which each Voronoi region lists its vertices: Qhull starts each cycle where its facet
 lists happen to start and goes either way round (in TestVoronoi.test_simple it goes
 clockwise around point 4 and counter-clockwise around point 1 of the same grid);
-ours go counter-clockwise in 2-d from a fixed vertex (docs/python.md). Those tests'
+ours go counter-clockwise in 2-d from a fixed vertex (README, "Python"). Those tests'
 other assertions are run below on the same data against scipy's own Voronoi, with
 regions compared as cycles.
 """

@@ -19,6 +19,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from . import _core
 from .delaunay import Delaunay, _check_qhull_options
 from .types import Cell
 
@@ -32,9 +33,7 @@ def _default_options(incremental: bool, ndim: int) -> str:
 
 
 def _lists(flat: np.ndarray, ptr: np.ndarray) -> List[List[int]]:
-    values = flat.tolist()
-    bounds = ptr.tolist()
-    return [values[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+    return _core.split_lists(flat, ptr)
 
 
 class Voronoi:

@@ -411,7 +411,7 @@ class Triangulation {
   void build_adjacency() const {
     const std::size_t m = nsimplices();
     const int w = d_ + 1;
-    adjacency_ = simplex_adjacency(simplices_, d_);
+    adjacency_ = simplex_adjacency(simplices_, d_, threads_);
     first_simplex_.assign(points_.size(), -1);
     for (std::size_t s = 0; s < m; ++s) {
       for (int k = 0; k < w; ++k) {
@@ -520,6 +520,41 @@ py::tuple approximate_graph(const Points& array, std::uint32_t misses, std::uint
                         owned(std::move(exhausted), {static_cast<py::ssize_t>(n)}).attr("astype")("bool"));
 }
 
+// Python lists of ints, list i holding flat[ptr[i] .. ptr[i + 1]) (scipy's
+// ridge_vertices and regions), made with the C API and the cyclic garbage collector
+// paused (a collection every 700 new lists, each scanning every list made so far,
+// would take most of the time; these lists hold only ints, so they make no cycles).
+py::list split_lists(const py::array_t<std::int32_t, py::array::c_style | py::array::forcecast>& flat,
+                     const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& ptr) {
+  const std::int32_t* v = flat.data();
+  const std::int64_t* p = ptr.data();
+  const auto count = static_cast<std::size_t>(std::max<py::ssize_t>(0, ptr.size() - 1));
+  if (count > 0 && (p[0] < 0 || p[count] > flat.size())) throw py::value_error("split_lists: ptr out of range");
+  py::list out(count);
+  struct GcPause {
+    int was_enabled = PyGC_Disable();
+    ~GcPause() {
+      if (was_enabled) PyGC_Enable();
+    }
+  } pause;
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::int64_t a = p[i], b = p[i + 1];
+    if (b < a) throw py::value_error("split_lists: ptr must not decrease");
+    PyObject* list = PyList_New(static_cast<Py_ssize_t>(b - a));
+    if (list == nullptr) throw py::error_already_set();
+    for (std::int64_t j = a; j < b; ++j) {
+      PyObject* item = PyLong_FromLong(v[j]);
+      if (item == nullptr) {
+        Py_DECREF(list);
+        throw py::error_already_set();
+      }
+      PyList_SET_ITEM(list, static_cast<Py_ssize_t>(j - a), item);
+    }
+    PyList_SET_ITEM(out.ptr(), static_cast<Py_ssize_t>(i), list);
+  }
+  return out;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_core, m) {
@@ -549,6 +584,7 @@ PYBIND11_MODULE(_core, m) {
         return owned(std::move(first), {static_cast<py::ssize_t>(n)});
       },
       py::arg("points"));
+  m.def("split_lists", &split_lists, py::arg("flat"), py::arg("ptr"));
   py::class_<Triangulation>(m, "Triangulation")
       .def(py::init<const Points&, std::optional<unsigned>>(), py::arg("points"), py::arg("threads") = py::none())
       .def("inserted", [](const Triangulation& self, const Points& more) { return std::make_unique<Triangulation>(self, more); },

@@ -52,7 +52,7 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
                                std::span<const std::int32_t> adjacency, unsigned threads);
 
 // Row s, column k: the simplex across the facet opposite vertex k of simplex s, -1
-// when no other simplex has that facet.
-std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simplices, int d);
+// when no other simplex has that facet. `threads` >= 1 share the work.
+std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simplices, int d, unsigned threads = 1);
 
 }  // namespace spokemesh

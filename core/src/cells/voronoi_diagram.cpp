@@ -58,39 +58,133 @@ void append_collapsed(std::vector<std::int32_t>& out, std::size_t from, bool cyc
   out.resize(w);
 }
 
+// The simplices around each point, ascending (CSR).
+class Incidence {
+ public:
+  Incidence(std::span<const std::uint32_t> simplices, int w, std::size_t n) : first_(n + 1, 0), around_(simplices.size()) {
+    for (const std::uint32_t v : simplices) ++first_[v + 1];
+    std::partial_sum(first_.begin(), first_.end(), first_.begin());
+    std::vector<std::int64_t> at(first_.begin(), first_.end() - 1);
+    const std::size_t m = simplices.size() / static_cast<std::size_t>(w);
+    for (std::size_t s = 0; s < m; ++s) {
+      for (int k = 0; k < w; ++k) around_[static_cast<std::size_t>(at[simplices[s * w + k]]++)] = static_cast<std::uint32_t>(s);
+    }
+  }
+  std::span<const std::uint32_t> of(std::size_t p) const {
+    return {around_.data() + first_[p], static_cast<std::size_t>(first_[p + 1] - first_[p])};
+  }
+
+ private:
+  std::vector<std::int64_t> first_;
+  std::vector<std::uint32_t> around_;
+};
+
+// Whether the apex lies off the circumsphere of the simplex `v` (d + 1 points), for
+// d = 2 and 3, in double precision: true only when certain. The incircle and insphere
+// determinants with coordinates relative to the apex, and Shewchuk's first-stage
+// error bounds ("Adaptive Precision Floating-Point Arithmetic and Fast Robust
+// Geometric Predicates", 1997: (10 + 96 eps) eps and (16 + 224 eps) eps times the
+// permanent), which cover the subtractions too. Magnitudes where products could
+// underflow are left to the exact test.
+bool surely_off_sphere(const PointSet& points, const std::uint32_t* v, std::uint32_t apex, int d) {
+  constexpr double eps = 0x1p-53;
+  const double* e = points.point(apex);
+  if (d == 2) {
+    const double* a = points.point(v[0]);
+    const double* b = points.point(v[1]);
+    const double* c = points.point(v[2]);
+    const double adx = a[0] - e[0], ady = a[1] - e[1], bdx = b[0] - e[0], bdy = b[1] - e[1];
+    const double cdx = c[0] - e[0], cdy = c[1] - e[1];
+    const double bc = bdx * cdy - cdx * bdy, ca = cdx * ady - adx * cdy, ab = adx * bdy - bdx * ady;
+    const double al = adx * adx + ady * ady, bl = bdx * bdx + bdy * bdy, cl = cdx * cdx + cdy * cdy;
+    const double det = al * bc + bl * ca + cl * ab;
+    const double permanent = (std::abs(bdx * cdy) + std::abs(cdx * bdy)) * al +
+                             (std::abs(cdx * ady) + std::abs(adx * cdy)) * bl +
+                             (std::abs(adx * bdy) + std::abs(bdx * ady)) * cl;
+    if (!(permanent > 1e-200 && permanent < 1e200)) return false;
+    return std::abs(det) > (10 + 96 * eps) * eps * permanent;
+  }
+  if (d != 3) return false;
+  const double* a = points.point(v[0]);
+  const double* b = points.point(v[1]);
+  const double* c = points.point(v[2]);
+  const double* f = points.point(v[3]);
+  const double aex = a[0] - e[0], aey = a[1] - e[1], aez = a[2] - e[2];
+  const double bex = b[0] - e[0], bey = b[1] - e[1], bez = b[2] - e[2];
+  const double cex = c[0] - e[0], cey = c[1] - e[1], cez = c[2] - e[2];
+  const double dex = f[0] - e[0], dey = f[1] - e[1], dez = f[2] - e[2];
+  const double ab = aex * bey - bex * aey, bc = bex * cey - cex * bey, cd = cex * dey - dex * cey;
+  const double da = dex * aey - aex * dey, ac = aex * cey - cex * aey, bd = bex * dey - dex * bey;
+  const double abc = aez * bc - bez * ac + cez * ab;
+  const double bcd = bez * cd - cez * bd + dez * bc;
+  const double cda = cez * da + dez * ac + aez * cd;
+  const double dab = dez * ab + aez * bd + bez * da;
+  const double al = aex * aex + aey * aey + aez * aez, bl = bex * bex + bey * bey + bez * bez;
+  const double cl = cex * cex + cey * cey + cez * cez, dl = dex * dex + dey * dey + dez * dez;
+  const double det = (dl * abc - cl * dab) + (bl * cda - al * bcd);
+  auto p2 = [](double x1, double y1, double x2, double y2) { return std::abs(x1 * y2) + std::abs(x2 * y1); };
+  const double pab = p2(aex, aey, bex, bey), pbc = p2(bex, bey, cex, cey), pcd = p2(cex, cey, dex, dey);
+  const double pda = p2(dex, dey, aex, aey), pac = p2(aex, aey, cex, cey), pbd = p2(bex, bey, dex, dey);
+  const double pabc = std::abs(aez) * pbc + std::abs(bez) * pac + std::abs(cez) * pab;
+  const double pbcd = std::abs(bez) * pcd + std::abs(cez) * pbd + std::abs(dez) * pbc;
+  const double pcda = std::abs(cez) * pda + std::abs(dez) * pac + std::abs(aez) * pcd;
+  const double pdab = std::abs(dez) * pab + std::abs(aez) * pbd + std::abs(bez) * pda;
+  const double permanent = (dl * pabc + cl * pdab) + (bl * pcda + al * pbcd);
+  if (!(permanent > 1e-200 && permanent < 1e200)) return false;
+  return std::abs(det) > (16 + 224 * eps) * eps * permanent;
+}
+
 }  // namespace
 
-std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simplices, int d) {
+std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simplices, int d, unsigned threads) {
   const int w = d + 1;
   const std::size_t m = simplices.size() / static_cast<std::size_t>(w);
+  std::size_t n = 0;
+  for (const std::uint32_t v : simplices) n = std::max<std::size_t>(n, std::size_t{v} + 1);
+  const Incidence around(simplices, w, n);
+  // A facet's two simplices both hold its smallest vertex: each point matches the
+  // facets it is the smallest vertex of, among its own simplices (a few dozen), by
+  // sorting their other vertices. Each facet is matched at one point, so the points'
+  // writes never meet.
+  std::vector<std::int32_t> adjacency(m * static_cast<std::size_t>(w), -1);
   struct Facet {
     std::array<std::uint32_t, kMaxDimension> key{};
     std::uint32_t simplex;
     std::uint8_t opposite;
     bool operator<(const Facet& o) const { return key < o.key; }
   };
-  std::vector<Facet> facets(m * static_cast<std::size_t>(w));
-  for (std::size_t s = 0; s < m; ++s) {
-    const std::uint32_t* v = &simplices[s * w];
-    for (int k = 0; k < w; ++k) {
-      Facet& f = facets[s * w + k];
-      int at = 0;
-      for (int j = 0; j < w; ++j) {
-        if (j != k) f.key[at++] = v[j];
+  in_chunks(n, threads, [&](std::size_t, std::size_t begin, std::size_t end) {
+    std::vector<Facet> facets;
+    for (std::size_t a = begin; a < end; ++a) {
+      facets.clear();
+      for (const std::uint32_t s : around.of(a)) {
+        const std::uint32_t* v = &simplices[static_cast<std::size_t>(s) * w];
+        for (int k = 0; k < w; ++k) {
+          if (v[k] == a) continue;
+          Facet f;
+          int at = 0;
+          bool smallest = true;
+          for (int j = 0; j < w; ++j) {
+            if (j == k || v[j] == a) continue;
+            smallest = smallest && v[j] > a;
+            f.key[at++] = v[j];
+          }
+          if (!smallest) continue;
+          std::sort(f.key.begin(), f.key.begin() + at);
+          f.simplex = s;
+          f.opposite = static_cast<std::uint8_t>(k);
+          facets.push_back(f);
+        }
       }
-      std::sort(f.key.begin(), f.key.begin() + at);
-      f.simplex = static_cast<std::uint32_t>(s);
-      f.opposite = static_cast<std::uint8_t>(k);
+      std::sort(facets.begin(), facets.end());
+      for (std::size_t i = 0; i + 1 < facets.size(); ++i) {
+        if (facets[i].key != facets[i + 1].key) continue;
+        adjacency[std::size_t{facets[i].simplex} * w + facets[i].opposite] = static_cast<std::int32_t>(facets[i + 1].simplex);
+        adjacency[std::size_t{facets[i + 1].simplex} * w + facets[i + 1].opposite] = static_cast<std::int32_t>(facets[i].simplex);
+        ++i;
+      }
     }
-  }
-  std::sort(facets.begin(), facets.end());
-  std::vector<std::int32_t> adjacency(m * static_cast<std::size_t>(w), -1);
-  for (std::size_t i = 0; i + 1 < facets.size(); ++i) {
-    if (facets[i].key != facets[i + 1].key) continue;
-    adjacency[facets[i].simplex * w + facets[i].opposite] = static_cast<std::int32_t>(facets[i + 1].simplex);
-    adjacency[facets[i + 1].simplex * w + facets[i + 1].opposite] = static_cast<std::int32_t>(facets[i].simplex);
-    ++i;
-  }
+  });
   return adjacency;
 }
 
@@ -120,6 +214,7 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
         for (int j = 0; j < w; ++j) {
           if (adjacency[static_cast<std::size_t>(t) * w + j] == static_cast<std::int32_t>(s)) apex = u[j];
         }
+        if (surely_off_sphere(points, v, apex, d)) continue;
         for (int r = 0; r < d; ++r) rows[r] = Row::of_point(v[r + 1]);
         rows[d] = Row::of_point(apex);
         cospherical[s * w + k] = predicates.lifted_sign_unperturbed(v[0], std::span<const Row>(rows.data(), w)) == 0;
@@ -171,17 +266,7 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
   keys = {};
 
   // 3. The simplices around each point (ascending).
-  std::vector<std::int64_t> first(n + 1, 0);
-  for (std::size_t i = 0; i < m * static_cast<std::size_t>(w); ++i) ++first[simplices[i] + 1];
-  std::partial_sum(first.begin(), first.end(), first.begin());
-  std::vector<std::uint32_t> around(m * static_cast<std::size_t>(w));
-  {
-    std::vector<std::int64_t> at(first.begin(), first.end() - 1);
-    for (std::size_t s = 0; s < m; ++s) {
-      for (int k = 0; k < w; ++k) around[static_cast<std::size_t>(at[simplices[s * w + k]]++)] = static_cast<std::uint32_t>(s);
-    }
-  }
-
+  const Incidence incidence(simplices, w, n);
   // 4. Per point, its region and the ridges to its larger neighbours, in chunks of
   // points joined in order.
   const std::size_t chunks = chunk_count(n, threads);
@@ -200,12 +285,14 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
   auto vertex = [&](std::uint32_t s) { return static_cast<std::int32_t>(out.vertex_of_simplex[s]); };
   in_chunks(n, threads, [&](std::size_t c, std::size_t begin, std::size_t end) {
     Part& part = parts[c];
-    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;  // (q, simplex)
-    std::vector<std::uint32_t> ring;
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;       // (q, simplex), by q
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> neighbours;  // (q, count, then start)
+    std::vector<std::uint32_t> fill;
     for (std::size_t p = begin; p < end; ++p) {
       const auto p32 = static_cast<std::uint32_t>(p);
-      const std::uint32_t* star = &around[static_cast<std::size_t>(first[p])];
-      const auto size = static_cast<std::size_t>(first[p + 1] - first[p]);
+      const std::span<const std::uint32_t> around = incidence.of(p);
+      const std::uint32_t* star = around.data();
+      const std::size_t size = around.size();
       // The region.
       const std::size_t region_at = part.regions.size();
       bool unbounded = false;
@@ -250,15 +337,40 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
       }
       part.region_sizes.push_back(static_cast<std::int64_t>(part.regions.size() - region_at));
 
-      // The ridges to larger neighbours q: the simplices holding edge (p, q).
-      edges.clear();
+      // The ridges to larger neighbours q: the simplices holding edge (p, q), grouped
+      // by q (a point has a few dozen neighbours: found by a linear search, grouped by
+      // a counting pass, taken in ascending q).
+      neighbours.clear();
       for (std::size_t i = 0; i < size; ++i) {
         for (int k = 0; k < w; ++k) {
           const std::uint32_t q = simplices[static_cast<std::size_t>(star[i]) * w + k];
-          if (q > p32) edges.emplace_back(q, star[i]);
+          if (q <= p32) continue;
+          auto at = std::find_if(neighbours.begin(), neighbours.end(), [&](const auto& x) { return x.first == q; });
+          if (at == neighbours.end()) {
+            neighbours.emplace_back(q, 1);
+          } else {
+            ++at->second;
+          }
         }
       }
-      std::sort(edges.begin(), edges.end());
+      std::sort(neighbours.begin(), neighbours.end());
+      edges.resize(0);
+      for (auto& [q, count] : neighbours) {
+        const std::uint32_t c = count;
+        count = static_cast<std::uint32_t>(edges.size());  // now: where q's simplices start
+        edges.resize(edges.size() + c, {q, 0});
+      }
+      fill.assign(neighbours.size(), 0);
+      for (std::size_t i = 0; i < size; ++i) {
+        for (int k = 0; k < w; ++k) {
+          const std::uint32_t q = simplices[static_cast<std::size_t>(star[i]) * w + k];
+          if (q <= p32) continue;
+          const auto at = static_cast<std::size_t>(
+              std::lower_bound(neighbours.begin(), neighbours.end(), std::pair<std::uint32_t, std::uint32_t>(q, 0)) -
+              neighbours.begin());
+          edges[neighbours[at].second + fill[at]++].second = star[i];
+        }
+      }
       for (std::size_t a = 0; a < edges.size();) {
         std::size_t b = a;
         while (b < edges.size() && edges[b].first == edges[a].first) ++b;
