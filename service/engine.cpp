@@ -161,6 +161,29 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
   return s;
 }
 
+Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& parent_id, UploadHeader added,
+                                                            const Principal& who) {
+  if (Status s = authorize(parent_id, who); !s.is_ok()) return s;
+  auto parent = store_->get(parent_id);
+  if (!parent.is_ok()) return parent.status();
+  const PointSet& points = parent.value()->points;
+  const int d = points.dimension();
+  if (added.dimension != 0 && added.dimension != d) {
+    return invalid_argument("dimension: " + std::to_string(added.dimension) + "-d points cannot be appended to point set " +
+                            parent_id + ", whose points are " + std::to_string(d) + "-d");
+  }
+  if (added.count < 1) return invalid_argument("count: appending needs at least one point");
+  UploadHeader whole = added;
+  whole.dimension = d;
+  const auto n = static_cast<std::int64_t>(points.size());
+  whole.count = added.count > INT64_MAX - n ? INT64_MAX : n + added.count;
+  auto session = begin_upload(whole);
+  if (!session.is_ok()) return session.status();
+  const std::span<const double> coords = points.coordinates();
+  if (Status s = session.value()->append(coords.data(), coords.size_bytes()); !s.is_ok()) return s;
+  return session;
+}
+
 Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& who) {
   if (s.received_ != s.expected_) {
     return invalid_argument("coordinates: received " + std::to_string(s.received_) + " bytes, but dimension " +

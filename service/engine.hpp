@@ -191,6 +191,16 @@ class Engine {
   // Tenancy (auth.hpp): `who` becomes an owner of the set it uploads (the set is
   // stored once whoever uploads it); already_existed says whether `who` had it.
   Result<PointSetInfo> finish_upload(UploadSession& session, const Principal& who = kOpenPrincipal);
+  // Appending: a session for a new point set made of the stored set `parent_id`'s
+  // points followed by `added.count` new ones, whose coordinates the caller then
+  // appends as an upload's (finish_upload stores it). The new set's id is the hash of
+  // the whole, as if it had been uploaded whole (ids stay content hashes); the parent
+  // is unchanged. What is reused: the parent's stored coordinates (the client sends
+  // only the new points). added.dimension 0 takes the parent's; another than the
+  // parent's is INVALID_ARGUMENT; an unknown parent, or another tenant's, NOT_FOUND;
+  // the whole set is held to the upload limits.
+  Result<std::unique_ptr<UploadSession>> begin_append(const std::string& parent_id, UploadHeader added,
+                                                      const Principal& who = kOpenPrincipal);
 
   // NOT_FOUND unless `who` may see the set (an owner, or an admin): other tenants'
   // sets are indistinguishable from absent ones.

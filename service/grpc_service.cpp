@@ -78,10 +78,9 @@ class MesherService::Call {
 MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth)
     : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)) {}
 
-grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
-                                           grpc::ServerReader<pb::UploadPointSetRequest>* reader,
-                                           pb::PointSet* response) {
-  Call call(*this, ctx, "UploadPointSet");
+template <class Request, class Open>
+grpc::Status MesherService::receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
+                                           const Open& open, pb::PointSet* response) {
   if (!call.auth().is_ok()) return call.finish(call.auth());
   // A stream that sends nothing for the idle timeout is cancelled (its blocked Read
   // returns), so a stalled client holds neither a thread nor memory for long.
@@ -91,18 +90,14 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
     return Status{Code::kDeadlineExceeded, "upload: nothing arrived for " + std::to_string(idle.count()) +
                                                " ms (--upload-idle-timeout); the upload was ended"};
   };
-  pb::UploadPointSetRequest message;
+  Request message;
   if (!reader->Read(&message)) {
     if (idle_control.stopped()) return call.finish(idle_status());
     return call.finish(invalid_argument("header: the stream ended before any message"));
   }
   idle_control.extend_deadline(Clock::now() + idle);
   if (!message.has_header()) return call.finish(invalid_argument("header: the first message must carry the header"));
-  UploadHeader header;
-  header.dimension = message.header().dimension();
-  header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(message.header().count(), INT64_MAX));
-  header.display_name = message.header().display_name();
-  auto session = engine_.begin_upload(header);
+  Result<std::unique_ptr<UploadSession>> session = open(message.header());
   if (!session.is_ok()) return call.finish(session.status());
   std::uint64_t index = 1;
   while (reader->Read(&message)) {
@@ -121,6 +116,34 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
   fill_point_set(info.value(), response);
   return call.finish(Status::ok());
+}
+
+grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
+                                           grpc::ServerReader<pb::UploadPointSetRequest>* reader,
+                                           pb::PointSet* response) {
+  Call call(*this, ctx, "UploadPointSet");
+  return receive_points(call, ctx, reader, [&](const pb::PointSetHeader& h) {
+    UploadHeader header;
+    header.dimension = h.dimension();
+    header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
+    header.display_name = h.display_name();
+    return engine_.begin_upload(header);
+  }, response);
+}
+
+grpc::Status MesherService::AppendPoints(grpc::ServerContext* ctx, grpc::ServerReader<pb::AppendPointsRequest>* reader,
+                                         pb::PointSet* response) {
+  Call call(*this, ctx, "AppendPoints");
+  std::string parent;
+  const grpc::Status done = receive_points(call, ctx, reader, [&](const pb::AppendPointsHeader& h) {
+    parent = h.point_set_id();
+    UploadHeader added;
+    added.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
+    added.display_name = h.display_name();
+    return engine_.begin_append(parent, added, call.principal());
+  }, response);
+  if (done.ok()) response->set_parent_id(parent);
+  return done;
 }
 
 grpc::Status MesherService::GetPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,

@@ -28,6 +28,8 @@ class MesherService final : public pb::Mesher::Service {
 
   grpc::Status UploadPointSet(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadPointSetRequest>* reader,
                               pb::PointSet* response) override;
+  grpc::Status AppendPoints(grpc::ServerContext* ctx, grpc::ServerReader<pb::AppendPointsRequest>* reader,
+                            pb::PointSet* response) override;
   grpc::Status GetPointSet(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
                            pb::PointSet* response) override;
   grpc::Status ListPointSets(grpc::ServerContext* ctx, const pb::ListPointSetsRequest* request,
@@ -50,6 +52,11 @@ class MesherService final : public pb::Mesher::Service {
 
  private:
   class Call;
+  // An upload's or an append's stream: the header (opening the session), then chunks
+  // of coordinates, ended by the client, kept alive by arrivals (--upload-idle-timeout).
+  template <class Request, class Open>
+  grpc::Status receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
+                              const Open& open, pb::PointSet* response);
   Engine& engine_;
   Telemetry& telemetry_;
   std::shared_ptr<const Authenticator> auth_;

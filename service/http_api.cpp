@@ -292,6 +292,13 @@ HttpResponse HttpApi::route(Context& c) {
     for (const PointSetInfo& info : page.value()) sets.push_back(point_set_json(info));
     return c.ok({{"point_sets", sets}, {"next_page_token", next}});
   }
+  if (p.size() == 3 && p[2].size() > 7 && p[2].compare(p[2].size() - 7, 7, ":append") == 0) {
+    if (method != http::verb::post) return wrong_method();
+    c.record.method = "AppendPoints";
+    const std::string parent = p[2].substr(0, p[2].size() - 7);
+    c.record.point_set = parent.substr(0, 64);
+    return upload(c, &parent);
+  }
   const std::string& id = p[2];
   if (p.size() <= 6) c.record.point_set = id.substr(0, 64);
   // Other tenants' sets are answered as absent, on every route below.
@@ -332,7 +339,7 @@ HttpResponse HttpApi::route(Context& c) {
   return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
 }
 
-HttpResponse HttpApi::upload(Context& c) {
+HttpResponse HttpApi::upload(Context& c, const std::string* parent) {
   const std::string& body = c.request.body();
   const auto ctype = c.request.find(http::field::content_type);
   const std::string content_type = ctype == c.request.end() ? "" : std::string(ctype->value());
@@ -340,7 +347,13 @@ HttpResponse HttpApi::upload(Context& c) {
   UploadHeader header;
   std::vector<double> coords;
   if (media_type == "application/octet-stream") {
-    const auto d = c.param("dimension");
+    std::optional<std::string> d = c.param("dimension");
+    if (!d && parent != nullptr) {
+      // Appending: the parent's dimension unless the client names one.
+      auto info = engine_.get_point_set(*parent, c.principal);
+      if (!info.is_ok()) return c.fail(info.status());
+      d = std::to_string(info->dimension);
+    }
     if (!d) return c.fail(invalid_argument("dimension: the query parameter is required for raw float64 uploads"));
     auto dim = parse_uint(*d, "dimension");
     if (!dim.is_ok()) return c.fail(dim.status());
@@ -355,7 +368,7 @@ HttpResponse HttpApi::upload(Context& c) {
     header.dimension = static_cast<std::int64_t>(dim.value());
     header.count = static_cast<std::int64_t>(body.size() / row);
     header.display_name = c.param("display_name").value_or("");
-    return store_upload(c, header, std::span<const char>(body.data(), body.size()));
+    return store_upload(c, header, std::span<const char>(body.data(), body.size()), parent);
   }
   // JSON also under curl -d's default type, so `curl -d '{...}'` just works.
   if (!media_type.empty() && media_type != "application/json" && media_type != "application/x-www-form-urlencoded") {
@@ -367,23 +380,31 @@ HttpResponse HttpApi::upload(Context& c) {
   if (Status s = read_upload_json(body, engine_.limits(), header, coords, &charge, &budget); !s.is_ok()) {
     return c.fail(s);
   }
-  return store_upload(c, header, std::make_pair(std::move(coords), std::move(charge)));
+  return store_upload(c, header, std::make_pair(std::move(coords), std::move(charge)), parent);
 }
 
-HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, UploadData data) {
-  auto session = engine_.begin_upload(header);
+HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent) {
+  auto session = parent == nullptr ? engine_.begin_upload(header) : engine_.begin_append(*parent, header, c.principal);
   if (!session.is_ok()) return c.fail(session.status());
-  const Status appended =
-      data.index() == 0
-          ? session.value()->append(std::get<0>(data).data(), std::get<0>(data).size())
-          : session.value()->adopt(std::move(std::get<1>(data).first),
-                                   std::move(std::get<1>(data).second));  // parsed doubles: no second copy
+  Status appended;
+  if (data.index() == 0) {
+    appended = session.value()->append(std::get<0>(data).data(), std::get<0>(data).size());
+  } else if (parent == nullptr) {
+    // Parsed doubles, the whole set: taken without a second copy.
+    appended = session.value()->adopt(std::move(std::get<1>(data).first), std::move(std::get<1>(data).second));
+  } else {
+    // The new points follow the parent's, already in the session.
+    const std::vector<double>& more = std::get<1>(data).first;
+    appended = session.value()->append(more.data(), more.size() * sizeof(double));
+  }
   if (!appended.is_ok()) return c.fail(appended);
   auto info = engine_.finish_upload(*session.value(), c.principal);
   if (!info.is_ok()) return c.fail(info.status());
   if (!info->already_existed) telemetry_.add_points_uploaded(info->count);
   c.record.point_set = info->id;
-  return c.ok(point_set_json(info.value(), true), info->already_existed ? 200 : 201);
+  json body = point_set_json(info.value(), true);
+  if (parent != nullptr) body["parent_id"] = *parent;
+  return c.ok(body, info->already_existed ? 200 : 201);
 }
 
 HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::string& seed_text,

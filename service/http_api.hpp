@@ -65,12 +65,13 @@ class HttpApi {
  private:
   struct Context;
   HttpResponse route(Context& c);
-  HttpResponse upload(Context& c);
+  // An upload, or with `parent` an append to that set (POST /v1/pointsets/{id}:append).
+  HttpResponse upload(Context& c, const std::string* parent = nullptr);
   // Coordinates decoded from any body form -> stored point set (201, or 200 if it existed).
   // Raw float64 bytes (copied), or doubles parsed from JSON with their memory charge
   // (taken).
   using UploadData = std::variant<std::span<const char>, std::pair<std::vector<double>, MemoryBudget::Charge>>;
-  HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data);
+  HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent);
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);

@@ -358,6 +358,16 @@ int main(int argc, char** argv) {
   upload->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
   upload->add_option("--name", display_name, "Display name stored with the point set");
   upload->add_flag("-q,--quiet", common.quiet, "Print only the id");
+  std::string append_id;
+  auto* append = app.add_subcommand(
+      "append", "Remote mode: store a new point set, a stored set's points followed by a file's; prints its id");
+  append->add_option("ID", append_id, "Id of the stored set appended to (it stays as it is)")->required();
+  append->add_option("POINTS", input, "Point file of the new points (.txt/.csv/.xyz text or .npy)")->required();
+  append->add_option("--name", display_name, "Display name stored with the new point set");
+  append->add_flag("-q,--quiet", common.quiet, "Print only the id");
+  append->footer(
+      "The new set's id is the hash of all its points, as if uploaded whole; only the new points are sent.\n"
+      "Its points are the stored set's (indices 0..n-1) and then the file's (n, n+1, ...).");
   auto* batch = app.add_subcommand(
       "batch", "Remote mode: stars, neighbours or cells of many seeds in one call; one JSON object per line");
   std::string batch_kind, seeds_text, seeds_file;
@@ -385,7 +395,7 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
 
-  const bool remote_only = *upload || *health || *list || *del || *batch;
+  const bool remote_only = *upload || *append || *health || *list || *del || *batch;
   if (!server.empty()) {
 #ifdef SPOKEMESH_REMOTE
     remote::RemoteOptions o;
@@ -415,6 +425,7 @@ int main(int argc, char** argv) {
     if (seed < -1) return report(out_of_range("--seed: " + std::to_string(seed) + " is negative"));
     const auto s = static_cast<std::uint64_t>(seed);
     if (*upload) return remote::upload(o, input, display_name);
+    if (*append) return remote::append(o, append_id, input, display_name);
     if (*batch) {
       std::string text = seeds_text;
       if (!seeds_file.empty()) {

@@ -85,20 +85,16 @@ void prepare(const RemoteOptions& o, grpc::ClientContext& ctx) {
 
 }  // namespace
 
-int upload(const RemoteOptions& o, const std::string& input, const std::string& name) {
-  auto points = read_points(input);  // file:line errors for malformed files, before any network
-  if (!points.is_ok()) return report(points.status());
-  auto stub = pb::Mesher::NewStub(channel(o));
-  grpc::ClientContext ctx;
-  prepare(o, ctx);
-  pb::PointSet response;
-  auto writer = stub->UploadPointSet(&ctx, &response);
-  pb::UploadPointSetRequest message;
-  message.mutable_header()->set_dimension(static_cast<std::uint32_t>(points->dimension()));
-  message.mutable_header()->set_count(points->size());
-  message.mutable_header()->set_display_name(name);
+namespace {
+
+// Sends a header message and then the coordinates in 1 MiB chunks on an upload's or
+// an append's stream; prints the new id (and, unless quiet, what was stored).
+template <class Request>
+int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
+                std::unique_ptr<grpc::ClientWriter<Request>> writer, Request message, const PointSet& points,
+                const pb::PointSet& response) {
   bool ok = writer->Write(message);
-  const auto coords = points->coordinates();
+  const auto coords = points.coordinates();
   const char* bytes = reinterpret_cast<const char*>(coords.data());
   constexpr std::size_t kChunk = 1 << 20;
   for (std::size_t at = 0; ok && at < coords.size_bytes(); at += kChunk) {
@@ -107,13 +103,46 @@ int upload(const RemoteOptions& o, const std::string& input, const std::string& 
   }
   writer->WritesDone();
   const grpc::Status s = writer->Finish();
+  (void)ctx;
   if (!s.ok()) return report(o, s);
   std::cout << response.id() << "\n";
   if (!o.quiet) {
     std::cerr << "spokemesh: " << (response.already_existed() ? "already stored: " : "stored: ") << response.count()
-              << " points in " << response.dimension() << "-d\n";
+              << " points in " << response.dimension() << "-d";
+    if (!response.parent_id().empty()) std::cerr << " (the points of " << response.parent_id() << ", then the new ones)";
+    std::cerr << "\n";
   }
   return kExitOk;
+}
+
+}  // namespace
+
+int upload(const RemoteOptions& o, const std::string& input, const std::string& name) {
+  auto points = read_points(input);  // file:line errors for malformed files, before any network
+  if (!points.is_ok()) return report(points.status());
+  auto stub = pb::Mesher::NewStub(channel(o));
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::PointSet response;
+  pb::UploadPointSetRequest message;
+  message.mutable_header()->set_dimension(static_cast<std::uint32_t>(points->dimension()));
+  message.mutable_header()->set_count(points->size());
+  message.mutable_header()->set_display_name(name);
+  return send_points(o, ctx, stub->UploadPointSet(&ctx, &response), std::move(message), points.value(), response);
+}
+
+int append(const RemoteOptions& o, const std::string& id, const std::string& input, const std::string& name) {
+  auto points = read_points(input);  // file:line errors first; the server validates the whole set
+  if (!points.is_ok()) return report(points.status());
+  auto stub = pb::Mesher::NewStub(channel(o));
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::PointSet response;
+  pb::AppendPointsRequest message;
+  message.mutable_header()->set_point_set_id(id);
+  message.mutable_header()->set_count(points->size());
+  message.mutable_header()->set_display_name(name);
+  return send_points(o, ctx, stub->AppendPoints(&ctx, &response), std::move(message), points.value(), response);
 }
 
 namespace {

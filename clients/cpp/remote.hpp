@@ -21,6 +21,8 @@ struct RemoteOptions {
 };
 
 int upload(const RemoteOptions& o, const std::string& input, const std::string& name);
+// A new stored set: set `id`'s points, then the points of INPUT (AppendPoints); prints its id.
+int append(const RemoteOptions& o, const std::string& id, const std::string& input, const std::string& name);
 int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
 // mode: "exact", "approximate" or "spokes"; misses / max_vertices: 0 = server default.
 int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed, const std::string& mode = "exact",

@@ -15,7 +15,7 @@ from jsonschema import Draft202012Validator, RefResolver
 
 SPEC = yaml.safe_load((Path(__file__).resolve().parents[2] / "docs" / "openapi.yaml").read_text())
 _RESOLVER = RefResolver.from_schema(SPEC)
-_ROUTES = [(re.compile("^" + re.sub(r"\{[^}]+\}", "[^/]+", re.escape(t).replace(r"\{", "{").replace(r"\}", "}")) + "$"),
+_ROUTES = [(re.compile("^" + re.sub(r"\{[^}]+\}", "[^/:]+", re.escape(t).replace(r"\{", "{").replace(r"\}", "}")) + "$"),
             t) for t in SPEC["paths"]]
 checked = {"responses": 0}
 

@@ -507,6 +507,15 @@ def test_api_keys_with_tenants(start_server, tmp_path):
         assert status == 404, (route, body)
     status, body = http_json("DELETE", f"{base}/{own['id']}", headers=as_(bob))
     assert status == 404
+    # Appending to another tenant's set: absent too; to one's own: a new set of one's own.
+    status, body = http_json("POST", f"{base}/{own['id']}:append", json.dumps({"points": [[5, 5]]}).encode(),
+                             {**as_(bob), "Content-Type": "application/json"})
+    assert status == 404, body
+    status, grown = http_json("POST", f"{base}/{own['id']}:append", json.dumps({"points": [[5, 5]]}).encode(),
+                              {**as_(alice), "Content-Type": "application/json"})
+    assert status == 201 and grown["parent_id"] == own["id"] and grown["count"] == 5, grown
+    assert http_json("GET", f"{base}/{grown['id']}", headers=as_(bob))[0] == 404
+    assert http_json("DELETE", f"{base}/{grown['id']}", headers=as_(alice))[0] == 200
     bob_client = spokemesh.Client(server.grpc, token=bob)
     with pytest.raises(spokemesh.Error) as e:
         bob_client.star(own["id"], 0)

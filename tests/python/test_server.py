@@ -168,6 +168,59 @@ def test_cli_remote_mode_upload_health_list_delete(server, tmp_path):
     assert down.returncode == 1 and "UNAVAILABLE" in down.stderr
 
 
+def test_appending_points_makes_the_set_uploading_the_whole_would(server, tmp_path):
+    # REST, gRPC (the Python client) and the CLI: the new set's id is the whole's
+    # content hash, its answers are the whole set's, the parent stays as it was.
+    old, new = uniform(2000, 3, seed=11), uniform(40, 3, seed=12)
+    whole = np.concatenate([old, new])
+    client = spokemesh.Client(server.grpc)
+    parent = client.upload(old, name="old")
+    status, rest = http_json("POST", f"{server.http}/v1/pointsets/{parent.id}:append",
+                             {"points": new.tolist(), "display_name": "grown"})
+    assert status == 201 and rest["parent_id"] == parent.id and rest["count"] == 2040, rest
+    assert rest["display_name"] == "grown" and rest["already_existed"] is False
+    again = client.append(parent.id, new)
+    assert again.id == rest["id"] and again.already_existed and again.parent_id == parent.id
+    assert client.upload(whole).id == rest["id"]
+    assert client.get(parent.id).count == 2000
+    # Raw float64 takes the parent's dimension when none is given.
+    status, raw = http_json("POST", f"{server.http}/v1/pointsets/{parent.id}:append", new.astype("<f8").tobytes(),
+                            {"Content-Type": "application/octet-stream"})
+    assert status == 200 and raw["id"] == rest["id"], raw
+    # The new set answers as the whole: stars of old and new seeds, the whole mesh.
+    reference = local_mesh(whole, tmp_path)
+    for seed in (0, 1999, 2000, 2039):
+        assert np.array_equal(client.star(rest["id"], seed).simplices.astype(np.int64), star_of(reference, seed))
+    assert np.array_equal(client.simplices(rest["id"], shards=2).astype(np.int64), reference)
+    assert np.array_equal(client.download(rest["id"]), whole)
+    # The CLI: `spokemesh append ID POINTS` prints the new id.
+    more = tmp_path / "more.txt"
+    np.savetxt(more, new[:5], fmt="%.17g")
+    out = cli("--server", server.grpc, "append", parent.id, str(more), "--name", "five")
+    five = out.stdout.strip()
+    assert five == client.upload(np.concatenate([old, new[:5]])).id
+    assert parent.id in out.stderr and "2005 points" in out.stderr
+    # Errors name what and where: a point already there, the wrong dimension, an
+    # unknown set, nothing to append, and a malformed file (before any network).
+    status, dup = http_json("POST", f"{server.http}/v1/pointsets/{parent.id}:append", {"points": [old[17].tolist()]})
+    assert status == 400 and dup["error"]["reason"] == "DUPLICATE_POINTS"
+    assert "points 17 and 2000 are equal" in dup["error"]["message"]
+    status, flat = http_json("POST", f"{server.http}/v1/pointsets/{parent.id}:append", {"points": [[1.0, 2.0]]})
+    assert status == 400 and "2-d points cannot be appended" in flat["error"]["message"] and "3-d" in flat["error"]["message"]
+    with pytest.raises(spokemesh.Error) as e:
+        client.append("0" * 64, new)
+    assert e.value.code == grpc.StatusCode.NOT_FOUND
+    with pytest.raises(spokemesh.Error) as e:
+        client.append(parent.id, np.zeros((0, 3)))
+    assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "at least one point" in e.value.details
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0.1 0.2 0.3\n0.4 x 0.6\n")
+    r = cli("--server", server.grpc, "append", parent.id, str(bad), check=False)
+    assert r.returncode == 2 and f"{bad}:2" in r.stderr
+    r = cli("append", parent.id, str(more), check=False)
+    assert r.returncode == 2 and "needs --server" in r.stderr
+
+
 def test_unary_calls_cut_off_in_transit_are_sent_again(server):
     """A unary call that ends CANCELLED or UNAVAILABLE after gRPC's own retries gave up
     (a replica killed mid-answer, the proxy resetting the stream) is sent again by the

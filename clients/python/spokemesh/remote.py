@@ -35,7 +35,8 @@ class PointSet:
     dimension: int
     count: int
     display_name: str = ""
-    already_existed: bool = False  # upload() only: the data was stored before
+    already_existed: bool = False  # upload() and append() only: the data was stored before
+    parent_id: str = ""            # append() only: the set appended to (its points come first)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,6 +176,26 @@ class Client:
 
         r = self._call(self._stub.UploadPointSet, messages(), timeout)
         return _point_set(r)
+
+    def append(self, point_set_id: str, points: np.ndarray, name: str = "",
+               timeout: Optional[float] = None) -> PointSet:
+        """Stores a new point set: the stored set's points, then `points` ((k, d), the
+        set's d). Only the new points are sent; the new set's id is the hash of all of
+        them, as if uploaded whole (so it is idempotent too), and the stored set stays
+        as it is. spokemesh.Error NOT_FOUND for an unknown set, INVALID_ARGUMENT for a
+        new point equal to one already there (naming both indices in the new set)."""
+        array = np.ascontiguousarray(points, dtype="<f8")
+        if array.ndim != 2:
+            raise ValueError(f"points: expected a 2-d array (k, d), got shape {array.shape}")
+        data = array.tobytes()
+
+        def messages() -> Iterator[pb.AppendPointsRequest]:
+            yield pb.AppendPointsRequest(header=pb.AppendPointsHeader(
+                point_set_id=point_set_id, count=array.shape[0], display_name=name))
+            for at in range(0, len(data), _CHUNK):
+                yield pb.AppendPointsRequest(coordinates=data[at:at + _CHUNK])
+
+        return _point_set(self._call(self._stub.AppendPoints, messages(), timeout))
 
     def get(self, point_set_id: str) -> PointSet:
         """A stored point set's metadata; spokemesh.Error NOT_FOUND if absent."""
@@ -356,4 +377,4 @@ def _neighbors(r: pb.Neighbors, mode: str) -> Neighbors:
 
 def _point_set(r: pb.PointSet) -> PointSet:
     return PointSet(id=r.id, dimension=r.dimension, count=r.count, display_name=r.display_name,
-                    already_existed=r.already_existed)
+                    already_existed=r.already_existed, parent_id=r.parent_id)
