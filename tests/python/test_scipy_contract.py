@@ -45,13 +45,17 @@ scipy_tests.qhull = types.SimpleNamespace(**{**vars(scipy_qhull), "Delaunay": sp
 scipy_tests.Voronoi = spokemesh.Voronoi
 
 # Qhull's own row order on tiny inputs (unspecified by scipy's documentation).
-ROW_ORDER = {"test_2d_square", "test_find_simplex", "test_convex_hull"}
-# Qhull's own order of the vertices within each Voronoi region (see above).
-REGION_ORDER = {"test_simple"}
+ROW_ORDER = {"test_2d_square", "test_find_simplex", "test_convex_hull",
+             # Qhull's two rows, in its order, each with its vertex order ((1, 4, 0) is
+             # clockwise; ours are positively oriented): the same two triangles as ours.
+             "test_furthest_site"}
+# Qhull's own order of the vertices within each Voronoi region (see above; in
+# test_furthest_site it lists points 0 and 4's regions both as (-1, 1, 0), one going
+# clockwise and one counter-clockwise).
+REGION_ORDER = {"test_simple", "test_furthest_site"}
 
 # What spokemesh.Delaunay does not do yet, and why (issue 27).
 NOT_YET = {
-    "test_furthest_site": "furthest_site=True is not implemented yet",
     # The set is degenerate (many cospherical points): half its simplices are broken
     # differently from Qhull's, both Delaunay. Ours (CGAL's symbolic perturbation) leave
     # 31 near-flat simplices, every one with NaN rows as the test asks, where Qhull's
@@ -85,10 +89,7 @@ def _exact_where_qhull_merges(test):
     return run
 
 
-VORONOI_NOT_YET = {
-    "test_furthest_site": "furthest_site=True is not implemented yet",
-    "test_furthest_site_flag": "furthest_site=True is not implemented yet",
-}
+VORONOI_NOT_YET = {}
 
 
 def _wrap(cls, order=ROW_ORDER, not_yet=NOT_YET):
@@ -141,11 +142,27 @@ def _cycle(region):
     return min(turns)
 
 
-@pytest.mark.parametrize("name", sorted(VORONOI_SETS))
+FURTHEST_SETS = {
+    "scipy-test-furthest-site": lambda: np.array([(0, 0), (0, 1), (1, 0), (0.5, 0.5), (1.1, 1.1)], float),
+    "random-2d-300-seed-6": lambda: np.random.default_rng(6).random((300, 2)),
+    "random-3d-400-seed-7": lambda: np.random.default_rng(7).random((400, 3)),
+    "disc-2d-200-seed-8": lambda: _on_circle(200, 8),
+}
+
+
+def _on_circle(n, seed):
+    # Points near a circle: every one on the hull, many furthest-site simplices.
+    rng = np.random.default_rng(seed)
+    angle = np.sort(rng.random(n)) * 2 * np.pi
+    return np.stack([np.cos(angle), np.sin(angle)], 1) * (1 + 0.01 * rng.random((n, 1)))
+
+
+@pytest.mark.parametrize("name", sorted(VORONOI_SETS) + [f"furthest:{k}" for k in sorted(FURTHEST_SETS)])
 def test_voronoi_is_scipys_diagram(name):
-    points = VORONOI_SETS[name]()
-    ours = spokemesh.Voronoi(points)
-    theirs = scipy_spatial.Voronoi(points)
+    furthest = name.startswith("furthest:")
+    points = FURTHEST_SETS[name.split(":", 1)[1]]() if furthest else VORONOI_SETS[name]()
+    ours = spokemesh.Voronoi(points, furthest_site=furthest)
+    theirs = scipy_spatial.Voronoi(points, furthest_site=furthest)
     # Vertices: the same coordinates, one to one.
     assert ours.vertices.shape == theirs.vertices.shape, name
     tree = scipy_spatial.cKDTree(theirs.vertices)
@@ -165,6 +182,13 @@ def test_voronoi_is_scipys_diagram(name):
             assert _cycle(a) == _cycle(b), (name, i, a, b)
         else:
             assert sorted(a) == sorted(b), (name, i, a, b)
+    if furthest:
+        # The triangulation underneath: scipy's furthest-site simplices, as sets.
+        tri, ref = ours.delaunay, scipy_spatial.Delaunay(points, furthest_site=True)
+        assert {tuple(sorted(t)) for t in tri.simplices.tolist()} == {tuple(sorted(t)) for t in ref.simplices.tolist()}
+        assert (tri.find_simplex(points.mean(axis=0, keepdims=True)) >= 0).all()
+        assert len(ours.regions) == len(points)
+        return
     # scipy's extra empty region (Qz), and every point's region listed once.
     assert len(ours.regions) == len(points) + 1 and ours.regions[0] == []
     assert sorted(ours.point_region.tolist()) == list(range(1, len(points) + 1))
@@ -197,8 +221,6 @@ def test_voronoi_options_duplicates_and_extras():
     assert len(plain.regions) == 50 and plain.point_region.tolist() == list(range(50))
     with pytest.raises(ValueError, match="not an option"):
         spokemesh.Voronoi(points, qhull_options="Qbogus")
-    with pytest.raises(NotImplementedError, match="furthest"):
-        spokemesh.Voronoi(points, furthest_site=True)
     # Equal points: one region for both (Qc, the default), or none for the copy.
     twice = np.concatenate([points, points[:3]])
     vor = spokemesh.Voronoi(twice)
@@ -213,6 +235,18 @@ def test_voronoi_options_duplicates_and_extras():
     once = spokemesh.Voronoi(points, qhull_options="Qc")
     assert np.array_equal(inc.vertices, once.vertices) and inc.regions == once.regions
     assert inc.ridge_vertices == once.ridge_vertices
+    # The furthest-site triangulation: hulls with more than d points on a facet are
+    # refused, naming them; stars and cells are the nearest-site triangulation's.
+    with pytest.raises(ValueError, match="lie on one facet of the convex hull"):
+        spokemesh.Delaunay(_grid(3, 3), furthest_site=True)
+    far = spokemesh.Delaunay(points, furthest_site=True)
+    assert far.furthest_site and (far.equations[:, -2] > 0).all()
+    with pytest.raises(ValueError, match="furthest-site"):
+        far.cell(0)
+    grown = spokemesh.Delaunay(points[:30], furthest_site=True, incremental=True)
+    grown.add_points(points[30:])
+    assert np.array_equal(grown.simplices, far.simplices)
     import pickle
+    assert pickle.loads(pickle.dumps(far)).furthest_site
     back = pickle.loads(pickle.dumps(plain))
     assert back.regions == plain.regions and np.array_equal(back.vertices, plain.vertices)

@@ -65,8 +65,9 @@ def _joggled(points: np.ndarray, first: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rebuild(points, incremental, qhull_options, threads):
-    return Delaunay(points, incremental=incremental, qhull_options=qhull_options, threads=threads)
+def _rebuild(points, incremental, qhull_options, threads, furthest_site=False):
+    return Delaunay(points, furthest_site=furthest_site, incremental=incremental, qhull_options=qhull_options,
+                    threads=threads)
 
 
 def _cell(c: dict) -> Cell:
@@ -81,8 +82,11 @@ def _cell(c: dict) -> Cell:
 class Delaunay:
     """The exact Delaunay triangulation of `points` ((n, d) array, 2 <= d <= 8).
 
-    Parameters: points (array_like, converted once to C-ordered float64); incremental
-    (allow add_points, as scipy's); qhull_options (scipy's string of Qhull options:
+    Parameters, in scipy's order: points (array_like, converted once to C-ordered
+    float64); furthest_site (the furthest-site triangulation: the simplices whose
+    circumspheres hold every point, over the hull's vertices; hulls with more than d
+    points on one facet raise ValueError for now); incremental (allow add_points, as
+    scipy's); qhull_options (scipy's string of Qhull options:
     accepted and ignored, since an exact triangulation needs none of them; unknown
     options raise ValueError); threads (worker threads; None: all cores). The mesh is
     the same for any thread count.
@@ -105,10 +109,12 @@ class Delaunay:
     threads (each releases the GIL while it works).
     """
 
-    def __init__(self, points: np.ndarray, incremental: bool = False, qhull_options: Optional[str] = None,
-                 threads: Optional[int] = None):
+    def __init__(self, points: np.ndarray, furthest_site: bool = False, incremental: bool = False,
+                 qhull_options: Optional[str] = None, threads: Optional[int] = None):
         if np.ma.isMaskedArray(points):
             raise ValueError("Input points cannot be a masked array")
+        #: Whether this is the furthest-site triangulation.
+        self.furthest_site: bool = bool(furthest_site)
         self._joggle = _check_qhull_options(qhull_options)
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2:
@@ -125,12 +131,14 @@ class Delaunay:
         when no two points are equal). Equal points are merged (the first kept; scipy's
         `coplanar` reports the others) or, with QJ, joggled apart."""
         try:
-            return _core.Triangulation(pts, self._threads), None
+            tri, first = _core.Triangulation(pts, self._threads), None
         except _core.DuplicatePointsError:
             first = _core.first_occurrences(pts)
             if self._joggle:
-                return _core.Triangulation(_joggled(pts, first), self._threads), None
-            return _core.Triangulation(pts[first == np.arange(len(pts))], self._threads), first
+                tri, first = _core.Triangulation(_joggled(pts, first), self._threads), None
+            else:
+                tri = _core.Triangulation(pts[first == np.arange(len(pts))], self._threads)
+        return (tri.furthest_site() if self.furthest_site else tri), first
 
     def _set(self, tri, first: Optional[np.ndarray], points: np.ndarray) -> None:
         self._tri = tri
@@ -170,6 +178,11 @@ class Delaunay:
         if restart:
             self._set(*self._triangulate(everything), everything)
             return
+        if self.furthest_site:
+            # The furthest-site triangulation is made whole each time (its simplices are
+            # not the nearest-site stars insertion recomputes).
+            self._set(*self._triangulate(everything), everything)
+            return
         n_old = self.npoints
         if self._first is None:
             try:
@@ -195,7 +208,8 @@ class Delaunay:
     def __reduce__(self):
         # The triangulation is a function of the points: pickling keeps them and the
         # mode, and unpickling triangulates again (the same simplices, the same order).
-        return (_rebuild, (self.points, self._incremental, "QJ" if self._joggle else None, self._threads))
+        return (_rebuild, (self.points, self._incremental, "QJ" if self._joggle else None, self._threads,
+                           self.furthest_site))
 
     @property
     def vertices(self) -> np.ndarray:
@@ -234,7 +248,8 @@ class Delaunay:
     @functools.cached_property
     def equations(self) -> np.ndarray:
         """(nsimplex, ndim + 2): each simplex's hyperplane through its lifted vertices,
-        unit normal (last component negative: the lower hull) and offset, as scipy's."""
+        unit normal (last component negative: the lower hull; positive for the
+        furthest-site triangulation, the upper hull) and offset, as scipy's."""
         lifted = self.lift_points(self.points[self.simplices])           # (m, d + 1, d + 1)
         base = lifted[:, -1, :]
         edges = lifted[:, :-1, :] - base[:, None, :]                     # (m, d, d + 1)
@@ -245,7 +260,7 @@ class Delaunay:
             minor = np.delete(edges, k, axis=2)
             normal[:, k] = (-1) ** k * np.linalg.det(minor)
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        normal *= -np.sign(normal[:, -1:])
+        normal *= (1.0 if self.furthest_site else -1.0) * np.sign(normal[:, -1:])
         offset = -np.einsum("ij,ij->i", normal, base)
         return np.concatenate([normal, offset[:, None]], axis=1)
 
@@ -312,7 +327,25 @@ class Delaunay:
         exact, so no point needs a tolerance or a second, exhaustive search."""
         q = np.ascontiguousarray(xi, dtype=np.float64)
         flat = q.reshape(-1, self.ndim)
+        if self.furthest_site:
+            return self._find_simplex_by_barycentric(flat, tol).reshape(q.shape[:-1])
         return self._tri.find_simplex(flat).reshape(q.shape[:-1])
+
+    def _find_simplex_by_barycentric(self, flat: np.ndarray, tol: Optional[float]) -> np.ndarray:
+        """The furthest-site triangulation's point location: every simplex's barycentric
+        coordinates (in floating point, as scipy's), the first simplex where none is below
+        -tol (default 100 eps), -1 elsewhere."""
+        eps = 100 * np.finfo(np.float64).eps if tol is None else float(tol)
+        t = self.transform
+        out = np.full(len(flat), -1, dtype=np.int32)
+        for s in range(self.nsimplex):
+            if not np.isfinite(t[s]).all():
+                continue
+            c = (flat - t[s, self.ndim]) @ t[s, :self.ndim].T
+            bary = np.concatenate([c, 1 - c.sum(axis=1, keepdims=True)], axis=1)
+            hit = (out < 0) & (bary >= -eps).all(axis=1)
+            out[hit] = s
+        return out
 
     def _vertex(self, i: int) -> int:
         """The core's index of point i (equal points: their first occurrence's)."""
@@ -329,13 +362,20 @@ class Delaunay:
             raise ValueError(f"{what}: points {int(self._first[dup])} and {dup} are equal, and equal points share "
                              "one cell; remove duplicates first")
 
+    def _nearest_site_only(self, what: str) -> None:
+        if self.furthest_site:
+            raise ValueError(f"{what}: this is the furthest-site triangulation; stars, neighbours and cells are "
+                             "those of the nearest-site one (Delaunay(points))")
+
     def star(self, i: int) -> np.ndarray:
         """(k, ndim + 1) uint32: the simplices incident to vertex i (its Delaunay star)."""
+        self._nearest_site_only("star")
         out = self._tri.star(self._vertex(i))
         return out if self._first is None else self._kept[out].astype(np.uint32)
 
     def neighbors_of(self, i: int) -> np.ndarray:
         """uint32, ascending: the Delaunay neighbours of vertex i."""
+        self._nearest_site_only("neighbors_of")
         out = self._tri.neighbors_of(self._vertex(i))
         return out if self._first is None else self._kept[out].astype(np.uint32)
 
@@ -345,6 +385,7 @@ class Delaunay:
         halfspaces ((m, ndim + 1) rows a, b with a.x <= b) when given, with its measures
         (docs/cells.md). Unbounded: volume inf, centroid None. A seed outside the domain
         raises ValueError."""
+        self._nearest_site_only("cell")
         self._no_merged_points("cell")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
@@ -356,6 +397,7 @@ class Delaunay:
         centroid (n, d), bounded (n,), facet_ptr (n + 1,), facet_neighbor (m,) (the
         neighbour, or -1 - k for wall k), facet_area (m,), facet_normal (m, d). Clipped
         to box or halfspaces, by default to the points' bounding box."""
+        self._nearest_site_only("cells")
         self._no_merged_points("cells")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)

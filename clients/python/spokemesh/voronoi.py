@@ -39,8 +39,10 @@ def _lists(flat: np.ndarray, ptr: np.ndarray) -> List[List[int]]:
 class Voronoi:
     """The exact Voronoi diagram of `points` ((n, d) array, 2 <= d <= 8).
 
-    Parameters, as scipy.spatial.Voronoi's: points; furthest_site (True is not
-    implemented yet and raises NotImplementedError); incremental (allow add_points);
+    Parameters, as scipy.spatial.Voronoi's: points; furthest_site (the furthest-site
+    diagram, read off the furthest-site triangulation: points inside the hull have empty
+    regions; hulls with more than d points on one facet raise ValueError for now);
+    incremental (allow add_points);
     qhull_options (Qhull's option string: accepted and ignored, except that "Qz" adds
     scipy's empty region for Qhull's point at infinity and "Qc" gives equal points
     their twin's region; default "Qbb Qc Qz", "Qc" when incremental, as scipy's);
@@ -59,7 +61,7 @@ class Voronoi:
 
     Beyond scipy: delaunay (the spokemesh.Delaunay underneath), cell(i, box,
     halfspaces) and cells(box, halfspaces): cells with volumes, centroids, facet areas
-    and normals, clipped to a box or halfspaces (docs/cells.md).
+    and normals, clipped to a box or halfspaces (docs/cells.md; nearest-site only).
 
     Thread safety: immutable between add_points calls; reads may come from several
     threads.
@@ -69,8 +71,6 @@ class Voronoi:
                  qhull_options: Optional[str] = None, threads: Optional[int] = None):
         if np.ma.isMaskedArray(points):
             raise ValueError("Input points cannot be a masked array")
-        if furthest_site:
-            raise NotImplementedError("furthest_site=True: spokemesh does not compute furthest-site diagrams yet")
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2:
             raise ValueError(f"points: expected an (n, d) array, got shape {pts.shape}")
@@ -79,11 +79,14 @@ class Voronoi:
         text = qhull_options.decode() if isinstance(qhull_options, bytes) else str(qhull_options)
         _check_qhull_options(text)
         words = text.split()
-        self._point_at_infinity = "Qz" in words
+        # (Qhull adds no point at infinity to a furthest-site diagram.)
+        self._point_at_infinity = "Qz" in words and not furthest_site
         self._coplanar_regions = "Qc" in words
-        self.furthest_site: bool = False
-        #: The Delaunay triangulation the diagram is read from.
-        self.delaunay: Delaunay = Delaunay(pts, incremental=incremental, qhull_options=text, threads=threads)
+        #: True for the furthest-site diagram (each region: where its point is the furthest).
+        self.furthest_site: bool = bool(furthest_site)
+        #: The Delaunay triangulation the diagram is read from (the furthest-site one when furthest_site).
+        self.delaunay: Delaunay = Delaunay(pts, furthest_site=self.furthest_site, incremental=incremental,
+                                           qhull_options=text, threads=threads)
         self._read()
 
     def _read(self) -> None:
@@ -154,7 +157,8 @@ class Voronoi:
         return self.delaunay.cells(box=box, halfspaces=halfspaces)
 
     def __reduce__(self):
-        return (_rebuild, (self.points, self.delaunay._incremental, self._options_text(), self.delaunay._threads))
+        return (_rebuild, (self.points, self.delaunay._incremental, self._options_text(), self.delaunay._threads,
+                           self.furthest_site))
 
     def _options_text(self) -> str:
         words = []
@@ -167,5 +171,6 @@ class Voronoi:
         return " ".join(words)
 
 
-def _rebuild(points, incremental, qhull_options, threads):
-    return Voronoi(points, incremental=incremental, qhull_options=qhull_options, threads=threads)
+def _rebuild(points, incremental, qhull_options, threads, furthest_site=False):
+    return Voronoi(points, furthest_site=furthest_site, incremental=incremental, qhull_options=qhull_options,
+                   threads=threads)

@@ -265,6 +265,20 @@ class Triangulation {
     return out;
   }
 
+  // The furthest-site triangulation of the same points (furthest_site_simplices), as a
+  // Triangulation of its own: neighbours, Voronoi diagram and point location work on
+  // it alike. Stars and cells stay nearest-site notions (spokemesh.Delaunay refuses them).
+  std::unique_ptr<Triangulation> furthest_site() const {
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    std::optional<Result<std::vector<std::uint32_t>>> rows;
+    {
+      py::gil_scoped_release release;
+      rows.emplace(furthest_site_simplices(points_, simplices_, adjacency_));
+    }
+    if (!rows->is_ok()) raise(rows->status());
+    return std::unique_ptr<Triangulation>(new Triangulation(*this, std::move(*rows).value()));
+  }
+
   int dimension() const { return d_; }
   std::size_t npoints() const { return points_.size(); }
   std::uint64_t stars_computed() const { return stars_computed_; }
@@ -377,6 +391,12 @@ class Triangulation {
   }
 
  private:
+  // Another triangulation of `base`'s points (its tree rebuilt over the copy).
+  Triangulation(const Triangulation& base, std::vector<std::uint32_t> rows)
+      : points_(base.points_), d_(base.d_), threads_(base.threads_), simplices_(std::move(rows)) {
+    tree_ = std::make_unique<KdTree>(points_);
+  }
+
   template <class Fn>
   void parallel_for(std::size_t count, Fn&& fn) const {
     std::atomic<std::size_t> next{0};
@@ -596,6 +616,7 @@ PYBIND11_MODULE(_core, m) {
       .def("simplices", &Triangulation::simplices)
       .def("neighbors", &Triangulation::neighbors)
       .def("voronoi", &Triangulation::voronoi)
+      .def("furthest_site", &Triangulation::furthest_site)
       .def("find_simplex", &Triangulation::find_simplex, py::arg("xi"))
       .def("star", &Triangulation::star, py::arg("seed"))
       .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))

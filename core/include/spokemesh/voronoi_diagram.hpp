@@ -55,4 +55,16 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
 // when no other simplex has that facet. `threads` >= 1 share the work.
 std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simplices, int d, unsigned threads = 1);
 
+// The furthest-site Delaunay triangulation (scipy's furthest_site=True): the
+// simplices whose circumspheres hold every point, the upper hull of the points lifted
+// to the paraboloid. Gift-wrapped from a hull facet of the Delaunay triangulation
+// `delaunay` (with its `adjacency`) over the hull's vertices: beyond each facet, the
+// candidate whose sphere through the facet is outermost (furthest_site.cpp), with the
+// perturbed in-sphere test deciding cospherical points. O(h) per simplex for h hull
+// vertices. Rows sorted, each positively oriented (ascending but for the last two
+// where that is negative). INVALID_ARGUMENT when a hull facet's hyperplane holds more
+// than d points (a grid's side), which the wrap does not handle yet.
+Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points, std::span<const std::uint32_t> delaunay,
+                                                           std::span<const std::int32_t> adjacency);
+
 }  // namespace spokemesh

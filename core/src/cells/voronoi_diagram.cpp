@@ -161,19 +161,17 @@ std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simpl
         const std::uint32_t* v = &simplices[static_cast<std::size_t>(s) * w];
         for (int k = 0; k < w; ++k) {
           if (v[k] == a) continue;
-          Facet f;
-          int at = 0;
           bool smallest = true;
-          for (int j = 0; j < w; ++j) {
-            if (j == k || v[j] == a) continue;
-            smallest = smallest && v[j] > a;
-            f.key[at++] = v[j];
-          }
+          for (int j = 0; j < w; ++j) smallest = smallest && (j == k || v[j] >= a);
           if (!smallest) continue;
+          Facet& f = facets.emplace_back();
+          int at = 0;
+          for (int j = 0; j < w; ++j) {
+            if (j != k && v[j] != a) f.key[static_cast<std::size_t>(at++)] = v[j];
+          }
           std::sort(f.key.begin(), f.key.begin() + at);
           f.simplex = s;
           f.opposite = static_cast<std::uint8_t>(k);
-          facets.push_back(f);
         }
       }
       std::sort(facets.begin(), facets.end());
@@ -356,9 +354,9 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
       std::sort(neighbours.begin(), neighbours.end());
       edges.resize(0);
       for (auto& [q, count] : neighbours) {
-        const std::uint32_t c = count;
+        const std::uint32_t simplices_of_q = count;
         count = static_cast<std::uint32_t>(edges.size());  // now: where q's simplices start
-        edges.resize(edges.size() + c, {q, 0});
+        edges.resize(edges.size() + simplices_of_q, {q, 0});
       }
       fill.assign(neighbours.size(), 0);
       for (std::size_t i = 0; i < size; ++i) {
