@@ -325,7 +325,49 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
         EXPECT_GT(stats.value().rows_kept, out.size() / w / 2);
       }
       EXPECT_EQ(out.size() % w, 0u);
+      // The stars computed are the new points' only (rows of old points are filtered).
+      if (!stats.value().whole) EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
       rows = std::move(out);
+    }
+  }
+}
+
+// validate_appended: the state validate() gives (ranks that key the perturbation, the
+// integer scale) and its first error, from the parent's order merged with the new points.
+TEST(InsertPoints, ValidatingAnAppendedSetEqualsValidatingTheWhole) {
+  struct Case {
+    const char* name;
+    int d;
+    std::vector<double> coords;
+    std::uint32_t n_old;
+  };
+  std::vector<double> grid = grid_points(2, 9);
+  std::vector<double> dyadic = uniform_points(3, 400, 71);
+  for (std::size_t i = 1200 / 2; i < dyadic.size(); ++i) dyadic[i] = std::ldexp(std::round(dyadic[i] * 64), -7);
+  const std::vector<Case> cases = {
+      {"2-d grid 9^2, seed none", 2, grid, 40},
+      {"3-d uniform then dyadic, seed 71", 3, dyadic, 200},
+      {"4-d uniform, seed 72", 4, uniform_points(4, 300, 72), 299},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    PointSet parent(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.n_old * c.d));
+    ASSERT_TRUE(parent.validate("parent").is_ok());
+    PointSet whole(c.d, c.coords), appended(c.d, c.coords);
+    ASSERT_TRUE(whole.validate("points").is_ok());
+    ASSERT_TRUE(appended.validate_appended(parent, "points").is_ok());
+    for (std::size_t i = 0; i < whole.size(); ++i) ASSERT_EQ(whole.lex_rank(i), appended.lex_rank(i)) << "point " << i;
+    EXPECT_EQ(whole.scale_exponent(), appended.scale_exponent());
+    EXPECT_EQ(whole.integer_bits(), appended.integer_bits());
+    // Equal points, old with new and new with new: the same message.
+    for (const std::uint32_t twin : {c.n_old / 2, static_cast<std::uint32_t>(whole.size() - 1)}) {
+      std::vector<double> more = c.coords;
+      more.insert(more.end(), c.coords.begin() + twin * c.d, c.coords.begin() + (twin + 1) * c.d);
+      PointSet a(c.d, more), b(c.d, more);
+      const Status sa = a.validate("points"), sb = b.validate_appended(parent, "points");
+      ASSERT_FALSE(sa.is_ok());
+      EXPECT_EQ(sa.message(), sb.message());
+      EXPECT_EQ(sb.reason(), "DUPLICATE_POINTS");
     }
   }
 }

@@ -140,7 +140,8 @@ class Delaunay:
                 tri = _core.Triangulation(pts[first == np.arange(len(pts))], self._threads)
         return (tri.furthest_site() if self.furthest_site else tri), first
 
-    def _set(self, tri, first: Optional[np.ndarray], points: np.ndarray) -> None:
+    def _set(self, tri, first: Optional[np.ndarray], points: np.ndarray,
+             bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> None:
         self._tri = tri
         self._first = first
         self.points: np.ndarray = points
@@ -154,8 +155,10 @@ class Delaunay:
             self.simplices = self._kept[self.simplices].astype(np.int32)
         self.nsimplex: int = self.simplices.shape[0]
         #: The box of the points (scipy's min_bound, max_bound).
-        self.min_bound: np.ndarray = self.points.min(axis=0)
-        self.max_bound: np.ndarray = self.points.max(axis=0)
+        if bounds is None:
+            bounds = (self.points.min(axis=0), self.points.max(axis=0))
+        self.min_bound: np.ndarray = bounds[0]
+        self.max_bound: np.ndarray = bounds[1]
         for cached in ("neighbors", "vertex_neighbor_vertices", "convex_hull", "transform", "equations",
                        "vertex_to_simplex", "coplanar"):
             self.__dict__.pop(cached, None)
@@ -184,9 +187,12 @@ class Delaunay:
             self._set(*self._triangulate(everything), everything)
             return
         n_old = self.npoints
+        # (The box grows by the new points' box: no pass over the old ones.)
+        bounds = (np.minimum(self.min_bound, more.min(axis=0, initial=np.inf)),
+                  np.maximum(self.max_bound, more.max(axis=0, initial=-np.inf)))
         if self._first is None:
             try:
-                self._set(self._tri.inserted(more), None, everything)
+                self._set(self._tri.inserted(more), None, everything, bounds)
                 return
             except _core.DuplicatePointsError:
                 pass
@@ -199,7 +205,7 @@ class Delaunay:
         else:
             first = every_first
             new = more[every_first[n_old:] == np.arange(n_old, len(everything))]
-        self._set(self._tri.inserted(new) if len(new) else self._tri, first, everything)
+        self._set(self._tri.inserted(new) if len(new) else self._tri, first, everything, bounds)
 
     def close(self) -> None:
         """Ends incremental mode: add_points raises RuntimeError from now on."""

@@ -65,6 +65,8 @@ PointSet points_from(const Points& array, bool exact_span = true) {
   if (array.ndim() != 2) throw py::value_error("points: expected a 2-d array of shape (n, d)");
   const auto n = static_cast<std::size_t>(array.shape(0));
   const int d = static_cast<int>(array.shape(1));
+  // scipy's index arrays are int32: a set in-process stays below 2^31 points.
+  if (n >= (std::size_t{1} << 31)) throw py::value_error("points: " + std::to_string(n) + " points; at most 2^31 - 1 in-process");
   std::vector<double> coords(array.data(), array.data() + n * static_cast<std::size_t>(d));
   PointSet ps(d, std::move(coords));
   const Status s = exact_span ? ps.validate("points") : ps.validate("points", kMaxApproxDimension, d <= kMaxDimension);
@@ -217,10 +219,13 @@ class Triangulation {
       throw py::value_error("points: expected shape (k, " + std::to_string(parent.d_) + ")");
     }
     const auto k = static_cast<std::size_t>(more.shape(0));
+    if (parent.points_.size() + k >= (std::size_t{1} << 31)) {
+      throw py::value_error("points: " + std::to_string(parent.points_.size() + k) + " points; at most 2^31 - 1 in-process");
+    }
     std::vector<double> coords(parent.points_.coordinates().begin(), parent.points_.coordinates().end());
     coords.insert(coords.end(), more.data(), more.data() + k * static_cast<std::size_t>(d_));
     points_ = PointSet(d_, std::move(coords));
-    if (const Status s = points_.validate("points"); !s.is_ok()) raise(s);
+    if (const Status s = points_.validate_appended(parent.points_, "points"); !s.is_ok()) raise(s);
     if (k == 0) {
       tree_ = std::make_unique<KdTree>(points_);
       simplices_ = parent.simplices_;
@@ -228,11 +233,19 @@ class Triangulation {
     }
     py::gil_scoped_release release;
     const auto n_old = static_cast<std::uint32_t>(parent.points_.size());
-    auto split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size()));
+    // The split is built beside the tree and the new points' stars (they need only the
+    // tree), and waited for when the rows are put in sweep order.
+    std::unique_ptr<SpaceSplit> split;
+    std::thread sweep([&] { split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size())); });
     tree_ = std::make_unique<KdTree>(points_);
     MeshOptions options;
     options.threads = threads_;
-    auto stats = insert_points(*tree_, *split, n_old, parent.simplices_, options, simplices_);
+    auto split_when_needed = [&]() -> const SpaceSplit& {
+      if (sweep.joinable()) sweep.join();
+      return *split;
+    };
+    auto stats = insert_points(*tree_, split_when_needed, n_old, parent.simplices_, options, simplices_);
+    if (sweep.joinable()) sweep.join();
     if (!stats.is_ok()) {
       py::gil_scoped_acquire acquire;
       raise(stats.status());
@@ -284,8 +297,19 @@ class Triangulation {
   std::uint64_t stars_computed() const { return stars_computed_; }
   std::size_t nsimplices() const { return simplices_.size() / (d_ + 1); }
 
+  // A copy (numpy may write to it; the rows here stay the parent of insertions), made
+  // in parallel: at a million points it is 100 MB.
   py::array_t<std::int32_t> simplices() const {
-    std::vector<std::int32_t> out(simplices_.begin(), simplices_.end());
+    std::vector<std::int32_t> out(simplices_.size());
+    {
+      py::gil_scoped_release release;
+      const std::size_t chunk = 1 << 12;  // (parallel_for shares out more than 1024 items)
+      parallel_for((out.size() + chunk - 1) / chunk, [&](std::size_t c) {
+        const std::size_t from = c * chunk, to = std::min(out.size(), from + chunk);
+        std::copy(simplices_.begin() + static_cast<std::ptrdiff_t>(from), simplices_.begin() + static_cast<std::ptrdiff_t>(to),
+                  out.begin() + static_cast<std::ptrdiff_t>(from));
+      });
+    }
     return owned(std::move(out), {static_cast<py::ssize_t>(nsimplices()), d_ + 1});
   }
 

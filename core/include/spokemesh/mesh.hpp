@@ -86,14 +86,17 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 std::span<const std::uint32_t> owned_simplices(const Star& star);
 
 // Incremental insertion: the mesh of the tree's points [0, n) from the mesh of its
-// first n_old points, recomputing only the stars that change. Those are the new
-// points' and their old neighbours': an old point none of whose Delaunay neighbours is
-// new keeps its star (its simplices, all of old points, are Delaunay in the new set as
-// in the old, and cover a neighbourhood of the point as its old star does), and so its
-// owned rows; every other row is taken from a star computed in the whole set. The rows
+// first n_old points, computing only the new points' stars. Every new simplex has a
+// new vertex, so those stars hold all of them, and their old vertices are the old
+// points whose stars change: an old point none of whose Delaunay neighbours is new
+// keeps its star (its simplices, all of old points, are Delaunay in the new set as in
+// the old, and cover a neighbourhood of the point as its old star does), and so its
+// owned rows. A changed old point's rows are its old ones less those a new point's
+// circumsphere test removes (an old simplex is Delaunay in the new set unless a new
+// point lies in its circumsphere, decided exactly), with the new ones it owns. The rows
 // come out in the sweep order of `split` (the SpaceSplit of all n points), so `out` is
-// byte for byte what mesh_seeds writes for the whole set. When the new points would
-// change more than about a third of the stars, the whole set is swept instead
+// byte for byte what mesh_seeds writes for the whole set. When more than a fifth of
+// the points (3-d; an eighth otherwise) are new, the whole set is swept instead
 // (mesh_seeds: its stars share their wraps), which is then faster.
 //
 // old_rows: mesh_seeds' output for the first n_old points (any sweep order: rows are
@@ -102,12 +105,18 @@ std::span<const std::uint32_t> owned_simplices(const Star& star);
 // the facet cache are not used). Errors: INVALID_ARGUMENT when n_old is not below n or
 // the rows name a point >= n_old; CANCELLED.
 struct InsertStats {
-  std::uint64_t stars = 0;          // stars computed (new points and old neighbours)
+  std::uint64_t stars = 0;          // stars computed (the new points'; all n when swept whole)
+  std::uint64_t rows_redone = 0;    // old points whose owned rows were brought up to date
   std::uint64_t rows_kept = 0;      // rows taken from old_rows
   bool whole = false;               // so many points were new that the whole set was swept
 };
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options,
                                   std::vector<std::uint32_t>& out);
+// The same, with the split given when first needed (a caller may still be building it
+// while the new points' stars are computed, which need only the tree).
+Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,
+                                  std::uint32_t n_old, std::span<const std::uint32_t> old_rows,
+                                  const MeshOptions& options, std::vector<std::uint32_t>& out);
 
 }  // namespace spokemesh

@@ -55,6 +55,12 @@ class PointSet {
   // check_span = false skips the exact affine-rank check (approximate neighbour
   // graphs do not need full dimension, and in high d that check is the costly part).
   Status validate(const std::string& source, int max_dimension = kMaxDimension, bool check_span = true);
+  // validate() for a set whose first points are `parent`'s (validated, with the same
+  // dimension): only the points after them are checked, and the lexicographic ranks
+  // come from merging them, sorted, into the parent's order (O(n) rather than a sort of
+  // all n); the span is the parent's or larger. The same state and the same first
+  // error as validate() gives.
+  Status validate_appended(const PointSet& parent, const std::string& source);
 
   // Removes exact duplicates, keeping each first occurrence. Returns for every
   // input index the index it maps to in the reduced set. Precondition: finite

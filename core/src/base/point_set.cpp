@@ -121,6 +121,73 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
   return check_span ? check_affine_span(source) : Status::ok();
 }
 
+Status PointSet::validate_appended(const PointSet& parent, const std::string& source) {
+  const std::size_t n = size(), n_old = parent.size();
+  if (parent.d_ != d_ || n_old > n || parent.rank_.size() != n_old) {
+    return internal_error(source + ": validate_appended needs the validated parent set of the same dimension");
+  }
+  for (std::size_t i = n_old; i < n; ++i) {
+    for (int c = 0; c < d_; ++c) {
+      const double v = point(i)[c];
+      if (!std::isfinite(v)) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
+                                " is not finite");
+      }
+      if (std::fabs(v) > kMaxCoordinate) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
+                                " has magnitude above 1e100");
+      }
+    }
+  }
+  if (Status count = check_count(n, d_, source); !count.is_ok()) return count;
+  // The new points in lexicographic order (equal ones by index), merged with the
+  // parent's order; at a tie the old point (the smaller index) comes first, as in
+  // validate()'s stable order, so the first equal pair found is the one it reports.
+  std::vector<std::uint32_t> fresh(n - n_old);
+  std::iota(fresh.begin(), fresh.end(), static_cast<std::uint32_t>(n_old));
+  std::sort(fresh.begin(), fresh.end(), [&](std::uint32_t a, std::uint32_t b) {
+    if (lex_less(point(a), point(b), d_)) return true;
+    if (lex_less(point(b), point(a), d_)) return false;
+    return a < b;
+  });
+  std::vector<std::uint32_t> old_order(n_old);
+  for (std::size_t i = 0; i < n_old; ++i) old_order[parent.rank_[i]] = static_cast<std::uint32_t>(i);
+  std::vector<std::uint32_t> order;
+  order.reserve(n);
+  std::merge(old_order.begin(), old_order.end(), fresh.begin(), fresh.end(), std::back_inserter(order),
+             [&](std::uint32_t a, std::uint32_t b) {
+               if (lex_less(point(a), point(b), d_)) return true;
+               if (lex_less(point(b), point(a), d_)) return false;
+               return a < b;
+             });
+  for (std::size_t k = 1; k < n; ++k) {
+    if (equal_points(point(order[k - 1]), point(order[k]), d_)) {
+      const auto a = std::min(order[k - 1], order[k]);
+      const auto b = std::max(order[k - 1], order[k]);
+      return invalid_argument(source + ": points " + std::to_string(a) + " and " + std::to_string(b) + " are equal")
+          .with_reason("DUPLICATE_POINTS");
+    }
+  }
+  rank_.assign(n, 0);
+  for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
+  int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
+  if (parent.integer_bits_ != kNoIntegerScale) {
+    lowest = parent.scale_exponent_;
+    highest = parent.scale_exponent_ + parent.integer_bits_;
+  }
+  for (std::size_t i = n_old * static_cast<std::size_t>(d_); i < coords_.size(); ++i) {
+    widen_binary_span(coords_[i], lowest, highest);
+  }
+  if (highest >= lowest) {
+    scale_exponent_ = lowest;
+    integer_bits_ = highest - lowest;
+  } else {
+    scale_exponent_ = 0;
+    integer_bits_ = kNoIntegerScale;
+  }
+  return Status::ok();
+}
+
 // Exact rank of {p_i - p_0} by incremental row echelon over the rationals. For
 // non-degenerate inputs it reaches rank d after a few points and stops; only a
 // degenerate set is scanned whole, and that is an error path.

@@ -1,13 +1,18 @@
 // insert_points (mesh.hpp): a whole mesh brought up to date with new points by
 // recomputing the stars that change, in the whole set's sweep order.
 #include <algorithm>
+#include <array>
 #include <atomic>
+#include <cmath>
+#include <numeric>
 #include <memory>
 #include <mutex>
 #include <thread>
 #include <vector>
 
 #include "spokemesh/mesh.hpp"
+#include "spokemesh/predicates.hpp"
+#include "spokemesh/voronoi.hpp"
 
 namespace spokemesh {
 
@@ -50,6 +55,12 @@ Status for_each_star(const KdTree& tree, const MeshOptions& options, const std::
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options,
                                   std::vector<std::uint32_t>& out) {
+  return insert_points(tree, [&]() -> const SpaceSplit& { return split; }, n_old, old_rows, options, out);
+}
+
+Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,
+                                  std::uint32_t n_old, std::span<const std::uint32_t> old_rows,
+                                  const MeshOptions& options, std::vector<std::uint32_t>& out) {
   const PointSet& points = tree.points();
   const auto n = static_cast<std::uint32_t>(points.size());
   const auto w = static_cast<std::size_t>(points.dimension()) + 1;
@@ -70,18 +81,18 @@ Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, s
     if (row_count[owner]++ == 0) first_row[owner] = r;
   }
 
-  // Many new points change most stars: then the whole sweep, whose stars share their
-  // wraps, is faster than stars one by one (3-d 1M on 2 threads: adding 10% star by
-  // star took 1.8x the whole mesh's time). The estimate: each new point changes the
-  // stars of its neighbours, about 6 in 2-d, 15 in 3-d, more above.
+  // Many new points: then the whole sweep, whose stars share their wraps, is faster
+  // than the new points' stars one by one and the filtering of their neighbours' rows.
+  // Measured on 2 threads, 1M points: in 3-d adding 10% took 0.52x the whole sweep and
+  // 50% 1.46x; in 2-d 10% 0.81x, 30% 1.6x. So the sweep beyond a fifth new (3-d) or an
+  // eighth (2-d, and above 3-d, where one-by-one stars lose more to shared wraps).
   const std::uint64_t n_new = n - n_old;
   const int d = points.dimension();
-  const std::uint64_t degree = d == 2 ? 6 : d == 3 ? 15 : std::uint64_t{3} << d;
-  if (n_new * (1 + degree) > n / 3) {
+  if (n_new > n / (d == 3 ? 5 : 8)) {
     MeshOptions whole;
     whole.threads = options.threads;
     whole.star = options.star;
-    whole.split = &split;
+    whole.split = &split_when_needed();
     out.clear();
     auto run = mesh_seeds(tree, whole, [&](std::span<const std::uint32_t> block, std::uint64_t) {
       out.insert(out.end(), block.begin(), block.end());
@@ -93,49 +104,160 @@ Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, s
     stats.whole = true;
     return stats;
   }
-  // The new points' stars (every simplex: their vertices are the old points whose
-  // stars change), then the changed old points' owned parts.
+  // The new points' stars: every simplex that is new (a new simplex has a new vertex),
+  // and their vertices are the old points whose stars change.
   std::vector<std::uint32_t> seeds;
   for (std::uint32_t i = n_old; i < n; ++i) seeds.push_back(i);
-  std::vector<std::vector<std::uint32_t>> rows_of(n - n_old);  // owned rows of seeds[i]
+  std::vector<std::vector<std::uint32_t>> rows_of(n - n_old);    // owned rows of seeds[i]
+  std::vector<std::vector<std::uint32_t>> gained_of(n - n_old);  // rows with an old owner, from seeds[i]'s star
   std::unique_ptr<std::atomic<std::uint8_t>[]> changed(new std::atomic<std::uint8_t>[n_old]);
   for (std::uint32_t v = 0; v < n_old; ++v) changed[v].store(0, std::memory_order_relaxed);
   Status s = for_each_star(tree, options, seeds, StarPart::kAll, [&](std::size_t i, const Star& star) {
     const auto owned = owned_simplices(star);
     rows_of[i].assign(owned.begin(), owned.end());
-    for (const std::uint32_t v : star.simplices) {
-      if (v < n_old) changed[v].store(1, std::memory_order_relaxed);  // (read after the workers join)
+    const std::uint32_t q = seeds[i];
+    for (std::size_t r = 0; r < star.simplices.size(); r += w) {
+      const std::uint32_t* row = &star.simplices[r];
+      std::uint32_t smallest_new = n;
+      for (std::size_t j = 0; j < w; ++j) {
+        if (row[j] < n_old) {
+          changed[row[j]].store(1, std::memory_order_relaxed);  // (read after the workers join)
+        } else {
+          smallest_new = std::min(smallest_new, row[j]);
+        }
+      }
+      // Each new simplex with an old owner once: from its smallest new vertex's star.
+      if (row[0] < n_old && smallest_new == q) gained_of[i].insert(gained_of[i].end(), row, row + w);
     }
   });
   if (!s.is_ok()) return s;
   std::vector<std::uint32_t> old_seeds;
+  std::vector<std::uint32_t> redone(n_old, ~0u);  // index into old_seeds
   for (std::uint32_t v = 0; v < n_old; ++v) {
-    if (changed[v].load(std::memory_order_relaxed) != 0) old_seeds.push_back(v);
+    if (changed[v].load(std::memory_order_relaxed) == 0) continue;
+    redone[v] = static_cast<std::uint32_t>(old_seeds.size());
+    old_seeds.push_back(v);
   }
   std::vector<std::vector<std::uint32_t>> old_rows_of(old_seeds.size());
-  s = for_each_star(tree, options, old_seeds, StarPart::kOwned, [&](std::size_t i, const Star& star) {
-    old_rows_of[i].assign(star.simplices.begin(), star.simplices.end());
-  });
-  if (!s.is_ok()) return s;
+  for (const std::vector<std::uint32_t>& g : gained_of) {
+    for (std::size_t r = 0; r < g.size(); r += w) {
+      std::vector<std::uint32_t>& to = old_rows_of[redone[g[r]]];
+      to.insert(to.end(), g.begin() + static_cast<std::ptrdiff_t>(r), g.begin() + static_cast<std::ptrdiff_t>(r + w));
+    }
+  }
+  gained_of = {};
+
+  // A changed old point's owned rows: its old ones that are still Delaunay, and the new
+  // ones it owns. An old simplex stays unless a new point lies in its circumsphere (no
+  // old one does: it was Delaunay among them), and one that goes changes the stars of
+  // all its vertices, so only simplices whose vertices all changed are tested: the new
+  // points within the circumsphere grown by a margin far above the circumcentre's error
+  // (voronoi.hpp: 1e-12 of the radius), each decided by the exact perturbed test. Rows
+  // then in the star's order: lexicographic by their sorted indices.
+  const Predicates predicates(points);
+  // The new points alone, for the circumsphere queries (a small tree: ids - n_old).
+  const PointSet new_points(d, std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old) * d,
+                                                   points.coordinates().end()));
+  const KdTree new_tree(new_points);
+  std::atomic<std::size_t> next{0};
+  auto work = [&] {
+    std::vector<std::pair<std::uint32_t, double>> near;
+    std::vector<std::uint32_t> kept;
+    std::vector<std::size_t> order;
+    std::vector<std::array<std::uint32_t, kMaxDimension + 1>> keys;
+    for (;;) {
+      const std::size_t i = next.fetch_add(1);
+      if (i >= old_seeds.size()) return;
+      const std::uint32_t v = old_seeds[i];
+      std::vector<std::uint32_t>& rows = old_rows_of[i];
+      const std::size_t gained = rows.size();
+      for (std::uint32_t r = 0; r < row_count[v]; ++r) {
+        const std::uint32_t* row = &old_rows[(first_row[v] + r) * w];
+        bool all_changed = true;
+        for (std::size_t j = 0; j < w && all_changed; ++j) all_changed = changed[row[j]].load(std::memory_order_relaxed) != 0;
+        bool killed = false;
+        if (all_changed) {
+          const std::vector<double> c = circumcentre(points, row, static_cast<int>(w));
+          double r2 = 0;
+          for (int k = 0; k < d; ++k) {
+            const double dx = points.point(row[0])[k] - c[static_cast<std::size_t>(k)];
+            r2 += dx * dx;
+          }
+          const double reach = std::sqrt(r2) * (1 + 1e-9) + 1e-300;
+          near.clear();
+          new_tree.within(c.data(), reach * reach, near);
+          for (const auto& [q, dist2] : near) {
+            if (predicates.side_of_sphere(std::span<const std::uint32_t>(row, w), n_old + q) < 0) {
+              killed = true;
+              break;
+            }
+          }
+        }
+        if (!killed) rows.insert(rows.end(), row, row + w);
+      }
+      if (gained == 0) continue;
+      // In the star's order, lexicographic by sorted indices: the kept old rows are in
+      // it already, the gained ones (a few) are sorted and merged in.
+      const std::size_t m = rows.size() / w;
+      keys.resize(m);
+      for (std::size_t k = 0; k < m; ++k) {
+        keys[k].fill(0);
+        std::copy_n(&rows[k * w], w, keys[k].begin());
+        std::sort(keys[k].begin(), keys[k].begin() + static_cast<std::ptrdiff_t>(w));
+      }
+      order.resize(m);
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      const auto by_key = [&](std::size_t x, std::size_t y) { return keys[x] < keys[y]; };
+      const auto gained_end = order.begin() + static_cast<std::ptrdiff_t>(gained / w);
+      std::sort(order.begin(), gained_end, by_key);
+      std::inplace_merge(order.begin(), gained_end, order.end(), by_key);
+      kept.clear();
+      for (const std::size_t k : order) kept.insert(kept.end(), &rows[k * w], &rows[k * w] + w);
+      rows.swap(kept);
+    }
+  };
+  {
+    const unsigned threads = std::max(1u, std::min<unsigned>(options.threads, static_cast<unsigned>(old_seeds.size())));
+    std::vector<std::thread> pool;
+    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
+    work();
+    for (std::thread& t : pool) t.join();
+  }
 
   // The rows in the whole set's sweep order.
-  std::vector<std::uint32_t> redone(n_old, ~0u);  // index into old_rows_of
-  for (std::size_t i = 0; i < old_seeds.size(); ++i) redone[old_seeds[i]] = static_cast<std::uint32_t>(i);
   InsertStats stats;
-  stats.stars = seeds.size() + old_seeds.size();
-  out.clear();
-  for (const std::uint32_t seed : split.order()) {
-    if (seed >= n_old) {
-      const std::vector<std::uint32_t>& r = rows_of[seed - n_old];
-      out.insert(out.end(), r.begin(), r.end());
-    } else if (redone[seed] != ~0u) {
-      const std::vector<std::uint32_t>& r = old_rows_of[redone[seed]];
-      out.insert(out.end(), r.begin(), r.end());
-    } else if (row_count[seed] != 0) {
-      const auto from = old_rows.begin() + static_cast<std::ptrdiff_t>(first_row[seed] * w);
-      out.insert(out.end(), from, from + static_cast<std::ptrdiff_t>(row_count[seed] * w));
-      stats.rows_kept += row_count[seed];
+  stats.stars = seeds.size();
+  stats.rows_redone = old_seeds.size();
+  // Each seed's place in the output, then the copies in parallel (the output is about
+  // the mesh's size: a single thread's copying and page faults would show).
+  const std::span<const std::uint32_t> order = split_when_needed().order();
+  std::vector<std::size_t> at(order.size() + 1, 0);
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    const std::uint32_t seed = order[k];
+    at[k + 1] = at[k] + (seed >= n_old           ? rows_of[seed - n_old].size()
+                         : redone[seed] != ~0u   ? old_rows_of[redone[seed]].size()
+                                                 : std::size_t{row_count[seed]} * w);
+    if (seed < n_old && redone[seed] == ~0u) stats.rows_kept += row_count[seed];
+  }
+  out.resize(at.back());
+  auto copy = [&](std::size_t from, std::size_t to) {
+    for (std::size_t k = from; k < to; ++k) {
+      if (at[k + 1] == at[k]) continue;
+      const std::uint32_t seed = order[k];
+      const std::uint32_t* src = seed >= n_old           ? rows_of[seed - n_old].data()
+                                 : redone[seed] != ~0u   ? old_rows_of[redone[seed]].data()
+                                                         : old_rows.data() + first_row[seed] * w;
+      std::copy(src, src + (at[k + 1] - at[k]), out.begin() + static_cast<std::ptrdiff_t>(at[k]));
     }
+  };
+  {
+    const unsigned threads = std::max(1u, options.threads);
+    std::vector<std::thread> pool;
+    for (unsigned t = 1; t < threads; ++t) {
+      pool.emplace_back(copy, order.size() * t / threads, order.size() * (t + 1) / threads);
+    }
+    copy(0, order.size() / threads);
+    for (std::thread& t : pool) t.join();
   }
   return stats;
 }
