@@ -167,8 +167,8 @@ class Delaunay:
         """Append points (shape (k, ndim)) to a triangulation made with incremental=True.
 
         The result is the triangulation of all the points, the same simplices in the same
-        order as `Delaunay` of them at once. restart=False computes only the stars the
-        new points change (the new points' and their old neighbours'); restart=True
+        order as `Delaunay` of them at once. restart=False computes only the new points'
+        stars (their old neighbours' rows are filtered by an exact circumsphere test); restart=True
         triangulates everything again. Raises RuntimeError when the triangulation was
         not made incremental or was closed, ValueError for bad points (named by their
         index in the whole set)."""

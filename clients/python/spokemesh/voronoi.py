@@ -135,7 +135,7 @@ class Voronoi:
 
     def add_points(self, points: np.ndarray, restart: bool = False) -> None:
         """Append points (shape (k, ndim)) to a diagram made with incremental=True: the
-        triangulation recomputes only the stars the new points change (restart=True:
+        triangulation computes only the new points' stars (restart=True:
         everything), and the diagram equals the one of all the points made at once.
         Raises RuntimeError when not incremental or closed."""
         self.delaunay.add_points(points, restart=restart)
