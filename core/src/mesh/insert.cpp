@@ -160,6 +160,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
                                                    points.coordinates().end()));
   const KdTree new_tree(new_points);
   std::atomic<std::size_t> next{0};
+  std::vector<std::uint8_t> same_rows(old_seeds.size(), 0);  // written by one worker each
   auto work = [&] {
     std::vector<std::pair<std::uint32_t, double>> near;
     std::vector<std::uint32_t> kept;
@@ -171,6 +172,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       const std::uint32_t v = old_seeds[i];
       std::vector<std::uint32_t>& rows = old_rows_of[i];
       const std::size_t gained = rows.size();
+      std::size_t kept_rows = 0;
       for (std::uint32_t r = 0; r < row_count[v]; ++r) {
         const std::uint32_t* row = &old_rows[(first_row[v] + r) * w];
         bool all_changed = true;
@@ -193,7 +195,16 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
             }
           }
         }
-        if (!killed) rows.insert(rows.end(), row, row + w);
+        if (!killed) {
+          rows.insert(rows.end(), row, row + w);
+          ++kept_rows;
+        }
+      }
+      if (gained == 0 && kept_rows == row_count[v]) {
+        // Its star changed, not its own rows: they are taken from old_rows as they are.
+        std::vector<std::uint32_t>().swap(rows);
+        same_rows[i] = 1;
+        continue;
       }
       if (gained == 0) continue;
       // In the star's order, lexicographic by sorted indices: the kept old rows are in
@@ -230,6 +241,9 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   stats.rows_redone = old_seeds.size();
   // Each seed's place in the output, then the copies in parallel (the output is about
   // the mesh's size: a single thread's copying and page faults would show).
+  for (std::size_t i = 0; i < old_seeds.size(); ++i) {
+    if (same_rows[i] != 0) redone[old_seeds[i]] = ~0u;
+  }
   const std::span<const std::uint32_t> order = split_when_needed().order();
   std::vector<std::size_t> at(order.size() + 1, 0);
   for (std::size_t k = 0; k < order.size(); ++k) {
