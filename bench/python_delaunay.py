@@ -4,7 +4,7 @@ one thread) on the same uniform points: construction time, then the simplices an
 their neighbours (scipy computes both while it builds; spokemesh builds neighbours on
 first use, counted here). Sizes from issue 19: 100k/100k/20k/5k/2k points for d = 2..6.
 
-Usage: PYTHONPATH=build/python bench/python_delaunay.py [--repeat 3]
+Usage: PYTHONPATH=build/python bench/python_delaunay.py [--repeat 3] [--sizes 2:1000000,3:300000]
 """
 
 from __future__ import annotations
@@ -32,10 +32,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--sizes", default=None, help="d:n,... (default: issue 19's 100k/100k/20k/5k/2k for d = 2..6)")
     args = ap.parse_args()
+    sizes = SIZES if args.sizes is None else {int(a): int(b) for a, b in (x.split(":") for x in args.sizes.split(","))}
     print("| d | points | spokemesh.Delaunay | scipy.spatial.Delaunay | ratio | simplices (same set) |")
     print("| --- | ---: | ---: | ---: | ---: | --- |")
-    for d, n in SIZES.items():
+    for d, n in sizes.items():
         points = np.random.default_rng(100 + d).random((n, d))
 
         def ours():
