@@ -326,7 +326,9 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       }
       EXPECT_EQ(out.size() % w, 0u);
       // The stars computed are the new points' only (rows of old points are filtered).
-      if (!stats.value().whole) EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
+      if (!stats.value().whole) {
+        EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
+      }
       rows = std::move(out);
     }
   }

@@ -80,6 +80,9 @@ class PointSet {
   Status check_affine_span(const std::string& source) const;
 
  private:
+  // The state validate() leaves: ranks from a lexicographic order, and the integer
+  // scale from the binary span [lowest, highest] of all coordinates.
+  void set_ranks_and_scale(const std::vector<std::uint32_t>& order, int lowest, int highest);
 
   int d_ = 0;
   std::vector<double> coords_;

@@ -63,6 +63,40 @@ bool equal_points(const double* a, const double* b, int d) {
   return std::equal(a, a + d, b);
 }
 
+// INVALID_ARGUMENT naming the first coordinate of points [from, to) that is not finite
+// or beyond kMaxCoordinate; OK otherwise.
+Status check_coordinates(const PointSet& ps, std::size_t from, std::size_t to, const std::string& source) {
+  for (std::size_t i = from; i < to; ++i) {
+    for (int c = 0; c < ps.dimension(); ++c) {
+      const double v = ps.point(i)[c];
+      if (!std::isfinite(v)) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
+                                " is not finite");
+      }
+      if (std::fabs(v) > kMaxCoordinate) {
+        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
+                                " has magnitude above 1e100");
+      }
+    }
+  }
+  return Status::ok();
+}
+
+// DUPLICATE_POINTS for the first two consecutive equal points of `order` (a
+// lexicographic order), naming the smaller index first; OK when there are none.
+Status check_distinct(const PointSet& ps, const std::vector<std::uint32_t>& order, const std::string& source) {
+  for (std::size_t k = 1; k < order.size(); ++k) {
+    if (equal_points(ps.point(order[k - 1]), ps.point(order[k]), ps.dimension())) {
+      const auto a = std::min(order[k - 1], order[k]);
+      const auto b = std::max(order[k - 1], order[k]);
+      // Callers add the advice that fits them (the CLI: --merge-duplicates).
+      return invalid_argument(source + ": points " + std::to_string(a) + " and " + std::to_string(b) + " are equal")
+          .with_reason("DUPLICATE_POINTS");
+    }
+  }
+  return Status::ok();
+}
+
 }  // namespace
 
 Status PointSet::check_count(std::uint64_t n, int d, const std::string& source) {
@@ -81,43 +115,15 @@ Status PointSet::validate(const std::string& source, int max_dimension, bool che
                             " is not supported (supported: 2.." +
                             std::to_string(max_dimension) + ")");
   }
-  for (std::size_t i = 0; i < n; ++i) {
-    for (int c = 0; c < d_; ++c) {
-      const double v = point(i)[c];
-      if (!std::isfinite(v)) {
-        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " +
-                                std::to_string(c) + " is not finite");
-      }
-      if (std::fabs(v) > kMaxCoordinate) {
-        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " +
-                                std::to_string(c) + " has magnitude above 1e100");
-      }
-    }
-  }
+  if (Status s = check_coordinates(*this, 0, n, source); !s.is_ok()) return s;
   if (Status count = check_count(n, d_, source); !count.is_ok()) return count;
 
   const std::vector<std::uint32_t> order = lex_order(*this);
-  for (std::size_t k = 1; k < n; ++k) {
-    if (equal_points(point(order[k - 1]), point(order[k]), d_)) {
-      const auto a = std::min(order[k - 1], order[k]);
-      const auto b = std::max(order[k - 1], order[k]);
-      // Callers add the advice that fits them (the CLI: --merge-duplicates).
-      return invalid_argument(source + ": points " + std::to_string(a) + " and " + std::to_string(b) + " are equal")
-          .with_reason("DUPLICATE_POINTS");
-    }
-  }
-  rank_.assign(n, 0);
-  for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
+  if (Status s = check_distinct(*this, order, source); !s.is_ok()) return s;
   // The common scale: the lowest set bit over all coordinates, and the highest.
   int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
   for (const double v : coords_) widen_binary_span(v, lowest, highest);
-  if (highest >= lowest) {
-    scale_exponent_ = lowest;
-    integer_bits_ = highest - lowest;
-  } else {
-    scale_exponent_ = 0;
-    integer_bits_ = kNoIntegerScale;
-  }
+  set_ranks_and_scale(order, lowest, highest);
   return check_span ? check_affine_span(source) : Status::ok();
 }
 
@@ -126,19 +132,7 @@ Status PointSet::validate_appended(const PointSet& parent, const std::string& so
   if (parent.d_ != d_ || n_old > n || parent.rank_.size() != n_old) {
     return internal_error(source + ": validate_appended needs the validated parent set of the same dimension");
   }
-  for (std::size_t i = n_old; i < n; ++i) {
-    for (int c = 0; c < d_; ++c) {
-      const double v = point(i)[c];
-      if (!std::isfinite(v)) {
-        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
-                                " is not finite");
-      }
-      if (std::fabs(v) > kMaxCoordinate) {
-        return invalid_argument(source + ": point " + std::to_string(i) + ", coordinate " + std::to_string(c) +
-                                " has magnitude above 1e100");
-      }
-    }
-  }
+  if (Status s = check_coordinates(*this, n_old, n, source); !s.is_ok()) return s;
   if (Status count = check_count(n, d_, source); !count.is_ok()) return count;
   // The new points in lexicographic order (equal ones by index), merged with the
   // parent's order; at a tie the old point (the smaller index) comes first, as in
@@ -160,16 +154,7 @@ Status PointSet::validate_appended(const PointSet& parent, const std::string& so
                if (lex_less(point(b), point(a), d_)) return false;
                return a < b;
              });
-  for (std::size_t k = 1; k < n; ++k) {
-    if (equal_points(point(order[k - 1]), point(order[k]), d_)) {
-      const auto a = std::min(order[k - 1], order[k]);
-      const auto b = std::max(order[k - 1], order[k]);
-      return invalid_argument(source + ": points " + std::to_string(a) + " and " + std::to_string(b) + " are equal")
-          .with_reason("DUPLICATE_POINTS");
-    }
-  }
-  rank_.assign(n, 0);
-  for (std::size_t k = 0; k < n; ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
+  if (Status s = check_distinct(*this, order, source); !s.is_ok()) return s;
   int lowest = std::numeric_limits<int>::max(), highest = std::numeric_limits<int>::min();
   if (parent.integer_bits_ != kNoIntegerScale) {
     lowest = parent.scale_exponent_;
@@ -178,6 +163,13 @@ Status PointSet::validate_appended(const PointSet& parent, const std::string& so
   for (std::size_t i = n_old * static_cast<std::size_t>(d_); i < coords_.size(); ++i) {
     widen_binary_span(coords_[i], lowest, highest);
   }
+  set_ranks_and_scale(order, lowest, highest);
+  return Status::ok();
+}
+
+void PointSet::set_ranks_and_scale(const std::vector<std::uint32_t>& order, int lowest, int highest) {
+  rank_.assign(order.size(), 0);
+  for (std::size_t k = 0; k < order.size(); ++k) rank_[order[k]] = static_cast<std::uint32_t>(k);
   if (highest >= lowest) {
     scale_exponent_ = lowest;
     integer_bits_ = highest - lowest;
@@ -185,7 +177,6 @@ Status PointSet::validate_appended(const PointSet& parent, const std::string& so
     scale_exponent_ = 0;
     integer_bits_ = kNoIntegerScale;
   }
-  return Status::ok();
 }
 
 // Exact rank of {p_i - p_0} by incremental row echelon over the rationals. For
