@@ -262,6 +262,23 @@ def test_unary_calls_cut_off_in_transit_are_sent_again(server):
     with pytest.raises(spokemesh.Error):
         client._call(method, request)
     assert len(calls) == 1
+    # A client stream cut off after it was consumed is sent again whole: upload and
+    # append hand _call a function that makes the stream afresh.
+    streams = []
+    real_append = client._stub.AppendPoints
+
+    def append_cut_once(messages, timeout, metadata):
+        messages = list(messages)
+        streams.append(len(messages))
+        if len(streams) == 1:
+            raise CutOff(grpc.StatusCode.UNAVAILABLE)
+        return real_append(iter(messages), timeout=timeout, metadata=metadata)
+    client._stub.AppendPoints = append_cut_once
+    try:
+        grown = client.append(ps.id, uniform(5, 3, 8))
+    finally:
+        client._stub.AppendPoints = real_append
+    assert streams == [2, 2] and grown.count == 205
 
 
 def test_list_clamps_page_size_and_only_uploads_say_already_existed(server):

@@ -142,6 +142,8 @@ class Client:
         self.close()
 
     def _call(self, method, request, timeout: Optional[float] = None):
+        """request: a message, or (client streams) a function making the message
+        iterator afresh, so that an attempt sent again sends the whole stream again."""
         # gRPC's own retries stop once an answer has begun. A unary call that this client
         # never cancels yet ends CANCELLED (or UNAVAILABLE) was cut off in transit: a
         # replica died mid-answer and the proxy reset the stream. Every RPC is idempotent,
@@ -149,7 +151,8 @@ class Client:
         deadline = time.monotonic() + (timeout or self._timeout)
         for attempt in range(3):
             try:
-                return method(request, timeout=max(0.001, deadline - time.monotonic()), metadata=self._metadata)
+                sent = request() if callable(request) else request
+                return method(sent, timeout=max(0.001, deadline - time.monotonic()), metadata=self._metadata)
             except grpc.RpcError as e:  # one exception type for callers, with the code kept
                 retry = e.code() in (grpc.StatusCode.CANCELLED, grpc.StatusCode.UNAVAILABLE)
                 if not retry or attempt == 2 or time.monotonic() + 0.1 * (attempt + 1) >= deadline:
@@ -174,7 +177,7 @@ class Client:
             for at in range(0, len(data), _CHUNK):
                 yield pb.UploadPointSetRequest(coordinates=data[at:at + _CHUNK])
 
-        r = self._call(self._stub.UploadPointSet, messages(), timeout)
+        r = self._call(self._stub.UploadPointSet, messages, timeout)
         return _point_set(r)
 
     def append(self, point_set_id: str, points: np.ndarray, name: str = "",
@@ -195,7 +198,7 @@ class Client:
             for at in range(0, len(data), _CHUNK):
                 yield pb.AppendPointsRequest(coordinates=data[at:at + _CHUNK])
 
-        return _point_set(self._call(self._stub.AppendPoints, messages(), timeout))
+        return _point_set(self._call(self._stub.AppendPoints, messages, timeout))
 
     def get(self, point_set_id: str) -> PointSet:
         """A stored point set's metadata; spokemesh.Error NOT_FOUND if absent."""
