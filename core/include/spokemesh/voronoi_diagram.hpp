@@ -62,8 +62,9 @@ std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simpl
 // candidate whose sphere through the facet is outermost (furthest_site.cpp), with the
 // perturbed in-sphere test deciding cospherical points. O(h) per simplex for h hull
 // vertices. Rows sorted, each positively oriented (ascending but for the last two
-// where that is negative). INVALID_ARGUMENT when a hull facet's hyperplane holds more
-// than d points (a grid's side), which the wrap does not handle yet.
+// where that is negative). INVALID_ARGUMENT above 2-d when every hull facet's
+// hyperplane holds more than d points (a cube grid's faces), where the wrap has no
+// start yet.
 Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points, std::span<const std::uint32_t> delaunay,
                                                            std::span<const std::int32_t> adjacency);
 

@@ -14,6 +14,8 @@
 #include <array>
 #include <deque>
 #include <map>
+#include <optional>
+#include <string>
 
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi_diagram.hpp"
@@ -69,22 +71,44 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
     simplex[d] = q;
     return predicates.orientation(std::span<const std::uint32_t>(simplex.data(), w));
   };
-  // A hull facet's hyperplane holding a further hull vertex (a grid's side, a cube's
-  // face): the wrap's candidates beyond a facet are decided by strict sides, which such
-  // a plane does not give. Refused rather than wrapped wrongly.
+  // The wrap starts from a hull facet of the furthest-site triangulation. A Delaunay
+  // hull facet is one when its hyperplane holds no other hull vertex. On a hull whose
+  // every facet plane holds more (a grid's sides) the Delaunay hull facets are pieces
+  // of those planes' own triangulations, not furthest-site facets: in 2-d the ends of a
+  // side are (the points between them lie below the chord on the paraboloid); above 2-d
+  // the start would need a furthest-site triangulation within the plane, and is refused.
+  auto on_plane_of = [&](const HullFacet& f, std::uint32_t v) {
+    return std::find(f.ids.begin(), f.ids.begin() + d, v) == f.ids.begin() + d && orientation_with(f.ids.data(), v) == 0;
+  };
+  std::optional<HullFacet> start;
   for (const HullFacet& f : hull) {
-    for (const std::uint32_t v : vertices) {
-      if (std::find(f.ids.begin(), f.ids.begin() + d, v) != f.ids.begin() + d) continue;
-      if (orientation_with(f.ids.data(), v) == 0) {
-        std::string ids;
-        for (int j = 0; j < d; ++j) ids += std::to_string(f.ids[static_cast<std::size_t>(j)]) + ", ";
-        return invalid_argument("furthest_site: points " + ids + "and " + std::to_string(v) +
-                                " lie on one facet of the convex hull; furthest-site triangulations of hulls with " +
-                                "more than " + std::to_string(d) + " points on a facet are not supported yet");
-      }
+    if (std::none_of(vertices.begin(), vertices.end(), [&](std::uint32_t v) { return on_plane_of(f, v); })) {
+      start = f;
+      break;
     }
   }
-  if (hull.empty()) return internal_error("furthest_site: the triangulation has no hull facet");
+  if (!start && d == 2 && !hull.empty()) {
+    // The two ends of the first side, among the hull vertices on its line.
+    HullFacet f = hull.front();
+    std::vector<std::uint32_t> line(f.ids.begin(), f.ids.begin() + 2);
+    for (const std::uint32_t v : vertices) {
+      if (on_plane_of(f, v)) line.push_back(v);
+    }
+    const auto lex = [&](std::uint32_t a, std::uint32_t b) { return lex_less(points.point(a), points.point(b), d); };
+    f.ids[0] = *std::min_element(line.begin(), line.end(), lex);
+    f.ids[1] = *std::max_element(line.begin(), line.end(), lex);
+    start = f;
+  }
+  if (!start) {
+    if (hull.empty()) return internal_error("furthest_site: the triangulation has no hull facet");
+    const HullFacet& f = hull.front();
+    std::string ids;
+    for (int j = 0; j < d; ++j) ids += std::to_string(f.ids[static_cast<std::size_t>(j)]) + ", ";
+    const auto extra = std::find_if(vertices.begin(), vertices.end(), [&](std::uint32_t v) { return on_plane_of(f, v); });
+    return invalid_argument("furthest_site: points " + ids + "and " + std::to_string(*extra) +
+                            " lie on one facet of the convex hull, as on every facet; furthest-site triangulations " +
+                            "of such hulls are supported in 2-d only for now");
+  }
 
   // Wrap from a hull facet: its furthest simplex lies on the side of its inner vertex.
   struct Task {
@@ -93,7 +117,7 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
     bool same_side;
   };
   std::deque<Task> tasks;
-  tasks.push_back({hull.front().ids, hull.front().inside, true});
+  tasks.push_back({start->ids, start->inside, true});
   std::map<Key, int> facet_uses;  // simplices found on each facet (sorted, padded)
   std::vector<Key> found;
   std::map<Key, bool> seen;
