@@ -33,18 +33,17 @@ constexpr std::uint64_t kBucketBytes = std::uint64_t{16} << 20;  // records a ra
 
 }  // namespace
 
-void read_cell_record(int d, bool geometry, const char* p, VoronoiCell& cell) {
+void read_cell_record(int d, bool geometry, const char* record, VoronoiCell& cell) {
   const auto dd = static_cast<std::size_t>(d);
-  cell.seed = get<std::uint32_t>(p);
-  const auto facets = get<std::uint32_t>(p);
-  const auto vertices = get<std::uint32_t>(p);
-  get<std::uint32_t>(p);  // (the loop values: the facets' counts say where each loop ends)
+  const CellRecordView r = view_cell_record(d, geometry, record);
+  cell.seed = r.seed;
   cell.dimension = d;
-  cell.bounded = get<std::uint8_t>(p) != 0;
+  cell.bounded = *r.bounded != 0;
+  const char* p = r.volume;
   cell.volume = get<double>(p);
   cell.centroid.resize(dd);
   for (double& c : cell.centroid) c = get<double>(p);
-  cell.facets.resize(facets);
+  cell.facets.resize(r.facets);
   for (VoronoiFacet& f : cell.facets) {
     f.neighbor = get<std::int64_t>(p);
     f.area = get<double>(p);
@@ -52,7 +51,7 @@ void read_cell_record(int d, bool geometry, const char* p, VoronoiCell& cell) {
     for (double& c : f.normal) c = get<double>(p);
     f.vertices.clear();
   }
-  cell.vertices.resize(geometry ? vertices * dd : 0);
+  cell.vertices.resize(geometry ? r.vertices * dd : 0);
   if (!geometry) return;
   for (double& c : cell.vertices) c = get<double>(p);
   for (VoronoiFacet& f : cell.facets) f.vertices.resize(get<std::uint32_t>(p));
@@ -64,7 +63,7 @@ void read_cell_record(int d, bool geometry, const char* p, VoronoiCell& cell) {
 void CellSpool::take(CellRecords& records) {
   std::vector<char>& b = records.bytes();
   for (std::size_t at = 0; at < b.size();) {
-    const CellRecordHead h = cell_record_head(d_, geometry_, b.data() + at);
+    const CellRecordView h = view_cell_record(d_, geometry_, b.data() + at);
     to_rank_[static_cast<std::size_t>(slice_owner(n_, h.seed, static_cast<int>(to_rank_.size())))] += h.bytes;
     at += h.bytes;
   }
@@ -118,7 +117,7 @@ Result<std::unique_ptr<SliceCells>> SliceCells::gather(Comm& comm, CellSpool& sp
     std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
     std::size_t at = 0;
     while (status.is_ok() && at + 16 <= chunk.size()) {
-      const CellRecordHead h = cell_record_head(d, geometry, chunk.data() + at);
+      const CellRecordView h = view_cell_record(d, geometry, chunk.data() + at);
       if (at + h.bytes > chunk.size()) break;  // the rest comes with the next round
       std::vector<char>& to = outgoing[static_cast<std::size_t>(slice_owner(n, h.seed, comm.size))];
       to.insert(to.end(), chunk.data() + at, chunk.data() + at + h.bytes);
@@ -127,7 +126,9 @@ Result<std::unique_ptr<SliceCells>> SliceCells::gather(Comm& comm, CellSpool& sp
     chunk.erase(chunk.begin(), chunk.begin() + static_cast<std::ptrdiff_t>(at));
     const std::vector<char> in = comm.alltoall_bytes(outgoing);
     for (std::size_t from = 0; from < in.size() && status.is_ok();) {
-      const auto [seed, facets, size] = cell_record_head(d, geometry, in.data() + from);
+      const CellRecordView r = view_cell_record(d, geometry, in.data() + from);
+      const std::uint32_t seed = r.seed, facets = r.facets;
+      const std::size_t size = r.bytes;
       if (seed < first || seed >= last || seen[seed - first]) {
         status = internal_error("internal error: cell " + std::to_string(seed) + " sent to the wrong rank or twice");
         break;
@@ -163,7 +164,7 @@ Status SliceCells::for_each(const std::function<Status(const char*)>& f) {
     in_order.clear();
     for (std::size_t from = 0; from < held.size();) {
       in_order.push_back(held.data() + from);
-      from += cell_record_head(d_, geometry_, held.data() + from).bytes;
+      from += view_cell_record(d_, geometry_, held.data() + from).bytes;
     }
     std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
       return get<std::uint32_t>(x) < get<std::uint32_t>(y);
@@ -187,12 +188,6 @@ double sum_in_seed_order(Comm& comm, const std::vector<double>& volumes) {
   if (comm.rank + 1 < comm.size) MPI_Send(&sum, 1, MPI_DOUBLE, comm.rank + 1, 7, comm.comm);
   MPI_Bcast(&sum, 1, MPI_DOUBLE, comm.size - 1, comm.comm);
   return sum;
-}
-
-// A record's volume.
-double record_volume(const char* record) {
-  const char* p = record + 17;
-  return get<double>(p);
 }
 
 }  // namespace
@@ -256,27 +251,22 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Sli
     };
     std::size_t held = 0;
     if (s.is_ok()) s = slice.for_each([&](const char* c) {
-      const char* p = c + 4;
-      const std::uint32_t facets = get<std::uint32_t>(p);
-      p += 8;  // (no geometry in an .npz's records)
-      const char* bounded = p;
-      const char* volume = p + 1;
-      const char* centroid = volume + 8;
-      const char* facet = centroid + 8 * dd;
+      const CellRecordView r = view_cell_record(d, false, c);  // (an .npz's records carry no geometry)
       const std::size_t facet_bytes = 8 * (2 + dd);
-      piece[0].append(volume, 8);
-      piece[1].append(centroid, 8 * dd);
-      piece[2].append(bounded, 1);
-      ptr += facets;
+      piece[0].append(r.volume, 8);
+      piece[1].append(r.centroid, 8 * dd);
+      piece[2].append(r.bounded, 1);
+      ptr += r.facets;
       piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
-      for (std::uint32_t f = 0; f < facets; ++f) {
-        const char* q = facet + f * facet_bytes;
+      for (std::uint32_t f = 0; f < r.facets; ++f) {
+        const char* q = r.facet + f * facet_bytes;
         piece[4].append(q, 8);
         piece[5].append(q + 8, 8);
         piece[6].append(q + 16, 8 * dd);
       }
-      volumes.push_back(record_volume(c));
-      held += cell_record_bytes(d, false, facets, 0, 0);
+      const char* volume = r.volume;
+      volumes.push_back(get<double>(volume));
+      held += r.bytes;
       if (held >= kBucketBytes) {
         flush();
         held = 0;

@@ -39,19 +39,29 @@ inline std::size_t cell_record_bytes(int d, bool geometry, std::uint32_t facets,
   return geometry ? measures + std::size_t{vertices} * 8 * dd + 4 * (std::size_t{facets} + loop_values) : measures;
 }
 
-// What a record at `p` starts with, and its size.
-struct CellRecordHead {
-  std::uint32_t seed, facets;
+// A record at `p`, read in place: its counts, size, and where its fields start.
+struct CellRecordView {
+  std::uint32_t seed, facets, vertices, loop_values;
   std::size_t bytes;
+  const char* bounded;   // u8
+  const char* volume;    // double
+  const char* centroid;  // d doubles
+  const char* facet;     // per facet: neighbour (i64), area, normal (d doubles)
+  const char* geometry;  // vertices (d doubles each), facet vertex counts, their indices
 };
-inline CellRecordHead cell_record_head(int d, bool geometry, const char* p) {
-  CellRecordHead h;
-  h.seed = get<std::uint32_t>(p);
-  h.facets = get<std::uint32_t>(p);
-  const auto vertices = get<std::uint32_t>(p);
-  const auto loop_values = get<std::uint32_t>(p);
-  h.bytes = cell_record_bytes(d, geometry, h.facets, vertices, loop_values);
-  return h;
+inline CellRecordView view_cell_record(int d, bool geometry, const char* p) {
+  CellRecordView v;
+  v.seed = get<std::uint32_t>(p);
+  v.facets = get<std::uint32_t>(p);
+  v.vertices = get<std::uint32_t>(p);
+  v.loop_values = get<std::uint32_t>(p);
+  v.bytes = cell_record_bytes(d, geometry, v.facets, v.vertices, v.loop_values);
+  v.bounded = p;
+  v.volume = p + 1;
+  v.centroid = v.volume + 8;
+  v.facet = v.centroid + 8 * static_cast<std::size_t>(d);
+  v.geometry = v.facet + std::size_t{v.facets} * 8 * (2 + static_cast<std::size_t>(d));
+  return v;
 }
 
 // The cell a record holds (its indices global), for the CellFileLayout's lines.

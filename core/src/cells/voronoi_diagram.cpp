@@ -14,21 +14,22 @@ namespace {
 
 using Key = std::array<std::uint32_t, kMaxDimension + 1>;
 
-// Runs fn(begin, end) over [0, count) in `threads` contiguous chunks (chunk c gets the
-// c-th range, so a caller that keeps per-chunk results can join them in order).
+// How many chunks in_chunks makes: one per thread, but no chunk under about 1024 items.
+std::size_t chunk_count(std::size_t count, unsigned threads) {
+  return std::max<std::size_t>(1, std::min<std::size_t>(threads, count / 1024 + 1));
+}
+
+// Runs fn(c, begin, end) over [0, count) in chunk_count() contiguous chunks (chunk c
+// gets the c-th range, so a caller that keeps per-chunk results can join them in order).
 template <class Fn>
 void in_chunks(std::size_t count, unsigned threads, Fn&& fn) {
-  const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(threads, count / 1024 + 1));
+  const std::size_t chunks = chunk_count(count, threads);
   std::vector<std::thread> pool;
   for (std::size_t c = 1; c < chunks; ++c) {
     pool.emplace_back([&, c] { fn(c, count * c / chunks, count * (c + 1) / chunks); });
   }
   fn(0, 0, count / chunks);
   for (std::thread& t : pool) t.join();
-}
-
-std::size_t chunk_count(std::size_t count, unsigned threads) {
-  return std::max<std::size_t>(1, std::min<std::size_t>(threads, count / 1024 + 1));
 }
 
 // Union-find whose root is the smallest member, so groups do not depend on the order

@@ -18,6 +18,16 @@ namespace spokemesh {
 
 namespace {
 
+// Runs work(t, threads) on `threads` threads (t = 0 on the calling one) and joins them.
+template <class Work>
+void on_threads(unsigned threads, Work&& work) {
+  threads = std::max(1u, threads);
+  std::vector<std::thread> pool;
+  for (unsigned t = 1; t < threads; ++t) pool.emplace_back([&, t] { work(t, threads); });
+  work(0u, threads);
+  for (std::thread& t : pool) t.join();
+}
+
 // Computes the stars of `seeds` (part `part`) on `threads` workers; `use(i, star)` is
 // called for seeds[i] on the worker that computed it. The first error stops the run.
 template <class Use>
@@ -26,7 +36,7 @@ Status for_each_star(const KdTree& tree, const MeshOptions& options, const std::
   std::atomic<std::size_t> next{0};
   std::mutex mu;
   Status failure;
-  auto work = [&] {
+  auto work = [&](unsigned, unsigned) {
     StarWalker walker(tree, options.star);
     Star star;
     for (;;) {
@@ -42,11 +52,7 @@ Status for_each_star(const KdTree& tree, const MeshOptions& options, const std::
       use(i, star);
     }
   };
-  const unsigned threads = std::max(1u, std::min<unsigned>(options.threads, static_cast<unsigned>(seeds.size())));
-  std::vector<std::thread> pool;
-  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
-  work();
-  for (std::thread& t : pool) t.join();
+  on_threads(std::min<unsigned>(options.threads, static_cast<unsigned>(seeds.size())), work);
   return failure;
 }
 
@@ -161,7 +167,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   const KdTree new_tree(new_points);
   std::atomic<std::size_t> next{0};
   std::vector<std::uint8_t> same_rows(old_seeds.size(), 0);  // written by one worker each
-  auto work = [&] {
+  auto work = [&](unsigned, unsigned) {
     std::vector<std::pair<std::uint32_t, double>> near;
     std::vector<std::uint32_t> kept;
     std::vector<std::size_t> order;
@@ -227,13 +233,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       rows.swap(kept);
     }
   };
-  {
-    const unsigned threads = std::max(1u, std::min<unsigned>(options.threads, static_cast<unsigned>(old_seeds.size())));
-    std::vector<std::thread> pool;
-    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(work);
-    work();
-    for (std::thread& t : pool) t.join();
-  }
+  on_threads(std::min<unsigned>(options.threads, static_cast<unsigned>(old_seeds.size())), work);
 
   // The rows in the whole set's sweep order.
   InsertStats stats;
@@ -264,15 +264,9 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       std::copy(src, src + (at[k + 1] - at[k]), out.begin() + static_cast<std::ptrdiff_t>(at[k]));
     }
   };
-  {
-    const unsigned threads = std::max(1u, options.threads);
-    std::vector<std::thread> pool;
-    for (unsigned t = 1; t < threads; ++t) {
-      pool.emplace_back(copy, order.size() * t / threads, order.size() * (t + 1) / threads);
-    }
-    copy(0, order.size() / threads);
-    for (std::thread& t : pool) t.join();
-  }
+  on_threads(options.threads, [&](unsigned t, unsigned threads) {
+    copy(order.size() * t / threads, order.size() * (t + 1) / threads);
+  });
   return stats;
 }
 
