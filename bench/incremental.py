@@ -5,6 +5,7 @@ against scipy's incremental Qhull (--scipy). Every spokemesh result is checked t
 the whole set's triangulation, the same simplices in the same order.
 
     PYTHONPATH=build/python /usr/bin/python3 bench/incremental.py [--n 1000000] [--scipy]
+        [--fractions 0.01,0.10,0.50] [--runs 1]
 """
 import argparse
 import time
@@ -25,17 +26,19 @@ def main():
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--scipy", action="store_true", help="also scipy.spatial.Delaunay(incremental=True)")
+    ap.add_argument("--fractions", default="0.01,0.10,0.50", help="shares of the points added (comma-separated)")
+    ap.add_argument("--runs", type=int, default=1, help="times each share is measured (each a fresh pair)")
     a = ap.parse_args()
     pts = np.random.default_rng(7).random((a.n, 3))
     print(f"3-d uniform {a.n:,} points, {a.threads} threads")
-    for frac in (0.01, 0.10, 0.50):
+    for frac in [float(f) for f in a.fractions.split(",") for _ in range(a.runs)]:
         k = int(a.n * (1 - frac))
         tri = spokemesh.Delaunay(pts[:k], incremental=True, threads=a.threads)
         _, t_add = timed(lambda: tri.add_points(pts[k:]))
         whole, t_whole = timed(lambda: spokemesh.Delaunay(pts, threads=a.threads))
         assert np.array_equal(tri.simplices, whole.simplices), "incremental != whole"
         line = (f"add {frac:4.0%}: spokemesh add_points {t_add:6.2f} s ({tri._tri.stars_computed:,} stars), "
-                f"whole {t_whole:6.2f} s, ratio {t_add / t_whole:.2f}")
+                f"whole {t_whole:6.2f} s, ratio {t_add / t_whole:.3f}")
         if a.scipy:
             from scipy.spatial import Delaunay as ScipyDelaunay
             ref = ScipyDelaunay(pts[:k], incremental=True)

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <numeric>
 #include <random>
 
@@ -28,15 +29,45 @@ double dist2(const PointSet& ps, std::size_t i, std::size_t j) {
   return s;
 }
 
+// The tree of `ps` grown as insertion grows it: built whole over its first points,
+// then extended (KdTree::extended) to each further prefix of the points in turn, the
+// last ps itself; each step adds at most an eighth, so each adds a part.
+std::unique_ptr<KdTree> grown_tree(const PointSet& ps, std::size_t steps) {
+  const std::size_t n = ps.size(), d = static_cast<std::size_t>(ps.dimension());
+  std::vector<std::size_t> sizes{n};
+  for (std::size_t s = 0; s < steps && sizes.back() > 8; ++s) sizes.push_back(sizes.back() - sizes.back() / 9);
+  std::reverse(sizes.begin(), sizes.end());
+  std::vector<std::unique_ptr<PointSet>> prefixes;
+  for (std::size_t i = 0; i + 1 < sizes.size(); ++i) {
+    prefixes.push_back(std::make_unique<PointSet>(
+        ps.dimension(), std::vector<double>(ps.coordinates().begin(), ps.coordinates().begin() + static_cast<std::ptrdiff_t>(sizes[i] * d))));
+  }
+  std::unique_ptr<KdTree> tree = std::make_unique<KdTree>(prefixes.empty() ? ps : *prefixes[0]);
+  for (std::size_t i = 1; i < sizes.size(); ++i) tree = KdTree::extended(*tree, i + 1 < sizes.size() ? *prefixes[i] : ps);
+  std::size_t parts = 1;  // each step extends the tree, or builds it whole past kMaxParts
+  for (std::size_t i = 1; i < sizes.size(); ++i) parts = parts >= KdTree::kMaxParts ? 1 : parts + 1;
+  EXPECT_EQ(tree->parts(), parts);
+  return tree;
+}
+
 // Every point's k nearest: ascending, the brute-force distances, and every point
 // strictly nearer than the k-th among them (ties at the k-th may go either way).
-void expect_knn_matches_brute_force(const std::string& name, int d, std::vector<double> coords, std::size_t k) {
+// With `grown`, of a tree grown by that many extensions (grown_tree).
+void expect_knn_matches_brute_force(const std::string& name, int d, std::vector<double> coords, std::size_t k,
+                                    std::size_t grown = 0) {
   // Validated as the approximate path does (no span check: flat inputs are allowed).
   PointSet ps(d, std::move(coords));
   const Status valid = ps.validate(name, kMaxApproxDimension, /*check_span=*/false);
   ASSERT_TRUE(valid.is_ok()) << valid.message();
-  const KdTree tree(ps);
+  const std::unique_ptr<KdTree> owned = grown == 0 ? std::make_unique<KdTree>(ps) : grown_tree(ps, grown);
+  const KdTree& tree = *owned;
   const std::size_t n = ps.size();
+  std::uint32_t tiled = 0;  // subtrees_of_at_most's ranges tile [0, n) in order
+  for (const KdTree::Subtree& sub : tree.subtrees_of_at_most(40)) {
+    ASSERT_EQ(sub.begin, tiled) << name;
+    tiled = sub.end;
+  }
+  ASSERT_EQ(tiled, n) << name;
   std::vector<bool> seen_rank(n, false);
   for (std::size_t i = 0; i < n; ++i) {
     const std::uint32_t r = tree.leaf_rank(static_cast<std::uint32_t>(i));
@@ -89,6 +120,19 @@ void expect_knn_matches_brute_force(const std::string& name, int d, std::vector<
       }
     }
   }
+}
+
+// A tree extended by new points' trees (as incremental insertion grows it) answers
+// as one built whole: uniform, grid (ties) and 9-d (the generic search) sets.
+TEST(KdTree, ExtendedTreeMatchesBruteForce) {
+  expect_knn_matches_brute_force("uniform-2d grown 3", 2, uniform_points(2, 300, 21), 17, 3);
+  expect_knn_matches_brute_force("uniform-3d grown 7", 3, uniform_points(3, 400, 22), 30, 7);
+  expect_knn_matches_brute_force("grid-3d grown 2", 3, grid_points(3, 6), 27, 2);
+  expect_knn_matches_brute_force("uniform-9d grown 2", 9, uniform_points(9, 150, 23), 20, 2);
+  // Past kMaxParts extensions the tree is built whole again.
+  PointSet ps(2, uniform_points(2, 500, 24));
+  ASSERT_TRUE(ps.validate("many").is_ok());
+  EXPECT_EQ(grown_tree(ps, 9)->parts(), 2u);
 }
 
 TEST(KdTree, NearestMatchBruteForce) {
@@ -155,44 +199,48 @@ TEST(KdTree, AnyBeyondMatchesBruteForce) {
       const std::vector<double> coords = on_grid ? grid_points(d, d == 2 ? 20 : d == 3 ? 8 : 5)
                                                  : uniform_points(d, 600, 40 + d);
       const PointSet ps = make_points(d, coords);
-      const KdTree tree(ps);
-      std::mt19937_64 rng(1000 + d);
-      std::uniform_int_distribution<std::size_t> any_point(0, ps.size() - 1);
-      std::uniform_int_distribution<int> axis(0, d - 1), small(-2, 2);
-      for (int trial = 0; trial < 200; ++trial) {
-        const std::size_t origin = any_point(rng);
-        const double* x = ps.point(origin);
-        std::vector<double> n(static_cast<std::size_t>(d), 0.0);
-        if (trial % 2 == 0) {
-          n[static_cast<std::size_t>(axis(rng))] = 1.0;  // axis-aligned
-        } else {
-          for (double& v : n) v = small(rng) * 0.5;
-        }
-        std::vector<BoundedDouble> normal;
-        for (const double v : n) normal.push_back(BoundedDouble::exact(v));
-        auto exact_side = [&](std::uint32_t p) {
-          mpq_class s = 0;
-          for (int c = 0; c < d; ++c) s += mpq_class(n[c]) * (mpq_class(ps.point(p)[c]) - mpq_class(x[c]));
-          return sgn(s);
-        };
-        for (const int sigma : {-1, 1}) {
-          SCOPED_TRACE("d " + std::to_string(d) + (on_grid ? " grid" : " uniform") + " trial " +
-                       std::to_string(trial) + " sigma " + std::to_string(sigma));
-          bool expected = false;
-          for (std::uint32_t p = 0; p < ps.size() && !expected; ++p) expected = exact_side(p) == sigma;
-          const std::optional<std::uint32_t> got = tree.any_beyond(x, normal.data(), sigma, exact_side);
-          EXPECT_EQ(got.has_value(), expected);
-          if (got) {
-            EXPECT_EQ(exact_side(*got), sigma);
+      for (const std::size_t grown : {0, 3}) {  // a tree built whole, and one extended 3 times
+        SCOPED_TRACE(grown == 0 ? "built whole" : "extended");
+        const std::unique_ptr<KdTree> owned = grown == 0 ? std::make_unique<KdTree>(ps) : grown_tree(ps, grown);
+        const KdTree& tree = *owned;
+        std::mt19937_64 rng(1000 + d);
+        std::uniform_int_distribution<std::size_t> any_point(0, ps.size() - 1);
+        std::uniform_int_distribution<int> axis(0, d - 1), small(-2, 2);
+        for (int trial = 0; trial < 200; ++trial) {
+          const std::size_t origin = any_point(rng);
+          const double* x = ps.point(origin);
+          std::vector<double> n(static_cast<std::size_t>(d), 0.0);
+          if (trial % 2 == 0) {
+            n[static_cast<std::size_t>(axis(rng))] = 1.0;  // axis-aligned
+          } else {
+            for (double& v : n) v = small(rng) * 0.5;
+          }
+          std::vector<BoundedDouble> normal;
+          for (const double v : n) normal.push_back(BoundedDouble::exact(v));
+          auto exact_side = [&](std::uint32_t p) {
+            mpq_class s = 0;
+            for (int c = 0; c < d; ++c) s += mpq_class(n[c]) * (mpq_class(ps.point(p)[c]) - mpq_class(x[c]));
+            return sgn(s);
+          };
+          for (const int sigma : {-1, 1}) {
+            SCOPED_TRACE("d " + std::to_string(d) + (on_grid ? " grid" : " uniform") + " trial " +
+                         std::to_string(trial) + " sigma " + std::to_string(sigma));
+            bool expected = false;
+            for (std::uint32_t p = 0; p < ps.size() && !expected; ++p) expected = exact_side(p) == sigma;
+            const std::optional<std::uint32_t> got = tree.any_beyond(x, normal.data(), sigma, exact_side);
+            EXPECT_EQ(got.has_value(), expected);
+            if (got) {
+              EXPECT_EQ(exact_side(*got), sigma);
+            }
           }
         }
+        std::size_t visited = 0;
+        tree.find_first([](const float*, const float*) { return true; }, [&](std::uint32_t) {
+          ++visited;
+          return false;
+        });
+        EXPECT_EQ(visited, ps.size());
       }
-      std::size_t visited = 0;
-      tree.find_first([](const float*, const float*) { return true; }, [&](std::uint32_t) {
-        ++visited;
-        return false;
-      });
-      EXPECT_EQ(visited, ps.size());
     }
   }
 }

@@ -297,31 +297,40 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
     SCOPED_TRACE(c.name);
     const auto w = static_cast<std::size_t>(c.d + 1);
     Simplices rows;
-    {
-      const PointSet first = make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[0] * c.d));
-      const KdTree tree(first);
-      rows = mesh_all(tree, 2);
-    }
+    // The tree of each step extended from the last one's (as add_points does): small
+    // chunks add parts to it, large ones build it whole (KdTree::extended).
+    auto points = std::make_unique<PointSet>(
+        make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[0] * c.d)));
+    auto tree = std::make_unique<KdTree>(*points);
+    rows = mesh_all(*tree, 2);
     for (std::size_t k = 1; k < c.sizes.size(); ++k) {
       SCOPED_TRACE(std::to_string(c.sizes[k - 1]) + " -> " + std::to_string(c.sizes[k]) + " points");
-      const PointSet now = make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[k] * c.d));
-      const KdTree tree(now);
-      const SpaceSplit split(now, SpaceSplit::default_block_points(c.d, now.size()));
+      auto now = std::make_unique<PointSet>(
+          make_points(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + c.sizes[k] * c.d)));
+      const std::size_t parts_before = tree->parts();
+      std::unique_ptr<KdTree> extended = KdTree::extended(*tree, *now);
+      tree = std::move(extended);  // the previous tree goes first, then its points
+      points = std::move(now);
+      const std::uint32_t added = c.sizes[k] - c.sizes[k - 1];
+      EXPECT_EQ(tree->parts(), added * KdTree::kRebuildBeyondShare > c.sizes[k] ? 1u : parts_before + 1);
+      const SpaceSplit split(*points, SpaceSplit::default_block_points(c.d, points->size()));
       MeshOptions options;
       options.threads = 2;
       options.star.random_seed = 0x5eed;
-      std::vector<std::uint32_t> out;
-      auto stats = insert_points(tree, split, c.sizes[k - 1], rows, options, out);
+      Rows out;
+      auto stats = insert_points(*tree, split, c.sizes[k - 1], rows, options, out);
       ASSERT_TRUE(stats.is_ok()) << stats.status().message();
-      const Simplices whole = mesh_all(tree, 2);
+      const KdTree built_whole(*points);
+      const Simplices whole = mesh_all(built_whole, 2);
       ASSERT_EQ(out.size(), whole.size());
-      EXPECT_TRUE(out == whole) << "the rows differ from the whole set's";
+      EXPECT_TRUE(std::equal(out.begin(), out.end(), whole.begin())) << "the rows differ from the whole set's";
+      EXPECT_EQ(mesh_all(*tree, 2), whole) << "the extended tree's whole mesh differs";
       // Only the stars that change were computed: the new points' and some of the old
       // (a small chunk leaves most stars alone; a large one may touch every old point).
-      EXPECT_LE(stats.value().stars, now.size());
+      EXPECT_LE(stats.value().stars, points->size());
       if (c.sizes[k] - c.sizes[k - 1] <= c.sizes[k - 1] / 50) {
         EXPECT_FALSE(stats.value().whole);
-        EXPECT_LT(stats.value().stars, now.size() / 2);
+        EXPECT_LT(stats.value().stars, points->size() / 2);
         EXPECT_GT(stats.value().rows_kept, out.size() / w / 2);
       }
       EXPECT_EQ(out.size() % w, 0u);
@@ -329,7 +338,7 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       if (!stats.value().whole) {
         EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
       }
-      rows = std::move(out);
+      rows.assign(out.begin(), out.end());
     }
   }
 }

@@ -237,7 +237,8 @@ class Triangulation {
     // tree), and waited for when the rows are put in sweep order.
     std::unique_ptr<SpaceSplit> split;
     std::thread sweep([&] { split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size())); });
-    tree_ = std::make_unique<KdTree>(points_);
+    // The parent's tree extended by the new points' (rebuilt whole after a few).
+    tree_ = KdTree::extended(*parent.tree_, points_);
     MeshOptions options;
     options.threads = threads_;
     auto split_when_needed = [&]() -> const SpaceSplit& {
@@ -300,17 +301,20 @@ class Triangulation {
   // A copy (numpy may write to it; the rows here stay the parent of insertions), made
   // in parallel: at a million points it is 100 MB.
   py::array_t<std::int32_t> simplices() const {
-    std::vector<std::int32_t> out(simplices_.size());
+    // numpy's own buffer, not zero-filled: its pages are first touched by the copiers.
+    py::array_t<std::int32_t> out({static_cast<py::ssize_t>(nsimplices()), static_cast<py::ssize_t>(d_ + 1)});
+    std::int32_t* to = out.mutable_data();
     {
       py::gil_scoped_release release;
+      const std::size_t size = simplices_.size();
       const std::size_t chunk = 1 << 12;  // (parallel_for shares out more than 1024 items)
-      parallel_for((out.size() + chunk - 1) / chunk, [&](std::size_t c) {
-        const std::size_t from = c * chunk, to = std::min(out.size(), from + chunk);
-        std::copy(simplices_.begin() + static_cast<std::ptrdiff_t>(from), simplices_.begin() + static_cast<std::ptrdiff_t>(to),
-                  out.begin() + static_cast<std::ptrdiff_t>(from));
+      parallel_for((size + chunk - 1) / chunk, [&](std::size_t c) {
+        const std::size_t from = c * chunk, end = std::min(size, from + chunk);
+        std::copy(simplices_.begin() + static_cast<std::ptrdiff_t>(from), simplices_.begin() + static_cast<std::ptrdiff_t>(end),
+                  to + from);
       });
     }
-    return owned(std::move(out), {static_cast<py::ssize_t>(nsimplices()), d_ + 1});
+    return out;
   }
 
   // scipy's `neighbors`: row i, column k is the simplex across the facet opposite
@@ -417,7 +421,7 @@ class Triangulation {
  private:
   // Another triangulation of `base`'s points (its tree rebuilt over the copy).
   Triangulation(const Triangulation& base, std::vector<std::uint32_t> rows)
-      : points_(base.points_), d_(base.d_), threads_(base.threads_), simplices_(std::move(rows)) {
+      : points_(base.points_), d_(base.d_), threads_(base.threads_), simplices_(rows.begin(), rows.end()) {
     tree_ = std::make_unique<KdTree>(points_);
   }
 
@@ -492,7 +496,7 @@ class Triangulation {
   int d_;
   unsigned threads_;
   std::unique_ptr<KdTree> tree_;
-  std::vector<std::uint32_t> simplices_;
+  Rows simplices_;
   std::uint64_t stars_computed_ = 0;  // by the insertion that made it (0 when built at once)
   mutable std::once_flag adjacency_once_;
   mutable std::vector<std::int32_t> adjacency_;

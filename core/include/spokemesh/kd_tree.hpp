@@ -19,9 +19,17 @@
 // nanoflann's (see search_level). find_first and any_beyond walk a flattened copy of
 // the tree with each node's tight bounding box.
 //
+// Extension (KdTree::extended): the tree of a set with points appended, made from the
+// tree of its first points without building that again: the base's nanoflann nodes
+// are shared (reference-counted), the new points get a tree of their own, and a
+// search visits each such part in turn. Answers are the same as a tree built whole
+// (knn's ties aside: which of two equally distant points comes first may differ), so
+// exact star walks give the same stars; budgeted (approximate) walks may differ.
+//
 // Ownership: the PointSet must outlive the tree; the tree owns its reordered copy
 // (n * d doubles; twice that briefly while it is built), the permutation both ways
-// (2 n indices) and the box tree (about 0.36 n nodes of 2 d floats and 3 indices).
+// (2 n indices) and the box tree (about 0.36 n nodes of 2 d floats and 3 indices), and
+// shares nanoflann's nodes with the trees extended from it.
 // Thread safety: immutable after construction; concurrent queries are safe. The
 // constructor itself uses one extra thread for sets of 65,536 points or more.
 #pragma once
@@ -51,6 +59,17 @@ inline constexpr double kDistanceMargin = 1e-9;
 class KdTree {
  public:
   explicit KdTree(const PointSet& points);
+  // The tree of `points`, whose first base.points().size() points are base's (same
+  // coordinates, same order): base's structure extended by a tree of the rest (see
+  // Extension above), or a tree built whole when base already has kMaxParts parts or
+  // more than 1/kRebuildBeyondShare of the points are new. `base` may be destroyed
+  // afterwards (what is shared is reference-counted). Cost of an extension: copies of
+  // base's arrays (about 8 d + 8 bytes a point) and the new points' build.
+  static std::unique_ptr<KdTree> extended(const KdTree& base, const PointSet& points);
+  static constexpr std::size_t kMaxParts = 8;
+  static constexpr std::size_t kRebuildBeyondShare = 8;
+  // The trees a search visits: 1 for a tree built whole, one more per extension.
+  std::size_t parts() const { return parts_.size(); }
   KdTree(const KdTree&) = delete;
   KdTree& operator=(const KdTree&) = delete;
 
@@ -104,6 +123,8 @@ class KdTree {
   std::optional<std::uint32_t> find_first(MayContain&& may_contain, Accept&& accept) const;
 
  private:
+  KdTree(const KdTree& base, const PointSet& points);  // the extension (see extended)
+
   // Reads the PointSet while nanoflann builds, the leaf-ordered copy afterwards.
   struct Adaptor {
     const double* coords;
@@ -146,13 +167,26 @@ class KdTree {
   // Adds `by` to the point ranges of the leaves under node.
   static void shift_leaves(Node* node, std::uint32_t by);
 
+  // One build's nanoflann trees and the root of our own above them. Shared with the
+  // trees extended from this one, which search the same nodes (never written after
+  // the build; the leaves' ranges are leaf positions, the same in the extension).
+  struct Built {
+    Adaptor adaptors[2];  // each half's coordinates, while nanoflann builds
+    std::unique_ptr<Index> halves[2];
+    Node top{};  // the root above the two halves
+  };
+  // A tree searched on its own: its root and its points' bounding box (d lows, then d
+  // highs). One for a tree built whole; an extension adds one per extension.
+  struct Part {
+    const Node* root = nullptr;
+    std::vector<double> bbox;
+  };
+
   const PointSet& points_;
   std::size_t d_;
-  Adaptor adaptors_[2];  // each half's coordinates, while nanoflann builds
-  std::unique_ptr<Index> halves_[2];
-  Node top_{};  // the root above the two halves
-  const Node* root_ = nullptr;
-  std::vector<double> bbox_;  // d lows, then d highs
+  std::vector<std::shared_ptr<Built>> built_;
+  std::vector<Part> parts_;  // over consecutive ranges of leaf positions, in order
+  std::vector<double> bbox_;  // all points' box: d lows, then d highs
   std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
   std::vector<std::uint32_t> id_of_;  // leaf position -> original index
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position

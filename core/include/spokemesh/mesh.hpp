@@ -26,6 +26,10 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <memory>
+#include <new>
+#include <type_traits>
+#include <utility>
 #include <span>
 #include <vector>
 
@@ -85,6 +89,29 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 // The simplices owned by `seed` within its star (a suffix of star.simplices).
 std::span<const std::uint32_t> owned_simplices(const Star& star);
 
+// A vector of rows whose resize leaves the new elements uninitialised: for buffers
+// sized and then written in full, in parallel (a 100 MB zero fill is one thread's
+// page faults before the writers touch the same pages again).
+template <class T>
+struct UninitializedAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = UninitializedAllocator<U>;
+  };
+  UninitializedAllocator() = default;
+  template <class U>
+  UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(p)) U;  // default-, not value-initialised
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+using Rows = std::vector<std::uint32_t, UninitializedAllocator<std::uint32_t>>;
+
 // Incremental insertion: the mesh of the tree's points [0, n) from the mesh of its
 // first n_old points, computing only the new points' stars. Every new simplex has a
 // new vertex, so those stars hold all of them, and their old vertices are the old
@@ -112,11 +139,11 @@ struct InsertStats {
 };
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options,
-                                  std::vector<std::uint32_t>& out);
+                                  Rows& out);
 // The same, with the split given when first needed (a caller may still be building it
 // while the new points' stars are computed, which need only the tree).
 Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,
                                   std::uint32_t n_old, std::span<const std::uint32_t> old_rows,
-                                  const MeshOptions& options, std::vector<std::uint32_t>& out);
+                                  const MeshOptions& options, Rows& out);
 
 }  // namespace spokemesh

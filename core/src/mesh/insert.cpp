@@ -60,13 +60,13 @@ Status for_each_star(const KdTree& tree, const MeshOptions& options, const std::
 
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options,
-                                  std::vector<std::uint32_t>& out) {
+                                  Rows& out) {
   return insert_points(tree, [&]() -> const SpaceSplit& { return split; }, n_old, old_rows, options, out);
 }
 
 Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,
                                   std::uint32_t n_old, std::span<const std::uint32_t> old_rows,
-                                  const MeshOptions& options, std::vector<std::uint32_t>& out) {
+                                  const MeshOptions& options, Rows& out) {
   const PointSet& points = tree.points();
   const auto n = static_cast<std::uint32_t>(points.size());
   const auto w = static_cast<std::size_t>(points.dimension()) + 1;

@@ -121,9 +121,11 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   });
   const std::size_t counts[2] = {n_left, n - n_left};
   const nanoflann::KDTreeSingleIndexAdaptorParams params(/*leaf_max_size=*/8);
+  auto built = std::make_shared<Built>();
+  Built& b = *built;
   auto build = [&](int h) {
-    adaptors_[h] = Adaptor{leaf_coords_.data() + (h == 0 ? 0 : n_left * d), counts[h], d};
-    halves_[h] = std::make_unique<Index>(static_cast<int>(d), adaptors_[h], params);
+    b.adaptors[h] = Adaptor{leaf_coords_.data() + (h == 0 ? 0 : n_left * d), counts[h], d};
+    b.halves[h] = std::make_unique<Index>(static_cast<int>(d), b.adaptors[h], params);
   };
   if (counts[1] == 0) {
     build(0);
@@ -136,7 +138,7 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   // half's vAcc, the right half's shifted past the left). The same trees, but a query
   // reads each leaf's points from consecutive memory instead of from n random places.
   auto z_of = [&](std::size_t k) -> std::size_t {
-    return k < n_left ? halves_[0]->vAcc[k] : n_left + halves_[1]->vAcc[k - n_left];
+    return k < n_left ? b.halves[0]->vAcc[k] : n_left + b.halves[1]->vAcc[k - n_left];
   };
   id_of_.resize(n);
   rank_of_.resize(n);
@@ -155,10 +157,10 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
   order = {};
   // Leaves name ranges of leaf positions: the right half's start past the left's.
   // (nanoflann's own searches, which would read vAcc, are never used.)
-  root_ = halves_[0]->root_node;
+  const Node* root = b.halves[0]->root_node;
   if (counts[1] != 0) {
-    shift_leaves(halves_[1]->root_node, static_cast<std::uint32_t>(n_left));
-    top_.node_type.sub.divfeat = static_cast<int>(split_dim);
+    shift_leaves(b.halves[1]->root_node, static_cast<std::uint32_t>(n_left));
+    b.top.node_type.sub.divfeat = static_cast<int>(split_dim);
     double left_high = -std::numeric_limits<double>::infinity(), right_low = -left_high;
     for (std::size_t k = 0; k < n; ++k) {
       const double v = leaf_coords_[k * d + split_dim];
@@ -168,13 +170,74 @@ KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::si
         right_low = std::min(right_low, v);
       }
     }
-    top_.node_type.sub.divlow = left_high;  // as nanoflann: the left box's high side
-    top_.node_type.sub.divhigh = right_low;  // and the right box's low side
-    top_.child1 = halves_[0]->root_node;
-    top_.child2 = halves_[1]->root_node;
-    root_ = &top_;
+    b.top.node_type.sub.divlow = left_high;  // as nanoflann: the left box's high side
+    b.top.node_type.sub.divhigh = right_low;  // and the right box's low side
+    b.top.child1 = b.halves[0]->root_node;
+    b.top.child2 = b.halves[1]->root_node;
+    root = &b.top;
   }
-  if (root_ != nullptr) add_box_nodes(root_);
+  if (root != nullptr) {
+    add_box_nodes(root);
+    parts_.push_back({root, bbox_});
+  }
+  built_.push_back(std::move(built));
+}
+
+KdTree::KdTree(const KdTree& base, const PointSet& points)
+    : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
+  const std::size_t d = d_, n_old = base.points().size(), n = points.size();
+  // The new points' own tree, whose nodes become the last part (leaf positions
+  // shifted past the base's) and whose arrays are appended to copies of the base's.
+  const PointSet more(static_cast<int>(d), std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old * d),
+                                                              points.coordinates().end()));
+  KdTree extra(more);
+  for (const std::shared_ptr<Built>& b : extra.built_) {
+    if (b->halves[0] != nullptr) shift_leaves(b->halves[0]->root_node, static_cast<std::uint32_t>(n_old));
+    if (b->halves[1] != nullptr) shift_leaves(b->halves[1]->root_node, static_cast<std::uint32_t>(n_old));
+  }
+  built_ = base.built_;
+  built_.insert(built_.end(), extra.built_.begin(), extra.built_.end());
+  parts_ = base.parts_;
+  parts_.insert(parts_.end(), extra.parts_.begin(), extra.parts_.end());
+  bbox_ = base.bbox_;
+  for (std::size_t c = 0; c < d && !extra.bbox_.empty(); ++c) {
+    bbox_[c] = std::min(bbox_[c], extra.bbox_[c]);
+    bbox_[d + c] = std::max(bbox_[d + c], extra.bbox_[d + c]);
+  }
+  leaf_coords_.reserve(n * d);
+  leaf_coords_ = base.leaf_coords_;
+  leaf_coords_.insert(leaf_coords_.end(), extra.leaf_coords_.begin(), extra.leaf_coords_.end());
+  id_of_.reserve(n);
+  id_of_ = base.id_of_;
+  rank_of_.reserve(n);
+  rank_of_ = base.rank_of_;
+  for (std::size_t k = 0; k < n - n_old; ++k) {
+    id_of_.push_back(static_cast<std::uint32_t>(n_old) + extra.id_of_[k]);
+    rank_of_.push_back(static_cast<std::uint32_t>(n_old) + extra.rank_of_[k]);
+  }
+  // The box trees one after the other: find_first's preorder walk reads them as two
+  // consecutive subtrees (positions and skips shifted past the base's).
+  box_nodes_ = base.box_nodes_;
+  const auto nodes_before = static_cast<std::uint32_t>(box_nodes_.size());
+  for (BoxNode node : extra.box_nodes_) {
+    node.begin += static_cast<std::uint32_t>(n_old);
+    node.end += static_cast<std::uint32_t>(n_old);
+    node.skip += nodes_before;
+    box_nodes_.push_back(node);
+  }
+  box_bounds_ = base.box_bounds_;
+  box_bounds_.insert(box_bounds_.end(), extra.box_bounds_.begin(), extra.box_bounds_.end());
+}
+
+std::unique_ptr<KdTree> KdTree::extended(const KdTree& base, const PointSet& points) {
+  const std::size_t n_old = base.points().size(), n = points.size();
+  // Each part costs every search a descent from its root; past a few, or once the
+  // added points are a large share (their tree would be most of a rebuild's cost
+  // anyway), the whole tree is built again.
+  if (base.parts_.size() >= kMaxParts || n <= n_old || (n - n_old) * kRebuildBeyondShare > n) {
+    return std::make_unique<KdTree>(points);
+  }
+  return std::unique_ptr<KdTree>(new KdTree(base, points));
 }
 
 void KdTree::shift_leaves(Node* node, std::uint32_t by) {
@@ -319,25 +382,30 @@ bool KdTree::search_level(const Node* node, ResultSet& result, const double* que
 // nanoflann's findNeighbors (initial box distances, then the search), minus its one
 // allocation per query: with a runtime dimension it builds a fresh std::vector of
 // per-dimension box offsets each time; here they live in a per-thread buffer.
+// An extended tree's parts are searched one after another into the same result set
+// (a part whose box is beyond the worst distance so far is pruned by its first level).
 template <class ResultSet>
 void KdTree::search(const double* query, ResultSet& result) const {
-  if (root_ == nullptr) return;  // no points
   thread_local std::vector<double> offsets;
-  offsets.assign(d_, 0.0);  // allocates only when a thread first sees this d
-  double distsq = 0;
-  for (std::size_t c = 0; c < d_; ++c) {  // as nanoflann's computeInitialDistances
-    if (query[c] < bbox_[c]) {
-      offsets[c] = (query[c] - bbox_[c]) * (query[c] - bbox_[c]);
-      distsq += offsets[c];
+  for (const Part& part : parts_) {
+    const double* bbox = part.bbox.data();
+    offsets.assign(d_, 0.0);  // allocates only when a thread first sees this d
+    double distsq = 0;
+    for (std::size_t c = 0; c < d_; ++c) {  // as nanoflann's computeInitialDistances
+      if (query[c] < bbox[c]) {
+        offsets[c] = (query[c] - bbox[c]) * (query[c] - bbox[c]);
+        distsq += offsets[c];
+      }
+      if (query[c] > bbox[d_ + c]) {
+        offsets[c] = (query[c] - bbox[d_ + c]) * (query[c] - bbox[d_ + c]);
+        distsq += offsets[c];
+      }
     }
-    if (query[c] > bbox_[d_ + c]) {
-      offsets[c] = (query[c] - bbox_[d_ + c]) * (query[c] - bbox_[d_ + c]);
-      distsq += offsets[c];
-    }
+    if (distsq > result.worstDist()) continue;
+    detail::dispatch_dimension(static_cast<int>(d_), [&](auto dim) {
+      search_level<decltype(dim)::value>(part.root, result, query, distsq, offsets.data());
+    });
   }
-  detail::dispatch_dimension(static_cast<int>(d_), [&](auto dim) {
-    search_level<decltype(dim)::value>(root_, result, query, distsq, offsets.data());
-  });
 }
 
 std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
