@@ -31,11 +31,11 @@ double dist2(const PointSet& ps, std::size_t i, std::size_t j) {
 
 // The tree of `ps` grown as insertion grows it: built whole over its first points,
 // then extended (KdTree::extended) to each further prefix of the points in turn, the
-// last ps itself; each step adds at most an eighth, so each adds a part.
+// last ps itself; each step adds at most a sixteenth, so each adds a part.
 std::unique_ptr<KdTree> grown_tree(const PointSet& ps, std::size_t steps) {
   const std::size_t n = ps.size(), d = static_cast<std::size_t>(ps.dimension());
   std::vector<std::size_t> sizes{n};
-  for (std::size_t s = 0; s < steps && sizes.back() > 8; ++s) sizes.push_back(sizes.back() - sizes.back() / 9);
+  for (std::size_t s = 0; s < steps && sizes.back() > 8; ++s) sizes.push_back(sizes.back() - sizes.back() / 17);
   std::reverse(sizes.begin(), sizes.end());
   std::vector<std::unique_ptr<PointSet>> prefixes;
   for (std::size_t i = 0; i + 1 < sizes.size(); ++i) {

@@ -67,7 +67,7 @@ class KdTree {
   // base's arrays (about 8 d + 8 bytes a point) and the new points' build.
   static std::unique_ptr<KdTree> extended(const KdTree& base, const PointSet& points);
   static constexpr std::size_t kMaxParts = 8;
-  static constexpr std::size_t kRebuildBeyondShare = 8;
+  static constexpr std::size_t kRebuildBeyondShare = 16;
   // The trees a search visits: 1 for a tree built whole, one more per extension.
   std::size_t parts() const { return parts_.size(); }
   KdTree(const KdTree&) = delete;
