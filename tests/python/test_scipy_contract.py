@@ -154,6 +154,10 @@ FURTHEST_SETS = {
     # A cube grid whose hull two outside points make partly clean: the wrap starts on a
     # clean facet and crosses the degenerate ones.
     "grid-3d-3x3x3-plus-2": lambda: np.concatenate([_grid(3, 3, 3), [[1.0, 1.2, 4.0], [0.7, -3.0, 1.1]]]),
+    # Every facet of the hull holds more than d points: the wrap starts from a simplex
+    # of the hull's corners (their spheres all meet in one Voronoi vertex).
+    "grid-3d-3x3x3": lambda: _grid(3, 3, 3),
+    "grid-3d-4x3x2": lambda: _grid(4, 3, 2),
 }
 
 
@@ -251,10 +255,7 @@ def test_voronoi_options_duplicates_and_extras():
     once = spokemesh.Voronoi(points, qhull_options="Qc")
     assert np.array_equal(inc.vertices, once.vertices) and inc.regions == once.regions
     assert inc.ridge_vertices == once.ridge_vertices
-    # The furthest-site triangulation: above 2-d, hulls with more than d points on every
-    # facet are refused, naming them; stars and cells are the nearest-site triangulation's.
-    with pytest.raises(ValueError, match="lie on one facet of the convex hull"):
-        spokemesh.Delaunay(_grid(3, 3, 3), furthest_site=True)
+    # The furthest-site triangulation; stars and cells are the nearest-site one's.
     far = spokemesh.Delaunay(points, furthest_site=True)
     assert far.furthest_site and (far.equations[:, -2] > 0).all()
     with pytest.raises(ValueError, match="furthest-site"):
@@ -266,3 +267,56 @@ def test_voronoi_options_duplicates_and_extras():
     assert pickle.loads(pickle.dumps(far)).furthest_site
     back = pickle.loads(pickle.dumps(plain))
     assert back.regions == plain.regions and np.array_equal(back.vertices, plain.vertices)
+
+
+def _exact_sphere_holds(points, simplex):
+    """Whether every point lies in the closed circumsphere of `simplex`, in rationals."""
+    from fractions import Fraction
+    p = [[Fraction(float(x)) for x in points[i]] for i in simplex]
+    d = len(p) - 1
+    # Centre c: 2 (p_i - p_0) . c = |p_i|^2 - |p_0|^2, by Gauss-Jordan elimination.
+    rows = [[2 * (p[i][k] - p[0][k]) for k in range(d)] + [sum(x * x for x in p[i]) - sum(x * x for x in p[0])]
+            for i in range(1, d + 1)]
+    for col in range(d):
+        piv = next(r for r in range(col, d) if rows[r][col] != 0)
+        rows[col], rows[piv] = rows[piv], rows[col]
+        for r in range(d):
+            if r != col and rows[r][col] != 0:
+                f = rows[r][col] / rows[col][col]
+                rows[r] = [a - f * b for a, b in zip(rows[r], rows[col])]
+    c = [rows[k][d] / rows[k][k] for k in range(d)]
+    radius2 = sum((a - b) ** 2 for a, b in zip(p[0], c))
+    return all(sum((Fraction(float(x)) - b) ** 2 for x, b in zip(q, c)) <= radius2 for q in points)
+
+
+@pytest.mark.parametrize("shape", [(2, 2, 2), (3, 3, 3), (4, 3, 2), (2, 2, 2, 2), (3, 3, 3, 3)])
+def test_furthest_site_of_a_hull_degenerate_on_every_facet(shape):
+    # Every facet of a box grid's hull holds more than d points, and all the corners are
+    # cospherical: the furthest-site triangulation is a triangulation of the corners
+    # chosen by the symbolic perturbation. It must tile the hull, every sphere must hold
+    # every point (exactly), and it must not depend on the input order. (Qhull refuses
+    # the 2x2x2 and 2x2x2x2 cases as cospherical input.)
+    points = _grid(*shape)
+    d = points.shape[1]
+    tri = spokemesh.Delaunay(points, furthest_site=True)
+    corners = {i for i, p in enumerate(points) if all(x in (0, n - 1) for x, n in zip(p, shape))}
+    assert set(tri.simplices.ravel().tolist()) == corners
+    volume = sum(abs(np.linalg.det(points[s[1:]] - points[s[0]])) for s in tri.simplices) / math.factorial(d)
+    assert abs(volume - np.prod(np.array(shape) - 1.0)) < 1e-9
+    assert all(_exact_sphere_holds(points, s) for s in tri.simplices)
+    perm = np.random.default_rng(sum(shape)).permutation(len(points))
+    again = spokemesh.Delaunay(points[perm], furthest_site=True)
+    assert sorted(tuple(sorted(s)) for s in tri.simplices) == sorted(tuple(sorted(perm[s])) for s in again.simplices)
+    # One Voronoi vertex, the box's centre, shared by every region.
+    vor = spokemesh.Voronoi(points, furthest_site=True)
+    assert np.allclose(vor.vertices, [(np.array(shape) - 1) / 2])
+
+
+def test_furthest_site_refuses_a_degenerate_hull_with_many_corners():
+    # A prism over a 40-gon in three layers: every facet holds more than 3 points and
+    # the 80 corners are too many to search for a first simplex; the error names them.
+    angle = np.arange(40) * 2 * np.pi / 40
+    ring = np.stack([np.cos(angle), np.sin(angle)], 1)
+    points = np.concatenate([np.column_stack([ring, np.full(40, z)]) for z in (0.0, 1.0, 2.0)])
+    with pytest.raises(ValueError, match="lie on one facet of the convex hull.*too many corners"):
+        spokemesh.Delaunay(points, furthest_site=True)

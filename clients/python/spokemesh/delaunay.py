@@ -84,8 +84,10 @@ class Delaunay:
 
     Parameters, in scipy's order: points (array_like, converted once to C-ordered
     float64); furthest_site (the furthest-site triangulation: the simplices whose
-    circumspheres hold every point, over the hull's vertices; above 2-d, hulls with
-    more than d points on every facet raise ValueError for now); incremental (allow add_points, as
+    circumspheres hold every point, over the hull's vertices; cospherical corners, as a
+    box grid's, are triangulated by the symbolic perturbation; above 2-d, a hull with
+    more than d points on every facet and too many corners to search raises ValueError);
+    incremental (allow add_points, as
     scipy's); qhull_options (scipy's string of Qhull options:
     accepted and ignored, since an exact triangulation needs none of them; unknown
     options raise ValueError); threads (worker threads; None: all cores). The mesh is

@@ -41,8 +41,7 @@ class Voronoi:
 
     Parameters, as scipy.spatial.Voronoi's: points; furthest_site (the furthest-site
     diagram, read off the furthest-site triangulation: points inside the hull have empty
-    regions; above 2-d, hulls with more than d points on every facet raise ValueError
-    for now);
+    regions; as Delaunay's furthest_site for degenerate hulls);
     incremental (allow add_points);
     qhull_options (Qhull's option string: accepted and ignored, except that "Qz" adds
     scipy's empty region for Qhull's point at infinity and "Qc" gives equal points

@@ -62,9 +62,10 @@ std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simpl
 // candidate whose sphere through the facet is outermost (furthest_site.cpp), with the
 // perturbed in-sphere test deciding cospherical points. O(h) per simplex for h hull
 // vertices. Rows sorted, each positively oriented (ascending but for the last two
-// where that is negative). INVALID_ARGUMENT above 2-d when every hull facet's
-// hyperplane holds more than d points (a cube grid's faces), where the wrap has no
-// start yet.
+// where that is negative). When every hull facet's hyperplane holds more than d
+// points (a box grid's faces) the wrap starts, above 2-d, from a simplex of the hull's
+// corners whose sphere holds the others (searched among C(corners - 1, d) of them);
+// INVALID_ARGUMENT when that search would exceed 2e6 sphere tests.
 Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points, std::span<const std::uint32_t> delaunay,
                                                            std::span<const std::int32_t> adjacency);
 
