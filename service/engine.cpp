@@ -328,8 +328,8 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
   }
   ApproxOptions options;
   options.mode = query.mode == NeighborQuery::Mode::kSpokes ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
-  options.max_misses = query.max_consecutive_misses == 0 ? 100 : query.max_consecutive_misses;
-  options.max_vertices = query.max_vertices == 0 ? 20000 : query.max_vertices;
+  options.max_misses = query.max_consecutive_misses == 0 ? kDefaultMaxMisses : query.max_consecutive_misses;
+  options.max_vertices = query.max_vertices == 0 ? kDefaultMaxVertices : query.max_vertices;
   options.cancel = control.stop_flag();
   ApproxWalker walker(*set.tree, options);
   Status s = walker.compute(target.value().second, answer.walk);
@@ -408,9 +408,9 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
                      const AnswerSink& emit) {
   if (seeds.empty()) return invalid_argument("seeds: none given");
-  if (seeds.size() > kMaxBatchSeeds) {
+  if (seeds.size() > defaults::kMaxBatchSeeds) {
     return invalid_argument("seeds: " + std::to_string(seeds.size()) + " exceed the limit of " +
-                            std::to_string(kMaxBatchSeeds) + " per call");
+                            std::to_string(defaults::kMaxBatchSeeds) + " per call");
   }
   auto set_or = store_->get(id);
   if (!set_or.is_ok()) return set_or.status();
@@ -562,10 +562,10 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
     return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
                             std::to_string(shard_count));
   }
-  if (batch_size == 0) batch_size = kCellBatchSize;
-  if (batch_size > kMaxCellBatchSize) {
+  if (batch_size == 0) batch_size = defaults::kCellBatchSize;
+  if (batch_size > defaults::kMaxCellBatchSize) {
     return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum " +
-                            std::to_string(kMaxCellBatchSize) + " cells");
+                            std::to_string(defaults::kMaxCellBatchSize) + " cells");
   }
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();
@@ -603,7 +603,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
       // message limit, whatever the cells' size (high-d cells have many vertices).
       pending_bytes += 8 * (c.vertices.size() + c.centroid.size()) + 4 * c.vertex_simplices.size() + 64;
       for (const VoronoiFacet& f : c.facets) pending_bytes += 8 * f.normal.size() + 4 * f.vertices.size() + 24;
-      if (pending.size() == batch_size || pending_bytes > (std::size_t{2} << 20)) {
+      if (pending.size() == batch_size || pending_bytes > defaults::kMessagePayloadBytes) {
         pending_bytes = 0;
         emitted = true;
         if (Status st = emit(pending, done); !st.is_ok()) return st;

@@ -39,7 +39,7 @@ using defaults::kStreamWindowBytes;
 // The engine's limits (defaults: limits.hpp).
 struct Limits {
   std::uint64_t max_points = defaults::kMaxPoints;
-  int max_dimension = defaults::kMaxDimension;  // uploads; exact answers are defined up to kMaxDimension
+  int max_dimension = defaults::kMaxUploadDimension;  // uploads; exact answers are defined up to kMaxDimension (8)
   std::uint64_t max_memory = 4ull << 30;  // the memory budget (the server's default: half the cgroup limit or RAM)
   std::chrono::milliseconds default_deadline = defaults::kDefaultDeadline;
   std::chrono::milliseconds upload_idle_timeout = defaults::kUploadIdleTimeout;  // an idle upload stream ends
@@ -151,9 +151,6 @@ struct DomainSpec {
   bool empty() const { return box.empty() && halfspaces.empty() && !bounding_box; }
 };
 
-inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
-// Seeds in one batch call (BatchSeeds, REST .../stars:batch and friends).
-inline constexpr std::size_t kMaxBatchSeeds = 100000;
 
 enum class BatchKind { kStars, kNeighbors, kCells };
 
@@ -234,13 +231,13 @@ class Engine {
                           ShardRange* range = nullptr, int* dimension = nullptr);
 
   // The cells of the shard's seeds in order, in batches of at most batch_size (0 =
-  // kCellBatchSize), clipped to `domain` (empty: the set's bounding box); with
+  // defaults::kCellBatchSize), clipped to `domain` (empty: the set's bounding box); with
   // measures_only, without vertices. Streamed as stream_simplices is.
   using CellBatchSink = std::function<Status(std::span<const VoronoiCell> cells, std::uint64_t seeds_done)>;
   // Many seeds in one call: each answer is the single call's (star, neighbors with
   // `query`, cell with `domain`), computed by worker threads and handed to `emit` in
   // request order, a bounded round at a time. INVALID_ARGUMENT for more than
-  // kMaxBatchSeeds seeds or none; OUT_OF_RANGE naming the first seed >= count.
+  // defaults::kMaxBatchSeeds seeds or none; OUT_OF_RANGE naming the first seed >= count.
   using AnswerSink = std::function<Status(std::span<const BatchAnswer> answers, std::uint64_t done)>;
   Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                const NeighborQuery& query, const DomainSpec& domain, const CallControl& control,

@@ -183,7 +183,7 @@ grpc::Status MesherService::DownloadPointSet(grpc::ServerContext* ctx, const pb:
   if (!set.is_ok()) return call.finish(set.status());
   const auto coords = set.value()->points.coordinates();
   const char* bytes = reinterpret_cast<const char*>(coords.data());
-  constexpr std::size_t kChunk = 1 << 20;
+  constexpr std::size_t kChunk = defaults::kDownloadChunkBytes;
   pb::CoordinateChunk chunk;
   for (std::size_t at = 0; at < coords.size_bytes(); at += kChunk) {
     chunk.set_coordinates(bytes + at, std::min(kChunk, coords.size_bytes() - at));
@@ -385,7 +385,7 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
         fill_cell(a.cell, out);
         bytes += out->ByteSizeLong();
       }
-      if (bytes > (std::size_t{2} << 20) || i + 1 == answers.size()) {
+      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
         response.set_done(done - (answers.size() - 1 - i));
         if (Status s = flush(); !s.is_ok()) return s;
       }

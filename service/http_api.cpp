@@ -357,8 +357,9 @@ HttpResponse HttpApi::upload(Context& c, const std::string* parent) {
     if (!d) return c.fail(invalid_argument("dimension: the query parameter is required for raw float64 uploads"));
     auto dim = parse_uint(*d, "dimension");
     if (!dim.is_ok()) return c.fail(dim.status());
-    if (dim.value() < 2 || dim.value() > 1000) {
-      return c.fail(invalid_argument("dimension: " + *d + " is not supported; it must be at least 2"));
+    if (dim.value() < 2 || dim.value() > static_cast<std::uint64_t>(kMaxApproxDimension)) {
+      return c.fail(invalid_argument("dimension: " + *d + " is not supported; it must be between 2 and " +
+                                     std::to_string(kMaxApproxDimension)));
     }
     const std::size_t row = 8 * dim.value();
     if (body.size() % row != 0) {
@@ -576,9 +577,9 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
     return c.fail(invalid_argument("seeds: the body needs {\"seeds\": [i, j, ...]}"));
   }
   const json& list = body["seeds"];
-  if (list.size() > kMaxBatchSeeds) {
+  if (list.size() > defaults::kMaxBatchSeeds) {
     return c.fail(invalid_argument("seeds: " + std::to_string(list.size()) + " exceed the limit of " +
-                                   std::to_string(kMaxBatchSeeds) + " per call"));
+                                   std::to_string(defaults::kMaxBatchSeeds) + " per call"));
   }
   std::vector<std::uint64_t> seeds;
   seeds.reserve(list.size());

@@ -18,10 +18,20 @@ using std::chrono::milliseconds;
 
 // Point sets and requests.
 inline constexpr std::uint64_t kMaxPoints = 10'000'000;
-inline constexpr int kMaxDimension = 128;  // uploads; exact answers need d <= 8
+// The largest dimension uploads accept by default (--max-dimension raises it up to
+// core's kMaxApproxDimension, 1024); exact answers need d <= core's kMaxDimension, 8.
+inline constexpr int kMaxUploadDimension = 128;
 inline constexpr std::size_t kMaxDisplayName = 256;
 inline constexpr std::uint32_t kPageSize = 100, kMaxPageSize = 1000;
+// Simplices per message of the whole-mesh streams; cells per message of the cell stream.
 inline constexpr std::uint32_t kBatchSize = 4096, kMaxBatchSize = 65536;
+inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
+// Seeds in one batch call (BatchSeeds, REST .../stars:batch and friends).
+inline constexpr std::size_t kMaxBatchSeeds = 100000;
+// Payload per gRPC message: coordinate chunks of a download, and the size at which a
+// batch of answers or a mesh batch is sent early (gRPC's default limit is 4 MiB).
+inline constexpr std::size_t kDownloadChunkBytes = std::size_t{1} << 20;
+inline constexpr std::size_t kMessagePayloadBytes = std::size_t{2} << 20;
 inline constexpr milliseconds kDefaultDeadline{60'000};
 inline constexpr int kMaxConcurrentRpcs = 64;
 

@@ -41,7 +41,7 @@ struct ServerFlags {
   std::string grpc_listen = "127.0.0.1:50051", http_listen = "127.0.0.1:8080", data_dir = "./spokemesh-data";
   unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   std::uint64_t max_points = defaults::kMaxPoints;
-  int max_dimension = defaults::kMaxDimension;
+  int max_dimension = defaults::kMaxUploadDimension;
   int max_concurrent = defaults::kMaxConcurrentRpcs;
   std::string max_memory = "auto";
   std::string stream_cache = defaults::bytes_text(defaults::kStreamCacheBytes);

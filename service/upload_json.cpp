@@ -38,8 +38,9 @@ class UploadSax final : public nlohmann::json_sax<json> {
     }
     if (!dimension_) return invalid_argument("dimension: a positive integer is required with \"coordinates\"");
     const std::uint64_t d = *dimension_;
-    if (d < 2 || d > 1000) {
-      return invalid_argument("dimension: " + std::to_string(d) + " is not supported; it must be at least 2");
+    if (d < 2 || d > static_cast<std::uint64_t>(kMaxApproxDimension)) {
+      return invalid_argument("dimension: " + std::to_string(d) + " is not supported; it must be between 2 and " +
+                              std::to_string(kMaxApproxDimension));
     }
     if (coords_.size() % d != 0) {
       return invalid_argument("coordinates: " + std::to_string(coords_.size()) +

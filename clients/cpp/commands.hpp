@@ -31,8 +31,8 @@ int exit_code(const Status& status);
 // --approx and its budget (graph, neighbors, batch).
 struct ApproxFlags {
   bool enabled = false;
-  std::uint32_t misses = 100;
-  std::uint32_t max_vertices = 20000;
+  std::uint32_t misses = kDefaultMaxMisses;
+  std::uint32_t max_vertices = kDefaultMaxVertices;
   std::string mode = "rsd";
 
   ApproxOptions options(std::uint64_t random_seed) const;

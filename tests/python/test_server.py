@@ -356,6 +356,12 @@ def test_errors_name_the_field_and_map_to_codes(start_server):
     assert status == 400 and body == {"error": {"code": 400, "status": "OUT_OF_RANGE", "message": body["error"]["message"]}}
     status, body = http_json("POST", f"{server.http}/v1/pointsets", {"points": [[0, 0], [1, 0], [0, 1], [1, 1e308 * 10]]})
     assert status == 400 and body["error"]["status"] == "INVALID_ARGUMENT"
+    # A dimension beyond any the engine supports is refused while parsing, with the
+    # range (core's kMaxApproxDimension); within it, --max-dimension decides.
+    status, body = http_json("POST", f"{server.http}/v1/pointsets", {"dimension": 1025, "coordinates": [0.0] * 2050})
+    assert status == 400 and "dimension: 1025 is not supported; it must be between 2 and 1024" in body["error"]["message"]
+    status, body = http_json("POST", f"{server.http}/v1/pointsets", {"dimension": 5, "coordinates": [0.0] * 50})
+    assert status == 429 and "--max-dimension=4" in body["error"]["message"]
     status, body = http_json("GET", f"{server.http}/v1/pointsets/{good.id}/simplices?shard=9&shards=2")
     assert status == 400 and "shard_index: 9" in body["error"]["message"]
     # Nothing half-written was left in the data dir by the failed uploads.

@@ -421,8 +421,9 @@ class ApproximateGraph:
     walk_exhausted: np.ndarray  # (n,) bool: seed k's walk tried everything (its list is complete)
 
 
-def approximate_graph(points: np.ndarray, misses: int = 100, seed: int = 0x5eed, max_vertices: int = 20000,
-                      mode: str = "rsd", threads: Optional[int] = None) -> ApproximateGraph:
+def approximate_graph(points: np.ndarray, misses: int = _core.DEFAULT_MAX_MISSES, seed: int = 0x5eed,
+                      max_vertices: int = _core.DEFAULT_MAX_VERTICES, mode: str = "rsd",
+                      threads: Optional[int] = None) -> ApproximateGraph:
     """The certified approximate Delaunay graph in any dimension (Recursive Spoke Darts
     with a budget of `misses` consecutive misses per seed, the paper's M; mode "spokes"
     for plain Spoke Darts). Deterministic for a given `seed` and any thread count."""

@@ -609,6 +609,9 @@ PYBIND11_MODULE(_core, m) {
   m.doc() = "spokemesh's exact Delaunay/Voronoi core, in-process (see spokemesh.Delaunay)";
   static py::exception<std::runtime_error> duplicates(m, "DuplicatePointsError", PyExc_ValueError);
   duplicate_points_error = duplicates.ptr();
+  // The approximate walk's default budget (core's, as every route uses).
+  m.attr("DEFAULT_MAX_MISSES") = kDefaultMaxMisses;
+  m.attr("DEFAULT_MAX_VERTICES") = kDefaultMaxVertices;
   // Each point's first occurrence (an index into points): points equal to an earlier
   // one map to it, the others to themselves.
   m.def(
@@ -652,7 +655,7 @@ PYBIND11_MODULE(_core, m) {
            py::arg("halfspaces") = py::none())
       .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
            py::arg("bounding_box") = true);
-  m.def("approximate_graph", &approximate_graph, py::arg("points"), py::arg("misses") = 100,
-        py::arg("max_vertices") = 20000, py::arg("random_seed") = 0x5eed, py::arg("mode") = "rsd",
+  m.def("approximate_graph", &approximate_graph, py::arg("points"), py::arg("misses") = kDefaultMaxMisses,
+        py::arg("max_vertices") = kDefaultMaxVertices, py::arg("random_seed") = 0x5eed, py::arg("mode") = "rsd",
         py::arg("threads") = py::none());
 }

@@ -38,11 +38,16 @@ namespace spokemesh {
 // Largest dimension accepted for approximate neighbours.
 inline constexpr int kMaxApproxDimension = 1024;
 
+// The walk's budget unless a request names one: every route (CLI, service, Python)
+// takes its defaults from these.
+inline constexpr std::uint32_t kDefaultMaxMisses = 100;
+inline constexpr std::uint32_t kDefaultMaxVertices = 20000;
+
 struct ApproxOptions {
   enum class Mode { kRsd, kSpokes };
   Mode mode = Mode::kRsd;
-  std::uint32_t max_misses = 100;       // consecutive misses before stopping (the paper's M)
-  std::uint32_t max_vertices = 20000;   // Voronoi vertices (RSD) or rays (spokes), at most
+  std::uint32_t max_misses = kDefaultMaxMisses;      // consecutive misses before stopping (the paper's M)
+  std::uint32_t max_vertices = kDefaultMaxVertices;  // Voronoi vertices (RSD) or rays (spokes), at most
   std::uint64_t random_seed = 0x5eed;   // mixed with the seed index into every direction
   const std::atomic<bool>* cancel = nullptr;  // checked between rays
 };
