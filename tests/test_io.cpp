@@ -5,6 +5,7 @@
 #include <fstream>
 
 #include "spokemesh/io.hpp"
+#include "spokemesh/periodic_box.hpp"
 #include "support.hpp"
 
 namespace spokemesh {
@@ -135,6 +136,108 @@ TEST(NpyPoints, RefusesBadArrays) {
     EXPECT_NE(ps.status().message().find(b.needle), std::string::npos) << ps.status().message();
     EXPECT_NE(ps.status().message().find("bad.npy"), std::string::npos);
     EXPECT_EQ(ps.status().message().find('\n'), std::string::npos) << "one line";
+  }
+}
+
+// Weights (issue 28): one a point, text or .npy; radii become squared weights; every
+// bad value or count is named by file and line or index.
+TEST(Weights, ReadsTextAndNpyAndRadii) {
+  auto w = parse_text_weights("# power weights\n0.25\n\n-1  # may be negative\n2e-3\n", "w.txt", 3, WeightKind::kPowerWeight);
+  ASSERT_TRUE(w.is_ok()) << w.status().message();
+  EXPECT_EQ(w.value(), (std::vector<double>{0.25, -1, 2e-3}));
+  auto r = parse_text_weights("0.5\n3\n0\n", "r.txt", 3, WeightKind::kRadius);
+  ASSERT_TRUE(r.is_ok()) << r.status().message();
+  EXPECT_EQ(r.value(), (std::vector<double>{0.25, 9, 0}));
+  for (const std::string& shape : {std::string("(3,)"), std::string("(3, 1)")}) {
+    const std::string path = temp_path("weights.npy");
+    write_file(path, npy("<f8", shape, doubles({1.5, 0, -2})));
+    auto n = read_weights(path, 3, WeightKind::kPowerWeight);
+    ASSERT_TRUE(n.is_ok()) << shape << ": " << n.status().message();
+    EXPECT_EQ(n.value(), (std::vector<double>{1.5, 0, -2}));
+  }
+  std::string f32(8, '\0');
+  const float halves[2] = {0.5f, 4.0f};
+  std::memcpy(f32.data(), halves, 8);
+  auto f = parse_npy_weights(npy("<f4", "(2,)", f32), "r.npy", 2, WeightKind::kRadius);
+  ASSERT_TRUE(f.is_ok()) << f.status().message();
+  EXPECT_EQ(f.value(), (std::vector<double>{0.25, 16}));
+}
+
+TEST(Weights, RefusesBadValuesAndCountsNamingWhere) {
+  struct Bad {
+    std::string text;
+    WeightKind kind;
+    std::string needle;
+  };
+  for (const Bad& b : std::vector<Bad>{
+           {"1\n2\n", WeightKind::kPowerWeight, "w.txt: 2 weights for 3 points"},
+           {"1\n2\n3\n4\n", WeightKind::kRadius, "w.txt: 4 radii for 3 points"},
+           {"1\nx\n3\n", WeightKind::kPowerWeight, "w.txt:2: cannot parse 'x'"},
+           {"1\n2 3\n4\n", WeightKind::kPowerWeight, "w.txt:2: has 2 numbers; expected one weight a line"},
+           {"1\nnan\n3\n", WeightKind::kPowerWeight, "w.txt:2: weight is not finite"},
+           {"1\n2\n-inf\n", WeightKind::kPowerWeight, "w.txt:3: weight is not finite"},
+           {"1\n2\n1e250\n", WeightKind::kPowerWeight, "w.txt:3: weight has magnitude above 1e200"},
+           {"1\n-0.5\n3\n", WeightKind::kRadius, "w.txt:2: radius -0.500000 is negative"},
+       }) {
+    auto w = parse_text_weights(b.text, "w.txt", 3, b.kind);
+    ASSERT_FALSE(w.is_ok()) << b.text;
+    EXPECT_EQ(w.status().code(), Code::kInvalidArgument);
+    EXPECT_NE(w.status().message().find(b.needle), std::string::npos) << w.status().message();
+  }
+  struct BadNpy {
+    std::string bytes, needle;
+  };
+  for (const BadNpy& b : std::vector<BadNpy>{
+           {npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0, 1})), "must have shape (n,) or (n, 1)"},
+           {npy("<i8", "(3,)", std::string(24, '\0')), "dtype '<i8' is not supported"},
+           {npy("<f8", "(2,)", doubles({0, 1})), "w.npy: 2 weights for 3 points"},
+           {npy("<f8", "(3,)", doubles({0, 1})), "truncated .npy data"},
+           {npy("<f8", "(2305843009213693952,)", doubles({0, 1})), "truncated .npy data"},
+           {npy("<f8", "(3,)", doubles({0, NAN, 1})), "w.npy: index 1: weight is not finite"},
+       }) {
+    auto w = parse_npy_weights(b.bytes, "w.npy", 3, WeightKind::kPowerWeight);
+    ASSERT_FALSE(w.is_ok()) << b.needle;
+    EXPECT_NE(w.status().message().find(b.needle), std::string::npos) << w.status().message();
+  }
+  const Status missing = read_weights(temp_path("no-such-weights.txt"), 3, WeightKind::kPowerWeight).status();
+  EXPECT_NE(missing.message().find("no-such-weights.txt: cannot open for reading"), std::string::npos) << missing.message();
+}
+
+// The periodic box (issue 28): parsed as --box is, LO < HI on every axis, and every
+// point in [LO, HI), the first one outside named with its axis and side.
+TEST(PeriodicBoxTest, ParsesAndChecksPointsNamingTheFirstOutside) {
+  auto box = PeriodicBox::parse("0,-1,2,1", "--periodic");
+  ASSERT_TRUE(box.is_ok()) << box.status().message();
+  EXPECT_EQ(box->dimension(), 2);
+  EXPECT_EQ(box->lo(), (std::vector<double>{0, -1}));
+  EXPECT_EQ(box->hi(), (std::vector<double>{2, 1}));
+  const PointSet inside(2, {0, -1, 1.5, 0.999, 0.25, 0});
+  EXPECT_TRUE(box->check_contains(inside, "pts.txt").is_ok());
+  struct Bad {
+    std::vector<double> coords;
+    std::string needle;
+  };
+  for (const Bad& b : std::vector<Bad>{
+           {{0, 0, 2, 0.5}, "pts.txt: point 1 lies outside the periodic box: coordinate 0 is 2, not below HI 2"},
+           {{0, 0, 1, -1.5}, "pts.txt: point 1 lies outside the periodic box: coordinate 1 is -1.5, below LO -1"},
+       }) {
+    const Status s = box->check_contains(PointSet(2, b.coords), "pts.txt");
+    EXPECT_EQ(s.code(), Code::kInvalidArgument);
+    EXPECT_NE(s.message().find(b.needle), std::string::npos) << s.message();
+  }
+  EXPECT_NE(box->check_contains(PointSet(3, {0, 0, 0}), "pts.txt").message().find("3-d and the periodic box 2-d"),
+            std::string::npos);
+  for (const auto& [text, needle] : std::vector<std::pair<std::string, std::string>>{
+           {"0,0,1", "an even count"},
+           {"0,0,1,0", "--periodic: axis 1: LO 0 is not below HI 0"},
+           {"2,0,1,1", "--periodic: axis 0: LO 2 is not below HI 1"},
+           {"0,x,1,1", "value 1 ('x') is not a finite number"},
+           {"0,1", "a 1-d box"},
+           {"0,0,1,1e300", "axis 1: the sides must be finite, at most 1e100"},
+       }) {
+    auto bad = PeriodicBox::parse(text, "--periodic");
+    ASSERT_FALSE(bad.is_ok()) << text;
+    EXPECT_NE(bad.status().message().find(needle), std::string::npos) << bad.status().message();
   }
 }
 

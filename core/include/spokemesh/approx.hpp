@@ -35,9 +35,6 @@
 
 namespace spokemesh {
 
-// Largest dimension accepted for approximate neighbours.
-inline constexpr int kMaxApproxDimension = 1024;
-
 // The walk's budget unless a request names one: every route (CLI, service, Python)
 // takes its defaults from these.
 inline constexpr std::uint32_t kDefaultMaxMisses = 100;

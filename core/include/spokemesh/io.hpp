@@ -54,6 +54,22 @@ std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64
 std::string npy_vector_header(const std::string& descr, std::uint64_t rows);
 std::string npy_header_of_shape(const std::string& descr, const std::string& shape);
 
+// Weights of weighted points (issue 28), one per point in the points' order: text (one
+// number a line; '#' comments and blank lines as for points) or .npy (float64 or
+// float32, shape (n,) or (n, 1)). kPowerWeight: CGAL's convention, the power weight w
+// (the squared radius; any finite real, |w| <= kMaxWeight); kRadius: Voro++'s, a radius
+// r >= 0 (|r| <= kMaxCoordinate), returned as the weight r * r rounded to double.
+// Errors (INVALID_ARGUMENT) name the file and the line or index: a non-number, more
+// than one number on a line, a non-finite or out-of-range value, a negative radius, or
+// a count other than `count` (the number of points).
+enum class WeightKind { kPowerWeight, kRadius };
+inline constexpr double kMaxWeight = 1e200;  // keeps |p - q|^2 - w finite in double (d <= 1024)
+Result<std::vector<double>> read_weights(const std::string& path, std::size_t count, WeightKind kind);
+Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
+                                               WeightKind kind);
+Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const std::string& source, std::size_t count,
+                                              WeightKind kind);
+
 // Reads a mesh (.npy int64/int32, else text) of simplices with `width` indices each.
 Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int width);
 

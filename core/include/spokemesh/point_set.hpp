@@ -23,6 +23,9 @@ namespace spokemesh {
 // Largest dimension for exact meshing. The predicates' subset tables are sized
 // 2^(d+1), and Delaunay stars beyond d = 8 are too large to enumerate anyway.
 inline constexpr int kMaxDimension = 8;
+// Largest dimension any input may have: approximate neighbour graphs (approx.hpp) go
+// this far; readers refuse more, naming the file.
+inline constexpr int kMaxApproxDimension = 1024;
 // Largest accepted |coordinate|. Exact arithmetic (GMP) has no limit; this bound
 // keeps the floating-point candidate distances finite (d * (2e100)^2 < 1e300).
 inline constexpr double kMaxCoordinate = 1e100;

@@ -193,7 +193,10 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
   if (h.shape.size() != 2) return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) + " axes");
   const std::uint64_t n = h.shape[0], d = h.shape[1];
   if (n == 0 || d == 0) return invalid_argument(source + ": no points (the input is empty)");
-  if (d > 1000) return invalid_argument(source + ": dimension " + std::to_string(d) + " is too large");
+  if (d > static_cast<std::uint64_t>(kMaxApproxDimension)) {
+    return invalid_argument(source + ": dimension " + std::to_string(d) + " is too large (at most " +
+                            std::to_string(kMaxApproxDimension) + ")");
+  }
   NpyPoints layout{n, static_cast<int>(d), f8 ? 8 : 4, h.data_offset};
   const std::uint64_t need = n * d * layout.item_bytes;
   if (file_size - h.data_offset < need) {
@@ -241,6 +244,96 @@ Result<PointSet> read_points(const std::string& path) {
   if (!bytes.is_ok()) return bytes.status();
   if (ends_with(path, ".npy")) return parse_npy_points(bytes.value(), path);
   return parse_text_points(bytes.value(), path);
+}
+
+namespace {
+
+// One weight, checked: `where` names its line or index.
+Status take_weight(double v, WeightKind kind, const std::string& where, std::vector<double>& out) {
+  const char* what = kind == WeightKind::kRadius ? "radius" : "weight";
+  if (!std::isfinite(v)) return invalid_argument(where + what + " is not finite");
+  if (kind == WeightKind::kRadius) {
+    if (v < 0) return invalid_argument(where + "radius " + std::to_string(v) + " is negative");
+    if (v > kMaxCoordinate) return invalid_argument(where + "radius has magnitude above 1e100");
+    out.push_back(v * v);
+  } else {
+    if (std::fabs(v) > kMaxWeight) return invalid_argument(where + "weight has magnitude above 1e200");
+    out.push_back(v);
+  }
+  return Status::ok();
+}
+
+Status check_weight_count(std::size_t got, std::size_t count, WeightKind kind, const std::string& source) {
+  if (got == count) return Status::ok();
+  return invalid_argument(source + ": " + std::to_string(got) + (kind == WeightKind::kRadius ? " radii" : " weights") +
+                          " for " + std::to_string(count) + " points (one a point, in the points' order)");
+}
+
+}  // namespace
+
+Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
+                                               WeightKind kind) {
+  std::vector<double> out, row;
+  std::string bad;
+  Status status = for_each_line(text, [&](std::string_view line, std::size_t line_no) -> Status {
+    row.clear();
+    const std::string where = source + ":" + std::to_string(line_no) + ": ";
+    if (!parse_numbers(line, row, bad)) return invalid_argument(where + "cannot parse '" + bad + "' as a number");
+    if (row.empty()) return Status::ok();
+    if (row.size() != 1) {
+      return invalid_argument(where + "has " + std::to_string(row.size()) + " numbers; expected one " +
+                              (kind == WeightKind::kRadius ? "radius" : "weight") + " a line");
+    }
+    return take_weight(row[0], kind, where, out);
+  });
+  if (!status.is_ok()) return status;
+  if (Status s = check_weight_count(out.size(), count, kind, source); !s.is_ok()) return s;
+  return out;
+}
+
+Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const std::string& source, std::size_t count,
+                                              WeightKind kind) {
+  auto header = parse_npy_header(bytes, source);
+  if (!header.is_ok()) return header.status();
+  const NpyHeader& h = header.value();
+  const bool f8 = h.descr == "<f8" || h.descr == "=f8";
+  const bool f4 = h.descr == "<f4" || h.descr == "=f4";
+  if (!f8 && !f4) {
+    return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
+  }
+  if (h.fortran && h.shape.size() == 2) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
+  if (!(h.shape.size() == 1 || (h.shape.size() == 2 && h.shape[1] == 1))) {
+    return invalid_argument(source + ": .npy weights must have shape (n,) or (n, 1), found " +
+                            std::to_string(h.shape.size()) + " axes");
+  }
+  const std::uint64_t n = h.shape[0];
+  const std::size_t item = f8 ? 8 : 4;
+  if (n > (bytes.size() - h.data_offset) / item) {  // (n * item may overflow)
+    return invalid_argument(source + ": truncated .npy data: " + std::to_string(n) + " values need more than the " +
+                            std::to_string(bytes.size() - h.data_offset) + " bytes found");
+  }
+  if (Status s = check_weight_count(n, count, kind, source); !s.is_ok()) return s;
+  std::vector<double> out;
+  out.reserve(n);
+  for (std::uint64_t k = 0; k < n; ++k) {
+    double v;
+    if (f8) {
+      std::memcpy(&v, bytes.data() + h.data_offset + k * 8, 8);
+    } else {
+      float f;
+      std::memcpy(&f, bytes.data() + h.data_offset + k * 4, 4);
+      v = f;
+    }
+    if (Status s = take_weight(v, kind, source + ": index " + std::to_string(k) + ": ", out); !s.is_ok()) return s;
+  }
+  return out;
+}
+
+Result<std::vector<double>> read_weights(const std::string& path, std::size_t count, WeightKind kind) {
+  auto bytes = slurp(path);
+  if (!bytes.is_ok()) return bytes.status();
+  if (ends_with(path, ".npy")) return parse_npy_weights(bytes.value(), path, count, kind);
+  return parse_text_weights(bytes.value(), path, count, kind);
 }
 
 Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int width) {
