@@ -315,3 +315,155 @@ TEST(Filter, LanesAndScalarShareTheBoundAndItCoversTheExactError) {
 
 }  // namespace
 }  // namespace spokemesh
+
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Regular_triangulation_3.h>
+
+#include <random>
+
+namespace spokemesh {
+namespace {
+
+// CGAL's own perturbed power test, reached through a subclass (it is protected).
+using CgalKernel = CGAL::Exact_predicates_inexact_constructions_kernel;
+struct CgalRegular : CGAL::Regular_triangulation_3<CgalKernel> {
+  using CGAL::Regular_triangulation_3<CgalKernel>::side_of_oriented_power_sphere;
+};
+
+// Weighted points (issue 28): the power test on a small integer grid with small integer
+// weights, where many tests are exact ties, equals CGAL's
+// Regular_triangulation_3::side_of_oriented_power_sphere(..., perturb = true) (ON_POSITIVE_SIDE
+// is inside the power sphere, our -1); random real points and weights agree too.
+TEST(WeightedPredicates, PowerTestsAndTiesEqualCgalRegularTriangulation) {
+  for (const bool on_grid : {true, false}) {
+    std::mt19937_64 rng(on_grid ? 91 : 92);
+    std::vector<double> coords, weights;
+    if (on_grid) {
+      coords = testing::grid_points(3, 3);  // 27 points of {0, 1, 2}^3
+      std::uniform_int_distribution<int> w(0, 2);
+      for (std::size_t i = 0; i < 27; ++i) weights.push_back(w(rng));
+    } else {
+      coords = testing::uniform_points(3, 40, 93);
+      std::uniform_real_distribution<double> w(-0.05, 0.05);
+      for (std::size_t i = 0; i < 40; ++i) weights.push_back(w(rng));
+    }
+    const PointSet ps = make_points(3, coords);
+    const Predicates pred(ps, weights);
+    const auto n = static_cast<std::uint32_t>(ps.size());
+    std::vector<CgalKernel::Weighted_point_3> wp;
+    for (std::uint32_t i = 0; i < n; ++i) {
+      wp.emplace_back(CgalKernel::Point_3(ps.point(i)[0], ps.point(i)[1], ps.point(i)[2]), weights[i]);
+    }
+    const CgalRegular cgal;
+    std::uniform_int_distribution<std::uint32_t> any(0, n - 1);
+    int ties = 0, checked = 0;
+    for (int trial = 0; trial < 4000; ++trial) {
+      std::array<std::uint32_t, 4> t = {any(rng), any(rng), any(rng), any(rng)};
+      const std::uint32_t q = any(rng);
+      std::set<std::uint32_t> distinct(t.begin(), t.end());
+      distinct.insert(q);
+      if (distinct.size() != 5) continue;
+      const int o = pred.orientation(t);
+      if (o == 0) continue;
+      if (o < 0) std::swap(t[0], t[1]);
+      const CGAL::Oriented_side theirs =
+          cgal.side_of_oriented_power_sphere(wp[t[0]], wp[t[1]], wp[t[2]], wp[t[3]], wp[q], /*perturb=*/true);
+      ASSERT_EQ(pred.side_of_sphere(t, q), -static_cast<int>(theirs))
+          << (on_grid ? "grid" : "uniform") << " trial " << trial << ": " << t[0] << " " << t[1] << " " << t[2] << " "
+          << t[3] << " q " << q;
+      ties += cgal.side_of_oriented_power_sphere(wp[t[0]], wp[t[1]], wp[t[2]], wp[t[3]], wp[q], false) ==
+              CGAL::ON_ORIENTED_BOUNDARY;
+      ++checked;
+    }
+    EXPECT_GT(checked, 1000);
+    if (on_grid) {
+      EXPECT_GT(ties, 50) << "the grid should make many exact ties";
+    }
+  }
+}
+
+// Equal weights cancel: every answer is the unweighted one (the filter, the exact
+// rationals and the perturbation), on a grid full of cospherical ties.
+TEST(WeightedPredicates, EqualWeightsGiveTheUnweightedAnswers) {
+  const PointSet ps = make_points(3, testing::grid_points(3, 3));
+  const std::vector<double> same(ps.size(), 0.3);
+  const Predicates weighted(ps, same), plain(ps);
+  const auto n = static_cast<std::uint32_t>(ps.size());
+  int checked = 0;
+  for (std::uint32_t a = 0; a < n; a += 2)
+    for (std::uint32_t b = a + 1; b < n; b += 3)
+      for (std::uint32_t c = b + 1; c < n; c += 2)
+        for (std::uint32_t e = c + 1; e < n; e += 3) {
+          std::array<std::uint32_t, 4> t = {a, b, c, e};
+          const int o = plain.orientation(t);
+          if (o == 0) continue;
+          if (o < 0) std::swap(t[0], t[1]);
+          for (std::uint32_t q = 0; q < n; ++q) {
+            if (q == a || q == b || q == c || q == e) continue;
+            ASSERT_EQ(weighted.side_of_sphere(t, q), plain.side_of_sphere(t, q));
+            std::array<Row, 4> rows = {Row::of_point(t[1]), Row::of_point(t[2]), Row::of_point(t[3]), Row::of_point(q)};
+            ASSERT_EQ(weighted.lifted_sign_unperturbed(t[0], rows), plain.lifted_sign_unperturbed(t[0], rows));
+            ++checked;
+          }
+        }
+  EXPECT_GT(checked, 1000);
+}
+
+// The power test from its definition, in rationals (3-d): the orthogonal sphere of
+// the weighted vertices (centre c: 2 (s_i - s_0) . c = |s_i|^2 - |s_0|^2 - w_i + w_0,
+// radius^2 = |s_0 - c|^2 - w_0) and the sign of q's power |q - c|^2 - w_q - radius^2.
+int power_sign_by_definition(const PointSet& ps, const std::vector<double>& w, std::array<std::uint32_t, 4> t,
+                             std::uint32_t q) {
+  // (Lambdas return mpq_class, not gmpxx's expression templates over temporaries.)
+  auto at = [&](std::uint32_t i, int c) -> mpq_class { return mpq_class(ps.point(i)[c]); };
+  auto norm2 = [&](std::uint32_t i) -> mpq_class { return at(i, 0) * at(i, 0) + at(i, 1) * at(i, 1) + at(i, 2) * at(i, 2); };
+  std::vector<mpq_class> a(12);
+  for (int i = 0; i < 3; ++i) {
+    for (int c = 0; c < 3; ++c) a[i * 4 + c] = 2 * (at(t[i + 1], c) - at(t[0], c));
+    a[i * 4 + 3] = norm2(t[i + 1]) - norm2(t[0]) - mpq_class(w[t[i + 1]]) + mpq_class(w[t[0]]);
+  }
+  for (int col = 0; col < 3; ++col) {  // Gauss-Jordan (the tetrahedron is not flat)
+    int piv = col;
+    while (sgn(a[piv * 4 + col]) == 0) ++piv;
+    for (int j = 0; j < 4; ++j) std::swap(a[col * 4 + j], a[piv * 4 + j]);
+    for (int r = 0; r < 3; ++r) {
+      if (r == col || sgn(a[r * 4 + col]) == 0) continue;
+      const mpq_class f = a[r * 4 + col] / a[col * 4 + col];
+      for (int j = col; j < 4; ++j) a[r * 4 + j] -= f * a[col * 4 + j];
+    }
+  }
+  std::array<mpq_class, 3> centre;
+  for (int c = 0; c < 3; ++c) centre[c] = a[c * 4 + 3] / a[c * 4 + c];
+  auto dist2 = [&](std::uint32_t i) -> mpq_class {
+    mpq_class s = 0;
+    for (int c = 0; c < 3; ++c) s += (at(i, c) - centre[c]) * (at(i, c) - centre[c]);
+    return s;
+  };
+  return sgn(dist2(q) - mpq_class(w[q]) - (dist2(t[0]) - mpq_class(w[t[0]])));
+}
+
+// The filter's bound holds with weights, and the power test is the definition's: on a
+// tetrahedron and a fifth point on its circumsphere, with every weight a few ulps
+// from zero (so the power test is a few ulps from a tie), the filtered sign, the exact
+// rational sign and the definition's agree.
+TEST(WeightedPredicates, FilteredPowerSignsEqualExactAndTheDefinition) {
+  std::mt19937_64 rng(95);
+  std::uniform_int_distribution<int> ulps(-3, 3);
+  const PointSet ps = make_points(3, {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1, 0});
+  int decided = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    std::vector<double> w(5, 0.0);
+    for (double& v : w) v = ulps(rng) * 0x1p-52;
+    const Predicates pred(ps, w);
+    const std::array<Row, 4> rows = {Row::of_point(1), Row::of_point(2), Row::of_point(3), Row::of_point(4)};
+    const int exact = pred.lifted_sign_exact(0, rows, /*perturb=*/false);
+    ASSERT_EQ(pred.lifted_sign_unperturbed(0, rows), exact) << "trial " << trial;
+    const int definition = power_sign_by_definition(ps, w, {0, 1, 2, 3}, 4);
+    ASSERT_EQ(exact * pred.orientation(std::array<std::uint32_t, 4>{0, 1, 2, 3}), definition) << "trial " << trial;
+    decided += exact != 0;
+  }
+  EXPECT_GT(decided, 100);
+}
+
+}  // namespace
+}  // namespace spokemesh

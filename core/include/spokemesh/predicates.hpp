@@ -187,15 +187,32 @@ struct Row {
 };
 
 // The BoundedDouble entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
-// a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted).
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out);
+// a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted). With
+// `weights` (one power weight a point), a point's height is |p - x|^2 - (w_p - w_x).
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
+                const double* weights = nullptr);
 
 // Exact predicates over one PointSet (which must outlive this object).
+//
+// Weighted points (issue 28; CGAL's Regular_triangulation convention): with
+// `weights` (one power weight per point, finite, |w| <= kMaxWeight; not owned, must
+// outlive this object), a point's height over the origin x is |p - x|^2 - w_p + w_x,
+// so the lifted determinant is the power test: side_of_sphere() tells on which side of
+// the orthogonal sphere of a simplex's weighted vertices a weighted point lies (its
+// power distance to the sphere's centre against the sphere's squared radius), and
+// lifted_sign() its star-walk form. The symbolic perturbation is the same (heights
+// perturbed by infinitesimals ordered by lexicographic rank): CGAL's
+// side_of_oriented_power_sphere(..., perturb = true). Equal weights give back every
+// unweighted answer. The exact stage of a weighted set works in rationals (the
+// integer fast path assumes unweighted heights).
 class Predicates {
  public:
-  explicit Predicates(const PointSet& points) : ps_(points) {}
+  explicit Predicates(const PointSet& points, std::span<const double> weights = {})
+      : ps_(points), weights_(weights.empty() ? nullptr : weights.data()) {}
 
   const PointSet& points() const { return ps_; }
+  // The power weights, or null for an unweighted set.
+  const double* weights() const { return weights_; }
 
   // Sign of det[spatial parts of rows] relative to origin; rows.size() == d.
   int spatial_sign(std::uint32_t origin, std::span<const Row> rows) const;
@@ -229,6 +246,7 @@ class Predicates {
   enum class Stage { kExact, kPerturbed, kPerturbationOnly };
   int lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const;
   const PointSet& ps_;
+  const double* weights_ = nullptr;
 };
 
 }  // namespace spokemesh

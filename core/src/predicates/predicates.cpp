@@ -36,7 +36,8 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   return det;
 }
 
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out) {
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
+                const double* weights) {
   const int d = ps.dimension();
   if (row.is_point()) {
     const double* p = ps.point(static_cast<std::size_t>(row.point));
@@ -46,6 +47,9 @@ void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int co
       out[c] = BoundedDouble::difference(p[c], x[c]);
       norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
     }
+    // The power height: |p - x|^2 - (w_p - w_x), the weights' difference rounded once
+    // and subtracted once (two more levels of the bound).
+    if (weights != nullptr) norm2 = norm2 - BoundedDouble::difference(weights[row.point], weights[origin]);
     if (cols > d) out[d] = norm2;
   } else {
     for (int c = 0; c < d; ++c) out[c] = BoundedDouble::exact(row.dir[c]);
@@ -215,9 +219,11 @@ int sign_of_fixed_determinant(int k, Entry&& entry) {
 // spanning more than 2^120) falls back to GMP rationals.
 class ExactMatrix {
  public:
-  ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols)
-      : ps_(&ps), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
-    scaled_ = ps.integer_bits() <= kMaxScaledBits;
+  ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols,
+              const double* weights = nullptr)
+      : ps_(&ps), weights_(weights), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
+    // Weighted heights are not the scaled integers' sums of squares: rationals.
+    scaled_ = ps.integer_bits() <= kMaxScaledBits && (weights == nullptr || cols <= ps.dimension());
     for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, rows[r], r);
     if (scaled_) return;
     rats_.resize(static_cast<std::size_t>(k_ * cols_));
@@ -439,6 +445,7 @@ class ExactMatrix {
         out[c] = mpq_class(p[c]) - mpq_class(x[c]);
         norm2 += out[c] * out[c];
       }
+      if (weights_ != nullptr) norm2 -= mpq_class(weights_[row.point]) - mpq_class(weights_[origin]);
       if (cols_ > d) out[d] = norm2;
     } else {
       for (int c = 0; c < d; ++c) out[c] = mpq_class(row.dir[c]);
@@ -447,6 +454,7 @@ class ExactMatrix {
   }
 
   const PointSet* ps_;
+  const double* weights_;
   std::uint32_t origin_;
   int k_, cols_;
   bool scaled_ = false;
@@ -457,10 +465,11 @@ class ExactMatrix {
   mutable std::vector<mpq_class> rats_;
 };
 
-int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int k) {
+int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int k,
+                  const double* weights = nullptr) {
   std::array<BoundedDouble, kMaxCols * kMaxCols> m;
   std::array<BoundedDouble, 1u << kMaxCols> table;
-  for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k]);
+  for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k], weights);
   minors_table(m.data(), k, k, table.data());
   return table[(1u << k) - 1u].certified_sign();
 }
@@ -498,7 +507,7 @@ int Predicates::perturbation_sign(std::uint32_t origin, std::span<const Row> row
 int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const {
   const int d = ps_.dimension();
   const int k = d + 1;
-  const ExactMatrix m(ps_, origin, rows.first(k), k);
+  const ExactMatrix m(ps_, origin, rows.first(k), k, weights_);
   std::array<int, kMaxCols> all;
   std::iota(all.begin(), all.begin() + k, 0);
   const std::span<const int> every(all.data(), k);
@@ -545,13 +554,13 @@ int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> ro
 }
 
 int Predicates::lifted_sign(std::uint32_t origin, std::span<const Row> rows) const {
-  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1);
+  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, weights_);
   if (s == 1 || s == -1) return s;
   return lifted_sign_exact(origin, rows, /*perturb=*/true);
 }
 
 int Predicates::lifted_sign_unperturbed(std::uint32_t origin, std::span<const Row> rows) const {
-  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1);
+  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, weights_);
   if (s != BoundedDouble::kUnknownSign) return s;
   return lifted_sign_exact(origin, rows, /*perturb=*/false);
 }
