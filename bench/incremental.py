@@ -8,17 +8,11 @@ the whole set's triangulation, the same simplices in the same order.
         [--fractions 0.01,0.10,0.50] [--runs 1]
 """
 import argparse
-import time
 
 import numpy as np
 
 import spokemesh
-
-
-def timed(f):
-    t = time.perf_counter()
-    out = f()
-    return out, time.perf_counter() - t
+from timing import timed
 
 
 def main():

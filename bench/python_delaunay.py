@@ -10,22 +10,13 @@ Usage: PYTHONPATH=build/python bench/python_delaunay.py [--repeat 3] [--sizes 2:
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import spokemesh
+from timing import best
 from scipy.spatial import Delaunay as ScipyDelaunay
 
 SIZES = {2: 100_000, 3: 100_000, 4: 20_000, 5: 5_000, 6: 2_000}
-
-
-def best(fn, repeat: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
 
 
 def main() -> None:

@@ -12,20 +12,11 @@ Usage: PYTHONPATH=build/python bench/python_voronoi.py [--repeat 2] [--sizes 2:1
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import spokemesh
+from timing import best
 from scipy.spatial import Voronoi as ScipyVoronoi
-
-
-def best(fn, repeat: int):
-    times, out = [], None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
 
 
 def read_all(vor):
