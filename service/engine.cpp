@@ -164,10 +164,11 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
 Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& parent_id, UploadHeader added,
                                                             const Principal& who) {
   if (Status s = authorize(parent_id, who); !s.is_ok()) return s;
-  auto parent = store_->get(parent_id);
+  // The parent's header only: its coordinates are streamed below, not loaded (its
+  // tree and split would be built for nothing: queries go to the new set).
+  auto parent = store_->info(parent_id);
   if (!parent.is_ok()) return parent.status();
-  const PointSet& points = parent.value()->points;
-  const int d = points.dimension();
+  const int d = parent->dimension;
   if (added.dimension != 0 && added.dimension != d) {
     return invalid_argument("dimension: " + std::to_string(added.dimension) + "-d points cannot be appended to point set " +
                             parent_id + ", whose points are " + std::to_string(d) + "-d");
@@ -175,12 +176,15 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
   if (added.count < 1) return invalid_argument("count: appending needs at least one point");
   UploadHeader whole = added;
   whole.dimension = d;
-  const auto n = static_cast<std::int64_t>(points.size());
+  const auto n = static_cast<std::int64_t>(parent->count);
   whole.count = added.count > INT64_MAX - n ? INT64_MAX : n + added.count;
   auto session = begin_upload(whole);
   if (!session.is_ok()) return session.status();
-  const std::span<const double> coords = points.coordinates();
-  if (Status s = session.value()->append(coords.data(), coords.size_bytes()); !s.is_ok()) return s;
+  UploadSession& s = *session.value();
+  if (Status st = store_->read_coordinates(parent_id, [&](const char* bytes, std::size_t size) { return s.append(bytes, size); });
+      !st.is_ok()) {
+    return st;
+  }
   return session;
 }
 

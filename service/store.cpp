@@ -1,5 +1,7 @@
 #include "store.hpp"
 
+#include "limits.hpp"
+
 #include "spokemesh/approx.hpp"
 
 #include <dirent.h>
@@ -352,6 +354,61 @@ Result<PointSetInfo> PointSetStore::info(const std::string& id) {
   std::string name;
   if (read_file(name_path(id), name)) info.display_name = name;
   return info;
+}
+
+Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSink& sink) {
+  if (!is_valid_id(id)) return not_an_id(id);
+  std::shared_ptr<const StoredSet> loaded;
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = index_.find(id); it != index_.end()) loaded = *it->second;
+  }
+  if (loaded != nullptr && file_exists(data_path(id))) {
+    const std::span<const double> coords = loaded->points.coordinates();
+    const auto* bytes = reinterpret_cast<const char*>(coords.data());
+    for (std::size_t at = 0; at < coords.size_bytes(); at += defaults::kDownloadChunkBytes) {
+      if (Status s = sink(bytes + at, std::min(defaults::kDownloadChunkBytes, coords.size_bytes() - at)); !s.is_ok()) return s;
+    }
+    return Status::ok();
+  }
+  const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
+  struct stat st {};
+  char header[kHeaderBytes];
+  bool ok = ::fstat(fd, &st) == 0 && read_all(fd, header, kHeaderBytes);
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  std::uint32_t d = 0;
+  std::uint64_t n = 0;
+  if (ok) {
+    std::memcpy(&d, header, 4);
+    std::memcpy(&n, header + 4, 8);
+  }
+  const bool shaped = ok && d >= 2 && d <= kMaxApproxDimension && n <= (size - kHeaderBytes) / 8 / d &&
+                      size == kHeaderBytes + n * d * 8;
+  if (ok && !shaped) {
+    ::close(fd);
+    quarantine(id, "its header does not match its size");
+    return Status{Code::kNotFound, "point set " + id + " was malformed on disk and has been quarantined"};
+  }
+  Sha256 sha;
+  sha.update(header, kHeaderBytes);
+  std::vector<char> piece(defaults::kDownloadChunkBytes);
+  Status stopped;
+  for (std::uint64_t left = ok ? n * d * 8 : 0; left > 0 && ok && stopped.is_ok();) {
+    const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(left, piece.size()));
+    ok = read_all(fd, piece.data(), take);
+    if (!ok) break;
+    sha.update(piece.data(), take);
+    stopped = sink(piece.data(), take);
+    left -= take;
+  }
+  ::close(fd);
+  if (!stopped.is_ok()) return stopped;
+  if (!ok || sha.hex_digest() != id) {
+    quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(size) + " bytes)");
+    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
+  }
+  return Status::ok();
 }
 
 Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& id) {

@@ -102,6 +102,17 @@ class PointSetStore {
   // Metadata only (reads the 12-byte header, does not load or verify coordinates).
   Result<PointSetInfo> info(const std::string& id);
 
+  // The set's coordinates in order (little-endian float64, as uploaded), handed to
+  // `sink` in pieces of at most defaults::kDownloadChunkBytes; a non-OK status from the
+  // sink stops the read and is returned. From memory when the set is loaded; otherwise
+  // read from its file without loading it (no tree, no split, no charge against the
+  // memory budget beyond one piece) and verified against its id as the bytes pass: a
+  // mismatch quarantines the file and returns NOT_FOUND after the sink has seen the
+  // bytes, so a caller must not act on them until this returns OK. For appends, whose
+  // parent need not be queried.
+  using CoordinateSink = std::function<Status(const char* bytes, std::size_t size)>;
+  Status read_coordinates(const std::string& id, const CoordinateSink& sink);
+
   // Ids on disk in ascending order, strictly after `after`, at most `limit`; with
   // `visible`, only the ids it accepts.
   std::vector<PointSetInfo> list(const std::string& after, std::size_t limit, bool* more,

@@ -96,3 +96,39 @@ def test_a_corrupt_file_met_lazily_is_quarantined(start_server):
     with pytest.raises(spokemesh.Error) as e:
         spokemesh.Client(server.grpc).star(ps.id, 0)
     assert e.value.code == grpc.StatusCode.NOT_FOUND
+
+
+def _loaded_sets(server) -> float:
+    from conftest import http
+    status, _, body = http("GET", f"{server.http}/metrics")
+    assert status == 200
+    line = next(l for l in body.decode().splitlines() if l.startswith("spokemesh_store_loaded_point_sets "))
+    return float(line.split()[1])
+
+
+def test_appending_streams_the_parent_and_a_corrupt_one_is_quarantined(start_server):
+    server = start_server()
+    other = start_server(data_dir=server.data_dir, name="other")  # running before the uploads: loads nothing
+    old, new = uniform(3000, 3, 11), uniform(30, 3, 12)
+    parent = spokemesh.Client(server.grpc).upload(old)
+    # `other` appends to a set it never loaded: the parent's file is read as it is
+    # streamed (verified against its id), not loaded with its tree.
+    child = spokemesh.Client(other.grpc).append(parent.id, new)
+    assert _loaded_sets(other) == 0
+    whole = spokemesh.Client(server.grpc).upload(np.vstack([old, new]))
+    assert child.id == whole.id and whole.already_existed
+    assert spokemesh.Client(other.grpc).star(child.id, 5).simplices.shape[1] == 4
+    # A parent whose file was corrupted behind the servers' backs: the append fails
+    # NOT_FOUND, the parent is quarantined, and no new set is stored.
+    spoil_points = uniform(2000, 3, 13)
+    spoil = spokemesh.Client(server.grpc).upload(spoil_points)
+    path = server.data_dir / f"{spoil.id}.points"
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0x40
+    path.write_bytes(bytes(raw))
+    with pytest.raises(spokemesh.Error) as e:
+        spokemesh.Client(other.grpc).append(spoil.id, new)
+    assert e.value.code == grpc.StatusCode.NOT_FOUND and "quarantined" in e.value.details
+    assert "quarantined" in other.log() and not path.exists()
+    before = {p.name for p in server.data_dir.iterdir() if p.suffix == ".points"}
+    assert len(before) == 2  # the parent and its child only
