@@ -150,18 +150,28 @@ Result<NpyHeader> parse_npy_header(const std::string& bytes, const std::string& 
   return h;
 }
 
-}  // namespace
-
-Result<PointSet> parse_text_points(const std::string& text, const std::string& source) {
-  std::vector<double> coords, row;
-  int d = 0;
-  std::size_t points = 0;
+// Calls on_row(numbers, where) for each line of a text file that holds numbers
+// (`where` names the file and line for messages); a token that is no number stops it.
+template <class OnRow>
+Status for_each_number_row(const std::string& text, const std::string& source, OnRow&& on_row) {
+  std::vector<double> row;
   std::string bad;
-  Status status = for_each_line(text, [&](std::string_view line, std::size_t line_no) -> Status {
+  return for_each_line(text, [&](std::string_view line, std::size_t line_no) -> Status {
     row.clear();
     const std::string where = source + ":" + std::to_string(line_no) + ": ";
     if (!parse_numbers(line, row, bad)) return invalid_argument(where + "cannot parse '" + bad + "' as a number");
     if (row.empty()) return Status::ok();
+    return on_row(row, where);
+  });
+}
+
+}  // namespace
+
+Result<PointSet> parse_text_points(const std::string& text, const std::string& source) {
+  std::vector<double> coords;
+  int d = 0;
+  std::size_t points = 0;
+  Status status = for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
     if (d == 0) d = static_cast<int>(row.size());
     if (static_cast<int>(row.size()) != d) {
       return invalid_argument(where + "has " + std::to_string(row.size()) + " coordinates, but earlier lines have " +
@@ -273,13 +283,8 @@ Status check_weight_count(std::size_t got, std::size_t count, WeightKind kind, c
 
 Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
                                                WeightKind kind) {
-  std::vector<double> out, row;
-  std::string bad;
-  Status status = for_each_line(text, [&](std::string_view line, std::size_t line_no) -> Status {
-    row.clear();
-    const std::string where = source + ":" + std::to_string(line_no) + ": ";
-    if (!parse_numbers(line, row, bad)) return invalid_argument(where + "cannot parse '" + bad + "' as a number");
-    if (row.empty()) return Status::ok();
+  std::vector<double> out;
+  Status status = for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
     if (row.size() != 1) {
       return invalid_argument(where + "has " + std::to_string(row.size()) + " numbers; expected one " +
                               (kind == WeightKind::kRadius ? "radius" : "weight") + " a line");
