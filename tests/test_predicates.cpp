@@ -467,3 +467,134 @@ TEST(WeightedPredicates, FilteredPowerSignsEqualExactAndTheDefinition) {
 
 }  // namespace
 }  // namespace spokemesh
+
+#include "spokemesh/periodic_box.hpp"
+
+namespace spokemesh {
+namespace {
+
+// The images of `ps` by every offset in {-1, 0, 1}^d as a point set of their own, for
+// integer coordinates and box sides (so every image is exact in double). Image
+// (point i, offset k) is point (index of k) * n + i, offsets numbered base 3.
+PointSet explicit_images(const PointSet& ps, const PeriodicBox& box) {
+  const int d = ps.dimension();
+  const std::size_t n = ps.size();
+  int lattice = 1;
+  for (int c = 0; c < d; ++c) lattice *= 3;
+  std::vector<double> coords;
+  for (int k = 0; k < lattice; ++k) {
+    for (std::size_t i = 0; i < n; ++i) {
+      int code = k;
+      for (int c = 0; c < d; ++c, code /= 3) {
+        coords.push_back(ps.point(i)[c] + (code % 3 - 1) * (box.hi()[c] - box.lo()[c]));
+      }
+    }
+  }
+  return make_points(d, coords);
+}
+
+// Periodic sets (issue 28): orientation and the perturbed in-sphere test on images of a
+// grid in its own periodic box (every sphere a tie) equal the plain predicates on the
+// explicit images, perturbation included (the images' lexicographic order).
+TEST(PeriodicPredicates, ImagesOfAGridEqualTheExplicitImages) {
+  for (const int d : {2, 3}) {
+    const PointSet grid = make_points(d, testing::grid_points(d, 3));
+    auto box = PeriodicBox::of(std::vector<double>(d, 0.0), std::vector<double>(d, 3.0), "test");
+    ASSERT_TRUE(box.is_ok());
+    const PointSet images = explicit_images(grid, box.value());
+    const Predicates torus(grid, {}, &box.value()), plain(images);
+    const auto n = static_cast<std::uint32_t>(grid.size());
+    int lattice = 1;
+    for (int c = 0; c < d; ++c) lattice *= 3;
+    std::mt19937_64 rng(100 + d);
+    std::uniform_int_distribution<std::uint32_t> any_point(0, n - 1);
+    std::uniform_int_distribution<int> any_offset(0, lattice - 1);
+    auto image = [&](std::uint32_t i, int k) {
+      Image v;
+      v.point = i;
+      for (int c = 0; c < d; ++c, k /= 3) v.offset[c] = k % 3 - 1;
+      return v;
+    };
+    int ties = 0, checked = 0;
+    for (int trial = 0; trial < 20000; ++trial) {
+      std::vector<Image> s;
+      std::vector<std::uint32_t> ids;
+      for (int v = 0; v <= d + 1; ++v) {
+        const std::uint32_t i = any_point(rng);
+        const int k = any_offset(rng);
+        s.push_back(image(i, k));
+        ids.push_back(static_cast<std::uint32_t>(k) * n + i);
+      }
+      if (std::set<std::uint32_t>(ids.begin(), ids.end()).size() != ids.size()) continue;
+      const Image q = s.back();
+      s.pop_back();
+      const std::uint32_t qi = ids.back();
+      ids.pop_back();
+      const int o = torus.orientation(s);
+      ASSERT_EQ(o, plain.orientation(ids)) << "d " << d << " trial " << trial;
+      if (o == 0) continue;
+      if (o < 0) {
+        std::swap(s[0], s[1]);
+        std::swap(ids[0], ids[1]);
+      }
+      ASSERT_EQ(torus.side_of_sphere(s, q), plain.side_of_sphere(ids, qi)) << "d " << d << " trial " << trial;
+      std::vector<Row> rows;
+      for (std::size_t r = 1; r < ids.size(); ++r) rows.push_back(Row::of_point(ids[r]));
+      rows.push_back(Row::of_point(qi));
+      ties += plain.lifted_sign_unperturbed(ids[0], rows) == 0;
+      ++checked;
+    }
+    EXPECT_GT(checked, 500) << "d " << d;
+    EXPECT_GT(ties, 50) << "d " << d << ": the grid should make many exact ties";
+  }
+}
+
+// Images whose coordinates are not doubles (a box of side 1.1 at 0.1; random points):
+// the in-sphere sign equals the rationals' on the exact images.
+TEST(PeriodicPredicates, InexactImagesAreDecidedExactly) {
+  const int d = 3;
+  std::vector<double> coords = testing::uniform_points(d, 30, 110);
+  for (double& x : coords) x = 0.1 + 1.1 * x * 0.999;
+  const PointSet ps = make_points(d, coords);
+  auto box = PeriodicBox::of({0.1, 0.1, 0.1}, {1.2, 1.2, 1.2}, "test");
+  ASSERT_TRUE(box.is_ok());
+  ASSERT_TRUE(box->check_contains(ps, "test").is_ok());
+  const Predicates torus(ps, {}, &box.value());
+  std::mt19937_64 rng(111);
+  std::uniform_int_distribution<std::uint32_t> any_point(0, 29);
+  std::uniform_int_distribution<int> any_offset(-1, 1);
+  auto exact = [&](const Image& v, int c) -> mpq_class {
+    return mpq_class(ps.point(v.point)[c]) + v.offset[c] * (mpq_class(1.2) - mpq_class(0.1));
+  };
+  int checked = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    std::array<Image, 5> v;
+    for (Image& x : v) {
+      x.point = any_point(rng);
+      for (int c = 0; c < d; ++c) x.offset[c] = any_offset(rng);
+    }
+    // Rows (v_i - v_0, |v_i - v_0|^2) for i = 1..4 in rationals; the orientation's minor.
+    std::vector<mpq_class> lifted(16), spatial(9);
+    for (int i = 1; i <= 4; ++i) {
+      mpq_class norm2 = 0;
+      for (int c = 0; c < d; ++c) {
+        const mpq_class e = exact(v[i], c) - exact(v[0], c);
+        lifted[(i - 1) * 4 + c] = e;
+        if (i <= 3) spatial[(i - 1) * 3 + c] = e;
+        norm2 += e * e;
+      }
+      lifted[(i - 1) * 4 + 3] = norm2;
+    }
+    const int orient = sgn(exact_determinant(spatial, 3));
+    const int det = sgn(exact_determinant(lifted, 4));
+    if (orient == 0 || det == 0) continue;  // (random points: no ties)
+    const std::array<Image, 4> simplex = {v[0], v[1], v[2], v[3]};
+    ASSERT_EQ(torus.orientation(simplex), orient) << "trial " << trial;
+    ASSERT_EQ(torus.side_of_sphere(simplex, v[4]), det * orient) << "trial " << trial;
+    ++checked;
+  }
+  EXPECT_GT(checked, 200);
+}
+
+}  // namespace
+}  // namespace spokemesh

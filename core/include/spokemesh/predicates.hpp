@@ -20,6 +20,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
@@ -176,21 +177,41 @@ inline void minors_table_fixed(const BoundedDouble* m, BoundedDouble* table) {
 // Exact determinant of a k x k rational matrix (Gaussian elimination; m is consumed).
 mpq_class exact_determinant(std::vector<mpq_class> m, int k);
 
-// One row of a predicate matrix: a point (index into the PointSet) or a direction.
+// One row of a predicate matrix: a point (index into the PointSet) or a direction. A
+// point row may name an image of the point on a flat torus: p + offset (HI - LO) for
+// the Predicates' PeriodicBox (offset: d integers, not owned; null for p itself).
 struct Row {
   std::int64_t point = -1;        // >= 0: point index
   const double* dir = nullptr;    // when point < 0: d exact doubles (not owned)
+  const std::int32_t* offset = nullptr;
 
-  static Row of_point(std::uint32_t i) { return {static_cast<std::int64_t>(i), nullptr}; }
-  static Row of_direction(const double* w) { return {-1, w}; }
+  static Row of_point(std::uint32_t i) { return {static_cast<std::int64_t>(i), nullptr, nullptr}; }
+  static Row of_image(std::uint32_t i, const std::int32_t* offset) { return {static_cast<std::int64_t>(i), nullptr, offset}; }
+  static Row of_direction(const double* w) { return {-1, w, nullptr}; }
   bool is_point() const { return point >= 0; }
+};
+
+class PeriodicBox;
+// What a point row means beyond the plain PointSet (issue 28), both optional, not
+// owned: power weights (one per point) and the periodic box whose lattice a row's
+// offset counts in.
+struct PointExtras {
+  const double* weights = nullptr;
+  const PeriodicBox* box = nullptr;
 };
 
 // The BoundedDouble entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
 // a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted). With
-// `weights` (one power weight a point), a point's height is |p - x|^2 - (w_p - w_x).
+// weights, a point's height is |p - x|^2 - (w_p - w_x); with a box, an image's p is
+// p + offset (HI - LO) (the origin is the point itself).
 void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
-                const double* weights = nullptr);
+                const PointExtras& extras = {});
+
+// A vertex on the flat torus: a point and the lattice offset of its image (d integers).
+struct Image {
+  std::uint32_t point = 0;
+  std::array<std::int32_t, kMaxDimension> offset{};
+};
 
 // Exact predicates over one PointSet (which must outlive this object).
 //
@@ -205,14 +226,28 @@ void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int co
 // side_of_oriented_power_sphere(..., perturb = true). Equal weights give back every
 // unweighted answer. The exact stage of a weighted set works in rationals (the
 // integer fast path assumes unweighted heights).
+//
+// Periodic sets (issue 28; CGAL's Periodic_3_Delaunay_triangulation_3 convention):
+// with `box`, rows may name images p + k (HI - LO) (Row::of_image), computed exactly
+// (the filter bounds the rounding of HI - LO, of k times it and of the sum; the exact
+// stage adds them in rationals), and the perturbation orders the points of a test by
+// their images' lexicographic order, as CGAL's Perturbation_order does. Every test is
+// invariant under translating all its images by one lattice vector.
 class Predicates {
  public:
-  explicit Predicates(const PointSet& points, std::span<const double> weights = {})
-      : ps_(points), weights_(weights.empty() ? nullptr : weights.data()) {}
+  explicit Predicates(const PointSet& points, std::span<const double> weights = {}, const PeriodicBox* box = nullptr)
+      : ps_(points), extras_{weights.empty() ? nullptr : weights.data(), box} {}
 
   const PointSet& points() const { return ps_; }
   // The power weights, or null for an unweighted set.
-  const double* weights() const { return weights_; }
+  const double* weights() const { return extras_.weights; }
+  const PeriodicBox* box() const { return extras_.box; }
+
+  // On the torus: the orientation of d + 1 images, and the side of the perturbed
+  // (power) sphere through them of image q (+1 outside, -1 inside), as orientation()
+  // and side_of_sphere() below. Precondition: a box was given.
+  int orientation(std::span<const Image> simplex) const;
+  int side_of_sphere(std::span<const Image> simplex, const Image& q) const;
 
   // Sign of det[spatial parts of rows] relative to origin; rows.size() == d.
   int spatial_sign(std::uint32_t origin, std::span<const Row> rows) const;
@@ -245,8 +280,11 @@ class Predicates {
  private:
   enum class Stage { kExact, kPerturbed, kPerturbationOnly };
   int lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const;
+  // Whether row a's point (or its image) comes before row b's in lexicographic order
+  // (-1: the origin itself), exactly.
+  bool image_before(std::uint32_t origin, const Row* a, const Row* b) const;
   const PointSet& ps_;
-  const double* weights_ = nullptr;
+  PointExtras extras_;
 };
 
 }  // namespace spokemesh

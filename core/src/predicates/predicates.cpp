@@ -1,5 +1,7 @@
 #include "spokemesh/predicates.hpp"
 
+#include "spokemesh/periodic_box.hpp"
+
 #include <boost/multiprecision/cpp_int.hpp>
 #include <gmpxx.h>
 
@@ -37,7 +39,7 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
 }
 
 void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
-                const double* weights) {
+                const PointExtras& extras) {
   const int d = ps.dimension();
   if (row.is_point()) {
     const double* p = ps.point(static_cast<std::size_t>(row.point));
@@ -45,11 +47,19 @@ void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int co
     BoundedDouble norm2{};
     for (int c = 0; c < d; ++c) {
       out[c] = BoundedDouble::difference(p[c], x[c]);
+      // An image: + k (HI - LO), the side's length rounded once, the product and the
+      // sum once each (k is an exact small integer).
+      if (row.offset != nullptr && row.offset[c] != 0) {
+        const BoundedDouble side = BoundedDouble::difference(extras.box->hi()[c], extras.box->lo()[c]);
+        out[c] = out[c] + BoundedDouble::exact(static_cast<double>(row.offset[c])) * side;
+      }
       norm2 = (c == 0) ? out[c] * out[c] : norm2 + out[c] * out[c];
     }
     // The power height: |p - x|^2 - (w_p - w_x), the weights' difference rounded once
     // and subtracted once (two more levels of the bound).
-    if (weights != nullptr) norm2 = norm2 - BoundedDouble::difference(weights[row.point], weights[origin]);
+    if (extras.weights != nullptr) {
+      norm2 = norm2 - BoundedDouble::difference(extras.weights[row.point], extras.weights[origin]);
+    }
     if (cols > d) out[d] = norm2;
   } else {
     for (int c = 0; c < d; ++c) out[c] = BoundedDouble::exact(row.dir[c]);
@@ -220,10 +230,12 @@ int sign_of_fixed_determinant(int k, Entry&& entry) {
 class ExactMatrix {
  public:
   ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols,
-              const double* weights = nullptr)
-      : ps_(&ps), weights_(weights), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
-    // Weighted heights are not the scaled integers' sums of squares: rationals.
-    scaled_ = ps.integer_bits() <= kMaxScaledBits && (weights == nullptr || cols <= ps.dimension());
+              const PointExtras& extras = {})
+      : ps_(&ps), extras_(extras), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
+    // Weighted heights are not the scaled integers' sums of squares, nor are images'
+    // coordinates on the points' scale: rationals.
+    scaled_ = ps.integer_bits() <= kMaxScaledBits && (extras.weights == nullptr || cols <= ps.dimension());
+    for (const Row& row : rows) scaled_ = scaled_ && row.offset == nullptr;
     for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, rows[r], r);
     if (scaled_) return;
     rats_.resize(static_cast<std::size_t>(k_ * cols_));
@@ -443,9 +455,14 @@ class ExactMatrix {
       mpq_class norm2 = 0;
       for (int c = 0; c < d; ++c) {
         out[c] = mpq_class(p[c]) - mpq_class(x[c]);
+        if (row.offset != nullptr && row.offset[c] != 0) {
+          out[c] += mpq_class(row.offset[c]) * (mpq_class(extras_.box->hi()[c]) - mpq_class(extras_.box->lo()[c]));
+        }
         norm2 += out[c] * out[c];
       }
-      if (weights_ != nullptr) norm2 -= mpq_class(weights_[row.point]) - mpq_class(weights_[origin]);
+      if (extras_.weights != nullptr) {
+        norm2 -= mpq_class(extras_.weights[row.point]) - mpq_class(extras_.weights[origin]);
+      }
       if (cols_ > d) out[d] = norm2;
     } else {
       for (int c = 0; c < d; ++c) out[c] = mpq_class(row.dir[c]);
@@ -454,7 +471,7 @@ class ExactMatrix {
   }
 
   const PointSet* ps_;
-  const double* weights_;
+  PointExtras extras_;
   std::uint32_t origin_;
   int k_, cols_;
   bool scaled_ = false;
@@ -466,10 +483,10 @@ class ExactMatrix {
 };
 
 int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int k,
-                  const double* weights = nullptr) {
+                  const PointExtras& extras = {}) {
   std::array<BoundedDouble, kMaxCols * kMaxCols> m;
   std::array<BoundedDouble, 1u << kMaxCols> table;
-  for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k], weights);
+  for (int r = 0; r < k; ++r) approx_row(ps, origin, rows[r], k, &m[r * k], extras);
   minors_table(m.data(), k, k, table.data());
   return table[(1u << k) - 1u].certified_sign();
 }
@@ -478,14 +495,14 @@ int filtered_sign(const PointSet& ps, std::uint32_t origin, std::span<const Row>
 
 int Predicates::spatial_sign_exact(std::uint32_t origin, std::span<const Row> rows) const {
   const int d = ps_.dimension();
-  const ExactMatrix m(ps_, origin, rows.first(d), d);
+  const ExactMatrix m(ps_, origin, rows.first(d), d, extras_);
   std::array<int, kMaxCols> ids;
   std::iota(ids.begin(), ids.begin() + d, 0);
   return m.sign(std::span<const int>(ids.data(), d), std::span<const int>(ids.data(), d), rows);
 }
 
 int Predicates::spatial_sign(std::uint32_t origin, std::span<const Row> rows) const {
-  const int s = filtered_sign(ps_, origin, rows, ps_.dimension());
+  const int s = filtered_sign(ps_, origin, rows, ps_.dimension(), extras_);
   return s != BoundedDouble::kUnknownSign ? s : spatial_sign_exact(origin, rows);
 }
 
@@ -507,7 +524,7 @@ int Predicates::perturbation_sign(std::uint32_t origin, std::span<const Row> row
 int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> rows, Stage stage) const {
   const int d = ps_.dimension();
   const int k = d + 1;
-  const ExactMatrix m(ps_, origin, rows.first(k), k, weights_);
+  const ExactMatrix m(ps_, origin, rows.first(k), k, extras_);
   std::array<int, kMaxCols> all;
   std::iota(all.begin(), all.begin() + k, 0);
   const std::span<const int> every(all.data(), k);
@@ -525,10 +542,11 @@ int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> ro
   for (int r = 0; r < k; ++r) {
     if (rows[r].is_point()) who[count++] = r;
   }
-  auto rank_of = [&](int w) {
-    return ps_.lex_rank(w < 0 ? origin : static_cast<std::size_t>(rows[w].point));
-  };
-  std::sort(who.begin(), who.begin() + count, [&](int a, int b) { return rank_of(a) > rank_of(b); });
+  // Decreasing lexicographic order: of the points' ranks, or of their images' exact
+  // coordinates on a torus.
+  std::sort(who.begin(), who.begin() + count, [&](int a, int b) {
+    return image_before(origin, b < 0 ? nullptr : &rows[b], a < 0 ? nullptr : &rows[a]);
+  });
 
   for (int i = 0; i < count; ++i) {
     const int w = who[i];
@@ -554,13 +572,13 @@ int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> ro
 }
 
 int Predicates::lifted_sign(std::uint32_t origin, std::span<const Row> rows) const {
-  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, weights_);
+  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, extras_);
   if (s == 1 || s == -1) return s;
   return lifted_sign_exact(origin, rows, /*perturb=*/true);
 }
 
 int Predicates::lifted_sign_unperturbed(std::uint32_t origin, std::span<const Row> rows) const {
-  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, weights_);
+  const int s = filtered_sign(ps_, origin, rows, ps_.dimension() + 1, extras_);
   if (s != BoundedDouble::kUnknownSign) return s;
   return lifted_sign_exact(origin, rows, /*perturb=*/false);
 }
@@ -576,7 +594,7 @@ void Predicates::spatial_normal(std::uint32_t origin, std::span<const Row> rows,
   const int d = ps_.dimension();
   std::array<BoundedDouble, kMaxCols * kMaxCols> m{};
   std::array<BoundedDouble, 1u << kMaxCols> table;
-  for (int r = 0; r < d - 1; ++r) approx_row(ps_, origin, rows[r], d, &m[r * d]);
+  for (int r = 0; r < d - 1; ++r) approx_row(ps_, origin, rows[r], d, &m[r * d], extras_);
   minors_table(m.data(), d - 1, d, table.data());
   const unsigned all = (1u << d) - 1u;
   for (int c = 0; c < d; ++c) normal[c] = ((d - 1 + c) % 2 == 0) ? table[all ^ (1u << c)] : -table[all ^ (1u << c)];
@@ -590,6 +608,56 @@ int Predicates::side_of_sphere(std::span<const std::uint32_t> simplex, std::uint
   // The "up" direction (0, ..., 0, 1) in place of q gives det = orientation, so q is
   // outside (above the lifted hyperplane) exactly when the two signs agree.
   const int lifted = lifted_sign(simplex[0], std::span<const Row>(rows.data(), d + 1));
+  return lifted * orientation(simplex);
+}
+
+bool Predicates::image_before(std::uint32_t origin, const Row* a, const Row* b) const {
+  const std::uint32_t pa = a == nullptr ? origin : static_cast<std::uint32_t>(a->point);
+  const std::uint32_t pb = b == nullptr ? origin : static_cast<std::uint32_t>(b->point);
+  const std::int32_t* oa = a == nullptr ? nullptr : a->offset;
+  const std::int32_t* ob = b == nullptr ? nullptr : b->offset;
+  const int d = ps_.dimension();
+  bool same_offset = true;
+  for (int c = 0; c < d && same_offset; ++c) same_offset = (oa == nullptr ? 0 : oa[c]) == (ob == nullptr ? 0 : ob[c]);
+  // Images by the same lattice vector keep their points' order.
+  if (same_offset) return ps_.lex_rank(pa) < ps_.lex_rank(pb);
+  // Otherwise coordinate by coordinate: p_c + k_c L_c against q_c + m_c L_c, exactly.
+  for (int c = 0; c < d; ++c) {
+    const int ka = oa == nullptr ? 0 : oa[c], kb = ob == nullptr ? 0 : ob[c];
+    const double p = ps_.point(pa)[c], q = ps_.point(pb)[c];
+    if (ka == kb) {
+      if (p != q) return p < q;
+      continue;
+    }
+    const mpq_class side = mpq_class(extras_.box->hi()[c]) - mpq_class(extras_.box->lo()[c]);
+    const int s = cmp(mpq_class(p) + ka * side, mpq_class(q) + kb * side);
+    if (s != 0) return s < 0;
+  }
+  return pa < pb;  // the same image: one point (callers never compare a point with itself)
+}
+
+int Predicates::orientation(std::span<const Image> simplex) const {
+  const int d = ps_.dimension();
+  // Translated so that the first vertex is its point itself (the origin).
+  std::array<std::array<std::int32_t, kMaxDimension>, kMaxCols> offsets{};
+  std::array<Row, kMaxCols> rows;
+  for (int r = 0; r < d; ++r) {
+    for (int c = 0; c < d; ++c) offsets[r][c] = simplex[r + 1].offset[c] - simplex[0].offset[c];
+    rows[r] = Row::of_image(simplex[r + 1].point, offsets[r].data());
+  }
+  return spatial_sign(simplex[0].point, std::span<const Row>(rows.data(), d));
+}
+
+int Predicates::side_of_sphere(std::span<const Image> simplex, const Image& q) const {
+  const int d = ps_.dimension();
+  std::array<std::array<std::int32_t, kMaxDimension>, kMaxCols> offsets{};
+  std::array<Row, kMaxCols> rows;
+  for (int r = 0; r <= d; ++r) {
+    const Image& v = r < d ? simplex[r + 1] : q;
+    for (int c = 0; c < d; ++c) offsets[r][c] = v.offset[c] - simplex[0].offset[c];
+    rows[r] = Row::of_image(v.point, offsets[r].data());
+  }
+  const int lifted = lifted_sign(simplex[0].point, std::span<const Row>(rows.data(), d + 1));
   return lifted * orientation(simplex);
 }
 
