@@ -528,7 +528,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {
   // A smaller cache, or none, gives the same answers, only slower.
   MemoryBudget& budget = store_->budget();
-  for (std::size_t cap = limits_.stream_cache_bytes; cap >= (1u << 20); cap /= 2) {
+  for (std::size_t cap = limits_.stream_cache_bytes; cap >= defaults::kMinStreamCacheBytes; cap /= 2) {
     const std::size_t need = RunCache::bytes_for(dimension, n, cap);
     if (need == 0) continue;
     if (auto c = budget.try_charge(need)) {
@@ -546,14 +546,14 @@ std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned t
   const FrontMail::Estimate estimate =
       FrontMail::estimate(dimension, n, threads, SpaceSplit::default_block_points(dimension, n));
   MemoryBudget& budget = store_->budget();
-  // A small set's whole estimate (under 1 MiB) is tried as it is; a larger one is
-  // halved down to 1 MiB while the budget is short.
+  // A small set's whole estimate (under kMinStreamCacheBytes) is tried as it is; a
+  // larger one is halved down to that while the budget is short.
   for (std::size_t mail = std::min(limits_.stream_cache_bytes, estimate.mail); mail != 0; mail /= 2) {
     if (auto c = budget.try_charge(mail + estimate.tables)) {
       charge = std::move(*c);
       return mail;
     }
-    if (mail < (std::size_t{2} << 20)) break;
+    if (mail / 2 < defaults::kMinStreamCacheBytes) break;
   }
   return 0;
 }

@@ -37,6 +37,9 @@ inline constexpr int kMaxConcurrentRpcs = 64;
 
 // Memory (the budget itself defaults to half the cgroup limit or RAM: main.cpp).
 inline constexpr std::size_t kStreamCacheBytes = std::size_t{256} << 20;
+// The smallest stream cache or front mail worth charging when the budget is short
+// (halved down to this; below it, none: the same answers, only slower).
+inline constexpr std::size_t kMinStreamCacheBytes = std::size_t{1} << 20;
 // Charged per streamed shard for its output: the mesh's window of blocks in flight (a
 // few MB: mesh.cpp) and one batch being assembled (at most 65,536 x 9 x 4 bytes).
 inline constexpr std::uint64_t kStreamWindowBytes = std::uint64_t{16} << 20;
