@@ -383,7 +383,7 @@ bool KdTree::search_level(const Node* node, ResultSet& result, const double* que
 // allocation per query: with a runtime dimension it builds a fresh std::vector of
 // per-dimension box offsets each time; here they live in a per-thread buffer.
 // An extended tree's parts are searched one after another into the same result set
-// (a part whose box is beyond the worst distance so far is pruned by its first level).
+// (a part whose box lies beyond the worst distance so far is skipped).
 template <class ResultSet>
 void KdTree::search(const double* query, ResultSet& result) const {
   thread_local std::vector<double> offsets;
