@@ -371,6 +371,10 @@ Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSi
     }
     return Status::ok();
   }
+  return read_verified(id, nullptr, sink);
+}
+
+Status PointSetStore::read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink) {
   const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
   struct stat st {};
@@ -392,15 +396,21 @@ Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSi
   }
   Sha256 sha;
   sha.update(header, kHeaderBytes);
-  std::vector<char> piece(defaults::kDownloadChunkBytes);
   Status stopped;
-  for (std::uint64_t left = ok ? n * d * 8 : 0; left > 0 && ok && stopped.is_ok();) {
-    const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(left, piece.size()));
-    ok = read_all(fd, piece.data(), take);
-    if (!ok) break;
-    sha.update(piece.data(), take);
-    stopped = sink(piece.data(), take);
-    left -= take;
+  if (double* all = ok && destination ? destination(d, n) : nullptr; all != nullptr) {
+    // Straight into the caller's buffer: no second copy of the file in memory.
+    ok = read_all(fd, reinterpret_cast<char*>(all), n * d * 8);
+    if (ok) sha.update(all, n * d * 8);
+  } else {
+    std::vector<char> piece(defaults::kDownloadChunkBytes);
+    for (std::uint64_t left = ok ? n * d * 8 : 0; left > 0 && ok && stopped.is_ok();) {
+      const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(left, piece.size()));
+      ok = read_all(fd, piece.data(), take);
+      if (!ok) break;
+      sha.update(piece.data(), take);
+      stopped = sink(piece.data(), take);
+      left -= take;
+    }
   }
   ::close(fd);
   if (!stopped.is_ok()) return stopped;
@@ -442,38 +452,19 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& i
 
 Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std::string& id,
                                                                      MemoryBudget::Charge charge) {
-  // Read straight into the coordinates (no second copy of the file in memory).
-  const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
-  struct stat st {};
-  char header[kHeaderBytes];
+  std::vector<double> coords;
   std::uint32_t d = 0;
   std::uint64_t n = 0;
-  bool ok = ::fstat(fd, &st) == 0 && read_all(fd, header, kHeaderBytes);
-  const auto size = static_cast<std::uint64_t>(st.st_size);
-  if (ok) {
-    std::memcpy(&d, header, 4);
-    std::memcpy(&n, header + 4, 8);
-  }
-  std::vector<double> coords;
-  const bool shaped = ok && d >= 2 && d <= kMaxApproxDimension && n <= (size - kHeaderBytes) / 8 / d &&
-                      size == kHeaderBytes + n * d * 8;
-  if (shaped) {
-    coords.resize(n * d);
-    ok = read_all(fd, reinterpret_cast<char*>(coords.data()), coords.size() * 8);
-  }
-  ::close(fd);
-  if (ok && !shaped) {
-    quarantine(id, "its header does not match its size");
-    return Status{Code::kNotFound, "point set " + id + " was malformed on disk and has been quarantined"};
-  }
-  Sha256 sha;
-  sha.update(header, kHeaderBytes);
-  sha.update(coords.data(), coords.size() * 8);
-  if (!ok || sha.hex_digest() != id) {
-    quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(size) + " bytes)");
-    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
-  }
+  const Status read = read_verified(
+      id,
+      [&](std::uint32_t dim, std::uint64_t count) {
+        d = dim;
+        n = count;
+        coords.resize(count * dim);
+        return coords.data();
+      },
+      nullptr);
+  if (!read.is_ok()) return read;
   auto set = std::make_shared<StoredSet>();
   set->points = PointSet(static_cast<int>(d), std::move(coords));
   if (Status s = set->points.validate("point set " + id, kMaxApproxDimension, static_cast<int>(d) <= kMaxDimension);

@@ -145,6 +145,13 @@ class PointSetStore {
   bool has_owners(const std::string& id) const;
   void remove_owner_markers(const std::string& id);
   Result<std::shared_ptr<const StoredSet>> load_from_disk(const std::string& id, MemoryBudget::Charge charge);
+  // Reads a set's file and verifies it: the header's shape against the file's size,
+  // then the SHA-256 of header and coordinates against the id; a malformed or corrupt
+  // file is quarantined (NOT_FOUND). The coordinates go at once into
+  // destination(d, n) (n * d doubles) when it returns a buffer, else through `sink` in
+  // pieces of defaults::kDownloadChunkBytes (a non-OK status from it stops the read).
+  using Destination = std::function<double*(std::uint32_t d, std::uint64_t n)>;
+  Status read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink);
   // Drops least recently used sets that no request holds, until `bytes` are freed.
   void reclaim(std::uint64_t bytes);
   void quarantine(const std::string& id, const std::string& why);
