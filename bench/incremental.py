@@ -12,6 +12,7 @@ import argparse
 import numpy as np
 
 import spokemesh
+from inputs import KINDS, points as make_points
 from timing import timed
 
 
@@ -22,11 +23,14 @@ def main():
     ap.add_argument("--scipy", action="store_true", help="also scipy.spatial.Delaunay(incremental=True)")
     ap.add_argument("--fractions", default="0.01,0.10,0.50", help="shares of the points added (comma-separated)")
     ap.add_argument("--runs", type=int, default=1, help="times each share is measured (each a fresh pair)")
+    ap.add_argument("--points", choices=KINDS, default="uniform", help="how the points are made (bench/inputs.py)")
     a = ap.parse_args()
-    pts = np.random.default_rng(7).random((a.n, 3))
-    print(f"3-d uniform {a.n:,} points, {a.threads} threads")
+    pts = make_points(a.points, a.n, 3, 7)
+    # (shuffled: a grid's last points would otherwise be one face of it)
+    pts = pts[np.random.default_rng(8).permutation(len(pts))] if a.points == "grid" else pts
+    print(f"3-d {a.points} {len(pts):,} points, {a.threads} threads")
     for frac in [float(f) for f in a.fractions.split(",") for _ in range(a.runs)]:
-        k = int(a.n * (1 - frac))
+        k = int(len(pts) * (1 - frac))
         tri = spokemesh.Delaunay(pts[:k], incremental=True, threads=a.threads)
         _, t_add = timed(lambda: tri.add_points(pts[k:]))
         whole, t_whole = timed(lambda: spokemesh.Delaunay(pts, threads=a.threads))

@@ -15,6 +15,7 @@ import argparse
 
 import numpy as np
 import spokemesh
+from inputs import KINDS, points as make_points
 from timing import best
 from scipy.spatial import Voronoi as ScipyVoronoi
 
@@ -28,12 +29,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--sizes", default="2:1000000,3:300000")
+    ap.add_argument("--points", choices=KINDS, default="uniform", help="how the points are made (bench/inputs.py)")
     args = ap.parse_args()
     print("| d | points | spokemesh.Voronoi | scipy.spatial.Voronoi | ratio | vertices, ridges (same pairs) |")
     print("| --- | ---: | ---: | ---: | ---: | --- |")
     for item in args.sizes.split(","):
         d, n = (int(v) for v in item.split(":"))
-        points = np.random.default_rng(200 + d).random((n, d))
+        points = make_points(args.points, n, d, 200 + d)
+        n = len(points)
 
         def ours():
             vor = spokemesh.Voronoi(points, threads=args.threads)
