@@ -165,6 +165,26 @@ Status for_each_number_row(const std::string& text, const std::string& source, O
   });
 }
 
+// The bytes of one element of a float64 or float32 .npy array (8 or 4), or 0 for
+// another dtype.
+int npy_float_bytes(const std::string& descr) {
+  if (descr == "<f8" || descr == "=f8") return 8;
+  if (descr == "<f4" || descr == "=f4") return 4;
+  return 0;
+}
+
+// Element k of such an array's data, as a double.
+double npy_float_at(const char* data, std::size_t k, int item_bytes) {
+  if (item_bytes == 8) {
+    double v;
+    std::memcpy(&v, data + k * 8, 8);
+    return v;
+  }
+  float f;
+  std::memcpy(&f, data + k * 4, 4);
+  return f;
+}
+
 }  // namespace
 
 Result<PointSet> parse_text_points(const std::string& text, const std::string& source) {
@@ -196,9 +216,8 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
   auto header = parse_npy_header(head, source);
   if (!header.is_ok()) return header.status();
   const NpyHeader& h = header.value();
-  const bool f8 = h.descr == "<f8" || h.descr == "=f8";
-  const bool f4 = h.descr == "<f4" || h.descr == "=f4";
-  if (!f8 && !f4) return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
+  const int item = npy_float_bytes(h.descr);
+  if (item == 0) return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
   if (h.fortran) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
   if (h.shape.size() != 2) return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) + " axes");
   const std::uint64_t n = h.shape[0], d = h.shape[1];
@@ -207,7 +226,7 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
     return invalid_argument(source + ": dimension " + std::to_string(d) + " is too large (at most " +
                             std::to_string(kMaxApproxDimension) + ")");
   }
-  NpyPoints layout{n, static_cast<int>(d), f8 ? 8 : 4, h.data_offset};
+  NpyPoints layout{n, static_cast<int>(d), item, h.data_offset};
   const std::uint64_t need = n * d * layout.item_bytes;
   if (file_size - h.data_offset < need) {
     return invalid_argument(source + ": truncated .npy data: expected " + std::to_string(need) + " bytes, found " +
@@ -222,14 +241,7 @@ Status decode_npy_rows(const NpyPoints& layout, const char* data, std::uint64_t 
   const std::size_t count = static_cast<std::size_t>(rows * d);
   out.resize(count);
   for (std::size_t k = 0; k < count; ++k) {
-    double v;
-    if (layout.item_bytes == 8) {
-      std::memcpy(&v, data + k * 8, 8);
-    } else {
-      float f;
-      std::memcpy(&f, data + k * 4, 4);
-      v = f;
-    }
+    const double v = npy_float_at(data, k, layout.item_bytes);
     if (!std::isfinite(v) || std::fabs(v) > kMaxCoordinate) {
       return invalid_argument(source + ": element [" + std::to_string(first_row + k / d) + ", " +
                               std::to_string(k % d) + "] " +
@@ -301,9 +313,8 @@ Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const st
   auto header = parse_npy_header(bytes, source);
   if (!header.is_ok()) return header.status();
   const NpyHeader& h = header.value();
-  const bool f8 = h.descr == "<f8" || h.descr == "=f8";
-  const bool f4 = h.descr == "<f4" || h.descr == "=f4";
-  if (!f8 && !f4) {
+  const int item_bytes = npy_float_bytes(h.descr);
+  if (item_bytes == 0) {
     return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
   }
   if (h.fortran && h.shape.size() == 2) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
@@ -312,7 +323,7 @@ Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const st
                             std::to_string(h.shape.size()) + " axes");
   }
   const std::uint64_t n = h.shape[0];
-  const std::size_t item = f8 ? 8 : 4;
+  const auto item = static_cast<std::size_t>(item_bytes);
   if (n > (bytes.size() - h.data_offset) / item) {  // (n * item may overflow)
     return invalid_argument(source + ": truncated .npy data: " + std::to_string(n) + " values need more than the " +
                             std::to_string(bytes.size() - h.data_offset) + " bytes found");
@@ -321,14 +332,7 @@ Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const st
   std::vector<double> out;
   out.reserve(n);
   for (std::uint64_t k = 0; k < n; ++k) {
-    double v;
-    if (f8) {
-      std::memcpy(&v, bytes.data() + h.data_offset + k * 8, 8);
-    } else {
-      float f;
-      std::memcpy(&f, bytes.data() + h.data_offset + k * 4, 4);
-      v = f;
-    }
+    const double v = npy_float_at(bytes.data() + h.data_offset, k, item_bytes);
     if (Status s = take_weight(v, kind, source + ": index " + std::to_string(k) + ": ", out); !s.is_ok()) return s;
   }
   return out;
