@@ -125,8 +125,11 @@ inline std::set<std::vector<std::uint32_t>> as_set(const Simplices& flat, int wi
 
 // All Delaunay simplices incident to `seed` by exhaustive search over d-subsets
 // (tiny inputs only): non-degenerate, and no point inside the perturbed circumsphere.
-inline std::set<std::vector<std::uint32_t>> brute_force_star(const PointSet& ps, std::uint32_t seed) {
-  const Predicates pred(ps);
+// With weights: the regular triangulation's star (power spheres), empty when the
+// seed is hidden.
+inline std::set<std::vector<std::uint32_t>> brute_force_star(const PointSet& ps, std::uint32_t seed,
+                                                             std::span<const double> weights = {}) {
+  const Predicates pred(ps, weights);
   const int d = ps.dimension();
   const std::uint32_t n = static_cast<std::uint32_t>(ps.size());
   std::vector<std::uint32_t> others;

@@ -198,10 +198,15 @@ class PeriodicBox;
 struct PointExtras {
   const double* weights = nullptr;
   const PeriodicBox* box = nullptr;
+  // Lifts a direction row w to (w, slope . w) instead of (w, 0): d exact doubles, or
+  // null. A weighted seed outside its own power cell starts its walk from the plane
+  // h = slope . q below every lifted point (StarWalker's start), and its spoke
+  // directions must lie in that plane. Point rows are unaffected.
+  const double* slope = nullptr;
 };
 
 // The BoundedDouble entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
-// a point, (w, 0) for a direction; `cols` is d (spatial) or d + 1 (lifted). With
+// a point, (w, 0) (or (w, slope . w)) for a direction; `cols` is d (spatial) or d + 1 (lifted). With
 // weights, a point's height is |p - x|^2 - (w_p - w_x); with a box, an image's p is
 // p + offset (HI - LO) (the origin is the point itself).
 void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
@@ -242,6 +247,9 @@ class Predicates {
   // The power weights, or null for an unweighted set.
   const double* weights() const { return extras_.weights; }
   const PeriodicBox* box() const { return extras_.box; }
+  // Lifts direction rows onto the plane h = slope . q (PointExtras::slope; d exact
+  // doubles, not owned, or null for h = 0). For the owner's star walk only.
+  void set_direction_slope(const double* slope) { extras_.slope = slope; }
 
   // On the torus: the orientation of d + 1 images, and the side of the perturbed
   // (power) sphere through them of image q (+1 outside, -1 inside), as orientation()

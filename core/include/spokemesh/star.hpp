@@ -32,8 +32,10 @@
 #pragma once
 
 #include <atomic>
+#include <array>
 #include <memory>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "spokemesh/facet_cache.hpp"
@@ -55,6 +57,11 @@ struct StarOptions {
   // without them.
   FacetMemo* facets = nullptr;
   EdgeCache* edges = nullptr;
+  // Power weights, one per point of the tree (not owned; finite, |w| <= kMaxWeight,
+  // as read_weights checks): the stars of the regular (weighted Delaunay)
+  // triangulation, CGAL's Regular_triangulation convention (a weight is a squared
+  // radius). Empty: the Delaunay stars. Equal weights give the Delaunay stars.
+  std::span<const double> weights{};
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).
@@ -94,6 +101,9 @@ struct Star {
   std::vector<std::uint32_t> simplices;
   // Facets of the star that lie on the convex hull (unbounded Voronoi edges).
   std::size_t hull_facets = 0;
+  // With weights: the seed's power cell is empty (its lifted point lies above the
+  // lower hull of the others'), so it is a vertex of no simplex and the star is empty.
+  bool hidden = false;
 
   std::size_t size() const {
     return simplices.size() / static_cast<std::size_t>(dimension + 1);
@@ -166,11 +176,17 @@ class StarWalker {
   void simplex_plane(const std::uint32_t* ids, BoundedDouble* out);
   template <int D>
   void simplex_plane_kernel(const std::uint32_t* ids, BoundedDouble* out);
-  // p - x rounded (p given by its coordinates), |p - x|^2 from it, and that sum's
-  // rounding depth (or kUnsafe).
-  void relative_row(const double* p, double* q, double& norm2, int& depth) const;
-  // The same as an BoundedDouble row (q, |q|^2), for cached candidates.
-  void lifted_row(const double* q, double norm2, int depth, BoundedDouble* out) const;
+  // A point's row relative to x, in double: q = p - x rounded (p given by its index
+  // and coordinates), |q|^2 from it, the lifted height (|q|^2, or with weights
+  // |q|^2 - (w_p - w_x)), a bound on the height's monomials and its rounding depth
+  // (or kUnsafe).
+  struct Lift {
+    double norm2, height, magnitude;
+    int depth;
+  };
+  Lift relative_row(std::uint32_t id, const double* p, double* q) const;
+  // The same as a BoundedDouble row (q, height), for cached candidates.
+  void lifted_row(const double* q, const Lift& lift, BoundedDouble* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
   // (the walk), or towards (or, reversed, away from) a spoke direction.
   struct Side {
@@ -200,8 +216,23 @@ class StarWalker {
   // One wrap's state and named steps (star.cpp).
   template <int D>
   class WrapState;
-  // The first simplex by recursive spokes (d ids, without x) and its plane.
-  Status first_simplex(std::uint32_t* out, BoundedDouble* plane);
+  // The first simplex by recursive spokes (d ids, without x) and its plane; with
+  // weights, sets `hidden` (and finds nothing) when x's power cell is empty.
+  Status first_simplex(std::uint32_t* out, BoundedDouble* plane, bool& hidden);
+  // With weights (power_start.cpp): the plane h = slope . q that the spokes start
+  // from, through lifted x with every other lifted point strictly above it (slope 0,
+  // the tangent plane, when x lies in its own power cell), or `hidden`.
+  Status power_start(bool& hidden);
+  // Sign of height(p) - slope . (p - x), exactly.
+  int sign_above_slope(std::uint32_t p, const double* slope) const;
+  // Some point p != x with height(p) - slope . (p - x) <= 0 (on or below the plane).
+  std::optional<std::uint32_t> point_not_above(const double* slope) const;
+  // For the start: where x lies in the convex hull of `face` (points), the sign of the
+  // lifted face's height above lifted x there (-1: x is hidden), exactly; 2 when x is
+  // not in the face or the face is not a simplex.
+  int face_side(std::span<const std::uint32_t> face) const;
+  // The affine rank of the points, exactly.
+  int affine_rank(std::span<const std::uint32_t> points) const;
   // Loads the candidates before a wrap, or a larger neighbourhood once sphere queries
   // keep finding points they lack.
   void prepare_wrap();
@@ -229,16 +260,28 @@ class StarWalker {
   StarOptions options_;
   StarStats stats_;
   int d_;
+  // Weights (null when unweighted) and this seed's direction slope, as the exact
+  // rows see them.
+  PointExtras extras_;
+  std::array<double, kMaxDimension> slope_{};
+  double max_weight_ = 0;  // the largest weight
+  // An upper bound on max_p w_p - w_x for this seed (0 when unweighted): a point's
+  // height is at least |q|^2 minus this, which is what the certificates' bounds use.
+  double weight_excess_ = 0;
+  // The exit estimate of a plane whose slope has squared length slope2: where points
+  // are certainly above it, (|slope| + sqrt(weight_excess_))^2 (an estimate only).
+  double exit_estimate(double slope2) const;
 
   // Per-seed state, kept across seeds to avoid allocation.
   std::uint32_t x_ = 0;
   std::vector<std::uint32_t> cand_id_;
   std::vector<double> cand_q_;      // p - x, rounded, row-major
-  std::vector<double> cand_norm2_;  // |p - x|^2 as computed from cand_q_
+  std::vector<double> cand_height_;  // lifted height (|p - x|^2, or with weights) as computed from cand_q_
+  std::vector<double> cand_height_mag_;  // bound on its monomials (= cand_height_ when unweighted)
   std::vector<double> cand_block_;  // the pencil scan's column-major copy (see load_candidates)
   std::size_t cand_stride_ = 0;     // candidate count rounded up to whole pencil-scan chunks
-  std::vector<double> cand_norm_;   // sqrt(cand_norm2_), for error bounds
-  std::vector<int> cand_depth_;     // rounding depth of cand_norm2_, or BoundedDouble::kUnsafe
+  std::vector<double> cand_norm_;   // |p - x|, for error bounds
+  std::vector<int> cand_depth_;     // rounding depth of cand_height_, or BoundedDouble::kUnsafe
   std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
   double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
   std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed

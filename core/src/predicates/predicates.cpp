@@ -63,7 +63,15 @@ void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int co
     if (cols > d) out[d] = norm2;
   } else {
     for (int c = 0; c < d; ++c) out[c] = BoundedDouble::exact(row.dir[c]);
-    if (cols > d) out[d] = BoundedDouble::exact(0.0);
+    if (cols > d) {
+      out[d] = BoundedDouble::exact(0.0);
+      if (extras.slope != nullptr) {
+        for (int c = 0; c < d; ++c) {
+          const BoundedDouble term = BoundedDouble::exact(extras.slope[c]) * out[c];
+          out[d] = c == 0 ? term : out[d] + term;
+        }
+      }
+    }
   }
 }
 
@@ -232,9 +240,10 @@ class ExactMatrix {
   ExactMatrix(const PointSet& ps, std::uint32_t origin, std::span<const Row> rows, int cols,
               const PointExtras& extras = {})
       : ps_(&ps), extras_(extras), origin_(origin), k_(static_cast<int>(rows.size())), cols_(cols) {
-    // Weighted heights are not the scaled integers' sums of squares, nor are images'
+    // Weighted heights (and tilted directions) are not the scaled integers' sums of squares, nor are images'
     // coordinates on the points' scale: rationals.
-    scaled_ = ps.integer_bits() <= kMaxScaledBits && (extras.weights == nullptr || cols <= ps.dimension());
+    scaled_ = ps.integer_bits() <= kMaxScaledBits &&
+              ((extras.weights == nullptr && extras.slope == nullptr) || cols <= ps.dimension());
     for (const Row& row : rows) scaled_ = scaled_ && row.offset == nullptr;
     for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, rows[r], r);
     if (scaled_) return;
@@ -466,7 +475,12 @@ class ExactMatrix {
       if (cols_ > d) out[d] = norm2;
     } else {
       for (int c = 0; c < d; ++c) out[c] = mpq_class(row.dir[c]);
-      if (cols_ > d) out[d] = 0;
+      if (cols_ > d) {
+        out[d] = 0;
+        if (extras_.slope != nullptr) {
+          for (int c = 0; c < d; ++c) out[d] += mpq_class(extras_.slope[c]) * out[c];
+        }
+      }
     }
   }
 

@@ -80,7 +80,16 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
     w_.stats_.cached_wraps += static_cast<std::uint64_t>(post_count);
   } else {
     w_.ensure_candidates();
-    if (Status s = w_.first_simplex(first.data(), first_plane.data()); !s.is_ok()) return s;
+    bool hidden = false;
+    if (Status s = w_.first_simplex(first.data(), first_plane.data(), hidden); !s.is_ok()) return s;
+    if (hidden) {  // with weights: x is in no triangle
+      out.seed = w_.x_;
+      out.dimension = 2;
+      out.hull_facets = 0;
+      out.hidden = true;
+      out.simplices.clear();
+      return Status::ok();
+    }
     if (!link(add_node(first[0]), add_node(first[1]))) return inconsistent();
   }
   for (std::uint32_t i = 0; i < ring_.size(); ++i) {

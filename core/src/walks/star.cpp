@@ -50,7 +50,8 @@ struct Pencil {
   const double* h;     // d + 1 coefficients
   double n_mag, h_mag, h_mag_d;
   double n_eps;        // relative error factor of nn . q
-  double h_depth_base; // rounding depth of h(q), less the candidate's |q|^2 depth
+  double h_depth_base; // rounding depth of h(q), less the candidate's height depth
+  std::size_t mag_row; // the block's row of height magnitudes (the height row itself when unweighted)
 };
 
 using detail::Double2;
@@ -59,8 +60,9 @@ using detail::Mask2;
 using detail::Mask4;
 
 // The pencil scan's filter for kPencilChunk candidates stored column-major in
-// `block` (d coordinate rows, then |q|^2, |q| and the |q|^2 depth; rows `stride`
-// apart). Writes nv_j = nn . q_j and hv_j = h_d |q_j|^2 + h . q_j, summed in the
+// `block` (d coordinate rows, then the height, |q|, the height's depth and, with
+// weights, its magnitude; rows `stride` apart). Writes nv_j = nn . q_j and
+// hv_j = h_d height_j + h . q_j, summed in the
 // same order as a row-by-row loop, and the offsets of the first `limit` candidates
 // that can still be the first hit to `keep`; returns their number. Rejected are only
 // candidates certainly on the wrong side (nn . q < 0) or certainly met after u_best
@@ -73,14 +75,16 @@ template <int D, class V, class M>
                                                                double* nv, double* hv, std::uint8_t* keep) {
   constexpr std::size_t kLanes = sizeof(V) / sizeof(double);
   static_assert(kPencilChunk % kLanes == 0);
-  const double* norm2 = block + D * stride;
+  const double* norm2 = block + D * stride;  // heights
   const double* norm = norm2 + stride;
   const double* depth = norm + stride;
+  const double* magnitude = block + pencil.mag_row * stride;
   std::array<std::int64_t, kPencilChunk> reject;
   for (std::size_t i = 0; i < kPencilChunk; i += kLanes) {
-    V q, q2, qn, qdepth;  // loaded by memcpy: rows need not be aligned
+    V q, q2, q2mag, qn, qdepth;  // loaded by memcpy: rows need not be aligned
     std::memcpy(&q, block + i, sizeof q);
     std::memcpy(&q2, norm2 + i, sizeof q2);
+    std::memcpy(&q2mag, magnitude + i, sizeof q2mag);
     std::memcpy(&qn, norm + i, sizeof qn);
     std::memcpy(&qdepth, depth + i, sizeof qdepth);
     V n = pencil.nn[0] * q;
@@ -94,7 +98,7 @@ template <int D, class V, class M>
     std::memcpy(hv + i, &h, sizeof h);
     const V n_bound = pencil.n_mag * qn;
     const V en = n_bound * pencil.n_eps;
-    const V h_bound = pencil.h_mag_d * q2 + pencil.h_mag * qn;
+    const V h_bound = pencil.h_mag_d * q2mag + pencil.h_mag * qn;
     // filter::relative_error and filter::is_certifiable, per lane (test_predicates'
     // Filter test checks that these lanes compute what the scalar filter does).
     const V eh = h_bound * ((pencil.h_depth_base + qdepth + filter::kDepthSlack) * filter::kErrorPerLevel);
@@ -221,7 +225,15 @@ std::uint32_t StarWalker::TupleSet::position(const std::uint32_t* key, std::uint
 // StarWalker
 
 StarWalker::StarWalker(const KdTree& tree, StarOptions options)
-    : tree_(tree), ps_(tree.points()), predicates_(ps_), options_(options), d_(ps_.dimension()) {
+    : tree_(tree),
+      ps_(tree.points()),
+      predicates_(ps_, options.weights),
+      options_(options),
+      d_(ps_.dimension()),
+      extras_{options.weights.empty() ? nullptr : options.weights.data(), nullptr, nullptr} {
+  SPOKEMESH_INVARIANT(options.weights.empty() || options.weights.size() == ps_.size(),
+                      "one weight per point of the tree");
+  if (!options.weights.empty()) max_weight_ = *std::max_element(options.weights.begin(), options.weights.end());
   if (detail::policy(d_).ring_walk) ring_walk_ = std::make_unique<RingWalk>(*this);
   // The walker's one dispatch from the runtime dimension to its compiled kernels.
   detail::dispatch_dimension(d_, [&](auto dim) {
@@ -258,15 +270,17 @@ void StarWalker::load_candidates(std::size_t k) {
   // Sized once, then written in place (this runs for nearly every seed).
   cand_id_.resize(kept);
   cand_q_.resize(kept * d_);
-  cand_norm2_.resize(kept);
+  cand_height_.resize(kept);
+  cand_height_mag_.resize(kept);
   cand_norm_.resize(kept);
   cand_depth_.resize(kept);
   cand_lower_.resize(kept);
-  // Column-major copy for the pencil scan's filter (d coordinate rows, |q|^2, |q|,
-  // the |q|^2 depth with kUnsafe as +inf), zero-padded to whole chunks (padding is
-  // never a candidate: the scan stops at `kept`).
+  // Column-major copy for the pencil scan's filter (d coordinate rows, the height,
+  // |q|, the height's depth with kUnsafe as +inf and, with weights, the height's
+  // magnitude), zero-padded to whole chunks (padding is never a candidate: the scan
+  // stops at `kept`).
   cand_stride_ = (kept + kPencilChunk - 1) / kPencilChunk * kPencilChunk;
-  const std::size_t rows = static_cast<std::size_t>(d_) + 3;
+  const std::size_t rows = static_cast<std::size_t>(d_) + (extras_.weights != nullptr ? 4 : 3);
   cand_block_.resize(cand_stride_ * rows);
   for (std::size_t r = 0; r < rows; ++r) {
     std::fill(cand_block_.begin() + static_cast<std::ptrdiff_t>(r * cand_stride_ + kept),
@@ -276,41 +290,54 @@ void StarWalker::load_candidates(std::size_t k) {
   for (std::size_t i = 0; i < got; ++i) {
     const std::uint32_t id = knn_ids_[i];
     if (id == x_) continue;
-    double norm2;
-    int depth;
     double* q = &cand_q_[j * d_];
-    relative_row(knn_coords_[i], q, norm2, depth);
+    const Lift lift = relative_row(id, knn_coords_[i], q);
     cand_id_[j] = id;
-    cand_norm2_[j] = norm2;
-    cand_norm_[j] = std::sqrt(norm2);
-    cand_depth_[j] = depth;
+    cand_height_[j] = lift.height;
+    cand_height_mag_[j] = lift.magnitude;
+    cand_norm_[j] = std::sqrt(lift.norm2);
+    cand_depth_[j] = lift.depth;
     cand_lower_[j] = knn_d2_[i] * (1 - kDistanceMargin);
     double* column = &cand_block_[j];
     for (int c = 0; c < d_; ++c) column[static_cast<std::size_t>(c) * cand_stride_] = q[c];
-    column[static_cast<std::size_t>(d_) * cand_stride_] = norm2;
+    column[static_cast<std::size_t>(d_) * cand_stride_] = lift.height;
     column[static_cast<std::size_t>(d_ + 1) * cand_stride_] = cand_norm_[j];
-    column[static_cast<std::size_t>(d_ + 2) * cand_stride_] = depth >= BoundedDouble::kUnsafe ? kInf : depth;
+    column[static_cast<std::size_t>(d_ + 2) * cand_stride_] = lift.depth >= BoundedDouble::kUnsafe ? kInf : lift.depth;
+    if (extras_.weights != nullptr) column[static_cast<std::size_t>(d_ + 3) * cand_stride_] = lift.magnitude;
     ++j;
   }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
 }
 
-void StarWalker::relative_row(const double* pp, double* q, double& norm2, int& depth) const {
+StarWalker::Lift StarWalker::relative_row(std::uint32_t id, const double* pp, double* q) const {
   const double* x = ps_.point(x_);
-  norm2 = 0;
+  double norm2 = 0;
   for (int c = 0; c < d_; ++c) {
     q[c] = pp[c] - x[c];
     norm2 += q[c] * q[c];
   }
   // A sum of d squares of rounded differences has depth d + 2; one more covers a
   // square that underflowed (absolute error 2^-1075, relatively negligible once
-  // norm2 >= 2^-900). Below that, the exact stage decides.
-  depth = norm2 >= filter::kUnderflowGuard ? d_ + 3 : BoundedDouble::kUnsafe;
+  // the magnitude is >= 2^-900). Below that, the exact stage decides.
+  if (extras_.weights == nullptr) {
+    return {norm2, norm2, norm2, norm2 >= filter::kUnderflowGuard ? d_ + 3 : BoundedDouble::kUnsafe};
+  }
+  // With weights, as approx_row: the weights' difference rounded once (depth 1) and
+  // subtracted once (one level more than the sum of squares).
+  const double excess = extras_.weights[id] - extras_.weights[x_];
+  const double magnitude = norm2 + std::fabs(excess);
+  return {norm2, norm2 - excess, magnitude, magnitude >= filter::kUnderflowGuard ? d_ + 4 : BoundedDouble::kUnsafe};
 }
 
-void StarWalker::lifted_row(const double* q, double norm2, int depth, BoundedDouble* out) const {
+void StarWalker::lifted_row(const double* q, const Lift& lift, BoundedDouble* out) const {
   for (int c = 0; c < d_; ++c) out[c] = BoundedDouble{q[c], std::fabs(q[c]), 1};  // one rounding: p - x
-  out[d_] = BoundedDouble{norm2, norm2, depth};
+  out[d_] = BoundedDouble{lift.height, lift.magnitude, lift.depth};
+}
+
+double StarWalker::exit_estimate(double slope2) const {
+  if (weight_excess_ == 0) return slope2 * (1 + 1e-9);
+  const double reach = std::sqrt(slope2) + std::sqrt(weight_excess_);
+  return reach * reach * (1 + 1e-9);
 }
 
 StarWalker::WrapResult StarWalker::wrap(const Row* pivot, Side side, const BoundedDouble* reference, BoundedDouble* hit_plane) {
@@ -334,7 +361,7 @@ class StarWalker::WrapState {
   //    plane; the spatial normal: side(q) = sign(sum_c normal_c q_c) = sign det[pivot; q].
   void pivot_minors() {
     std::array<BoundedDouble, (D - 1) * (D + 1)> pivot_table;
-    for (int r = 0; r < d - 1; ++r) approx_row(w.ps_, w.x_, pivot[r], cols, &pivot_table[r * cols]);
+    for (int r = 0; r < d - 1; ++r) approx_row(w.ps_, w.x_, pivot[r], cols, &pivot_table[r * cols], w.extras_);
     minors_table_fixed<D - 1, D + 1>(pivot_table.data(), w.minors_.data());
     constexpr unsigned spatial = (1u << d) - 1u;
     normal_depth = 0;
@@ -406,7 +433,8 @@ class StarWalker::WrapState {
     double u_best = kInf;
     std::int64_t best_j = -1;
     w.contenders_.clear();
-    const Pencil pencil{nn.data(), h.data(), n_mag, h_mag, h_mag_d, n_eps, static_cast<double>(h_depth_base)};
+    const std::size_t mag_row = static_cast<std::size_t>(w.extras_.weights != nullptr ? d + 3 : d);
+    const Pencil pencil{nn.data(), h.data(), n_mag, h_mag, h_mag_d, n_eps, static_cast<double>(h_depth_base), mag_row};
     const PencilFilter filter = pencil_filter<D>();
     std::array<double, kPencilChunk> nvs, hvs;
     std::array<std::uint8_t, kPencilChunk> keep;
@@ -430,7 +458,7 @@ class StarWalker::WrapState {
           break;
         }
         const std::uint32_t id = w.cand_id_[i];
-        const double norm2 = w.cand_norm2_[i], norm = w.cand_norm_[i];
+        const double height_mag = w.cand_height_mag_[i], norm = w.cand_norm_[i];
         const double nv = nvs[keep[k]], hv = hvs[keep[k]];
         // A pivot point has n(c) = 0 exactly, so a certain sign excludes it; only the
         // uncertain branch has to skip the pivot explicitly.
@@ -442,7 +470,7 @@ class StarWalker::WrapState {
           if (is_pivot(id) || spatial_side(&w.cand_q_[i * d], id) != sigma) continue;  // decided exactly
           n_certain = false;
         }
-        const double h_bound = h_mag_d * norm2 + h_mag * norm;
+        const double h_bound = h_mag_d * height_mag + h_mag * norm;
         double lo = 0, hi = kInf;
         if (is_certifiable(h_bound) && (n_certain || nv + en > 0)) {
           const double eh = h_bound * relative_error(h_depth_base + w.cand_depth_[i]);
@@ -463,7 +491,7 @@ class StarWalker::WrapState {
           const double lambda = hv / nv;
           double slope2 = 0;
           for (int c = 0; c < d; ++c) slope2 += (h[c] - lambda * nn[c]) * (h[c] - lambda * nn[c]);
-          next_exit_test = slope2 / (h[d] * h[d]) * (1 + 1e-9);
+          next_exit_test = w.exit_estimate(slope2 / (h[d] * h[d]));
         }
       }
     }
@@ -474,8 +502,7 @@ class StarWalker::WrapState {
       take_candidate(first);
       for (const Contender& k : w.contenders_) {
         if (k.index == first || k.lower > u_best) continue;
-        if (lifted_side(&w.cand_q_[k.index * d], w.cand_norm2_[k.index], w.cand_depth_[k.index], w.cand_id_[k.index]) <
-            0) {
+        if (lifted_side(&w.cand_q_[k.index * d], candidate_lift(k.index), w.cand_id_[k.index]) < 0) {
           take_candidate(k.index);
         }
       }
@@ -499,7 +526,7 @@ class StarWalker::WrapState {
       ++w.stats_.candidate_tests;
       const double* q = &w.cand_q_[next * d];
       if (spatial_side(q, id) != sigma) continue;
-      if (best_id < 0 || lifted_side(q, w.cand_norm2_[next], w.cand_depth_[next], id) < 0) take_candidate(next);
+      if (best_id < 0 || lifted_side(q, candidate_lift(next), id) < 0) take_candidate(next);
     }
     if (best_id >= 0 && certified_beyond(w.r2_certified_)) return true;
     return w.r2_certified_ == kInf;  // every point was scanned
@@ -606,28 +633,31 @@ class StarWalker::WrapState {
     }
     double s = 0;
     for (int c = 0; c < d; ++c) s += plane[c].value * plane[c].value;
-    next_exit_test = s / (plane[d].value * plane[d].value) * (1 + 1e-9);  // |slope|^2 = (2r)^2, estimate
+    next_exit_test = w.exit_estimate(s / (plane[d].value * plane[d].value));  // |slope|^2 = (2r)^2 unweighted
+  }
+  Lift candidate_lift(std::size_t j) const {
+    return {0, w.cand_height_[j], w.cand_height_mag_[j], w.cand_depth_[j]};
   }
   void take_candidate(std::size_t j) {
     std::array<BoundedDouble, kMaxCols> b;
-    w.lifted_row(&w.cand_q_[j * d], w.cand_norm2_[j], w.cand_depth_[j], b.data());
+    w.lifted_row(&w.cand_q_[j * d], candidate_lift(j), b.data());
     take(w.cand_id_[j], b.data());
   }
   void take_point(std::uint32_t id) {
     std::array<BoundedDouble, kMaxCols> b;
-    approx_row(w.ps_, w.x_, Row::of_point(id), cols, b.data());
+    approx_row(w.ps_, w.x_, Row::of_point(id), cols, b.data(), w.extras_);
     take(id, b.data());
   }
 
-  // Side of the lifted point (q, norm2) relative to the best plane: > 0 above, < 0
+  // Side of the lifted point (q, height) relative to the best plane: > 0 above, < 0
   // below (the plane's "up" cofactor plane[d] has the sign sigma).
-  int lifted_side(const double* q, double norm2, int norm2_depth, std::uint32_t id) {
-    double v = plane[d].value * norm2, a = plane[d].magnitude * norm2;
+  int lifted_side(const double* q, const Lift& lift, std::uint32_t id) {
+    double v = plane[d].value * lift.height, a = plane[d].magnitude * lift.magnitude;
     for (int c = 0; c < d; ++c) {
       v += plane[c].value * q[c];
       a += plane[c].magnitude * std::fabs(q[c]);
     }
-    const int depth = norm2_depth >= BoundedDouble::kUnsafe ? BoundedDouble::kUnsafe : plane_depth + norm2_depth + d + 4;
+    const int depth = lift.depth >= BoundedDouble::kUnsafe ? BoundedDouble::kUnsafe : plane_depth + lift.depth + d + 4;
     int s = certified(v, a, depth);
     if (s == BoundedDouble::kUnknownSign || s == 0) {
       ++w.stats_.exact_fallbacks;
@@ -640,8 +670,16 @@ class StarWalker::WrapState {
 
   // Certifies that every point with exact |q|^2 >= bound is strictly above the best
   // plane: above holds where |q| > |slope| (the plane is h = slope . q through x).
+  // With weights, height >= |q|^2 - e (e = weight_excess_), and |q| > |slope| + sqrt(e)
+  // gives |q|^2 - e > |slope| |q| (as |q| > sqrt(e)): the bound shrinks to
+  // (sqrt(bound) - sqrt(e))^2, rounded down.
   bool certified_beyond(double bound) const {
     if (bound == kInf) return true;
+    if (w.weight_excess_ > 0) {
+      const double reach = std::sqrt(bound) * (1 - 1e-12) - std::sqrt(w.weight_excess_) * (1 + 1e-12);
+      if (!(reach > 0)) return false;
+      bound = reach * reach * (1 - 1e-12);
+    }
     BoundedDouble e = BoundedDouble::exact(bound) * plane[d] * plane[d];
     for (int c = 0; c < d; ++c) e = e - plane[c] * plane[c];
     return e.certified_sign() == 1;
@@ -651,7 +689,9 @@ class StarWalker::WrapState {
   // the scanned candidates, if any.
   std::optional<std::uint32_t> first_point_below() {
     // The points below the plane are those inside its sphere: with O = sigma * plane
-    // (O_d > 0), centre m = -O / (2 O_d) relative to x and radius |m|. Boxes are
+    // (O_d > 0), centre m = -O / (2 O_d) relative to x and radius |m| (with weights,
+    // p is below when |q - m|^2 < |m|^2 + w_p - w_x, so the radius grows to
+    // sqrt(|m|^2 + weight_excess_)). Boxes are
     // pruned by their distance from the computed centre, against a radius enlarged
     // by delta, a certified bound on |computed centre - true centre|: with
     // |O_c - true| <= e_c, |O_d - true| <= e_d and A = O_d - e_d > 0,
@@ -673,7 +713,7 @@ class StarWalker::WrapState {
         c_max = std::max(c_max, std::fabs(centre[c]));
       }
       delta += c_max * 2 * kUnit * d;
-      const double r = std::sqrt(m2) * (1 + 1e-12) + 2 * delta;
+      const double r = std::sqrt(m2 + w.weight_excess_) * (1 + 1e-12) + 2 * delta;
       if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
     }
     const double r2_certified = w.r2_certified_;
@@ -698,11 +738,9 @@ class StarWalker::WrapState {
         if (near2 > r2_outer) return false;
       }
       std::array<double, kMaxDimension> q;
-      double norm2;
-      int depth;
-      w.relative_row(pp, q.data(), norm2, depth);
-      if (norm2 * (1 + 1e-9) < r2_certified) return false;  // a scanned candidate
-      return lifted_side(q.data(), norm2, depth, p) < 0;
+      const Lift lift = w.relative_row(p, pp, q.data());
+      if (lift.norm2 * (1 + 1e-9) < r2_certified) return false;  // a scanned candidate
+      return lifted_side(q.data(), lift, p) < 0;
     });
   }
 
@@ -741,12 +779,21 @@ StarWalker::WrapResult StarWalker::wrap_kernel(const Row* pivot, Side side, cons
   return wrap.result(hit_plane);
 }
 
-Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane) {
+Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, bool& hidden) {
   const int d = d_;
+  hidden = false;
   // Level 0's reference is the plane tangent to the paraboloid at x (h = 0), which
-  // holds every direction row; each later level's is the previous level's hit.
+  // holds every direction row; each later level's is the previous level's hit. With
+  // weights, a plane h = slope . q through lifted x below every other lifted point
+  // (power_start), whose direction rows are lifted onto it.
+  std::fill(slope_.begin(), slope_.end(), 0.0);
+  extras_.slope = nullptr;
+  predicates_.set_direction_slope(nullptr);
+  if (extras_.weights != nullptr) {
+    if (Status s = power_start(hidden); !s.is_ok() || hidden) return s;
+  }
   std::array<BoundedDouble, kMaxCols> reference;
-  for (int c = 0; c < d; ++c) reference[c] = BoundedDouble::exact(0.0);
+  for (int c = 0; c < d; ++c) reference[c] = BoundedDouble::exact(-slope_[c]);
   reference[d] = BoundedDouble::exact(1.0);
   std::uint64_t state = detail::seed_state(options_.random_seed, x_);
   std::array<Row, kMaxCols> rows;
@@ -802,7 +849,7 @@ void StarWalker::simplex_plane_kernel(const std::uint32_t* ids, BoundedDouble* o
   constexpr int cols = D + 1;
   constexpr unsigned all = (1u << cols) - 1u;
   std::array<BoundedDouble, D * cols> rows;
-  for (int r = 0; r < D; ++r) approx_row(ps_, x_, Row::of_point(ids[r]), cols, &rows[r * cols]);
+  for (int r = 0; r < D; ++r) approx_row(ps_, x_, Row::of_point(ids[r]), cols, &rows[r * cols], extras_);
   minors_table_fixed<D, cols>(rows.data(), minors_.data());
   for (int c = 0; c < cols; ++c) {
     const BoundedDouble& m = minors_[all ^ (1u << c)];
@@ -844,6 +891,7 @@ class StarWalker::StarWalk {
     }
     check_complete();
     w.emit_canonical(hull, part, out);
+    out.hidden = hidden;
     return Status::ok();
   }
 
@@ -984,7 +1032,7 @@ class StarWalker::StarWalk {
     std::array<std::uint32_t, kMaxCols> simplex{};
     std::array<BoundedDouble, kMaxCols> plane;  // every point on or above it
     w.ensure_candidates();
-    if (Status s = w.first_simplex(simplex.data(), plane.data()); !s.is_ok()) return s;
+    if (Status s = w.first_simplex(simplex.data(), plane.data(), hidden); !s.is_ok() || hidden) return s;
     add_simplex(simplex.data(), plane.data());
     return Status::ok();
   }
@@ -1072,6 +1120,7 @@ class StarWalker::StarWalk {
   const std::size_t sd;
   FacetMemo* const memo;
   std::size_t hull = 0;        // star facets on the hull
+  bool hidden = false;         // with weights: x is in no simplex
   std::size_t prefetched = 0;  // simplices of work_ whose memo entries are being loaded
 };
 
@@ -1082,10 +1131,14 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   }
   ++stats_.seeds;
   x_ = seed;
+  // Heights are at least |q|^2 minus this (rounded up: the difference's rounding
+  // error is below 2^-53 of it).
+  weight_excess_ = extras_.weights != nullptr ? std::max(0.0, (max_weight_ - extras_.weights[seed]) * (1 + 0x1p-50)) : 0.0;
   cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d_);
   loaded_ = false;
   missed_candidates_ = 0;
   grown_ = false;
+  out.hidden = false;
   if (ring_walk_) return ring_walk_->compute(out, part);
   return StarWalk(*this).run(part, out);
 }

@@ -1,0 +1,285 @@
+// Weighted points (issue 28): the stars and whole meshes of the regular (weighted
+// Delaunay) triangulation, simplex for simplex against CGAL's Regular_triangulation_2
+// and _3 and dD (hidden points included) and against exhaustive search in 4-d; equal weights
+// give back the Delaunay mesh; the result does not depend on input order.
+#include <CGAL/Epick_d.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Regular_triangulation.h>
+#include <CGAL/Regular_triangulation_2.h>
+#include <CGAL/Regular_triangulation_3.h>
+#include <CGAL/Regular_triangulation_cell_base_3.h>
+#include <CGAL/Regular_triangulation_face_base_2.h>
+#include <CGAL/Regular_triangulation_vertex_base_2.h>
+#include <CGAL/Regular_triangulation_vertex_base_3.h>
+#include <CGAL/Triangulation_vertex_base_with_info_2.h>
+#include <CGAL/Triangulation_vertex_base_with_info_3.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+
+#include "support.hpp"
+
+namespace spokemesh {
+namespace {
+
+using namespace spokemesh::testing;
+using Tuples = std::set<std::vector<std::uint32_t>>;
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+
+// A regular triangulation: its simplices (sorted vertex lists) and its hidden points.
+struct Regular {
+  Tuples simplices;
+  std::set<std::uint32_t> hidden;
+};
+
+Regular cgal_regular_2(const PointSet& ps, const std::vector<double>& w) {
+  using Vb0 = CGAL::Regular_triangulation_vertex_base_2<K>;
+  using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::uint32_t, K, Vb0>;
+  using Fb = CGAL::Regular_triangulation_face_base_2<K>;
+  using Tds = CGAL::Triangulation_data_structure_2<Vb, Fb>;
+  using RT = CGAL::Regular_triangulation_2<K, Tds>;
+  std::vector<std::pair<K::Weighted_point_2, std::uint32_t>> points;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    points.emplace_back(K::Weighted_point_2(K::Point_2(ps.point(i)[0], ps.point(i)[1]), w[i]), i);
+  }
+  const RT rt(points.begin(), points.end());
+  Regular out;
+  std::set<std::uint32_t> vertices;
+  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->info());
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    if (!vertices.count(i)) out.hidden.insert(i);
+  }
+  for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) {
+    std::vector<std::uint32_t> t = {f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()};
+    std::sort(t.begin(), t.end());
+    out.simplices.insert(t);
+  }
+  return out;
+}
+
+Regular cgal_regular_3(const PointSet& ps, const std::vector<double>& w) {
+  using Vb0 = CGAL::Regular_triangulation_vertex_base_3<K>;
+  using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::uint32_t, K, Vb0>;
+  using Cb = CGAL::Regular_triangulation_cell_base_3<K>;
+  using Tds = CGAL::Triangulation_data_structure_3<Vb, Cb>;
+  using RT = CGAL::Regular_triangulation_3<K, Tds>;
+  std::vector<std::pair<K::Weighted_point_3, std::uint32_t>> points;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    const double* p = ps.point(i);
+    points.emplace_back(K::Weighted_point_3(K::Point_3(p[0], p[1], p[2]), w[i]), i);
+  }
+  const RT rt(points.begin(), points.end());
+  Regular out;
+  std::set<std::uint32_t> vertices;
+  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->info());
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    if (!vertices.count(i)) out.hidden.insert(i);
+  }
+  for (auto c = rt.finite_cells_begin(); c != rt.finite_cells_end(); ++c) {
+    std::vector<std::uint32_t> t;
+    for (int k = 0; k < 4; ++k) t.push_back(c->vertex(k)->info());
+    std::sort(t.begin(), t.end());
+    out.simplices.insert(t);
+  }
+  return out;
+}
+
+Regular cgal_regular_dd(const PointSet& ps, const std::vector<double>& w) {
+  using Kd = CGAL::Epick_d<CGAL::Dynamic_dimension_tag>;
+  using Traits = CGAL::Regular_triangulation_traits_adapter<Kd>;
+  using Vb = CGAL::Triangulation_vertex<Traits, std::uint32_t>;
+  using Cb = CGAL::Triangulation_full_cell<Traits>;
+  using Tds = CGAL::Triangulation_data_structure<CGAL::Dynamic_dimension_tag, Vb, Cb>;
+  using RT = CGAL::Regular_triangulation<Kd, Tds>;
+  const int d = ps.dimension();
+  RT rt(d);
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    const auto v = rt.insert(RT::Weighted_point(Kd::Point_d(d, ps.point(i), ps.point(i) + d), w[i]));
+    if (v != RT::Vertex_handle()) v->data() = i;  // a hidden point has no vertex
+  }
+  Regular out;
+  std::set<std::uint32_t> vertices;
+  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->data());
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    if (!vertices.count(i)) out.hidden.insert(i);
+  }
+  for (auto c = rt.finite_full_cells_begin(); c != rt.finite_full_cells_end(); ++c) {
+    std::vector<std::uint32_t> t;
+    for (int k = 0; k <= d; ++k) t.push_back(c->vertex(k)->data());
+    std::sort(t.begin(), t.end());
+    out.simplices.insert(t);
+  }
+  return out;
+}
+
+// Every seed's star by one walker (no run caches): the simplices and the seeds whose
+// star says hidden. Checks each star against itself: hidden exactly when empty.
+Regular our_stars(const KdTree& tree, const std::vector<double>& w) {
+  StarOptions options;
+  options.weights = w;
+  StarWalker walker(tree, options);
+  Regular out;
+  Star star;
+  const int width = tree.points().dimension() + 1;
+  for (std::uint32_t s = 0; s < tree.points().size(); ++s) {
+    const Status st = walker.compute(s, star);
+    EXPECT_TRUE(st.is_ok()) << "seed " << s << ": " << st.message();
+    EXPECT_EQ(star.hidden, star.size() == 0) << "seed " << s;
+    if (star.hidden) out.hidden.insert(s);
+    for (const auto& t : as_set(star.simplices, width)) out.simplices.insert(t);
+  }
+  return out;
+}
+
+// The whole mesh of a weighted set with the run caches (two threads).
+Simplices weighted_mesh(const KdTree& tree, const std::vector<double>& w, unsigned threads = 2) {
+  MeshOptions options;
+  options.threads = threads;
+  options.star.weights = w;
+  Simplices out;
+  const auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+    out.insert(out.end(), block.begin(), block.end());
+    return Status::ok();
+  });
+  EXPECT_TRUE(r.is_ok()) << r.status().message();
+  return out;
+}
+
+std::vector<double> uniform_weights(std::size_t n, double lo, double hi, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(lo, hi);
+  std::vector<double> w(n);
+  for (double& v : w) v = u(rng);
+  return w;
+}
+
+struct Case {
+  std::string name;
+  int d;
+  std::vector<double> coords, weights;
+};
+
+std::vector<Case> cgal_cases() {
+  std::vector<Case> cases;
+  // Weights about the squared spacing: some seeds outside their own cells, some hidden.
+  cases.push_back({"small-2d", 2, uniform_points(2, 1500, 301), uniform_weights(1500, 0, 2e-4, 302)});
+  cases.push_back({"large-2d", 2, uniform_points(2, 1500, 303), uniform_weights(1500, 0, 4e-3, 304)});
+  cases.push_back({"signed-2d", 2, uniform_points(2, 800, 305), uniform_weights(800, -2e-3, 2e-3, 306)});
+  cases.push_back({"small-3d", 3, uniform_points(3, 1200, 311), uniform_weights(1200, 0, 3e-3, 312)});
+  cases.push_back({"large-3d", 3, uniform_points(3, 1200, 313), uniform_weights(1200, 0, 3e-2, 314)});
+  cases.push_back({"signed-3d", 3, uniform_points(3, 600, 315), uniform_weights(600, -1e-2, 1e-2, 316)});
+  // Grids: every sphere of the unweighted grid is degenerate (CGAL's perturbation),
+  // and the weights hide some points; in 2-d, the weights of a binary mixture.
+  cases.push_back({"grid-3d", 3, grid_points(3, 6), uniform_weights(216, 0, 0.6, 317)});
+  {
+    Case mixture{"binary-grid-2d", 2, grid_points(2, 12), {}};
+    for (std::size_t i = 0; i < 144; ++i) mixture.weights.push_back(i % 3 == 0 ? 0.16 : 0.04);
+    cases.push_back(mixture);
+  }
+  return cases;
+}
+
+TEST(Weighted, StarsEqualCgalRegularTriangulationsWithHiddenPoints) {
+  for (const Case& c : cgal_cases()) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const Regular ours = our_stars(tree, c.weights);
+    const Regular theirs = c.d == 2 ? cgal_regular_2(ps, c.weights) : cgal_regular_3(ps, c.weights);
+    EXPECT_EQ(ours.hidden, theirs.hidden) << c.name << ": hidden points";
+    EXPECT_EQ(ours.simplices, theirs.simplices) << c.name << ": simplices";
+    if (c.name.starts_with("large")) EXPECT_GT(theirs.hidden.size(), 10u) << "the case should hide points";
+    // The whole mesh (run caches, two threads) is the union of the stars.
+    EXPECT_EQ(as_set(weighted_mesh(tree, c.weights), c.d + 1), ours.simplices) << c.name << ": whole mesh";
+  }
+}
+
+TEST(Weighted, SeedsOutsideTheirOwnCellsAreMet) {
+  // The cases above are only a test of the start's programme if seeds lie outside
+  // their own power cells: count them (a point nearer in power to another site).
+  const PointSet ps = make_points(3, uniform_points(3, 1200, 311));
+  const auto w = uniform_weights(1200, 0, 3e-3, 312);
+  int outside = 0;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    for (std::uint32_t j = 0; j < ps.size(); ++j) {
+      if (i == j) continue;
+      double d2 = 0;
+      for (int c = 0; c < 3; ++c) d2 += (ps.point(i)[c] - ps.point(j)[c]) * (ps.point(i)[c] - ps.point(j)[c]);
+      if (d2 - w[j] < -w[i]) {
+        ++outside;
+        break;
+      }
+    }
+  }
+  EXPECT_GT(outside, 20);
+}
+
+TEST(Weighted, HigherDimensionalStarsEqualCgalAndExhaustiveSearch) {
+  // 4-d to 6-d against CGAL's dD Regular_triangulation (weights large enough to hide
+  // points), and a small 4-d set against exhaustive search over every 4-subset.
+  for (const int d : {4, 5, 6}) {
+    const std::size_t n = d == 4 ? 400 : d == 5 ? 200 : 80;
+    const PointSet ps = make_points(d, uniform_points(d, n, 320 + d));
+    const auto w = uniform_weights(n, 0, d == 4 ? 0.04 : d == 5 ? 0.3 : 0.6, 330 + d);
+    const KdTree tree(ps);
+    const Regular ours = our_stars(tree, w);
+    const Regular theirs = cgal_regular_dd(ps, w);
+    EXPECT_EQ(ours.hidden, theirs.hidden) << d << "-d: hidden points";
+    EXPECT_EQ(ours.simplices, theirs.simplices) << d << "-d: simplices";
+    EXPECT_GT(theirs.hidden.size(), 0u) << d << "-d: the weights should hide some points";
+    EXPECT_EQ(as_set(weighted_mesh(tree, w), d + 1), ours.simplices) << d << "-d: whole mesh";
+  }
+  const std::size_t n = 30;
+  const PointSet ps = make_points(4, uniform_points(4, n, 324));
+  const auto w = uniform_weights(n, 0, 0.3, 334);
+  const KdTree tree(ps);
+  StarOptions options;
+  options.weights = w;
+  StarWalker walker(tree, options);
+  Star star;
+  for (std::uint32_t s = 0; s < n; ++s) {
+    ASSERT_TRUE(walker.compute(s, star).is_ok());
+    EXPECT_EQ(as_set(star.simplices, 5), brute_force_star(ps, s, w)) << "4-d seed " << s;
+  }
+}
+
+TEST(Weighted, EqualWeightsGiveTheDelaunayMesh) {
+  for (const int d : {2, 3, 4}) {
+    for (const bool grid : {false, true}) {
+      const PointSet ps = make_points(d, grid ? grid_points(d, d == 4 ? 4 : 6) : uniform_points(d, 500, 340 + d));
+      const KdTree tree(ps);
+      const std::vector<double> w(ps.size(), 0.25);
+      EXPECT_EQ(weighted_mesh(tree, w), mesh_all(tree, 2)) << d << "-d " << (grid ? "grid" : "uniform");
+    }
+  }
+}
+
+TEST(Weighted, PermutedInputGivesTheSameMesh) {
+  for (const int d : {2, 3}) {
+    const std::size_t n = 600;
+    const auto coords = uniform_points(d, n, 350 + d);
+    const auto w = uniform_weights(n, 0, d == 2 ? 4e-3 : 3e-2, 360 + d);
+    std::vector<std::uint32_t> perm(n);
+    std::iota(perm.begin(), perm.end(), 0u);
+    std::shuffle(perm.begin(), perm.end(), std::mt19937_64(370 + d));
+    std::vector<double> pc, pw;
+    for (const std::uint32_t i : perm) {
+      pc.insert(pc.end(), coords.begin() + i * d, coords.begin() + (i + 1) * d);
+      pw.push_back(w[i]);
+    }
+    const PointSet a = make_points(d, coords), b = make_points(d, pc);
+    const KdTree ta(a), tb(b);
+    Tuples mapped;
+    for (const auto& t : as_set(weighted_mesh(tb, pw), d + 1)) {
+      std::vector<std::uint32_t> u;
+      for (const std::uint32_t v : t) u.push_back(perm[v]);
+      std::sort(u.begin(), u.end());
+      mapped.insert(u);
+    }
+    EXPECT_EQ(mapped, as_set(weighted_mesh(ta, w), d + 1)) << d << "-d";
+  }
+}
+
+}  // namespace
+}  // namespace spokemesh
