@@ -139,6 +139,65 @@ TEST_F(Cli, StarNeighborsAndCell) {
   EXPECT_NE(json.out.find("\"bounded\": false"), std::string::npos) << json.out;
 }
 
+TEST_F(Cli, WeightsAndRadiiGiveTheRegularTriangulation) {
+  // The centre of a 3x3 grid with weight -2 (the others 0) lies above the lifted
+  // plane of its four edge neighbours (height 1 + w): hidden, in no simplex.
+  const std::string in = write("grid.txt", "0 0\n1 0\n2 0\n0 1\n1 1\n2 1\n0 2\n1 2\n2 2\n");
+  const std::string w = write("w.txt", "0\n0\n0\n0\n-2\n0\n0\n0\n0\n");
+  const Outcome star = run("star " + in + " --seed 4 --weights " + w);
+  ASSERT_EQ(star.code, 0) << star.err;
+  EXPECT_EQ(star.out, "");
+  EXPECT_NE(star.err.find("seed 4 is hidden"), std::string::npos) << star.err;
+  const Outcome nb = run("neighbors " + in + " --seed 1 --weights " + w);
+  ASSERT_EQ(nb.code, 0) << nb.err;
+  EXPECT_EQ(nb.out.find("4\n"), std::string::npos) << "a hidden point is no one's neighbour:\n" << nb.out;
+  const Outcome mesh = run("mesh " + in + " --weights " + w + " -o " + path("m.txt"));
+  ASSERT_EQ(mesh.code, 0) << mesh.err;
+  EXPECT_NE(mesh.err.find("1 of 9 points hidden"), std::string::npos) << mesh.err;
+  EXPECT_EQ(slurp(path("m.txt")).find(" 4"), std::string::npos) << slurp(path("m.txt"));
+
+  // --radii r is --weights r^2; equal weights are the Delaunay mesh, byte for byte.
+  const std::string pts = points(3, 400, 7);
+  std::ostringstream radii, squares, equal;
+  radii.precision(17);
+  squares.precision(17);
+  for (int i = 0; i < 400; ++i) {
+    const double r = 0.01 * (i % 7) + 0.5 / 64;  // squares are exact
+    radii << r << "\n";
+    squares << r * r << "\n";
+    equal << "0.125\n";
+  }
+  ASSERT_EQ(run("mesh " + pts + " --radii " + write("r.txt", radii.str()) + " -o " + path("r.npy")).code, 0);
+  ASSERT_EQ(run("mesh " + pts + " --weights " + write("s.txt", squares.str()) + " -o " + path("s.npy")).code, 0);
+  EXPECT_EQ(slurp(path("r.npy")), slurp(path("s.npy")));
+  ASSERT_EQ(run("mesh " + pts + " --weights " + write("e.txt", equal.str()) + " -o " + path("e.npy")).code, 0);
+  ASSERT_EQ(run("mesh " + pts + " -o " + path("plain.npy")).code, 0);
+  EXPECT_EQ(slurp(path("e.npy")), slurp(path("plain.npy")));
+  const Outcome graph = run("graph " + pts + " --weights " + path("s.txt") + " -o " + path("g.txt"));
+  EXPECT_EQ(graph.code, 0) << graph.err;
+
+  // Bad weights: one clear line naming the file and the line or count, exit 2, no output.
+  struct Bad {
+    std::string args, needle;
+  };
+  const std::vector<Bad> bad = {
+      {"mesh " + in + " --weights " + write("nan.txt", "0\n0\nnan\n0\n0\n0\n0\n0\n0\n") + " -o " + path("x.npy"),
+       "nan.txt:3"},
+      {"mesh " + in + " --weights " + write("short.txt", "0\n0\n") + " -o " + path("x.npy"), "9"},
+      {"mesh " + in + " --radii " + write("neg.txt", "1\n1\n-1\n1\n1\n1\n1\n1\n1\n") + " -o " + path("x.npy"),
+       "neg.txt:3"},
+      {"mesh " + in + " --weights " + w + " --radii " + w + " -o " + path("x.npy"), "excludes"},
+      {"graph " + in + " --weights " + w + " --approx -o " + path("x.npy"), "exact engine"},
+      {"mesh " + in + " --weights " + w + " --merge-duplicates -o " + path("x.npy"), "--merge-duplicates"},
+  };
+  for (const Bad& b : bad) {
+    const Outcome o = run(b.args);
+    EXPECT_EQ(o.code, 2) << b.args << "\n" << o.err;
+    EXPECT_NE(o.err.find(b.needle), std::string::npos) << b.args << "\n" << o.err;
+    EXPECT_FALSE(fs::exists(path("x.npy"))) << b.args;
+  }
+}
+
 TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
   struct Bad {
     std::string args, needle;

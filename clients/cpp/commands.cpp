@@ -53,6 +53,17 @@ void add_common_flags(CLI::App* cmd, Common& common) {
       ->capture_default_str();
 }
 
+void add_weight_flags(CLI::App* cmd, Common& common) {
+  auto* weights = cmd->add_option("--weights", common.weights,
+                                  "Power weights, one per point (text: one a line; .npy: shape (n,)): the regular "
+                                  "(weighted Delaunay) triangulation, CGAL's convention (a weight is a squared radius); "
+                                  "points whose power cell is empty are hidden and in no simplex");
+  auto* radii = cmd->add_option("--radii", common.radii,
+                                "Radii, one per point, as Voro++'s -r: --weights with each radius squared");
+  weights->excludes(radii);
+  radii->excludes(weights);
+}
+
 void add_domain_flags(CLI::App* cmd, DomainFlags& flags, const char* when_absent) {
   cmd->add_option("--box", flags.box,
                   std::string("Clip to the box LO1,...,LOd,HI1,...,HId (walls 0..d-1 low, d..2d-1 high); ") + when_absent);
@@ -114,6 +125,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
     w.mesh->add_option("--shards", w.shards, "Remote mode: shards fetched in parallel")
         ->capture_default_str()
         ->check(CLI::Range(1u, 4096u));
+    add_weight_flags(w.mesh, w.common);
   }
   add_common_flags(w.mesh, w.common);
 
@@ -124,6 +136,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
   w.graph->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
   add_approx_flags(w.graph, w.approx);
   add_common_flags(w.graph, w.common);
+  if (one_process) add_weight_flags(w.graph, w.common);
 
   w.cells = app.add_subcommand(
       "cells", "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");

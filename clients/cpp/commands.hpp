@@ -46,8 +46,14 @@ struct Common {
   bool merge_duplicates = false;
   std::uint64_t random_seed = 0x5eed;
   std::size_t cache_mb = 1024;  // the front's cap for whole meshes
+  // Power weights (--weights) or radii (--radii, squared into weights) of the points:
+  // the regular triangulation instead of the Delaunay one. At most one is set.
+  std::string weights, radii;
+  bool weighted() const { return !weights.empty() || !radii.empty(); }
 };
 void add_common_flags(CLI::App* cmd, Common& common);
+// --weights FILE and --radii FILE (the commands of the exact engine that support them).
+void add_weight_flags(CLI::App* cmd, Common& common);
 
 // The domain of `cell` and `cells`: --box, --halfspaces, or (for `cells`, when
 // `default_box`) the points' bounding box; none for an unclipped `cell`.

@@ -50,8 +50,26 @@ struct Loaded {
   std::unique_ptr<SpaceSplit> split;  // a whole mesh's sweep order (commands that sweep)
   std::unique_ptr<KdTree> tree;
 
+  std::vector<double> weights;  // --weights/--radii: one power weight per point; empty: unweighted
+
   std::uint32_t to_original(std::uint32_t i) const { return original.empty() ? i : original[i]; }
 };
+
+// Reads --weights or --radii for the loaded points (one per point; every bad value
+// named by file and line or index).
+Status load_weights(const Common& common, Loaded& loaded) {
+  if (!common.weighted()) return Status::ok();
+  if (!loaded.original.empty()) {
+    return invalid_argument("--merge-duplicates cannot be combined with --weights or --radii (which weight would a "
+                            "merged point keep?): remove the duplicates from both files");
+  }
+  const bool radii = !common.radii.empty();
+  auto weights = read_weights(radii ? common.radii : common.weights, loaded.points.size(),
+                              radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+  if (!weights.is_ok()) return weights.status();
+  loaded.weights = std::move(weights).value();
+  return Status::ok();
+}
 
 // approximate: accepts any dimension up to kMaxApproxDimension (the exact affine-span
 // check runs only where exact meshing is defined, d <= kMaxDimension). sweep: also the
@@ -109,10 +127,12 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, common.merge_duplicates, false, /*sweep=*/true);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
+  if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);
   const Loaded& loaded = *loaded_or.value();
   const std::size_t n = loaded.points.size();
 
   MeshOptions options;
+  options.star.weights = loaded.weights;
   options.split = loaded.split.get();
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
@@ -144,6 +164,10 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   if (!common.quiet) {
     print_mesh_summary(n, result.value().simplices, progress.seconds(),
                        static_cast<double>(result.value().facet_cache_bytes) / (1 << 20), output);
+    if (!loaded.weights.empty()) {
+      std::fprintf(stderr, "spokemesh: %llu of %zu points hidden (empty power cells: in no simplex)\n",
+                   static_cast<unsigned long long>(result.value().star.hidden), n);
+    }
   }
   return kExitOk;
 }
@@ -153,14 +177,20 @@ template <class Use>
 int with_star(const Common& common, const std::string& input, std::int64_t seed, Use&& use) {
   auto loaded_or = load(input, common.merge_duplicates);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
+  if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);
   const Loaded& loaded = *loaded_or.value();
   auto internal = internal_seed(loaded, seed);
   if (!internal.is_ok()) return report(internal.status());
   StarOptions options;
   options.random_seed = common.random_seed;
+  options.weights = loaded.weights;
   StarWalker walker(*loaded.tree, options);
   Star star;
   if (Status s = walker.compute(internal.value(), star); !s.is_ok()) return report(s);
+  if (star.hidden && !common.quiet) {
+    std::fprintf(stderr, "spokemesh: seed %lld is hidden: its power cell is empty, so it is in no simplex\n",
+                 static_cast<long long>(seed));
+  }
   return use(loaded, star);  // internal indices; printers map them with to_original()
 }
 
@@ -260,8 +290,12 @@ int run_approx_neighbors(const Common& common, const ApproxFlags& flags, const s
 
 int run_graph(const Common& common, const ApproxFlags& flags, const std::string& input, const std::string& output) {
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
+  if (flags.enabled && common.weighted()) {
+    return report(invalid_argument("--weights and --radii need the exact engine: drop --approx"));
+  }
   auto loaded_or = load(input, common.merge_duplicates, flags.enabled);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
+  if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);
   const Loaded& loaded = *loaded_or.value();
   const PointSet edge_shape(1, {});  // width 2
   auto writer = MeshWriter::open_tuples(output, edge_shape);
@@ -270,6 +304,7 @@ int run_graph(const Common& common, const ApproxFlags& flags, const std::string&
   options.approximate = flags.enabled;
   options.approx = flags.options(common.random_seed);
   options.star.random_seed = common.random_seed;
+  options.star.weights = loaded.weights;
   options.threads = common.threads;
   Progress progress(common.quiet, loaded.points.size(), "graph");
   options.progress = [&](std::uint64_t done) { progress.update(done, 0); };
@@ -336,12 +371,14 @@ int main(int argc, char** argv) {
   star->add_option("INPUT", input, "Point file")->required();
   star->add_option("--seed", seed, "Seed index (0-based)")->required();
   add_common_flags(star, common);
+  add_weight_flags(star, common);
 
   auto* neighbors = app.add_subcommand("neighbors", "Print the Delaunay neighbours of one seed, one per line");
   neighbors->add_option("INPUT", input, "Point file")->required();
   neighbors->add_option("--seed", seed, "Seed index (0-based)")->required();
   add_approx_flags(neighbors, approx_flags);
   add_common_flags(neighbors, common);
+  add_weight_flags(neighbors, common);
 
   auto* cell = app.add_subcommand("cell", "Print the Voronoi cell of one seed: vertices, facets, boundedness, volume");
   cell->add_option("INPUT", input, "Point file")->required();
@@ -396,6 +433,9 @@ int main(int argc, char** argv) {
   }
 
   const bool remote_only = *upload || *append || *health || *list || *del || *batch;
+  if (!server.empty() && common.weighted()) {
+    return report(invalid_argument("--weights and --radii work on local files only: the server does not store weights yet"));
+  }
   if (!server.empty()) {
 #ifdef SPOKEMESH_REMOTE
     remote::RemoteOptions o;
@@ -490,6 +530,9 @@ int main(int argc, char** argv) {
     });
   }
   if (*graph) return run_graph(common, approx_flags, input, output);
+  if (*neighbors && approx_flags.enabled && common.weighted()) {
+    return report(invalid_argument("--weights and --radii need the exact engine: drop --approx"));
+  }
   if (*neighbors && approx_flags.enabled) return run_approx_neighbors(common, approx_flags, input, seed);
   if (*neighbors) {
     return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {

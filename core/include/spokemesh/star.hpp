@@ -75,6 +75,8 @@ struct StarStats {
   std::uint64_t cached_wraps = 0;    // wraps answered by the FacetCache
   std::uint64_t cached_starts = 0;   // stars begun at a FacetCache facet instead of by spokes
   std::uint64_t candidate_loads = 0;  // k-d tree neighbourhoods loaded (a star wholly cached needs none)
+  std::uint64_t hidden = 0;           // with weights: seeds whose power cell is empty
+  std::uint64_t start_programmes = 0;  // with weights: seeds outside their own power cells (power_start's programme)
 
   StarStats& operator+=(const StarStats& o) {
     seeds += o.seeds;
@@ -86,6 +88,8 @@ struct StarStats {
     cached_wraps += o.cached_wraps;
     cached_starts += o.cached_starts;
     candidate_loads += o.candidate_loads;
+    hidden += o.hidden;
+    start_programmes += o.start_programmes;
     return *this;
   }
 };

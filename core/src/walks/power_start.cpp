@@ -293,6 +293,7 @@ Status StarWalker::power_start(bool& hidden) {
   std::array<double, kMaxDimension> zero{};
   std::optional<std::uint32_t> below = point_not_above(zero.data());
   if (!below) return Status::ok();  // x is in its own power cell: the tangent plane
+  ++stats_.start_programmes;
 
   // The programme's points: the candidates and every point found on or below a
   // proposed plane. Coordinates scaled by L, heights by L^2.
@@ -355,6 +356,7 @@ Status StarWalker::power_start(bool& hidden) {
     }
     const int side = face_side(face);
     if (side < 0) {  // lifted x is above a lifted face of other points: hidden
+      ++stats_.hidden;
       hidden = true;
       return Status::ok();
     }
@@ -371,6 +373,7 @@ Status StarWalker::power_start(bool& hidden) {
       }
       if (simplex.size() == static_cast<std::size_t>(d + 1) &&
           predicates_.side_of_sphere(std::span<const std::uint32_t>(simplex), x_) > 0) {
+        ++stats_.hidden;
         hidden = true;
         return Status::ok();
       }
