@@ -225,3 +225,76 @@ def test_qhull_options_pickling_and_lifted_planes():
     assert d.max() < 1e-12
     with pytest.warns(DeprecationWarning):
         assert tri.vertices is tri.simplices
+
+
+# --- Weighted points (issue 28): the regular triangulation -------------------------
+
+def weighted_case(d: int, n: int, top: float, seed: int):
+    rng = np.random.default_rng(seed)
+    return rng.random((n, d)), rng.random(n) * top
+
+
+@pytest.mark.parametrize("d,n,top", [(2, 2000, 4e-3), (3, 1500, 2e-2), (4, 300, 4e-2)])
+def test_weighted_is_the_lower_hull_of_the_power_lift(d, n, top, tmp_path):
+    """Every point's power lift (p, |p|^2 - w) lies on or above every simplex's lifted
+    plane (the regular triangulation's defining property, checked in floating point on
+    random data, far from ties); hidden points are exactly those in no simplex, and
+    the whole mesh equals the CLI's --weights mesh (which test_weighted checks against
+    CGAL)."""
+    pts, w = weighted_case(d, n, top, 40 + d)
+    tri = spokemesh.Delaunay(pts, weights=w)
+    assert tri.weights is not None and len(tri.hidden) > 0, "the weights should hide some points"
+    lifted = np.concatenate([pts, (pts * pts).sum(axis=1, keepdims=True) - w[:, None]], axis=1)
+    eq = tri.equations
+    dist = lifted @ eq[:, :-1].T + eq[:, -1]  # (n, m): <= 0 on or above each plane
+    assert dist.max() < 1e-9
+    assert not np.isin(tri.hidden, tri.simplices).any()
+    assert (tri.vertex_to_simplex[tri.hidden] == -1).all()
+    assert (signed_volumes(pts, tri.simplices) > 0).all()
+    # The CLI, with the weights from a file.
+    src, wfile, out = tmp_path / "p.npy", tmp_path / "w.npy", tmp_path / "m.simplices"
+    np.save(src, pts)
+    np.save(wfile, w)
+    from conftest import cli
+    cli("mesh", str(src), "--weights", str(wfile), "-o", str(out), "-q")
+    assert as_set(np.loadtxt(out, dtype=np.int64, ndmin=2)) == as_set(tri.simplices)
+    # Stars and neighbours agree with the whole mesh; a hidden point's are empty.
+    for i in list(tri.hidden[:3]) + [0, 1, 2]:
+        star = tri.star(int(i))
+        assert as_set(star) == as_set(tri.simplices[(tri.simplices == i).any(axis=1)])
+        assert (len(star) == 0) == (i in set(tri.hidden.tolist()))
+    # Pickling keeps the weights.
+    again = pickle.loads(pickle.dumps(tri))
+    assert np.array_equal(again.simplices, tri.simplices) and np.array_equal(again.weights, w)
+
+
+def test_equal_weights_give_the_delaunay_triangulation():
+    pts = uniform(1000, 3, 51)
+    plain = spokemesh.Delaunay(pts)
+    weighted = spokemesh.Delaunay(pts, weights=np.full(len(pts), 0.7))
+    assert np.array_equal(plain.simplices, weighted.simplices)
+    assert len(weighted.hidden) == 0 and len(plain.hidden) == 0
+
+
+def test_weighted_errors_name_what_and_where():
+    pts = uniform(50, 2, 52)
+    w = np.zeros(50)
+    w[7] = np.nan
+    with pytest.raises(ValueError, match="index 7"):
+        spokemesh.Delaunay(pts, weights=w)
+    with pytest.raises(ValueError, match="49 weights for 50 points"):
+        spokemesh.Delaunay(pts, weights=np.zeros(49))
+    with pytest.raises(ValueError, match="shape"):
+        spokemesh.Delaunay(pts, weights=np.zeros((50, 1)))
+    with pytest.raises(ValueError, match="furthest_site"):
+        spokemesh.Delaunay(pts, weights=np.zeros(50), furthest_site=True)
+    with pytest.raises(ValueError, match="incremental"):
+        spokemesh.Delaunay(pts, weights=np.zeros(50), incremental=True)
+    twice = np.concatenate([pts, pts[:1]])
+    with pytest.raises(ValueError, match="which weight"):
+        spokemesh.Delaunay(twice, weights=np.zeros(51))
+    tri = spokemesh.Delaunay(pts, weights=np.zeros(50))
+    with pytest.raises(ValueError, match="weighted"):
+        tri.cell(0)
+    with pytest.raises(ValueError, match="weighted"):
+        tri.cells()

@@ -65,9 +65,9 @@ def _joggled(points: np.ndarray, first: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rebuild(points, incremental, qhull_options, threads, furthest_site=False):
+def _rebuild(points, incremental, qhull_options, threads, furthest_site=False, weights=None):
     return Delaunay(points, furthest_site=furthest_site, incremental=incremental, qhull_options=qhull_options,
-                    threads=threads)
+                    threads=threads, weights=weights)
 
 
 def _cell(c: dict) -> Cell:
@@ -91,7 +91,12 @@ class Delaunay:
     scipy's); qhull_options (scipy's string of Qhull options:
     accepted and ignored, since an exact triangulation needs none of them; unknown
     options raise ValueError); threads (worker threads; None: all cores). The mesh is
-    the same for any thread count.
+    the same for any thread count. Beyond scipy: weights ((n,) power weights, CGAL's
+    convention: a weight is a squared radius), which gives the regular (weighted
+    Delaunay) triangulation: a point whose power cell is empty is in no simplex and
+    listed in `hidden`; equal weights give the Delaunay triangulation. Weighted
+    triangulations do not offer furthest_site, incremental, cell(s) or Voronoi yet
+    (ValueError), and refuse equal points.
     Raises ValueError for bad input (NaN, fewer than d + 1 points, points in a
     lower-dimensional subspace), naming the index. Equal points are merged into their
     first occurrence and listed in `coplanar`, as scipy does (with QJ in qhull_options
@@ -100,7 +105,8 @@ class Delaunay:
 
     Attributes, as scipy.spatial.Delaunay's: points, ndim, npoints, nsimplex,
     simplices, neighbors, vertex_neighbor_vertices, vertex_to_simplex, convex_hull,
-    coplanar, transform (NaN rows for simplices too flat for it), equations,
+    coplanar, transform (NaN rows for simplices too flat for it), equations (with
+    weights: the lifted points (p, |p|^2 - w)), weights, hidden,
     paraboloid_scale, paraboloid_shift, min_bound, max_bound, vertices (deprecated);
     methods find_simplex(xi, bruteforce, tol), lift_points(x), plane_distance(xi),
     add_points(points, restart), close(); pickling. The rows' order is the sweep's,
@@ -112,7 +118,8 @@ class Delaunay:
     """
 
     def __init__(self, points: np.ndarray, furthest_site: bool = False, incremental: bool = False,
-                 qhull_options: Optional[str] = None, threads: Optional[int] = None):
+                 qhull_options: Optional[str] = None, threads: Optional[int] = None,
+                 weights: Optional[np.ndarray] = None):
         if np.ma.isMaskedArray(points):
             raise ValueError("Input points cannot be a masked array")
         #: Whether this is the furthest-site triangulation.
@@ -123,6 +130,14 @@ class Delaunay:
             raise ValueError(f"points: expected an (n, d) array, got shape {pts.shape}")
         self._incremental = bool(incremental)
         self._threads = threads
+        #: (npoints,) float64 power weights, or None for the Delaunay triangulation.
+        self.weights: Optional[np.ndarray] = None
+        if weights is not None:
+            self.weights = np.ascontiguousarray(weights, dtype=np.float64)
+            for flag, what in ((self.furthest_site, "furthest_site"), (self._incremental, "incremental"),
+                               (self._joggle, "qhull_options QJ")):
+                if flag:
+                    raise ValueError(f"weights: {what} is not available for a weighted triangulation yet")
         #: Paraboloid of the lifted points (scipy's lift_points): z = scale |x|^2 + shift.
         self.paraboloid_scale: float = 1.0
         self.paraboloid_shift: float = 0.0
@@ -132,6 +147,11 @@ class Delaunay:
         """The core triangulation of pts and the first occurrence of each point (None
         when no two points are equal). Equal points are merged (the first kept; scipy's
         `coplanar` reports the others) or, with QJ, joggled apart."""
+        if self.weights is not None:
+            try:
+                return _core.Triangulation(pts, self._threads, self.weights), None
+            except _core.DuplicatePointsError as e:
+                raise ValueError(f"{e} (a weighted set cannot merge equal points: which weight would count?)") from None
         try:
             tri, first = _core.Triangulation(pts, self._threads), None
         except _core.DuplicatePointsError:
@@ -162,7 +182,7 @@ class Delaunay:
         self.min_bound: np.ndarray = bounds[0]
         self.max_bound: np.ndarray = bounds[1]
         for cached in ("neighbors", "vertex_neighbor_vertices", "convex_hull", "transform", "equations",
-                       "vertex_to_simplex", "coplanar"):
+                       "vertex_to_simplex", "coplanar", "hidden"):
             self.__dict__.pop(cached, None)
 
     def add_points(self, points: np.ndarray, restart: bool = False) -> None:
@@ -217,7 +237,7 @@ class Delaunay:
         # The triangulation is a function of the points: pickling keeps them and the
         # mode, and unpickling triangulates again (the same simplices, the same order).
         return (_rebuild, (self.points, self._incremental, "QJ" if self._joggle else None, self._threads,
-                           self.furthest_site))
+                           self.furthest_site, self.weights))
 
     @property
     def vertices(self) -> np.ndarray:
@@ -235,6 +255,16 @@ class Delaunay:
         dup = np.flatnonzero(self._first != np.arange(self.npoints))
         twin = self._first[dup]
         return np.stack([dup, self.vertex_to_simplex[twin], twin], axis=1).astype(np.int32)
+
+    @functools.cached_property
+    def hidden(self) -> np.ndarray:
+        """int32, ascending: the points in no simplex because their power cell is empty
+        (weighted triangulations; always empty without weights)."""
+        if self.weights is None:
+            return np.zeros(0, dtype=np.int32)
+        used = np.zeros(self.npoints, dtype=bool)
+        used[self.simplices.ravel()] = True
+        return np.flatnonzero(~used).astype(np.int32)
 
     @functools.cached_property
     def vertex_to_simplex(self) -> np.ndarray:
@@ -259,6 +289,8 @@ class Delaunay:
         unit normal (last component negative: the lower hull; positive for the
         furthest-site triangulation, the upper hull) and offset, as scipy's."""
         lifted = self.lift_points(self.points[self.simplices])           # (m, d + 1, d + 1)
+        if self.weights is not None:  # the power lift |p|^2 - w_p
+            lifted[..., -1] -= self.paraboloid_scale * self.weights[self.simplices]
         base = lifted[:, -1, :]
         edges = lifted[:, :-1, :] - base[:, None, :]                     # (m, d, d + 1)
         d1 = self.ndim + 1

@@ -26,6 +26,7 @@
 #include "spokemesh/approx.hpp"
 #include "spokemesh/cells.hpp"
 #include "spokemesh/domain.hpp"
+#include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/point_set.hpp"
@@ -190,8 +191,17 @@ py::dict cell_dict(const VoronoiCell& c) {
 
 class Triangulation {
  public:
-  Triangulation(const Points& array, std::optional<unsigned> threads)
+  // weights: power weights, one per point (the regular triangulation), or none.
+  Triangulation(const Points& array, std::optional<unsigned> threads, const std::optional<Points>& weights)
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
+    if (weights) {
+      const Points& w = *weights;
+      if (w.ndim() != 1) throw py::value_error("weights: expected shape (n,), one weight a point");
+      auto checked = weights_from_values(std::span<const double>(w.data(), static_cast<std::size_t>(w.shape(0))),
+                                         "weights", points_.size(), WeightKind::kPowerWeight);
+      if (!checked.is_ok()) raise(checked.status());
+      weights_ = std::move(checked).value();
+    }
     py::gil_scoped_release release;
     // The sweep's split first (its records are freed before the tree copies the
     // points); it is dropped after the run.
@@ -200,6 +210,7 @@ class Triangulation {
     MeshOptions options;
     options.split = split.get();
     options.threads = threads_;
+    options.star.weights = weights_;
     auto stats = mesh_seeds(*tree_, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
       simplices_.insert(simplices_.end(), block.begin(), block.end());
       return Status::ok();
@@ -215,6 +226,7 @@ class Triangulation {
   // in the same order, that the whole set's triangulation has.
   Triangulation(const Triangulation& parent, const Points& more)
       : d_(parent.d_), threads_(parent.threads_) {
+    parent.unweighted_only("add_points");
     if (more.ndim() != 2 || more.shape(1) != parent.d_) {
       throw py::value_error("points: expected shape (k, " + std::to_string(parent.d_) + ")");
     }
@@ -257,6 +269,7 @@ class Triangulation {
   // scipy's Voronoi arrays (voronoi_diagram.hpp): vertices, vertex_of_simplex,
   // ridge_points, ridge_ptr, ridge_vertices, region_ptr, regions.
   py::dict voronoi() const {
+    unweighted_only("voronoi");
     std::call_once(adjacency_once_, [&] { build_adjacency(); });
     VoronoiDiagram v;
     {
@@ -283,6 +296,7 @@ class Triangulation {
   // Triangulation of its own: neighbours, Voronoi diagram and point location work on
   // it alike. Stars and cells stay nearest-site notions (spokemesh.Delaunay refuses them).
   std::unique_ptr<Triangulation> furthest_site() const {
+    unweighted_only("furthest_site");
     std::call_once(adjacency_once_, [&] { build_adjacency(); });
     std::optional<Result<std::vector<std::uint32_t>>> rows;
     {
@@ -294,6 +308,13 @@ class Triangulation {
   }
 
   int dimension() const { return d_; }
+  bool weighted() const { return !weights_.empty(); }
+  // What the weighted triangulation does not offer yet (issue 28): a clear ValueError.
+  void unweighted_only(const char* what) const {
+    if (!weights_.empty()) {
+      throw py::value_error(std::string(what) + ": not available for a weighted (regular) triangulation yet");
+    }
+  }
   std::size_t npoints() const { return points_.size(); }
   std::uint64_t stars_computed() const { return stars_computed_; }
   std::size_t nsimplices() const { return simplices_.size() / (d_ + 1); }
@@ -356,6 +377,7 @@ class Triangulation {
 
   py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
                 const std::optional<Points>& halfspaces) const {
+    unweighted_only("cell");
     const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed)));
     if (seed >= points_.size()) {
@@ -376,6 +398,7 @@ class Triangulation {
   // All cells' measures as the .npz of `spokemesh cells` holds them.
   py::dict cells(const std::optional<std::vector<double>>& box, const std::optional<Points>& halfspaces,
                  bool bounding_box) const {
+    unweighted_only("cells");
     std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain && bounding_box) domain = Domain::bounding_box(points_);
     std::vector<double> volume, centroid, area, normal;
@@ -421,7 +444,7 @@ class Triangulation {
  private:
   // Another triangulation of `base`'s points (its tree rebuilt over the copy).
   Triangulation(const Triangulation& base, std::vector<std::uint32_t> rows)
-      : points_(base.points_), d_(base.d_), threads_(base.threads_), simplices_(rows.begin(), rows.end()) {
+      : points_(base.points_), d_(base.d_), threads_(base.threads_), weights_(base.weights_), simplices_(rows.begin(), rows.end()) {
     tree_ = std::make_unique<KdTree>(points_);
   }
 
@@ -445,7 +468,9 @@ class Triangulation {
       throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
                             " points)");
     }
-    StarWalker walker(*tree_);
+    StarOptions options;
+    options.weights = weights_;
+    StarWalker walker(*tree_, options);
     Star star;
     Status s;
     {
@@ -495,6 +520,7 @@ class Triangulation {
   PointSet points_;
   int d_;
   unsigned threads_;
+  std::vector<double> weights_;  // power weights (empty: the Delaunay triangulation)
   std::unique_ptr<KdTree> tree_;
   Rows simplices_;
   std::uint64_t stars_computed_ = 0;  // by the insertion that made it (0 when built at once)
@@ -637,7 +663,9 @@ PYBIND11_MODULE(_core, m) {
       py::arg("points"));
   m.def("split_lists", &split_lists, py::arg("flat"), py::arg("ptr"));
   py::class_<Triangulation>(m, "Triangulation")
-      .def(py::init<const Points&, std::optional<unsigned>>(), py::arg("points"), py::arg("threads") = py::none())
+      .def(py::init<const Points&, std::optional<unsigned>, const std::optional<Points>&>(), py::arg("points"),
+           py::arg("threads") = py::none(), py::arg("weights") = py::none())
+      .def_property_readonly("weighted", &Triangulation::weighted)
       .def("inserted", [](const Triangulation& self, const Points& more) { return std::make_unique<Triangulation>(self, more); },
            py::arg("points"), "The triangulation with `points` appended (only the stars that change are computed)")
       .def_property_readonly("stars_computed", &Triangulation::stars_computed)

@@ -67,6 +67,10 @@ inline constexpr double kMaxWeight = 1e200;  // keeps |p - q|^2 - w finite in do
 Result<std::vector<double>> read_weights(const std::string& path, std::size_t count, WeightKind kind);
 Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
                                                WeightKind kind);
+// Weights (or radii, squared) given as values in memory (an array from Python or a
+// request), checked as the readers check them: errors name `source` and the index.
+Result<std::vector<double>> weights_from_values(std::span<const double> values, const std::string& source,
+                                                std::size_t count, WeightKind kind);
 Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const std::string& source, std::size_t count,
                                               WeightKind kind);
 

@@ -293,6 +293,17 @@ Status check_weight_count(std::size_t got, std::size_t count, WeightKind kind, c
 
 }  // namespace
 
+Result<std::vector<double>> weights_from_values(std::span<const double> values, const std::string& source,
+                                                std::size_t count, WeightKind kind) {
+  if (Status s = check_weight_count(values.size(), count, kind, source); !s.is_ok()) return s;
+  std::vector<double> out;
+  out.reserve(values.size());
+  for (std::size_t k = 0; k < values.size(); ++k) {
+    if (Status s = take_weight(values[k], kind, source + ": index " + std::to_string(k) + ": ", out); !s.is_ok()) return s;
+  }
+  return out;
+}
+
 Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
                                                WeightKind kind) {
   std::vector<double> out;
