@@ -3,14 +3,18 @@
 // parse for both), builds CGAL's Delaunay triangulation (2-d, 3-d: the specialised
 // Delaunay_triangulation_2/_3 with Epick, which sort the input spatially; d >= 4: the
 // dD Delaunay_triangulation with Epick_d), and prints the number of finite simplices.
-// It writes no mesh file (spokemesh's time includes writing one).
+// It writes no mesh file (spokemesh's time includes writing one). With a weights file
+// (read by spokemesh's reader too), CGAL's Regular_triangulation_2/_3 instead, the
+// peer of `spokemesh mesh FILE --weights WEIGHTS`; it also prints the hidden count.
 //
-//   build/bin/spokemesh_cgal_mesh FILE
+//   build/bin/spokemesh_cgal_mesh FILE [WEIGHTS]
 #include <CGAL/Delaunay_triangulation.h>
 #include <CGAL/Delaunay_triangulation_2.h>
 #include <CGAL/Delaunay_triangulation_3.h>
 #include <CGAL/Epick_d.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Regular_triangulation_2.h>
+#include <CGAL/Regular_triangulation_3.h>
 
 #include <cstdio>
 #include <vector>
@@ -18,8 +22,8 @@
 #include "spokemesh/io.hpp"
 
 int main(int argc, char** argv) {
-  if (argc != 2) {
-    std::fprintf(stderr, "usage: spokemesh_cgal_mesh FILE\n");
+  if (argc != 2 && argc != 3) {
+    std::fprintf(stderr, "usage: spokemesh_cgal_mesh FILE [WEIGHTS]\n");
     return 2;
   }
   auto read = spokemesh::read_points(argv[1]);
@@ -31,6 +35,37 @@ int main(int argc, char** argv) {
   const int d = ps.dimension();
   std::size_t simplices = 0;
   using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+  if (argc == 3) {
+    auto weights = spokemesh::read_weights(argv[2], ps.size(), spokemesh::WeightKind::kPowerWeight);
+    if (!weights.is_ok()) {
+      std::fprintf(stderr, "%s\n", weights.status().message().c_str());
+      return 1;
+    }
+    const std::vector<double>& w = weights.value();
+    std::size_t vertices = 0;
+    if (d == 2) {
+      std::vector<K::Weighted_point_2> p;
+      p.reserve(ps.size());
+      for (std::size_t i = 0; i < ps.size(); ++i) p.emplace_back(K::Point_2(ps.point(i)[0], ps.point(i)[1]), w[i]);
+      CGAL::Regular_triangulation_2<K> rt(p.begin(), p.end());
+      simplices = rt.number_of_faces();
+      vertices = rt.number_of_vertices();
+    } else if (d == 3) {
+      std::vector<K::Weighted_point_3> p;
+      p.reserve(ps.size());
+      for (std::size_t i = 0; i < ps.size(); ++i) {
+        p.emplace_back(K::Point_3(ps.point(i)[0], ps.point(i)[1], ps.point(i)[2]), w[i]);
+      }
+      CGAL::Regular_triangulation_3<K> rt(p.begin(), p.end());
+      simplices = rt.number_of_finite_cells();
+      vertices = rt.number_of_vertices();
+    } else {
+      std::fprintf(stderr, "weights: 2-d and 3-d only here\n");
+      return 2;
+    }
+    std::printf("%zu simplices, %zu hidden\n", simplices, ps.size() - vertices);
+    return 0;
+  }
   if (d == 2) {
     std::vector<K::Point_2> p;
     p.reserve(ps.size());

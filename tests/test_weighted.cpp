@@ -189,7 +189,9 @@ TEST(Weighted, StarsEqualCgalRegularTriangulationsWithHiddenPoints) {
     const Regular theirs = c.d == 2 ? cgal_regular_2(ps, c.weights) : cgal_regular_3(ps, c.weights);
     EXPECT_EQ(ours.hidden, theirs.hidden) << c.name << ": hidden points";
     EXPECT_EQ(ours.simplices, theirs.simplices) << c.name << ": simplices";
-    if (c.name.starts_with("large")) EXPECT_GT(theirs.hidden.size(), 10u) << "the case should hide points";
+    if (c.name.starts_with("large")) {
+      EXPECT_GT(theirs.hidden.size(), 10u) << "the case should hide points";
+    }
     // The whole mesh (run caches, two threads) is the union of the stars.
     EXPECT_EQ(as_set(weighted_mesh(tree, c.weights), c.d + 1), ours.simplices) << c.name << ": whole mesh";
   }

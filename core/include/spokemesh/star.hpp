@@ -229,8 +229,9 @@ class StarWalker {
   Status power_start(bool& hidden);
   // Sign of height(p) - slope . (p - x), exactly.
   int sign_above_slope(std::uint32_t p, const double* slope) const;
-  // Some point p != x with height(p) - slope . (p - x) <= 0 (on or below the plane).
-  std::optional<std::uint32_t> point_not_above(const double* slope) const;
+  // Up to `most` points p != x with height(p) - slope . (p - x) <= 0 (on or below the
+  // plane) into `out`; returns their number.
+  std::size_t points_not_above(const double* slope, std::uint32_t* out, std::size_t most) const;
   // For the start: where x lies in the convex hull of `face` (points), the sign of the
   // lifted face's height above lifted x there (-1: x is hidden), exactly; 2 when x is
   // not in the face or the face is not a simplex.

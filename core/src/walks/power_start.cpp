@@ -19,10 +19,11 @@
 // outside its orthogonal sphere (more points only lower the hull). The programme only
 // proposes; nothing it computes in floating point decides the star.
 //
-// The programme is a few dozen constraints in d + 1 unknowns, solved by a dense
-// simplex tableau with Bland's rule (written here: it runs once per seed outside its
-// own cell, in the walker's thread, on data it already holds; an LP library would add
-// a dependency and an allocation-heavy model for a 9-column problem).
+// The programme is a few dozen constraints in d + 1 unknowns, solved through its dual
+// by the revised simplex method (written here: it runs once per seed outside its own
+// cell, in the walker's thread, on data it already holds, in microseconds; an LP
+// library would add a dependency and an allocation-heavy model for a problem of d + 1
+// rows).
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -36,126 +37,154 @@
 namespace spokemesh {
 namespace {
 
-// The programme in the variables z = (u, v) >= 0 with a = (u - R) L and
-// b = (v - B0) L^2: coordinates scaled by L (the candidates' largest |q|), the slope
-// boxed to |a_c| / L <= R and b / L^2 <= 1 (so it is bounded), and B0 large enough that
-// z = 0 is feasible (no first phase).
+// The programme's dual, solved by the revised simplex method: d + 1 rows, so each step
+// costs a pass over the columns and (d + 1)^2 for the basis. Its columns are the points
+// (q_p, 1) with cost H_p, the slope's box (+-e_c, cost R: |a_c| <= R) and the lift's
+// cap (e_d, cost 1: b <= 1), in coordinates scaled by L (the largest |q|) and heights
+// by L^2. Minimizing sum_p l_p H_p + ... subject to sum_p l_p (q_p, 1) + ... = (0, 1),
+// l >= 0, has the primal (a, b) as its dual values: the optimum's basis is the face of
+// the points' lower hull above x (x = sum_p l_p p over its points), and (a, b) its plane.
+// The box and the cap start the basis (x is then "above" only virtual points), so no
+// first phase is needed.
 class StartProgramme {
  public:
-  // q: rows of d scaled coordinates; h: scaled heights.
-  StartProgramme(int d, const std::vector<double>& q, const std::vector<double>& h, double box)
-      : d_(d), rows_(static_cast<int>(h.size()) + d + 1), cols_(d + 1 + rows_ + 1), box_(box) {
-    const int points = static_cast<int>(h.size());
-    offset_ = 1;
-    for (int i = 0; i < points; ++i) {
-      double reach = std::fabs(h[i]);
-      for (int c = 0; c < d; ++c) reach += box * std::fabs(q[i * d + c]);
-      offset_ = std::max(offset_, reach + 1);
-    }
-    t_.assign(static_cast<std::size_t>((rows_ + 1) * cols_), 0.0);
+  // q: rows of d scaled coordinates; h: scaled heights (points may be appended to both
+  // between solves: the basis stays feasible, so solve() goes on from it); box: R.
+  void reset(int d, const std::vector<double>& q, const std::vector<double>& h, double box) {
+    d_ = d;
+    rows_ = d + 1;
+    virtuals_ = 2 * d + 1;
+    q_ = &q;
+    h_ = &h;
+    box_ = box;
+    inverse_.assign(static_cast<std::size_t>(rows_ * rows_), 0.0);
     basis_.resize(rows_);
-    for (int i = 0; i < rows_; ++i) {
-      double* row = &t_[static_cast<std::size_t>(i * cols_)];
-      if (i < points) {
-        double rhs = h[i] + offset_;
-        for (int c = 0; c < d; ++c) {
-          row[c] = q[i * d + c];
-          rhs += box * q[i * d + c];
-        }
-        row[d] = 1;
-        row[cols_ - 1] = rhs;
-      } else if (i < points + d) {
-        row[i - points] = 1;
-        row[cols_ - 1] = 2 * box;
-      } else {
-        row[d] = 1;
-        row[cols_ - 1] = 1 + offset_;
-      }
-      row[d + 1 + i] = 1;
-      basis_[i] = d + 1 + i;
+    value_.assign(rows_, 0.0);
+    for (int k = 0; k < rows_; ++k) {
+      inverse_[k * rows_ + k] = 1;
+      basis_[k] = k < d ? k : 2 * d;  // +e_c, then the cap e_d
     }
-    objective()[d] = -1;  // maximize v
+    value_[d] = 1;  // the cap holds the whole unit: b <= 1 binds
+    dual_.assign(rows_, 0.0);
   }
 
-  // Runs the simplex method; false when it does not finish (it should always: the
-  // programme is feasible and bounded, and Bland's rule does not cycle).
+  // Runs the method; false when it does not finish (it should: the programme is
+  // feasible and bounded, and after a while Bland's rule, which cannot cycle, picks).
   bool solve() {
     constexpr double kEps = 1e-12;
-    for (int iteration = 0; iteration < 50 * (rows_ + cols_); ++iteration) {
+    const int points = static_cast<int>(h_->size());
+    const int columns = virtuals_ + points;
+    std::array<double, kMaxDimension + 1> a, u;
+    for (int iteration = 0; iteration < 20 * (columns + rows_); ++iteration) {
+      // y = c_B B^-1: the plane (a, b).
+      std::fill(dual_.begin(), dual_.end(), 0.0);
+      for (int k = 0; k < rows_; ++k) {
+        const double c = cost(basis_[k]);
+        for (int r = 0; r < rows_; ++r) dual_[r] += c * inverse_[k * rows_ + r];
+      }
+      const bool bland = iteration >= 64;
       int enter = -1;
-      for (int j = 0; j + 1 < cols_; ++j) {
-        if (objective()[j] < -kEps) {
+      double best = 0;
+      auto consider = [&](int j, double r, double scale) {
+        if (r >= -kEps * scale) return false;
+        if (enter < 0 || r < best) {
           enter = j;
-          break;
+          best = r;
         }
+        return bland;  // Bland's rule takes the first
+      };
+      bool taken = false;
+      for (int c = 0; c < d_ && !taken; ++c) taken = consider(c, box_ - dual_[c], box_ + std::fabs(dual_[c]));
+      for (int c = 0; c < d_ && !taken; ++c) taken = consider(d_ + c, box_ + dual_[c], box_ + std::fabs(dual_[c]));
+      if (!taken) taken = consider(2 * d_, 1 - dual_[d_], 1 + std::fabs(dual_[d_]));
+      const double* q = q_->data();
+      for (int i = 0; i < points && !taken; ++i) {
+        double r = (*h_)[i] - dual_[d_], scale = std::fabs((*h_)[i]) + std::fabs(dual_[d_]);
+        for (int c = 0; c < d_; ++c) {
+          const double t = dual_[c] * q[i * d_ + c];
+          r -= t;
+          scale += std::fabs(t);
+        }
+        taken = consider(virtuals_ + i, r, scale);
       }
       if (enter < 0) return true;
+      column(enter, a.data());
+      for (int k = 0; k < rows_; ++k) {
+        u[k] = 0;
+        for (int r = 0; r < rows_; ++r) u[k] += inverse_[k * rows_ + r] * a[r];
+      }
       int leave = -1;
-      double best = 0;
-      for (int i = 0; i < rows_; ++i) {
-        const double a = at(i, enter);
-        if (a <= kEps) continue;
-        const double ratio = at(i, cols_ - 1) / a;
-        if (leave < 0 || ratio < best || (ratio == best && basis_[i] < basis_[leave])) {
-          leave = i;
-          best = ratio;
+      double ratio = 0;
+      for (int k = 0; k < rows_; ++k) {
+        if (u[k] <= kEps) continue;
+        const double t = std::max(0.0, value_[k]) / u[k];
+        if (leave < 0 || t < ratio || (t == ratio && basis_[k] < basis_[leave])) {
+          leave = k;
+          ratio = t;
         }
       }
-      if (leave < 0) return false;  // unbounded: impossible with the boxes
-      pivot(leave, enter);
+      if (leave < 0) return false;  // unbounded: impossible with the box and the cap
+      for (int k = 0; k < rows_; ++k) value_[k] -= ratio * u[k];
+      value_[leave] = ratio;
+      const double pivot = u[leave];
+      for (int r = 0; r < rows_; ++r) inverse_[leave * rows_ + r] /= pivot;
+      for (int k = 0; k < rows_; ++k) {
+        if (k == leave || u[k] == 0) continue;
+        for (int r = 0; r < rows_; ++r) inverse_[k * rows_ + r] -= u[k] * inverse_[leave * rows_ + r];
+      }
+      basis_[leave] = enter;
     }
     return false;
   }
 
   // The optimum: a (d values, in scaled units) and b.
-  double slope(int c) const { return value(c) - box_; }
-  double lift() const { return value(d_) - offset_; }
+  double slope(int c) const { return dual_[c]; }
+  double lift() const { return dual_[d_]; }
   bool slope_boxed() const {
-    for (int c = 0; c < d_; ++c) {
-      if (std::fabs(slope(c)) >= box_ * (1 - 1e-9)) return true;
+    for (int k = 0; k < rows_; ++k) {
+      if (basis_[k] < 2 * d_ && value_[k] > 0) return true;
     }
     return false;
   }
-  // Dual value of point row i (> 0: the constraint holds the optimum).
-  double dual(int i) const { return objective()[d_ + 1 + i]; }
-  // Slack of point row i at the optimum.
-  double slack(int i) const {
-    for (int r = 0; r < rows_; ++r) {
-      if (basis_[r] == d_ + 1 + i) return at(r, cols_ - 1);
+  // The weight of point i in the optimum's face (> 0: the face holds it).
+  double weight(int i) const {
+    for (int k = 0; k < rows_; ++k) {
+      if (basis_[k] == virtuals_ + i) return value_[k];
     }
     return 0;
+  }
+  // Point i's height above the optimum's plane, H_i - a . q_i - b (scaled).
+  double slack(int i) const {
+    double r = (*h_)[i] - dual_[d_];
+    for (int c = 0; c < d_; ++c) r -= dual_[c] * (*q_)[i * d_ + c];
+    return r;
   }
 
  private:
-  double* objective() { return &t_[static_cast<std::size_t>(rows_ * cols_)]; }
-  const double* objective() const { return &t_[static_cast<std::size_t>(rows_ * cols_)]; }
-  double at(int i, int j) const { return t_[static_cast<std::size_t>(i * cols_ + j)]; }
-  double value(int j) const {
-    for (int r = 0; r < rows_; ++r) {
-      if (basis_[r] == j) return at(r, cols_ - 1);
+  double cost(int j) const { return j < 2 * d_ ? box_ : j == 2 * d_ ? 1.0 : (*h_)[j - virtuals_]; }
+  void column(int j, double* a) const {
+    std::fill(a, a + rows_, 0.0);
+    if (j < d_) {
+      a[j] = 1;
+    } else if (j < 2 * d_) {
+      a[j - d_] = -1;
+    } else if (j == 2 * d_) {
+      a[d_] = 1;
+    } else {
+      const int i = j - virtuals_;
+      for (int c = 0; c < d_; ++c) a[c] = (*q_)[i * d_ + c];
+      a[d_] = 1;
     }
-    return 0;
-  }
-  void pivot(int leave, int enter) {
-    double* p = &t_[static_cast<std::size_t>(leave * cols_)];
-    const double inv = 1 / p[enter];
-    for (int j = 0; j < cols_; ++j) p[j] *= inv;
-    p[enter] = 1;
-    for (int i = 0; i <= rows_; ++i) {
-      if (i == leave) continue;
-      double* row = &t_[static_cast<std::size_t>(i * cols_)];
-      const double f = row[enter];
-      if (f == 0) continue;
-      for (int j = 0; j < cols_; ++j) row[j] -= f * p[j];
-      row[enter] = 0;
-    }
-    basis_[leave] = enter;
   }
 
-  int d_, rows_, cols_;
-  double box_, offset_ = 1;
-  std::vector<double> t_;  // rows_ constraint rows, then the objective row
-  std::vector<int> basis_;
+  int d_ = 0, rows_ = 0, virtuals_ = 0;
+  const std::vector<double>* q_ = nullptr;
+  const std::vector<double>* h_ = nullptr;
+  double box_ = 0;
+  std::vector<double> inverse_;  // B^-1, rows_ x rows_
+  std::vector<int> basis_;       // the column of each row
+  std::vector<double> value_;    // the basic variables' values
+  std::vector<double> dual_;     // (a, b)
 };
 
 }  // namespace
@@ -179,7 +208,7 @@ int StarWalker::sign_above_slope(std::uint32_t p, const double* slope) const {
   return sgn(h);
 }
 
-std::optional<std::uint32_t> StarWalker::point_not_above(const double* slope) const {
+std::size_t StarWalker::points_not_above(const double* slope, std::uint32_t* out, std::size_t most) const {
   // On or below the plane: |q|^2 - (w_p - w_x) <= slope . q, i.e.
   // |q - slope / 2|^2 <= |slope / 2|^2 + w_p - w_x <= |slope / 2|^2 + weight_excess_:
   // a ball about x + slope / 2, enlarged for the rounding of its centre.
@@ -195,7 +224,8 @@ std::optional<std::uint32_t> StarWalker::point_not_above(const double* slope) co
   }
   const double r = std::sqrt(half2 + weight_excess_) * (1 + 1e-12) + c_max * 4 * filter::kUnitRoundoff * d;
   const double r2 = r * r * (1 + 1e-9);
-  return tree_.find_first(
+  std::size_t found = 0;
+  tree_.find_first(
       [&](const float* lo, const float* hi) {
         double near2 = 0;
         for (int c = 0; c < d; ++c) {
@@ -208,9 +238,11 @@ std::optional<std::uint32_t> StarWalker::point_not_above(const double* slope) co
         if (p == x_) return false;
         double near2 = 0;
         for (int c = 0; c < d; ++c) near2 += (pp[c] - centre[c]) * (pp[c] - centre[c]);
-        if (near2 > r2) return false;
-        return sign_above_slope(p, slope) <= 0;
+        if (near2 > r2 || sign_above_slope(p, slope) > 0) return false;
+        out[found++] = p;
+        return found == most;
       });
+  return found;
 }
 
 namespace {
@@ -291,20 +323,35 @@ Status StarWalker::power_start(bool& hidden) {
   const int d = d_;
   hidden = false;
   std::array<double, kMaxDimension> zero{};
-  std::optional<std::uint32_t> below = point_not_above(zero.data());
-  if (!below) return Status::ok();  // x is in its own power cell: the tangent plane
+  // Points found on or below a proposed plane join the programme a few at a time
+  // (fewer rounds where the nearest points say little: seeds near the hull).
+  constexpr std::size_t kJoinAtOnce = 4;
+  std::array<std::uint32_t, kJoinAtOnce> below;
+  std::size_t below_count = points_not_above(zero.data(), below.data(), 1);
+  if (below_count == 0) return Status::ok();  // x is in its own power cell: the tangent plane
   ++stats_.start_programmes;
 
-  // The programme's points: the candidates and every point found on or below a
-  // proposed plane. Coordinates scaled by L, heights by L^2.
-  ensure_candidates();
-  std::vector<std::uint32_t> ids(cand_id_.begin(), cand_id_.end());
-  if (std::find(ids.begin(), ids.end(), *below) == ids.end()) ids.push_back(*below);
+  // The programme's points: x's nearest few (the candidates when loaded: a hidden
+  // seed never needs them, so they are not loaded for it) and every point found on or
+  // below a proposed plane. Coordinates scaled by L, heights by L^2.
+  std::vector<std::uint32_t> ids;
+  if (loaded_) {
+    ids.assign(cand_id_.begin(), cand_id_.end());
+  } else {
+    constexpr std::size_t kNearest = 8 * (kMaxDimension + 1);
+    std::array<std::uint32_t, kNearest + 1> near;
+    std::array<double, kNearest + 1> near2;
+    const std::size_t want = std::min<std::size_t>(8 * static_cast<std::size_t>(d + 1) + 1, ps_.size());
+    const std::size_t got = tree_.knn(ps_.point(x_), want, near.data(), near2.data());
+    for (std::size_t i = 0; i < got; ++i) {
+      if (near[i] != x_) ids.push_back(near[i]);
+    }
+  }
+  if (std::find(ids.begin(), ids.end(), below[0]) == ids.end()) ids.push_back(below[0]);
   double scale = 0;
-  for (const double v : cand_q_) scale = std::max(scale, std::fabs(v));
-  {
-    const double* pp = ps_.point(*below);
-    const double* x = ps_.point(x_);
+  const double* x = ps_.point(x_);
+  for (const std::uint32_t id : ids) {
+    const double* pp = ps_.point(id);
     for (int c = 0; c < d; ++c) scale = std::max(scale, std::fabs(pp[c] - x[c]));
   }
   if (!(scale > 0)) return internal_error("a weighted seed's start has no neighbour at a positive distance");
@@ -318,27 +365,34 @@ Status StarWalker::power_start(bool& hidden) {
   for (const std::uint32_t id : ids) add_row(id);
 
   double box = 64;
-  for (int round = 0; round < 200; ++round) {
-    StartProgramme lp(d, q, h, box);
-    if (!lp.solve()) return internal_error("the start of a weighted seed's walk did not converge");
+  StartProgramme lp;
+  lp.reset(d, q, h, box);
+  for (;;) {  // ends: every round adds points, or enlarges the box (at most 5 times)
+    if (!lp.solve()) {
+      return internal_error("the start of a weighted seed's walk did not converge");
+    }
     const double b = lp.lift();
     constexpr double kTolerance = 1e-9;
     if (b > kTolerance) {
       std::array<double, kMaxDimension> slope{};
       for (int c = 0; c < d; ++c) slope[c] = lp.slope(c) * scale;
-      below = point_not_above(slope.data());
-      if (!below) {
+      below_count = points_not_above(slope.data(), below.data(), kJoinAtOnce);
+      if (below_count == 0) {
         slope_ = slope;
         extras_.slope = slope_.data();
         predicates_.set_direction_slope(slope_.data());
         return Status::ok();
       }
-      if (std::find(ids.begin(), ids.end(), *below) != ids.end()) {
-        return internal_error("the start plane of weighted seed " + std::to_string(x_) +
-                              " misses a point the programme holds (its power cell is too thin to place in double)");
+      for (std::size_t k = 0; k < below_count; ++k) {
+        // Each round adds a point the programme lacks (so the rounds end): one it
+        // holds is below a plane the programme put above it only by rounding.
+        if (std::find(ids.begin(), ids.end(), below[k]) != ids.end()) {
+          return internal_error("the start plane of weighted seed " + std::to_string(x_) +
+                                " misses a point the programme holds (its power cell is too thin to place in double)");
+        }
+        ids.push_back(below[k]);
+        add_row(below[k]);
       }
-      ids.push_back(*below);
-      add_row(*below);
       continue;
     }
     // The lower hull of the programme's points passes below (or through) lifted x at
@@ -346,12 +400,31 @@ Status StarWalker::power_start(bool& hidden) {
     std::vector<std::uint32_t> face;
     std::vector<std::pair<double, std::uint32_t>> tight;
     double top = 0;
-    for (int i = 0; i < static_cast<int>(ids.size()); ++i) top = std::max(top, lp.dual(i));
+    for (int i = 0; i < static_cast<int>(ids.size()); ++i) top = std::max(top, lp.weight(i));
     for (int i = 0; i < static_cast<int>(ids.size()); ++i) {
-      if (lp.dual(i) > top * 1e-9) {
+      if (lp.weight(i) > top * 1e-9) {
         face.push_back(ids[i]);
       } else {
         tight.push_back({lp.slack(i), ids[i]});
+      }
+    }
+    // A full simplex (the usual case) is decided by the filtered predicates: x in it
+    // (closed) and outside its perturbed power sphere proves x hidden; inside, the
+    // perturbed lower hull passes below x only by ties, which the rationals below sort out.
+    if (face.size() == static_cast<std::size_t>(d + 1)) {
+      const int o = predicates_.orientation(std::span<const std::uint32_t>(face));
+      bool inside = o != 0;
+      for (int k = 0; k <= d && inside; ++k) {
+        std::array<std::uint32_t, kMaxDimension + 1> swapped;
+        std::copy(face.begin(), face.end(), swapped.begin());
+        swapped[k] = x_;
+        const int sk = predicates_.orientation(std::span<const std::uint32_t>(swapped.data(), face.size()));
+        inside = sk == 0 || sk == o;
+      }
+      if (inside && predicates_.side_of_sphere(std::span<const std::uint32_t>(face), x_) > 0) {
+        ++stats_.hidden;
+        hidden = true;
+        return Status::ok();
       }
     }
     const int side = face_side(face);
@@ -383,12 +456,12 @@ Status StarWalker::power_start(bool& hidden) {
     }
     if (lp.slope_boxed() && box < 1e12) {
       box *= 64;  // the optimum may lie beyond the slope's box
+      lp.reset(d, q, h, box);
       continue;
     }
     return internal_error("could not decide whether weighted seed " + std::to_string(x_) +
                           " is hidden (its power cell is empty or thinner than double precision resolves)");
   }
-  return internal_error("the start of a weighted seed's walk did not converge");
 }
 
 }  // namespace spokemesh

@@ -79,7 +79,6 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
     ++w_.stats_.cached_starts;
     w_.stats_.cached_wraps += static_cast<std::uint64_t>(post_count);
   } else {
-    w_.ensure_candidates();
     bool hidden = false;
     if (Status s = w_.first_simplex(first.data(), first_plane.data(), hidden); !s.is_ok()) return s;
     if (hidden) {  // with weights: x is in no triangle

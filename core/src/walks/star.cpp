@@ -792,6 +792,7 @@ Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, boo
   if (extras_.weights != nullptr) {
     if (Status s = power_start(hidden); !s.is_ok() || hidden) return s;
   }
+  ensure_candidates();  // after the start: a hidden seed needs none
   std::array<BoundedDouble, kMaxCols> reference;
   for (int c = 0; c < d; ++c) reference[c] = BoundedDouble::exact(-slope_[c]);
   reference[d] = BoundedDouble::exact(1.0);
@@ -1031,7 +1032,6 @@ class StarWalker::StarWalk {
     }
     std::array<std::uint32_t, kMaxCols> simplex{};
     std::array<BoundedDouble, kMaxCols> plane;  // every point on or above it
-    w.ensure_candidates();
     if (Status s = w.first_simplex(simplex.data(), plane.data(), hidden); !s.is_ok() || hidden) return s;
     add_simplex(simplex.data(), plane.data());
     return Status::ok();
