@@ -15,9 +15,12 @@
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 
 #include <algorithm>
+#include <map>
 #include <numeric>
 #include <random>
 
+#include "spokemesh/cells.hpp"
+#include "spokemesh/domain.hpp"
 #include "support.hpp"
 
 namespace spokemesh {
@@ -280,6 +283,70 @@ TEST(Weighted, PermutedInputGivesTheSameMesh) {
       mapped.insert(u);
     }
     EXPECT_EQ(mapped, as_set(weighted_mesh(ta, w), d + 1)) << d << "-d";
+  }
+}
+
+// Power cells through compute_cells: clipped to the unit box they tile it (volumes
+// sum to 1 within 1e-12), hidden seeds' cells are empty and said so, the facets pair
+// up (i lists j iff j lists i, with equal areas), and equal weights give the Voronoi
+// cells. Voro++'s -r is the peer in tests/python/test_cells.py (3-d).
+TEST(Weighted, PowerCellsTileTheBoxInEveryDimension) {
+  for (const int d : {2, 3, 4}) {
+    const std::size_t n = d == 2 ? 2000 : d == 3 ? 1000 : 300;
+    const PointSet ps = make_points(d, uniform_points(d, n, 380 + d));
+    const KdTree tree(ps);
+    const Domain box = Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 1.0)).value();
+    for (const bool equal : {false, true}) {
+      const auto w = equal ? std::vector<double>(n, 0.3) : uniform_weights(n, 0, d == 2 ? 4e-3 : d == 3 ? 2e-2 : 0.05, 390 + d);
+      std::vector<VoronoiCell> cells;
+      for (const bool weighted : {true, false}) {
+        if (!weighted && !equal) continue;
+        CellsOptions options;
+        options.threads = 2;
+        if (weighted) options.star.weights = w;
+        std::vector<VoronoiCell> got;
+        const Status s = compute_cells(tree, &box, options, [&](std::span<const VoronoiCell> part, std::uint64_t) {
+          got.insert(got.end(), part.begin(), part.end());
+          return Status::ok();
+        });
+        ASSERT_TRUE(s.is_ok()) << s.message();
+        ASSERT_EQ(got.size(), n);
+        if (!weighted) {  // equal weights against the plain cells
+          for (std::size_t i = 0; i < n; ++i) {
+            EXPECT_NEAR(got[i].volume, cells[i].volume, 1e-12) << d << "-d cell " << i;
+            ASSERT_EQ(got[i].facets.size(), cells[i].facets.size()) << d << "-d cell " << i;
+            for (std::size_t f = 0; f < got[i].facets.size(); ++f) {
+              EXPECT_EQ(got[i].facets[f].neighbor, cells[i].facets[f].neighbor);
+            }
+          }
+          continue;
+        }
+        cells = std::move(got);
+      }
+      double total = 0;
+      std::size_t hidden = 0;
+      std::map<std::pair<std::int64_t, std::int64_t>, double> areas;
+      for (const VoronoiCell& c : cells) {
+        total += c.volume;
+        if (c.hidden) {
+          ++hidden;
+          EXPECT_EQ(c.volume, 0);
+          EXPECT_TRUE(c.facets.empty());
+        }
+        for (const VoronoiFacet& f : c.facets) {
+          if (!f.is_wall()) areas[{c.seed, f.neighbor}] = f.area;
+        }
+      }
+      EXPECT_NEAR(total, 1.0, 1e-12) << d << "-d";
+      for (const auto& [key, area] : areas) {
+        const auto back = areas.find({key.second, key.first});
+        ASSERT_NE(back, areas.end()) << d << "-d facet " << key.first << "-" << key.second << " has no partner";
+        EXPECT_NEAR(area, back->second, 1e-11) << d << "-d facet " << key.first << "-" << key.second;
+      }
+      if (!equal) {
+        EXPECT_GT(hidden, 0u) << d << "-d: the weights should hide some points";
+      }
+    }
   }
 }
 

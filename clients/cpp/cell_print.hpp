@@ -25,8 +25,9 @@ inline nlohmann::json cell_json(const VoronoiCell& cell, std::uint64_t seed,
   j["dimension"] = d;
   j["bounded"] = cell.bounded;
   j["clipped"] = cell.clipped;
+  if (cell.hidden) j["hidden"] = true;  // weighted: an empty power cell (volume 0, no facets)
   j["volume"] = cell.bounded ? nlohmann::json(cell.volume) : nlohmann::json(nullptr);
-  j["centroid"] = cell.bounded ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
+  j["centroid"] = cell.bounded && !cell.centroid.empty() ? nlohmann::json(cell.centroid) : nlohmann::json(nullptr);
   j["vertices"] = nlohmann::json::array();
   for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
     nlohmann::json vertex = {{"position", std::vector<double>(&cell.vertices[v * d], &cell.vertices[v * d] + d)}};
@@ -61,6 +62,7 @@ inline void print_cell(const VoronoiCell& cell, std::uint64_t seed, bool json,
   std::printf("seed %llu\ndimension %d\nbounded %s\n", static_cast<unsigned long long>(seed), d,
               cell.bounded ? "yes" : "no");
   if (cell.clipped) std::printf("clipped yes\n");
+  if (cell.hidden) std::printf("hidden yes (an empty power cell)\n");
   if (cell.bounded) {
     std::printf("volume %.17g\ncentroid", cell.volume);
     for (double c : cell.centroid) std::printf(" %.17g", c);

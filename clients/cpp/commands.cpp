@@ -154,6 +154,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
   w.cells->add_option("--random-seed", w.common.random_seed,
                       "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
+  if (one_process) add_weight_flags(w.cells, w.common);
 }
 
 Result<std::pair<std::uint32_t, std::uint32_t>> parse_seed_range(const std::string& seeds, std::uint64_t n) {

@@ -203,12 +203,13 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
       // The builder `cells` uses, so that both print the same cell.
       StarOptions options;
       options.random_seed = common.random_seed;
+      options.weights = loaded.weights;
       ClippedCellBuilder builder(*loaded.tree, *domain.value(), options);
       auto clipped = builder.cell(star.seed);
       if (!clipped.is_ok()) return report(clipped.status());
       cell = std::move(clipped).value();
     } else {
-      cell = voronoi_cell(loaded.points, star);
+      cell = voronoi_cell(loaded.points, star, loaded.weights);
     }
     // Original indices (duplicates merged away map to first occurrences).
     cli::print_cell(cell, static_cast<std::uint64_t>(seed), json, [&](std::uint32_t i) { return loaded.to_original(i); });
@@ -220,6 +221,7 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, false);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
+  if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);
   const Loaded& loaded = *loaded_or.value();
   auto domain = domain_for(flags, loaded.points.dimension(), Domain::bounding_box(loaded.points));
   if (!domain.is_ok()) return report(domain.status());
@@ -228,6 +230,7 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   CellsOptions options;
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
+  options.star.weights = loaded.weights;
   options.measures_only = !writer.value()->needs_vertices();
   options.facet_cache_bytes = common.cache_mb << 20;
   Progress progress(common.quiet, loaded.points.size(), "cells");
@@ -386,6 +389,7 @@ int main(int argc, char** argv) {
   cell->add_flag("--json", json, "Print JSON instead of text");
   add_domain_flags(cell, domain_flags, "default: unclipped");
   add_common_flags(cell, common);
+  add_weight_flags(cell, common);
 
   auto* check = app.add_subcommand("check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
   check->add_option("INPUT", input, "Point file")->required();

@@ -243,3 +243,75 @@ def test_cell_domain_errors_over_both_transports(server):
     with pytest.raises(spokemesh.Error) as e:
         list(client.cells(ps.id, box=[0.4, 0.4, 0.5, 0.5]))
     assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "lies outside the domain" in e.value.details
+
+
+# --- Power (Laguerre) cells: weighted points (issue 28) ------------------------------
+
+def voro_radical(points: np.ndarray, radii: np.ndarray, tmp_path) -> dict:
+    """Voro++'s -r (radical, i.e. power, cells) in the unit cube: {id: (volume, neighbours)};
+    Voro++ leaves out the particles whose cells are empty."""
+    import subprocess
+    src = tmp_path / "voro.txt"
+    with open(src, "w") as f:
+        for i, (p, r) in enumerate(zip(points, radii)):
+            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r} {r!r}\n")
+    subprocess.run(["voro++", "-r", "-c", "%i %v %n", "0", "1", "0", "1", "0", "1", str(src)], check=True)
+    out = {}
+    for line in open(str(src) + ".vol"):
+        t = line.split()
+        out[int(t[0])] = (float(t[1]), {int(x) for x in t[2:] if int(x) >= 0})
+    return out
+
+
+@pytest.mark.parametrize("top", [0.02, 0.06])
+def test_power_cells_equal_voro_radical_cells(tmp_path, top):
+    """`spokemesh cells --radii` against `voro++ -r` on the same particles: the same
+    neighbour sets and volumes to Voro++'s printed digits; the cells Voro++ leaves out
+    (empty) are ours with volume 0 and no facets; the volumes tile the box."""
+    rng = np.random.default_rng(61)
+    n = 3000
+    pts, radii = rng.random((n, 3)), rng.random(n) * top
+    np.savetxt(tmp_path / "p.txt", pts, fmt="%.17g")
+    np.savetxt(tmp_path / "r.txt", radii, fmt="%.17g")
+    cli("cells", str(tmp_path / "p.txt"), "--radii", str(tmp_path / "r.txt"), "--box", box_of(3),
+        "-o", str(tmp_path / "c.npz"), "-q")
+    z = dict(np.load(tmp_path / "c.npz"))  # (an NpzFile reads an array again at every access)
+    check_npz(z, n, 3, 1.0)
+    theirs = voro_radical(pts, radii, tmp_path)
+    ptr, nb, vol = z["facet_ptr"], z["facet_neighbor"], z["volume"]
+    empty = 0
+    for i in range(n):
+        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]] if j >= 0}
+        if i not in theirs:
+            empty += 1
+            assert vol[i] == 0 and ptr[i] == ptr[i + 1], f"cell {i}: Voro++ finds it empty"
+            continue
+        v, nbs = theirs[i]
+        assert mine == nbs, f"cell {i}: neighbours {sorted(mine ^ nbs)} differ from Voro++'s"
+        assert abs(vol[i] - v) <= 5e-6 * max(v, 1e-300) + 1e-12, f"cell {i}: volume {vol[i]} against {v}"
+    if top > 0.05:
+        assert empty > 10, "the larger radii should empty some cells"
+
+
+def test_power_cells_of_equal_weights_are_the_voronoi_cells_and_cell_says_hidden(tmp_path):
+    pts = uniform(500, 3, 62)
+    np.savetxt(tmp_path / "p.txt", pts, fmt="%.17g")
+    np.savetxt(tmp_path / "w.txt", np.full(500, 0.01), fmt="%.17g")
+    cli("cells", str(tmp_path / "p.txt"), "--weights", str(tmp_path / "w.txt"), "-o", str(tmp_path / "w.npz"), "-q")
+    cli("cells", str(tmp_path / "p.txt"), "-o", str(tmp_path / "u.npz"), "-q")
+    w, u = np.load(tmp_path / "w.npz"), np.load(tmp_path / "u.npz")
+    assert np.array_equal(w["facet_ptr"], u["facet_ptr"]) and np.array_equal(w["facet_neighbor"], u["facet_neighbor"])
+    assert np.allclose(w["volume"], u["volume"], rtol=1e-12, atol=0)
+    # A point inside a heavy neighbour's sphere is hidden: `cell` says so.
+    grid = np.array([[x, y] for x in range(3) for y in range(3)], dtype=float)
+    np.savetxt(tmp_path / "g.txt", grid)
+    weights = np.zeros(9)
+    weights[4] = -2.0
+    np.savetxt(tmp_path / "gw.txt", weights)
+    out = cli("cell", str(tmp_path / "g.txt"), "--seed", "4", "--weights", str(tmp_path / "gw.txt"), "--json")
+    cell = json.loads(out.stdout)
+    assert cell["hidden"] is True and cell["volume"] == 0 and cell["facets"] == [] and cell["vertices"] == []
+    out = cli("cell", str(tmp_path / "g.txt"), "--seed", "1", "--weights", str(tmp_path / "gw.txt"), "--json",
+              "--box", "0,0,2,2")
+    cell = json.loads(out.stdout)
+    assert 4 not in [f.get("neighbor") for f in cell["facets"]]

@@ -1,6 +1,10 @@
 // VoronoiCell: the Voronoi cell of a seed, assembled from its Delaunay star, and
 // optionally clipped to a Domain (docs/cells.md).
 //
+// With power weights (issue 28) the cell is the power (Laguerre) cell: vertices are
+// the orthocentres of the regular triangulation's star, facets lie on the power
+// bisectors; a hidden seed's cell is empty (hidden, volume 0, no facets).
+//
 // Vertices are the circumcentres of the star's simplices (floating point: these
 // are outputs, the topology behind them is exact), each within 1e-12 of its
 // circumradius plus one ulp of the exact one (see circumcentre()); a clipped cell
@@ -17,6 +21,7 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "spokemesh/domain.hpp"
@@ -49,18 +54,21 @@ struct VoronoiCell {
   bool bounded = false;
   bool clipped = false;                    // clipped to a domain
   double volume = 0;                       // +infinity when unbounded (docs/service.md)
-  std::vector<double> centroid;            // d; empty when unbounded
+  std::vector<double> centroid;            // d; empty when unbounded or hidden
+  bool hidden = false;                     // with weights: the power cell is empty (volume 0)
 
   std::size_t vertex_count() const { return dimension == 0 ? 0 : vertices.size() / dimension; }
 };
 
 // The unclipped cell. In 2-d its vertices are counter-clockwise around the seed (a
 // path from the hull edge when unbounded); otherwise in the star's order.
-VoronoiCell voronoi_cell(const PointSet& points, const Star& star);
+// `weights`: the star's power weights (one per point; empty: unweighted).
+VoronoiCell voronoi_cell(const PointSet& points, const Star& star, std::span<const double> weights = {});
 // The cell clipped to `domain` (its walls cut in order). In 2-d the vertices are a
 // counter-clockwise cycle. Errors: INVALID_ARGUMENT when the domain's dimension is not
 // the points', or when the seed lies outside the domain (naming seed and wall).
-Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain);
+Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain,
+                                 std::span<const double> weights = {});
 
 // INVALID_ARGUMENT naming the seed and the wall when point `seed` lies outside the
 // domain (whose dimension must be the points'); OK otherwise.
@@ -73,8 +81,12 @@ Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domai
 // differences: a triangle in 2-d or a tetrahedron in 3-d by Cramer's rule where its
 // forward error bound meets the target, otherwise by column-pivoting QR, and in exact
 // rationals where the QR's condition estimate says double could miss the bound: within 1e-12 of the circumradius plus
-// one ulp of each coordinate. No heap allocation but the result (d <= 8).
-std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count);
+// one ulp of each coordinate. No heap allocation but the result (d <= 8). With
+// `weights` (one per point, or null): the orthocentre (power centre), the point of the
+// affine hull with equal power |c - p|^2 - w_p to every point, within 1e-12 of the
+// larger of its distance from the first point and the face's size (plus one ulp).
+std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count,
+                                 const double* weights = nullptr);
 
 // Delaunay neighbours of the seed, ascending.
 std::vector<std::uint32_t> star_neighbors(const Star& star);

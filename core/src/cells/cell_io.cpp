@@ -350,7 +350,8 @@ CellFileLayout::CellFileLayout(CellWriter::Format format, int d)
     : format_(format), d_(d), parts_(format == CellWriter::Format::kSvg ? 2 : d == 3 ? 8 : 6) {}
 
 bool CellFileLayout::shows(const VoronoiCell& cell) const {
-  return cell.bounded && (format_ != CellWriter::Format::kSvg || cell.vertex_count() >= 3);
+  // A hidden (weighted) seed's cell is empty: nothing to draw.
+  return cell.bounded && !cell.hidden && (format_ != CellWriter::Format::kSvg || cell.vertex_count() >= 3);
 }
 
 void CellFileLayout::add(const VoronoiCell& c, CellTally& t) const {

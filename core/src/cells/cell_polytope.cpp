@@ -125,7 +125,8 @@ void CellPolytope::exact_plane(std::uint32_t label, std::vector<mpq_class>& n, m
     c = domain_->offset(k);
     return;
   }
-  // The bisector of s and p: |x - s|^2 <= |x - p|^2, i.e. (p - s) . x <= (|p|^2 - |s|^2) / 2.
+  // The bisector of s and p: |x - s|^2 <= |x - p|^2, i.e. (p - s) . x <= (|p|^2 - |s|^2) / 2;
+  // with weights the power bisector, |x - s|^2 - w_s <= |x - p|^2 - w_p: c loses (w_p - w_s) / 2.
   const double* p = point_of(label);
   const double* s = ps_.point(seed_);
   c = 0;
@@ -134,6 +135,7 @@ void CellPolytope::exact_plane(std::uint32_t label, std::vector<mpq_class>& n, m
     n[i] = pi - si;
     c += pi * pi - si * si;
   }
+  if (weights_ != nullptr) c -= mpq_class(weights_[label]) - mpq_class(weights_[seed_]);
   c /= 2;
 }
 
@@ -166,8 +168,8 @@ std::vector<mpq_class> CellPolytope::exact_ray(const std::uint32_t* labels, std:
   return r;
 }
 
-CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domain* domain)
-    : ps_(points), domain_(domain), seed_(star.seed), d_(points.dimension()) {
+CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domain* domain, const double* weights)
+    : ps_(points), domain_(domain), weights_(weights), seed_(star.seed), d_(points.dimension()) {
   const int d = d_;
   const std::size_t m = star.size();
   const double* s = ps_.point(seed_);
@@ -179,10 +181,20 @@ CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domai
     for (int j = 0; j <= d; ++j) {
       if (simplex[j] != seed_) label_[v * d + k++] = simplex[j];
     }
-    const std::vector<double> c = circumcentre(ps_, simplex, d + 1);
+    const std::vector<double> c = circumcentre(ps_, simplex, d + 1, weights_);
     std::copy(c.begin(), c.end(), &x_[v * d]);
     double r2 = 0;
     for (int i2 = 0; i2 < d; ++i2) r2 += (c[i2] - s[i2]) * (c[i2] - s[i2]);
+    if (weights_ != nullptr) {  // circumcentre()'s bound for power centres: also the face's size
+      for (int j = 0; j <= d; ++j) {
+        double len2 = 0;
+        for (int i2 = 0; i2 < d; ++i2) {
+          const double t = ps_.point(simplex[j])[i2] - ps_.point(simplex[0])[i2];
+          len2 += t * t;
+        }
+        r2 = std::max(r2, len2);
+      }
+    }
     const double r = std::sqrt(r2);
     // circumcentre(): within 1e-12 of the circumradius plus one ulp per coordinate.
     error_[v] = 1e-12 * r + std::sqrt(d) * 2 * kUnit * max_abs(c.data(), d);
@@ -257,6 +269,7 @@ CellPolytope::Plane CellPolytope::plane_of(std::uint32_t label) const {
     const std::size_t k = label - kWallLabel0;
     std::copy(domain_->normal(k), domain_->normal(k) + d_, pl.a.begin());
     pl.b = domain_->offset(k);
+    pl.b_magnitude = std::abs(pl.b);
   } else {
     // The bisector relative to the seed s: q . (x - s) <= |q|^2 / 2 with q = p - s.
     const double* p = point_of(label);
@@ -266,7 +279,9 @@ CellPolytope::Plane CellPolytope::plane_of(std::uint32_t label) const {
       pl.a[c] = p[c] - pl.origin[c];
       q2 += pl.a[c] * pl.a[c];
     }
-    pl.b = q2 / 2;
+    const double excess = weights_ != nullptr ? weights_[label] - weights_[seed_] : 0.0;
+    pl.b = (q2 - excess) / 2;
+    pl.b_magnitude = (q2 + std::abs(excess)) / 2;
   }
   pl.a_norm = norm(pl.a.data(), d_);
   return pl;
@@ -290,8 +305,9 @@ double CellPolytope::plane_value(const Plane& pl, const double* x, double& round
   }
   // Besides the sum's own rounding, q = p - s and x - s are rounded (one unit of each
   // coordinate) and |q|^2 / 2 is a rounded sum: each perturbs f by at most a few units
-  // of sum |q_c| |w_c| + |q|^2, which is at most 2 x magnitude.
-  rounding = 4 * (d_ + 4) * kUnit * (magnitude + pl.b);
+  // of sum |q_c| |w_c| + |q|^2, which is at most 2 x magnitude (with weights, w_p - w_s
+  // and its subtraction are two more roundings of b's magnitude).
+  rounding = 4 * (d_ + 4) * kUnit * (magnitude + pl.b_magnitude);
   return f;
 }
 
@@ -752,7 +768,7 @@ void CellPolytope::refine_voronoi_vertices() {
     for (int i = 1; i <= d_; ++i) {  // insertion sort: at most 9 ids
       for (int j = i; j > 0 && ids[j - 1] > ids[j]; --j) std::swap(ids[j - 1], ids[j]);
     }
-    const std::vector<double> c = circumcentre(ps_, ids.data(), d_ + 1);
+    const std::vector<double> c = circumcentre(ps_, ids.data(), d_ + 1, weights_);
     std::copy(c.begin(), c.end(), &x_[v * d_]);
   }
 }

@@ -76,7 +76,9 @@ class CellPolytope {
   // The unclipped cell of star.seed; vertex i < star.size() is star simplex i, and an
   // unbounded cell's ideal vertices (exact rational directions) follow. `domain`
   // (nullptr: none) is what clip_all() cuts by; it must outlive the polytope.
-  CellPolytope(const PointSet& points, const Star& star, const Domain* domain);
+  // `weights` (one per point, or null; not owned): the star is a regular
+  // triangulation's, the cell a power cell (orthocentres, power bisectors).
+  CellPolytope(const PointSet& points, const Star& star, const Domain* domain, const double* weights = nullptr);
 
   // The box domain itself (2^d vertices, labels its walls), to be clipped by the
   // bisectors of seed's neighbours (voronoi.hpp, ClippedCellBuilder). Preconditions:
@@ -137,6 +139,7 @@ class CellPolytope {
     std::uint32_t label = 0;
     std::array<double, kMaxDimension> a{};
     double b = 0;
+    double b_magnitude = 0;  // a bound on b's terms: |b|, or for a bisector (|q|^2 + |w_p - w_s|) / 2
     double a_norm = 0;
     const double* origin = nullptr;
   };
@@ -163,6 +166,7 @@ class CellPolytope {
 
   const PointSet& ps_;
   const Domain* domain_;
+  const double* weights_ = nullptr;  // power weights, or null
   std::uint32_t seed_;
   int d_;
   double scale_ = 0;                 // the cell's size, for error thresholds

@@ -50,7 +50,8 @@ ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain,
     : tree_(tree),
       domain_(domain),
       star_options_(star_options),
-      direct_ok_(takes_direct_route(tree.points().dimension(), domain, route)),
+      // Power cells (weights) go through their stars: the direct route clips by plain bisectors.
+      direct_ok_(star_options.weights.empty() && takes_direct_route(tree.points().dimension(), domain, route)),
       scratch_(std::make_unique<Scratch>()) {}
 
 ClippedCellBuilder::~ClippedCellBuilder() = default;
@@ -80,7 +81,7 @@ Status ClippedCellBuilder::cell(std::uint32_t seed, VoronoiCell& out) {
   ++star_fallbacks_;
   last_from_star_ = true;
   if (Status st = walker().compute(seed, star_); !st.is_ok()) return st;
-  auto cell = voronoi_cell(points, star_, domain_);
+  auto cell = voronoi_cell(points, star_, domain_, star_options_.weights);
   if (!cell.is_ok()) return cell.status();
   out = std::move(cell).value();
   return Status::ok();
@@ -222,8 +223,9 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // as star runs do (a 50^3 grid: 9.7 s in space order, 8.5 s so), so the first
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
-  const bool direct =
-      domain != nullptr && ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
+  // Power cells (weights) go through their stars: the direct route clips by plain bisectors.
+  const bool direct = domain != nullptr && options.star.weights.empty() &&
+                      ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
   // (A caller's block_size fixes the rounds: space order from the start, if direct.)
   const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
   const std::uint64_t round_size = options.block_size != 0 ? small_rounds : direct ? 8192 * threads : small_rounds;
@@ -262,7 +264,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
       Status st = Status::ok();
       if (domain == nullptr) {
         st = w.walker->compute(s, w.star);
-        if (st.is_ok()) c = voronoi_cell(points, w.star);
+        if (st.is_ok()) c = voronoi_cell(points, w.star, options.star.weights);
       } else {
         st = w.builder->cell(s, c);
       }

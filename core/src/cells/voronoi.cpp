@@ -24,7 +24,7 @@ constexpr int kMaxCols = kMaxDimension + 1;
 // exact in mpq, and the only error is the final rounding (mpq -> double truncates:
 // at most one ulp). Gaussian elimination with the first non-zero pivot: exact
 // arithmetic needs no pivoting for accuracy, and G is positive definite.
-std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32_t* ids, int k) {
+std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32_t* ids, int k, const double* weights) {
   const int d = points.dimension();
   const double* p0 = points.point(ids[0]);
   std::vector<mpq_class> v(static_cast<std::size_t>(k * d));
@@ -38,7 +38,11 @@ std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32
       mpq_class dot = 0;
       for (int c = 0; c < d; ++c) dot += v[i * d + c] * v[j * d + c];
       a[i * (k + 1) + j] = dot;
-      if (i == j) a[i * (k + 1) + k] = dot / 2;
+      if (i == j) {
+        // Power centre: v_i . y = (|v_i|^2 - (w_i - w_0)) / 2.
+        a[i * (k + 1) + k] = weights == nullptr ? mpq_class(dot / 2)
+                                                : mpq_class((dot - (mpq_class(weights[ids[i + 1]]) - mpq_class(weights[ids[0]]))) / 2);
+      }
     }
   }
   for (int col = 0; col < k; ++col) {
@@ -68,7 +72,7 @@ std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32
 
 }  // namespace
 
-std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count) {
+std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights) {
   // c = p0 + y with y in the span of v_i = p_i - p0 and v_i . y = |v_i|^2 / 2. With the
   // column-pivoting QR A P = Q R of A = [v_1 ... v_k] (d x k), y = Q_1 z where
   // R_1^T z = P^T b / 2: the system is solved on the coordinate differences themselves,
@@ -84,7 +88,11 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   const double* p0 = points.point(ids[0]);
   std::vector<double> centre(p0, p0 + d);
   if (k == 0) return centre;
-  if (d > kMaxCols) return circumcentre_exact(points, ids, k);
+  if (d > kMaxCols) return circumcentre_exact(points, ids, k, weights);
+  // With weights, the right-hand side (|v_i|^2 - (w_i - w_0)) / 2 carries two more
+  // roundings; the bounds below are relative to |y| (which may be small: the power
+  // centre can sit near p0), and where they miss the target the exact path decides.
+  auto excess = [&](int i) { return weights == nullptr ? 0.0 : weights[ids[i + 1]] - weights[ids[0]]; };
   // Triangles in 2-d and tetrahedra in 3-d (k = d): Cramer's rule on the same
   // differences, with its forward error bound (cramer.hpp), where that bound meets the
   // target; about 10x cheaper than the QR below, which takes the rest.
@@ -96,7 +104,7 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
       double a[2][2], c[2], y2[2];
       for (int i = 0; i < 2; ++i) {
         for (int j = 0; j < 2; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
-        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1]);
+        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] - excess(i));
       }
       solved = detail::cramer_solve(a, c, y2, bound);
       y[0] = y2[0], y[1] = y2[1];
@@ -104,12 +112,21 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
       double a[3][3], c[3];
       for (int i = 0; i < 3; ++i) {
         for (int j = 0; j < 3; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
-        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2]);
+        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2] - excess(i));
       }
       solved = detail::cramer_solve(a, c, y, bound);
     }
     double radius = 0;
     for (int j = 0; j < d; ++j) radius += y[j] * y[j];
+    // A power centre's distance from p0 may be far below the face's size (its
+    // right-hand side cancels): the target is 1e-12 of the larger.
+    if (weights != nullptr) {
+      for (int i = 0; i < k; ++i) {
+        double len2 = 0;
+        for (int j = 0; j < d; ++j) len2 += (points.point(ids[i + 1])[j] - p0[j]) * (points.point(ids[i + 1])[j] - p0[j]);
+        radius = std::max(radius, len2);
+      }
+    }
     // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
     if (solved && std::sqrt(static_cast<double>(d)) * bound <= 1e-12 * std::sqrt(radius)) {
       for (int j = 0; j < d; ++j) centre[j] += y[j];
@@ -123,7 +140,7 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   Vector half_b(k);
   for (int i = 0; i < k; ++i) {
     for (int c = 0; c < d; ++c) a(c, i) = points.point(ids[i + 1])[c] - p0[c];
-    half_b(i) = 0.5 * a.col(i).squaredNorm();
+    half_b(i) = 0.5 * (a.col(i).squaredNorm() - excess(i));
   }
   const Eigen::ColPivHouseholderQR<Matrix> qr(a);
   const Matrix r = qr.matrixR().topLeftCorner(k, k).triangularView<Eigen::Upper>();
@@ -132,7 +149,7 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   constexpr double kUnitRoundoff = std::numeric_limits<double>::epsilon() / 2;
   // 4 d: a margin over the first-order bound (the differences and b carry a rounding).
   if (!(smallest > 0) || largest / smallest * kUnitRoundoff * 4 * d > kRelativeTarget) {
-    return circumcentre_exact(points, ids, k);
+    return circumcentre_exact(points, ids, k, weights);
   }
   const Vector pb = qr.colsPermutation().transpose() * half_b;
   const Vector z = r.transpose().triangularView<Eigen::Lower>().solve(pb);
@@ -232,13 +249,28 @@ Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domai
   return Status::ok();
 }
 
-VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
+namespace {
+// A hidden seed's cell: empty, said so.
+VoronoiCell hidden_cell(const Star& star, int d, bool clipped) {
   VoronoiCell cell;
+  cell.seed = star.seed;
+  cell.dimension = d;
+  cell.bounded = true;
+  cell.clipped = clipped;
+  cell.hidden = true;
+  cell.volume = 0;
+  return cell;
+}
+}  // namespace
+
+VoronoiCell voronoi_cell(const PointSet& points, const Star& star, std::span<const double> weights) {
   const int d = points.dimension();
+  if (star.hidden) return hidden_cell(star, d, false);
+  VoronoiCell cell;
   cell.seed = star.seed;
   cell.dimension = d;
   cell.bounded = star.bounded_cell();
-  const detail::CellPolytope polytope(points, star, nullptr);
+  const detail::CellPolytope polytope(points, star, nullptr, weights.empty() ? nullptr : weights.data());
   const std::vector<std::uint32_t> order = vertex_order(star);
   std::vector<std::int64_t> index(polytope.size(), -1);
   cell.vertex_simplices.reserve(star.simplices.size());
@@ -254,14 +286,16 @@ VoronoiCell voronoi_cell(const PointSet& points, const Star& star) {
   return cell;
 }
 
-Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain) {
+Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const Domain& domain,
+                                 std::span<const double> weights) {
   const int d = points.dimension();
   if (domain.dimension() != d) {
     return invalid_argument("domain: dimension " + std::to_string(domain.dimension()) + " does not match the points' " +
                             std::to_string(d));
   }
   if (Status st = check_seed_in_domain(points, star.seed, domain); !st.is_ok()) return st;
-  detail::CellPolytope polytope(points, star, &domain);
+  if (star.hidden) return hidden_cell(star, d, true);
+  detail::CellPolytope polytope(points, star, &domain, weights.empty() ? nullptr : weights.data());
   polytope.clip_all();
   return detail::assemble_clipped(polytope, star.seed, d);
 }
@@ -281,6 +315,13 @@ VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, i
   cell.dimension = d;
   cell.clipped = true;
   cell.bounded = polytope.bounded();
+  // A power cell need not hold its seed, so the domain can cut it away whole (a
+  // small particle at the domain's edge beside a large one outside): volume 0.
+  if (polytope.size() == 0) {
+    cell.bounded = true;
+    cell.volume = 0;
+    return cell;
+  }
   std::vector<std::uint32_t> order;
   if (d == 2) {
     order = polytope.polygon_order();
