@@ -22,26 +22,20 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+import timing  # bench/timing.py (the script's directory is on sys.path)
+
 REPO = Path(__file__).resolve().parent.parent
 
 
 def timed(cmd: list[str], cwd: str) -> tuple[float, float]:
     """(wall seconds, peak RSS MB) of a process, from GNU time."""
-    start = time.perf_counter()
-    r = subprocess.run(["/usr/bin/time", "-v", *cmd], cwd=cwd, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if r.returncode != 0:
-        sys.exit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
-    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr).group(1)) / 1024
+    wall, rss, _ = timing.process(cmd, cwd=cwd)
     return wall, rss
 
 

@@ -1,9 +1,15 @@
-"""Timing helpers shared by the in-process Python benchmarks (python_delaunay.py,
-python_voronoi.py, incremental.py): wall time by time.perf_counter()."""
+"""Timing helpers shared by the benchmarks: wall time of in-process calls by
+time.perf_counter() (python_delaunay.py, python_voronoi.py, incremental.py), and wall
+time and peak RSS of whole processes by GNU time (whole.py, cells.py, weighted.py)."""
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
 import time
-from typing import Callable, TypeVar
+from pathlib import Path
+from typing import Callable, Optional, TypeVar
 
 T = TypeVar("T")
 
@@ -22,3 +28,16 @@ def best(fn: Callable[[], T], repeat: int) -> tuple[float, T]:
         out, seconds = timed(fn)
         times.append(seconds)
     return min(times), out
+
+
+def process(cmd: list[str], cwd: Optional[str] = None, stdin: Optional[Path] = None) -> tuple[float, float, str]:
+    """(wall seconds, peak RSS MB, stdout) of a process, from GNU time; exits with its
+    stderr when it fails."""
+    start = time.perf_counter()
+    with open(stdin, "rb") if stdin else open(os.devnull, "rb") as inp:
+        r = subprocess.run(["/usr/bin/time", "-v", *cmd], cwd=cwd, stdin=inp, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if r.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
+    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr).group(1)) / 1024
+    return wall, rss, r.stdout

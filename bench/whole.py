@@ -21,12 +21,12 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+
+import timing  # bench/timing.py (the script's directory is on sys.path)
 
 REPO = Path(__file__).resolve().parent.parent
 BIN = Path(os.environ.get("SPOKEMESH_BIN_DIR", REPO / "build" / "bin"))
@@ -34,14 +34,7 @@ BIN = Path(os.environ.get("SPOKEMESH_BIN_DIR", REPO / "build" / "bin"))
 
 def timed(cmd: list[str], stdin: Path | None = None) -> tuple[float, float, str]:
     """(wall seconds, peak RSS MB, stdout) of a process, from GNU time."""
-    start = time.perf_counter()
-    with open(stdin, "rb") if stdin else open(os.devnull, "rb") as inp:
-        r = subprocess.run(["/usr/bin/time", "-v", *cmd], stdin=inp, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if r.returncode != 0:
-        sys.exit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
-    rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr).group(1)) / 1024
-    return wall, rss, r.stdout
+    return timing.process(cmd, stdin=stdin)
 
 
 def uniform(n: int, d: int, seed: int) -> np.ndarray:

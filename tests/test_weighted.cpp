@@ -36,6 +36,25 @@ struct Regular {
   std::set<std::uint32_t> hidden;
 };
 
+// The simplices and hidden points of a CGAL triangulation, from its finite vertices
+// and cells: `id` reads a vertex's point index from a handle or an iterator.
+template <class VertexIt, class CellIt, class Id>
+Regular collect(std::size_t n, VertexIt v, VertexIt v_end, CellIt c, CellIt c_end, int corners, Id id) {
+  Regular out;
+  std::set<std::uint32_t> vertices;
+  for (; v != v_end; ++v) vertices.insert(id(v));
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (!vertices.count(i)) out.hidden.insert(i);
+  }
+  for (; c != c_end; ++c) {
+    std::vector<std::uint32_t> t;
+    for (int k = 0; k < corners; ++k) t.push_back(id(c->vertex(k)));
+    std::sort(t.begin(), t.end());
+    out.simplices.insert(t);
+  }
+  return out;
+}
+
 Regular cgal_regular_2(const PointSet& ps, const std::vector<double>& w) {
   using Vb0 = CGAL::Regular_triangulation_vertex_base_2<K>;
   using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::uint32_t, K, Vb0>;
@@ -47,18 +66,8 @@ Regular cgal_regular_2(const PointSet& ps, const std::vector<double>& w) {
     points.emplace_back(K::Weighted_point_2(K::Point_2(ps.point(i)[0], ps.point(i)[1]), w[i]), i);
   }
   const RT rt(points.begin(), points.end());
-  Regular out;
-  std::set<std::uint32_t> vertices;
-  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->info());
-  for (std::uint32_t i = 0; i < ps.size(); ++i) {
-    if (!vertices.count(i)) out.hidden.insert(i);
-  }
-  for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) {
-    std::vector<std::uint32_t> t = {f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()};
-    std::sort(t.begin(), t.end());
-    out.simplices.insert(t);
-  }
-  return out;
+  return collect(ps.size(), rt.finite_vertices_begin(), rt.finite_vertices_end(), rt.finite_faces_begin(),
+                 rt.finite_faces_end(), 3, [](const auto& h) { return h->info(); });
 }
 
 Regular cgal_regular_3(const PointSet& ps, const std::vector<double>& w) {
@@ -73,19 +82,8 @@ Regular cgal_regular_3(const PointSet& ps, const std::vector<double>& w) {
     points.emplace_back(K::Weighted_point_3(K::Point_3(p[0], p[1], p[2]), w[i]), i);
   }
   const RT rt(points.begin(), points.end());
-  Regular out;
-  std::set<std::uint32_t> vertices;
-  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->info());
-  for (std::uint32_t i = 0; i < ps.size(); ++i) {
-    if (!vertices.count(i)) out.hidden.insert(i);
-  }
-  for (auto c = rt.finite_cells_begin(); c != rt.finite_cells_end(); ++c) {
-    std::vector<std::uint32_t> t;
-    for (int k = 0; k < 4; ++k) t.push_back(c->vertex(k)->info());
-    std::sort(t.begin(), t.end());
-    out.simplices.insert(t);
-  }
-  return out;
+  return collect(ps.size(), rt.finite_vertices_begin(), rt.finite_vertices_end(), rt.finite_cells_begin(),
+                 rt.finite_cells_end(), 4, [](const auto& h) { return h->info(); });
 }
 
 Regular cgal_regular_dd(const PointSet& ps, const std::vector<double>& w) {
@@ -101,19 +99,8 @@ Regular cgal_regular_dd(const PointSet& ps, const std::vector<double>& w) {
     const auto v = rt.insert(RT::Weighted_point(Kd::Point_d(d, ps.point(i), ps.point(i) + d), w[i]));
     if (v != RT::Vertex_handle()) v->data() = i;  // a hidden point has no vertex
   }
-  Regular out;
-  std::set<std::uint32_t> vertices;
-  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) vertices.insert(v->data());
-  for (std::uint32_t i = 0; i < ps.size(); ++i) {
-    if (!vertices.count(i)) out.hidden.insert(i);
-  }
-  for (auto c = rt.finite_full_cells_begin(); c != rt.finite_full_cells_end(); ++c) {
-    std::vector<std::uint32_t> t;
-    for (int k = 0; k <= d; ++k) t.push_back(c->vertex(k)->data());
-    std::sort(t.begin(), t.end());
-    out.simplices.insert(t);
-  }
-  return out;
+  return collect(ps.size(), rt.finite_vertices_begin(), rt.finite_vertices_end(), rt.finite_full_cells_begin(),
+                 rt.finite_full_cells_end(), d + 1, [](const auto& h) { return h->data(); });
 }
 
 // Every seed's star by one walker (no run caches): the simplices and the seeds whose
