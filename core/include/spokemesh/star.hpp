@@ -226,7 +226,16 @@ class StarWalker {
   // With weights (power_start.cpp): the plane h = slope . q that the spokes start
   // from, through lifted x with every other lifted point strictly above it (slope 0,
   // the tangent plane, when x lies in its own power cell), or `hidden`.
-  Status power_start(bool& hidden);
+  // `started`: x's cell has no volume and exists only by the symbolic perturbation, so
+  // no plane below the others passes through lifted x; one simplex of its star (d ids,
+  // without x) is written to `start` instead.
+  Status power_start(bool& hidden, std::uint32_t* start, bool& started);
+  // A simplex of x's (perturbed) star among d-subsets of `pool`, if any: written to
+  // `start` (d ids, without x).
+  bool star_simplex_among(const std::vector<std::uint32_t>& pool, std::uint32_t* start) const;
+  // Whether no point lies inside the perturbed power sphere of `simplex` (d + 1 ids,
+  // non-degenerate), exactly (a k-d tree query about its power centre).
+  bool power_sphere_empty(std::span<const std::uint32_t> simplex) const;
   // Sign of height(p) - slope . (p - x), exactly.
   int sign_above_slope(std::uint32_t p, const double* slope) const;
   // Up to `most` points p != x with height(p) - slope . (p - x) <= 0 (on or below the

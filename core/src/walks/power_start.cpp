@@ -28,11 +28,13 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <numeric>
 
 #include <gmpxx.h>
 
 #include "base/invariant.hpp"
 #include "spokemesh/star.hpp"
+#include "spokemesh/voronoi.hpp"
 
 namespace spokemesh {
 namespace {
@@ -319,9 +321,68 @@ int StarWalker::face_side(std::span<const std::uint32_t> face) const {
   return sgn(height);
 }
 
-Status StarWalker::power_start(bool& hidden) {
+bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) const {
+  // Inside the power sphere (centre c, squared radius R^2 = |c - s_0|^2 - w_s0) lie the
+  // points with |p - c|^2 < R^2 + w_p <= R^2 + max w: a ball about the computed centre,
+  // enlarged for its error (circumcentre()'s bound: 1e-12 of the simplex's size).
+  const int d = d_;
+  const std::vector<double> c = circumcentre(ps_, simplex.data(), d + 1, extras_.weights);
+  double r2 = -extras_.weights[simplex[0]], size = 0;
+  for (int k = 0; k < d; ++k) r2 += (c[k] - ps_.point(simplex[0])[k]) * (c[k] - ps_.point(simplex[0])[k]);
+  for (const std::uint32_t v : simplex) {
+    double len2 = 0;
+    for (int k = 0; k < d; ++k) len2 += (ps_.point(v)[k] - c[k]) * (ps_.point(v)[k] - c[k]);
+    size = std::max(size, std::sqrt(len2));
+  }
+  const double reach = std::sqrt(std::max(0.0, r2 + max_weight_)) * (1 + 1e-9) + 1e-9 * size;
+  const double reach2 = reach * reach;
+  const std::optional<std::uint32_t> inside = tree_.find_first(
+      [&](const float* lo, const float* hi) {
+        double near2 = 0;
+        for (int k = 0; k < d; ++k) {
+          const double gap = std::max({lo[k] - c[k], 0.0, c[k] - hi[k]});
+          near2 += gap * gap;
+        }
+        return near2 <= reach2;
+      },
+      [&](std::uint32_t p, const double* pp) {
+        if (std::find(simplex.begin(), simplex.end(), p) != simplex.end()) return false;
+        double near2 = 0;
+        for (int k = 0; k < d; ++k) near2 += (pp[k] - c[k]) * (pp[k] - c[k]);
+        return near2 <= reach2 && predicates_.side_of_sphere(simplex, p) < 0;
+      });
+  return !inside.has_value();
+}
+
+bool StarWalker::star_simplex_among(const std::vector<std::uint32_t>& pool, std::uint32_t* start) const {
+  const int d = d_;
+  const int m = static_cast<int>(pool.size());
+  if (m < d) return false;
+  std::vector<int> pick(static_cast<std::size_t>(d));
+  std::iota(pick.begin(), pick.end(), 0);
+  std::array<std::uint32_t, kMaxDimension + 1> simplex;
+  for (;;) {
+    simplex[0] = x_;
+    for (int k = 0; k < d; ++k) simplex[k + 1] = pool[pick[k]];
+    const std::span<const std::uint32_t> s(simplex.data(), static_cast<std::size_t>(d + 1));
+    if (predicates_.orientation(s) != 0 && power_sphere_empty(s)) {
+      std::copy(simplex.begin() + 1, simplex.begin() + d + 1, start);
+      std::sort(start, start + d);
+      return true;
+    }
+    // The next d-subset in lexicographic order of positions.
+    int k = d - 1;
+    while (k >= 0 && pick[k] == m - d + k) --k;
+    if (k < 0) return false;
+    ++pick[k];
+    for (int j = k + 1; j < d; ++j) pick[j] = pick[j - 1] + 1;
+  }
+}
+
+Status StarWalker::power_start(bool& hidden, std::uint32_t* start, bool& started) {
   const int d = d_;
   hidden = false;
+  started = false;
   std::array<double, kMaxDimension> zero{};
   // Points found on or below a proposed plane join the programme a few at a time
   // (fewer rounds where the nearest points say little: seeds near the hull).
@@ -450,9 +511,32 @@ Status StarWalker::power_start(bool& hidden) {
         hidden = true;
         return Status::ok();
       }
+      // x may keep a cell of no volume by the perturbation alone: then no plane of
+      // doubles passes below the others through lifted x, and the walk starts from a
+      // simplex of x's star instead, found among x's nearest points and those on the
+      // optimum's plane (the star's lifted vertices lie on planes supporting lifted x),
+      // each candidate certified exactly against every point.
+      // The pool: the points on the optimum's plane (to rounding) and x's nearest
+      // (the programme's first points are the k-d tree's nearest, in order).
+      constexpr std::size_t kMaxPool = 40;
+      std::vector<std::uint32_t> pool;
+      for (int i = 0; i < static_cast<int>(ids.size()) && pool.size() < kMaxPool; ++i) {
+        if (std::fabs(lp.slack(i)) <= 1e-9) pool.push_back(ids[i]);
+      }
+      for (std::size_t i = 0; i < ids.size() && i < 3 * static_cast<std::size_t>(d + 1) && pool.size() < kMaxPool; ++i) {
+        if (std::find(pool.begin(), pool.end(), ids[i]) == pool.end()) pool.push_back(ids[i]);
+      }
+      if (star_simplex_among(pool, start)) {
+        started = true;
+        return Status::ok();
+      }
+      // No simplex of x's star among them: x is hidden unless the perturbed hull
+      // passes below it elsewhere, which the pool's simplices would show. Neither was
+      // found: say so rather than guess.
       return internal_error("weighted seed " + std::to_string(x_) +
-                            " has a power cell of no volume that only the symbolic perturbation keeps; such "
-                            "seeds are not supported yet");
+                            " has a power cell of no volume that only the symbolic perturbation decides, and no "
+                            "simplex of its star was found among its " + std::to_string(pool.size()) +
+                            " nearest points");
     }
     if (lp.slope_boxed() && box < 1e12) {
       box *= 64;  // the optimum may lie beyond the slope's box

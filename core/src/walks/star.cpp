@@ -790,7 +790,13 @@ Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, boo
   extras_.slope = nullptr;
   predicates_.set_direction_slope(nullptr);
   if (extras_.weights != nullptr) {
-    if (Status s = power_start(hidden); !s.is_ok() || hidden) return s;
+    bool started = false;
+    if (Status s = power_start(hidden, found, started); !s.is_ok() || hidden) return s;
+    if (started) {  // a cell of no volume: the star's first simplex found directly
+      ensure_candidates();
+      simplex_plane(found, plane);
+      return Status::ok();
+    }
   }
   ensure_candidates();  // after the start: a hidden seed needs none
   std::array<BoundedDouble, kMaxCols> reference;
