@@ -74,6 +74,11 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     return invalid_argument("insert_points: " + std::to_string(n_old) + " old points of " + std::to_string(n) +
                             "; nothing to insert");
   }
+  if (!options.star.weights.empty()) {
+    // Which old stars a new point changes is decided by circumspheres here, not by
+    // power spheres (and a new point can hide an old one): not for weighted sets yet.
+    return invalid_argument("insert_points: weighted points are not supported yet; mesh the whole set");
+  }
   // The old rows by owner (the first vertex): where each owner's run starts.
   std::vector<std::uint64_t> first_row(n_old, ~std::uint64_t{0});
   std::vector<std::uint32_t> row_count(n_old, 0);

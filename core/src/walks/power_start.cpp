@@ -334,7 +334,12 @@ bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) cons
     for (int k = 0; k < d; ++k) len2 += (ps_.point(v)[k] - c[k]) * (ps_.point(v)[k] - c[k]);
     size = std::max(size, std::sqrt(len2));
   }
-  const double reach = std::sqrt(std::max(0.0, r2 + max_weight_)) * (1 + 1e-9) + 1e-9 * size;
+  // Slack for the centre's error (1e-12 of size moves R^2 by 2e-12 size^2 and each
+  // distance by 1e-12 size) and for the roundings of R^2 + max w (a few units of the
+  // weights' magnitudes).
+  const double slack2 = 1e-9 * size * size + 8 * filter::kUnitRoundoff * (std::fabs(extras_.weights[simplex[0]]) +
+                                                                         std::fabs(max_weight_) + std::fabs(r2));
+  const double reach = std::sqrt(std::max(0.0, r2 + max_weight_) + slack2) * (1 + 1e-9) + 1e-9 * size;
   const double reach2 = reach * reach;
   const std::optional<std::uint32_t> inside = tree_.find_first(
       [&](const float* lo, const float* hi) {
