@@ -293,8 +293,24 @@ def test_weighted_errors_name_what_and_where():
     twice = np.concatenate([pts, pts[:1]])
     with pytest.raises(ValueError, match="which weight"):
         spokemesh.Delaunay(twice, weights=np.zeros(51))
-    tri = spokemesh.Delaunay(pts, weights=np.zeros(50))
-    with pytest.raises(ValueError, match="weighted"):
-        tri.cell(0)
-    with pytest.raises(ValueError, match="weighted"):
-        tri.cells()
+
+
+def test_weighted_cells_in_process_equal_the_cli(tmp_path):
+    """Power cells from Delaunay(points, weights).cells() and .cell(i) equal
+    `spokemesh cells --weights` (which test_cells checks against Voro++ -r), hidden
+    cells included."""
+    from conftest import cli
+    pts, w = weighted_case(3, 800, 2e-2, 47)
+    tri = spokemesh.Delaunay(pts, weights=w)
+    np.save(tmp_path / "p.npy", pts)
+    np.save(tmp_path / "w.npy", w)
+    cli("cells", str(tmp_path / "p.npy"), "--weights", str(tmp_path / "w.npy"), "-o", str(tmp_path / "c.npz"), "-q")
+    theirs = dict(np.load(tmp_path / "c.npz"))
+    ours = tri.cells()
+    for key in ("volume", "facet_ptr", "facet_neighbor"):
+        assert np.array_equal(ours[key], theirs[key]), key
+    hidden = int(tri.hidden[0])
+    cell = tri.cell(hidden, box=[0, 0, 0, 1, 1, 1])
+    assert cell.hidden and cell.volume == 0 and cell.facets == []
+    some = int(np.flatnonzero(theirs["volume"] > 0)[0])
+    assert tri.cell(some, box=[0, 0, 0, 1, 1, 1]).volume == pytest.approx(theirs["volume"][some], rel=1e-12)

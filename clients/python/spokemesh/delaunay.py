@@ -76,7 +76,7 @@ def _cell(c: dict) -> Cell:
                     normal=f["normal"]) for f in c["facets"]]
     return Cell(seed=c["seed"], vertices=c["vertices"], vertex_simplices=np.zeros((0, d + 1), dtype=np.uint32),
                 facets=facets, bounded=c["bounded"], volume=c["volume"], centroid=c["centroid"],
-                clipped=c["clipped"])
+                clipped=c["clipped"], hidden=c["hidden"])
 
 
 class Delaunay:
@@ -94,9 +94,9 @@ class Delaunay:
     the same for any thread count. Beyond scipy: weights ((n,) power weights, CGAL's
     convention: a weight is a squared radius), which gives the regular (weighted
     Delaunay) triangulation: a point whose power cell is empty is in no simplex and
-    listed in `hidden`; equal weights give the Delaunay triangulation. Weighted
-    triangulations do not offer furthest_site, incremental, cell(s) or Voronoi yet
-    (ValueError), and refuse equal points.
+    listed in `hidden`; equal weights give the Delaunay triangulation; cell(i) and
+    cells() are then power (Laguerre) cells. Weighted triangulations do not offer
+    furthest_site, incremental or Voronoi yet (ValueError), and refuse equal points.
     Raises ValueError for bad input (NaN, fewer than d + 1 points, points in a
     lower-dimensional subspace), naming the index. Equal points are merged into their
     first occurrence and listed in `coplanar`, as scipy does (with QJ in qhull_options

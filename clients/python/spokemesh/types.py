@@ -27,5 +27,6 @@ class Cell:
     facets: List[Facet]           # neighbours ascending, then walls ascending
     bounded: bool
     volume: float                 # inf when unbounded
-    centroid: Optional[np.ndarray] = None  # (d,); None when unbounded
+    centroid: Optional[np.ndarray] = None  # (d,); None when unbounded (or hidden)
     clipped: bool = False
+    hidden: bool = False          # weighted points: the power cell is empty (volume 0, no facets)

@@ -173,6 +173,7 @@ py::dict cell_dict(const VoronoiCell& c) {
   out["vertices"] = owned(std::vector<double>(c.vertices), {static_cast<py::ssize_t>(c.vertex_count()), d});
   out["bounded"] = c.bounded;
   out["clipped"] = c.clipped;
+  out["hidden"] = c.hidden;
   out["volume"] = c.volume;
   out["centroid"] = c.centroid.empty() ? py::object(py::none()) : py::object(owned(std::vector<double>(c.centroid), {d}));
   py::list facets;
@@ -377,9 +378,8 @@ class Triangulation {
 
   py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
                 const std::optional<Points>& halfspaces) const {
-    unweighted_only("cell");
     const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
-    if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed)));
+    if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed), weights_));
     if (seed >= points_.size()) {
       throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
                             " points)");
@@ -388,7 +388,9 @@ class Triangulation {
     std::optional<Result<VoronoiCell>> c;
     {
       py::gil_scoped_release release;
-      ClippedCellBuilder builder(*tree_, *domain);
+      StarOptions options;
+      options.weights = weights_;
+      ClippedCellBuilder builder(*tree_, *domain, options);
       c.emplace(builder.cell(seed));
     }
     if (!c->is_ok()) raise(c->status());
@@ -398,7 +400,6 @@ class Triangulation {
   // All cells' measures as the .npz of `spokemesh cells` holds them.
   py::dict cells(const std::optional<std::vector<double>>& box, const std::optional<Points>& halfspaces,
                  bool bounding_box) const {
-    unweighted_only("cells");
     std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain && bounding_box) domain = Domain::bounding_box(points_);
     std::vector<double> volume, centroid, area, normal;
@@ -410,6 +411,7 @@ class Triangulation {
       CellsOptions options;
       options.threads = threads_;
       options.measures_only = true;
+      options.star.weights = weights_;
       status = compute_cells(*tree_, domain ? &*domain : nullptr, options,
                              [&](std::span<const VoronoiCell> cells, std::uint64_t) {
                                for (const VoronoiCell& c : cells) {

@@ -39,6 +39,22 @@
 namespace spokemesh {
 namespace {
 
+// Squared distances from `centre` to a k-d tree box (floats rounded outwards) and to
+// a point: the balls of the start's tree queries prune with them.
+double box_distance2(const float* lo, const float* hi, const double* centre, int d) {
+  double near2 = 0;
+  for (int c = 0; c < d; ++c) {
+    const double gap = std::max({lo[c] - centre[c], 0.0, centre[c] - hi[c]});
+    near2 += gap * gap;
+  }
+  return near2;
+}
+double point_distance2(const double* p, const double* centre, int d) {
+  double near2 = 0;
+  for (int c = 0; c < d; ++c) near2 += (p[c] - centre[c]) * (p[c] - centre[c]);
+  return near2;
+}
+
 // The programme's dual, solved by the revised simplex method: d + 1 rows, so each step
 // costs a pass over the columns and (d + 1)^2 for the basis. Its columns are the points
 // (q_p, 1) with cost H_p, the slope's box (+-e_c, cost R: |a_c| <= R) and the lift's
@@ -228,19 +244,9 @@ std::size_t StarWalker::points_not_above(const double* slope, std::uint32_t* out
   const double r2 = r * r * (1 + 1e-9);
   std::size_t found = 0;
   tree_.find_first(
-      [&](const float* lo, const float* hi) {
-        double near2 = 0;
-        for (int c = 0; c < d; ++c) {
-          const double gap = std::max({lo[c] - centre[c], 0.0, centre[c] - hi[c]});
-          near2 += gap * gap;
-        }
-        return near2 <= r2;
-      },
+      [&](const float* lo, const float* hi) { return box_distance2(lo, hi, centre.data(), d) <= r2; },
       [&](std::uint32_t p, const double* pp) {
-        if (p == x_) return false;
-        double near2 = 0;
-        for (int c = 0; c < d; ++c) near2 += (pp[c] - centre[c]) * (pp[c] - centre[c]);
-        if (near2 > r2 || sign_above_slope(p, slope) > 0) return false;
+        if (p == x_ || point_distance2(pp, centre.data(), d) > r2 || sign_above_slope(p, slope) > 0) return false;
         out[found++] = p;
         return found == most;
       });
@@ -327,13 +333,9 @@ bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) cons
   // enlarged for its error (circumcentre()'s bound: 1e-12 of the simplex's size).
   const int d = d_;
   const std::vector<double> c = circumcentre(ps_, simplex.data(), d + 1, extras_.weights);
-  double r2 = -extras_.weights[simplex[0]], size = 0;
-  for (int k = 0; k < d; ++k) r2 += (c[k] - ps_.point(simplex[0])[k]) * (c[k] - ps_.point(simplex[0])[k]);
-  for (const std::uint32_t v : simplex) {
-    double len2 = 0;
-    for (int k = 0; k < d; ++k) len2 += (ps_.point(v)[k] - c[k]) * (ps_.point(v)[k] - c[k]);
-    size = std::max(size, std::sqrt(len2));
-  }
+  const double r2 = point_distance2(ps_.point(simplex[0]), c.data(), d) - extras_.weights[simplex[0]];
+  double size = 0;
+  for (const std::uint32_t v : simplex) size = std::max(size, std::sqrt(point_distance2(ps_.point(v), c.data(), d)));
   // Slack for the centre's error (1e-12 of size moves R^2 by 2e-12 size^2 and each
   // distance by 1e-12 size) and for the roundings of R^2 + max w (a few units of the
   // weights' magnitudes).
@@ -342,19 +344,10 @@ bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) cons
   const double reach = std::sqrt(std::max(0.0, r2 + max_weight_) + slack2) * (1 + 1e-9) + 1e-9 * size;
   const double reach2 = reach * reach;
   const std::optional<std::uint32_t> inside = tree_.find_first(
-      [&](const float* lo, const float* hi) {
-        double near2 = 0;
-        for (int k = 0; k < d; ++k) {
-          const double gap = std::max({lo[k] - c[k], 0.0, c[k] - hi[k]});
-          near2 += gap * gap;
-        }
-        return near2 <= reach2;
-      },
+      [&](const float* lo, const float* hi) { return box_distance2(lo, hi, c.data(), d) <= reach2; },
       [&](std::uint32_t p, const double* pp) {
         if (std::find(simplex.begin(), simplex.end(), p) != simplex.end()) return false;
-        double near2 = 0;
-        for (int k = 0; k < d; ++k) near2 += (pp[k] - c[k]) * (pp[k] - c[k]);
-        return near2 <= reach2 && predicates_.side_of_sphere(simplex, p) < 0;
+        return point_distance2(pp, c.data(), d) <= reach2 && predicates_.side_of_sphere(simplex, p) < 0;
       });
   return !inside.has_value();
 }
