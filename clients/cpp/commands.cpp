@@ -125,8 +125,8 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
     w.mesh->add_option("--shards", w.shards, "Remote mode: shards fetched in parallel")
         ->capture_default_str()
         ->check(CLI::Range(1u, 4096u));
-    add_weight_flags(w.mesh, w.common);
   }
+  add_weight_flags(w.mesh, w.common);  // spokemesh-mpi refuses them with a message
   add_common_flags(w.mesh, w.common);
 
   w.graph = app.add_subcommand("graph", "Write the Delaunay graph: one edge \"i j\" per line (i < j, sorted), or .npy");
@@ -136,7 +136,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
   w.graph->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
   add_approx_flags(w.graph, w.approx);
   add_common_flags(w.graph, w.common);
-  if (one_process) add_weight_flags(w.graph, w.common);
+  add_weight_flags(w.graph, w.common);
 
   w.cells = app.add_subcommand(
       "cells", "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");
@@ -154,7 +154,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
   w.cells->add_option("--random-seed", w.common.random_seed,
                       "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
-  if (one_process) add_weight_flags(w.cells, w.common);
+  add_weight_flags(w.cells, w.common);
 }
 
 Result<std::pair<std::uint32_t, std::uint32_t>> parse_seed_range(const std::string& seeds, std::uint64_t n) {

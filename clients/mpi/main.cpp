@@ -969,6 +969,14 @@ int main(int argc, char** argv) {
     MPI_Finalize();
     return code;
   }
+  if (w.common.weighted()) {
+    // The halos certify stars with circumspheres, not power spheres (issue 28).
+    if (comm.rank == 0) {
+      report(invalid_argument("--weights and --radii are not supported by spokemesh-mpi yet: use spokemesh"), kProgram);
+    }
+    MPI_Finalize();
+    return kExitUsage;
+  }
   Halo::set_first_halo_factor(first_halo);
   code = run(comm, *w.mesh ? Job::kMesh : *w.graph ? Job::kGraph : Job::kCells, w, stats_path);
   MPI_Finalize();

@@ -321,6 +321,11 @@ def test_bad_input_is_reported_once_with_the_cli_exit_code(work):
     done = run_mpi(2, "cells", str(flat), "-o", str(work / "c.npz"), check=False)
     assert done.returncode == 2
     assert done.stderr.count("span only a 2-dimensional affine subspace") == 1, done.stderr
+    weights = work / "w.txt"
+    weights.write_text("0\n" * 8)
+    done = run_mpi(2, "mesh", str(text), "--weights", str(weights), "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("not supported by spokemesh-mpi yet") == 1, done.stderr
 
 
 def test_an_unwritable_output_fails_before_meshing(reference, work):
