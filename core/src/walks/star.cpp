@@ -75,20 +75,20 @@ template <int D, class V, class M>
                                                                double* nv, double* hv, std::uint8_t* keep) {
   constexpr std::size_t kLanes = sizeof(V) / sizeof(double);
   static_assert(kPencilChunk % kLanes == 0);
-  const double* norm2 = block + D * stride;  // heights
-  const double* norm = norm2 + stride;
+  const double* heights = block + D * stride;
+  const double* norm = heights + stride;
   const double* depth = norm + stride;
   const double* magnitude = block + pencil.mag_row * stride;
   std::array<std::int64_t, kPencilChunk> reject;
   for (std::size_t i = 0; i < kPencilChunk; i += kLanes) {
-    V q, q2, q2mag, qn, qdepth;  // loaded by memcpy: rows need not be aligned
+    V q, qh, qh_mag, qn, qdepth;  // loaded by memcpy: rows need not be aligned
     std::memcpy(&q, block + i, sizeof q);
-    std::memcpy(&q2, norm2 + i, sizeof q2);
-    std::memcpy(&q2mag, magnitude + i, sizeof q2mag);
+    std::memcpy(&qh, heights + i, sizeof qh);
+    std::memcpy(&qh_mag, magnitude + i, sizeof qh_mag);
     std::memcpy(&qn, norm + i, sizeof qn);
     std::memcpy(&qdepth, depth + i, sizeof qdepth);
     V n = pencil.nn[0] * q;
-    V h = pencil.h[D] * q2 + pencil.h[0] * q;
+    V h = pencil.h[D] * qh + pencil.h[0] * q;
     for (int c = 1; c < D; ++c) {
       std::memcpy(&q, block + static_cast<std::size_t>(c) * stride + i, sizeof q);
       n += pencil.nn[c] * q;
@@ -98,7 +98,7 @@ template <int D, class V, class M>
     std::memcpy(hv + i, &h, sizeof h);
     const V n_bound = pencil.n_mag * qn;
     const V en = n_bound * pencil.n_eps;
-    const V h_bound = pencil.h_mag_d * q2mag + pencil.h_mag * qn;
+    const V h_bound = pencil.h_mag_d * qh_mag + pencil.h_mag * qn;
     // filter::relative_error and filter::is_certifiable, per lane (test_predicates'
     // Filter test checks that these lanes compute what the scalar filter does).
     const V eh = h_bound * ((pencil.h_depth_base + qdepth + filter::kDepthSlack) * filter::kErrorPerLevel);
@@ -786,9 +786,6 @@ Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, boo
   // holds every direction row; each later level's is the previous level's hit. With
   // weights, a plane h = slope . q through lifted x below every other lifted point
   // (power_start), whose direction rows are lifted onto it.
-  std::fill(slope_.begin(), slope_.end(), 0.0);
-  extras_.slope = nullptr;
-  predicates_.set_direction_slope(nullptr);
   if (extras_.weights != nullptr) {
     bool started = false;
     if (Status s = power_start(hidden, found, started); !s.is_ok() || hidden) return s;
@@ -1140,6 +1137,10 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   // Heights are at least |q|^2 minus this (rounded up: the difference's rounding
   // error is below 2^-53 of it).
   weight_excess_ = extras_.weights != nullptr ? std::max(0.0, (max_weight_ - extras_.weights[seed]) * (1 + 0x1p-50)) : 0.0;
+  // Spoke directions lie in the tangent plane unless power_start tilts it for this seed.
+  std::fill(slope_.begin(), slope_.end(), 0.0);
+  extras_.slope = nullptr;
+  predicates_.set_direction_slope(nullptr);
   cand_k_ = options_.initial_candidates != 0 ? options_.initial_candidates : default_candidates(d_);
   loaded_ = false;
   missed_candidates_ = 0;
