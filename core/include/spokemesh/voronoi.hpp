@@ -87,6 +87,9 @@ Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domai
 // larger of its distance from the first point and the face's size (plus one ulp).
 std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count,
                                  const double* weights = nullptr);
+// The face's size in circumcentre()'s bound for power centres: the largest squared
+// distance from the first of `ids` to the others.
+double face_size2(const PointSet& points, const std::uint32_t* ids, int count);
 
 // Delaunay neighbours of the seed, ascending.
 std::vector<std::uint32_t> star_neighbors(const Star& star);

@@ -185,16 +185,8 @@ CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domai
     std::copy(c.begin(), c.end(), &x_[v * d]);
     double r2 = 0;
     for (int i2 = 0; i2 < d; ++i2) r2 += (c[i2] - s[i2]) * (c[i2] - s[i2]);
-    if (weights_ != nullptr) {  // circumcentre()'s bound for power centres: also the face's size
-      for (int j = 0; j <= d; ++j) {
-        double len2 = 0;
-        for (int i2 = 0; i2 < d; ++i2) {
-          const double t = ps_.point(simplex[j])[i2] - ps_.point(simplex[0])[i2];
-          len2 += t * t;
-        }
-        r2 = std::max(r2, len2);
-      }
-    }
+    // circumcentre()'s bound for power centres is against the face's size too.
+    if (weights_ != nullptr) r2 = std::max(r2, face_size2(ps_, simplex, d + 1));
     const double r = std::sqrt(r2);
     // circumcentre(): within 1e-12 of the circumradius plus one ulp per coordinate.
     error_[v] = 1e-12 * r + std::sqrt(d) * 2 * kUnit * max_abs(c.data(), d);

@@ -72,6 +72,18 @@ std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32
 
 }  // namespace
 
+double face_size2(const PointSet& points, const std::uint32_t* ids, int count) {
+  const int d = points.dimension();
+  const double* p0 = points.point(ids[0]);
+  double size2 = 0;
+  for (int i = 1; i < count; ++i) {
+    double len2 = 0;
+    for (int c = 0; c < d; ++c) len2 += (points.point(ids[i])[c] - p0[c]) * (points.point(ids[i])[c] - p0[c]);
+    size2 = std::max(size2, len2);
+  }
+  return size2;
+}
+
 std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights) {
   // c = p0 + y with y in the span of v_i = p_i - p0 and v_i . y = |v_i|^2 / 2. With the
   // column-pivoting QR A P = Q R of A = [v_1 ... v_k] (d x k), y = Q_1 z where
@@ -120,13 +132,7 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
     for (int j = 0; j < d; ++j) radius += y[j] * y[j];
     // A power centre's distance from p0 may be far below the face's size (its
     // right-hand side cancels): the target is 1e-12 of the larger.
-    if (weights != nullptr) {
-      for (int i = 0; i < k; ++i) {
-        double len2 = 0;
-        for (int j = 0; j < d; ++j) len2 += (points.point(ids[i + 1])[j] - p0[j]) * (points.point(ids[i + 1])[j] - p0[j]);
-        radius = std::max(radius, len2);
-      }
-    }
+    if (weights != nullptr) radius = std::max(radius, face_size2(points, ids, count));
     // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
     if (solved && std::sqrt(static_cast<double>(d)) * bound <= 1e-12 * std::sqrt(radius)) {
       for (int j = 0; j < d; ++j) centre[j] += y[j];
