@@ -64,6 +64,13 @@ void add_weight_flags(CLI::App* cmd, Common& common) {
   radii->excludes(weights);
 }
 
+void add_periodic_flag(CLI::App* cmd, Common& common) {
+  cmd->add_option("--periodic", common.periodic,
+                  "Mesh on the flat torus of the box LO1,...,LOd,HI1,...,HId (opposite sides identified; every point "
+                  "in [LO, HI)): each simplex once, with its vertices' image offsets (.npz: simplices and offsets; "
+                  "text: indices then offsets)");
+}
+
 void add_domain_flags(CLI::App* cmd, DomainFlags& flags, const char* when_absent) {
   cmd->add_option("--box", flags.box,
                   std::string("Clip to the box LO1,...,LOd,HI1,...,HId (walls 0..d-1 low, d..2d-1 high); ") + when_absent);
@@ -127,6 +134,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
         ->check(CLI::Range(1u, 4096u));
   }
   add_weight_flags(w.mesh, w.common);  // spokemesh-mpi refuses them with a message
+  add_periodic_flag(w.mesh, w.common);  // and this
   add_common_flags(w.mesh, w.common);
 
   w.graph = app.add_subcommand("graph", "Write the Delaunay graph: one edge \"i j\" per line (i < j, sorted), or .npy");

@@ -50,10 +50,14 @@ struct Common {
   // the regular triangulation instead of the Delaunay one. At most one is set.
   std::string weights, radii;
   bool weighted() const { return !weights.empty() || !radii.empty(); }
+  // --periodic LO1,...,LOd,HI1,...,HId: mesh on the flat torus of that box.
+  std::string periodic;
 };
 void add_common_flags(CLI::App* cmd, Common& common);
 // --weights FILE and --radii FILE (the commands of the exact engine that support them).
 void add_weight_flags(CLI::App* cmd, Common& common);
+// --periodic BOX.
+void add_periodic_flag(CLI::App* cmd, Common& common);
 
 // The domain of `cell` and `cells`: --box, --halfspaces, or (for `cells`, when
 // `default_box`) the points' bounding box; none for an unclipped `cell`.

@@ -25,6 +25,7 @@
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
+#include "spokemesh/periodic.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/units.hpp"
 #include "spokemesh/validate.hpp"
@@ -123,7 +124,69 @@ Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed) {
   return invalid_argument("seed " + std::to_string(seed) + " duplicates an earlier point; use the first occurrence");
 }
 
+// mesh --periodic: the torus's simplices with their offsets (periodic.hpp).
+int run_periodic_mesh(const Common& common, const std::string& input, const std::string& output,
+                      const std::string& seeds) {
+  if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
+  if (!seeds.empty()) return report(invalid_argument("--seeds cannot be combined with --periodic yet"));
+  if (common.merge_duplicates) return report(invalid_argument("--merge-duplicates cannot be combined with --periodic"));
+  if (common.weighted()) {
+    return report(invalid_argument("--weights and --radii cannot be combined with --periodic yet (power diagrams on "
+                                   "the torus are not built)"));
+  }
+  auto box = PeriodicBox::parse(common.periodic, "--periodic");
+  if (!box.is_ok()) return report(box.status());
+  auto points = read_points(input);
+  if (!points.is_ok()) return report(points.status());
+  PointSet& ps = points.value();
+  if (ps.dimension() != box->dimension()) {
+    return report(invalid_argument("--periodic: " + std::to_string(2 * box->dimension()) + " values describe a " +
+                                   std::to_string(box->dimension()) + "-d box; " + input + " holds " +
+                                   std::to_string(ps.dimension()) + "-d points (give LO1,...,LOd,HI1,...,HId)"));
+  }
+  if (ps.dimension() > kMaxDimension) {
+    return report(invalid_argument(input + ": dimension " + std::to_string(ps.dimension()) +
+                                   " is above the exact limit " + std::to_string(kMaxDimension)));
+  }
+  if (Status s = box->check_contains(ps, input); !s.is_ok()) return report(s);
+  if (Status s = ps.validate(input); !s.is_ok()) return report(s);
+  auto writer_or = PeriodicMeshWriter::open(output, ps.dimension());
+  if (!writer_or.is_ok()) return report(writer_or.status());
+  PeriodicMeshWriter& writer = *writer_or.value();
+
+  MeshOptions options;
+  options.threads = common.threads;
+  options.star.random_seed = common.random_seed;
+  options.facet_cache_bytes = common.cache_mb << 20;
+  Progress progress(common.quiet, ps.size());
+  std::uint64_t written = 0;
+  auto result = mesh_periodic(
+      ps, box.value(), options,
+      [&](std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets, std::uint64_t done) {
+        written += simplices.size() / static_cast<std::size_t>(ps.dimension() + 1);
+        progress.update(done, written);
+        return writer.write(simplices, offsets);
+      },
+      [&] {
+        written = 0;
+        if (!common.quiet) std::fprintf(stderr, "\nspokemesh: the images' margin was too thin; meshing again with a wider one\n");
+        return writer.restart();
+      },
+      input);
+  progress.finish();
+  if (!result.is_ok()) return report(result.status());
+  if (Status s = writer.commit(); !s.is_ok()) return report(s);
+  if (!common.quiet) {
+    print_mesh_summary(ps.size(), result->mesh.simplices, progress.seconds(), 0.0, output);
+    std::fprintf(stderr, "spokemesh: periodic: %zu images within %.3g of the box, %d run%s\n",
+                 static_cast<std::size_t>(result->images), result->margin.empty() ? 0.0 : result->margin[0],
+                 result->runs, result->runs == 1 ? "" : "s");
+  }
+  return kExitOk;
+}
+
 int run_mesh(const Common& common, const std::string& input, const std::string& output, const std::string& seeds) {
+  if (!common.periodic.empty()) return run_periodic_mesh(common, input, output, seeds);
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, common.merge_duplicates, false, /*sweep=*/true);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
@@ -437,6 +500,9 @@ int main(int argc, char** argv) {
   }
 
   const bool remote_only = *upload || *append || *health || *list || *del || *batch;
+  if (!server.empty() && !common.periodic.empty()) {
+    return report(invalid_argument("--periodic works on local files only: the server does not store periodic boxes yet"));
+  }
   if (!server.empty() && common.weighted()) {
     return report(invalid_argument("--weights and --radii work on local files only: the server does not store weights yet"));
   }

@@ -969,6 +969,13 @@ int main(int argc, char** argv) {
     MPI_Finalize();
     return code;
   }
+  if (!w.common.periodic.empty()) {
+    if (comm.rank == 0) {
+      report(invalid_argument("--periodic is not supported by spokemesh-mpi yet: use spokemesh"), kProgram);
+    }
+    MPI_Finalize();
+    return kExitUsage;
+  }
   if (w.common.weighted()) {
     // The halos certify stars with circumspheres, not power spheres (issue 28).
     if (comm.rank == 0) {

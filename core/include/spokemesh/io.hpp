@@ -106,6 +106,25 @@ class MeshWriter {
   bool committed_ = false;
 };
 
+// A Delaunay triangulation of the flat torus (periodic.hpp), by extension:
+//   .npz: simplices (m, d + 1) int64, and offsets (m, d + 1, d) int32: vertex v of
+//         simplex s stands at points[simplices[s, v]] + offsets[s, v] * (HI - LO);
+//   .txt / .simplices: a comment line saying so, then one simplex a line: its d + 1
+//         point indices, then each vertex's d offsets in turn.
+// Written to scratch files and renamed into place on commit(), as MeshWriter does.
+// Thread safety: used by one thread.
+class PeriodicMeshWriter {
+ public:
+  // INVALID_ARGUMENT for other extensions (naming the ones that carry offsets).
+  static Result<std::unique_ptr<PeriodicMeshWriter>> open(const std::string& path, int dimension);
+  virtual ~PeriodicMeshWriter() = default;
+  // Appends simplices: (d + 1) indices and (d + 1) d offsets each.
+  virtual Status write(std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets) = 0;
+  // Forgets everything written so far (a run repeated with a wider margin).
+  virtual Status restart() = 0;
+  virtual Status commit() = 0;
+};
+
 // The .vtu, .msh and .svg mesh files as a sequence of sections, each fixed text, one
 // line per point (in index order) or one line per simplex (in the rows' order), so
 // that a writer holding only part of the points and rows (spokemesh-mpi: its slice of

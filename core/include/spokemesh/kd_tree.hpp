@@ -59,6 +59,12 @@ inline constexpr double kDistanceMargin = 1e-9;
 class KdTree {
  public:
   explicit KdTree(const PointSet& points);
+  // A tree whose points from id `first_inexact` on stand for positions known only to
+  // within `pad` per coordinate (a periodic set's images, stored rounded: periodic.hpp):
+  // the boxes holding them are widened by pad and never flat, so that find_first and
+  // any_beyond prune only where no true position can be. knn distances stay those of
+  // the stored coordinates (callers allow for pad).
+  KdTree(const PointSet& points, std::uint32_t first_inexact, double pad);
   // The tree of `points`, whose first base.points().size() points are base's (same
   // coordinates, same order): base's structure extended by a tree of the rest (see
   // Extension above), or a tree built whole when base already has kMaxParts parts or
@@ -124,6 +130,7 @@ class KdTree {
 
  private:
   KdTree(const KdTree& base, const PointSet& points);  // the extension (see extended)
+  void build_whole();  // the constructors' build of points_ as one tree
 
   // Reads the PointSet while nanoflann builds, the leaf-ordered copy afterwards.
   struct Adaptor {
@@ -192,6 +199,8 @@ class KdTree {
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
   std::vector<BoxNode> box_nodes_;
   std::vector<float> box_bounds_;  // per box node: d lows, then d highs, rounded outwards
+  std::uint32_t first_inexact_ = 0xFFFFFFFFu;
+  double pad_ = 0;
 };
 
 template <class MayContain, class Accept>

@@ -7,6 +7,7 @@
 // Thread safety: immutable after construction; concurrent reads are safe.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -36,5 +37,11 @@ class PeriodicBox {
  private:
   std::vector<double> lo_, hi_;
 };
+
+// The coordinate of an image relative to x, p + k (hi - lo) - x, rounded once to the
+// nearest double (ties to even): as accurate as fl(p - x) is for a point, so the star
+// walk's filters, which bound fl(p - x) by one rounding, bound an image's coordinate
+// the same way. p, lo, hi, x: finite doubles; |k| <= 2^20.
+double image_difference(double p, std::int32_t k, double lo, double hi, double x);
 
 }  // namespace spokemesh

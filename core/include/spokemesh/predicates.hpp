@@ -192,9 +192,19 @@ struct Row {
 };
 
 class PeriodicBox;
-// What a point row means beyond the plain PointSet (issue 28), both optional, not
+// Images of points stored as points of their own (a periodic set's cover, periodic.hpp):
+// point ids >= first stand for point[id - first] + offset[(id - first) d ..] (HI - LO),
+// whatever coordinates the PointSet stores for them (those are rounded). Not owned.
+struct ImageMap {
+  std::uint32_t first = 0xFFFFFFFFu;
+  const std::uint32_t* point = nullptr;
+  const std::int32_t* offset = nullptr;
+  bool is_image(std::int64_t id) const { return id >= static_cast<std::int64_t>(first); }
+};
+
+// What a point row means beyond the plain PointSet (issue 28), all optional, not
 // owned: power weights (one per point) and the periodic box whose lattice a row's
-// offset counts in.
+// offset counts in, and the images stored as points.
 struct PointExtras {
   const double* weights = nullptr;
   const PeriodicBox* box = nullptr;
@@ -203,7 +213,17 @@ struct PointExtras {
   // h = slope . q below every lifted point (StarWalker's start), and its spoke
   // directions must lie in that plane. Point rows are unaffected.
   const double* slope = nullptr;
+  ImageMap images{};
 };
+
+// `row` with an image stored as a point (ImageMap) named as its point and offset, so
+// that every predicate computes it exactly (from the point's coordinates and the box).
+// Rows already naming an offset, and directions, are returned as they are.
+inline Row resolve_image(const Row& row, const PointExtras& extras, int d) {
+  if (!row.is_point() || !extras.images.is_image(row.point)) return row;
+  const std::size_t k = static_cast<std::size_t>(row.point) - extras.images.first;
+  return Row::of_image(extras.images.point[k], extras.images.offset + k * static_cast<std::size_t>(d));
+}
 
 // The BoundedDouble entries of one predicate row relative to `origin`: (p - x, |p - x|^2) for
 // a point, (w, 0) (or (w, slope . w)) for a direction; `cols` is d (spatial) or d + 1 (lifted). With
@@ -240,8 +260,12 @@ struct Image {
 // invariant under translating all its images by one lattice vector.
 class Predicates {
  public:
-  explicit Predicates(const PointSet& points, std::span<const double> weights = {}, const PeriodicBox* box = nullptr)
-      : ps_(points), extras_{weights.empty() ? nullptr : weights.data(), box} {}
+  // images: with `box`, the ids of `points` that stand for images (ImageMap); every
+  // predicate then decides them as the exact images (a star walk on a periodic set's
+  // cover). An origin is never such an id.
+  explicit Predicates(const PointSet& points, std::span<const double> weights = {}, const PeriodicBox* box = nullptr,
+                      ImageMap images = {})
+      : ps_(points), extras_{weights.empty() ? nullptr : weights.data(), box, nullptr, images} {}
 
   const PointSet& points() const { return ps_; }
   // The power weights, or null for an unweighted set.

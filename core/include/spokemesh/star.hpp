@@ -45,6 +45,8 @@
 
 namespace spokemesh {
 
+class PeriodicCover;
+
 struct StarOptions {
   // Mixed with the seed index into every random spoke direction.
   std::uint64_t random_seed = 0x5eed;
@@ -62,6 +64,10 @@ struct StarOptions {
   // triangulation, CGAL's Regular_triangulation convention (a weight is a squared
   // radius). Empty: the Delaunay stars. Equal weights give the Delaunay stars.
   std::span<const double> weights{};
+  // A periodic set's cover (periodic.hpp; not owned), whose tree this walker's is: the
+  // cover's image ids are decided as the exact images. Seeds must be points (ids below
+  // cover->point_count()). Not combined with weights yet.
+  const PeriodicCover* cover = nullptr;
 };
 
 // Counters summed over a walker's lifetime (for benchmarks and tuning).
@@ -189,6 +195,9 @@ class StarWalker {
     int depth;
   };
   Lift relative_row(std::uint32_t id, const double* p, double* q) const;
+  // q = p - x rounded once, p given by its index and stored coordinates: for an image
+  // of a periodic cover, from its exact position (image_difference), not the stored one.
+  void relative(std::uint32_t id, const double* p, double* q) const;
   // The same as a BoundedDouble row (q, height), for cached candidates.
   void lifted_row(const double* q, const Lift& lift, BoundedDouble* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point
@@ -279,6 +288,10 @@ class StarWalker {
   PointExtras extras_;
   std::array<double, kMaxDimension> slope_{};
   double max_weight_ = 0;  // the largest weight
+  // A periodic cover's images (ids from image_first_): their stored coordinates lie
+  // within image_pad_ of their exact positions, per axis.
+  std::uint32_t image_first_ = 0xFFFFFFFFu;
+  double image_pad_ = 0;
   // An upper bound on max_p w_p - w_x for this seed (0 when unweighted): a point's
   // height is at least |q|^2 minus this, which is what the certificates' bounds use.
   double weight_excess_ = 0;

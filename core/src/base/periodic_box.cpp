@@ -1,6 +1,8 @@
 #include "spokemesh/periodic_box.hpp"
 
+#include <array>
 #include <cmath>
+#include <utility>
 #include <cstdio>
 
 #include "spokemesh/domain.hpp"
@@ -15,7 +17,60 @@ std::string number_text(double v) {
   return buf;
 }
 
+// The sum of `count` (<= 8) finite doubles rounded once to nearest (ties to even).
+// Written here rather than taken from a library: it is the classic error-free
+// summation (Shewchuk's non-overlapping partials, as Python's math.fsum keeps them),
+// then a sum of the partials from the largest down, which is exact until the first
+// rounding, with the half-way correction that fsum applies when the remaining partials
+// would break a tie. Terms are far below overflow (|p|, |lo|, |hi| <= 1e100, |k| <= 2^20).
+double rounded_sum(const double* terms, int count) {
+  std::array<double, 16> partials;
+  int m = 0;
+  for (int t = 0; t < count; ++t) {
+    double x = terms[t];
+    int kept = 0;
+    for (int j = 0; j < m; ++j) {
+      double y = partials[static_cast<std::size_t>(j)];
+      if (std::fabs(x) < std::fabs(y)) std::swap(x, y);
+      const double high = x + y;
+      const double low = y - (high - x);
+      if (low != 0) partials[static_cast<std::size_t>(kept++)] = low;
+      x = high;
+    }
+    m = kept;
+    partials[static_cast<std::size_t>(m++)] = x;
+  }
+  if (m == 0) return 0;
+  int j = m - 1;
+  double high = partials[static_cast<std::size_t>(j--)];
+  double low = 0;
+  while (j >= 0) {
+    const double x = high, y = partials[static_cast<std::size_t>(j--)];
+    high = x + y;
+    low = y - (high - x);
+    if (low != 0) break;
+  }
+  // A half-way case rounded to even: if the partials below push past the tie, round
+  // the other way.
+  if (j >= 0 && ((low < 0 && partials[static_cast<std::size_t>(j)] < 0) ||
+                 (low > 0 && partials[static_cast<std::size_t>(j)] > 0))) {
+    const double y = low * 2;
+    const double x = high + y;
+    if (y == x - high) high = x;
+  }
+  return high;
+}
+
 }  // namespace
+
+double image_difference(double p, std::int32_t k, double lo, double hi, double x) {
+  if (k == 0) return p - x;
+  // k hi and k lo exactly, each as a product and its rounding error (fma).
+  const double kd = static_cast<double>(k);
+  const double a = kd * hi, b = kd * lo;
+  const double terms[6] = {p, -x, a, std::fma(kd, hi, -a), -b, -std::fma(kd, lo, -b)};
+  return rounded_sum(terms, 6);
+}
 
 Result<PeriodicBox> PeriodicBox::of(std::vector<double> lo, std::vector<double> hi, const std::string& what) {
   if (lo.size() != hi.size()) {

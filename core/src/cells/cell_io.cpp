@@ -1,8 +1,9 @@
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/io.hpp"
 
+#include "io/npz.hpp"
+
 #include <unistd.h>
-#include <zip.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -17,29 +18,9 @@ namespace spokemesh {
 
 namespace {
 
-std::string directory_of(const std::string& path) {
-  const std::size_t slash = path.rfind('/');
-  return slash == std::string::npos ? "." : slash == 0 ? "/" : path.substr(0, slash);
-}
-
 bool ends_with(const std::string& s, const char* suffix) {
   const std::size_t n = std::strlen(suffix);
   return s.size() >= n && s.compare(s.size() - n, n, suffix) == 0;
-}
-
-// An anonymous scratch file in `dir` (created, then unlinked at once: nothing is left
-// behind whatever happens to the process).
-Result<std::FILE*> scratch_file(const std::string& dir) {
-  std::string name = dir + "/.spokemesh-cells.XXXXXX";
-  const int fd = ::mkstemp(name.data());
-  if (fd < 0) return internal_error("cannot create a scratch file in " + dir + ": " + std::strerror(errno));
-  ::unlink(name.c_str());
-  std::FILE* f = ::fdopen(fd, "w+b");
-  if (f == nullptr) {
-    ::close(fd);
-    return internal_error("cannot open a scratch file in " + dir + ": " + std::strerror(errno));
-  }
-  return f;
 }
 
 // Closes `out` (written to `temp`) and renames it to `path`; on any failure removes
@@ -56,56 +37,6 @@ Status close_and_rename(std::FILE* out, const std::string& temp, const std::stri
   }
   return Status::ok();
 }
-
-// One .npy array written row by row to a scratch file; the 128-byte header, which
-// holds the row count, is written last.
-class NpyColumn {
- public:
-  NpyColumn(std::string name, std::string descr, int width) : name_(std::move(name)), descr_(std::move(descr)), width_(width) {}
-  ~NpyColumn() {
-    if (file_ != nullptr) std::fclose(file_);
-  }
-  NpyColumn(const NpyColumn&) = delete;
-  NpyColumn& operator=(const NpyColumn&) = delete;
-
-  Status open(const std::string& dir) {
-    auto f = scratch_file(dir);
-    if (!f.is_ok()) return f.status();
-    file_ = f.value();
-    const char zeros[kHeader] = {};
-    return put(zeros, kHeader, 0);
-  }
-  template <class T>
-  Status append(const T* values, std::size_t count) {
-    return put(values, sizeof(T) * count, count / static_cast<std::size_t>(width_));
-  }
-  // Writes the header; the file then holds the whole .npy, and is handed over.
-  Result<std::FILE*> finish() {
-    const std::string header = width_ == 1 ? npy_vector_header(descr_, rows_) : npy_header(descr_, rows_, static_cast<std::uint64_t>(width_));
-    if (std::fseek(file_, 0, SEEK_SET) != 0 || std::fwrite(header.data(), 1, header.size(), file_) != header.size() ||
-        std::fflush(file_) != 0 || std::fseek(file_, 0, SEEK_SET) != 0) {
-      return internal_error("writing " + name_ + ": " + std::strerror(errno));
-    }
-    std::FILE* f = file_;
-    file_ = nullptr;
-    return f;
-  }
-  const std::string& name() const { return name_; }
-
- private:
-  static constexpr std::size_t kHeader = kNpyHeaderBytes;  // a multiple of 64, as the format asks
-  Status put(const void* data, std::size_t bytes, std::uint64_t rows) {
-    if (bytes != 0 && std::fwrite(data, 1, bytes, file_) != bytes) {
-      return internal_error("writing " + name_ + ": " + std::strerror(errno));
-    }
-    rows_ += rows;
-    return Status::ok();
-  }
-  std::string name_, descr_;
-  int width_;
-  std::FILE* file_ = nullptr;
-  std::uint64_t rows_ = 0;
-};
 
 class NpzCellWriter final : public CellWriter {
  public:
@@ -149,48 +80,7 @@ class NpzCellWriter final : public CellWriter {
     return Status::ok();
   }
 
-  Status commit() override {
-    int error = 0;
-    // libzip writes the archive under a temporary name and renames it on zip_close.
-    zip_t* zip = zip_open(path_.c_str(), ZIP_CREATE | ZIP_TRUNCATE, &error);
-    if (zip == nullptr) {
-      zip_error_t e;
-      zip_error_init_with_code(&e, error);
-      Status s = internal_error("cannot create " + path_ + ": " + zip_error_strerror(&e));
-      zip_error_fini(&e);
-      return s;
-    }
-    for (NpyColumn* c : columns()) {
-      auto file = c->finish();
-      if (!file.is_ok()) {
-        zip_discard(zip);
-        return file.status();
-      }
-      zip_source_t* source = zip_source_filep(zip, file.value(), 0, -1);  // owns the FILE*
-      if (source == nullptr) {
-        std::fclose(file.value());
-        Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
-        zip_discard(zip);
-        return s;
-      }
-      const zip_int64_t index = zip_file_add(zip, c->name().c_str(), source, ZIP_FL_OVERWRITE);
-      // A fixed time stamp (1980-01-02, the start of zip's range in any time zone),
-      // so that the same cells make the same bytes.
-      if (index < 0 || zip_set_file_compression(zip, static_cast<zip_uint64_t>(index), ZIP_CM_STORE, 0) != 0 ||
-          zip_file_set_mtime(zip, static_cast<zip_uint64_t>(index), 315619200, 0) != 0) {
-        if (index < 0) zip_source_free(source);
-        Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
-        zip_discard(zip);
-        return s;
-      }
-    }
-    if (zip_close(zip) != 0) {
-      Status s = internal_error("writing " + path_ + ": " + zip_strerror(zip));
-      zip_discard(zip);
-      return s;
-    }
-    return Status::ok();
-  }
+  Status commit() override { return write_npz(path_, columns()); }
 
  private:
   std::vector<NpyColumn*> columns() { return {&volume_, &centroid_, &bounded_, &ptr_, &neighbor_, &area_, &normal_}; }

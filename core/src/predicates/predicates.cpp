@@ -38,9 +38,10 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   return det;
 }
 
-void approx_row(const PointSet& ps, std::uint32_t origin, const Row& row, int cols, BoundedDouble* out,
+void approx_row(const PointSet& ps, std::uint32_t origin, const Row& given, int cols, BoundedDouble* out,
                 const PointExtras& extras) {
   const int d = ps.dimension();
+  const Row row = resolve_image(given, extras, d);
   if (row.is_point()) {
     const double* p = ps.point(static_cast<std::size_t>(row.point));
     const double* x = ps.point(origin);
@@ -244,11 +245,15 @@ class ExactMatrix {
     // coordinates on the points' scale: rationals.
     scaled_ = ps.integer_bits() <= kMaxScaledBits &&
               ((extras.weights == nullptr && extras.slope == nullptr) || cols <= ps.dimension());
-    for (const Row& row : rows) scaled_ = scaled_ && row.offset == nullptr;
-    for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, rows[r], r);
+    std::array<Row, kMaxCols + 2> resolved;
+    for (int r = 0; r < k_; ++r) {
+      resolved[r] = resolve_image(rows[r], extras, ps.dimension());
+      scaled_ = scaled_ && resolved[r].offset == nullptr;
+    }
+    for (int r = 0; r < k_ && scaled_; ++r) scaled_ = scaled_row(ps, origin, resolved[r], r);
     if (scaled_) return;
     rats_.resize(static_cast<std::size_t>(k_ * cols_));
-    for (int r = 0; r < k_; ++r) exact_row(ps, origin, rows[r], &rats_[r * cols_]);
+    for (int r = 0; r < k_; ++r) exact_row(ps, origin, resolved[r], &rats_[r * cols_]);
   }
 
   // Sign of the determinant of the square matrix formed by `row_ids` and `col_ids`,
@@ -625,7 +630,10 @@ int Predicates::side_of_sphere(std::span<const std::uint32_t> simplex, std::uint
   return lifted * orientation(simplex);
 }
 
-bool Predicates::image_before(std::uint32_t origin, const Row* a, const Row* b) const {
+bool Predicates::image_before(std::uint32_t origin, const Row* given_a, const Row* given_b) const {
+  Row ra, rb;
+  const Row* a = given_a == nullptr ? nullptr : &(ra = resolve_image(*given_a, extras_, ps_.dimension()));
+  const Row* b = given_b == nullptr ? nullptr : &(rb = resolve_image(*given_b, extras_, ps_.dimension()));
   const std::uint32_t pa = a == nullptr ? origin : static_cast<std::uint32_t>(a->point);
   const std::uint32_t pb = b == nullptr ? origin : static_cast<std::uint32_t>(b->point);
   const std::int32_t* oa = a == nullptr ? nullptr : a->offset;

@@ -68,7 +68,17 @@ void in_two_halves(std::size_t n, bool parallel, Fn&& fn) {
 
 }  // namespace
 
+KdTree::KdTree(const PointSet& points, std::uint32_t first_inexact, double pad)
+    : points_(points), d_(static_cast<std::size_t>(points.dimension())), first_inexact_(first_inexact), pad_(pad) {
+  build_whole();
+}
+
 KdTree::KdTree(const PointSet& points) : points_(points), d_(static_cast<std::size_t>(points.dimension())) {
+  build_whole();
+}
+
+void KdTree::build_whole() {
+  const PointSet& points = points_;
   const std::size_t n = points.size(), d = d_;
   // The bounding box (the Z order's grid, the search's initial distances) and the
   // top split: the widest side, at the median point along it. The two halves are
@@ -284,11 +294,18 @@ std::size_t KdTree::add_box_nodes(const Node* node) {
     box.end = static_cast<std::uint32_t>(node->node_type.lr.right);
     float* lo = &box_bounds_[at * 2 * d];
     float* hi = lo + d;
+    bool inexact = false;
+    for (std::uint32_t k = box.begin; k < box.end; ++k) inexact |= id_of_[k] >= first_inexact_;
     for (std::size_t c = 0; c < d; ++c) {
       double low = std::numeric_limits<double>::infinity(), high = -low;  // an empty leaf: an empty box
       for (std::uint32_t k = box.begin; k < box.end; ++k) {
         low = std::min(low, leaf_coords_[k * d + c]);
         high = std::max(high, leaf_coords_[k * d + c]);
+      }
+      if (inexact && box.begin < box.end) {
+        lo[c] = float_down(low - pad_);
+        hi[c] = float_up(high + pad_);
+        continue;
       }
       lo[c] = float_down(low);
       hi[c] = float_up(high);

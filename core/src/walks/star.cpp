@@ -1,5 +1,7 @@
 #include "spokemesh/star.hpp"
 
+#include "spokemesh/periodic.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cstring>
@@ -227,12 +229,21 @@ std::uint32_t StarWalker::TupleSet::position(const std::uint32_t* key, std::uint
 StarWalker::StarWalker(const KdTree& tree, StarOptions options)
     : tree_(tree),
       ps_(tree.points()),
-      predicates_(ps_, options.weights),
+      predicates_(ps_, options.weights, options.cover != nullptr ? &options.cover->box() : nullptr,
+                  options.cover != nullptr ? options.cover->images() : ImageMap{}),
       options_(options),
       d_(ps_.dimension()),
-      extras_{options.weights.empty() ? nullptr : options.weights.data(), nullptr, nullptr} {
+      extras_{options.weights.empty() ? nullptr : options.weights.data(),
+              options.cover != nullptr ? &options.cover->box() : nullptr, nullptr,
+              options.cover != nullptr ? options.cover->images() : ImageMap{}} {
   SPOKEMESH_INVARIANT(options.weights.empty() || options.weights.size() == ps_.size(),
                       "one weight per point of the tree");
+  SPOKEMESH_INVARIANT(options.cover == nullptr || (options.weights.empty() && &options.cover->tree() == &tree),
+                      "a periodic cover's walker walks its tree, unweighted");
+  if (options.cover != nullptr) {
+    image_first_ = options.cover->point_count();
+    image_pad_ = options.cover->pad();
+  }
   if (!options.weights.empty()) max_weight_ = *std::max_element(options.weights.begin(), options.weights.end());
   if (detail::policy(d_).ring_walk) ring_walk_ = std::make_unique<RingWalk>(*this);
   // The walker's one dispatch from the runtime dimension to its compiled kernels.
@@ -298,6 +309,12 @@ void StarWalker::load_candidates(std::size_t k) {
     cand_norm_[j] = std::sqrt(lift.norm2);
     cand_depth_[j] = lift.depth;
     cand_lower_[j] = knn_d2_[i] * (1 - kDistanceMargin);
+    if (image_pad_ > 0) {
+      // Bounds for every candidate from this one on, in the tree's order: images may
+      // lie up to image_pad_ per axis nearer than their stored coordinates.
+      const double r = std::max(0.0, std::sqrt(knn_d2_[i]) - 2 * image_pad_ * std::sqrt(static_cast<double>(d_)));
+      cand_lower_[j] = r * r * (1 - kDistanceMargin);
+    }
     double* column = &cand_block_[j];
     for (int c = 0; c < d_; ++c) column[static_cast<std::size_t>(c) * cand_stride_] = q[c];
     column[static_cast<std::size_t>(d_) * cand_stride_] = lift.height;
@@ -307,15 +324,34 @@ void StarWalker::load_candidates(std::size_t k) {
     ++j;
   }
   r2_certified_ = (got == n) ? kInf : knn_d2_[got - 1] * (1 - kDistanceMargin);
+  if (image_pad_ > 0 && r2_certified_ != kInf) {
+    // Points not loaded may be images, whose exact positions lie up to image_pad_ per
+    // axis nearer than the tree measured.
+    const double r = std::max(0.0, std::sqrt(r2_certified_) - 2 * image_pad_ * std::sqrt(static_cast<double>(d_)));
+    r2_certified_ = r * r * (1 - kDistanceMargin);
+  }
+}
+
+void StarWalker::relative(std::uint32_t id, const double* pp, double* q) const {
+  const double* x = ps_.point(x_);
+  if (id < image_first_) {
+    for (int c = 0; c < d_; ++c) q[c] = pp[c] - x[c];
+    return;
+  }
+  const PeriodicCover& cover = *options_.cover;
+  const double* p = ps_.point(cover.point_of(id));
+  const std::int32_t* k = cover.offset_of(id);
+  const auto& lo = cover.box().lo();
+  const auto& hi = cover.box().hi();
+  for (int c = 0; c < d_; ++c) {
+    q[c] = image_difference(p[c], k[c], lo[static_cast<std::size_t>(c)], hi[static_cast<std::size_t>(c)], x[c]);
+  }
 }
 
 StarWalker::Lift StarWalker::relative_row(std::uint32_t id, const double* pp, double* q) const {
-  const double* x = ps_.point(x_);
+  relative(id, pp, q);
   double norm2 = 0;
-  for (int c = 0; c < d_; ++c) {
-    q[c] = pp[c] - x[c];
-    norm2 += q[c] * q[c];
-  }
+  for (int c = 0; c < d_; ++c) norm2 += q[c] * q[c];
   // A sum of d squares of rounded differences has depth d + 2; one more covers a
   // square that underflowed (absolute error 2^-1075, relatively negligible once
   // the magnitude is >= 2^-900). Below that, the exact stage decides.
@@ -377,8 +413,8 @@ class StarWalker::WrapState {
   void orient(Side side) {
     if (side.away_from >= 0) {
       std::array<double, kMaxDimension> q;
-      const double* o = w.ps_.point(static_cast<std::size_t>(side.away_from));
-      for (int c = 0; c < d; ++c) q[c] = o[c] - x[c];
+      const auto o = static_cast<std::uint32_t>(side.away_from);
+      w.relative(o, w.ps_.point(o), q.data());
       sigma = -spatial_side(q.data(), static_cast<std::uint32_t>(side.away_from));
     } else {
       // Towards the spoke direction (exact doubles, so one rounding less than q).
@@ -539,7 +575,7 @@ class StarWalker::WrapState {
     const std::optional<std::uint32_t> beyond = w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
       if (p == w.x_ || is_pivot(p)) return 0;  // on the hyperplane
       std::array<double, kMaxDimension> q;
-      for (int c = 0; c < d; ++c) q[c] = pp[c] - x[c];
+      w.relative(p, pp, q.data());
       return spatial_side(q.data(), p);
     });
     if (!beyond) return false;
@@ -571,8 +607,7 @@ class StarWalker::WrapState {
       const auto hit = static_cast<std::uint32_t>(best_id);
       SPOKEMESH_INVARIANT(hit != w.x_ && !is_pivot(hit), "a wrap hits a point outside its pivot");
       std::array<double, kMaxDimension> q;
-      const double* p = w.ps_.point(hit);
-      for (int c = 0; c < d; ++c) q[c] = p[c] - x[c];
+      w.relative(hit, w.ps_.point(hit), q.data());
       SPOKEMESH_INVARIANT(spatial_side(q.data(), hit) == sigma, "a wrap hits a point on the side it turns to");
     }
 #endif
@@ -731,8 +766,9 @@ class StarWalker::WrapState {
     };
     return w.tree_.find_first(may_contain, [&](std::uint32_t p, const double* pp) {
       if (p == w.x_ || p == best_id || is_pivot(p)) return false;
-      if (r2_outer != kInf) {
+      if (r2_outer != kInf && p < w.image_first_) {
         // A point is a box of its own: outside the enlarged sphere, certainly above.
+        // (An image's stored coordinates are not its position: it goes to the test.)
         double near2 = 0;
         for (int c = 0; c < d; ++c) near2 += (pp[c] - centre[c]) * (pp[c] - centre[c]);
         if (near2 > r2_outer) return false;

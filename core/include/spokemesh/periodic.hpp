@@ -1,0 +1,113 @@
+// Delaunay triangulations of the flat torus (issue 28): a point set in a PeriodicBox
+// whose opposite sides are identified, meshed as the Delaunay triangulation of all its
+// images p + k (HI - LO), each simplex once up to a lattice translation.
+//
+// How: the walker meshes a cover, the points followed by their images that lie within
+// a margin outside the box (PeriodicCover), stored as points of their own with ids from
+// n on. Every predicate decides an image id as the exact image (Predicates' ImageMap),
+// and the walker computes its coordinates relative to a seed rounded once
+// (image_difference), so the cover's rounded coordinates only steer the k-d tree, whose
+// boxes around images are widened by their rounding. Only the points 0..n-1 are seeds.
+//
+//  * Complete, for any margin: the representative of a periodic simplex whose
+//    smallest-indexed point is that point itself (offset 0) has an empty sphere among
+//    all images, so among the cover's, so it is in the cover's Delaunay star of that
+//    point, which emits it.
+//  * Sound, checked: a simplex is written only when its circumsphere lies inside the
+//    cover's region (the box grown by the margin), which holds every image near it, so
+//    emptiness in the cover is emptiness on the torus. A star with a sphere outside the
+//    region (or an unbounded cell) makes the run record the margin it needed; the run is
+//    then repeated with that margin, the caller told to start its output again. The
+//    first margin, 3.5 mean spacings, suffices for well-spread points.
+//  * Degeneracies (periodic grids) fall to the same symbolic perturbation, ordered by
+//    the images' exact coordinates (CGAL's Perturbation_order), which is invariant
+//    under lattice translations, so the stars of different points agree.
+//
+// A simplex is written as its d + 1 point indices with the owner (its smallest point
+// index) first at offset 0, positively oriented, and the other vertices' offsets: vertex
+// v of simplex s stands at points[s_v] + offset_v (HI - LO). Sets whose torus
+// triangulation is not a simplicial complex (too few points: some simplex holds two
+// images of one point) are meshed all the same; every simplex is still written once.
+//
+// Thread safety: a PeriodicCover is immutable after build(); mesh_periodic() may run
+// concurrently with other calls.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "spokemesh/kd_tree.hpp"
+#include "spokemesh/mesh.hpp"
+#include "spokemesh/periodic_box.hpp"
+#include "spokemesh/point_set.hpp"
+#include "spokemesh/predicates.hpp"
+#include "spokemesh/status.hpp"
+
+namespace spokemesh {
+
+class PeriodicCover {
+ public:
+  // The cover of `points` (validated, inside `box`, same dimension; both borrowed and
+  // must outlive the cover) with the images whose coordinates lie within margin[c] of
+  // the box on every axis c (absolute lengths, d of them). INVALID_ARGUMENT, naming
+  // `source`, when the images cannot be told apart in double precision (points closer
+  // than the rounding of the box's coordinates).
+  static Result<std::unique_ptr<PeriodicCover>> build(const PointSet& points, const PeriodicBox& box,
+                                                      std::span<const double> margin, const std::string& source);
+
+  const PointSet& points() const { return cover_; }  // the points, then the images
+  const KdTree& tree() const { return *tree_; }
+  const PeriodicBox& box() const { return box_; }
+  std::uint32_t point_count() const { return n_; }  // ids below are points, the rest images
+  std::size_t image_count() const { return image_point_.size(); }
+  ImageMap images() const { return {n_, image_point_.data(), image_offset_.data()}; }
+  // The point an id stands for, and its offset (d integers; zeros for a point).
+  std::uint32_t point_of(std::uint32_t id) const { return id < n_ ? id : image_point_[id - n_]; }
+  const std::int32_t* offset_of(std::uint32_t id) const;
+  const std::vector<double>& margin() const { return margin_; }
+  // How far an image's stored coordinates may lie from its exact position (per axis).
+  double pad() const { return pad_; }
+
+ private:
+  PeriodicCover(const PointSet& points, const PeriodicBox& box) : base_(points), box_(box) {}
+  const PointSet& base_;
+  const PeriodicBox& box_;
+  std::uint32_t n_ = 0;
+  std::vector<double> margin_;
+  double pad_ = 0;
+  PointSet cover_;
+  std::vector<std::uint32_t> image_point_;
+  std::vector<std::int32_t> image_offset_;  // d per image
+  std::vector<std::int32_t> zeros_;
+  std::unique_ptr<KdTree> tree_;
+};
+
+struct PeriodicMeshStats {
+  MeshStats mesh;                 // of the last run (its simplices: the torus's)
+  std::uint64_t images = 0;       // images in the last run's cover
+  std::vector<double> margin;     // its margin per axis
+  int runs = 0;                   // 1, or more when a margin proved too thin
+};
+
+// Receives a block of simplices of the torus: (d + 1) point indices each, and (d + 1) d
+// offsets each (vertex by vertex), with the number of seeds finished so far.
+using PeriodicSink = std::function<Status(std::span<const std::uint32_t> simplices,
+                                          std::span<const std::int32_t> offsets, std::uint64_t seeds_done)>;
+
+// The Delaunay triangulation of the torus `box` over `points` (validated, inside the
+// box: PeriodicBox::check_contains), each simplex once, in the cover's sweep order (a
+// function of the points and the box). options: threads, random seed, cancel, facet
+// cache (seed and sweep ranges, split and accept are the run's own). When a run proves
+// its margin too thin, `restart` is called before the run is repeated: everything
+// given to `sink` so far is void. Weights are not supported yet (INVALID_ARGUMENT).
+// Errors: INVALID_ARGUMENT as PeriodicCover::build, or when even a margin of three box
+// lengths is too thin (fewer points than the torus needs); CANCELLED; the sink's.
+Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,
+                                        const PeriodicSink& sink, const std::function<Status()>& restart,
+                                        const std::string& source);
+
+}  // namespace spokemesh
