@@ -208,13 +208,20 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
       return sink(kept, offsets, done);
     });
     if (!result.is_ok()) return result.status();
-    bool thin = unbounded.load();
-    std::vector<double> next(du);
+    // A sphere measured in a cover too thin may be far larger than the torus's (its
+    // far side is missing): a need beyond twice the margin only doubles it.
+    bool thin = unbounded.load(), can_grow = false;
+    std::vector<double> next(margin);
     for (std::size_t c = 0; c < du; ++c) {
       const double need = needed[c].load();
+      const double most = kMostMarginBoxes * (box.hi()[c] - box.lo()[c]);
       // Strictly inside the region the cover holds every image of.
-      if (need >= margin[c]) thin = true;
-      next[c] = std::max(need * 1.25 + 0.5 * spacing, unbounded.load() ? 2 * margin[c] : margin[c]);
+      if (need >= margin[c] || unbounded.load()) {
+        thin = true;
+        next[c] = std::min(most, need <= 2 * margin[c] ? std::max(need * 1.25 + 0.5 * spacing, margin[c])
+                                                      : 2 * margin[c]);
+        can_grow = can_grow || next[c] > margin[c];
+      }
     }
     if (!thin) {
       stats.mesh = result.value();
@@ -223,12 +230,10 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
       stats.margin = margin;
       return stats;
     }
-    for (std::size_t c = 0; c < du; ++c) {
-      if (next[c] > kMostMarginBoxes * (box.hi()[c] - box.lo()[c])) {
-        return invalid_argument(source + ": too few points for a periodic Delaunay triangulation of this box: the "
-                                "circumspheres reach more than " + std::to_string(static_cast<int>(kMostMarginBoxes)) +
-                                " box lengths along axis " + std::to_string(c) + " (add points)");
-      }
+    if (!can_grow) {
+      return invalid_argument(source + ": too few points for a periodic Delaunay triangulation of this box: the "
+                              "circumspheres reach more than " + std::to_string(static_cast<int>(kMostMarginBoxes)) +
+                              " box lengths beyond it (add points)");
     }
     margin = next;
     if (restart) {
