@@ -3,6 +3,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 
 #include "support.hpp"
@@ -196,6 +197,61 @@ TEST_F(Cli, WeightsAndRadiiGiveTheRegularTriangulation) {
     EXPECT_NE(o.err.find(b.needle), std::string::npos) << b.args << "\n" << o.err;
     EXPECT_FALSE(fs::exists(path("x.npy"))) << b.args;
   }
+}
+
+TEST_F(Cli, PeriodicMeshWritesOffsets) {
+  // A 4x4 integer grid on the torus [0, 4)^2: 32 triangles (2n), each vertex with its offset.
+  std::string grid;
+  for (int y = 0; y < 4; ++y) {
+    for (int x = 0; x < 4; ++x) grid += std::to_string(x) + " " + std::to_string(y) + "\n";
+  }
+  const std::string in = write("grid.txt", grid);
+  const Outcome text = run("mesh " + in + " --periodic 0,0,4,4 -o " + path("t.txt"));
+  ASSERT_EQ(text.code, 0) << text.err;
+  EXPECT_NE(text.err.find("16 points, 32 simplices"), std::string::npos) << text.err;
+  std::istringstream lines(slurp(path("t.txt")));
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line.rfind("# periodic mesh", 0), 0u) << line;
+  int rows = 0, wrapped = 0;
+  while (std::getline(lines, line)) {
+    std::istringstream row(line);
+    std::vector<long> v((std::istream_iterator<long>(row)), std::istream_iterator<long>());
+    ASSERT_EQ(v.size(), 9u) << line;  // 3 indices, 3 x 2 offsets
+    EXPECT_EQ(v[3], 0);
+    EXPECT_EQ(v[4], 0);  // the owner at offset 0
+    wrapped += (v[5] | v[6] | v[7] | v[8]) != 0 ? 1 : 0;
+    ++rows;
+  }
+  EXPECT_EQ(rows, 32);
+  EXPECT_GT(wrapped, 0);
+  // .npz: the same rows, and the same bytes for any thread count.
+  const std::string pts = points(3, 500, 3);
+  ASSERT_EQ(run("mesh " + pts + " --periodic 0,0,0,1,1,1 --threads 1 -o " + path("a.npz")).code, 0);
+  ASSERT_EQ(run("mesh " + pts + " --periodic 0,0,0,1,1,1 --threads 2 -q -o " + path("b.npz")).code, 0);
+  EXPECT_EQ(slurp(path("a.npz")), slurp(path("b.npz")));
+  EXPECT_NE(slurp(path("a.npz")).find("offsets.npy"), std::string::npos);
+
+  struct Bad {
+    std::string args, needle;
+  };
+  const std::string outside = write("outside.txt", "0.5 0.5\n0.25 0.75\n1 0.5\n0.1 0.1\n");
+  const std::vector<Bad> bad = {
+      {"mesh " + outside + " --periodic 0,0,1,1 -o " + path("x.npz"), "point 2 lies outside the periodic box"},
+      {"mesh " + in + " --periodic 0,0,4 -o " + path("x.npz"), "even count"},
+      {"mesh " + in + " --periodic 0,4,4,4 -o " + path("x.npz"), "axis 1"},
+      {"mesh " + in + " --periodic 0,0,0,4,4,4 -o " + path("x.npz"), "3-d box"},
+      {"mesh " + in + " --periodic 0,0,4,4 -o " + path("x.vtu"), ".npz"},
+      {"mesh " + in + " --periodic 0,0,4,4 --merge-duplicates -o " + path("x.npz"), "--merge-duplicates"},
+      {"mesh " + in + " --periodic 0,0,4,4 --server 127.0.0.1:1 -o " + path("x.npz"), "local files only"},
+  };
+  for (const Bad& b : bad) {
+    const Outcome o = run(b.args);
+    EXPECT_EQ(o.code, 2) << b.args << "\n" << o.err;
+    EXPECT_NE(o.err.find(b.needle), std::string::npos) << b.args << "\n" << o.err;
+    EXPECT_FALSE(fs::exists(path("x.npz")) || fs::exists(path("x.vtu"))) << b.args;
+  }
+  for (const std::string& name : listing()) EXPECT_EQ(name.find(".partial"), std::string::npos) << name;
 }
 
 TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {

@@ -326,6 +326,9 @@ def test_bad_input_is_reported_once_with_the_cli_exit_code(work):
     done = run_mpi(2, "mesh", str(text), "--weights", str(weights), "-o", str(out), check=False)
     assert done.returncode == 2
     assert done.stderr.count("not supported by spokemesh-mpi yet") == 1, done.stderr
+    done = run_mpi(2, "mesh", str(text), "--periodic", "0,0,0,1,1,1", "-o", str(out), check=False)
+    assert done.returncode == 2
+    assert done.stderr.count("--periodic is not supported by spokemesh-mpi yet") == 1, done.stderr
 
 
 def test_an_unwritable_output_fails_before_meshing(reference, work):

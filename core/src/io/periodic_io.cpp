@@ -1,4 +1,7 @@
 // PeriodicMeshWriter (io.hpp): a torus's simplices with their vertices' offsets.
+#include <unistd.h>
+
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -46,8 +49,10 @@ class NpzPeriodicWriter final : public PeriodicMeshWriter {
 
 class TextPeriodicWriter final : public PeriodicMeshWriter {
  public:
-  TextPeriodicWriter(std::string path, int d) : path_(std::move(path)), temp_(path_ + ".partial"), d_(d) {
-    temp_ += "-" + std::to_string(reinterpret_cast<std::uintptr_t>(this));
+  TextPeriodicWriter(std::string path, int d) : path_(std::move(path)), d_(d) {
+    static std::atomic<unsigned> counter{0};
+    temp_ = path_;
+    temp_.append(".partial-").append(std::to_string(::getpid())).append(".").append(std::to_string(counter++));
   }
   ~TextPeriodicWriter() override {
     if (file_ != nullptr) std::fclose(file_);
