@@ -66,9 +66,10 @@ void add_weight_flags(CLI::App* cmd, Common& common) {
 
 void add_periodic_flag(CLI::App* cmd, Common& common) {
   cmd->add_option("--periodic", common.periodic,
-                  "Mesh on the flat torus of the box LO1,...,LOd,HI1,...,HId (opposite sides identified; every point "
-                  "in [LO, HI)): each simplex once, with its vertices' image offsets (.npz: simplices and offsets; "
-                  "text: indices then offsets)");
+                  "Work on the flat torus of the box LO1,...,LOd,HI1,...,HId (opposite sides identified; every point "
+                  "in [LO, HI)). mesh: each simplex once, with its vertices' image offsets (.npz: simplices and "
+                  "offsets; text: indices then offsets). cells: the torus's cells, each neighbour's image offset in "
+                  ".npz's facet_offset");
 }
 
 void add_domain_flags(CLI::App* cmd, DomainFlags& flags, const char* when_absent) {
@@ -163,6 +164,7 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
                       "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
   add_weight_flags(w.cells, w.common);
+  add_periodic_flag(w.cells, w.common);
 }
 
 Result<std::pair<std::uint32_t, std::uint32_t>> parse_seed_range(const std::string& seeds, std::uint64_t n) {

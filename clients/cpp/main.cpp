@@ -124,32 +124,51 @@ Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed) {
   return invalid_argument("seed " + std::to_string(seed) + " duplicates an earlier point; use the first occurrence");
 }
 
+// The points and box of a --periodic run, checked: the box parsed, the points read,
+// inside it and valid.
+struct PeriodicInput {
+  PointSet points;
+  std::unique_ptr<PeriodicBox> box;
+};
+Result<PeriodicInput> load_periodic(const Common& common, const std::string& input) {
+  if (common.merge_duplicates) return invalid_argument("--merge-duplicates cannot be combined with --periodic");
+  if (common.weighted()) {
+    return invalid_argument("--weights and --radii cannot be combined with --periodic yet (power diagrams on the "
+                            "torus are not built)");
+  }
+  auto box = PeriodicBox::parse(common.periodic, "--periodic");
+  if (!box.is_ok()) return box.status();
+  auto points = read_points(input);
+  if (!points.is_ok()) return points.status();
+  PeriodicInput in{std::move(points).value(), std::make_unique<PeriodicBox>(std::move(box).value())};
+  const int d = in.points.dimension();
+  if (d != in.box->dimension()) {
+    return invalid_argument("--periodic: " + std::to_string(2 * in.box->dimension()) + " values describe a " +
+                            std::to_string(in.box->dimension()) + "-d box; " + input + " holds " + std::to_string(d) +
+                            "-d points (give LO1,...,LOd,HI1,...,HId)");
+  }
+  if (d > kMaxDimension) {
+    return invalid_argument(input + ": dimension " + std::to_string(d) + " is above the exact limit " +
+                            std::to_string(kMaxDimension));
+  }
+  if (Status s = in.box->check_contains(in.points, input); !s.is_ok()) return s;
+  if (Status s = in.points.validate(input); !s.is_ok()) return s;
+  return in;
+}
+
+void say_margin_too_thin(const Common& common) {
+  if (!common.quiet) std::fprintf(stderr, "\nspokemesh: the images' margin was too thin; again with a wider one\n");
+}
+
 // mesh --periodic: the torus's simplices with their offsets (periodic.hpp).
 int run_periodic_mesh(const Common& common, const std::string& input, const std::string& output,
                       const std::string& seeds) {
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   if (!seeds.empty()) return report(invalid_argument("--seeds cannot be combined with --periodic yet"));
-  if (common.merge_duplicates) return report(invalid_argument("--merge-duplicates cannot be combined with --periodic"));
-  if (common.weighted()) {
-    return report(invalid_argument("--weights and --radii cannot be combined with --periodic yet (power diagrams on "
-                                   "the torus are not built)"));
-  }
-  auto box = PeriodicBox::parse(common.periodic, "--periodic");
-  if (!box.is_ok()) return report(box.status());
-  auto points = read_points(input);
-  if (!points.is_ok()) return report(points.status());
-  PointSet& ps = points.value();
-  if (ps.dimension() != box->dimension()) {
-    return report(invalid_argument("--periodic: " + std::to_string(2 * box->dimension()) + " values describe a " +
-                                   std::to_string(box->dimension()) + "-d box; " + input + " holds " +
-                                   std::to_string(ps.dimension()) + "-d points (give LO1,...,LOd,HI1,...,HId)"));
-  }
-  if (ps.dimension() > kMaxDimension) {
-    return report(invalid_argument(input + ": dimension " + std::to_string(ps.dimension()) +
-                                   " is above the exact limit " + std::to_string(kMaxDimension)));
-  }
-  if (Status s = box->check_contains(ps, input); !s.is_ok()) return report(s);
-  if (Status s = ps.validate(input); !s.is_ok()) return report(s);
+  auto in = load_periodic(common, input);
+  if (!in.is_ok()) return report(in.status());
+  const PointSet& ps = in->points;
+  auto box = std::cref(*in->box);
   auto writer_or = PeriodicMeshWriter::open(output, ps.dimension());
   if (!writer_or.is_ok()) return report(writer_or.status());
   PeriodicMeshWriter& writer = *writer_or.value();
@@ -161,7 +180,7 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   Progress progress(common.quiet, ps.size());
   std::uint64_t written = 0;
   auto result = mesh_periodic(
-      ps, box.value(), options,
+      ps, box.get(), options,
       [&](std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets, std::uint64_t done) {
         written += simplices.size() / static_cast<std::size_t>(ps.dimension() + 1);
         progress.update(done, written);
@@ -169,7 +188,7 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
       },
       [&] {
         written = 0;
-        if (!common.quiet) std::fprintf(stderr, "\nspokemesh: the images' margin was too thin; meshing again with a wider one\n");
+        say_margin_too_thin(common);
         return writer.restart();
       },
       input);
@@ -280,8 +299,65 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
   });
 }
 
+// cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
+int run_periodic_cells(const Common& common, const std::string& input, const std::string& output,
+                       const DomainFlags& flags) {
+  if (!flags.box.empty() || !flags.halfspaces.empty()) {
+    return report(invalid_argument("--periodic cells fill the torus: --box and --halfspaces do not apply"));
+  }
+  auto in = load_periodic(common, input);
+  if (!in.is_ok()) return report(in.status());
+  const PointSet& ps = in->points;
+  const int d = ps.dimension();
+  auto writer = CellWriter::open(output, d, /*periodic=*/true);
+  if (!writer.is_ok()) return report(writer.status());
+  CellsOptions options;
+  options.threads = common.threads;
+  options.star.random_seed = common.random_seed;
+  options.measures_only = !writer.value()->needs_vertices();
+  options.facet_cache_bytes = common.cache_mb << 20;
+  Progress progress(common.quiet, ps.size(), "cells");
+  std::uint64_t facets = 0;
+  double volume = 0;
+  auto result = compute_periodic_cells(
+      ps, *in->box, options,
+      [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+        for (const VoronoiCell& c : cells) {
+          facets += c.facets.size();
+          volume += c.volume;
+        }
+        progress.update(done, 0);
+        return writer.value()->write(cells);
+      },
+      [&] {
+        facets = 0;
+        volume = 0;
+        say_margin_too_thin(common);
+        auto fresh = CellWriter::open(output, d, true);
+        if (!fresh.is_ok()) return fresh.status();
+        writer = std::move(fresh);
+        return Status::ok();
+      },
+      input);
+  progress.finish();
+  Status status = result.status();
+  if (status.is_ok()) status = writer.value()->commit();
+  if (!status.is_ok()) return report(status);
+  if (!common.quiet) {
+    std::string torus = "the torus [";
+    for (int c = 0; c < d; ++c) {
+      char side[64];
+      std::snprintf(side, sizeof side, "%s%g, %g)", c == 0 ? "" : " x [", in->box->lo()[c], in->box->hi()[c]);
+      torus += side;
+    }
+    print_cells_summary(ps.size(), torus, facets, volume, progress.seconds(), output);
+  }
+  return kExitOk;
+}
+
 int run_cells(const Common& common, const std::string& input, const std::string& output, const DomainFlags& flags) {
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
+  if (!common.periodic.empty()) return run_periodic_cells(common, input, output, flags);
   auto loaded_or = load(input, false);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);

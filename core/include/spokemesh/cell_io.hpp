@@ -5,7 +5,9 @@
 //       volume (n) float64, centroid (n, d) float64, bounded (n) bool,
 //       facet_ptr (n + 1) int64 (cell i's facets are [facet_ptr[i], facet_ptr[i+1])),
 //       facet_neighbor (m) int64 (the neighbour's index, or -1 - k for domain wall k),
-//       facet_area (m) float64, facet_normal (m, d) float64 (unit, outward).
+//       facet_area (m) float64, facet_normal (m, d) float64 (unit, outward);
+//       on a torus (periodic.hpp) also facet_offset (m, d) int32, the offset of the
+//       neighbour's image across each facet (VoronoiCell::facet_offsets).
 //   .vtu (VTK XML, d = 2 or 3): one polygon (2-d) or polyhedron (3-d) per bounded
 //       cell, with cell data seed (Int64) and volume (Float64); vertices are not shared
 //       between cells.
@@ -41,7 +43,8 @@ class CellWriter {
   // 2-d and 3-d, and .svg outside 2-d (INVALID_ARGUMENT).
   static Result<Format> format_for(const std::string& path, int dimension);
   // Refuses what format_for refuses.
-  static Result<std::unique_ptr<CellWriter>> open(const std::string& path, int dimension);
+  // periodic: the cells carry facet offsets (written to .npz as facet_offset).
+  static Result<std::unique_ptr<CellWriter>> open(const std::string& path, int dimension, bool periodic = false);
   virtual ~CellWriter() = default;
   // Whether the format needs the cells' vertices (else measures suffice).
   virtual bool needs_vertices() const = 0;

@@ -40,6 +40,7 @@
 #include <string>
 #include <vector>
 
+#include "spokemesh/cells.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic_box.hpp"
@@ -109,5 +110,24 @@ using PeriodicSink = std::function<Status(std::span<const std::uint32_t> simplic
 Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,
                                         const PeriodicSink& sink, const std::function<Status()>& restart,
                                         const std::string& source);
+
+struct PeriodicCellsStats {
+  std::uint64_t images = 0;    // images in the last run's cover
+  std::vector<double> margin;  // its margin per axis
+  int runs = 0;
+};
+
+// The Voronoi cells of the torus `box` over `points` (validated, inside the box), in
+// seed order: each cell is the seed's cell among all images, a bounded polytope around
+// the seed (its vertices may lie outside the box); a facet's neighbor is the
+// neighbour's point and VoronoiCell::facet_offsets its image's offset. Their volumes
+// sum to the box's. options: threads, block size, measures_only, the facet cache, star
+// options (random seed, cancel); seed ranges are not taken (every point's cell). A cell
+// is handed over only if every vertex's sphere lies inside the cover's margin; when one
+// does not, the run measures the margin it needed and is repeated, `restart` called
+// first. Errors as mesh_periodic's.
+Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const PeriodicBox& box,
+                                                  const CellsOptions& options, const CellSink& sink,
+                                                  const std::function<Status()>& restart, const std::string& source);
 
 }  // namespace spokemesh

@@ -56,6 +56,10 @@ struct VoronoiCell {
   double volume = 0;                       // +infinity when unbounded (docs/service.md)
   std::vector<double> centroid;            // d; empty when unbounded or hidden
   bool hidden = false;                     // with weights: the power cell is empty (volume 0)
+  // On a torus (periodic.hpp): per facet, the offset (d integers, in box lengths) of the
+  // neighbour's image across it; facets[k].neighbor is then the neighbour's point. Empty
+  // otherwise.
+  std::vector<std::int32_t> facet_offsets;
 
   std::size_t vertex_count() const { return dimension == 0 ? 0 : vertices.size() / dimension; }
 };

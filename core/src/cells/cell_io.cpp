@@ -40,16 +40,18 @@ Status close_and_rename(std::FILE* out, const std::string& temp, const std::stri
 
 class NpzCellWriter final : public CellWriter {
  public:
-  NpzCellWriter(std::string path, int d)
+  NpzCellWriter(std::string path, int d, bool periodic)
       : path_(std::move(path)),
         d_(d),
+        periodic_(periodic),
         volume_("volume.npy", "<f8", 1),
         centroid_("centroid.npy", "<f8", d),
         bounded_("bounded.npy", "|b1", 1),
         ptr_("facet_ptr.npy", "<i8", 1),
         neighbor_("facet_neighbor.npy", "<i8", 1),
         area_("facet_area.npy", "<f8", 1),
-        normal_("facet_normal.npy", "<f8", d) {}
+        normal_("facet_normal.npy", "<f8", d),
+        offset_("facet_offset.npy", "<i4", d) {}
 
   Status open() {
     const std::string dir = directory_of(path_);
@@ -73,6 +75,7 @@ class NpzCellWriter final : public CellWriter {
         if (s.is_ok()) s = area_.append(&f.area, 1);
         if (s.is_ok()) s = normal_.append(f.normal.data(), static_cast<std::size_t>(d_));
       }
+      if (s.is_ok() && periodic_) s = offset_.append(c.facet_offsets.data(), c.facet_offsets.size());
       facets_ += static_cast<std::int64_t>(c.facets.size());
       if (s.is_ok()) s = ptr_.append(&facets_, 1);
       if (!s.is_ok()) return s;
@@ -83,10 +86,15 @@ class NpzCellWriter final : public CellWriter {
   Status commit() override { return write_npz(path_, columns()); }
 
  private:
-  std::vector<NpyColumn*> columns() { return {&volume_, &centroid_, &bounded_, &ptr_, &neighbor_, &area_, &normal_}; }
+  std::vector<NpyColumn*> columns() {
+    std::vector<NpyColumn*> all{&volume_, &centroid_, &bounded_, &ptr_, &neighbor_, &area_, &normal_};
+    if (periodic_) all.push_back(&offset_);
+    return all;
+  }
   std::string path_;
   int d_;
-  NpyColumn volume_, centroid_, bounded_, ptr_, neighbor_, area_, normal_;
+  bool periodic_;
+  NpyColumn volume_, centroid_, bounded_, ptr_, neighbor_, area_, normal_, offset_;
   std::int64_t facets_ = 0;
 };
 
@@ -218,13 +226,13 @@ Result<CellWriter::Format> CellWriter::format_for(const std::string& path, int d
   return invalid_argument(path + ": unknown cell format (use .npz, .vtu in 2-d and 3-d, or .svg in 2-d)");
 }
 
-Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension) {
+Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, int dimension, bool periodic) {
   auto format = format_for(path, dimension);
   if (!format.is_ok()) return format.status();
   std::unique_ptr<CellWriter> writer;
   Status s;
   if (format.value() == Format::kNpz) {
-    auto w = std::make_unique<NpzCellWriter>(path, dimension);
+    auto w = std::make_unique<NpzCellWriter>(path, dimension, periodic);
     s = w->open();
     writer = std::move(w);
   } else {

@@ -127,6 +127,75 @@ void raise_to(std::atomic<double>& slot, double v) {
   }
 }
 
+// The margins of a periodic run and how they grow: per axis, the first from the mean
+// spacing, then from what a thin run's spheres needed.
+class MarginPlan {
+ public:
+  MarginPlan(const PointSet& points, const PeriodicBox& box) : box_(box), d_(static_cast<std::size_t>(box.dimension())) {
+    double volume = 1;
+    for (std::size_t c = 0; c < d_; ++c) volume *= box.hi()[c] - box.lo()[c];
+    spacing_ = std::pow(volume / static_cast<double>(points.size()), 1.0 / static_cast<double>(d_));
+    margin_.resize(d_);
+    for (std::size_t c = 0; c < d_; ++c) margin_[c] = std::min(kFirstMarginSpacings * spacing_, most(c));
+    needed_ = std::vector<std::atomic<double>>(d_);
+  }
+  const std::vector<double>& margin() const { return margin_; }
+
+  // Starts a run: nothing needed yet.
+  void begin() {
+    for (auto& v : needed_) v.store(0);
+    unbounded_.store(false);
+  }
+  // A sphere of the run (centre, radius, both from the cover's coordinates, within
+  // `pad` of the exact ones): records how far it reaches past the box. Thread-safe.
+  void sphere(const double* centre, double radius, double pad) {
+    double size = 0;
+    for (std::size_t c = 0; c < d_; ++c) size = std::max(size, std::fabs(centre[c]));
+    const double r = radius * (1 + 1e-9) + 4 * pad + 8 * kUnit * size;
+    for (std::size_t c = 0; c < d_; ++c) {
+      const double reach = std::max(box_.lo()[c] - (centre[c] - r), (centre[c] + r) - box_.hi()[c]);
+      if (reach > 0) raise_to(needed_[c], (reach + 2 * pad) * (1 + 1e-9));
+    }
+  }
+  // A cell of the run was unbounded: the cover is too thin somewhere.
+  void unbounded() { unbounded_.store(true, std::memory_order_relaxed); }
+
+  // After a run: OK when its margin sufficed (every sphere strictly inside the region
+  // the cover holds every image of); otherwise grows the margin and says so, or fails
+  // when it cannot grow.
+  Result<bool> thin(const std::string& source) {
+    // A sphere measured in a cover too thin may be larger than the torus's (its far
+    // side is missing), so a need far beyond the margin grows it at most eightfold.
+    bool thin = unbounded_.load(), can_grow = false;
+    std::vector<double> next(margin_);
+    for (std::size_t c = 0; c < d_; ++c) {
+      const double need = needed_[c].load();
+      if (need >= margin_[c] || unbounded_.load()) {
+        thin = true;
+        next[c] = std::min({most(c), 8 * margin_[c], std::max(need * 1.25 + 0.5 * spacing_, 2 * margin_[c])});
+        can_grow = can_grow || next[c] > margin_[c];
+      }
+    }
+    if (!thin) return false;
+    if (!can_grow) {
+      return invalid_argument(source + ": too few points for a periodic Delaunay triangulation of this box: the "
+                              "circumspheres reach more than " + std::to_string(static_cast<int>(kMostMarginBoxes)) +
+                              " box lengths beyond it (add points)");
+    }
+    margin_ = next;
+    return true;
+  }
+
+ private:
+  double most(std::size_t c) const { return kMostMarginBoxes * (box_.hi()[c] - box_.lo()[c]); }
+  const PeriodicBox& box_;
+  std::size_t d_;
+  double spacing_ = 0;
+  std::vector<double> margin_;
+  std::vector<std::atomic<double>> needed_;
+  std::atomic<bool> unbounded_{false};
+};
+
 }  // namespace
 
 Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,
@@ -137,23 +206,14 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
   if (!options.star.weights.empty()) {
     return invalid_argument("weighted points on a periodic box are not supported yet");
   }
-  double volume = 1;
-  for (std::size_t c = 0; c < du; ++c) volume *= box.hi()[c] - box.lo()[c];
-  const double spacing = std::pow(volume / static_cast<double>(points.size()), 1.0 / d);
-  std::vector<double> margin(du);
-  for (std::size_t c = 0; c < du; ++c) {
-    margin[c] = std::min(kFirstMarginSpacings * spacing, kMostMarginBoxes * (box.hi()[c] - box.lo()[c]));
-  }
+  MarginPlan plan(points, box);
   PeriodicMeshStats stats;
   for (;;) {
     ++stats.runs;
-    auto cover_or = PeriodicCover::build(points, box, margin, source);
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
     if (!cover_or.is_ok()) return cover_or.status();
     const PeriodicCover& cover = *cover_or.value();
-    // What the run's spheres needed: per axis, how far the farthest reached past the box.
-    std::vector<std::atomic<double>> needed(du);
-    for (auto& v : needed) v.store(0);
-    std::atomic<bool> unbounded{false};
+    plan.begin();
     MeshOptions run = options;
     run.seed_begin = 0;
     run.seed_end = cover.point_count();
@@ -161,11 +221,9 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
     run.sweep_end = 0xFFFFFFFFu;
     run.split = nullptr;
     run.star.cover = &cover;
-    const auto& lo = box.lo();
-    const auto& hi = box.hi();
     run.accept = [&](const Star& star) {
       if (!star.bounded_cell()) {
-        unbounded.store(true, std::memory_order_relaxed);
+        plan.unbounded();
         return true;
       }
       const auto owned = owned_simplices(star);
@@ -173,19 +231,12 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
         const std::uint32_t* s = owned.data() + at;
         if (!is_representative(cover, s, d)) continue;
         // Its circumsphere, from the cover's coordinates (within pad of the images'):
-        // within 1e-12 of the radius plus an ulp (circumcentre()), widened for both.
+        // within 1e-12 of the radius plus an ulp (circumcentre()).
         const std::vector<double> centre = circumcentre(cover.points(), s, d + 1);
         const double* x = cover.points().point(s[0]);
-        double r2 = 0, size = 0;
-        for (std::size_t c = 0; c < du; ++c) {
-          r2 += (centre[c] - x[c]) * (centre[c] - x[c]);
-          size = std::max(size, std::fabs(centre[c]));
-        }
-        const double r = std::sqrt(r2) * (1 + 1e-9) + 4 * cover.pad() + 8 * kUnit * size;
-        for (std::size_t c = 0; c < du; ++c) {
-          const double reach = std::max(lo[c] - (centre[c] - r), (centre[c] + r) - hi[c]);
-          if (reach > 0) raise_to(needed[c], (reach + 2 * cover.pad()) * (1 + 1e-9));
-        }
+        double r2 = 0;
+        for (std::size_t c = 0; c < du; ++c) r2 += (centre[c] - x[c]) * (centre[c] - x[c]);
+        plan.sphere(centre.data(), std::sqrt(r2), cover.pad());
       }
       return true;
     };
@@ -208,34 +259,81 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
       return sink(kept, offsets, done);
     });
     if (!result.is_ok()) return result.status();
-    // A sphere measured in a cover too thin may be far larger than the torus's (its
-    // far side is missing): a need beyond twice the margin only doubles it.
-    bool thin = unbounded.load(), can_grow = false;
-    std::vector<double> next(margin);
-    for (std::size_t c = 0; c < du; ++c) {
-      const double need = needed[c].load();
-      const double most = kMostMarginBoxes * (box.hi()[c] - box.lo()[c]);
-      // Strictly inside the region the cover holds every image of.
-      if (need >= margin[c] || unbounded.load()) {
-        thin = true;
-        next[c] = std::min(most, need <= 2 * margin[c] ? std::max(need * 1.25 + 0.5 * spacing, margin[c])
-                                                      : 2 * margin[c]);
-        can_grow = can_grow || next[c] > margin[c];
-      }
-    }
-    if (!thin) {
+    auto thin = plan.thin(source);
+    if (!thin.is_ok()) return thin.status();
+    if (!thin.value()) {
       stats.mesh = result.value();
       stats.mesh.simplices = written;  // the torus's (the run's rows less the translates)
       stats.images = cover.image_count();
-      stats.margin = margin;
+      stats.margin = plan.margin();
       return stats;
     }
-    if (!can_grow) {
-      return invalid_argument(source + ": too few points for a periodic Delaunay triangulation of this box: the "
-                              "circumspheres reach more than " + std::to_string(static_cast<int>(kMostMarginBoxes)) +
-                              " box lengths beyond it (add points)");
+    if (restart) {
+      if (Status s = restart(); !s.is_ok()) return s;
     }
-    margin = next;
+  }
+}
+
+Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const PeriodicBox& box,
+                                                  const CellsOptions& options, const CellSink& sink,
+                                                  const std::function<Status()>& restart, const std::string& source) {
+  const int d = points.dimension();
+  const auto du = static_cast<std::size_t>(d);
+  if (!options.star.weights.empty()) {
+    return invalid_argument("weighted points on a periodic box are not supported yet");
+  }
+  MarginPlan plan(points, box);
+  PeriodicCellsStats stats;
+  std::vector<VoronoiCell> mapped;
+  for (;;) {
+    ++stats.runs;
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
+    if (!cover_or.is_ok()) return cover_or.status();
+    const PeriodicCover& cover = *cover_or.value();
+    plan.begin();
+    CellsOptions run = options;
+    run.seed_begin = 0;
+    run.seed_end = cover.point_count();
+    run.measures_only = false;  // the vertices certify the cells (then are dropped if asked)
+    run.star.cover = &cover;
+    Status status = compute_cells(cover.tree(), nullptr, run, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+      mapped.assign(cells.begin(), cells.end());
+      for (VoronoiCell& cell : mapped) {
+        if (!cell.bounded) {
+          plan.unbounded();
+          continue;
+        }
+        // Every vertex is the centre of a sphere through the seed.
+        const double* x = cover.points().point(cell.seed);
+        for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
+          const double* c = cell.vertices.data() + v * du;
+          double r2 = 0;
+          for (std::size_t k = 0; k < du; ++k) r2 += (c[k] - x[k]) * (c[k] - x[k]);
+          plan.sphere(c, std::sqrt(r2), cover.pad());
+        }
+        cell.facet_offsets.clear();
+        for (VoronoiFacet& f : cell.facets) {
+          const auto id = static_cast<std::uint32_t>(f.neighbor);
+          const std::int32_t* k = cover.offset_of(id);
+          cell.facet_offsets.insert(cell.facet_offsets.end(), k, k + d);
+          f.neighbor = cover.point_of(id);
+        }
+        if (options.measures_only) {
+          cell.vertices.clear();
+          cell.vertex_simplices.clear();
+          for (VoronoiFacet& f : cell.facets) f.vertices.clear();
+        }
+      }
+      return sink(mapped, done);
+    });
+    if (!status.is_ok()) return status;
+    auto thin = plan.thin(source);
+    if (!thin.is_ok()) return thin.status();
+    if (!thin.value()) {
+      stats.images = cover.image_count();
+      stats.margin = plan.margin();
+      return stats;
+    }
     if (restart) {
       if (Status s = restart(); !s.is_ok()) return s;
     }
