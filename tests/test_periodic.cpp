@@ -337,6 +337,72 @@ TEST(Periodic, ThinMarginsAreWidened) {
   check_torus(few, cube(2, 0, 1), mesh(few, cube(2, 0, 1)), "four points");
 }
 
+// The torus's cells: volumes sum to the box's in every dimension, each facet i -> j at
+// offset k has its partner j -> i at -k with the same area, and a cell's facets are its
+// seed's Delaunay neighbours across the torus (the mesh's edges).
+TEST(Periodic, CellsTileTheTorus) {
+  for (int d : {2, 3, 4}) {
+    const PeriodicBox box = cube(d, -1, 1);
+    const PointSet ps = uniform_in(box, d == 4 ? 300 : 800, 21u + static_cast<unsigned>(d));
+    SCOPED_TRACE(std::to_string(d) + "-d");
+    CellsOptions options;
+    options.threads = 2;
+    options.measures_only = true;
+    double volume = 0;
+    std::map<std::tuple<std::uint32_t, std::uint32_t, std::vector<std::int32_t>>, double> facets;
+    auto result = compute_periodic_cells(
+        ps, box, options,
+        [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+          for (const VoronoiCell& c : cells) {
+            EXPECT_TRUE(c.bounded);
+            volume += c.volume;
+            EXPECT_EQ(c.facet_offsets.size(), c.facets.size() * static_cast<std::size_t>(d));
+            for (std::size_t f = 0; f < c.facets.size(); ++f) {
+              const auto* k = c.facet_offsets.data() + f * static_cast<std::size_t>(d);
+              facets[{c.seed, static_cast<std::uint32_t>(c.facets[f].neighbor), std::vector<std::int32_t>(k, k + d)}] =
+                  c.facets[f].area;
+            }
+          }
+          return Status::ok();
+        },
+        [&] {
+          volume = 0;
+          facets.clear();
+          return Status::ok();
+        },
+        "test points");
+    ASSERT_TRUE(result.is_ok()) << result.status().message();
+    EXPECT_NEAR(volume, std::pow(2.0, d), 1e-12 * std::pow(2.0, d));
+    for (const auto& [key, area] : facets) {
+      auto back = std::get<2>(key);
+      for (auto& v : back) v = -v;
+      const auto it = facets.find({std::get<1>(key), std::get<0>(key), back});
+      ASSERT_NE(it, facets.end()) << "facet " << std::get<0>(key) << " -> " << std::get<1>(key) << " has no partner";
+      EXPECT_NEAR(it->second, area, 1e-9 * area);
+    }
+    // Neighbours are the mesh's edges (as translation classes).
+    const Rows rows = mesh(ps, box);
+    std::set<std::tuple<std::uint32_t, std::uint32_t, std::vector<std::int32_t>>> edges;
+    const auto w = static_cast<std::size_t>(d + 1);
+    for (std::size_t s = 0; s * w < rows.simplices.size(); ++s) {
+      for (std::size_t a = 0; a < w; ++a) {
+        for (std::size_t b = 0; b < w; ++b) {
+          if (a == b) continue;
+          std::vector<std::int32_t> k(static_cast<std::size_t>(d));
+          for (int c = 0; c < d; ++c) {
+            k[static_cast<std::size_t>(c)] = rows.offsets[(s * w + b) * static_cast<std::size_t>(d) + c] -
+                                             rows.offsets[(s * w + a) * static_cast<std::size_t>(d) + c];
+          }
+          edges.insert({rows.simplices[s * w + a], rows.simplices[s * w + b], k});
+        }
+      }
+    }
+    std::set<std::tuple<std::uint32_t, std::uint32_t, std::vector<std::int32_t>>> from_cells;
+    for (const auto& [key, area] : facets) from_cells.insert(key);
+    EXPECT_EQ(from_cells, edges);
+  }
+}
+
 TEST(Periodic, ImageDifferenceRoundsOnce) {
   // 0.1 + 1 - 1.05: the exact value, rounded once (long arithmetic in rationals).
   const double got = image_difference(0.1, 1, 0.0, 1.0, 1.05);

@@ -315,3 +315,66 @@ def test_power_cells_of_equal_weights_are_the_voronoi_cells_and_cell_says_hidden
               "--box", "0,0,2,2")
     cell = json.loads(out.stdout)
     assert 4 not in [f.get("neighbor") for f in cell["facets"]]
+
+
+# --- Periodic cells: the flat torus (issue 28) ---------------------------------------
+
+@pytest.mark.parametrize("box", [(0.0, 1.0), (-2.0, 3.0)])
+def test_periodic_cells_equal_voro_periodic_cells(tmp_path, box):
+    """`spokemesh cells --periodic` against `voro++ -p` on the same particles: the same
+    neighbour sets and volumes to Voro++'s printed digits; the volumes sum to the box's;
+    each facet's offset puts the neighbour's image where the facet's normal points
+    (the facet lies on the bisector of the seed and that image), and each facet i->j at
+    offset k has its partner j->i at offset -k with the same area."""
+    import subprocess
+    lo, hi = box
+    side = hi - lo
+    rng = np.random.default_rng(71)
+    n = 3000
+    pts = lo + rng.random((n, 3)) * side
+    pts[pts >= hi] = lo
+    np.savetxt(tmp_path / "p.txt", pts, fmt="%.17g")
+    box_text = ",".join([repr(lo)] * 3 + [repr(hi)] * 3)
+    cli("cells", str(tmp_path / "p.txt"), "--periodic", box_text, "-o", str(tmp_path / "c.npz"), "-q")
+    z = dict(np.load(tmp_path / "c.npz"))
+    ptr, nb, vol, off = z["facet_ptr"], z["facet_neighbor"], z["volume"], z["facet_offset"]
+    assert off.shape == (ptr[-1], 3) and off.dtype == np.int32
+    assert abs(vol.sum() - side ** 3) <= 1e-12 * side ** 3
+    owner = np.repeat(np.arange(n), np.diff(ptr))
+    image = pts[nb] + off * side
+    towards = image - pts[owner]
+    towards /= np.linalg.norm(towards, axis=1)[:, None]
+    assert np.abs(towards - z["facet_normal"]).max() < 1e-9
+    pairs = {(int(i), int(j), tuple(k)): a for i, j, k, a in zip(owner, nb, off.tolist(), z["facet_area"])}
+    for (i, j, k), a in pairs.items():
+        back = pairs[(j, i, tuple(-x for x in k))]
+        assert abs(back - a) <= 1e-9 * a
+    src = tmp_path / "voro.txt"
+    with open(src, "w") as f:
+        for i, p in enumerate(pts):
+            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}\n")
+    bounds = [repr(lo), repr(hi)] * 3
+    subprocess.run(["voro++", "-p", "-c", "%i %v %n", *bounds, str(src)], check=True)
+    seen = 0
+    for line in open(str(src) + ".vol"):
+        t = line.split()
+        i, v, theirs = int(t[0]), float(t[1]), {int(x) for x in t[2:]}
+        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]]}
+        assert mine == theirs, f"cell {i}: neighbours {sorted(mine ^ theirs)} differ from Voro++'s"
+        assert abs(vol[i] - v) <= 5e-6 * v, f"cell {i}: volume {vol[i]} against {v}"
+        seen += 1
+    assert seen == n
+
+
+def test_periodic_cells_refuse_what_does_not_apply(tmp_path):
+    pts = uniform(200, 3, 72)
+    np.savetxt(tmp_path / "p.txt", pts, fmt="%.17g")
+    for extra, needle in [(["--box", box_of(3)], "do not apply"),
+                          (["--periodic", "0,0,0,0.5,1,1"], "lies outside the periodic box"),
+                          (["--periodic", "0,0,1,1"], "3-d points")]:
+        args = ["cells", str(tmp_path / "p.txt"), "-o", str(tmp_path / "x.npz")] + extra
+        if "--periodic" not in extra:
+            args += ["--periodic", box_of(3)]
+        done = cli(*args, check=False)
+        assert done.returncode == 2 and needle in done.stderr, done.stderr
+        assert not (tmp_path / "x.npz").exists()
