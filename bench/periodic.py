@@ -8,11 +8,15 @@ file); the simplex counts must agree (the suite's test_periodic compares the sim
 themselves). Where CGAL cannot use one copy of the box (clustered points leave voids
 wider than its 1-sheeted condition allows) it keeps 27, and the table says so.
 
+Cells: `spokemesh cells P.txt --periodic 0,0,0,1,1,1 -o C.npz` against `voro++ -p -c
+"%i %v %n" 0 1 0 1 0 1 FILE` (Debian's voro++ 0.4.6, single-threaded, text in and out
+as it takes them); the volumes must sum to 1 and agree with Voro++'s on a sample.
+
 Inputs (`--points`, bench/inputs.py): uniform points in the unit square or cube, 100
 Gaussian clusters, or a numpy.linspace grid (its points at 1.0 are dropped: the torus
 identifies them with those at 0).
 
-Usage: bench/periodic.py [--n3 1000000] [--n2 1000000] [--points uniform grid] [--data DIR]
+Usage: bench/periodic.py [--n3 1000000] [--n2 1000000] [--cells 1000000] [--points uniform grid] [--data DIR]
 """
 
 from __future__ import annotations
@@ -49,10 +53,34 @@ def periodic(kind: str, n: int, d: int, work: Path) -> None:
           f"{cgal_t:.2f} s, {cgal_rss:.0f} MB | {ours_t / cgal_t:.2f}x |", flush=True)
 
 
+def cells(kind: str, n: int, work: Path) -> None:
+    points = inputs.points(kind, n, 3, 20261129)
+    points = points[(points >= 0).all(axis=1) & (points < 1).all(axis=1)]
+    n = len(points)
+    np.savetxt(work / "p.txt", points, fmt="%.17g")
+    with open(work / "voro.txt", "w") as f:
+        for i, p in enumerate(points):
+            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}\n")
+    ours_t, ours_rss, _ = timing.process([str(BIN / "spokemesh"), "cells", "p.txt", "--periodic", "0,0,0,1,1,1",
+                                          "-o", "c.npz", "-q"], cwd=str(work))
+    voro_t, voro_rss, _ = timing.process(["voro++", "-p", "-c", "%i %v %n", "0", "1", "0", "1", "0", "1",
+                                          "voro.txt"], cwd=str(work))
+    z = dict(np.load(work / "c.npz"))
+    assert abs(z["volume"].sum() - 1) < 1e-12
+    with open(work / "voro.txt.vol") as f:
+        for line, _ in zip(f, range(2000)):
+            t = line.split()
+            i, v = int(t[0]), float(t[1])
+            assert abs(z["volume"][i] - v) <= 5e-6 * v, (i, z["volume"][i], v)
+    print(f"| periodic cells {kind} 3-d {n:,} | {int(z['facet_ptr'][-1]):,} facets | {ours_t:.2f} s, "
+          f"{ours_rss:.0f} MB | Voro++ {voro_t:.2f} s, {voro_rss:.0f} MB | {ours_t / voro_t:.2f}x |", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n3", type=int, default=1_000_000)
     parser.add_argument("--n2", type=int, default=1_000_000)
+    parser.add_argument("--cells", type=int, default=1_000_000, help="points for the 3-d cells (0: none)")
     parser.add_argument("--points", nargs="+", default=["uniform"], choices=inputs.KINDS)
     parser.add_argument("--data", type=Path, default=None, help="work directory (default: a temporary one)")
     args = parser.parse_args()
@@ -66,6 +94,8 @@ def main() -> None:
                 periodic(kind, args.n2, 2, work)
             if args.n3:
                 periodic(kind, args.n3, 3, work)
+            if args.cells:
+                cells(kind, args.cells, work)
 
 
 if __name__ == "__main__":

@@ -232,6 +232,20 @@ TEST_F(Cli, PeriodicMeshWritesOffsets) {
   EXPECT_EQ(slurp(path("a.npz")), slurp(path("b.npz")));
   EXPECT_NE(slurp(path("a.npz")).find("offsets.npy"), std::string::npos);
 
+  // One seed on the torus: its six triangles (each with seed 5 at offset 0), its six
+  // neighbour images, its unit-square cell with each facet's offset.
+  const Outcome star = run("star " + in + " --seed 5 --periodic 0,0,4,4");
+  ASSERT_EQ(star.code, 0) << star.err;
+  EXPECT_EQ(std::count(star.out.begin(), star.out.end(), '\n'), 6) << star.out;
+  const Outcome nb = run("neighbors " + in + " --seed 0 --periodic 0,0,4,4");
+  ASSERT_EQ(nb.code, 0) << nb.err;
+  EXPECT_EQ(std::count(nb.out.begin(), nb.out.end(), '\n'), 6) << nb.out;
+  EXPECT_NE(nb.out.find("3 -1 0\n"), std::string::npos) << "point 3 = (3, 0), one box length left:\n" << nb.out;
+  const Outcome cell = run("cell " + in + " --seed 0 --periodic 0,0,4,4 --json");
+  ASSERT_EQ(cell.code, 0) << cell.err;
+  EXPECT_NE(cell.out.find("\"volume\": 1.0"), std::string::npos) << cell.out;
+  EXPECT_NE(cell.out.find("\"offset\""), std::string::npos) << cell.out;
+
   struct Bad {
     std::string args, needle;
   };
@@ -244,6 +258,8 @@ TEST_F(Cli, PeriodicMeshWritesOffsets) {
       {"mesh " + in + " --periodic 0,0,4,4 -o " + path("x.vtu"), ".npz"},
       {"mesh " + in + " --periodic 0,0,4,4 --merge-duplicates -o " + path("x.npz"), "--merge-duplicates"},
       {"mesh " + in + " --periodic 0,0,4,4 --server 127.0.0.1:1 -o " + path("x.npz"), "local files only"},
+      {"cell " + in + " --seed 0 --periodic 0,0,4,4 --box 0,0,1,1", "do not apply"},
+      {"star " + in + " --seed 16 --periodic 0,0,4,4", "out of range"},
   };
   for (const Bad& b : bad) {
     const Outcome o = run(b.args);

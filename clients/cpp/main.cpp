@@ -15,6 +15,7 @@
 #include <iostream>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -299,6 +300,62 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
   });
 }
 
+// star, neighbors and cell --periodic: one seed on the torus (periodic.hpp). star prints
+// each simplex's indices then its vertices' offsets; neighbors each neighbour image,
+// "index offsets..." (a neighbour may appear at several offsets); cell the unclipped
+// cell with each facet's offset.
+int run_periodic_seed(const Common& common, const std::string& input, std::int64_t seed, const char* what,
+                      bool json, const DomainFlags& flags) {
+  if (!flags.box.empty() || !flags.halfspaces.empty()) {
+    return report(invalid_argument("--periodic cells fill the torus: --box and --halfspaces do not apply"));
+  }
+  auto in = load_periodic(common, input);
+  if (!in.is_ok()) return report(in.status());
+  const int d = in->points.dimension();
+  if (seed < 0 || static_cast<std::size_t>(seed) >= in->points.size()) {
+    return report(out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
+                               std::to_string(in->points.size()) + " points)"));
+  }
+  StarOptions options;
+  options.random_seed = common.random_seed;
+  VoronoiCell cell;
+  const bool want_cell = std::string(what) == "cell";
+  auto star = periodic_star(in->points, *in->box, static_cast<std::uint32_t>(seed), options, input,
+                            want_cell ? &cell : nullptr);
+  if (!star.is_ok()) return report(star.status());
+  const auto w = static_cast<std::size_t>(d + 1), du = static_cast<std::size_t>(d);
+  std::string out;
+  if (want_cell) {
+    cli::print_cell(cell, static_cast<std::uint64_t>(seed), json, [](std::uint32_t i) { return i; });
+    return kExitOk;
+  }
+  if (std::string(what) == "star") {
+    for (std::size_t s = 0; s < star->size(d); ++s) {
+      for (std::size_t v = 0; v < w; ++v) out.append(v ? " " : "").append(std::to_string(star->simplices[s * w + v]));
+      for (std::size_t k = 0; k < w * du; ++k) out.append(" ").append(std::to_string(star->offsets[s * w * du + k]));
+      out += "\n";
+    }
+  } else {
+    // Neighbour images, sorted by index then offset, each once.
+    std::set<std::vector<std::int64_t>> images;
+    for (std::size_t v = 0; v < star->simplices.size(); ++v) {
+      std::vector<std::int64_t> image{star->simplices[v]};
+      bool self = star->simplices[v] == static_cast<std::uint32_t>(seed);
+      for (std::size_t c = 0; c < du; ++c) {
+        image.push_back(star->offsets[v * du + c]);
+        self = self && star->offsets[v * du + c] == 0;
+      }
+      if (!self) images.insert(image);
+    }
+    for (const auto& image : images) {
+      for (std::size_t c = 0; c < image.size(); ++c) out.append(c ? " " : "").append(std::to_string(image[c]));
+      out += "\n";
+    }
+  }
+  std::fwrite(out.data(), 1, out.size(), stdout);
+  return kExitOk;
+}
+
 // cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
 int run_periodic_cells(const Common& common, const std::string& input, const std::string& output,
                        const DomainFlags& flags) {
@@ -514,6 +571,7 @@ int main(int argc, char** argv) {
   star->add_option("--seed", seed, "Seed index (0-based)")->required();
   add_common_flags(star, common);
   add_weight_flags(star, common);
+  add_periodic_flag(star, common);
 
   auto* neighbors = app.add_subcommand("neighbors", "Print the Delaunay neighbours of one seed, one per line");
   neighbors->add_option("INPUT", input, "Point file")->required();
@@ -521,6 +579,7 @@ int main(int argc, char** argv) {
   add_approx_flags(neighbors, approx_flags);
   add_common_flags(neighbors, common);
   add_weight_flags(neighbors, common);
+  add_periodic_flag(neighbors, common);
 
   auto* cell = app.add_subcommand("cell", "Print the Voronoi cell of one seed: vertices, facets, boundedness, volume");
   cell->add_option("INPUT", input, "Point file")->required();
@@ -529,6 +588,7 @@ int main(int argc, char** argv) {
   add_domain_flags(cell, domain_flags, "default: unclipped");
   add_common_flags(cell, common);
   add_weight_flags(cell, common);
+  add_periodic_flag(cell, common);
 
   auto* check = app.add_subcommand("check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
   check->add_option("INPUT", input, "Point file")->required();
@@ -666,6 +726,10 @@ int main(int argc, char** argv) {
                                    ": needs --server HOST:PORT (a spokemesh-server)"));
   }
   if (*mesh) return run_mesh(common, input, output, whole.seeds);
+  if (!common.periodic.empty() && (*star || *neighbors || *cell)) {
+    if (*neighbors && approx_flags.enabled) return report(invalid_argument("--periodic needs the exact engine: drop --approx"));
+    return run_periodic_seed(common, input, seed, *star ? "star" : *neighbors ? "neighbors" : "cell", json, domain_flags);
+  }
   if (*star) {
     return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {
       for (auto& v : s.simplices) v = loaded.to_original(v);

@@ -111,6 +111,22 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
                                         const PeriodicSink& sink, const std::function<Status()>& restart,
                                         const std::string& source);
 
+// One seed's star on the torus: its Delaunay simplices among all images, the seed
+// itself at offset 0 in each (d + 1 point indices and (d + 1) d offsets per simplex),
+// in the order and orientation Star gives them; and its cell when asked (facets' neighbours as points,
+// VoronoiCell::facet_offsets their images). The margin grows until every sphere of the
+// star lies inside it, as for meshes. Errors: OUT_OF_RANGE for a seed >= n; the rest
+// as mesh_periodic's.
+struct PeriodicStar {
+  std::uint32_t seed = 0;
+  std::vector<std::uint32_t> simplices;
+  std::vector<std::int32_t> offsets;
+  std::size_t size(int d) const { return simplices.size() / static_cast<std::size_t>(d + 1); }
+};
+Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
+                                   const StarOptions& options, const std::string& source,
+                                   VoronoiCell* cell = nullptr);
+
 struct PeriodicCellsStats {
   std::uint64_t images = 0;    // images in the last run's cover
   std::vector<double> margin;  // its margin per axis

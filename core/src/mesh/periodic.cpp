@@ -274,6 +274,59 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
   }
 }
 
+Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
+                                   const StarOptions& options, const std::string& source, VoronoiCell* cell) {
+  const int d = points.dimension();
+  const auto du = static_cast<std::size_t>(d);
+  if (!options.weights.empty()) return invalid_argument("weighted points on a periodic box are not supported yet");
+  if (seed >= points.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
+                        std::to_string(points.size()) + " points)");
+  }
+  MarginPlan plan(points, box);
+  for (;;) {
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
+    if (!cover_or.is_ok()) return cover_or.status();
+    const PeriodicCover& cover = *cover_or.value();
+    plan.begin();
+    StarOptions run = options;
+    run.cover = &cover;
+    StarWalker walker(cover.tree(), run);
+    Star star;
+    if (Status s = walker.compute(seed, star); !s.is_ok()) return s;
+    if (!star.bounded_cell()) plan.unbounded();
+    const double* x = cover.points().point(seed);
+    for (std::size_t i = 0; i < star.size(); ++i) {
+      const std::vector<double> centre = circumcentre(cover.points(), star.simplex(i), d + 1);
+      double r2 = 0;
+      for (std::size_t c = 0; c < du; ++c) r2 += (centre[c] - x[c]) * (centre[c] - x[c]);
+      plan.sphere(centre.data(), std::sqrt(r2), cover.pad());
+    }
+    auto thin = plan.thin(source);
+    if (!thin.is_ok()) return thin.status();
+    if (thin.value()) continue;
+    PeriodicStar out;
+    out.seed = seed;
+    for (const std::uint32_t id : star.simplices) {
+      out.simplices.push_back(cover.point_of(id));
+      const std::int32_t* k = cover.offset_of(id);
+      out.offsets.insert(out.offsets.end(), k, k + d);
+    }
+    if (cell != nullptr) {
+      *cell = voronoi_cell(cover.points(), star);
+      cell->vertex_simplices.clear();  // the cover's ids: the star's rows say it with offsets
+      cell->facet_offsets.clear();
+      for (VoronoiFacet& f : cell->facets) {
+        const auto id = static_cast<std::uint32_t>(f.neighbor);
+        const std::int32_t* k = cover.offset_of(id);
+        cell->facet_offsets.insert(cell->facet_offsets.end(), k, k + d);
+        f.neighbor = cover.point_of(id);
+      }
+    }
+    return out;
+  }
+}
+
 Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const PeriodicBox& box,
                                                   const CellsOptions& options, const CellSink& sink,
                                                   const std::function<Status()>& restart, const std::string& source) {
