@@ -4,6 +4,7 @@ scipy.spatial.Delaunay (Qhull) on general-position inputs and against the CLI's 
 
 from __future__ import annotations
 
+import math
 import threading
 
 import pickle
@@ -13,7 +14,7 @@ import pytest
 import spokemesh
 from scipy.spatial import Delaunay as ScipyDelaunay
 
-from conftest import local_mesh, uniform
+from conftest import cli, local_mesh, uniform
 
 SIZES = {2: 3000, 3: 2000, 4: 600, 5: 200}
 
@@ -314,3 +315,62 @@ def test_weighted_cells_in_process_equal_the_cli(tmp_path):
     assert cell.hidden and cell.volume == 0 and cell.facets == []
     some = int(np.flatnonzero(theirs["volume"] > 0)[0])
     assert tri.cell(some, box=[0, 0, 0, 1, 1, 1]).volume == pytest.approx(theirs["volume"][some], rel=1e-12)
+
+
+# --- The flat torus (issue 28) --------------------------------------------------------
+
+def test_periodic_delaunay_equals_the_cli_and_tiles_the_box(tmp_path):
+    """Delaunay(points, periodic=box): the same rows and offsets as `spokemesh mesh
+    --periodic` (same bytes, same order), simplices positively oriented on their images
+    and filling the box, cells equal the CLI's, and pickling keeps the box."""
+    import pickle
+    rng = np.random.default_rng(81)
+    for d, n, lo, hi in ((2, 700, -1.0, 2.0), (3, 900, 0.0, 1.0)):
+        pts = lo + rng.random((n, d)) * (hi - lo)
+        box = np.array([[lo] * d, [hi] * d])
+        tri = spokemesh.Delaunay(pts, periodic=box, threads=2)
+        assert isinstance(tri, spokemesh.PeriodicDelaunay) and isinstance(tri, spokemesh.Delaunay)
+        np.save(tmp_path / "p.npy", pts)
+        box_text = ",".join([repr(lo)] * d + [repr(hi)] * d)
+        cli("mesh", str(tmp_path / "p.npy"), "--periodic", box_text, "-o", str(tmp_path / "m.npz"), "-q")
+        z = dict(np.load(tmp_path / "m.npz"))
+        assert np.array_equal(tri.simplices, z["simplices"]) and np.array_equal(tri.offsets, z["offsets"])
+        corners = pts[tri.simplices] + tri.offsets * (hi - lo)
+        det = np.linalg.det(corners[:, 1:] - corners[:, :1])
+        assert (det > 0).all()
+        assert abs(det.sum() / math.factorial(d) - (hi - lo) ** d) <= 1e-12 * (hi - lo) ** d
+        cli("cells", str(tmp_path / "p.npy"), "--periodic", box_text, "-o", str(tmp_path / "c.npz"), "-q")
+        theirs, ours = dict(np.load(tmp_path / "c.npz")), tri.cells()
+        for key in ("volume", "facet_ptr", "facet_neighbor", "facet_offset", "facet_area"):
+            assert np.array_equal(ours[key], theirs[key]), key
+        # One seed: its star holds it at offset 0, its cell is the cells()' one.
+        s, o = tri.star(5)
+        assert all(((s[r] == 5) & (o[r] == 0).all(axis=1)).any() for r in range(len(s)))
+        cell = tri.cell(5)
+        assert cell.volume == pytest.approx(ours["volume"][5], rel=1e-12)
+        nb, off = tri.neighbors_of(5)
+        assert sorted(zip(nb.tolist(), map(tuple, off.tolist()))) == sorted(
+            (f.neighbor, tuple(f.offset.tolist())) for f in cell.facets)
+        again = pickle.loads(pickle.dumps(tri))
+        assert np.array_equal(again.simplices, tri.simplices) and np.array_equal(again.periodic, box)
+
+
+def test_periodic_delaunay_refuses_what_it_cannot_do():
+    pts = np.random.default_rng(82).random((100, 2))
+    box = [[0, 0], [1, 1]]
+    tri = spokemesh.Delaunay(pts, periodic=box)
+    for name in ("neighbors", "convex_hull", "transform", "vertex_to_simplex"):
+        with pytest.raises(ValueError, match="not available for a periodic triangulation"):
+            getattr(tri, name)
+    with pytest.raises(ValueError, match="not available for a periodic triangulation"):
+        tri.find_simplex(np.zeros((1, 2)))
+    for kwargs, needle in (({"weights": np.zeros(100)}, "weights"), ({"incremental": True}, "incremental"),
+                           ({"furthest_site": True}, "furthest_site")):
+        with pytest.raises(ValueError, match=needle):
+            spokemesh.Delaunay(pts, periodic=box, **kwargs)
+    with pytest.raises(ValueError, match="point 0 lies outside the periodic box"):
+        spokemesh.Delaunay(pts + 0.999, periodic=box)
+    with pytest.raises(ValueError, match="shape"):
+        spokemesh.Delaunay(pts, periodic=[0, 1])
+    with pytest.raises(ValueError, match="axis 1"):
+        spokemesh.Delaunay(pts, periodic=[[0, 1], [1, 1]])

@@ -25,11 +25,11 @@ from typing import Any
 
 from .types import Cell, Facet
 
-__all__ = ["Delaunay", "Voronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
            "Client", "Error", "PointSet", "Star", "Neighbors"]
 
 _REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors"}
-_LOCAL = {"Delaunay", "ApproximateGraph", "approximate_graph"}
+_LOCAL = {"Delaunay", "PeriodicDelaunay", "ApproximateGraph", "approximate_graph"}
 
 
 def __getattr__(name: str) -> Any:

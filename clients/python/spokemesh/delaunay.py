@@ -113,13 +113,22 @@ class Delaunay:
     not Qhull's (scipy leaves it unspecified). Beyond scipy: star(i), neighbors_of(i), cell(i, box, halfspaces),
     cells(box, halfspaces).
 
+    periodic ((2, d): the box's low and high corners) gives the Delaunay triangulation of
+    the flat torus instead: a PeriodicDelaunay (see there).
+
     Thread safety: immutable after construction; methods may be called from several
     threads (each releases the GIL while it works).
     """
 
+    def __new__(cls, points: np.ndarray, *args, periodic: Optional[np.ndarray] = None, **kwargs):
+        # With a periodic box, the triangulation of the torus (PeriodicDelaunay).
+        if periodic is not None and cls is Delaunay:
+            return super().__new__(PeriodicDelaunay)
+        return super().__new__(cls)
+
     def __init__(self, points: np.ndarray, furthest_site: bool = False, incremental: bool = False,
                  qhull_options: Optional[str] = None, threads: Optional[int] = None,
-                 weights: Optional[np.ndarray] = None):
+                 weights: Optional[np.ndarray] = None, periodic: Optional[np.ndarray] = None):
         if np.ma.isMaskedArray(points):
             raise ValueError("Input points cannot be a masked array")
         #: Whether this is the furthest-site triangulation.
@@ -442,6 +451,127 @@ class Delaunay:
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
         return self._tri.cells(b, h, True)
+
+
+def _rebuild_periodic(points, threads, periodic):
+    return Delaunay(points, threads=threads, periodic=periodic)
+
+
+def _unavailable(name: str):
+    def fail(self, *args, **kwargs):
+        raise ValueError(f"{name} is not available for a periodic triangulation (the torus has no hull, and its "
+                         f"simplices are given with image offsets)")
+    return property(fail) if name not in ("find_simplex", "lift_points", "plane_distance", "add_points") else fail
+
+
+class PeriodicDelaunay(Delaunay):
+    """The exact Delaunay triangulation of the flat torus: `Delaunay(points, periodic=box)`.
+
+    box: (2, d) array_like, the low and high corners of [lo, hi), whose opposite sides are
+    identified; every point must lie inside (ValueError naming the first outside). Each
+    simplex of the torus appears once, as d + 1 point indices (`simplices`, (m, d + 1)
+    int32, positively oriented, the first vertex its smallest index) and each vertex's
+    image offset in box lengths (`offsets`, (m, d + 1, d) int32; the first vertex's is
+    0): vertex v of simplex s stands at points[simplices[s, v]] + offsets[s, v] * (hi - lo).
+    The same triangulation as CGAL's Periodic_2/3_Delaunay_triangulation, exactly (README
+    "Periodic boxes"); the same rows for any thread count.
+
+    Attributes: points, ndim, npoints, nsimplex, simplices, offsets, periodic (the box,
+    (2, d)), min_bound and max_bound (its corners). Methods: star(i) -> (simplices,
+    offsets) of the simplices around point i (i at offset 0 in each); neighbors_of(i) ->
+    (indices, offsets) of its neighbour images; cell(i) -> Cell (facets name the
+    neighbour's point and its image `offset`); cells() -> the measures `spokemesh cells
+    --periodic` writes (with facet_offset). scipy's other attributes (neighbors,
+    convex_hull, transform, find_simplex, ...) raise ValueError; furthest_site,
+    incremental, weights and QJ are not available on a torus yet (ValueError). Pickling
+    keeps the points and the box.
+
+    Thread safety: immutable after construction; methods may be called from several
+    threads (each releases the GIL while it works).
+    """
+
+    def __init__(self, points: np.ndarray, furthest_site: bool = False, incremental: bool = False,
+                 qhull_options: Optional[str] = None, threads: Optional[int] = None,
+                 weights: Optional[np.ndarray] = None, periodic: Optional[np.ndarray] = None):
+        if np.ma.isMaskedArray(points):
+            raise ValueError("Input points cannot be a masked array")
+        joggle = _check_qhull_options(qhull_options)
+        for flag, what in ((furthest_site, "furthest_site"), (incremental, "incremental"),
+                           (weights is not None, "weights"), (joggle, "qhull_options QJ")):
+            if flag:
+                raise ValueError(f"periodic: {what} is not available on a torus yet")
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2:
+            raise ValueError(f"points: expected an (n, d) array, got shape {pts.shape}")
+        box = np.asarray(periodic, dtype=np.float64)
+        if box.shape != (2, pts.shape[1]):
+            raise ValueError(f"periodic: expected the box's corners as shape (2, {pts.shape[1]}), got {box.shape}")
+        self.furthest_site = False
+        self.weights = None
+        self._threads = threads
+        self._incremental = False
+        #: (2, d) float64: the box [periodic[0], periodic[1]) of the torus.
+        self.periodic: np.ndarray = box
+        self._periodic = _core.PeriodicTriangulation(pts, box[0].tolist(), box[1].tolist(), threads)
+        self.points: np.ndarray = pts
+        self.ndim: int = pts.shape[1]
+        self.npoints: int = pts.shape[0]
+        #: (nsimplex, ndim + 1) int32 point indices, positively oriented on their images.
+        self.simplices: np.ndarray = self._periodic.simplices()
+        #: (nsimplex, ndim + 1, ndim) int32: each vertex's image offset in box lengths.
+        self.offsets: np.ndarray = self._periodic.offsets()
+        self.nsimplex: int = self.simplices.shape[0]
+        self.min_bound: np.ndarray = box[0].copy()
+        self.max_bound: np.ndarray = box[1].copy()
+
+    def __reduce__(self):
+        return (_rebuild_periodic, (self.points, self._threads, self.periodic))
+
+    def star(self, i: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Point i's simplices on the torus and their vertices' offsets (i at offset 0)."""
+        return self._periodic.star(int(i))
+
+    def neighbors_of(self, i: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Point i's Delaunay neighbours as images: (k,) indices and (k, d) offsets,
+        sorted by index then offset (a neighbour may appear at several offsets)."""
+        s, o = self.star(i)
+        rows = {(int(p),) + tuple(int(x) for x in k) for p, k in zip(s.ravel(), o.reshape(-1, self.ndim))}
+        rows.discard((int(i),) + (0,) * self.ndim)
+        ordered = np.array(sorted(rows), dtype=np.int32).reshape(-1, self.ndim + 1)
+        return ordered[:, 0].copy(), ordered[:, 1:].copy()
+
+    def cell(self, i: int, box=None, halfspaces=None) -> Cell:
+        """Point i's cell on the torus (unclipped: box and halfspaces must be None)."""
+        if box is not None or halfspaces is not None:
+            raise ValueError("periodic: a cell of the torus is not clipped (box and halfspaces do not apply)")
+        c = self._periodic.cell(int(i))
+        d = self.ndim
+        facets = [Facet(neighbor=f["neighbor"], wall=None, vertices=f["vertices"], area=f["area"], normal=f["normal"],
+                        offset=f["offset"]) for f in c["facets"]]
+        return Cell(seed=c["seed"], vertices=c["vertices"], vertex_simplices=np.zeros((0, d + 1), dtype=np.uint32),
+                    facets=facets, bounded=c["bounded"], volume=c["volume"], centroid=c["centroid"],
+                    clipped=False, hidden=False)
+
+    def cells(self, box=None, halfspaces=None) -> Dict[str, np.ndarray]:
+        """Every cell's measures: volume (n,), centroid (n, d), facet_ptr (n + 1,),
+        facet_neighbor (m,), facet_area (m,), facet_normal (m, d), facet_offset (m, d)."""
+        if box is not None or halfspaces is not None:
+            raise ValueError("periodic: the cells of the torus are not clipped (box and halfspaces do not apply)")
+        return self._periodic.cells()
+
+    neighbors = _unavailable("neighbors")
+    vertex_neighbor_vertices = _unavailable("vertex_neighbor_vertices")
+    convex_hull = _unavailable("convex_hull")
+    transform = _unavailable("transform")
+    equations = _unavailable("equations")
+    vertex_to_simplex = _unavailable("vertex_to_simplex")
+    coplanar = _unavailable("coplanar")
+    hidden = _unavailable("hidden")
+    vertices = _unavailable("vertices")
+    find_simplex = _unavailable("find_simplex")
+    lift_points = _unavailable("lift_points")
+    plane_distance = _unavailable("plane_distance")
+    add_points = _unavailable("add_points")
 
 
 @dataclasses.dataclass(frozen=True)

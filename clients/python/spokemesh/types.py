@@ -16,6 +16,7 @@ class Facet:
     vertices: np.ndarray      # uint32 indices into Cell.vertices (3-d: counter-clockwise from outside)
     area: float               # (d-1)-measure; inf when unbounded
     normal: np.ndarray        # (d,) unit outward normal
+    offset: Optional[np.ndarray] = None  # (d,) int32 on a torus: the neighbour's image offset
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,6 +29,7 @@
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
+#include "spokemesh/periodic.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -189,6 +190,150 @@ py::dict cell_dict(const VoronoiCell& c) {
   out["facets"] = facets;
   return out;
 }
+
+// A Delaunay triangulation of the flat torus (periodic.hpp): the points inside a box
+// [lo, hi) whose opposite sides are identified.
+class PeriodicTriangulation {
+ public:
+  PeriodicTriangulation(const Points& array, const std::vector<double>& lo, const std::vector<double>& hi,
+                        std::optional<unsigned> threads)
+      : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
+    auto box = PeriodicBox::of(lo, hi, "periodic");
+    if (!box.is_ok()) raise(box.status());
+    box_ = std::make_unique<PeriodicBox>(std::move(box).value());
+    if (box_->dimension() != d_) {
+      throw py::value_error("periodic: a " + std::to_string(box_->dimension()) + "-d box for " + std::to_string(d_) +
+                            "-d points");
+    }
+    if (Status s = box_->check_contains(points_, "points"); !s.is_ok()) raise(s);
+    Status status;
+    {
+      py::gil_scoped_release release;
+      MeshOptions options;
+      options.threads = threads_;
+      auto run = mesh_periodic(
+          points_, *box_, options,
+          [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
+            simplices_.insert(simplices_.end(), s.begin(), s.end());
+            offsets_.insert(offsets_.end(), o.begin(), o.end());
+            return Status::ok();
+          },
+          [&] {
+            simplices_.clear();
+            offsets_.clear();
+            return Status::ok();
+          },
+          "points");
+      status = run.status();
+    }
+    if (!status.is_ok()) raise(status);
+  }
+
+  py::array_t<std::int32_t> simplices() const {
+    std::vector<std::int32_t> out(simplices_.begin(), simplices_.end());
+    return owned(std::move(out), {static_cast<py::ssize_t>(simplices_.size() / (d_ + 1)), d_ + 1});
+  }
+  py::array_t<std::int32_t> offsets() const {
+    return owned(std::vector<std::int32_t>(offsets_), {static_cast<py::ssize_t>(simplices_.size() / (d_ + 1)), d_ + 1, d_});
+  }
+
+  // One seed's simplices (indices, offsets) and, with `cell`, its cell.
+  py::tuple star(std::uint32_t seed) const {
+    auto result = star_of(seed, nullptr);
+    const auto m = static_cast<py::ssize_t>(result.simplices.size() / (d_ + 1));
+    std::vector<std::int32_t> s(result.simplices.begin(), result.simplices.end());
+    return py::make_tuple(owned(std::move(s), {m, d_ + 1}), owned(std::move(result.offsets), {m, d_ + 1, d_}));
+  }
+  py::dict cell(std::uint32_t seed) const {
+    VoronoiCell c;
+    star_of(seed, &c);
+    py::dict out = cell_dict(c);
+    py::list facets = out["facets"];
+    for (std::size_t k = 0; k < c.facets.size(); ++k) {
+      py::dict f = facets[k];
+      f["offset"] = owned(std::vector<std::int32_t>(c.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d_),
+                                                    c.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d_)),
+                          {d_});
+    }
+    return out;
+  }
+
+  // Every cell's measures, as `spokemesh cells --periodic` writes them.
+  py::dict cells() const {
+    std::vector<double> volume, centroid, area, normal;
+    std::vector<std::int64_t> ptr{0}, neighbor;
+    std::vector<std::int32_t> offset;
+    Status status;
+    {
+      py::gil_scoped_release release;
+      CellsOptions options;
+      options.threads = threads_;
+      options.measures_only = true;
+      auto run = compute_periodic_cells(
+          points_, *box_, options,
+          [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+            for (const VoronoiCell& c : cells) {
+              volume.push_back(c.volume);
+              centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
+              for (const VoronoiFacet& f : c.facets) {
+                neighbor.push_back(f.neighbor);
+                area.push_back(f.area);
+                normal.insert(normal.end(), f.normal.begin(), f.normal.end());
+              }
+              offset.insert(offset.end(), c.facet_offsets.begin(), c.facet_offsets.end());
+              ptr.push_back(static_cast<std::int64_t>(neighbor.size()));
+            }
+            return Status::ok();
+          },
+          [&] {
+            volume.clear();
+            centroid.clear();
+            area.clear();
+            normal.clear();
+            ptr.assign(1, 0);
+            neighbor.clear();
+            offset.clear();
+            return Status::ok();
+          },
+          "points");
+      status = run.status();
+    }
+    if (!status.is_ok()) raise(status);
+    const auto n = static_cast<py::ssize_t>(volume.size());
+    const auto m = static_cast<py::ssize_t>(neighbor.size());
+    py::dict out;
+    out["volume"] = owned(std::move(volume), {n});
+    out["centroid"] = owned(std::move(centroid), {n, d_});
+    out["facet_ptr"] = owned(std::move(ptr), {n + 1});
+    out["facet_neighbor"] = owned(std::move(neighbor), {m});
+    out["facet_area"] = owned(std::move(area), {m});
+    out["facet_normal"] = owned(std::move(normal), {m, d_});
+    out["facet_offset"] = owned(std::move(offset), {m, d_});
+    return out;
+  }
+
+ private:
+  PeriodicStar star_of(std::uint32_t seed, VoronoiCell* cell) const {
+    if (seed >= points_.size()) {
+      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
+                            " points)");
+    }
+    std::optional<Result<PeriodicStar>> result;
+    {
+      py::gil_scoped_release release;
+      result.emplace(periodic_star(points_, *box_, seed, StarOptions{}, "points", cell));
+    }
+    if (!result->is_ok()) raise(result->status());
+    return std::move(*result).value();
+  }
+
+  PointSet points_;
+  int d_;
+  unsigned threads_;
+  std::unique_ptr<PeriodicBox> box_;
+  std::vector<std::uint32_t> simplices_;
+  std::vector<std::int32_t> offsets_;
+};
 
 class Triangulation {
  public:
@@ -685,6 +830,14 @@ PYBIND11_MODULE(_core, m) {
            py::arg("halfspaces") = py::none())
       .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
            py::arg("bounding_box") = true);
+  py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")
+      .def(py::init<const Points&, const std::vector<double>&, const std::vector<double>&, std::optional<unsigned>>(),
+           py::arg("points"), py::arg("lo"), py::arg("hi"), py::arg("threads") = py::none())
+      .def("simplices", &PeriodicTriangulation::simplices)
+      .def("offsets", &PeriodicTriangulation::offsets)
+      .def("star", &PeriodicTriangulation::star, py::arg("seed"))
+      .def("cell", &PeriodicTriangulation::cell, py::arg("seed"))
+      .def("cells", &PeriodicTriangulation::cells);
   m.def("approximate_graph", &approximate_graph, py::arg("points"), py::arg("misses") = kDefaultMaxMisses,
         py::arg("max_vertices") = kDefaultMaxVertices, py::arg("random_seed") = 0x5eed, py::arg("mode") = "rsd",
         py::arg("threads") = py::none());
