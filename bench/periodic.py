@@ -53,18 +53,23 @@ def periodic(kind: str, n: int, d: int, work: Path) -> None:
           f"{cgal_t:.2f} s, {cgal_rss:.0f} MB | {ours_t / cgal_t:.2f}x |", flush=True)
 
 
-def cells(kind: str, n: int, work: Path) -> None:
+def cells(kind: str, n: int, work: Path, radii: bool = False) -> None:
+    """The torus's cells; with radii (uniform in [0, mean spacing / 2)), power cells
+    against `voro++ -p -r`."""
     points = inputs.points(kind, n, 3, 20261129)
     points = points[(points >= 0).all(axis=1) & (points < 1).all(axis=1)]
     n = len(points)
+    r = np.random.default_rng(20261130).random(n) * 0.5 * n ** (-1.0 / 3)
     np.savetxt(work / "p.txt", points, fmt="%.17g")
+    np.savetxt(work / "r.txt", r, fmt="%.17g")
     with open(work / "voro.txt", "w") as f:
         for i, p in enumerate(points):
-            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}\n")
+            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}" + (f" {r[i]!r}\n" if radii else "\n"))
     ours_t, ours_rss, _ = timing.process([str(BIN / "spokemesh"), "cells", "p.txt", "--periodic", "0,0,0,1,1,1",
-                                          "-o", "c.npz", "-q"], cwd=str(work))
-    voro_t, voro_rss, _ = timing.process(["voro++", "-p", "-c", "%i %v %n", "0", "1", "0", "1", "0", "1",
-                                          "voro.txt"], cwd=str(work))
+                                          *(["--radii", "r.txt"] if radii else []), "-o", "c.npz", "-q"],
+                                         cwd=str(work))
+    voro_t, voro_rss, _ = timing.process(["voro++", "-p", *(["-r"] if radii else []), "-c", "%i %v %n",
+                                          "0", "1", "0", "1", "0", "1", "voro.txt"], cwd=str(work))
     z = dict(np.load(work / "c.npz"))
     assert abs(z["volume"].sum() - 1) < 1e-12
     with open(work / "voro.txt.vol") as f:
@@ -72,7 +77,8 @@ def cells(kind: str, n: int, work: Path) -> None:
             t = line.split()
             i, v = int(t[0]), float(t[1])
             assert abs(z["volume"][i] - v) <= 5e-6 * v, (i, z["volume"][i], v)
-    print(f"| periodic cells {kind} 3-d {n:,} | {int(z['facet_ptr'][-1]):,} facets | {ours_t:.2f} s, "
+    what = "power cells" if radii else "cells"
+    print(f"| periodic {what} {kind} 3-d {n:,} | {int(z['facet_ptr'][-1]):,} facets | {ours_t:.2f} s, "
           f"{ours_rss:.0f} MB | Voro++ {voro_t:.2f} s, {voro_rss:.0f} MB | {ours_t / voro_t:.2f}x |", flush=True)
 
 
@@ -96,6 +102,7 @@ def main() -> None:
                 periodic(kind, args.n3, 3, work)
             if args.cells:
                 cells(kind, args.cells, work)
+                cells(kind, args.cells, work, radii=True)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,11 @@
 #include <CGAL/Periodic_3_Delaunay_triangulation_3.h>
 #include <CGAL/Periodic_3_Delaunay_triangulation_traits_3.h>
 #include <CGAL/Periodic_3_triangulation_ds_cell_base_3.h>
+#include <CGAL/Periodic_3_regular_triangulation_3.h>
+#include <CGAL/Periodic_3_regular_triangulation_traits_3.h>
 #include <CGAL/Periodic_3_triangulation_ds_vertex_base_3.h>
+#include <CGAL/Regular_triangulation_cell_base_3.h>
+#include <CGAL/Regular_triangulation_vertex_base_3.h>
 #include <CGAL/Triangulation_cell_base_3.h>
 #include <CGAL/Triangulation_vertex_base_3.h>
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
@@ -60,10 +64,11 @@ struct Rows {
   PeriodicMeshStats stats;
 };
 
-Rows mesh(const PointSet& ps, const PeriodicBox& box, unsigned threads = 1) {
+Rows mesh(const PointSet& ps, const PeriodicBox& box, unsigned threads = 1, std::span<const double> weights = {}) {
   Rows out;
   MeshOptions options;
   options.threads = threads;
+  options.star.weights = weights;
   auto result = mesh_periodic(
       ps, box, options,
       [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
@@ -149,6 +154,37 @@ Torus cgal_torus_3(const PointSet& ps, const PeriodicBox& box) {
     out.insert(canonical(simplex));
   }
   return out;
+}
+
+// CGAL's Periodic_3_regular_triangulation_3 (weights in [0, side^2 / 64), its
+// precondition), and the points it hides.
+std::pair<Torus, std::set<std::uint32_t>> cgal_regular_torus_3(const PointSet& ps, const PeriodicBox& box,
+                                                               const std::vector<double>& w) {
+  using Gt = CGAL::Periodic_3_regular_triangulation_traits_3<K>;
+  using Vb0 = CGAL::Regular_triangulation_vertex_base_3<Gt, CGAL::Periodic_3_triangulation_ds_vertex_base_3<>>;
+  using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::uint32_t, Gt, Vb0>;
+  using Cb = CGAL::Regular_triangulation_cell_base_3<Gt, CGAL::Periodic_3_triangulation_ds_cell_base_3<>>;
+  using Tds = CGAL::Triangulation_data_structure_3<Vb, Cb>;
+  using PRT = CGAL::Periodic_3_regular_triangulation_3<Gt, Tds>;
+  PRT t(Gt::Iso_cuboid_3(box.lo()[0], box.lo()[1], box.lo()[2], box.hi()[0], box.hi()[1], box.hi()[2]));
+  for (std::uint32_t i = 0; i < ps.size(); ++i) {
+    const auto v = t.insert(Gt::Weighted_point_3(K::Point_3(ps.point(i)[0], ps.point(i)[1], ps.point(i)[2]), w[i]));
+    if (v != PRT::Vertex_handle()) v->info() = i;
+  }
+  EXPECT_TRUE(t.is_1_cover());
+  Torus out;
+  std::set<std::uint32_t> hidden;
+  for (std::uint32_t i = 0; i < ps.size(); ++i) hidden.insert(i);
+  for (auto v = t.vertices_begin(); v != t.vertices_end(); ++v) hidden.erase(v->info());
+  for (auto c = t.cells_begin(); c != t.cells_end(); ++c) {
+    std::vector<Vertex> simplex;
+    for (int i = 0; i < 4; ++i) {
+      const auto pp = t.periodic_point(c, i);
+      simplex.push_back({c->vertex(i)->info(), pp.second.x(), pp.second.y(), pp.second.z()});
+    }
+    out.insert(canonical(simplex));
+  }
+  return {out, hidden};
 }
 
 // The checks that need no peer: exact positive orientation of every simplex, volumes
@@ -284,6 +320,44 @@ TEST(Periodic, FourAndFiveDimensions) {
   }
   const PointSet grid = make_points(4, grid_points(4, 4));
   check_torus(grid, cube(4, 0, 4), mesh(grid, cube(4, 0, 4)), "4-d grid");
+}
+
+// Weighted points on the torus: the regular triangulation, simplex for simplex with
+// offsets and hidden points, against CGAL's Periodic_3_regular_triangulation_3; in 2-d
+// and 4-d the torus's invariants; equal weights give the Delaunay rows, byte for byte.
+TEST(Periodic, WeightedEqualsCgalRegular) {
+  const PeriodicBox box = cube(3, 0, 1);
+  const PointSet ps = uniform_in(box, 3000, 31);
+  std::mt19937_64 rng(32);
+  const double spacing2 = std::pow(1.0 / 3000, 2.0 / 3);
+  for (double spread : {0.5, 1.5}) {
+    std::vector<double> w(ps.size());
+    for (double& v : w) v = std::uniform_real_distribution<double>(0, spread * spacing2)(rng);
+    SCOPED_TRACE("spread " + std::to_string(spread));
+    const Rows rows = mesh(ps, box, 2, w);
+    check_torus(ps, box, rows, "weighted 3-d");
+    const auto [theirs, hidden] = cgal_regular_torus_3(ps, box, w);
+    EXPECT_EQ(as_torus(rows, 3), theirs);
+    std::set<std::uint32_t> used(rows.simplices.begin(), rows.simplices.end());
+    std::set<std::uint32_t> ours_hidden;
+    for (std::uint32_t i = 0; i < ps.size(); ++i) {
+      if (!used.count(i)) ours_hidden.insert(i);
+    }
+    EXPECT_EQ(ours_hidden, hidden);
+    if (spread > 1) EXPECT_GT(hidden.size(), 5u) << "the larger weights should hide points";
+  }
+  for (int d : {2, 4}) {
+    const PeriodicBox b = cube(d, 0, 1);
+    const PointSet p = uniform_in(b, d == 2 ? 600 : 300, 33u + static_cast<unsigned>(d));
+    std::vector<double> w(p.size());
+    for (double& v : w) v = std::uniform_real_distribution<double>(-0.5, 1.5)(rng) * std::pow(1.0 / p.size(), 2.0 / d);
+    check_torus(p, b, mesh(p, b, 2, w), std::to_string(d) + "-d weighted");
+  }
+  const PointSet grid = make_points(3, grid_points(3, 5));
+  const std::vector<double> equal(grid.size(), 0.125);
+  const Rows plain = mesh(grid, cube(3, 0, 5)), weighted = mesh(grid, cube(3, 0, 5), 1, equal);
+  EXPECT_EQ(plain.simplices, weighted.simplices);
+  EXPECT_EQ(plain.offsets, weighted.offsets);
 }
 
 TEST(Periodic, ThreadsGiveTheSameRows) {

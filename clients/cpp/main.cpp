@@ -130,18 +130,15 @@ Result<std::uint32_t> internal_seed(const Loaded& loaded, std::int64_t seed) {
 struct PeriodicInput {
   PointSet points;
   std::unique_ptr<PeriodicBox> box;
+  std::vector<double> weights;  // with --weights or --radii
 };
 Result<PeriodicInput> load_periodic(const Common& common, const std::string& input) {
   if (common.merge_duplicates) return invalid_argument("--merge-duplicates cannot be combined with --periodic");
-  if (common.weighted()) {
-    return invalid_argument("--weights and --radii cannot be combined with --periodic yet (power diagrams on the "
-                            "torus are not built)");
-  }
   auto box = PeriodicBox::parse(common.periodic, "--periodic");
   if (!box.is_ok()) return box.status();
   auto points = read_points(input);
   if (!points.is_ok()) return points.status();
-  PeriodicInput in{std::move(points).value(), std::make_unique<PeriodicBox>(std::move(box).value())};
+  PeriodicInput in{std::move(points).value(), std::make_unique<PeriodicBox>(std::move(box).value()), {}};
   const int d = in.points.dimension();
   if (d != in.box->dimension()) {
     return invalid_argument("--periodic: " + std::to_string(2 * in.box->dimension()) + " values describe a " +
@@ -154,6 +151,13 @@ Result<PeriodicInput> load_periodic(const Common& common, const std::string& inp
   }
   if (Status s = in.box->check_contains(in.points, input); !s.is_ok()) return s;
   if (Status s = in.points.validate(input); !s.is_ok()) return s;
+  if (common.weighted()) {
+    const bool radii = !common.radii.empty();
+    auto weights = read_weights(radii ? common.radii : common.weights, in.points.size(),
+                                radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+    if (!weights.is_ok()) return weights.status();
+    in.weights = std::move(weights).value();
+  }
   return in;
 }
 
@@ -177,6 +181,7 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   MeshOptions options;
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
+  options.star.weights = in->weights;
   options.facet_cache_bytes = common.cache_mb << 20;
   Progress progress(common.quiet, ps.size());
   std::uint64_t written = 0;
@@ -318,6 +323,7 @@ int run_periodic_seed(const Common& common, const std::string& input, std::int64
   }
   StarOptions options;
   options.random_seed = common.random_seed;
+  options.weights = in->weights;
   VoronoiCell cell;
   const bool want_cell = std::string(what) == "cell";
   auto star = periodic_star(in->points, *in->box, static_cast<std::uint32_t>(seed), options, input,
@@ -371,6 +377,7 @@ int run_periodic_cells(const Common& common, const std::string& input, const std
   CellsOptions options;
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
+  options.star.weights = in->weights;
   options.measures_only = !writer.value()->needs_vertices();
   options.facet_cache_bytes = common.cache_mb << 20;
   Progress progress(common.quiet, ps.size(), "cells");

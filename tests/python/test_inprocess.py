@@ -353,6 +353,16 @@ def test_periodic_delaunay_equals_the_cli_and_tiles_the_box(tmp_path):
             (f.neighbor, tuple(f.offset.tolist())) for f in cell.facets)
         again = pickle.loads(pickle.dumps(tri))
         assert np.array_equal(again.simplices, tri.simplices) and np.array_equal(again.periodic, box)
+        # Weighted: the regular triangulation of the torus, the CLI's rows and cells.
+        w = rng.random(n) * (hi - lo) ** 2 * n ** (-2.0 / d)
+        np.savetxt(tmp_path / "w.txt", w, fmt="%.17g")
+        wtri = spokemesh.Delaunay(pts, periodic=box, weights=w)
+        cli("mesh", str(tmp_path / "p.npy"), "--periodic", box_text, "--weights", str(tmp_path / "w.txt"),
+            "-o", str(tmp_path / "wm.npz"), "-q")
+        z = dict(np.load(tmp_path / "wm.npz"))
+        assert np.array_equal(wtri.simplices, z["simplices"]) and np.array_equal(wtri.offsets, z["offsets"])
+        assert abs(wtri.cells()["volume"].sum() - (hi - lo) ** d) <= 1e-12 * (hi - lo) ** d
+        assert np.array_equal(pickle.loads(pickle.dumps(wtri)).weights, w)
 
 
 def test_periodic_delaunay_refuses_what_it_cannot_do():
@@ -364,7 +374,7 @@ def test_periodic_delaunay_refuses_what_it_cannot_do():
             getattr(tri, name)
     with pytest.raises(ValueError, match="not available for a periodic triangulation"):
         tri.find_simplex(np.zeros((1, 2)))
-    for kwargs, needle in (({"weights": np.zeros(100)}, "weights"), ({"incremental": True}, "incremental"),
+    for kwargs, needle in (({"weights": np.zeros(99)}, "weights"), ({"incremental": True}, "incremental"),
                            ({"furthest_site": True}, "furthest_site")):
         with pytest.raises(ValueError, match=needle):
             spokemesh.Delaunay(pts, periodic=box, **kwargs)

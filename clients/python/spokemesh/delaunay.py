@@ -453,8 +453,8 @@ class Delaunay:
         return self._tri.cells(b, h, True)
 
 
-def _rebuild_periodic(points, threads, periodic):
-    return Delaunay(points, threads=threads, periodic=periodic)
+def _rebuild_periodic(points, threads, periodic, weights=None):
+    return Delaunay(points, threads=threads, periodic=periodic, weights=weights)
 
 
 def _unavailable(name: str):
@@ -483,8 +483,10 @@ class PeriodicDelaunay(Delaunay):
     neighbour's point and its image `offset`); cells() -> the measures `spokemesh cells
     --periodic` writes (with facet_offset). scipy's other attributes (neighbors,
     convex_hull, transform, find_simplex, ...) raise ValueError; furthest_site,
-    incremental, weights and QJ are not available on a torus yet (ValueError). Pickling
-    keeps the points and the box.
+    incremental and QJ are not available on a torus yet (ValueError). weights ((n,) power
+    weights) give the regular triangulation of the torus and its power cells (a point
+    whose cell is empty is in no simplex; its cell has volume 0). Pickling keeps the
+    points, the box and the weights.
 
     Thread safety: immutable after construction; methods may be called from several
     threads (each releases the GIL while it works).
@@ -497,7 +499,7 @@ class PeriodicDelaunay(Delaunay):
             raise ValueError("Input points cannot be a masked array")
         joggle = _check_qhull_options(qhull_options)
         for flag, what in ((furthest_site, "furthest_site"), (incremental, "incremental"),
-                           (weights is not None, "weights"), (joggle, "qhull_options QJ")):
+                           (joggle, "qhull_options QJ")):
             if flag:
                 raise ValueError(f"periodic: {what} is not available on a torus yet")
         pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -507,12 +509,13 @@ class PeriodicDelaunay(Delaunay):
         if box.shape != (2, pts.shape[1]):
             raise ValueError(f"periodic: expected the box's corners as shape (2, {pts.shape[1]}), got {box.shape}")
         self.furthest_site = False
-        self.weights = None
+        #: (npoints,) float64 power weights (the regular triangulation of the torus), or None.
+        self.weights = None if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
         self._threads = threads
         self._incremental = False
         #: (2, d) float64: the box [periodic[0], periodic[1]) of the torus.
         self.periodic: np.ndarray = box
-        self._periodic = _core.PeriodicTriangulation(pts, box[0].tolist(), box[1].tolist(), threads)
+        self._periodic = _core.PeriodicTriangulation(pts, box[0].tolist(), box[1].tolist(), threads, self.weights)
         self.points: np.ndarray = pts
         self.ndim: int = pts.shape[1]
         self.npoints: int = pts.shape[0]
@@ -525,7 +528,7 @@ class PeriodicDelaunay(Delaunay):
         self.max_bound: np.ndarray = box[1].copy()
 
     def __reduce__(self):
-        return (_rebuild_periodic, (self.points, self._threads, self.periodic))
+        return (_rebuild_periodic, (self.points, self._threads, self.periodic, self.weights))
 
     def star(self, i: int) -> Tuple[np.ndarray, np.ndarray]:
         """Point i's simplices on the torus and their vertices' offsets (i at offset 0)."""

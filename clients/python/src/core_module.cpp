@@ -196,8 +196,16 @@ py::dict cell_dict(const VoronoiCell& c) {
 class PeriodicTriangulation {
  public:
   PeriodicTriangulation(const Points& array, const std::vector<double>& lo, const std::vector<double>& hi,
-                        std::optional<unsigned> threads)
+                        std::optional<unsigned> threads, const std::optional<Points>& weights)
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
+    if (weights) {
+      const Points& w = *weights;
+      if (w.ndim() != 1) throw py::value_error("weights: expected shape (n,), one weight a point");
+      auto checked = weights_from_values(std::span<const double>(w.data(), static_cast<std::size_t>(w.shape(0))),
+                                         "weights", points_.size(), WeightKind::kPowerWeight);
+      if (!checked.is_ok()) raise(checked.status());
+      weights_ = std::move(checked).value();
+    }
     auto box = PeriodicBox::of(lo, hi, "periodic");
     if (!box.is_ok()) raise(box.status());
     box_ = std::make_unique<PeriodicBox>(std::move(box).value());
@@ -211,6 +219,7 @@ class PeriodicTriangulation {
       py::gil_scoped_release release;
       MeshOptions options;
       options.threads = threads_;
+      options.star.weights = weights_;
       auto run = mesh_periodic(
           points_, *box_, options,
           [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
@@ -269,6 +278,7 @@ class PeriodicTriangulation {
       CellsOptions options;
       options.threads = threads_;
       options.measures_only = true;
+      options.star.weights = weights_;
       auto run = compute_periodic_cells(
           points_, *box_, options,
           [&](std::span<const VoronoiCell> cells, std::uint64_t) {
@@ -321,7 +331,9 @@ class PeriodicTriangulation {
     std::optional<Result<PeriodicStar>> result;
     {
       py::gil_scoped_release release;
-      result.emplace(periodic_star(points_, *box_, seed, StarOptions{}, "points", cell));
+      StarOptions options;
+      options.weights = weights_;
+      result.emplace(periodic_star(points_, *box_, seed, options, "points", cell));
     }
     if (!result->is_ok()) raise(result->status());
     return std::move(*result).value();
@@ -331,6 +343,7 @@ class PeriodicTriangulation {
   int d_;
   unsigned threads_;
   std::unique_ptr<PeriodicBox> box_;
+  std::vector<double> weights_;
   std::vector<std::uint32_t> simplices_;
   std::vector<std::int32_t> offsets_;
 };
@@ -831,8 +844,10 @@ PYBIND11_MODULE(_core, m) {
       .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
            py::arg("bounding_box") = true);
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")
-      .def(py::init<const Points&, const std::vector<double>&, const std::vector<double>&, std::optional<unsigned>>(),
-           py::arg("points"), py::arg("lo"), py::arg("hi"), py::arg("threads") = py::none())
+      .def(py::init<const Points&, const std::vector<double>&, const std::vector<double>&, std::optional<unsigned>,
+                    const std::optional<Points>&>(),
+           py::arg("points"), py::arg("lo"), py::arg("hi"), py::arg("threads") = py::none(),
+           py::arg("weights") = py::none())
       .def("simplices", &PeriodicTriangulation::simplices)
       .def("offsets", &PeriodicTriangulation::offsets)
       .def("star", &PeriodicTriangulation::star, py::arg("seed"))

@@ -19,6 +19,10 @@
 //    region (or an unbounded cell) makes the run record the margin it needed; the run is
 //    then repeated with that margin, the caller told to start its output again. The
 //    first margin, 3.5 mean spacings, suffices for well-spread points.
+//  * Weighted points (power weights, CGAL's convention) give the regular triangulation
+//    of the torus and its power cells the same way: the images carry their points'
+//    weights, and a power sphere (centre c, squared radius R^2) can be entered only by
+//    points within sqrt(R^2 + max w) of c, which is what the margin must hold.
 //  * Degeneracies (periodic grids) fall to the same symbolic perturbation, ordered by
 //    the images' exact coordinates (CGAL's Perturbation_order), which is invariant
 //    under lattice translations, so the stars of different points agree.
@@ -57,8 +61,11 @@ class PeriodicCover {
   // the box on every axis c (absolute lengths, d of them). INVALID_ARGUMENT, naming
   // `source`, when the images cannot be told apart in double precision (points closer
   // than the rounding of the box's coordinates).
+  // weights: the points' power weights (n of them) or empty; the images carry their
+  // points' weights (weights()).
   static Result<std::unique_ptr<PeriodicCover>> build(const PointSet& points, const PeriodicBox& box,
-                                                      std::span<const double> margin, const std::string& source);
+                                                      std::span<const double> margin, const std::string& source,
+                                                      std::span<const double> weights = {});
 
   const PointSet& points() const { return cover_; }  // the points, then the images
   const KdTree& tree() const { return *tree_; }
@@ -72,6 +79,10 @@ class PeriodicCover {
   const std::vector<double>& margin() const { return margin_; }
   // How far an image's stored coordinates may lie from its exact position (per axis).
   double pad() const { return pad_; }
+  // One power weight per cover point (the points', then each image's point's), or empty.
+  std::span<const double> weights() const { return weights_; }
+  // The largest weight (0 when unweighted).
+  double max_weight() const { return max_weight_; }
 
  private:
   PeriodicCover(const PointSet& points, const PeriodicBox& box) : base_(points), box_(box) {}
@@ -84,6 +95,8 @@ class PeriodicCover {
   std::vector<std::uint32_t> image_point_;
   std::vector<std::int32_t> image_offset_;  // d per image
   std::vector<std::int32_t> zeros_;
+  std::vector<double> weights_;
+  double max_weight_ = 0;
   std::unique_ptr<KdTree> tree_;
 };
 
@@ -104,7 +117,8 @@ using PeriodicSink = std::function<Status(std::span<const std::uint32_t> simplic
 // function of the points and the box). options: threads, random seed, cancel, facet
 // cache (seed and sweep ranges, split and accept are the run's own). When a run proves
 // its margin too thin, `restart` is called before the run is repeated: everything
-// given to `sink` so far is void. Weights are not supported yet (INVALID_ARGUMENT).
+// given to `sink` so far is void. With options.star.weights (one per point), the regular
+// triangulation of the torus (its power spheres are what the margin must hold).
 // Errors: INVALID_ARGUMENT as PeriodicCover::build, or when even a margin of three box
 // lengths is too thin (fewer points than the torus needs); CANCELLED; the sink's.
 Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,

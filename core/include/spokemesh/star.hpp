@@ -66,7 +66,8 @@ struct StarOptions {
   std::span<const double> weights{};
   // A periodic set's cover (periodic.hpp; not owned), whose tree this walker's is: the
   // cover's image ids are decided as the exact images. Seeds must be points (ids below
-  // cover->point_count()). Not combined with weights yet.
+  // cover->point_count()). With weights, `weights` holds one per cover point (the
+  // cover's weights()).
   const PeriodicCover* cover = nullptr;
 };
 
@@ -198,6 +199,8 @@ class StarWalker {
   // q = p - x rounded once, p given by its index and stored coordinates: for an image
   // of a periodic cover, from its exact position (image_difference), not the stored one.
   void relative(std::uint32_t id, const double* p, double* q) const;
+  // Coordinate c of point id exactly (an image's from its point and offset).
+  mpq_class exact_coordinate(std::uint32_t id, int c) const;
   // The same as a BoundedDouble row (q, height), for cached candidates.
   void lifted_row(const double* q, const Lift& lift, BoundedDouble* out) const;
   // Which side of the pivot's spatial hyperplane a wrap turns to: away from a point

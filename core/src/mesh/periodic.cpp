@@ -28,7 +28,8 @@ const std::int32_t* PeriodicCover::offset_of(std::uint32_t id) const {
 }
 
 Result<std::unique_ptr<PeriodicCover>> PeriodicCover::build(const PointSet& points, const PeriodicBox& box,
-                                                            std::span<const double> margin, const std::string& source) {
+                                                            std::span<const double> margin, const std::string& source,
+                                                            std::span<const double> weights) {
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
   std::unique_ptr<PeriodicCover> cover(new PeriodicCover(points, box));
@@ -92,6 +93,11 @@ Result<std::unique_ptr<PeriodicCover>> PeriodicCover::build(const PointSet& poin
     return invalid_argument(source + ": the periodic images of the points cannot be told apart in double precision "
                             "(points closer together than the rounding of the box's coordinates, about " +
                             std::to_string(cover->pad_) + "): " + s.message());
+  }
+  if (!weights.empty()) {
+    cover->weights_.assign(weights.begin(), weights.end());
+    for (const std::uint32_t p : cover->image_point_) cover->weights_.push_back(weights[p]);
+    cover->max_weight_ = *std::max_element(weights.begin(), weights.end());
   }
   cover->tree_ = std::make_unique<KdTree>(cover->cover_, cover->n_, cover->pad_);
   return cover;
@@ -157,6 +163,13 @@ class MarginPlan {
       if (reach > 0) raise_to(needed_[c], (reach + 2 * pad) * (1 + 1e-9));
     }
   }
+  // A power sphere of the run (centre c, squared radius r2 = |c - x|^2 - w_x): only
+  // points within sqrt(r2 + max w) of c can enter it.
+  void power_sphere(const double* centre, double r2, double max_weight, double pad) {
+    const double reach2 = r2 + max_weight;
+    sphere(centre, std::sqrt(std::max(0.0, reach2) + 1e-12 * std::fabs(r2) + 8 * kUnit * (std::fabs(r2) + std::fabs(max_weight))),
+           pad);
+  }
   // A cell of the run was unbounded: the cover is too thin somewhere.
   void unbounded() { unbounded_.store(true, std::memory_order_relaxed); }
 
@@ -196,6 +209,19 @@ class MarginPlan {
   std::atomic<bool> unbounded_{false};
 };
 
+// Records the (power) sphere of a simplex of the cover (d + 1 ids, the first a point):
+// its centre within 1e-12 of its size plus an ulp (circumcentre()), from the cover's
+// coordinates, within pad of the images'.
+void power_sphere_of(const PeriodicCover& cover, const std::uint32_t* s, int d, MarginPlan& plan) {
+  const double* weights = cover.weights().empty() ? nullptr : cover.weights().data();
+  const std::vector<double> centre = circumcentre(cover.points(), s, d + 1, weights);
+  const double* x = cover.points().point(s[0]);
+  double r2 = 0;
+  for (int c = 0; c < d; ++c) r2 += (centre[static_cast<std::size_t>(c)] - x[c]) * (centre[static_cast<std::size_t>(c)] - x[c]);
+  if (weights != nullptr) r2 -= weights[s[0]];
+  plan.power_sphere(centre.data(), r2, cover.max_weight(), cover.pad());
+}
+
 }  // namespace
 
 Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,
@@ -203,18 +229,16 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
                                         const std::string& source) {
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
-  if (!options.star.weights.empty()) {
-    return invalid_argument("weighted points on a periodic box are not supported yet");
-  }
   MarginPlan plan(points, box);
   PeriodicMeshStats stats;
   for (;;) {
     ++stats.runs;
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.star.weights);
     if (!cover_or.is_ok()) return cover_or.status();
     const PeriodicCover& cover = *cover_or.value();
     plan.begin();
     MeshOptions run = options;
+    run.star.weights = cover.weights();
     run.seed_begin = 0;
     run.seed_end = cover.point_count();
     run.sweep_begin = 0;
@@ -232,11 +256,7 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
         if (!is_representative(cover, s, d)) continue;
         // Its circumsphere, from the cover's coordinates (within pad of the images'):
         // within 1e-12 of the radius plus an ulp (circumcentre()).
-        const std::vector<double> centre = circumcentre(cover.points(), s, d + 1);
-        const double* x = cover.points().point(s[0]);
-        double r2 = 0;
-        for (std::size_t c = 0; c < du; ++c) r2 += (centre[c] - x[c]) * (centre[c] - x[c]);
-        plan.sphere(centre.data(), std::sqrt(r2), cover.pad());
+        power_sphere_of(cover, s, d, plan);
       }
       return true;
     };
@@ -277,31 +297,24 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
 Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
                                    const StarOptions& options, const std::string& source, VoronoiCell* cell) {
   const int d = points.dimension();
-  const auto du = static_cast<std::size_t>(d);
-  if (!options.weights.empty()) return invalid_argument("weighted points on a periodic box are not supported yet");
   if (seed >= points.size()) {
     return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
                         std::to_string(points.size()) + " points)");
   }
   MarginPlan plan(points, box);
   for (;;) {
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.weights);
     if (!cover_or.is_ok()) return cover_or.status();
     const PeriodicCover& cover = *cover_or.value();
     plan.begin();
     StarOptions run = options;
     run.cover = &cover;
+    run.weights = cover.weights();
     StarWalker walker(cover.tree(), run);
     Star star;
     if (Status s = walker.compute(seed, star); !s.is_ok()) return s;
     if (!star.bounded_cell()) plan.unbounded();
-    const double* x = cover.points().point(seed);
-    for (std::size_t i = 0; i < star.size(); ++i) {
-      const std::vector<double> centre = circumcentre(cover.points(), star.simplex(i), d + 1);
-      double r2 = 0;
-      for (std::size_t c = 0; c < du; ++c) r2 += (centre[c] - x[c]) * (centre[c] - x[c]);
-      plan.sphere(centre.data(), std::sqrt(r2), cover.pad());
-    }
+    for (std::size_t i = 0; i < star.size(); ++i) power_sphere_of(cover, star.simplex(i), d, plan);
     auto thin = plan.thin(source);
     if (!thin.is_ok()) return thin.status();
     if (thin.value()) continue;
@@ -313,7 +326,7 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
       out.offsets.insert(out.offsets.end(), k, k + d);
     }
     if (cell != nullptr) {
-      *cell = voronoi_cell(cover.points(), star);
+      *cell = voronoi_cell(cover.points(), star, cover.weights());
       cell->vertex_simplices.clear();  // the cover's ids: the star's rows say it with offsets
       cell->facet_offsets.clear();
       for (VoronoiFacet& f : cell->facets) {
@@ -332,19 +345,17 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
                                                   const std::function<Status()>& restart, const std::string& source) {
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
-  if (!options.star.weights.empty()) {
-    return invalid_argument("weighted points on a periodic box are not supported yet");
-  }
   MarginPlan plan(points, box);
   PeriodicCellsStats stats;
   std::vector<VoronoiCell> mapped;
   for (;;) {
     ++stats.runs;
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source);
+    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.star.weights);
     if (!cover_or.is_ok()) return cover_or.status();
     const PeriodicCover& cover = *cover_or.value();
     plan.begin();
     CellsOptions run = options;
+    run.star.weights = cover.weights();
     run.seed_begin = 0;
     run.seed_end = cover.point_count();
     run.measures_only = false;  // the vertices certify the cells (then are dropped if asked)
@@ -356,13 +367,14 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
           plan.unbounded();
           continue;
         }
-        // Every vertex is the centre of a sphere through the seed.
+        // Every vertex is the centre of a (power) sphere through the seed.
         const double* x = cover.points().point(cell.seed);
+        const double w = cover.weights().empty() ? 0 : cover.weights()[cell.seed];
         for (std::size_t v = 0; v < cell.vertex_count(); ++v) {
           const double* c = cell.vertices.data() + v * du;
           double r2 = 0;
           for (std::size_t k = 0; k < du; ++k) r2 += (c[k] - x[k]) * (c[k] - x[k]);
-          plan.sphere(c, std::sqrt(r2), cover.pad());
+          plan.power_sphere(c, r2 - w, cover.max_weight(), cover.pad());
         }
         cell.facet_offsets.clear();
         for (VoronoiFacet& f : cell.facets) {

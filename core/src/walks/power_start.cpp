@@ -34,6 +34,7 @@
 
 #include "base/invariant.hpp"
 #include "spokemesh/star.hpp"
+#include "spokemesh/periodic.hpp"
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh {
@@ -207,6 +208,15 @@ class StartProgramme {
 
 }  // namespace
 
+mpq_class StarWalker::exact_coordinate(std::uint32_t id, int c) const {
+  if (id < image_first_) return mpq_class(ps_.point(id)[c]);
+  // An image of a periodic cover: its point plus k (HI - LO), exactly.
+  const PeriodicCover& cover = *options_.cover;
+  const auto cu = static_cast<std::size_t>(c);
+  return mpq_class(ps_.point(cover.point_of(id))[c]) +
+         mpq_class(cover.offset_of(id)[c]) * (mpq_class(cover.box().hi()[cu]) - mpq_class(cover.box().lo()[cu]));
+}
+
 int StarWalker::sign_above_slope(std::uint32_t p, const double* slope) const {
   const int d = d_;
   std::array<BoundedDouble, kMaxDimension + 1> row;
@@ -216,11 +226,10 @@ int StarWalker::sign_above_slope(std::uint32_t p, const double* slope) const {
   const int s = v.certified_sign();
   if (s != BoundedDouble::kUnknownSign) return s;
   ++const_cast<StarStats&>(stats_).exact_fallbacks;
-  const double* pp = ps_.point(p);
   const double* x = ps_.point(x_);
   mpq_class h = -(mpq_class(extras_.weights[p]) - mpq_class(extras_.weights[x_]));
   for (int c = 0; c < d; ++c) {
-    const mpq_class q = mpq_class(pp[c]) - mpq_class(x[c]);
+    const mpq_class q = exact_coordinate(p, c) - mpq_class(x[c]);
     h += q * q - mpq_class(slope[c]) * q;
   }
   return sgn(h);
@@ -246,7 +255,11 @@ std::size_t StarWalker::points_not_above(const double* slope, std::uint32_t* out
   tree_.find_first(
       [&](const float* lo, const float* hi) { return box_distance2(lo, hi, centre.data(), d) <= r2; },
       [&](std::uint32_t p, const double* pp) {
-        if (p == x_ || point_distance2(pp, centre.data(), d) > r2 || sign_above_slope(p, slope) > 0) return false;
+        // (An image's stored coordinates are not its position: the exact test decides it.)
+        if (p == x_ || (p < image_first_ && point_distance2(pp, centre.data(), d) > r2) ||
+            sign_above_slope(p, slope) > 0) {
+          return false;
+        }
         out[found++] = p;
         return found == most;
       });
@@ -282,10 +295,8 @@ int StarWalker::affine_rank(std::span<const std::uint32_t> points) const {
   const int k = static_cast<int>(points.size());
   if (k <= 1) return 0;
   std::vector<mpq_class> m(static_cast<std::size_t>((k - 1) * d));
-  const double* p0 = ps_.point(points[0]);
   for (int i = 1; i < k; ++i) {
-    const double* p = ps_.point(points[i]);
-    for (int c = 0; c < d; ++c) m[(i - 1) * d + c] = mpq_class(p[c]) - mpq_class(p0[c]);
+    for (int c = 0; c < d; ++c) m[(i - 1) * d + c] = exact_coordinate(points[i], c) - exact_coordinate(points[0], c);
   }
   return echelon(m, k - 1, d);
 }
@@ -302,10 +313,9 @@ int StarWalker::face_side(std::span<const std::uint32_t> face) const {
   std::vector<mpq_class> heights(static_cast<std::size_t>(k));
   const double* x = ps_.point(x_);
   for (int i = 0; i < k; ++i) {
-    const double* p = ps_.point(face[i]);
     mpq_class h = -(mpq_class(extras_.weights[face[i]]) - mpq_class(extras_.weights[x_]));
     for (int c = 0; c < d; ++c) {
-      const mpq_class q = mpq_class(p[c]) - mpq_class(x[c]);
+      const mpq_class q = exact_coordinate(face[i], c) - mpq_class(x[c]);
       m[c * cols + i] = q;
       h += q * q;
     }
@@ -341,7 +351,9 @@ bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) cons
   // weights' magnitudes).
   const double slack2 = 1e-9 * size * size + 8 * filter::kUnitRoundoff * (std::fabs(extras_.weights[simplex[0]]) +
                                                                          std::fabs(max_weight_) + std::fabs(r2));
-  const double reach = std::sqrt(std::max(0.0, r2 + max_weight_) + slack2) * (1 + 1e-9) + 1e-9 * size;
+  // (An image's stored coordinates lie within image_pad_ of its position, per axis.)
+  const double reach = std::sqrt(std::max(0.0, r2 + max_weight_) + slack2) * (1 + 1e-9) + 1e-9 * size +
+                       4 * image_pad_ * std::sqrt(static_cast<double>(d));
   const double reach2 = reach * reach;
   const std::optional<std::uint32_t> inside = tree_.find_first(
       [&](const float* lo, const float* hi) { return box_distance2(lo, hi, c.data(), d) <= reach2; },

@@ -238,8 +238,8 @@ StarWalker::StarWalker(const KdTree& tree, StarOptions options)
               options.cover != nullptr ? options.cover->images() : ImageMap{}} {
   SPOKEMESH_INVARIANT(options.weights.empty() || options.weights.size() == ps_.size(),
                       "one weight per point of the tree");
-  SPOKEMESH_INVARIANT(options.cover == nullptr || (options.weights.empty() && &options.cover->tree() == &tree),
-                      "a periodic cover's walker walks its tree, unweighted");
+  SPOKEMESH_INVARIANT(options.cover == nullptr || &options.cover->tree() == &tree,
+                      "a periodic cover's walker walks its tree");
   if (options.cover != nullptr) {
     image_first_ = options.cover->point_count();
     image_pad_ = options.cover->pad();
