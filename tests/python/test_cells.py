@@ -247,20 +247,44 @@ def test_cell_domain_errors_over_both_transports(server):
 
 # --- Power (Laguerre) cells: weighted points (issue 28) ------------------------------
 
-def voro_radical(points: np.ndarray, radii: np.ndarray, tmp_path) -> dict:
-    """Voro++'s -r (radical, i.e. power, cells) in the unit cube: {id: (volume, neighbours)};
+def voro(points: np.ndarray, tmp_path, radii=None, periodic: bool = False, lo: float = 0.0, hi: float = 1.0) -> dict:
+    """Voro++'s cells of the particles in the cube [lo, hi]^3 ({id: (volume, neighbours)},
+    walls left out): -r with radii (radical, i.e. power, cells), -p for a periodic cube.
     Voro++ leaves out the particles whose cells are empty."""
     import subprocess
     src = tmp_path / "voro.txt"
     with open(src, "w") as f:
-        for i, (p, r) in enumerate(zip(points, radii)):
-            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r} {r!r}\n")
-    subprocess.run(["voro++", "-r", "-c", "%i %v %n", "0", "1", "0", "1", "0", "1", str(src)], check=True)
+        for i, p in enumerate(points):
+            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}" + ("\n" if radii is None else f" {radii[i]!r}\n"))
+    flags = (["-r"] if radii is not None else []) + (["-p"] if periodic else [])
+    subprocess.run(["voro++", *flags, "-c", "%i %v %n", *([repr(lo), repr(hi)] * 3), str(src)], check=True)
     out = {}
     for line in open(str(src) + ".vol"):
         t = line.split()
         out[int(t[0])] = (float(t[1]), {int(x) for x in t[2:] if int(x) >= 0})
     return out
+
+
+def match_voro(z: dict, theirs: dict, n: int) -> int:
+    """Asserts that each cell of a cells .npz has Voro++'s neighbour set (walls left out)
+    and volume (to its printed digits), and that the cells Voro++ leaves out are empty
+    here (volume 0, no facets); returns how many it left out."""
+    ptr, nb, vol = z["facet_ptr"], z["facet_neighbor"], z["volume"]
+    empty = 0
+    for i in range(n):
+        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]] if j >= 0}
+        if i not in theirs:
+            empty += 1
+            assert vol[i] == 0 and ptr[i] == ptr[i + 1], f"cell {i}: Voro++ finds it empty"
+            continue
+        v, nbs = theirs[i]
+        assert mine == nbs, f"cell {i}: neighbours {sorted(mine ^ nbs)} differ from Voro++'s"
+        assert abs(vol[i] - v) <= 5e-6 * max(v, 1e-300) + 1e-12, f"cell {i}: volume {vol[i]} against {v}"
+    return empty
+
+
+def voro_radical(points: np.ndarray, radii: np.ndarray, tmp_path) -> dict:
+    return voro(points, tmp_path, radii=radii)
 
 
 @pytest.mark.parametrize("top", [0.02, 0.06])
@@ -277,18 +301,7 @@ def test_power_cells_equal_voro_radical_cells(tmp_path, top):
         "-o", str(tmp_path / "c.npz"), "-q")
     z = dict(np.load(tmp_path / "c.npz"))  # (an NpzFile reads an array again at every access)
     check_npz(z, n, 3, 1.0)
-    theirs = voro_radical(pts, radii, tmp_path)
-    ptr, nb, vol = z["facet_ptr"], z["facet_neighbor"], z["volume"]
-    empty = 0
-    for i in range(n):
-        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]] if j >= 0}
-        if i not in theirs:
-            empty += 1
-            assert vol[i] == 0 and ptr[i] == ptr[i + 1], f"cell {i}: Voro++ finds it empty"
-            continue
-        v, nbs = theirs[i]
-        assert mine == nbs, f"cell {i}: neighbours {sorted(mine ^ nbs)} differ from Voro++'s"
-        assert abs(vol[i] - v) <= 5e-6 * max(v, 1e-300) + 1e-12, f"cell {i}: volume {vol[i]} against {v}"
+    empty = match_voro(z, voro_radical(pts, radii, tmp_path), n)
     if top > 0.05:
         assert empty > 10, "the larger radii should empty some cells"
 
@@ -326,7 +339,6 @@ def test_periodic_cells_equal_voro_periodic_cells(tmp_path, box):
     each facet's offset puts the neighbour's image where the facet's normal points
     (the facet lies on the bisector of the seed and that image), and each facet i->j at
     offset k has its partner j->i at offset -k with the same area."""
-    import subprocess
     lo, hi = box
     side = hi - lo
     rng = np.random.default_rng(71)
@@ -349,21 +361,7 @@ def test_periodic_cells_equal_voro_periodic_cells(tmp_path, box):
     for (i, j, k), a in pairs.items():
         back = pairs[(j, i, tuple(-x for x in k))]
         assert abs(back - a) <= 1e-9 * a
-    src = tmp_path / "voro.txt"
-    with open(src, "w") as f:
-        for i, p in enumerate(pts):
-            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r}\n")
-    bounds = [repr(lo), repr(hi)] * 3
-    subprocess.run(["voro++", "-p", "-c", "%i %v %n", *bounds, str(src)], check=True)
-    seen = 0
-    for line in open(str(src) + ".vol"):
-        t = line.split()
-        i, v, theirs = int(t[0]), float(t[1]), {int(x) for x in t[2:]}
-        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]]}
-        assert mine == theirs, f"cell {i}: neighbours {sorted(mine ^ theirs)} differ from Voro++'s"
-        assert abs(vol[i] - v) <= 5e-6 * v, f"cell {i}: volume {vol[i]} against {v}"
-        seen += 1
-    assert seen == n
+    assert match_voro(z, voro(pts, tmp_path, periodic=True, lo=lo, hi=hi), n) == 0
 
 
 def test_periodic_cells_refuse_what_does_not_apply(tmp_path):
@@ -384,7 +382,6 @@ def test_periodic_power_cells_equal_voro_periodic_radical_cells(tmp_path):
     """`spokemesh cells --periodic --radii` against `voro++ -p -r`: the same neighbour
     sets and volumes; the cells Voro++ leaves out (empty) are ours with volume 0 and no
     facets; the volumes sum to the box's."""
-    import subprocess
     rng = np.random.default_rng(73)
     n = 3000
     pts, radii = rng.random((n, 3)), rng.random(n) * 0.04
@@ -393,25 +390,6 @@ def test_periodic_power_cells_equal_voro_periodic_radical_cells(tmp_path):
     cli("cells", str(tmp_path / "p.txt"), "--radii", str(tmp_path / "r.txt"), "--periodic", box_of(3),
         "-o", str(tmp_path / "c.npz"), "-q")
     z = dict(np.load(tmp_path / "c.npz"))
-    ptr, nb, vol = z["facet_ptr"], z["facet_neighbor"], z["volume"]
-    assert abs(vol.sum() - 1) <= 1e-12
-    src = tmp_path / "voro.txt"
-    with open(src, "w") as f:
-        for i, (p, r) in enumerate(zip(pts, radii)):
-            f.write(f"{i} {p[0]!r} {p[1]!r} {p[2]!r} {r!r}\n")
-    subprocess.run(["voro++", "-p", "-r", "-c", "%i %v %n", "0", "1", "0", "1", "0", "1", str(src)], check=True)
-    theirs = {}
-    for line in open(str(src) + ".vol"):
-        t = line.split()
-        theirs[int(t[0])] = (float(t[1]), {int(x) for x in t[2:]})
-    empty = 0
-    for i in range(n):
-        mine = {int(j) for j in nb[ptr[i]:ptr[i + 1]]}
-        if i not in theirs:
-            empty += 1
-            assert vol[i] == 0 and ptr[i] == ptr[i + 1], f"cell {i}: Voro++ finds it empty"
-            continue
-        v, nbs = theirs[i]
-        assert mine == nbs, f"cell {i}: neighbours {sorted(mine ^ nbs)} differ from Voro++'s"
-        assert abs(vol[i] - v) <= 5e-6 * v, f"cell {i}: volume {vol[i]} against {v}"
+    assert abs(z["volume"].sum() - 1) <= 1e-12
+    empty = match_voro(z, voro(pts, tmp_path, radii=radii, periodic=True), n)
     assert empty > 3, "the radii should empty some cells"

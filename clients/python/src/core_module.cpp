@@ -191,6 +191,52 @@ py::dict cell_dict(const VoronoiCell& c) {
   return out;
 }
 
+// IndexError unless seed < n.
+void check_seed(std::uint32_t seed, std::size_t n) {
+  if (seed >= n) throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(n) + " points)");
+}
+
+// Every cell's measures as the .npz of `spokemesh cells` holds them, gathered cell by
+// cell (with facet_offset on a torus).
+struct CellColumns {
+  CellColumns(int dimension, bool on_torus) : d(dimension), periodic(on_torus) {}
+  int d;
+  bool periodic;
+  std::vector<double> volume, centroid, area, normal;
+  std::vector<std::int64_t> ptr{0}, neighbor;
+  std::vector<std::uint8_t> bounded;
+  std::vector<std::int32_t> offset;
+
+  void add(const VoronoiCell& c) {
+    volume.push_back(c.volume);
+    bounded.push_back(c.bounded ? 1 : 0);
+    if (c.centroid.empty()) centroid.insert(centroid.end(), static_cast<std::size_t>(d), std::nan(""));
+    else centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
+    for (const VoronoiFacet& f : c.facets) {
+      neighbor.push_back(f.neighbor);
+      area.push_back(f.area);
+      normal.insert(normal.end(), f.normal.begin(), f.normal.end());
+    }
+    offset.insert(offset.end(), c.facet_offsets.begin(), c.facet_offsets.end());
+    ptr.push_back(static_cast<std::int64_t>(neighbor.size()));
+  }
+  void clear() { *this = CellColumns(d, periodic); }
+  py::dict to_dict() {
+    const auto n = static_cast<py::ssize_t>(volume.size());
+    const auto m = static_cast<py::ssize_t>(neighbor.size());
+    py::dict out;
+    out["volume"] = owned(std::move(volume), {n});
+    out["centroid"] = owned(std::move(centroid), {n, d});
+    out["bounded"] = owned(std::move(bounded), {n}).attr("astype")("bool");
+    out["facet_ptr"] = owned(std::move(ptr), {n + 1});
+    out["facet_neighbor"] = owned(std::move(neighbor), {m});
+    out["facet_area"] = owned(std::move(area), {m});
+    out["facet_normal"] = owned(std::move(normal), {m, d});
+    if (periodic) out["facet_offset"] = owned(std::move(offset), {m, d});
+    return out;
+  }
+};
+
 // A Delaunay triangulation of the flat torus (periodic.hpp): the points inside a box
 // [lo, hi) whose opposite sides are identified.
 class PeriodicTriangulation {
@@ -269,9 +315,7 @@ class PeriodicTriangulation {
 
   // Every cell's measures, as `spokemesh cells --periodic` writes them.
   py::dict cells() const {
-    std::vector<double> volume, centroid, area, normal;
-    std::vector<std::int64_t> ptr{0}, neighbor;
-    std::vector<std::int32_t> offset;
+    CellColumns columns(d_, true);
     Status status;
     {
       py::gil_scoped_release release;
@@ -282,52 +326,23 @@ class PeriodicTriangulation {
       auto run = compute_periodic_cells(
           points_, *box_, options,
           [&](std::span<const VoronoiCell> cells, std::uint64_t) {
-            for (const VoronoiCell& c : cells) {
-              volume.push_back(c.volume);
-              centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
-              for (const VoronoiFacet& f : c.facets) {
-                neighbor.push_back(f.neighbor);
-                area.push_back(f.area);
-                normal.insert(normal.end(), f.normal.begin(), f.normal.end());
-              }
-              offset.insert(offset.end(), c.facet_offsets.begin(), c.facet_offsets.end());
-              ptr.push_back(static_cast<std::int64_t>(neighbor.size()));
-            }
+            for (const VoronoiCell& c : cells) columns.add(c);
             return Status::ok();
           },
           [&] {
-            volume.clear();
-            centroid.clear();
-            area.clear();
-            normal.clear();
-            ptr.assign(1, 0);
-            neighbor.clear();
-            offset.clear();
+            columns.clear();
             return Status::ok();
           },
           "points");
       status = run.status();
     }
     if (!status.is_ok()) raise(status);
-    const auto n = static_cast<py::ssize_t>(volume.size());
-    const auto m = static_cast<py::ssize_t>(neighbor.size());
-    py::dict out;
-    out["volume"] = owned(std::move(volume), {n});
-    out["centroid"] = owned(std::move(centroid), {n, d_});
-    out["facet_ptr"] = owned(std::move(ptr), {n + 1});
-    out["facet_neighbor"] = owned(std::move(neighbor), {m});
-    out["facet_area"] = owned(std::move(area), {m});
-    out["facet_normal"] = owned(std::move(normal), {m, d_});
-    out["facet_offset"] = owned(std::move(offset), {m, d_});
-    return out;
+    return columns.to_dict();
   }
 
  private:
   PeriodicStar star_of(std::uint32_t seed, VoronoiCell* cell) const {
-    if (seed >= points_.size()) {
-      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
-                            " points)");
-    }
+    check_seed(seed, points_.size());
     std::optional<Result<PeriodicStar>> result;
     {
       py::gil_scoped_release release;
@@ -538,10 +553,7 @@ class Triangulation {
                 const std::optional<Points>& halfspaces) const {
     const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed), weights_));
-    if (seed >= points_.size()) {
-      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
-                            " points)");
-    }
+    check_seed(seed, points_.size());
     // The builder cells() uses, so that both give the same cell.
     std::optional<Result<VoronoiCell>> c;
     {
@@ -560,9 +572,7 @@ class Triangulation {
                  bool bounding_box) const {
     std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain && bounding_box) domain = Domain::bounding_box(points_);
-    std::vector<double> volume, centroid, area, normal;
-    std::vector<std::int64_t> ptr{0}, neighbor;
-    std::vector<std::uint8_t> bounded;
+    CellColumns columns(d_, false);
     Status status;
     {
       py::gil_scoped_release release;
@@ -572,33 +582,12 @@ class Triangulation {
       options.star.weights = weights_;
       status = compute_cells(*tree_, domain ? &*domain : nullptr, options,
                              [&](std::span<const VoronoiCell> cells, std::uint64_t) {
-                               for (const VoronoiCell& c : cells) {
-                                 volume.push_back(c.volume);
-                                 bounded.push_back(c.bounded ? 1 : 0);
-                                 if (c.centroid.empty()) centroid.insert(centroid.end(), d_, std::nan(""));
-                                 else centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
-                                 for (const VoronoiFacet& f : c.facets) {
-                                   neighbor.push_back(f.neighbor);
-                                   area.push_back(f.area);
-                                   normal.insert(normal.end(), f.normal.begin(), f.normal.end());
-                                 }
-                                 ptr.push_back(static_cast<std::int64_t>(neighbor.size()));
-                               }
+                               for (const VoronoiCell& c : cells) columns.add(c);
                                return Status::ok();
                              });
     }
     if (!status.is_ok()) raise(status);
-    const auto n = static_cast<py::ssize_t>(volume.size());
-    const auto m = static_cast<py::ssize_t>(neighbor.size());
-    py::dict out;
-    out["volume"] = owned(std::move(volume), {n});
-    out["centroid"] = owned(std::move(centroid), {n, d_});
-    out["bounded"] = owned(std::move(bounded), {n}).attr("astype")("bool");
-    out["facet_ptr"] = owned(std::move(ptr), {n + 1});
-    out["facet_neighbor"] = owned(std::move(neighbor), {m});
-    out["facet_area"] = owned(std::move(area), {m});
-    out["facet_normal"] = owned(std::move(normal), {m, d_});
-    return out;
+    return columns.to_dict();
   }
 
  private:
@@ -624,10 +613,7 @@ class Triangulation {
   }
 
   Star star_of(std::uint32_t seed) const {
-    if (seed >= points_.size()) {
-      throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(points_.size()) +
-                            " points)");
-    }
+    check_seed(seed, points_.size());
     StarOptions options;
     options.weights = weights_;
     StarWalker walker(*tree_, options);

@@ -222,6 +222,28 @@ void power_sphere_of(const PeriodicCover& cover, const std::uint32_t* s, int d, 
   plan.power_sphere(centre.data(), r2, cover.max_weight(), cover.pad());
 }
 
+// Runs attempt(cover, plan) on covers of growing margins until a run's spheres all lie
+// inside its margin, calling `restart` between runs; returns the number of runs (the
+// last attempt's results stand).
+template <class Attempt>
+Result<int> with_growing_margins(const PointSet& points, const PeriodicBox& box, std::span<const double> weights,
+                                 const std::string& source, const std::function<Status()>& restart,
+                                 Attempt&& attempt) {
+  MarginPlan plan(points, box);
+  for (int runs = 1;; ++runs) {
+    auto cover = PeriodicCover::build(points, box, plan.margin(), source, weights);
+    if (!cover.is_ok()) return cover.status();
+    plan.begin();
+    if (Status s = attempt(*cover.value(), plan); !s.is_ok()) return s;
+    auto thin = plan.thin(source);
+    if (!thin.is_ok()) return thin.status();
+    if (!thin.value()) return runs;
+    if (restart) {
+      if (Status s = restart(); !s.is_ok()) return s;
+    }
+  }
+}
+
 }  // namespace
 
 Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBox& box, const MeshOptions& options,
@@ -229,14 +251,9 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
                                         const std::string& source) {
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
-  MarginPlan plan(points, box);
   PeriodicMeshStats stats;
-  for (;;) {
-    ++stats.runs;
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.star.weights);
-    if (!cover_or.is_ok()) return cover_or.status();
-    const PeriodicCover& cover = *cover_or.value();
-    plan.begin();
+  auto runs = with_growing_margins(points, box, options.star.weights, source, restart,
+                                   [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
     MeshOptions run = options;
     run.star.weights = cover.weights();
     run.seed_begin = 0;
@@ -253,10 +270,7 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
       const auto owned = owned_simplices(star);
       for (std::size_t at = 0; at < owned.size(); at += du + 1) {
         const std::uint32_t* s = owned.data() + at;
-        if (!is_representative(cover, s, d)) continue;
-        // Its circumsphere, from the cover's coordinates (within pad of the images'):
-        // within 1e-12 of the radius plus an ulp (circumcentre()).
-        power_sphere_of(cover, s, d, plan);
+        if (is_representative(cover, s, d)) power_sphere_of(cover, s, d, plan);
       }
       return true;
     };
@@ -279,19 +293,15 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
       return sink(kept, offsets, done);
     });
     if (!result.is_ok()) return result.status();
-    auto thin = plan.thin(source);
-    if (!thin.is_ok()) return thin.status();
-    if (!thin.value()) {
-      stats.mesh = result.value();
-      stats.mesh.simplices = written;  // the torus's (the run's rows less the translates)
-      stats.images = cover.image_count();
-      stats.margin = plan.margin();
-      return stats;
-    }
-    if (restart) {
-      if (Status s = restart(); !s.is_ok()) return s;
-    }
-  }
+    stats.mesh = result.value();
+    stats.mesh.simplices = written;  // the torus's (the run's rows less the translates)
+    stats.images = cover.image_count();
+    stats.margin = cover.margin();
+    return Status::ok();
+  });
+  if (!runs.is_ok()) return runs.status();
+  stats.runs = runs.value();
+  return stats;
 }
 
 Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
@@ -301,12 +311,9 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
     return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
                         std::to_string(points.size()) + " points)");
   }
-  MarginPlan plan(points, box);
-  for (;;) {
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.weights);
-    if (!cover_or.is_ok()) return cover_or.status();
-    const PeriodicCover& cover = *cover_or.value();
-    plan.begin();
+  PeriodicStar out;
+  auto runs = with_growing_margins(points, box, options.weights, source, nullptr,
+                                   [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
     StarOptions run = options;
     run.cover = &cover;
     run.weights = cover.weights();
@@ -315,10 +322,7 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
     if (Status s = walker.compute(seed, star); !s.is_ok()) return s;
     if (!star.bounded_cell()) plan.unbounded();
     for (std::size_t i = 0; i < star.size(); ++i) power_sphere_of(cover, star.simplex(i), d, plan);
-    auto thin = plan.thin(source);
-    if (!thin.is_ok()) return thin.status();
-    if (thin.value()) continue;
-    PeriodicStar out;
+    out = PeriodicStar{};
     out.seed = seed;
     for (const std::uint32_t id : star.simplices) {
       out.simplices.push_back(cover.point_of(id));
@@ -336,8 +340,10 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
         f.neighbor = cover.point_of(id);
       }
     }
-    return out;
-  }
+    return Status::ok();
+  });
+  if (!runs.is_ok()) return runs.status();
+  return out;
 }
 
 Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const PeriodicBox& box,
@@ -345,22 +351,19 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
                                                   const std::function<Status()>& restart, const std::string& source) {
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
-  MarginPlan plan(points, box);
   PeriodicCellsStats stats;
   std::vector<VoronoiCell> mapped;
-  for (;;) {
-    ++stats.runs;
-    auto cover_or = PeriodicCover::build(points, box, plan.margin(), source, options.star.weights);
-    if (!cover_or.is_ok()) return cover_or.status();
-    const PeriodicCover& cover = *cover_or.value();
-    plan.begin();
+  auto runs = with_growing_margins(points, box, options.star.weights, source, restart,
+                                   [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
     CellsOptions run = options;
     run.star.weights = cover.weights();
     run.seed_begin = 0;
     run.seed_end = cover.point_count();
     run.measures_only = false;  // the vertices certify the cells (then are dropped if asked)
     run.star.cover = &cover;
-    Status status = compute_cells(cover.tree(), nullptr, run, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+    stats.images = cover.image_count();
+    stats.margin = cover.margin();
+    return compute_cells(cover.tree(), nullptr, run, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
       mapped.assign(cells.begin(), cells.end());
       for (VoronoiCell& cell : mapped) {
         if (!cell.bounded) {
@@ -391,18 +394,10 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
       }
       return sink(mapped, done);
     });
-    if (!status.is_ok()) return status;
-    auto thin = plan.thin(source);
-    if (!thin.is_ok()) return thin.status();
-    if (!thin.value()) {
-      stats.images = cover.image_count();
-      stats.margin = plan.margin();
-      return stats;
-    }
-    if (restart) {
-      if (Status s = restart(); !s.is_ok()) return s;
-    }
-  }
+  });
+  if (!runs.is_ok()) return runs.status();
+  stats.runs = runs.value();
+  return stats;
 }
 
 }  // namespace spokemesh
