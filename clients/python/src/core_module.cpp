@@ -191,6 +191,18 @@ py::dict cell_dict(const VoronoiCell& c) {
   return out;
 }
 
+// Power weights from an optional (n,) array, checked as the file readers check them
+// (ValueError naming the index); empty when none.
+std::vector<double> weights_from(const std::optional<Points>& weights, std::size_t n) {
+  if (!weights) return {};
+  const Points& w = *weights;
+  if (w.ndim() != 1) throw py::value_error("weights: expected shape (n,), one weight a point");
+  auto checked = weights_from_values(std::span<const double>(w.data(), static_cast<std::size_t>(w.shape(0))), "weights",
+                                     n, WeightKind::kPowerWeight);
+  if (!checked.is_ok()) raise(checked.status());
+  return std::move(checked).value();
+}
+
 // IndexError unless seed < n.
 void check_seed(std::uint32_t seed, std::size_t n) {
   if (seed >= n) throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(n) + " points)");
@@ -244,14 +256,7 @@ class PeriodicTriangulation {
   PeriodicTriangulation(const Points& array, const std::vector<double>& lo, const std::vector<double>& hi,
                         std::optional<unsigned> threads, const std::optional<Points>& weights)
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
-    if (weights) {
-      const Points& w = *weights;
-      if (w.ndim() != 1) throw py::value_error("weights: expected shape (n,), one weight a point");
-      auto checked = weights_from_values(std::span<const double>(w.data(), static_cast<std::size_t>(w.shape(0))),
-                                         "weights", points_.size(), WeightKind::kPowerWeight);
-      if (!checked.is_ok()) raise(checked.status());
-      weights_ = std::move(checked).value();
-    }
+    weights_ = weights_from(weights, points_.size());
     auto box = PeriodicBox::of(lo, hi, "periodic");
     if (!box.is_ok()) raise(box.status());
     box_ = std::make_unique<PeriodicBox>(std::move(box).value());
@@ -368,14 +373,7 @@ class Triangulation {
   // weights: power weights, one per point (the regular triangulation), or none.
   Triangulation(const Points& array, std::optional<unsigned> threads, const std::optional<Points>& weights)
       : points_(points_from(array)), d_(points_.dimension()), threads_(thread_count(threads)) {
-    if (weights) {
-      const Points& w = *weights;
-      if (w.ndim() != 1) throw py::value_error("weights: expected shape (n,), one weight a point");
-      auto checked = weights_from_values(std::span<const double>(w.data(), static_cast<std::size_t>(w.shape(0))),
-                                         "weights", points_.size(), WeightKind::kPowerWeight);
-      if (!checked.is_ok()) raise(checked.status());
-      weights_ = std::move(checked).value();
-    }
+    weights_ = weights_from(weights, points_.size());
     py::gil_scoped_release release;
     // The sweep's split first (its records are freed before the tree copies the
     // points); it is dropped after the run.
