@@ -344,7 +344,9 @@ TEST(Periodic, WeightedEqualsCgalRegular) {
       if (!used.count(i)) ours_hidden.insert(i);
     }
     EXPECT_EQ(ours_hidden, hidden);
-    if (spread > 1) EXPECT_GT(hidden.size(), 5u) << "the larger weights should hide points";
+    if (spread > 1) {
+      EXPECT_GT(hidden.size(), 5u) << "the larger weights should hide points";
+    }
   }
   for (int d : {2, 4}) {
     const PeriodicBox b = cube(d, 0, 1);
