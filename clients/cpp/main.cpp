@@ -59,15 +59,19 @@ struct Loaded {
 
 // Reads --weights or --radii for the loaded points (one per point; every bad value
 // named by file and line or index).
+// The weights --weights or --radii names (radii squared), n of them.
+Result<std::vector<double>> read_weight_flags(const Common& common, std::size_t n) {
+  const bool radii = !common.radii.empty();
+  return read_weights(radii ? common.radii : common.weights, n, radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+}
+
 Status load_weights(const Common& common, Loaded& loaded) {
   if (!common.weighted()) return Status::ok();
   if (!loaded.original.empty()) {
     return invalid_argument("--merge-duplicates cannot be combined with --weights or --radii (which weight would a "
                             "merged point keep?): remove the duplicates from both files");
   }
-  const bool radii = !common.radii.empty();
-  auto weights = read_weights(radii ? common.radii : common.weights, loaded.points.size(),
-                              radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+  auto weights = read_weight_flags(common, loaded.points.size());
   if (!weights.is_ok()) return weights.status();
   loaded.weights = std::move(weights).value();
   return Status::ok();
@@ -152,9 +156,7 @@ Result<PeriodicInput> load_periodic(const Common& common, const std::string& inp
   if (Status s = in.box->check_contains(in.points, input); !s.is_ok()) return s;
   if (Status s = in.points.validate(input); !s.is_ok()) return s;
   if (common.weighted()) {
-    const bool radii = !common.radii.empty();
-    auto weights = read_weights(radii ? common.radii : common.weights, in.points.size(),
-                                radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+    auto weights = read_weight_flags(common, in.points.size());
     if (!weights.is_ok()) return weights.status();
     in.weights = std::move(weights).value();
   }
@@ -173,7 +175,6 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   auto in = load_periodic(common, input);
   if (!in.is_ok()) return report(in.status());
   const PointSet& ps = in->points;
-  auto box = std::cref(*in->box);
   auto writer_or = PeriodicMeshWriter::open(output, ps.dimension());
   if (!writer_or.is_ok()) return report(writer_or.status());
   PeriodicMeshWriter& writer = *writer_or.value();
@@ -186,7 +187,7 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   Progress progress(common.quiet, ps.size());
   std::uint64_t written = 0;
   auto result = mesh_periodic(
-      ps, box.get(), options,
+      ps, *in->box, options,
       [&](std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets, std::uint64_t done) {
         written += simplices.size() / static_cast<std::size_t>(ps.dimension() + 1);
         progress.update(done, written);
