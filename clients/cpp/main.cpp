@@ -15,7 +15,6 @@
 #include <iostream>
 #include <memory>
 #include <optional>
-#include <set>
 #include <string>
 #include <thread>
 
@@ -344,18 +343,12 @@ int run_periodic_seed(const Common& common, const std::string& input, std::int64
     }
   } else {
     // Neighbour images, sorted by index then offset, each once.
-    std::set<std::vector<std::int64_t>> images;
-    for (std::size_t v = 0; v < star->simplices.size(); ++v) {
-      std::vector<std::int64_t> image{star->simplices[v]};
-      bool self = star->simplices[v] == static_cast<std::uint32_t>(seed);
-      for (std::size_t c = 0; c < du; ++c) {
-        image.push_back(star->offsets[v * du + c]);
-        self = self && star->offsets[v * du + c] == 0;
-      }
-      if (!self) images.insert(image);
-    }
-    for (const auto& image : images) {
-      for (std::size_t c = 0; c < image.size(); ++c) out.append(c ? " " : "").append(std::to_string(image[c]));
+    std::vector<std::uint32_t> points;
+    std::vector<std::int32_t> offsets;
+    periodic_neighbors(star.value(), d, points, offsets);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      out.append(std::to_string(points[i]));
+      for (std::size_t c = 0; c < du; ++c) out.append(" ").append(std::to_string(offsets[i * du + c]));
       out += "\n";
     }
   }

@@ -127,19 +127,67 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
 
 // One seed's star on the torus: its Delaunay simplices among all images, the seed
 // itself at offset 0 in each (d + 1 point indices and (d + 1) d offsets per simplex),
-// in the order and orientation Star gives them; and its cell when asked (facets' neighbours as points,
-// VoronoiCell::facet_offsets their images). The margin grows until every sphere of the
-// star lies inside it, as for meshes. Errors: OUT_OF_RANGE for a seed >= n; the rest
-// as mesh_periodic's.
+// in canonical form (canonicalize_periodic_rows); and its cell when asked (facets'
+// neighbours as points, VoronoiCell::facet_offsets their images). The margin grows
+// until every sphere of the star lies inside it, as for meshes. Errors: OUT_OF_RANGE
+// for a seed >= n; the rest as mesh_periodic's.
 struct PeriodicStar {
   std::uint32_t seed = 0;
   std::vector<std::uint32_t> simplices;
   std::vector<std::int32_t> offsets;
+  std::vector<double> centres;  // d per simplex, the (power) circumcentres of the images: when asked
+  bool hidden = false;          // with weights: the seed's power cell is empty (no simplices)
   std::size_t size(int d) const { return simplices.size() / static_cast<std::size_t>(d + 1); }
 };
 Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
                                    const StarOptions& options, const std::string& source,
                                    VoronoiCell* cell = nullptr);
+
+// The seed's Delaunay neighbours on the torus: the images in its star other than the
+// seed itself, each once, ascending by point then offset (lexicographically); d
+// offsets per neighbour. A point can be a neighbour through several images.
+void periodic_neighbors(const PeriodicStar& star, int d, std::vector<std::uint32_t>& points,
+                        std::vector<std::int32_t>& offsets);
+
+// Rows of a periodic triangulation (d + 1 point indices and (d + 1) d offsets each,
+// positively oriented) in a form that depends on the torus alone, not on the cover
+// they were found in: the vertices of each row ascending by (point, offset
+// lexicographically), except that the last two are swapped where that order would be
+// negative (the row's orientation is kept: a permutation's parity is tracked, no
+// predicate is evaluated); with sort_rows, the rows then in lexicographic order.
+void canonicalize_periodic_rows(int d, std::vector<std::uint32_t>& simplices, std::vector<std::int32_t>& offsets,
+                                bool sort_rows);
+
+// The stars and cells of one periodic set, seed by seed, on a cover kept between calls:
+// what a server answering single seeds of a stored set needs (periodic_star builds a
+// cover per call). A seed whose spheres reach beyond the kept cover's margin (near a
+// void of a clustered set) gets wider covers for that call only, grown as
+// periodic_star grows them, so an answer is periodic_star's, whatever was asked before.
+//
+// Ownership: borrows points, box and weights, which must outlive it.
+// Thread safety: immutable after build(); star() may be called concurrently.
+class PeriodicStars {
+ public:
+  // Errors as PeriodicCover::build's.
+  static Result<std::unique_ptr<PeriodicStars>> build(const PointSet& points, const PeriodicBox& box,
+                                                      std::span<const double> weights, std::string source);
+  // options.weights and options.cover are the set's own (ignored if given). With
+  // centres, PeriodicStar::centres is filled.
+  Result<PeriodicStar> star(std::uint32_t seed, const StarOptions& options, VoronoiCell* cell = nullptr,
+                            bool centres = false) const;
+  const PeriodicCover& cover() const { return *cover_; }
+  // Bytes of a kept cover of n points in d dimensions, about.
+  static std::uint64_t estimated_bytes(std::uint64_t n, int d);
+
+ private:
+  PeriodicStars(const PointSet& points, const PeriodicBox& box, std::span<const double> weights, std::string source)
+      : points_(points), box_(box), weights_(weights), source_(std::move(source)) {}
+  const PointSet& points_;
+  const PeriodicBox& box_;
+  std::span<const double> weights_;
+  std::string source_;
+  std::shared_ptr<const PeriodicCover> cover_;
+};
 
 struct PeriodicCellsStats {
   std::uint64_t images = 0;    // images in the last run's cover

@@ -137,12 +137,16 @@ void raise_to(std::atomic<double>& slot, double v) {
 // spacing, then from what a thin run's spheres needed.
 class MarginPlan {
  public:
-  MarginPlan(const PointSet& points, const PeriodicBox& box) : box_(box), d_(static_cast<std::size_t>(box.dimension())) {
+  // start: the first run's margin (empty: kFirstMarginSpacings mean spacings).
+  MarginPlan(const PointSet& points, const PeriodicBox& box, std::span<const double> start = {})
+      : box_(box), d_(static_cast<std::size_t>(box.dimension())) {
     double volume = 1;
     for (std::size_t c = 0; c < d_; ++c) volume *= box.hi()[c] - box.lo()[c];
     spacing_ = std::pow(volume / static_cast<double>(points.size()), 1.0 / static_cast<double>(d_));
     margin_.resize(d_);
-    for (std::size_t c = 0; c < d_; ++c) margin_[c] = std::min(kFirstMarginSpacings * spacing_, most(c));
+    for (std::size_t c = 0; c < d_; ++c) {
+      margin_[c] = start.empty() ? std::min(kFirstMarginSpacings * spacing_, most(c)) : start[c];
+    }
     needed_ = std::vector<std::atomic<double>>(d_);
   }
   const std::vector<double>& margin() const { return margin_; }
@@ -224,24 +228,94 @@ void power_sphere_of(const PeriodicCover& cover, const std::uint32_t* s, int d, 
 
 // Runs attempt(cover, plan) on covers of growing margins until a run's spheres all lie
 // inside its margin, calling `restart` between runs; returns the number of runs (the
-// last attempt's results stand).
+// last attempt's results stand). kept: when not null, the first run's cover (and on
+// return, the last run's).
 template <class Attempt>
 Result<int> with_growing_margins(const PointSet& points, const PeriodicBox& box, std::span<const double> weights,
                                  const std::string& source, const std::function<Status()>& restart,
-                                 Attempt&& attempt) {
-  MarginPlan plan(points, box);
+                                 Attempt&& attempt, std::shared_ptr<const PeriodicCover>* kept = nullptr) {
+  std::shared_ptr<const PeriodicCover> cover = kept != nullptr ? *kept : nullptr;
+  MarginPlan plan(points, box, cover != nullptr ? std::span<const double>(cover->margin()) : std::span<const double>());
   for (int runs = 1;; ++runs) {
-    auto cover = PeriodicCover::build(points, box, plan.margin(), source, weights);
-    if (!cover.is_ok()) return cover.status();
+    if (cover == nullptr) {
+      auto built = PeriodicCover::build(points, box, plan.margin(), source, weights);
+      if (!built.is_ok()) return built.status();
+      cover = std::move(built).value();
+    }
     plan.begin();
-    if (Status s = attempt(*cover.value(), plan); !s.is_ok()) return s;
+    if (Status s = attempt(*cover, plan); !s.is_ok()) return s;
     auto thin = plan.thin(source);
     if (!thin.is_ok()) return thin.status();
-    if (!thin.value()) return runs;
+    if (!thin.value()) {
+      if (kept != nullptr) *kept = std::move(cover);
+      return runs;
+    }
+    cover = nullptr;
     if (restart) {
       if (Status s = restart(); !s.is_ok()) return s;
     }
   }
+}
+
+// One seed's star on a cover, mapped to points and offsets (canonical form), with its
+// cell and centres when asked; every sphere recorded in `plan`.
+Status star_on_cover(const PeriodicCover& cover, MarginPlan& plan, std::uint32_t seed, const StarOptions& options,
+                     VoronoiCell* cell, bool centres, PeriodicStar& out) {
+  const int d = cover.points().dimension();
+  StarOptions run = options;
+  run.cover = &cover;
+  run.weights = cover.weights();
+  StarWalker walker(cover.tree(), run);
+  Star star;
+  if (Status s = walker.compute(seed, star); !s.is_ok()) return s;
+  if (!star.bounded_cell()) plan.unbounded();
+  for (std::size_t i = 0; i < star.size(); ++i) power_sphere_of(cover, star.simplex(i), d, plan);
+  out = PeriodicStar{};
+  out.seed = seed;
+  out.hidden = star.hidden;
+  for (const std::uint32_t id : star.simplices) {
+    out.simplices.push_back(cover.point_of(id));
+    const std::int32_t* k = cover.offset_of(id);
+    out.offsets.insert(out.offsets.end(), k, k + d);
+  }
+  canonicalize_periodic_rows(d, out.simplices, out.offsets, true);
+  if (centres) {
+    // From the images' coordinates relative to the seed (each rounded once), so every
+    // copy of a vertex has the same centre up to its translate.
+    const auto du = static_cast<std::size_t>(d);
+    const double* x = cover.points().point(seed);
+    const double* w = cover.weights().empty() ? nullptr : cover.weights().data();
+    std::vector<double> local((du + 1) * du);
+    std::vector<double> local_w(du + 1);
+    std::vector<std::uint32_t> ids(du + 1);
+    for (std::size_t r = 0; r < out.size(d); ++r) {
+      for (std::size_t v = 0; v <= du; ++v) {
+        const std::uint32_t p = out.simplices[r * (du + 1) + v];
+        const std::int32_t* k = out.offsets.data() + (r * (du + 1) + v) * du;
+        for (std::size_t c = 0; c < du; ++c) {
+          local[v * du + c] = image_difference(cover.points().point(p)[c], k[c], cover.box().lo()[c],
+                                               cover.box().hi()[c], x[c]);
+        }
+        local_w[v] = w != nullptr ? w[p] : 0;
+        ids[v] = static_cast<std::uint32_t>(v);
+      }
+      const PointSet simplex(d, std::vector<double>(local));
+      std::vector<double> c = circumcentre(simplex, ids.data(), d + 1, w != nullptr ? local_w.data() : nullptr);
+      for (std::size_t k = 0; k < du; ++k) out.centres.push_back(c[k] + x[k]);
+    }
+  }
+  if (cell != nullptr) {
+    *cell = voronoi_cell(cover.points(), star, cover.weights());
+    cell->vertex_simplices.clear();  // the cover's ids: the star's rows say it with offsets
+    cell->facet_offsets.clear();
+    for (VoronoiFacet& f : cell->facets) {
+      const auto id = static_cast<std::uint32_t>(f.neighbor);
+      const std::int32_t* k = cover.offset_of(id);
+      cell->facet_offsets.insert(cell->facet_offsets.end(), k, k + d);
+      f.neighbor = cover.point_of(id);
+    }
+  }
+  return Status::ok();
 }
 
 }  // namespace
@@ -289,6 +363,7 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
           offsets.insert(offsets.end(), k, k + d);
         }
       }
+      canonicalize_periodic_rows(d, kept, offsets, false);
       written += kept.size() / (du + 1);
       return sink(kept, offsets, done);
     });
@@ -306,7 +381,6 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
 
 Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
                                    const StarOptions& options, const std::string& source, VoronoiCell* cell) {
-  const int d = points.dimension();
   if (seed >= points.size()) {
     return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
                         std::to_string(points.size()) + " points)");
@@ -314,34 +388,125 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
   PeriodicStar out;
   auto runs = with_growing_margins(points, box, options.weights, source, nullptr,
                                    [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
-    StarOptions run = options;
-    run.cover = &cover;
-    run.weights = cover.weights();
-    StarWalker walker(cover.tree(), run);
-    Star star;
-    if (Status s = walker.compute(seed, star); !s.is_ok()) return s;
-    if (!star.bounded_cell()) plan.unbounded();
-    for (std::size_t i = 0; i < star.size(); ++i) power_sphere_of(cover, star.simplex(i), d, plan);
-    out = PeriodicStar{};
-    out.seed = seed;
-    for (const std::uint32_t id : star.simplices) {
-      out.simplices.push_back(cover.point_of(id));
-      const std::int32_t* k = cover.offset_of(id);
-      out.offsets.insert(out.offsets.end(), k, k + d);
+    return star_on_cover(cover, plan, seed, options, cell, false, out);
+  });
+  if (!runs.is_ok()) return runs.status();
+  return out;
+}
+
+void periodic_neighbors(const PeriodicStar& star, int d, std::vector<std::uint32_t>& points,
+                        std::vector<std::int32_t>& offsets) {
+  const auto du = static_cast<std::size_t>(d);
+  std::vector<std::vector<std::int64_t>> images;
+  for (std::size_t v = 0; v < star.simplices.size(); ++v) {
+    std::vector<std::int64_t> image{star.simplices[v]};
+    bool self = star.simplices[v] == star.seed;
+    for (std::size_t c = 0; c < du; ++c) {
+      image.push_back(star.offsets[v * du + c]);
+      self = self && star.offsets[v * du + c] == 0;
     }
-    if (cell != nullptr) {
-      *cell = voronoi_cell(cover.points(), star, cover.weights());
-      cell->vertex_simplices.clear();  // the cover's ids: the star's rows say it with offsets
-      cell->facet_offsets.clear();
-      for (VoronoiFacet& f : cell->facets) {
-        const auto id = static_cast<std::uint32_t>(f.neighbor);
-        const std::int32_t* k = cover.offset_of(id);
-        cell->facet_offsets.insert(cell->facet_offsets.end(), k, k + d);
-        f.neighbor = cover.point_of(id);
+    if (!self) images.push_back(std::move(image));
+  }
+  std::sort(images.begin(), images.end());
+  images.erase(std::unique(images.begin(), images.end()), images.end());
+  points.clear();
+  offsets.clear();
+  for (const auto& image : images) {
+    points.push_back(static_cast<std::uint32_t>(image[0]));
+    for (std::size_t c = 0; c < du; ++c) offsets.push_back(static_cast<std::int32_t>(image[c + 1]));
+  }
+}
+
+void canonicalize_periodic_rows(int d, std::vector<std::uint32_t>& simplices, std::vector<std::int32_t>& offsets,
+                                bool sort_rows) {
+  const auto du = static_cast<std::size_t>(d);
+  const std::size_t width = du + 1, rows = simplices.size() / width;
+  // Vertex a of a row before vertex b: by point, then offset lexicographically.
+  auto before = [&](std::size_t a, std::size_t b) {
+    if (simplices[a] != simplices[b]) return simplices[a] < simplices[b];
+    return std::lexicographical_compare(offsets.begin() + static_cast<std::ptrdiff_t>(a * du),
+                                        offsets.begin() + static_cast<std::ptrdiff_t>((a + 1) * du),
+                                        offsets.begin() + static_cast<std::ptrdiff_t>(b * du),
+                                        offsets.begin() + static_cast<std::ptrdiff_t>((b + 1) * du));
+  };
+  auto swap_vertices = [&](std::size_t a, std::size_t b) {
+    std::swap(simplices[a], simplices[b]);
+    std::swap_ranges(offsets.begin() + static_cast<std::ptrdiff_t>(a * du),
+                     offsets.begin() + static_cast<std::ptrdiff_t>((a + 1) * du),
+                     offsets.begin() + static_cast<std::ptrdiff_t>(b * du));
+  };
+  for (std::size_t r = 0; r < rows; ++r) {
+    const std::size_t first = r * width;
+    // Insertion sort (d + 1 <= 9 vertices), counting transpositions: the parity says
+    // whether the sorted order has the row's orientation.
+    bool odd = false;
+    for (std::size_t i = 1; i < width; ++i) {
+      for (std::size_t j = i; j > 0 && before(first + j, first + j - 1); --j) {
+        swap_vertices(first + j, first + j - 1);
+        odd = !odd;
       }
     }
-    return Status::ok();
-  });
+    if (odd) swap_vertices(first + width - 2, first + width - 1);
+  }
+  if (!sort_rows || rows < 2) return;
+  std::vector<std::size_t> order(rows);
+  for (std::size_t r = 0; r < rows; ++r) order[r] = r;
+  auto row_before = [&](std::size_t a, std::size_t b) {
+    for (std::size_t v = 0; v < width; ++v) {
+      if (before(a * width + v, b * width + v)) return true;
+      if (before(b * width + v, a * width + v)) return false;
+    }
+    return false;
+  };
+  std::sort(order.begin(), order.end(), row_before);
+  std::vector<std::uint32_t> s2;
+  std::vector<std::int32_t> o2;
+  s2.reserve(simplices.size());
+  o2.reserve(offsets.size());
+  for (const std::size_t r : order) {
+    s2.insert(s2.end(), simplices.begin() + static_cast<std::ptrdiff_t>(r * width),
+              simplices.begin() + static_cast<std::ptrdiff_t>((r + 1) * width));
+    o2.insert(o2.end(), offsets.begin() + static_cast<std::ptrdiff_t>(r * width * du),
+              offsets.begin() + static_cast<std::ptrdiff_t>((r + 1) * width * du));
+  }
+  simplices = std::move(s2);
+  offsets = std::move(o2);
+}
+
+Result<std::unique_ptr<PeriodicStars>> PeriodicStars::build(const PointSet& points, const PeriodicBox& box,
+                                                            std::span<const double> weights, std::string source) {
+  auto stars = std::unique_ptr<PeriodicStars>(new PeriodicStars(points, box, weights, std::move(source)));
+  const MarginPlan plan(points, box);
+  auto cover = PeriodicCover::build(points, box, plan.margin(), stars->source_, weights);
+  if (!cover.is_ok()) return cover.status();
+  stars->cover_ = std::move(cover).value();
+  return stars;
+}
+
+std::uint64_t PeriodicStars::estimated_bytes(std::uint64_t n, int d) {
+  // The first margin is 3.5 spacings on each side of n^(1/d) spacings per axis (at
+  // most 3 box lengths): (1 + 7 / n^(1/d))^d times the points, each as a tree holds
+  // it (coordinates twice, boxes, ranks: about 20 d + 40 bytes) plus an image's
+  // point and offset (4 + 4 d).
+  const double per_axis = std::pow(static_cast<double>(std::max<std::uint64_t>(n, 1)), 1.0 / d);
+  const double factor = std::pow(std::min(7.0, 1 + 7 / per_axis), d);
+  return static_cast<std::uint64_t>(factor * static_cast<double>(n) * (24.0 * d + 44));
+}
+
+Result<PeriodicStar> PeriodicStars::star(std::uint32_t seed, const StarOptions& options, VoronoiCell* cell,
+                                         bool centres) const {
+  if (seed >= points_.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the input has " +
+                        std::to_string(points_.size()) + " points)");
+  }
+  // Always from the kept (first) cover: a seed's answer does not depend on which seeds
+  // were asked before, on this server or another.
+  std::shared_ptr<const PeriodicCover> cover = cover_;
+  PeriodicStar out;
+  auto runs = with_growing_margins(points_, box_, weights_, source_, nullptr,
+                                   [&](const PeriodicCover& c, MarginPlan& plan) -> Status {
+    return star_on_cover(c, plan, seed, options, cell, centres, out);
+  }, &cover);
   if (!runs.is_ok()) return runs.status();
   return out;
 }
