@@ -117,6 +117,29 @@ Status UploadSession::append(const void* data, std::size_t size) {
   return Status::ok();
 }
 
+Status UploadSession::append_weights(const void* data, std::size_t size) {
+  if (size == 0) return Status::ok();
+  if (!header_.weighted) {
+    return invalid_argument("weights: this upload's header did not say it is weighted (set weighted = true)");
+  }
+  if (received_ != expected_) {
+    return invalid_argument("weights: sent before all the coordinates (" + std::to_string(received_) + " of " +
+                            std::to_string(expected_) + " bytes); send every coordinate first");
+  }
+  const std::uint64_t expected = static_cast<std::uint64_t>(header_.count) * 8;
+  if (size > expected - weight_bytes_) {
+    return invalid_argument("weights: more than the " + std::to_string(expected) + " bytes that count " +
+                            std::to_string(header_.count) + " x 8 bytes allow");
+  }
+  if (weights_.empty()) {
+    if (!charge_.grow(expected)) return budget_->over_budget("the weights of an upload", expected);
+    weights_.resize(static_cast<std::size_t>(header_.count));
+  }
+  std::memcpy(reinterpret_cast<char*>(weights_.data()) + weight_bytes_, data, size);
+  weight_bytes_ += size;
+  return Status::ok();
+}
+
 ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count) {
   return {static_cast<std::uint32_t>(n * shard_index / shard_count),
           static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
@@ -140,7 +163,17 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& 
     return resource_exhausted("count: " + n + " points exceed this server's limit --max-points=" +
                               std::to_string(limits_.max_points));
   }
-  const std::uint64_t memory = estimated_memory(static_cast<std::uint64_t>(h.count), static_cast<int>(h.dimension));
+  if ((h.weighted || !h.periodic_box.empty()) && h.dimension > kMaxDimension) {
+    return invalid_argument(std::string(h.weighted ? "weighted" : "periodic_box") +
+                            ": weighted and periodic sets are exact and limited to d <= " +
+                            std::to_string(kMaxDimension) + " (the header says " + d + "-d)");
+  }
+  if (!h.periodic_box.empty() && h.periodic_box.size() != 2 * static_cast<std::size_t>(h.dimension)) {
+    return invalid_argument("periodic_box: " + std::to_string(h.periodic_box.size()) + " values; a " + d +
+                            "-d box needs " + std::to_string(2 * h.dimension) + " (LO_1..LO_d, HI_1..HI_d)");
+  }
+  const std::uint64_t memory = estimated_memory(static_cast<std::uint64_t>(h.count), static_cast<int>(h.dimension),
+                                                h.weighted, !h.periodic_box.empty());
   if (memory > limits_.max_memory) {
     return resource_exhausted("count: " + n + " points in " + d + " dimensions need about " + std::to_string(memory) +
                               " bytes, more than this server's --max-memory=" + std::to_string(limits_.max_memory));
@@ -168,6 +201,11 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
   // tree and split would be built for nothing: queries go to the new set).
   auto parent = store_->info(parent_id);
   if (!parent.is_ok()) return parent.status();
+  if (parent->weighted || !parent->periodic_box.empty()) {
+    return failed_precondition("point set " + parent_id + " is " + (parent->weighted ? "weighted" : "periodic") +
+                               ": appending to it is not supported (the new points would need " +
+                               (parent->weighted ? "weights" : "the box") + "); upload the whole set instead");
+  }
   const int d = parent->dimension;
   if (added.dimension != 0 && added.dimension != d) {
     return invalid_argument("dimension: " + std::to_string(added.dimension) + "-d points cannot be appended to point set " +
@@ -194,11 +232,20 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
                             std::to_string(s.header_.dimension) + " x count " + std::to_string(s.header_.count) +
                             " x 8 bytes = " + std::to_string(s.expected_));
   }
+  if (s.header_.weighted && s.weight_bytes_ != static_cast<std::uint64_t>(s.header_.count) * 8) {
+    return invalid_argument("weights: received " + std::to_string(s.weight_bytes_ / 8) + " weights (" +
+                            std::to_string(s.weight_bytes_) + " bytes), but the set has " +
+                            std::to_string(s.header_.count) + " points; send one float64 weight per point");
+  }
+  const std::string extras = point_set_extra_bytes(s.weights_, s.header_.periodic_box);
+  s.sha_->update(extras.data(), extras.size());
   PointSetInfo info;
   info.id = s.sha_->hex_digest();
   info.dimension = static_cast<int>(s.header_.dimension);
   info.count = static_cast<std::uint64_t>(s.header_.count);
   info.display_name = s.header_.display_name;
+  info.weighted = s.header_.weighted;
+  info.periodic_box = s.header_.periodic_box;
   // Same data as a stored set: no work (the id is a function of the bytes), but the
   // caller becomes one of its owners.
   if (auto existing = store_->info(info.id); existing.is_ok()) {
@@ -219,10 +266,17 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
     }
     return st;
   }
+  std::optional<PeriodicBox> box;
+  if (Status st = check_extras(points, s.weights_, info.periodic_box, "coordinates", &box); !st.is_ok()) return st;
+  if (box) {
+    // The images must be told apart in double precision (the cover a query walks).
+    auto stars = PeriodicStars::build(points, *box, s.weights_, "coordinates");
+    if (!stars.is_ok()) return stars.status();
+  }
   // The owner first, then the set (see PointSetStore::add_owner).
   const bool had = !who.tenant.empty() && store_->owned_by(info.id, who.tenant);
   if (Status st = store_->add_owner(info.id, who.tenant); !st.is_ok()) return st;
-  auto stored = store_->put(info, std::move(points));
+  auto stored = store_->put(info, points, s.weights_);
   // A concurrent identical upload may have created it first (already_existed): for a
   // tenant, what counts is whether it had the set before.
   if (stored.is_ok() && !who.tenant.empty()) stored->already_existed = had;
@@ -288,6 +342,7 @@ Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, cons
   if (Status s = exact_allowed(set, "this request"); !s.is_ok()) return s;
   StarOptions options;
   options.cancel = control.stop_flag();
+  options.weights = set.weights;
   StarWalker walker(*set.tree, options);
   Star star;
   Status s = walker.compute(seed, star);
@@ -296,22 +351,68 @@ Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, cons
   return star;
 }
 
+Result<PeriodicStar> Engine::periodic_star_of(const StoredSet& set, std::uint32_t seed, const CallControl& control,
+                                              VoronoiCell* cell, bool centres) {
+  StarOptions options;
+  options.cancel = control.stop_flag();
+  auto star = set.periodic->star(seed, options, cell, centres);
+  if (star.status().code() == Code::kCancelled) return control.stopped_status("the star of seed " + std::to_string(seed));
+  return star;
+}
+
+StarAnswer Engine::periodic_star_answer(const StoredSet& set, PeriodicStar star) {
+  StarAnswer answer;
+  answer.star.seed = star.seed;
+  answer.star.dimension = set.info.dimension;
+  answer.star.hidden = star.hidden;
+  answer.star.simplices = std::move(star.simplices);
+  answer.offsets = std::move(star.offsets);
+  answer.circumcentres = std::move(star.centres);
+  return answer;
+}
+
+NeighborAnswer Engine::periodic_neighbor_answer(const StoredSet& set, const PeriodicStar& star) {
+  NeighborAnswer answer;
+  periodic_neighbors(star, set.info.dimension, answer.neighbors, answer.offsets);
+  return answer;
+}
+
+Status Engine::check_query(const StoredSet& set, const DomainSpec* domain, const NeighborQuery* query) {
+  if (set.box && domain != nullptr && !domain->empty()) {
+    return invalid_argument("domain: point set " + set.info.id + " is periodic: its cells fill the torus, so box, "
+                            "halfspaces and bounding_box do not apply");
+  }
+  if (query != nullptr && query->mode != NeighborQuery::Mode::kExact && (set.box || !set.weights.empty())) {
+    return invalid_argument(std::string("mode: point set ") + set.info.id + " is " +
+                            (set.box ? "periodic" : "weighted") +
+                            ": its neighbours come from the exact engine only; ask mode EXACT");
+  }
+  return Status::ok();
+}
+
 Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const CallControl& control) {
   auto target = seed_of(id, seed);
   if (!target.is_ok()) return target.status();
   const auto& [set, s] = target.value();
+  if (set->periodic) {
+    auto star = periodic_star_of(*set, s, control, nullptr, true);
+    if (!star.is_ok()) return star.status();
+    return periodic_star_answer(*set, std::move(star).value());
+  }
   auto star = compute_star(*set, s, control);
   if (!star.is_ok()) return star.status();
-  return star_answer(set->points, std::move(star).value());
+  return star_answer(*set, std::move(star).value());
 }
 
-StarAnswer Engine::star_answer(const PointSet& points, Star star) {
+StarAnswer Engine::star_answer(const StoredSet& set, Star star) {
   StarAnswer answer;
   answer.star = std::move(star);
+  const PointSet& points = set.points;
   const int d = points.dimension();
+  const double* weights = set.weights.empty() ? nullptr : set.weights.data();
   answer.circumcentres.reserve(answer.star.size() * d);
   for (std::size_t i = 0; i < answer.star.size(); ++i) {
-    const std::vector<double> c = circumcentre(points, answer.star.simplex(i), d + 1);
+    const std::vector<double> c = circumcentre(points, answer.star.simplex(i), d + 1, weights);
     answer.circumcentres.insert(answer.circumcentres.end(), c.begin(), c.end());
   }
   return answer;
@@ -322,7 +423,13 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
   auto target = seed_of(id, seed);
   if (!target.is_ok()) return target.status();
   const StoredSet& set = *target.value().first;
+  if (Status s = check_query(set, nullptr, &query); !s.is_ok()) return s;
   NeighborAnswer answer;
+  if (set.periodic) {
+    auto star = periodic_star_of(set, target.value().second, control, nullptr, false);
+    if (!star.is_ok()) return star.status();
+    return periodic_neighbor_answer(set, star.value());
+  }
   if (query.mode == NeighborQuery::Mode::kExact) {
     if (Status s = exact_allowed(set, "GetNeighbors with mode EXACT"); !s.is_ok()) return s;
     auto star = compute_star(set, target.value().second, control);
@@ -385,6 +492,7 @@ Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, cons
   if (!target.is_ok()) return target.status();
   const StoredSet& set = *target.value().first;
   if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
+  if (Status s = check_query(set, &spec, nullptr); !s.is_ok()) return s;
   auto domain = resolve_domain(set, spec, false);
   if (!domain.is_ok()) return domain.status();
   return cell_of(set, target.value().second, domain.value() ? &*domain.value() : nullptr, control);
@@ -392,21 +500,87 @@ Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, cons
 
 Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
                                     const CallControl& control) {
+  if (set.periodic) {
+    VoronoiCell cell;
+    auto star = periodic_star_of(set, seed, control, &cell, false);
+    if (!star.is_ok()) return star.status();
+    return cell;
+  }
   if (domain == nullptr) {
     auto star = compute_star(set, seed, control);
     if (!star.is_ok()) return star.status();
-    return voronoi_cell(set.points, star.value());
+    return voronoi_cell(set.points, star.value(), set.weights);
   }
   // Clipped: the same builder as StreamCells and `spokemesh cells`, so every route
   // gives the same bytes.
   if (Status s = exact_allowed(set, "this request"); !s.is_ok()) return s;
   StarOptions options;
   options.cancel = control.stop_flag();
+  options.weights = set.weights;
   ClippedCellBuilder builder(*set.tree, *domain, options);
   auto cell = builder.cell(seed);
   if (cell.status().code() == Code::kCancelled) return control.stopped_status("the cell of seed " + std::to_string(seed));
   return cell;
 }
+
+namespace {
+
+// Answers items 0..count-1 with `threads` workers, a round of round_size consecutive
+// items at a time: the workers take the round's items one at a time from a shared
+// counter, while the calling thread emits the round before (in order), so encoding and
+// the client's reading overlap the work. (Rounds of 32 with the emission in between
+// kept 2 workers 1 core busy on average.) compute(t, i, answer) runs on worker t;
+// emit(answers, done) on the caller, done = items answered so far. The failure of the
+// lowest item is returned (so the error is the same whatever the threads); the workers
+// stop taking items after any.
+// A cell's size in a message, about. Batches of cells also end at
+// defaults::kMessagePayloadBytes, well within gRPC's default 4 MiB message limit,
+// whatever the cells' size (high-d cells have many vertices).
+std::size_t payload_bytes(const VoronoiCell& c) {
+  std::size_t bytes = 8 * (c.vertices.size() + c.centroid.size()) + 4 * (c.vertex_simplices.size() + c.facet_offsets.size()) + 64;
+  for (const VoronoiFacet& f : c.facets) bytes += 8 * f.normal.size() + 4 * f.vertices.size() + 24;
+  return bytes;
+}
+
+template <class Answer, class Compute, class Emit>
+Status in_rounds(std::size_t count, unsigned threads, std::size_t round_size, const CallControl& control,
+                 const std::string& what, Compute&& compute, Emit&& emit) {
+  std::vector<Answer> round, previous;
+  std::mutex failure_mutex;
+  std::size_t failed_at = count;
+  Status failure;
+  std::atomic<bool> failed{false};
+  std::size_t previous_end = 0;
+  for (std::size_t at = 0; at < count; at = previous_end) {
+    const std::size_t end = std::min(count, at + round_size);
+    round.assign(end - at, Answer{});
+    std::atomic<std::size_t> next{at};
+    auto work = [&](unsigned t) {
+      for (std::size_t i; !failed.load(std::memory_order_relaxed) && (i = next.fetch_add(1)) < end;) {
+        Status s = compute(t, i, round[i - at]);
+        if (s.is_ok()) continue;
+        if (s.code() == Code::kCancelled) s = control.stopped_status(what);
+        const std::lock_guard<std::mutex> lock(failure_mutex);
+        if (i < failed_at) {
+          failed_at = i;
+          failure = std::move(s);
+        }
+        failed = true;
+      }
+    };
+    std::vector<std::thread> pool;
+    for (unsigned t = 0; t < threads; ++t) pool.emplace_back(work, t);
+    const Status emitted = previous.empty() ? Status::ok() : emit(std::span<const Answer>(previous), previous_end);
+    for (std::thread& th : pool) th.join();
+    if (!failure.is_ok()) return failure;
+    if (!emitted.is_ok()) return emitted;
+    std::swap(previous, round);
+    previous_end = end;
+  }
+  return emit(std::span<const Answer>(previous), previous_end);
+}
+
+}  // namespace
 
 Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
@@ -432,42 +606,45 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     if (!d.is_ok()) return d.status();
     domain = std::move(d).value();
   }
-  // Rounds of consecutive seeds: the workers take the round's seeds one at a time from
-  // a shared counter, while the calling thread emits the round before (in order), so
-  // the answers' encoding and the client's reading overlap the work. (Before, rounds of
-  // 32 with the emission in between kept 2 workers 1 core busy on average.) Memory:
-  // two rounds of answers, charged like a stream's window; rounds shrink with the
-  // dimension, where one star can hold many simplices.
+  // Memory: two rounds of answers (in_rounds), charged like a stream's window; rounds
+  // shrink with the dimension, where one star can hold many simplices.
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
   const int dimension = set->points.dimension();
-  const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
-  const std::size_t round_size = per_thread * threads;
-  std::vector<BatchAnswer> round, previous;
   const bool exact = kind != BatchKind::kNeighbors || query.mode == NeighborQuery::Mode::kExact;
   if (exact) {
     if (Status s = exact_allowed(*set, "this batch"); !s.is_ok()) return s;
   }
+  if (Status s = check_query(*set, kind == BatchKind::kCells ? &spec : nullptr,
+                             kind == BatchKind::kNeighbors ? &query : nullptr);
+      !s.is_ok()) {
+    return s;
+  }
   StarOptions star_options;
   star_options.cancel = control.stop_flag();
+  star_options.weights = set->weights;
   std::vector<std::unique_ptr<StarWalker>> walkers;
   std::vector<Star> scratch(threads);
-  for (unsigned t = 0; t < threads; ++t) walkers.push_back(std::make_unique<StarWalker>(*set->tree, star_options));
+  if (set->tree) {
+    for (unsigned t = 0; t < threads; ++t) walkers.push_back(std::make_unique<StarWalker>(*set->tree, star_options));
+  }
   // Clipped cells come from one ClippedCellBuilder per thread, as in StreamCells.
   std::vector<std::unique_ptr<ClippedCellBuilder>> builders(threads);
   if (kind == BatchKind::kCells && domain) {
     for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
   }
-  // The failure of the lowest seed position (so the error is the same whatever the
-  // threads); the workers stop taking seeds after any.
-  std::mutex failure_mutex;
-  std::size_t failed_at = seeds.size();
-  Status failure;
-  std::atomic<bool> failed{false};
   auto answer = [&](unsigned t, std::size_t i, BatchAnswer& a) -> Status {
     a.seed = seeds[i];
     const auto seed = static_cast<std::uint32_t>(seeds[i]);
+    if (set->periodic) {
+      VoronoiCell* cell = kind == BatchKind::kCells ? &a.cell : nullptr;
+      auto star = periodic_star_of(*set, seed, control, cell, kind == BatchKind::kStars);
+      if (!star.is_ok()) return star.status();
+      if (kind == BatchKind::kStars) a.star = periodic_star_answer(*set, std::move(star).value());
+      if (kind == BatchKind::kNeighbors) a.neighbors = periodic_neighbor_answer(*set, star.value());
+      return Status::ok();
+    }
     if (kind == BatchKind::kNeighbors && query.mode != NeighborQuery::Mode::kExact) {
       auto r = neighbors(id, seeds[i], query, control);
       if (r.is_ok()) a.neighbors = std::move(r).value();
@@ -483,46 +660,21 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     // the same from any walker; reuse saves its set-up per seed).
     if (Status s = walkers[t]->compute(seed, scratch[t]); !s.is_ok()) return s;
     if (kind == BatchKind::kStars) {
-      a.star = star_answer(set->points, scratch[t]);
+      a.star = star_answer(*set, scratch[t]);
     } else if (kind == BatchKind::kNeighbors) {
       a.neighbors.neighbors = star_neighbors(scratch[t]);
     } else if (!domain) {
-      a.cell = voronoi_cell(set->points, scratch[t]);
+      a.cell = voronoi_cell(set->points, scratch[t], set->weights);
     } else {
-      auto r = voronoi_cell(set->points, scratch[t], *domain);
+      auto r = voronoi_cell(set->points, scratch[t], *domain, set->weights);
       if (!r.is_ok()) return r.status();
       a.cell = std::move(r).value();
     }
     return Status::ok();
   };
-  std::size_t previous_end = 0;
-  for (std::size_t at = 0; at < seeds.size(); at = previous_end) {
-    const std::size_t end = std::min(seeds.size(), at + round_size);
-    round.assign(end - at, BatchAnswer{});
-    std::atomic<std::size_t> next{at};
-    auto work = [&](unsigned t) {
-      for (std::size_t i; !failed.load(std::memory_order_relaxed) && (i = next.fetch_add(1)) < end;) {
-        Status s = answer(t, i, round[i - at]);
-        if (s.is_ok()) continue;
-        if (s.code() == Code::kCancelled) s = control.stopped_status("a batch of seeds");
-        const std::lock_guard<std::mutex> lock(failure_mutex);
-        if (i < failed_at) {
-          failed_at = i;
-          failure = std::move(s);
-        }
-        failed = true;
-      }
-    };
-    std::vector<std::thread> pool;
-    for (unsigned t = 0; t < threads; ++t) pool.emplace_back(work, t);
-    const Status emitted = previous.empty() ? Status::ok() : emit(previous, previous_end);
-    for (std::thread& th : pool) th.join();
-    if (!failure.is_ok()) return failure;
-    if (!emitted.is_ok()) return emitted;
-    std::swap(previous, round);
-    previous_end = end;
-  }
-  return emit(previous, previous_end);
+  const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
+  return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds", answer,
+                                emit);
 }
 
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {
@@ -575,10 +727,12 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   if (!set.is_ok()) return set.status();
   const StoredSet& s = *set.value();
   if (Status allowed = exact_allowed(s, "StreamCells"); !allowed.is_ok()) return allowed;
-  auto domain = resolve_domain(s, spec, true);
-  if (!domain.is_ok()) return domain.status();
+  if (Status st = check_query(s, &spec, nullptr); !st.is_ok()) return st;
   const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
+  if (s.periodic) return stream_periodic_cells(s, range, batch_size, measures_only, control, emit);
+  auto domain = resolve_domain(s, spec, true);
+  if (!domain.is_ok()) return domain.status();
   // Memory: one round of cells (threads x block) and a batch, within the stream window,
   // and the facet cache as for simplices.
   MemoryBudget& budget = store_->budget();
@@ -594,6 +748,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   options.block_size = 64;
   options.measures_only = measures_only;
   options.star.cancel = control.stop_flag();
+  options.star.weights = s.weights;
   std::vector<VoronoiCell> pending;
   pending.reserve(batch_size);
   std::size_t pending_bytes = 0;
@@ -603,10 +758,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
     done = seeds_done;
     for (const VoronoiCell& c : cells) {
       pending.push_back(c);
-      // Batches also end at about 2 MiB of payload, well within gRPC's default 4 MiB
-      // message limit, whatever the cells' size (high-d cells have many vertices).
-      pending_bytes += 8 * (c.vertices.size() + c.centroid.size()) + 4 * c.vertex_simplices.size() + 64;
-      for (const VoronoiFacet& f : c.facets) pending_bytes += 8 * f.normal.size() + 4 * f.vertices.size() + 24;
+      pending_bytes += payload_bytes(c);
       if (pending.size() == batch_size || pending_bytes > defaults::kMessagePayloadBytes) {
         pending_bytes = 0;
         emitted = true;
@@ -648,6 +800,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
   if (dimension_out != nullptr) *dimension_out = s.info.dimension;
+  if (s.periodic) return stream_periodic_simplices(s, range, batch_size, control, emit);
   const std::size_t width = static_cast<std::size_t>(s.info.dimension) + 1;
 
   // The stream's memory against the budget: its output window (a bounded number of
@@ -665,6 +818,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   options.sweep_begin = range.begin;  // shards of simplices are parts of the sweep
   options.sweep_end = range.end;
   options.star.cancel = control.stop_flag();
+  options.star.weights = s.weights;
 
   std::vector<std::uint32_t> pending;  // less than one batch, carried between blocks
   pending.reserve(batch_size * width);
@@ -672,7 +826,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   std::uint64_t done = 0;
   auto flush = [&](std::span<const std::uint32_t> batch) -> Status {
     emitted = true;
-    return emit(batch, done);
+    return emit(batch, {}, done);
   };
   auto sink = [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) -> Status {
     done = seeds_done;
@@ -697,6 +851,94 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     return result.status();
   }
   if (!pending.empty() || !emitted) return flush(pending);
+  return Status::ok();
+}
+
+Status Engine::stream_periodic_simplices(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+                                         const CallControl& control, const BatchSink& emit) {
+  // Seed by seed (each star whole, from the set's cover), in index order: a periodic
+  // set has no sweep; the rows of a seed are the same whoever asks (PeriodicStars).
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("a streamed shard", kStreamWindowBytes);
+  const auto d = static_cast<std::size_t>(set.info.dimension), width = d + 1;
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  std::vector<std::uint32_t> pending;
+  std::vector<std::int32_t> pending_offsets;
+  bool emitted = false;
+  auto compute = [&](unsigned, std::size_t i, PeriodicStar& star) -> Status {
+    auto r = periodic_star_of(set, static_cast<std::uint32_t>(range.begin + i), control, nullptr, false);
+    if (!r.is_ok()) return r.status();
+    star = std::move(r).value();
+    return Status::ok();
+  };
+  auto take = [&](std::span<const PeriodicStar> stars, std::size_t done) -> Status {
+    for (const PeriodicStar& star : stars) {
+      for (std::size_t r = 0; r < star.size(static_cast<int>(d)); ++r) {
+        // The seed's own rows: it is their first vertex, at offset 0.
+        const std::int32_t* k = star.offsets.data() + r * width * d;
+        if (star.simplices[r * width] != star.seed || std::any_of(k, k + d, [](std::int32_t v) { return v != 0; })) {
+          continue;
+        }
+        pending.insert(pending.end(), star.simplices.begin() + static_cast<std::ptrdiff_t>(r * width),
+                       star.simplices.begin() + static_cast<std::ptrdiff_t>((r + 1) * width));
+        pending_offsets.insert(pending_offsets.end(), k, k + width * d);
+        if (pending.size() == batch_size * width) {
+          emitted = true;
+          if (Status st = emit(pending, pending_offsets, done); !st.is_ok()) return st;
+          pending.clear();
+          pending_offsets.clear();
+        }
+      }
+    }
+    return Status::ok();
+  };
+  const std::size_t round = (d <= 3 ? 64 : 16) * threads;
+  if (Status st = in_rounds<PeriodicStar>(range.end - range.begin, threads, round, control, "streaming a periodic shard",
+                                          compute, take);
+      !st.is_ok()) {
+    return st;
+  }
+  if (!pending.empty() || !emitted) return emit(pending, pending_offsets, range.end - range.begin);
+  return Status::ok();
+}
+
+Status Engine::stream_periodic_cells(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+                                     bool measures_only, const CallControl& control, const CellBatchSink& emit) {
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("a streamed shard of cells", kStreamWindowBytes);
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  std::vector<VoronoiCell> pending;
+  bool emitted = false;
+  auto compute = [&](unsigned, std::size_t i, VoronoiCell& cell) -> Status {
+    auto r = periodic_star_of(set, static_cast<std::uint32_t>(range.begin + i), control, &cell, false);
+    if (!r.is_ok()) return r.status();
+    if (measures_only) {
+      cell.vertices.clear();
+      for (VoronoiFacet& f : cell.facets) f.vertices.clear();
+    }
+    return Status::ok();
+  };
+  std::size_t pending_bytes = 0;
+  auto take = [&](std::span<const VoronoiCell> cells, std::size_t done) -> Status {
+    for (const VoronoiCell& cell : cells) {
+      pending.push_back(cell);
+      pending_bytes += payload_bytes(cell);
+      if (pending.size() == batch_size || pending_bytes > defaults::kMessagePayloadBytes) {
+        pending_bytes = 0;
+        emitted = true;
+        if (Status st = emit(pending, done); !st.is_ok()) return st;
+        pending.clear();
+      }
+    }
+    return Status::ok();
+  };
+  const std::size_t round = (set.info.dimension <= 3 ? 64 : 16) * threads;
+  if (Status st = in_rounds<VoronoiCell>(range.end - range.begin, threads, round, control,
+                                         "streaming periodic cells", compute, take);
+      !st.is_ok()) {
+    return st;
+  }
+  if (!pending.empty() || !emitted) return emit(pending, range.end - range.begin);
   return Status::ok();
 }
 

@@ -24,6 +24,7 @@
 
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
+#include "spokemesh/periodic.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "auth.hpp"
@@ -105,6 +106,10 @@ struct UploadHeader {
   std::int64_t dimension = 0;
   std::int64_t count = 0;
   std::string display_name;
+  // Issue 28: count power weights follow the coordinates (UploadSession::append_weights).
+  bool weighted = false;
+  // A periodic set's torus: LO_1..LO_d, HI_1..HI_d (every point in [LO, HI)); or empty.
+  std::vector<double> periodic_box;
 };
 
 // A point set arriving in chunks. The id's SHA-256 is computed as bytes arrive; a
@@ -112,6 +117,9 @@ struct UploadHeader {
 class UploadSession {
  public:
   Status append(const void* data, std::size_t size);
+  // A weighted upload's weights (little-endian float64, one per point, in order),
+  // after all the coordinates; charged to the budget as they arrive.
+  Status append_weights(const void* data, std::size_t size);
   // The whole body at once, already as doubles (and what they are charged): taken
   // without a copy.
   Status adopt(std::vector<double>&& coords, MemoryBudget::Charge&& charge);
@@ -124,7 +132,9 @@ class UploadSession {
   std::uint64_t expected_ = 0;
   std::uint64_t received_ = 0;
   std::vector<double> coords_;
-  MemoryBudget::Charge charge_;  // coords_'s capacity against the server's budget
+  MemoryBudget::Charge charge_;  // coords_'s and weights_'s capacity against the server's budget
+  std::vector<double> weights_;
+  std::uint64_t weight_bytes_ = 0;  // received
   const MemoryBudget* budget_ = nullptr;
   std::unique_ptr<Sha256> sha_;
 };
@@ -138,6 +148,7 @@ struct NeighborQuery {
 
 struct NeighborAnswer {
   std::vector<std::uint32_t> neighbors;
+  std::vector<std::int32_t> offsets;  // periodic sets: d per neighbour, its image's offset
   bool exact = true;
   ApproxNeighbors walk;  // approximate modes: the walk's statistics
 };
@@ -157,7 +168,8 @@ enum class BatchKind { kStars, kNeighbors, kCells };
 
 struct StarAnswer {
   Star star;
-  std::vector<double> circumcentres;  // d per simplex
+  std::vector<double> circumcentres;  // d per simplex (power centres for weighted sets)
+  std::vector<std::int32_t> offsets;  // periodic sets: (d + 1) d per simplex, each vertex's image
 };
 
 // One seed's answer in a batch: the member for the batch's kind is set.
@@ -225,7 +237,13 @@ class Engine {
   // at sweep positions (SpaceSplit order) shard_range(n, k, S), so the shards in
   // order concatenate to the whole mesh as mesh_seeds writes it. A non-OK status from emit stops the
   // run (and is returned). Only a bounded window is computed ahead of emit.
-  using BatchSink = std::function<Status(std::span<const std::uint32_t> simplices, std::uint64_t seeds_done)>;
+  //
+  // A periodic set's shard k holds the seeds [floor(k N / n), floor((k + 1) N / n)) in
+  // index order instead, each seed's simplices being the rows of its star whose first
+  // vertex is the seed at offset 0, in the star's (canonical) order; `offsets` then
+  // carries (d + 1) d image offsets per simplex (empty for other sets).
+  using BatchSink = std::function<Status(std::span<const std::uint32_t> simplices,
+                                         std::span<const std::int32_t> offsets, std::uint64_t seeds_done)>;
   Status stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                           std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
                           ShardRange* range = nullptr, int* dimension = nullptr);
@@ -249,8 +267,21 @@ class Engine {
  private:
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  // A periodic set's star (and cell, when asked) of one seed.
+  static Result<PeriodicStar> periodic_star_of(const StoredSet& set, std::uint32_t seed, const CallControl& control,
+                                               VoronoiCell* cell, bool centres);
+  static StarAnswer periodic_star_answer(const StoredSet& set, PeriodicStar star);
+  static NeighborAnswer periodic_neighbor_answer(const StoredSet& set, const PeriodicStar& star);
   // A star with its circumcentres, as GetStar answers it (single and batched).
-  static StarAnswer star_answer(const PointSet& points, Star star);
+  static StarAnswer star_answer(const StoredSet& set, Star star);
+  // A periodic set's whole-mesh and cell streams: seed by seed (see BatchSink).
+  Status stream_periodic_simplices(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+                                   const CallControl& control, const BatchSink& emit);
+  Status stream_periodic_cells(const StoredSet& set, ShardRange range, std::uint32_t batch_size, bool measures_only,
+                               const CallControl& control, const CellBatchSink& emit);
+  // INVALID_ARGUMENT for a domain or an approximate mode on a periodic set, or an
+  // approximate mode on a weighted one.
+  static Status check_query(const StoredSet& set, const DomainSpec* domain, const NeighborQuery* query);
   Result<VoronoiCell> cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
                               const CallControl& control);
   // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT.

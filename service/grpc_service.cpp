@@ -18,6 +18,8 @@ void fill_point_set(const PointSetInfo& info, pb::PointSet* out) {
   out->set_count(info.count);
   out->set_display_name(info.display_name);
   out->set_already_existed(info.already_existed);
+  out->set_weighted(info.weighted);
+  out->mutable_periodic_box()->Add(info.periodic_box.begin(), info.periodic_box.end());
 }
 
 // One RPC: authentication, the deadline, cancellation, and the log/metrics record.
@@ -105,6 +107,14 @@ grpc::Status MesherService::receive_points(Call& call, grpc::ServerContext* ctx,
     if (message.has_header()) {
       return call.finish(invalid_argument("message " + std::to_string(index) + ": a second header"));
     }
+    if constexpr (requires { message.weights(); }) {
+      if (message.part_case() == Request::kWeights) {
+        const std::string& chunk = message.weights();
+        if (Status s = session.value()->append_weights(chunk.data(), chunk.size()); !s.is_ok()) return call.finish(s);
+        ++index;
+        continue;
+      }
+    }
     const std::string& chunk = message.coordinates();
     if (Status s = session.value()->append(chunk.data(), chunk.size()); !s.is_ok()) return call.finish(s);
     ++index;
@@ -127,6 +137,8 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
     header.dimension = h.dimension();
     header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
     header.display_name = h.display_name();
+    header.weighted = h.weighted();
+    header.periodic_box.assign(h.periodic_box().begin(), h.periodic_box().end());
     return engine_.begin_upload(header);
   }, response);
 }
@@ -225,10 +237,13 @@ void fill_star(const StarAnswer& answer, pb::Star* out) {
   out->mutable_simplices()->Add(star.simplices.begin(), star.simplices.end());
   out->mutable_circumcenters()->Add(answer.circumcentres.begin(), answer.circumcentres.end());
   out->set_hull_facets(static_cast<std::uint32_t>(star.hull_facets));
+  out->mutable_offsets()->Add(answer.offsets.begin(), answer.offsets.end());
+  out->set_hidden(star.hidden);
 }
 
 void fill_neighbors(const NeighborAnswer& answer, pb::NeighborMode mode, pb::Neighbors* out) {
   out->mutable_neighbors()->Add(answer.neighbors.begin(), answer.neighbors.end());
+  out->mutable_offsets()->Add(answer.offsets.begin(), answer.offsets.end());
   out->set_exact(answer.exact);
   out->set_mode(mode);
   if (!answer.exact) {
@@ -271,6 +286,8 @@ void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out) {
   out->set_volume(cell.bounded ? cell.volume : std::numeric_limits<double>::infinity());
   out->mutable_centroid()->Add(cell.centroid.begin(), cell.centroid.end());
   out->set_clipped(cell.clipped);
+  out->mutable_facet_offsets()->Add(cell.facet_offsets.begin(), cell.facet_offsets.end());
+  out->set_hidden(cell.hidden);
 }
 
 DomainSpec domain_spec(const pb::Domain& domain) {
@@ -302,13 +319,15 @@ grpc::Status MesherService::StreamSimplices(grpc::ServerContext* ctx, const pb::
   int dimension = 0;
   // Write() blocks while the client's flow-control window is full, and the engine
   // computes only a bounded window ahead, so a slow reader holds memory bounded.
-  auto emit = [&](std::span<const std::uint32_t> simplices, std::uint64_t seeds_done) -> Status {
+  auto emit = [&](std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets,
+                  std::uint64_t seeds_done) -> Status {
     batch.Clear();
     batch.set_dimension(static_cast<std::uint32_t>(dimension));
     batch.set_seed_begin(range.begin);
     batch.set_seed_end(range.end);
     batch.set_seeds_done(seeds_done);
     batch.mutable_simplices()->Add(simplices.begin(), simplices.end());
+    batch.mutable_offsets()->Add(offsets.begin(), offsets.end());
     if (!writer->Write(batch)) return cancelled("streaming stopped: the client went away");
     telemetry_.add_simplices_served(simplices.size() / static_cast<std::size_t>(dimension + 1));
     return Status::ok();

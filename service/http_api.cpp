@@ -63,7 +63,9 @@ Result<std::uint64_t> parse_uint(const std::string& text, const std::string& wha
 
 // `already_existed` belongs to an upload's answer only (get and list leave it out).
 json point_set_json(const PointSetInfo& info, bool upload = false) {
-  json out = {{"id", info.id}, {"dimension", info.dimension}, {"count", info.count}, {"display_name", info.display_name}};
+  json out = {{"id", info.id}, {"dimension", info.dimension}, {"count", info.count}, {"display_name", info.display_name},
+              {"weighted", info.weighted}};
+  if (!info.periodic_box.empty()) out["periodic_box"] = info.periodic_box;
   if (upload) out["already_existed"] = info.already_existed;
   return out;
 }
@@ -92,17 +94,31 @@ std::string media_type_of(std::string_view content_type) {
 
 json star_json(const StarAnswer& answer, const std::string& id, std::uint64_t seed) {
   const Star& star = answer.star;
-  return {{"point_set_id", id},
+  json out = {{"point_set_id", id},
           {"seed", seed},
           {"dimension", star.dimension},
           {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
           {"circumcenters", rows(answer.circumcentres, static_cast<std::size_t>(star.dimension))},
-          {"hull_facets", star.hull_facets}};
+          {"hull_facets", star.hull_facets},
+          {"hidden", star.hidden}};
+  if (!answer.offsets.empty()) {
+    // Per simplex, its vertices' offsets: [[o_1..o_d] x (d + 1)].
+    const auto d = static_cast<std::size_t>(star.dimension);
+    json offsets = json::array();
+    const json flat = rows(answer.offsets, d);
+    for (std::size_t i = 0; i < flat.size(); i += d + 1) {
+      offsets.push_back(json(std::vector<json>(flat.begin() + static_cast<std::ptrdiff_t>(i),
+                                               flat.begin() + static_cast<std::ptrdiff_t>(i + d + 1))));
+    }
+    out["offsets"] = std::move(offsets);
+  }
+  return out;
 }
 
 json neighbors_json(const NeighborAnswer& answer, const std::string& id, std::uint64_t seed, const std::string& mode) {
   json body = {{"point_set_id", id}, {"seed", seed}, {"neighbors", answer.neighbors}, {"exact", answer.exact},
                {"mode", mode}};
+  if (!answer.offsets.empty()) body["offsets"] = rows(answer.offsets, answer.offsets.size() / answer.neighbors.size());
   if (!answer.exact) {
     body["vertices_visited"] = answer.walk.vertices;
     body["consecutive_misses"] = answer.walk.misses;
@@ -146,6 +162,14 @@ json cell_json(const VoronoiCell& cell) {
               {"volume", cell.bounded ? json(cell.volume) : json(nullptr)},
               {"centroid", cell.bounded ? json(cell.centroid) : json(nullptr)}};
   if (!cell.vertex_simplices.empty()) out["vertex_simplices"] = rows(cell.vertex_simplices, d + 1);
+  if (cell.hidden) out["hidden"] = true;
+  if (!cell.facet_offsets.empty()) {
+    for (std::size_t k = 0; k < cell.facets.size(); ++k) {
+      out["facets"][k]["offset"] = std::vector<std::int32_t>(
+          cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
+          cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
+    }
+  }
   return out;
 }
 
@@ -361,15 +385,29 @@ HttpResponse HttpApi::upload(Context& c, const std::string* parent) {
       return c.fail(invalid_argument("dimension: " + *d + " is not supported; it must be between 2 and " +
                                      std::to_string(kMaxApproxDimension)));
     }
-    const std::size_t row = 8 * dim.value();
+    // weighted=true: the n points' coordinates, then their n weights (float64 each).
+    const std::string weighted = c.param("weighted").value_or("false");
+    if (weighted != "true" && weighted != "false") {
+      return c.fail(invalid_argument("weighted: \"" + weighted.substr(0, 40) + "\" is not true or false"));
+    }
+    header.weighted = weighted == "true";
+    if (auto box = c.param("periodic_box")) {
+      auto v = parse_number_list(*box, "periodic_box", 2 * static_cast<std::size_t>(kMaxApproxDimension));
+      if (!v.is_ok()) return c.fail(v.status());
+      header.periodic_box = std::move(v).value();
+    }
+    const std::size_t row = 8 * dim.value() + (header.weighted ? 8 : 0);
     if (body.size() % row != 0) {
       return c.fail(invalid_argument("body: " + std::to_string(body.size()) + " bytes are not a whole number of " +
-                                     *d + "-dimensional float64 points (" + std::to_string(row) + " bytes each)"));
+                                     *d + "-dimensional float64 points (" + std::to_string(row) + " bytes each" +
+                                     (header.weighted ? ", with its weight" : "") + ")"));
     }
     header.dimension = static_cast<std::int64_t>(dim.value());
     header.count = static_cast<std::int64_t>(body.size() / row);
     header.display_name = c.param("display_name").value_or("");
-    return store_upload(c, header, std::span<const char>(body.data(), body.size()), parent);
+    const std::size_t coordinate_bytes = static_cast<std::size_t>(header.count) * 8 * dim.value();
+    return store_upload(c, header, std::span<const char>(body.data(), coordinate_bytes), parent,
+                        std::span<const char>(body.data() + coordinate_bytes, body.size() - coordinate_bytes));
   }
   // JSON also under curl -d's default type, so `curl -d '{...}'` just works.
   if (!media_type.empty() && media_type != "application/json" && media_type != "application/x-www-form-urlencoded") {
@@ -378,13 +416,16 @@ HttpResponse HttpApi::upload(Context& c, const std::string* parent) {
   }
   MemoryBudget& budget = engine_.store().budget();
   MemoryBudget::Charge charge = budget.empty_charge();
-  if (Status s = read_upload_json(body, engine_.limits(), header, coords, &charge, &budget); !s.is_ok()) {
+  std::vector<double> weights;
+  if (Status s = read_upload_json(body, engine_.limits(), header, coords, weights, &charge, &budget); !s.is_ok()) {
     return c.fail(s);
   }
-  return store_upload(c, header, std::make_pair(std::move(coords), std::move(charge)), parent);
+  return store_upload(c, header, std::make_pair(std::move(coords), std::move(charge)), parent,
+                      std::span<const char>(reinterpret_cast<const char*>(weights.data()), weights.size() * 8));
 }
 
-HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent) {
+HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent,
+                                   std::span<const char> weights) {
   auto session = parent == nullptr ? engine_.begin_upload(header) : engine_.begin_append(*parent, header, c.principal);
   if (!session.is_ok()) return c.fail(session.status());
   Status appended;
@@ -398,6 +439,7 @@ HttpResponse HttpApi::store_upload(Context& c, const UploadHeader& header, Uploa
     const std::vector<double>& more = std::get<1>(data).first;
     appended = session.value()->append(more.data(), more.size() * sizeof(double));
   }
+  if (appended.is_ok()) appended = session.value()->append_weights(weights.data(), weights.size());
   if (!appended.is_ok()) return c.fail(appended);
   auto info = engine_.finish_upload(*session.value(), c.principal);
   if (!info.is_ok()) return c.fail(info.status());
@@ -542,16 +584,31 @@ HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
     CallControl control(deadline, gone);
     std::string text;
     int dimension = 0;
-    auto emit = [&](std::span<const std::uint32_t> batch, std::uint64_t) -> Status {
+    auto emit = [&](std::span<const std::uint32_t> batch, std::span<const std::int32_t> offsets,
+                    std::uint64_t) -> Status {
       const std::size_t width = static_cast<std::size_t>(dimension) + 1;
+      const std::size_t d = width - 1;
       text.clear();
       for (std::size_t i = 0; i < batch.size(); i += width) {
-        text += '[';
+        // A plain line is [i,j,k]; a periodic one {"simplex":[i,j,k],"offsets":[[..],[..],[..]]}.
+        text += offsets.empty() ? "[" : "{\"simplex\":[";
         for (std::size_t k = 0; k < width; ++k) {
           if (k > 0) text += ',';
           text += std::to_string(batch[i + k]);
         }
-        text += "]\n";
+        if (!offsets.empty()) {
+          text += "],\"offsets\":[";
+          for (std::size_t v = 0; v < width; ++v) {
+            text += v > 0 ? ",[" : "[";
+            for (std::size_t k = 0; k < d; ++k) {
+              if (k > 0) text += ',';
+              text += std::to_string(offsets[(i + v) * d + k]);
+            }
+            text += ']';
+          }
+          text += ']';
+        }
+        text += offsets.empty() ? "]\n" : "}\n";
       }
       if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
       telemetry_.add_simplices_served(batch.size() / width);

@@ -71,7 +71,9 @@ class HttpApi {
   // Raw float64 bytes (copied), or doubles parsed from JSON with their memory charge
   // (taken).
   using UploadData = std::variant<std::span<const char>, std::pair<std::vector<double>, MemoryBudget::Charge>>;
-  HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent);
+  // weights: a weighted upload's (header.weighted), as raw float64 bytes or parsed.
+  HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent,
+                            std::span<const char> weights = {});
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);

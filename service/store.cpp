@@ -3,6 +3,7 @@
 #include "limits.hpp"
 
 #include "spokemesh/approx.hpp"
+#include "spokemesh/io.hpp"
 
 #include <dirent.h>
 #include <fcntl.h>
@@ -169,19 +170,86 @@ std::string point_set_header_bytes(std::uint32_t dimension, std::uint64_t count)
   return h;
 }
 
+std::string point_set_extra_bytes(std::span<const double> weights, std::span<const double> periodic_box) {
+  std::string out;
+  if (!weights.empty()) {
+    out += 'W';
+    out.append(reinterpret_cast<const char*>(weights.data()), weights.size_bytes());
+  }
+  if (!periodic_box.empty()) {
+    out += 'P';
+    out.append(reinterpret_cast<const char*>(periodic_box.data()), periodic_box.size_bytes());
+  }
+  return out;
+}
+
+namespace {
+
+// The parts of a set's extra bytes (point_set_extra_bytes), or false when they are not
+// of that form for n points in d dimensions.
+bool parse_extras(const std::string& bytes, std::uint64_t n, std::uint32_t d, std::vector<double>* weights,
+                  std::vector<double>* box) {
+  std::size_t at = 0;
+  auto take = [&](char tag, std::uint64_t values, std::vector<double>* out) {
+    if (at >= bytes.size() || bytes[at] != tag) return true;  // absent
+    if (bytes.size() - at - 1 < values * 8) return false;
+    if (out != nullptr) {
+      out->resize(values);
+      std::memcpy(out->data(), bytes.data() + at + 1, values * 8);
+    }
+    at += 1 + values * 8;
+    return true;
+  };
+  return take('W', n, weights) && take('P', 2ull * d, box) && at == bytes.size();
+}
+
+}  // namespace
+
+Status check_extras(const PointSet& points, std::span<const double> weights, std::span<const double> periodic_box,
+                    const std::string& what, std::optional<PeriodicBox>* box) {
+  const int d = points.dimension();
+  if ((!weights.empty() || !periodic_box.empty()) && d > kMaxDimension) {
+    return invalid_argument(std::string(weights.empty() ? "periodic_box" : "weights") +
+                            ": weighted and periodic sets are exact and limited to d <= " +
+                            std::to_string(kMaxDimension) + " (these points are " + std::to_string(d) + "-d)");
+  }
+  if (!weights.empty()) {
+    auto checked = weights_from_values(weights, "weights", points.size(), WeightKind::kPowerWeight);
+    if (!checked.is_ok()) return checked.status();
+  }
+  if (!periodic_box.empty()) {
+    if (periodic_box.size() != 2 * static_cast<std::size_t>(d)) {
+      return invalid_argument("periodic_box: " + std::to_string(periodic_box.size()) + " values; a box around " +
+                              std::to_string(d) + "-d points needs " + std::to_string(2 * d) +
+                              " (LO_1..LO_d, HI_1..HI_d)");
+    }
+    const auto du = static_cast<std::ptrdiff_t>(d);
+    auto b = PeriodicBox::of({periodic_box.begin(), periodic_box.begin() + du},
+                             {periodic_box.begin() + du, periodic_box.end()}, "periodic_box");
+    if (!b.is_ok()) return b.status();
+    if (Status s = b.value().check_contains(points, what); !s.is_ok()) return s;
+    if (box != nullptr) *box = std::move(b).value();
+  }
+  return Status::ok();
+}
+
 bool is_valid_id(const std::string& id) {
   return id.size() == 64 &&
          std::all_of(id.begin(), id.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
 }
 
-std::uint64_t estimated_memory(std::uint64_t n, int d) {
+std::uint64_t estimated_memory(std::uint64_t n, int d, bool weighted, bool periodic) {
+  const auto dd = static_cast<std::uint64_t>(d);
+  const std::uint64_t weights = weighted ? 8 * n : 0;
+  // A periodic set keeps its coordinates and its cover (PeriodicStars), no tree or
+  // sweep of its own; the cover holds the weights again for its images.
+  if (periodic) return n * 8 * dd + 2 * weights + PeriodicStars::estimated_bytes(n, d);
   // Per point: the coordinates (8 d), the tree's leaf-ordered copy (8 d) and its box
   // tree (about 0.36 nodes of 2 d floats and 12 bytes: 3 d + 5), lexicographic ranks
   // and the permutations (4 + 4 + 4 + 4), nanoflann's nodes (about 0.36 of 40 bytes),
   // the sweep's order both ways (4 + 4; its records, 8 d + 8 while it is built, are
   // freed before the tree's build copies the coordinates, so they add no peak).
-  const auto dd = static_cast<std::uint64_t>(d);
-  return n * (8 * dd + 8 * dd + 3 * dd + 5 + 16 + 15 + 8);
+  return n * (8 * dd + 8 * dd + 3 * dd + 5 + 16 + 15 + 8) + weights;
 }
 
 PointSetStore::PointSetStore(std::string dir, std::uint64_t budget, LogFn log)
@@ -294,7 +362,7 @@ Status PointSetStore::release(const std::string& id, const std::string& tenant) 
   return s.code() == Code::kNotFound ? Status::ok() : s;  // another replica removed it first
 }
 
-Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
+Result<PointSetInfo> PointSetStore::put(PointSetInfo info, const PointSet& points, std::span<const double> weights) {
   const std::string path = data_path(info.id);
   if (file_exists(path)) {
     auto existing = this->info(info.id);
@@ -305,11 +373,13 @@ Result<PointSetInfo> PointSetStore::put(PointSetInfo info, PointSet points) {
   }
   const std::string header = point_set_header_bytes(static_cast<std::uint32_t>(info.dimension), info.count);
   const auto coords = points.coordinates();
+  const std::string extras = point_set_extra_bytes(weights, info.periodic_box);
   // Of concurrent identical uploads (any replica), exactly one creates the set: the
   // others find it existing, and its name is the creator's.
   Status s = write_durably(dir_, path,
                            {{header.data(), header.size()},
-                            {reinterpret_cast<const char*>(coords.data()), coords.size_bytes()}},
+                            {reinterpret_cast<const char*>(coords.data()), coords.size_bytes()},
+                            {extras.data(), extras.size()}},
                            /*exclusive=*/true);
   if (s.code() == Code::kAlreadyExists) {
     auto existing = this->info(info.id);
@@ -343,14 +413,35 @@ Result<PointSetInfo> PointSetStore::info(const std::string& id) {
   if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
   char header[kHeaderBytes];
   const bool ok = ::read(fd, header, kHeaderBytes) == static_cast<ssize_t>(kHeaderBytes);
-  ::close(fd);
-  if (!ok) return Status{Code::kNotFound, "point set " + id + " not found (its file is truncated)"};
   PointSetInfo info;
   info.id = id;
   std::uint32_t d = 0;
-  std::memcpy(&d, header, 4);
-  std::memcpy(&info.count, header + 4, 8);
-  info.dimension = static_cast<int>(d);
+  if (ok) {
+    std::memcpy(&d, header, 4);
+    std::memcpy(&info.count, header + 4, 8);
+    info.dimension = static_cast<int>(d);
+    // The extras' tags and the box (the weights are not read): a weighted set's 'W'
+    // follows the coordinates, a periodic set's 'P' follows that.
+    const std::uint64_t coords_end = kHeaderBytes + info.count * d * 8;
+    char tag = 0;
+    std::uint64_t at = coords_end;
+    if (d != 0 && info.count < (std::uint64_t{1} << 40) && ::pread(fd, &tag, 1, static_cast<off_t>(at)) == 1) {
+      if (tag == 'W') {
+        info.weighted = true;
+        at += 1 + 8 * info.count;
+        if (::pread(fd, &tag, 1, static_cast<off_t>(at)) != 1) tag = 0;
+      }
+      if (tag == 'P') {
+        info.periodic_box.resize(2ull * d);
+        const auto bytes = static_cast<ssize_t>(16ull * d);
+        if (::pread(fd, info.periodic_box.data(), static_cast<std::size_t>(bytes), static_cast<off_t>(at + 1)) != bytes) {
+          info.periodic_box.clear();
+        }
+      }
+    }
+  }
+  ::close(fd);
+  if (!ok) return Status{Code::kNotFound, "point set " + id + " not found (its file is truncated)"};
   std::string name;
   if (read_file(name_path(id), name)) info.display_name = name;
   return info;
@@ -374,7 +465,8 @@ Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSi
   return read_verified(id, nullptr, sink);
 }
 
-Status PointSetStore::read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink) {
+Status PointSetStore::read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink,
+                                    std::string* extras) {
   const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
   struct stat st {};
@@ -387,8 +479,9 @@ Status PointSetStore::read_verified(const std::string& id, const Destination& de
     std::memcpy(&d, header, 4);
     std::memcpy(&n, header + 4, 8);
   }
+  // The extras (weights, box) are at most 1 + 8 n + 1 + 16 d bytes after the coordinates.
   const bool shaped = ok && d >= 2 && d <= kMaxApproxDimension && n <= (size - kHeaderBytes) / 8 / d &&
-                      size == kHeaderBytes + n * d * 8;
+                      size >= kHeaderBytes + n * d * 8 && size - kHeaderBytes - n * d * 8 <= 2 + 8 * n + 16 * d;
   if (ok && !shaped) {
     ::close(fd);
     quarantine(id, "its header does not match its size");
@@ -412,8 +505,15 @@ Status PointSetStore::read_verified(const std::string& id, const Destination& de
       left -= take;
     }
   }
+  std::string tail;
+  if (ok && stopped.is_ok()) {
+    tail.resize(static_cast<std::size_t>(size - kHeaderBytes - n * d * 8));
+    ok = read_all(fd, tail.data(), tail.size()) && parse_extras(tail, n, d, nullptr, nullptr);
+    if (ok) sha.update(tail.data(), tail.size());
+  }
   ::close(fd);
   if (!stopped.is_ok()) return stopped;
+  if (extras != nullptr) *extras = std::move(tail);
   if (!ok || sha.hex_digest() != id) {
     quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(size) + " bytes)");
     return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
@@ -442,7 +542,8 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& i
   // Charged before it is read: the set and its tree must fit the budget.
   auto header = info(id);
   if (!header.is_ok()) return header.status();
-  const std::uint64_t bytes = estimated_memory(header->count, header->dimension);
+  const std::uint64_t bytes =
+      estimated_memory(header->count, header->dimension, header->weighted, !header->periodic_box.empty());
   auto charge = budget_.try_charge(bytes);
   if (!charge) return budget_.over_budget("loading point set " + id, bytes);
   auto loaded = load_from_disk(id, std::move(*charge));
@@ -455,6 +556,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   std::vector<double> coords;
   std::uint32_t d = 0;
   std::uint64_t n = 0;
+  std::string extras;
   const Status read = read_verified(
       id,
       [&](std::uint32_t dim, std::uint64_t count) {
@@ -463,27 +565,40 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
         coords.resize(count * dim);
         return coords.data();
       },
-      nullptr);
+      nullptr, &extras);
   if (!read.is_ok()) return read;
   auto set = std::make_shared<StoredSet>();
   set->points = PointSet(static_cast<int>(d), std::move(coords));
-  if (Status s = set->points.validate("point set " + id, kMaxApproxDimension, static_cast<int>(d) <= kMaxDimension);
-      !s.is_ok()) {
-    quarantine(id, s.message());
+  const std::string what = "point set " + id;
+  std::vector<double> box;
+  parse_extras(extras, n, d, &set->weights, &box);  // verified by read_verified
+  Status valid = set->points.validate(what, kMaxApproxDimension, static_cast<int>(d) <= kMaxDimension);
+  if (valid.is_ok()) valid = check_extras(set->points, set->weights, box, what, &set->box);
+  if (valid.is_ok() && set->box) {
+    auto stars = PeriodicStars::build(set->points, *set->box, set->weights, what);
+    if (stars.is_ok()) set->periodic = std::move(stars).value();
+    valid = stars.status();
+  }
+  if (!valid.is_ok()) {
+    quarantine(id, valid.message());
     return Status{Code::kNotFound, "point set " + id + " was invalid on disk and has been quarantined"};
   }
   set->info.id = id;
   set->info.dimension = static_cast<int>(d);
   set->info.count = n;
+  set->info.weighted = !set->weights.empty();
+  set->info.periodic_box = box;
   std::string name;
   if (read_file(name_path(id), name)) set->info.display_name = name;
-  if (d <= static_cast<std::uint64_t>(kMaxDimension)) {
+  if (set->box) {
+    // Nothing else: a periodic set's stars walk its cover's tree.
+  } else if (d <= static_cast<std::uint64_t>(kMaxDimension)) {
     set->split = std::make_unique<SpaceSplit>(set->points, SpaceSplit::default_block_points(static_cast<int>(d), n));
     set->tree = std::make_unique<KdTree>(set->points);
   } else {
     set->tree = std::make_unique<KdTree>(set->points);
   }
-  set->memory_bytes = estimated_memory(n, static_cast<int>(d));
+  set->memory_bytes = estimated_memory(n, static_cast<int>(d), set->info.weighted, set->box.has_value());
   set->charge = std::move(charge);
   return std::shared_ptr<const StoredSet>(std::move(set));
 }
@@ -570,7 +685,8 @@ std::size_t PointSetStore::load_all() {
         if (index_.count(info.id) != 0) continue;
       }
       // Verifies (quarantining what fails); keeps what fits the budget as it is now.
-      auto charge = budget_.try_charge(estimated_memory(info.count, info.dimension), /*reclaim=*/false);
+      auto charge = budget_.try_charge(
+          estimated_memory(info.count, info.dimension, info.weighted, !info.periodic_box.empty()), /*reclaim=*/false);
       auto set = load_from_disk(info.id, charge ? std::move(*charge) : MemoryBudget::Charge{});
       if (!set.is_ok()) continue;
       ++loaded;

@@ -2,7 +2,8 @@
 //
 // On disk (--data-dir), one file per point set, `<id>.points`, holding exactly the
 // bytes the id hashes: dimension (uint32 LE), count (uint64 LE), coordinates (float64
-// LE, row-major). Verifying a file is recomputing its SHA-256, so the id doubles as a
+// LE, row-major), then for a weighted set 'W' and its count power weights (float64
+// LE), then for a periodic set 'P' and its box (2 dimension float64 LE: LO then HI). Verifying a file is recomputing its SHA-256, so the id doubles as a
 // checksum. An optional `<id>.name` holds the display name. A file is written to a
 // temporary name, fsynced, renamed into place and the directory fsynced before the
 // upload is acknowledged. A file that fails verification is moved to quarantine/ with
@@ -25,12 +26,16 @@
 #include <list>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <span>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
 #include "memory_budget.hpp"
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_box.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
@@ -43,6 +48,8 @@ struct PointSetInfo {
   std::uint64_t count = 0;
   std::string display_name;
   bool already_existed = false;
+  bool weighted = false;              // carries one power weight per point (issue 28)
+  std::vector<double> periodic_box;   // LO_1..LO_d, HI_1..HI_d of its torus, or empty
 };
 
 // A point set ready for queries. Immutable; shared by concurrent requests.
@@ -52,7 +59,10 @@ struct StoredSet {
   // The whole mesh's sweep order (exact dimensions only; null above kMaxDimension),
   // built before the tree (its transient records are freed before the tree's build).
   std::unique_ptr<SpaceSplit> split;
-  std::unique_ptr<KdTree> tree;
+  std::unique_ptr<KdTree> tree;   // null for a periodic set (its stars walk `periodic`'s cover)
+  std::vector<double> weights;    // one power weight per point, or empty
+  std::optional<PeriodicBox> box;  // a periodic set's torus
+  std::unique_ptr<PeriodicStars> periodic;  // a periodic set's stars (borrows points, box, weights)
   std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + split + tree
   MemoryBudget::Charge charge;     // memory_bytes against the server's budget, while the set lives
 };
@@ -73,12 +83,25 @@ class Sha256 {
 
 // Bytes of the hashed header: dimension (uint32 LE) + count (uint64 LE).
 std::string point_set_header_bytes(std::uint32_t dimension, std::uint64_t count);
+// Bytes hashed (and stored) after the coordinates: 'W' and the weights when there are
+// any, then 'P' and the box when there is one; nothing for a plain set, whose id is
+// therefore what it always was.
+std::string point_set_extra_bytes(std::span<const double> weights, std::span<const double> periodic_box);
+
+// Checks what a set carries besides its coordinates (validated points): `weights`
+// empty or one finite power weight per point (|w| <= kMaxWeight); `periodic_box` empty
+// or 2 d values LO_1..LO_d, HI_1..HI_d with LO < HI and every point in [LO, HI); both
+// only where answers are exact (d <= kMaxDimension). INVALID_ARGUMENT naming the field
+// ("weights", "periodic_box", or `what` for the points) and the index; sets *box.
+Status check_extras(const PointSet& points, std::span<const double> weights, std::span<const double> periodic_box,
+                    const std::string& what, std::optional<PeriodicBox>* box);
 
 // True for 64 lowercase hex digits.
 bool is_valid_id(const std::string& id);
 
-// Estimated resident bytes of a loaded set of n points in d dimensions.
-std::uint64_t estimated_memory(std::uint64_t n, int d);
+// Estimated resident bytes of a loaded set of n points in d dimensions (weighted,
+// periodic: as the set is).
+std::uint64_t estimated_memory(std::uint64_t n, int d, bool weighted = false, bool periodic = false);
 
 using LogFn = std::function<void(const std::string& level, const std::string& message)>;
 
@@ -91,15 +114,17 @@ class PointSetStore {
                                                      LogFn log);
 
   // Stores a validated point set whose id is `info.id` (computed by the caller from
-  // the same bytes). Durable when this returns OK. If the file exists already,
-  // nothing is written and info.already_existed is set.
-  Result<PointSetInfo> put(PointSetInfo info, PointSet points);
+  // the same bytes), with its weights (info.weighted) and box (info.periodic_box).
+  // Durable when this returns OK. If the file exists already, nothing is written and
+  // info.already_existed is set.
+  Result<PointSetInfo> put(PointSetInfo info, const PointSet& points, std::span<const double> weights = {});
 
   // The loaded set, from memory or from disk. NOT_FOUND if unknown;
   // INVALID_ARGUMENT for a malformed id.
   Result<std::shared_ptr<const StoredSet>> get(const std::string& id);
 
-  // Metadata only (reads the 12-byte header, does not load or verify coordinates).
+  // Metadata only (reads the 12-byte header and the extras' tags and box, does not load
+  // or verify coordinates).
   Result<PointSetInfo> info(const std::string& id);
 
   // The set's coordinates in order (little-endian float64, as uploaded), handed to
@@ -150,8 +175,10 @@ class PointSetStore {
   // file is quarantined (NOT_FOUND). The coordinates go at once into
   // destination(d, n) (n * d doubles) when it returns a buffer, else through `sink` in
   // pieces of defaults::kDownloadChunkBytes (a non-OK status from it stops the read).
+  // The bytes after the coordinates (point_set_extra_bytes) go to *extras when given.
   using Destination = std::function<double*(std::uint32_t d, std::uint64_t n)>;
-  Status read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink);
+  Status read_verified(const std::string& id, const Destination& destination, const CoordinateSink& sink,
+                       std::string* extras = nullptr);
   // Drops least recently used sets that no request holds, until `bytes` are freed.
   void reclaim(std::uint64_t bytes);
   void quarantine(const std::string& id, const std::string& why);

@@ -15,9 +15,10 @@ using json = nlohmann::json;
 // false to stop the parse at the first error, which it records in `error`.
 class UploadSax final : public nlohmann::json_sax<json> {
  public:
-  UploadSax(const Limits& limits, UploadHeader& header, std::vector<double>& coords, MemoryBudget::Charge* charge,
-            const MemoryBudget* budget)
-      : charge_(charge),
+  UploadSax(const Limits& limits, UploadHeader& header, std::vector<double>& coords, std::vector<double>& weights,
+            MemoryBudget::Charge* charge, const MemoryBudget* budget)
+      : weights_(weights),
+        charge_(charge),
         budget_(budget),
         max_points_(limits.max_points),
         max_values_(limits.max_points * static_cast<std::uint64_t>(std::max(2, limits.max_dimension))),
@@ -27,6 +28,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
   Status error = Status::ok();
   // After a successful parse: checks what only the whole body can tell.
   Status finish() {
+    header_.weighted = saw_weights_;
+    if (saw_weights_ && weights_.empty()) return invalid_argument("weights: expected one number per point");
     if (!saw_points_ && !saw_coordinates_) {
       return invalid_argument("body: expected \"points\" or \"dimension\" and \"coordinates\"");
     }
@@ -86,7 +89,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
   }
 
  private:
-  enum class Field { kNone, kPoints, kCoordinates, kSkipped };
+  enum class Field { kNone, kPoints, kCoordinates, kWeights, kBox, kSkipped };
 
   bool fail(Status s) {
     if (error.is_ok()) error = std::move(s);
@@ -99,6 +102,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
                          : "points[" + std::to_string(rows_) + "][" + std::to_string(in_row_) + "]";
     }
     if (field_ == Field::kCoordinates) return "coordinates[" + std::to_string(coords_.size()) + "]";
+    if (field_ == Field::kWeights) return "weights[" + std::to_string(weights_.size()) + "]";
+    if (field_ == Field::kBox) return "periodic_box[" + std::to_string(header_.periodic_box.size()) + "]";
     return key_;
   }
   bool push(double v) {
@@ -123,6 +128,27 @@ class UploadSax final : public nlohmann::json_sax<json> {
       return push(v);
     }
     if (depth_ == 2 && field_ == Field::kCoordinates) return push(v);
+    if (depth_ == 2 && field_ == Field::kWeights) {
+      if (weights_.size() >= max_points_) {
+        return fail(resource_exhausted("weights: more than this server's limit --max-points=" +
+                                       std::to_string(max_points_)));
+      }
+      if (weights_.size() == weights_.capacity() && charge_ != nullptr) {
+        const std::size_t next = std::max<std::size_t>(1024, 2 * weights_.capacity());
+        const std::uint64_t more = (next - weights_.capacity()) * sizeof(double);
+        if (!charge_->grow(more)) return fail(budget_->over_budget("parsing the uploaded weights", more));
+        weights_.reserve(next);
+      }
+      weights_.push_back(v);
+      return true;
+    }
+    if (depth_ == 2 && field_ == Field::kBox) {
+      if (header_.periodic_box.size() >= 2 * static_cast<std::size_t>(kMaxApproxDimension)) {
+        return fail(invalid_argument("periodic_box: more than " + std::to_string(2 * kMaxApproxDimension) + " values"));
+      }
+      header_.periodic_box.push_back(v);
+      return true;
+    }
     return scalar(text);
   }
   // A scalar where it is not a coordinate: fine under an unknown key, an error in a
@@ -135,7 +161,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
                                                           : ": expected a number, got ") +
                                    text.substr(0, 40)));
     }
-    if (field_ == Field::kCoordinates) {
+    if (field_ == Field::kCoordinates || field_ == Field::kWeights || field_ == Field::kBox) {
       return fail(invalid_argument(where() + ": expected a number, got " + text.substr(0, 40)));
     }
     // depth 1: the value of a top-level key.
@@ -145,6 +171,10 @@ class UploadSax final : public nlohmann::json_sax<json> {
     }
     if (key_ == "points") return fail(invalid_argument("points: expected a non-empty array of points"));
     if (key_ == "coordinates") return fail(invalid_argument("coordinates: expected a flat array of numbers"));
+    if (key_ == "weights") return fail(invalid_argument("weights: expected a flat array of numbers, one per point"));
+    if (key_ == "periodic_box") {
+      return fail(invalid_argument("periodic_box: expected a flat array LO_1..LO_d, HI_1..HI_d"));
+    }
     return true;  // an unknown key's scalar
   }
 
@@ -167,6 +197,12 @@ class UploadSax final : public nlohmann::json_sax<json> {
         }
         field_ = key_ == "points" ? Field::kPoints : Field::kCoordinates;
         (field_ == Field::kPoints ? saw_points_ : saw_coordinates_) = true;
+      } else if (key_ == "weights" || key_ == "periodic_box") {
+        if (!array) return scalar("an object");
+        bool& seen = key_ == "weights" ? saw_weights_ : saw_box_;
+        if (seen) return fail(invalid_argument(key_ + ": given twice"));
+        seen = true;
+        field_ = key_ == "weights" ? Field::kWeights : Field::kBox;
       } else if (key_ == "display_name" || key_ == "dimension") {
         return scalar(array ? "an array" : "an object");
       } else {
@@ -179,7 +215,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
     if (field_ == Field::kPoints) {
       if (!array) return fail(invalid_argument(where() + ": expected an array of coordinates, got an object"));
       in_row_ = 0;
-    } else if (field_ == Field::kCoordinates) {
+    } else if (field_ == Field::kCoordinates || field_ == Field::kWeights || field_ == Field::kBox) {
       return fail(invalid_argument(where() + ": expected a number, got " + (array ? "an array" : "an object")));
     }
     depth_ = 3;
@@ -204,6 +240,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
     return true;
   }
 
+  std::vector<double>& weights_;
   MemoryBudget::Charge* charge_;
   const MemoryBudget* budget_;
   const std::uint64_t max_points_;
@@ -213,7 +250,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
   int depth_ = 0;
   std::string key_;  // the last top-level key
   Field field_ = Field::kNone;
-  bool saw_points_ = false, saw_coordinates_ = false;
+  bool saw_points_ = false, saw_coordinates_ = false, saw_weights_ = false, saw_box_ = false;
   std::size_t rows_ = 0, row_width_ = 0, in_row_ = 0;
   std::optional<std::uint64_t> dimension_;
 };
@@ -221,9 +258,10 @@ class UploadSax final : public nlohmann::json_sax<json> {
 }  // namespace
 
 Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords, MemoryBudget::Charge* charge, const MemoryBudget* budget) {
+                        std::vector<double>& coords, std::vector<double>& weights, MemoryBudget::Charge* charge,
+                        const MemoryBudget* budget) {
   if (charge != nullptr && budget == nullptr) return internal_error("read_upload_json: a charge needs its budget");
-  UploadSax sax(limits, header, coords, charge, budget);
+  UploadSax sax(limits, header, coords, weights, charge, budget);
   bool parsed = false;
   try {
     parsed = json::sax_parse(body.begin(), body.end(), &sax, json::input_format_t::json, /*strict=*/true);

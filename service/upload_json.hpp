@@ -10,6 +10,8 @@
 // Accepted bodies:
 //   {"points": [[x, y, ...], ...], "display_name": "..."}
 //   {"dimension": d, "coordinates": [x0, y0, ..., x1, y1, ...], "display_name": "..."}
+// either with "weights": [w0, w1, ...] (one power weight per point) and
+// "periodic_box": [LO_1, .., LO_d, HI_1, .., HI_d] (issue 28).
 // Unknown keys are ignored if their values are scalars or shallow.
 //
 // Thread safety: a function; no shared state.
@@ -27,7 +29,8 @@ namespace spokemesh::service {
 // The deepest nesting an upload body may have: object -> "points" -> point.
 inline constexpr int kMaxUploadJsonDepth = 3;
 
-// Reads `body` into header (dimension, count, display_name) and coords (row-major).
+// Reads `body` into header (dimension, count, display_name, weighted, periodic_box),
+// coords (row-major) and weights (empty unless given; charged with the coordinates).
 // The limits' point count (and point count times dimension limit for "coordinates")
 // stop an oversized upload as soon as it is known to be one.
 // Errors: INVALID_ARGUMENT naming the field and index (e.g. "points[3][1]: expected a
@@ -35,7 +38,8 @@ inline constexpr int kMaxUploadJsonDepth = 3;
 // the limits. `charge`, if given, grows with coords' capacity: RESOURCE_EXHAUSTED
 // (reason OVER_BUDGET) when the server's memory budget cannot take it.
 Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords, MemoryBudget::Charge* charge = nullptr,
+                        std::vector<double>& coords, std::vector<double>& weights,
+                        MemoryBudget::Charge* charge = nullptr,
                         const MemoryBudget* budget = nullptr);
 
 }  // namespace spokemesh::service

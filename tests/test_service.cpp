@@ -65,8 +65,16 @@ std::unique_ptr<Engine> make_engine(const std::string& dir, Limits limits = {}) 
   return std::make_unique<Engine>(std::move(store).value(), limits);
 }
 
+UploadHeader header_of(std::int64_t d, std::int64_t n, std::string name) {
+  UploadHeader h;
+  h.dimension = d;
+  h.count = n;
+  h.display_name = std::move(name);
+  return h;
+}
+
 Result<PointSetInfo> upload(Engine& engine, int d, const std::vector<double>& coords, const std::string& name = "") {
-  auto session = engine.begin_upload({d, static_cast<std::int64_t>(coords.size() / d), name});
+  auto session = engine.begin_upload(header_of(d, static_cast<std::int64_t>(coords.size() / d), name));
   if (!session.is_ok()) return session.status();
   // In uneven chunks, as a client may send them.
   const char* bytes = reinterpret_cast<const char*>(coords.data());
@@ -119,18 +127,18 @@ TEST(Store, UploadErrorsNameTheFieldAndLeaveNothingBehind) {
     EXPECT_EQ(s.code(), code) << s.message();
     EXPECT_NE(s.message().find(fragment), std::string::npos) << s.message();
   };
-  expect(Code::kInvalidArgument, "dimension: 1", [&] { return engine->begin_upload({1, 10, ""}).status(); });
-  expect(Code::kResourceExhausted, "--max-dimension=4", [&] { return engine->begin_upload({5, 10, ""}).status(); });
-  expect(Code::kResourceExhausted, "--max-points=1000", [&] { return engine->begin_upload({2, 1001, ""}).status(); });
-  expect(Code::kInvalidArgument, "count: 2", [&] { return engine->begin_upload({2, 2, ""}).status(); });
-  expect(Code::kInvalidArgument, "display_name", [&] { return engine->begin_upload({2, 3, std::string(300, 'x')}).status(); });
+  expect(Code::kInvalidArgument, "dimension: 1", [&] { return engine->begin_upload(header_of(1, 10, "")).status(); });
+  expect(Code::kResourceExhausted, "--max-dimension=4", [&] { return engine->begin_upload(header_of(5, 10, "")).status(); });
+  expect(Code::kResourceExhausted, "--max-points=1000", [&] { return engine->begin_upload(header_of(2, 1001, "")).status(); });
+  expect(Code::kInvalidArgument, "count: 2", [&] { return engine->begin_upload(header_of(2, 2, "")).status(); });
+  expect(Code::kInvalidArgument, "display_name", [&] { return engine->begin_upload(header_of(2, 3, std::string(300, 'x'))).status(); });
   // Byte counts: too many is refused at once, too few at the end.
   {
-    auto s = engine->begin_upload({2, 3, ""});
+    auto s = engine->begin_upload(header_of(2, 3, ""));
     ASSERT_TRUE(s.is_ok());
     std::vector<double> seven(7, 0.5);
     expect(Code::kInvalidArgument, "more than the 48 bytes", [&] { return s.value()->append(seven.data(), 56); });
-    auto t = engine->begin_upload({2, 3, ""});
+    auto t = engine->begin_upload(header_of(2, 3, ""));
     // An empty chunk first (found by fuzz_grpc_requests: memcpy into an empty buffer).
     ASSERT_TRUE(t.value()->append(nullptr, 0).is_ok());
     ASSERT_TRUE(t.value()->append(seven.data(), 40).is_ok());
@@ -234,7 +242,7 @@ TEST(Store, MemoryBudgetDropsLeastRecentlyUsedButKeepsThemOnDisk) {
   for (const auto& id : ids) EXPECT_TRUE(engine->star(id, 0, control).is_ok()) << id;
   EXPECT_EQ(engine->store().loaded_count(), 2u);
   EXPECT_LE(engine->store().memory_in_use(), limits.max_memory);
-  EXPECT_EQ(engine->begin_upload({2, 1000000, ""}).status().code(), Code::kResourceExhausted);
+  EXPECT_EQ(engine->begin_upload(header_of(2, 1000000, "")).status().code(), Code::kResourceExhausted);
 }
 
 TEST(Store, ListPaginatesInIdOrder) {
@@ -294,7 +302,7 @@ TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
       std::size_t batches = 0;
       Status s = engine->stream_simplices(
           id, k, shards, 100, control,
-          [&](std::span<const std::uint32_t> b, std::uint64_t) {
+          [&](std::span<const std::uint32_t> b, std::span<const std::int32_t>, std::uint64_t) {
             EXPECT_LE(b.size(), 400u);
             ++batches;
             united.insert(united.end(), b.begin(), b.end());
@@ -352,7 +360,7 @@ TEST(Engine, SimplexStreamsChargeTheFrontNotARunWideTable) {
     const auto control = no_deadline();
     std::uint64_t during = 0;
     auto stream = [&] {
-      return engine->stream_simplices(id, 0, 1, 0, control, [&](std::span<const std::uint32_t>, std::uint64_t) {
+      return engine->stream_simplices(id, 0, 1, 0, control, [&](std::span<const std::uint32_t>, std::span<const std::int32_t>, std::uint64_t) {
         during = std::max(during, engine->store().budget().used());
         return Status::ok();
       });
@@ -389,7 +397,7 @@ TEST(Engine, DeadlinesAndCancellationStopWork) {
   TempDir dir;
   auto engine = make_engine(dir.path());
   const std::string id = upload(*engine, 3, uniform_points(3, 30000, 7)).value().id;
-  auto ignore = [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); };
+  auto ignore = [](std::span<const std::uint32_t>, std::span<const std::int32_t>, std::uint64_t) { return Status::ok(); };
   {
     CallControl control(Clock::now() + std::chrono::milliseconds(20));
     const auto start = Clock::now();

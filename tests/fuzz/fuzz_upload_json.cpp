@@ -16,9 +16,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   MemoryBudget budget(64 << 10);
   MemoryBudget::Charge charge = budget.empty_charge();
   UploadHeader header;
-  std::vector<double> coords;
+  std::vector<double> coords, weights;
   const std::string_view body(reinterpret_cast<const char*>(data), size);
-  const spokemesh::Status s = read_upload_json(body, limits, header, coords, &charge, &budget);
+  const spokemesh::Status s = read_upload_json(body, limits, header, coords, weights, &charge, &budget);
   if (s.is_ok()) {
     if (static_cast<std::size_t>(header.dimension) * static_cast<std::size_t>(header.count) != coords.size()) {
       __builtin_trap();  // the header must describe the coordinates read
