@@ -18,6 +18,7 @@
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "spokemesh/mesh.hpp"
+#include "spokemesh/periodic.hpp"
 #include "support.hpp"
 
 namespace spokemesh::service {
@@ -427,6 +428,286 @@ TEST(Engine, DeadlinesAndCancellationStopWork) {
   EXPECT_TRUE(engine->star(id, 0, no_deadline()).is_ok());
 }
 
+// ---- weighted and periodic sets (issue 28) ---------------------------------------------
+
+// Uploads coordinates, then weights (if any), in uneven chunks, with a periodic box (if any).
+Result<PointSetInfo> upload_extras(Engine& engine, int d, const std::vector<double>& coords,
+                                   const std::vector<double>& weights, const std::vector<double>& box) {
+  UploadHeader h = header_of(d, static_cast<std::int64_t>(coords.size() / d), "");
+  h.weighted = !weights.empty();
+  h.periodic_box = box;
+  auto session = engine.begin_upload(h);
+  if (!session.is_ok()) return session.status();
+  const char* bytes = reinterpret_cast<const char*>(coords.data());
+  for (std::size_t at = 0; at < coords.size() * 8; at += 1000) {
+    if (Status s = session.value()->append(bytes + at, std::min<std::size_t>(1000, coords.size() * 8 - at)); !s.is_ok()) {
+      return s;
+    }
+  }
+  const char* w = reinterpret_cast<const char*>(weights.data());
+  for (std::size_t at = 0; at < weights.size() * 8; at += 700) {
+    if (Status s = session.value()->append_weights(w + at, std::min<std::size_t>(700, weights.size() * 8 - at)); !s.is_ok()) {
+      return s;
+    }
+  }
+  return engine.finish_upload(*session.value());
+}
+
+std::string double_bytes(const std::vector<double>& v) {
+  return std::string(reinterpret_cast<const char*>(v.data()), v.size() * 8);
+}
+
+TEST(Engine, WeightedSetsAnswerThePowerDiagramThroughEveryRoute) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto coords = uniform_points(3, 800, 31);
+  std::vector<double> weights(800);
+  std::mt19937_64 rng(32);
+  std::uniform_real_distribution<double> u(0.0, 0.004);
+  for (double& w : weights) w = u(rng);
+  weights[5] = -1;  // far below its neighbours': hidden
+  auto info = upload_extras(*engine, 3, coords, weights, {});
+  ASSERT_TRUE(info.is_ok()) << info.status().message();
+  // The id hashes the weights after the coordinates; the plain set is another set.
+  EXPECT_EQ(info->id, sha256_hex(raw_bytes(3, coords) + "W" + double_bytes(weights)));
+  EXPECT_TRUE(info->weighted);
+  const std::string plain = upload(*engine, 3, coords).value().id;
+  EXPECT_NE(plain, info->id);
+  EXPECT_FALSE(engine->get_point_set(plain).value().weighted);
+
+  PointSet ps(3, coords);
+  ASSERT_TRUE(ps.validate("test").is_ok());
+  KdTree tree(ps);
+  StarOptions options;
+  options.weights = weights;
+  StarWalker walker(tree, options);
+  const auto control = no_deadline();
+  // Answers from a server that loaded the set from disk (a fresh engine on the same dir).
+  auto reloaded = make_engine(dir.path());
+  EXPECT_TRUE(reloaded->get_point_set(info->id).value().weighted);
+  for (std::uint32_t seed : {0u, 5u, 77u}) {
+    Star expected;
+    ASSERT_TRUE(walker.compute(seed, expected).is_ok());
+    auto got = reloaded->star(info->id, seed, control);
+    ASSERT_TRUE(got.is_ok()) << got.status().message();
+    EXPECT_EQ(got->star.simplices, expected.simplices) << "seed " << seed;
+    EXPECT_EQ(got->star.hidden, seed == 5u);
+    const VoronoiCell cell = reloaded->cell(info->id, seed, {}, control).value();
+    EXPECT_EQ(cell.hidden, seed == 5u);
+    EXPECT_EQ(cell.facets.size(), star_neighbors(expected).size());
+    EXPECT_EQ(reloaded->neighbors(info->id, seed, {}, control).value().neighbors, star_neighbors(expected));
+  }
+  // The whole mesh: the regular triangulation, shards uniting to the core's run.
+  std::vector<std::uint32_t> whole;
+  MeshOptions mesh;
+  mesh.star.weights = weights;
+  ASSERT_TRUE(mesh_seeds(tree, mesh, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+                whole.insert(whole.end(), b.begin(), b.end());
+                return Status::ok();
+              }).is_ok());
+  for (std::uint32_t shards : {1u, 3u}) {
+    std::vector<std::uint32_t> united;
+    for (std::uint32_t k = 0; k < shards; ++k) {
+      ASSERT_TRUE(engine->stream_simplices(info->id, k, shards, 0, control,
+                                           [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o,
+                                               std::uint64_t) {
+                                             EXPECT_TRUE(o.empty());
+                                             united.insert(united.end(), b.begin(), b.end());
+                                             return Status::ok();
+                                           })
+                      .is_ok());
+    }
+    EXPECT_EQ(united, whole) << shards << " shards";
+  }
+  // Cells streamed: power cells, the hidden ones (as the walker says) empty; volumes
+  // fill the bounding box.
+  std::vector<bool> hidden(800);
+  for (std::uint32_t seed = 0; seed < 800; ++seed) {
+    Star star;
+    ASSERT_TRUE(walker.compute(seed, star).is_ok());
+    hidden[seed] = star.hidden;
+  }
+  EXPECT_TRUE(hidden[5]);
+  double volume = 0;
+  ASSERT_TRUE(engine->stream_cells(info->id, 0, 1, 0, {}, true, control,
+                                   [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+                                     for (const VoronoiCell& c : cells) {
+                                       EXPECT_EQ(c.hidden, hidden[c.seed]) << c.seed;
+                                       volume += c.volume;
+                                     }
+                                     return Status::ok();
+                                   })
+                  .is_ok());
+  const Domain bounds = Domain::bounding_box(ps);
+  double box_volume = 1;
+  for (std::size_t c = 0; c < 3; ++c) box_volume *= bounds.upper()[c] - bounds.lower()[c];
+  EXPECT_NEAR(volume, box_volume, 1e-12);
+
+  // Bad weights: one clear error each, nothing stored.
+  const std::size_t stored = engine->list_point_sets(100, "", nullptr).value().size();
+  auto bad = weights;
+  bad[3] = std::nan("");
+  auto e = upload_extras(*engine, 3, coords, bad, {});
+  EXPECT_EQ(e.status().code(), Code::kInvalidArgument);
+  EXPECT_NE(e.status().message().find("weights: index 3"), std::string::npos) << e.status().message();
+  bad[3] = 1e300;
+  EXPECT_NE(upload_extras(*engine, 3, coords, bad, {}).status().message().find("index 3"), std::string::npos);
+  auto fewer = weights;
+  fewer.pop_back();
+  UploadHeader h = header_of(3, 800, "");
+  h.weighted = true;
+  auto session = engine->begin_upload(h);
+  ASSERT_TRUE(session.is_ok());
+  EXPECT_NE(session.value()->append_weights(fewer.data(), 8).message().find("before all the coordinates"),
+            std::string::npos);
+  ASSERT_TRUE(session.value()->append(coords.data(), coords.size() * 8).is_ok());
+  ASSERT_TRUE(session.value()->append_weights(fewer.data(), fewer.size() * 8).is_ok());
+  EXPECT_NE(session.value()->append_weights(weights.data(), 16).message().find("more than the 6400 bytes"),
+            std::string::npos);
+  auto finished = engine->finish_upload(*session.value());
+  EXPECT_NE(finished.status().message().find("received 799 weights"), std::string::npos) << finished.status().message();
+  EXPECT_EQ(engine->list_point_sets(100, "", nullptr).value().size(), stored);
+  // Approximate neighbours and appends are refused, naming why.
+  NeighborQuery approx;
+  approx.mode = NeighborQuery::Mode::kApproximate;
+  EXPECT_NE(engine->neighbors(info->id, 0, approx, control).status().message().find("weighted"), std::string::npos);
+  EXPECT_EQ(engine->begin_append(info->id, header_of(0, 1, "")).status().code(), Code::kFailedPrecondition);
+}
+
+// Rows as sortable (point, offset) keys, for comparing meshes as sets of simplices.
+std::vector<std::vector<std::int64_t>> periodic_rows(int d, std::span<const std::uint32_t> simplices,
+                                                     std::span<const std::int32_t> offsets) {
+  const auto du = static_cast<std::size_t>(d);
+  std::vector<std::vector<std::int64_t>> rows;
+  for (std::size_t r = 0; r < simplices.size() / (du + 1); ++r) {
+    std::vector<std::int64_t> row;
+    for (std::size_t v = 0; v <= du; ++v) {
+      row.push_back(simplices[r * (du + 1) + v]);
+      for (std::size_t c = 0; c < du; ++c) row.push_back(offsets[(r * (du + 1) + v) * du + c]);
+    }
+    rows.push_back(std::move(row));
+  }
+  std::sort(rows.begin(), rows.end());
+  return rows;
+}
+
+TEST(Engine, PeriodicSetsAnswerOnTheTorusThroughEveryRoute) {
+  for (const int d : {2, 3}) {
+    SCOPED_TRACE("d = " + std::to_string(d));
+    TempDir dir;
+    auto engine = make_engine(dir.path());
+    const std::size_t n = d == 2 ? 400 : 500;
+    std::vector<double> coords = uniform_points(d, n, 40 + static_cast<std::uint64_t>(d));
+    std::vector<double> box(2 * static_cast<std::size_t>(d), 0.0);
+    for (int c = 0; c < d; ++c) {
+      box[static_cast<std::size_t>(c)] = -0.5;
+      box[static_cast<std::size_t>(d + c)] = 1.5;
+    }
+    for (double& v : coords) v = v * 2 - 0.5;
+    auto info = upload_extras(*engine, d, coords, {}, box);
+    ASSERT_TRUE(info.is_ok()) << info.status().message();
+    EXPECT_EQ(info->id, sha256_hex(raw_bytes(d, coords) + "P" + double_bytes(box)));
+    EXPECT_EQ(info->periodic_box, box);
+    auto reloaded = make_engine(dir.path());
+    EXPECT_EQ(reloaded->get_point_set(info->id).value().periodic_box, box);
+
+    PointSet ps(d, coords);
+    ASSERT_TRUE(ps.validate("test").is_ok());
+    const PeriodicBox torus =
+        PeriodicBox::of({box.begin(), box.begin() + d}, {box.begin() + d, box.end()}, "box").value();
+    const auto control = no_deadline();
+    for (std::uint32_t seed : {0u, 9u, static_cast<std::uint32_t>(n - 1)}) {
+      VoronoiCell expected_cell;
+      auto expected = periodic_star(ps, torus, seed, {}, "test", &expected_cell);
+      ASSERT_TRUE(expected.is_ok());
+      auto got = reloaded->star(info->id, seed, control);
+      ASSERT_TRUE(got.is_ok()) << got.status().message();
+      EXPECT_EQ(got->star.simplices, expected->simplices);
+      EXPECT_EQ(got->offsets, expected->offsets);
+      EXPECT_EQ(got->circumcentres.size(), expected->size(d) * static_cast<std::size_t>(d));
+      std::vector<std::uint32_t> points;
+      std::vector<std::int32_t> offsets;
+      periodic_neighbors(expected.value(), d, points, offsets);
+      const NeighborAnswer neighbours = reloaded->neighbors(info->id, seed, {}, control).value();
+      EXPECT_EQ(neighbours.neighbors, points);
+      EXPECT_EQ(neighbours.offsets, offsets);
+      const VoronoiCell cell = reloaded->cell(info->id, seed, {}, control).value();
+      EXPECT_EQ(cell.facet_offsets, expected_cell.facet_offsets);
+      EXPECT_EQ(cell.volume, expected_cell.volume);
+    }
+    // The whole torus: shards (seed ranges) concatenate to the same bytes for any
+    // count, and are mesh_periodic's simplices, each once.
+    std::vector<std::uint32_t> mesh_rows;
+    std::vector<std::int32_t> mesh_offsets;
+    ASSERT_TRUE(mesh_periodic(ps, torus, {},
+                              [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
+                                mesh_rows.insert(mesh_rows.end(), s.begin(), s.end());
+                                mesh_offsets.insert(mesh_offsets.end(), o.begin(), o.end());
+                                return Status::ok();
+                              }, nullptr, "test")
+                    .is_ok());
+    std::vector<std::uint32_t> first_rows;
+    std::vector<std::int32_t> first_offsets;
+    for (std::uint32_t shards : {1u, 3u}) {
+      std::vector<std::uint32_t> rows;
+      std::vector<std::int32_t> offsets;
+      for (std::uint32_t k = 0; k < shards; ++k) {
+        ASSERT_TRUE(engine->stream_simplices(info->id, k, shards, 50, control,
+                                             [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o,
+                                                 std::uint64_t) {
+                                               EXPECT_LE(b.size(), 50u * static_cast<std::size_t>(d + 1));
+                                               EXPECT_EQ(o.size(), b.size() * static_cast<std::size_t>(d));
+                                               rows.insert(rows.end(), b.begin(), b.end());
+                                               offsets.insert(offsets.end(), o.begin(), o.end());
+                                               return Status::ok();
+                                             })
+                        .is_ok());
+      }
+      if (shards == 1) {
+        first_rows = rows;
+        first_offsets = offsets;
+      }
+      EXPECT_EQ(rows, first_rows);
+      EXPECT_EQ(offsets, first_offsets);
+      EXPECT_EQ(periodic_rows(d, rows, offsets), periodic_rows(d, mesh_rows, mesh_offsets));
+    }
+    // The cells tile the torus: volumes sum to the box's, every facet has its offset.
+    double volume = 0;
+    for (std::uint32_t k = 0; k < 2; ++k) {
+      ASSERT_TRUE(engine->stream_cells(info->id, k, 2, 64, {}, false, control,
+                                       [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+                                         for (const VoronoiCell& c : cells) {
+                                           EXPECT_EQ(c.facet_offsets.size(), c.facets.size() * static_cast<std::size_t>(d));
+                                           volume += c.volume;
+                                         }
+                                         return Status::ok();
+                                       })
+                      .is_ok());
+    }
+    EXPECT_NEAR(volume, std::pow(2.0, d), 1e-12);
+    // What does not apply to a torus is refused, naming why.
+    DomainSpec clip;
+    clip.bounding_box = true;
+    EXPECT_NE(engine->cell(info->id, 0, clip, control).status().message().find("periodic"), std::string::npos);
+    NeighborQuery approx;
+    approx.mode = NeighborQuery::Mode::kSpokes;
+    EXPECT_EQ(engine->neighbors(info->id, 0, approx, control).status().code(), Code::kInvalidArgument);
+    EXPECT_EQ(engine->begin_append(info->id, header_of(0, 1, "")).status().code(), Code::kFailedPrecondition);
+    // Bad boxes and points outside: one error each, nothing stored.
+    auto outside = coords;
+    outside[7 * static_cast<std::size_t>(d) + 1] = 1.5;
+    auto e = upload_extras(*engine, d, outside, {}, box);
+    EXPECT_NE(e.status().message().find("point 7 lies outside the periodic box: coordinate 1"), std::string::npos)
+        << e.status().message();
+    auto flat = box;
+    flat[0] = flat[static_cast<std::size_t>(d)];
+    EXPECT_NE(upload_extras(*engine, d, coords, {}, flat).status().message().find("periodic_box"), std::string::npos);
+    EXPECT_NE(upload_extras(*engine, d, coords, {}, {0, 1}).status().message().find("periodic_box: 2 values"),
+              std::string::npos);
+    EXPECT_EQ(engine->list_point_sets(100, "", nullptr).value().size(), 1u);
+  }
+}
+
 // ---- REST as a pure function ----------------------------------------------------------
 
 struct Rest {
@@ -552,6 +833,66 @@ TEST(Rest, ErrorsInOneShape) {
   EXPECT_NE(s.message().find("shard_index: 2"), std::string::npos);
 }
 
+TEST(Rest, WeightedAndPeriodicSets) {
+  Rest rest;
+  // A 4 x 4 grid on the unit torus, with weights: JSON and raw uploads agree.
+  json points = json::array();
+  std::vector<double> raw;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 4; ++j) {
+      points.push_back({i * 0.25, j * 0.25});
+      raw.insert(raw.end(), {i * 0.25, j * 0.25});
+    }
+  }
+  const std::vector<double> weights(16, 0.001);
+  const json body = {{"points", points}, {"weights", weights}, {"periodic_box", {0, 0, 1, 1}}};
+  HttpResponse up = rest.call(http::verb::post, "/v1/pointsets", body.dump());
+  ASSERT_EQ(up.status, 201u) << up.body;
+  const json info = json::parse(up.body);
+  EXPECT_EQ(info["weighted"], true);
+  EXPECT_EQ(info["periodic_box"], json({0, 0, 1, 1}));
+  const std::string id = info["id"];
+  HttpResponse binary = rest.call(http::verb::post, "/v1/pointsets?dimension=2&weighted=true&periodic_box=0,0,1,1",
+                                  double_bytes(raw) + double_bytes(weights), "application/octet-stream");
+  EXPECT_EQ(json::parse(binary.body)["id"], id) << binary.body;
+  EXPECT_EQ(rest.get("/v1/pointsets/" + id)["periodic_box"], json({0, 0, 1, 1}));
+  // Point 5 = (0.25, 0.25): six triangles around it, each with its vertices' offsets.
+  const json star = rest.get("/v1/pointsets/" + id + "/seeds/0/star");
+  ASSERT_EQ(star["simplices"].size(), 6u) << star.dump();
+  ASSERT_EQ(star["offsets"].size(), 6u);
+  EXPECT_EQ(star["offsets"][0].size(), 3u);
+  const json neighbours = rest.get("/v1/pointsets/" + id + "/seeds/0/neighbors");
+  EXPECT_EQ(neighbours["neighbors"].size(), 6u);
+  EXPECT_EQ(neighbours["offsets"].size(), 6u);
+  const json cell = rest.get("/v1/pointsets/" + id + "/seeds/0/cell");
+  EXPECT_NEAR(cell["volume"].get<double>(), 1.0 / 16, 1e-15);
+  EXPECT_EQ(cell["facets"][0]["offset"].size(), 2u);
+  HttpResponse stream = rest.call(http::verb::get, "/v1/pointsets/" + id + "/simplices?shard=0&shards=1");
+  std::string lines;
+  ASSERT_TRUE(stream.stream([&](std::string_view chunk) {
+                lines += chunk;
+                return true;
+              }).is_ok());
+  std::size_t count = 0;
+  for (std::size_t at = 0; at < lines.size(); at = lines.find('\n', at) + 1) {
+    const json line = json::parse(lines.substr(at, lines.find('\n', at) - at));
+    EXPECT_EQ(line["simplex"].size(), 3u);
+    EXPECT_EQ(line["offsets"].size(), 3u);
+    ++count;
+  }
+  EXPECT_EQ(count, 32u);  // 2 n triangles on a 2-d torus
+  expect_error(rest.call(http::verb::post, "/v1/pointsets",
+                         json({{"points", points}, {"weights", {1, 2}}}).dump()),
+               400, "INVALID_ARGUMENT", "weights");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets",
+                         json({{"points", points}, {"periodic_box", {0, 0, 0.5, 1}}}).dump()),
+               400, "INVALID_ARGUMENT", "lies outside the periodic box");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets", json({{"points", points}, {"weights", {{1}}}}).dump()),
+               400, "INVALID_ARGUMENT", "weights[0]");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/0/cell?box=0,0,1,1"), 400,
+               "INVALID_ARGUMENT", "periodic");
+}
+
 TEST(Rest, BearerTokenGuardsEverythingButProbes) {
   TempDir dir;
   auto engine = make_engine(dir.path());
@@ -599,16 +940,24 @@ struct GrpcFixture {
     return c;
   }
 
-  grpc::Status upload(int d, const std::vector<double>& coords, pb::PointSet* out) {
+  grpc::Status upload(int d, const std::vector<double>& coords, pb::PointSet* out,
+                      const std::vector<double>& weights = {}, const std::vector<double>& box = {}) {
     auto c = ctx();
     auto writer = stub->UploadPointSet(c.get(), out);
     pb::UploadPointSetRequest m;
     m.mutable_header()->set_dimension(static_cast<std::uint32_t>(d));
     m.mutable_header()->set_count(coords.size() / d);
+    m.mutable_header()->set_weighted(!weights.empty());
+    m.mutable_header()->mutable_periodic_box()->Add(box.begin(), box.end());
     writer->Write(m);
     const char* bytes = reinterpret_cast<const char*>(coords.data());
     for (std::size_t at = 0; at < coords.size() * 8; at += 4096) {
       m.set_coordinates(bytes + at, std::min<std::size_t>(4096, coords.size() * 8 - at));
+      writer->Write(m);
+    }
+    const char* w = reinterpret_cast<const char*>(weights.data());
+    for (std::size_t at = 0; at < weights.size() * 8; at += 4096) {
+      m.set_weights(w + at, std::min<std::size_t>(4096, weights.size() * 8 - at));
       writer->Write(m);
     }
     writer->WritesDone();
@@ -730,6 +1079,48 @@ TEST(Grpc, EveryMethodAndItsErrors) {
   pb::DeletePointSetResponse deleted;
   EXPECT_TRUE(f.stub->DeletePointSet(f.ctx().get(), del, &deleted).ok());
   EXPECT_EQ(f.stub->GetPointSet(f.ctx().get(), get, &info).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
+TEST(Grpc, WeightedPeriodicSetsCarryOffsets) {
+  GrpcFixture f;
+  // A 5 x 5 grid on the torus [0, 5)^2 with equal weights: the plain torus mesh.
+  std::vector<double> coords;
+  for (int i = 0; i < 5; ++i) {
+    for (int j = 0; j < 5; ++j) coords.insert(coords.end(), {double(i), double(j)});
+  }
+  const std::vector<double> weights(25, 0.25), box = {0, 0, 5, 5};
+  pb::PointSet ps;
+  ASSERT_TRUE(f.upload(2, coords, &ps, weights, box).ok());
+  EXPECT_EQ(ps.id(), sha256_hex(raw_bytes(2, coords) + "W" + double_bytes(weights) + "P" + double_bytes(box)));
+  EXPECT_TRUE(ps.weighted());
+  EXPECT_EQ(std::vector<double>(ps.periodic_box().begin(), ps.periodic_box().end()), box);
+  pb::SeedRequest seed;
+  seed.set_point_set_id(ps.id());
+  seed.set_seed(12);
+  pb::Star star;
+  ASSERT_TRUE(f.stub->GetStar(f.ctx().get(), seed, &star).ok());
+  EXPECT_EQ(star.simplices_size(), 6 * 3);
+  EXPECT_EQ(star.offsets_size(), 6 * 3 * 2);
+  pb::StreamSimplicesRequest request;
+  request.set_point_set_id(ps.id());
+  auto c = f.ctx();
+  auto reader = f.stub->StreamSimplices(c.get(), request);
+  pb::SimplexBatch batch;
+  int simplices = 0;
+  while (reader->Read(&batch)) {
+    EXPECT_EQ(batch.offsets_size(), batch.simplices_size() * 2);
+    simplices += batch.simplices_size() / 3;
+  }
+  ASSERT_TRUE(reader->Finish().ok());
+  EXPECT_EQ(simplices, 50);
+  // Weights that do not match the count: INVALID_ARGUMENT naming them, nothing stored.
+  pb::PointSet refused;
+  const grpc::Status bad = f.upload(2, coords, &refused, std::vector<double>(24, 0.25), box);
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad.error_message().find("weights: received 24"), std::string::npos) << bad.error_message();
+  pb::ListPointSetsResponse listed;
+  ASSERT_TRUE(f.stub->ListPointSets(f.ctx().get(), {}, &listed).ok());
+  EXPECT_EQ(listed.point_sets_size(), 1);
 }
 
 TEST(Grpc, DeadlineAndCancellationOfAStream) {
