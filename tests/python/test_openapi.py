@@ -49,3 +49,24 @@ def test_every_route_answers_as_described(server):
     http("GET", f"{server.http}/nothing/here")
     http("DELETE", f"{base}/{pid}")
     assert openapi_check.checked["responses"] - before >= 18
+
+
+def test_weighted_and_periodic_answers_as_described(server):
+    """Weights and periodic boxes add fields (weighted, periodic_box, hidden, offsets):
+    each answer still matches the description."""
+    before = openapi_check.checked["responses"]
+    base = f"{server.http}/v1/pointsets"
+    pts = uniform(150, 2, 7)
+    weights = (uniform(150, 1, 8).ravel() * 1e-3).tolist()
+    status, ps = http_json("POST", base, {"points": pts.tolist(), "weights": weights, "periodic_box": [0, 0, 1, 1]})
+    assert status == 201 and ps["weighted"] and ps["periodic_box"] == [0, 0, 1, 1]
+    pid = ps["id"]
+    for path in [f"/{pid}", f"/{pid}/seeds/3/star", f"/{pid}/seeds/3/neighbors", f"/{pid}/seeds/3/cell",
+                 f"/{pid}/simplices", f"/{pid}/cells", f"/{pid}/seeds/3/cell?box=0,0,1,1"]:
+        http("GET", base + path)
+    for kind in ("stars", "neighbors", "cells"):
+        http("POST", f"{base}/{pid}/{kind}:batch", {"seeds": [0, 5]})
+    status, weighted = http_json("POST", base, {"points": pts.tolist(), "weights": weights})
+    assert status == 201 and weighted["weighted"] and "periodic_box" not in weighted
+    http("GET", f"{base}/{weighted['id']}/seeds/3/star")
+    assert openapi_check.checked["responses"] - before >= 13
