@@ -599,6 +599,8 @@ int main(int argc, char** argv) {
   upload->add_option("INPUT", input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
   upload->add_option("--name", display_name, "Display name stored with the point set");
   upload->add_flag("-q,--quiet", common.quiet, "Print only the id");
+  add_weight_flags(upload, common);
+  add_periodic_flag(upload, common);
   std::string append_id;
   auto* append = app.add_subcommand(
       "append", "Remote mode: store a new point set, a stored set's points followed by a file's; prints its id");
@@ -637,11 +639,11 @@ int main(int argc, char** argv) {
   }
 
   const bool remote_only = *upload || *append || *health || *list || *del || *batch;
-  if (!server.empty() && !common.periodic.empty()) {
-    return report(invalid_argument("--periodic works on local files only: the server does not store periodic boxes yet"));
-  }
-  if (!server.empty() && common.weighted()) {
-    return report(invalid_argument("--weights and --radii work on local files only: the server does not store weights yet"));
+  if (!server.empty() && !*upload && (!common.periodic.empty() || common.weighted())) {
+    // A stored set carries its own weights and box (given at upload): its answers use them.
+    return report(invalid_argument(std::string(common.weighted() ? "--weights/--radii" : "--periodic") +
+                                   " go with `upload` in remote mode: a stored set carries its own, and every "
+                                   "answer about it uses them"));
   }
   if (!server.empty()) {
 #ifdef SPOKEMESH_REMOTE
@@ -671,7 +673,10 @@ int main(int argc, char** argv) {
     while (!o.token.empty() && std::isspace(static_cast<unsigned char>(o.token.back()))) o.token.pop_back();
     if (seed < -1) return report(out_of_range("--seed: " + std::to_string(seed) + " is negative"));
     const auto s = static_cast<std::uint64_t>(seed);
-    if (*upload) return remote::upload(o, input, display_name);
+    if (*upload) {
+      return remote::upload(o, input, display_name,
+                            {common.radii.empty() ? common.weights : common.radii, !common.radii.empty(), common.periodic});
+    }
     if (*append) return remote::append(o, append_id, input, display_name);
     if (*batch) {
       std::string text = seeds_text;

@@ -19,6 +19,7 @@
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
+#include "spokemesh/periodic_box.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 
 namespace spokemesh::remote {
@@ -87,12 +88,13 @@ void prepare(const RemoteOptions& o, grpc::ClientContext& ctx) {
 
 namespace {
 
-// Sends a header message and then the coordinates in 1 MiB chunks on an upload's or
-// an append's stream; prints the new id (and, unless quiet, what was stored).
+// Sends a header message and then the coordinates (then an upload's weights) in 1 MiB
+// chunks on an upload's or an append's stream; prints the new id (and, unless quiet,
+// what was stored).
 template <class Request>
 int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
                 std::unique_ptr<grpc::ClientWriter<Request>> writer, Request message, const PointSet& points,
-                const pb::PointSet& response) {
+                const pb::PointSet& response, std::span<const double> weights = {}) {
   bool ok = writer->Write(message);
   const auto coords = points.coordinates();
   const char* bytes = reinterpret_cast<const char*>(coords.data());
@@ -101,6 +103,13 @@ int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
     message.set_coordinates(bytes + at, std::min(kChunk, coords.size_bytes() - at));
     ok = writer->Write(message);
   }
+  if constexpr (std::is_same_v<Request, pb::UploadPointSetRequest>) {
+    const char* w = reinterpret_cast<const char*>(weights.data());
+    for (std::size_t at = 0; ok && at < weights.size_bytes(); at += kChunk) {
+      message.set_weights(w + at, std::min(kChunk, weights.size_bytes() - at));
+      ok = writer->Write(message);
+    }
+  }
   writer->WritesDone();
   const grpc::Status s = writer->Finish();
   (void)ctx;
@@ -108,7 +117,8 @@ int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
   std::cout << response.id() << "\n";
   if (!o.quiet) {
     std::cerr << "spokemesh: " << (response.already_existed() ? "already stored: " : "stored: ") << response.count()
-              << " points in " << response.dimension() << "-d";
+              << (response.weighted() ? " weighted" : "") << " points in " << response.dimension() << "-d"
+              << (response.periodic_box_size() > 0 ? " on a periodic box" : "");
     if (!response.parent_id().empty()) std::cerr << " (the points of " << response.parent_id() << ", then the new ones)";
     std::cerr << "\n";
   }
@@ -117,9 +127,23 @@ int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
 
 }  // namespace
 
-int upload(const RemoteOptions& o, const std::string& input, const std::string& name) {
+int upload(const RemoteOptions& o, const std::string& input, const std::string& name, const UploadExtras& extras) {
   auto points = read_points(input);  // file:line errors for malformed files, before any network
   if (!points.is_ok()) return report(points.status());
+  std::vector<double> weights, box;
+  if (!extras.weights.empty()) {
+    auto w = read_weights(extras.weights, points->size(), extras.radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+    if (!w.is_ok()) return report(w.status());
+    weights = std::move(w).value();
+  }
+  if (!extras.periodic.empty()) {
+    // Checked here too, so that a point outside is named with the file's name.
+    auto b = PeriodicBox::parse(extras.periodic, "--periodic");
+    if (!b.is_ok()) return report(b.status());
+    if (Status s = b->check_contains(points.value(), input); !s.is_ok()) return report(s);
+    box = b->lo();
+    box.insert(box.end(), b->hi().begin(), b->hi().end());
+  }
   auto stub = pb::Mesher::NewStub(channel(o));
   grpc::ClientContext ctx;
   prepare(o, ctx);
@@ -128,7 +152,10 @@ int upload(const RemoteOptions& o, const std::string& input, const std::string& 
   message.mutable_header()->set_dimension(static_cast<std::uint32_t>(points->dimension()));
   message.mutable_header()->set_count(points->size());
   message.mutable_header()->set_display_name(name);
-  return send_points(o, ctx, stub->UploadPointSet(&ctx, &response), std::move(message), points.value(), response);
+  message.mutable_header()->set_weighted(!weights.empty());
+  message.mutable_header()->mutable_periodic_box()->Add(box.begin(), box.end());
+  return send_points(o, ctx, stub->UploadPointSet(&ctx, &response), std::move(message), points.value(), response,
+                     weights);
 }
 
 int append(const RemoteOptions& o, const std::string& id, const std::string& input, const std::string& name) {
@@ -184,8 +211,19 @@ int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
                        response);
   if (rc != kExitOk) return rc;
   std::string out;
-  append_index_lines(out, {response.simplices().data(), static_cast<std::size_t>(response.simplices().size())},
-                     static_cast<int>(response.dimension()) + 1);
+  const auto w = static_cast<std::size_t>(response.dimension()) + 1;
+  if (response.offsets_size() > 0) {
+    // A periodic set's star as the local `star --periodic` prints it: indices, then offsets.
+    const std::size_t d = w - 1;
+    for (std::size_t r = 0; r < static_cast<std::size_t>(response.simplices_size()) / w; ++r) {
+      for (std::size_t v = 0; v < w; ++v) out.append(v ? " " : "").append(std::to_string(response.simplices(static_cast<int>(r * w + v))));
+      for (std::size_t k = 0; k < w * d; ++k) out.append(" ").append(std::to_string(response.offsets(static_cast<int>(r * w * d + k))));
+      out += "\n";
+    }
+  } else {
+    append_index_lines(out, {response.simplices().data(), static_cast<std::size_t>(response.simplices().size())},
+                       static_cast<int>(w));
+  }
   std::fwrite(out.data(), 1, out.size(), stdout);
   return kExitOk;
 }
@@ -203,7 +241,13 @@ int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed,
   pb::Neighbors response;
   const int rc = unary(o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, request, &r); }, response);
   if (rc != kExitOk) return rc;
-  for (std::uint32_t v : response.neighbors()) std::printf("%u\n", v);
+  const int k = response.neighbors_size();
+  const int d = k == 0 ? 0 : response.offsets_size() / k;
+  for (int i = 0; i < k; ++i) {
+    std::printf("%u", response.neighbors(i));
+    for (int c = 0; c < d; ++c) std::printf(" %d", response.offsets(i * d + c));  // periodic sets: the image
+    std::printf("\n");
+  }
   if (!response.exact() && !o.quiet) {
     std::fprintf(stderr, "spokemesh: %d certified neighbours (approximate): %llu vertices visited, %llu consecutive misses\n",
                  response.neighbors_size(), static_cast<unsigned long long>(response.vertices_visited()),
@@ -232,6 +276,8 @@ VoronoiCell from_proto(const pb::VoronoiCell& c) {
   cell.clipped = c.clipped();
   cell.volume = c.volume();
   cell.centroid.assign(c.centroid().begin(), c.centroid().end());
+  cell.facet_offsets.assign(c.facet_offsets().begin(), c.facet_offsets().end());
+  cell.hidden = c.hidden();
   return cell;
 }
 
@@ -257,7 +303,7 @@ Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfs
   return domain;
 }
 
-Result<int> dimension_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, grpc::Status& status) {
+Result<pb::PointSet> info_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, grpc::Status& status) {
   grpc::ClientContext ctx;
   prepare(o, ctx);
   pb::GetPointSetRequest r;
@@ -265,16 +311,16 @@ Result<int> dimension_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const s
   pb::PointSet info;
   status = stub.GetPointSet(&ctx, r, &info);
   if (!status.ok()) return internal_error("GetPointSet");
-  return static_cast<int>(info.dimension());
+  return info;
 }
 
 // Fills `out` from --box / --halfspaces for the set's dimension; an exit code.
 int set_domain(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, const std::string& box,
                const std::string& halfspaces, pb::Domain& out) {
   grpc::Status status;
-  auto d = dimension_of(o, stub, id, status);
-  if (!d.is_ok()) return report(o, status);
-  auto domain = domain_proto(box, halfspaces, d.value());
+  auto info = info_of(o, stub, id, status);
+  if (!info.is_ok()) return report(o, status);
+  auto domain = domain_proto(box, halfspaces, static_cast<int>(info->dimension()));
   if (!domain.is_ok()) return report(domain.status());
   out = domain.value();
   return kExitOk;
@@ -305,11 +351,12 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
           const std::string& halfspaces) {
   auto stub = pb::Mesher::NewStub(channel(o));
   grpc::Status status;
-  auto d = dimension_of(o, *stub, id, status);
-  if (!d.is_ok()) return report(o, status);
-  auto domain = domain_proto(box, halfspaces, d.value());
+  auto info = info_of(o, *stub, id, status);
+  if (!info.is_ok()) return report(o, status);
+  const int d = static_cast<int>(info->dimension());
+  auto domain = domain_proto(box, halfspaces, d);
   if (!domain.is_ok()) return report(domain.status());
-  auto writer = CellWriter::open(output, d.value());
+  auto writer = CellWriter::open(output, d, info->periodic_box_size() > 0);
   if (!writer.is_ok()) return report(writer.status());
   grpc::ClientContext ctx;
   prepare(o, ctx);
@@ -411,11 +458,23 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
     if (grpc::Status s = stub->GetPointSet(&ctx, r, &info); !s.ok()) return report(o, s);
   }
   const int d = static_cast<int>(info.dimension());
-  auto format = MeshWriter::format_for(output, d);
-  if (!format.is_ok()) return report(format.status());
+  const bool periodic = info.periodic_box_size() > 0;
+  std::unique_ptr<PeriodicMeshWriter> periodic_writer;
+  if (periodic) {
+    // The torus's simplices with their offsets (.npz or text, as the local mesh --periodic).
+    auto w = PeriodicMeshWriter::open(output, d);
+    if (!w.is_ok()) return report(w.status());
+    periodic_writer = std::move(w).value();
+  }
+  MeshWriter::Format format = MeshWriter::Format::kText;  // a periodic mesh needs no coordinates
+  if (!periodic) {
+    auto f = MeshWriter::format_for(output, d);
+    if (!f.is_ok()) return report(f.status());
+    format = f.value();
+  }
   // Coordinates are needed only by the formats that draw the mesh.
   std::vector<double> coords;
-  if (format.value() != MeshWriter::Format::kText && format.value() != MeshWriter::Format::kNpy) {
+  if (format != MeshWriter::Format::kText && format != MeshWriter::Format::kNpy) {
     grpc::ClientContext ctx;
     prepare(o, ctx);
     pb::GetPointSetRequest r;
@@ -429,8 +488,12 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
     std::memcpy(coords.data(), bytes.data(), coords.size() * 8);
   }
   const PointSet points(d, std::move(coords));
-  auto writer = MeshWriter::open(output, points);
-  if (!writer.is_ok()) return report(writer.status());
+  std::unique_ptr<MeshWriter> writer;
+  if (!periodic) {
+    auto w = MeshWriter::open(output, points);
+    if (!w.is_ok()) return report(w.status());
+    writer = std::move(w).value();
+  }
 
   // One stream per shard, each spooled to an anonymous temporary file so memory stays
   // bounded; shards are concatenated in order (shard k is the part of the sweep
@@ -438,6 +501,7 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
   if (shards == 0) shards = 1;
   struct Shard {
     std::FILE* spool = nullptr;
+    std::FILE* offsets = nullptr;  // periodic sets
     grpc::Status status;
     std::uint64_t simplices = 0;
   };
@@ -448,6 +512,7 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
     threads.emplace_back([&, k] {
       Shard& part = parts[k];
       part.spool = std::tmpfile();
+      if (periodic) part.offsets = std::tmpfile();
       grpc::ClientContext ctx;
       prepare(o, ctx);
       pb::StreamSimplicesRequest r;
@@ -458,10 +523,12 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
       pb::SimplexBatch batch;
       while (reader->Read(&batch)) {
         std::fwrite(batch.simplices().data(), 4, static_cast<std::size_t>(batch.simplices_size()), part.spool);
+        if (periodic) std::fwrite(batch.offsets().data(), 4, static_cast<std::size_t>(batch.offsets_size()), part.offsets);
         part.simplices += static_cast<std::uint64_t>(batch.simplices_size()) / (d + 1);
       }
       part.status = reader->Finish();
-      if (part.spool == nullptr || std::ferror(part.spool)) {
+      if (part.spool == nullptr || std::ferror(part.spool) ||
+          (periodic && (part.offsets == nullptr || std::ferror(part.offsets)))) {
         part.status = grpc::Status(grpc::StatusCode::INTERNAL, "cannot spool shard " + std::to_string(k) + " to a temporary file");
       }
     });
@@ -474,13 +541,26 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
     std::rewind(part.spool);
     std::size_t got = 0;
     const std::size_t width = static_cast<std::size_t>(d) + 1;
-    while ((got = std::fread(buffer.data(), 4, buffer.size() - buffer.size() % width, part.spool)) > 0) {
-      if (Status s = writer.value()->write({buffer.data(), got}); !s.is_ok()) return report(s);
+    if (periodic) {
+      std::rewind(part.offsets);
+      std::vector<std::int32_t> offsets(buffer.size() * static_cast<std::size_t>(d));
+      while ((got = std::fread(buffer.data(), 4, buffer.size() - buffer.size() % width, part.spool)) > 0) {
+        const std::size_t want = got * static_cast<std::size_t>(d);
+        if (std::fread(offsets.data(), 4, want, part.offsets) != want) {
+          return report(internal_error("cannot read back a shard's offsets from its temporary file"));
+        }
+        if (Status s = periodic_writer->write({buffer.data(), got}, {offsets.data(), want}); !s.is_ok()) return report(s);
+      }
+      std::fclose(part.offsets);
+    } else {
+      while ((got = std::fread(buffer.data(), 4, buffer.size() - buffer.size() % width, part.spool)) > 0) {
+        if (Status s = writer->write({buffer.data(), got}); !s.is_ok()) return report(s);
+      }
     }
     std::fclose(part.spool);
     total += part.simplices;
   }
-  if (Status s = writer.value()->commit(); !s.is_ok()) return report(s);
+  if (Status s = periodic ? periodic_writer->commit() : writer->commit(); !s.is_ok()) return report(s);
   if (!o.quiet) {
     const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::fprintf(stderr, "spokemesh: %llu points, %llu simplices from %u shards, %.2f s -> %s\n",

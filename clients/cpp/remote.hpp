@@ -20,7 +20,17 @@ struct RemoteOptions {
   bool quiet = false;
 };
 
-int upload(const RemoteOptions& o, const std::string& input, const std::string& name);
+// What an upload carries besides its coordinates (issue 28), both optional: a file of
+// power weights, one per point (one a line, or .npy; with radii, Voro++'s radii,
+// squared into weights), and a periodic box "LO1,...,LOd,HI1,...,HId". The server keeps
+// them with the set (its id hashes them) and answers with power cells and offsets.
+struct UploadExtras {
+  std::string weights;
+  bool radii = false;
+  std::string periodic;
+};
+
+int upload(const RemoteOptions& o, const std::string& input, const std::string& name, const UploadExtras& extras = {});
 // A new stored set: set `id`'s points, then the points of INPUT (AppendPoints); prints its id.
 int append(const RemoteOptions& o, const std::string& id, const std::string& input, const std::string& name);
 int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);

@@ -602,3 +602,70 @@ def test_approximate_neighbors_in_high_dimensions(start_server, tmp_path):
     assert len(spokes.neighbors) > 0 and not spokes.exact
     status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/3/neighbors?mode=fuzzy")
     assert status == 400 and "mode" in body["error"]["message"]
+
+
+def _row_keys(simplices: np.ndarray, offsets: np.ndarray) -> list:
+    """A periodic mesh's rows as sorted tuples (index, offset...) per vertex."""
+    return sorted(tuple(int(x) for v in range(s.shape[0]) for x in (s[v], *o[v]))
+                  for s, o in zip(simplices, offsets))
+
+
+def test_weighted_periodic_sets_answer_as_the_local_engine(server, tmp_path):
+    """A set with weights and a periodic box, uploaded over gRPC, REST and the CLI: the
+    same id each way, and every answer the in-process engine's (issue 28)."""
+    points = uniform(600, 2, seed=28)
+    weights = uniform(600, 1, seed=29).ravel() * 2e-4
+    box = [[0.0, 0.0], [1.0, 1.0]]
+    local = spokemesh.Delaunay(points, periodic=box, weights=weights)
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(points, weights=weights, periodic=box)
+    assert ps.weighted and np.array_equal(ps.periodic_box, np.array(box))
+    status, rest = http_json("POST", f"{server.http}/v1/pointsets",
+                             {"points": points.tolist(), "weights": weights.tolist(), "periodic_box": [0, 0, 1, 1]})
+    assert status == 200 and rest["id"] == ps.id and rest["weighted"] and rest["periodic_box"] == [0, 0, 1, 1]
+    np.savetxt(tmp_path / "p.txt", points, fmt="%.17g")
+    np.savetxt(tmp_path / "w.txt", weights, fmt="%.17g")
+    up = cli("--server", server.grpc, "upload", str(tmp_path / "p.txt"), "--weights", str(tmp_path / "w.txt"),
+             "--periodic", "0,0,1,1")
+    assert up.stdout.strip() == ps.id
+
+    # The whole torus: the same simplices and offsets as in-process, for any shards.
+    expected = _row_keys(local.simplices, local.offsets)
+    for shards in (1, 3):
+        simplices, offsets = client.simplices(ps.id, shards=shards, offsets=True)
+        assert _row_keys(simplices, offsets) == expected
+    status, _, body = http("GET", f"{server.http}/v1/pointsets/{ps.id}/simplices?shard=0&shards=1")
+    lines = [json.loads(line) for line in body.decode().splitlines()]
+    assert _row_keys(np.array([x["simplex"] for x in lines]), np.array([x["offsets"] for x in lines])) == expected
+    out = tmp_path / "remote.npz"
+    cli("--server", server.grpc, "mesh", ps.id, "-o", str(out), "-q")
+    with np.load(out) as z:
+        assert _row_keys(z["simplices"], z["offsets"]) == expected
+
+    for seed in (0, 77, 599):
+        s, o = local.star(seed)
+        star = client.star(ps.id, seed)
+        assert np.array_equal(star.simplices, s) and np.array_equal(star.offsets, o)
+        walk = client.neighbor_walk(ps.id, seed)
+        k, ko = local.neighbors_of(seed)
+        assert np.array_equal(walk.neighbors, k) and np.array_equal(walk.offsets, ko)
+        cell, here = client.cell(ps.id, seed), local.cell(seed)
+        assert cell.volume == here.volume and [f.neighbor for f in cell.facets] == [f.neighbor for f in here.facets]
+        assert all(np.array_equal(f.offset, g.offset) for f, g in zip(cell.facets, here.facets))
+    # Cells stream: they tile the torus.
+    volumes = [c.volume for c in client.cells(ps.id, measures_only=True)]
+    assert len(volumes) == 600 and abs(sum(volumes) - 1.0) < 1e-12
+    # What the torus does not take is refused, naming why; bad weights name the row.
+    with pytest.raises(spokemesh.Error) as e:
+        client.cell(ps.id, 0, bounding_box=True)
+    assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "periodic" in e.value.details
+    bad = weights.copy()
+    bad[9] = np.inf
+    with pytest.raises(spokemesh.Error) as e:
+        client.upload(points, weights=bad)
+    assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "weights: index 9" in e.value.details
+    outside = points.copy()
+    outside[4, 0] = 1.0
+    with pytest.raises(spokemesh.Error) as e:
+        client.upload(outside, periodic=box)
+    assert "point 4 lies outside the periodic box" in e.value.details

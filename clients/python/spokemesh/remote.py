@@ -37,6 +37,8 @@ class PointSet:
     display_name: str = ""
     already_existed: bool = False  # upload() and append() only: the data was stored before
     parent_id: str = ""            # append() only: the set appended to (its points come first)
+    weighted: bool = False         # carries power weights (the regular triangulation, power cells)
+    periodic_box: Optional[np.ndarray] = None  # (2, d) float64, [lo, hi] of a periodic set's torus
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +48,8 @@ class Star:
     simplices: np.ndarray      # (m, d + 1) uint32, positively oriented rows, lexicographic by sorted indices
     circumcenters: np.ndarray  # (m, d) float64: the Voronoi vertices of the seed's cell
     hull_facets: int           # star facets on the convex hull (0 <=> bounded cell)
+    offsets: Optional[np.ndarray] = None  # periodic sets: (m, d + 1, d) int32, each vertex's image
+    hidden: bool = False       # weighted sets: the seed's power cell is empty (no simplices)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +63,7 @@ class Neighbors:
     rays: int = 0
     walk_exhausted: bool = False  # approximate (RSD): nothing left to try and nothing abandoned: complete
     mode: str = "exact"           # "exact", "approximate" or "spokes"
+    offsets: Optional[np.ndarray] = None  # periodic sets: (k, d) int32, each neighbour's image
 
 
 def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],
@@ -83,17 +88,19 @@ def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],
 def _cell(r: pb.VoronoiCell) -> Cell:
     d = r.dimension
     inf = float("inf")
+    offsets = _array(r.facet_offsets, np.int32).reshape(-1, d) if len(r.facet_offsets) else None
     return Cell(seed=r.seed,
                 vertices=_array(r.vertices, np.float64).reshape(-1, d),
                 vertex_simplices=_array(r.vertex_simplices, np.uint32).reshape(-1, d + 1),
                 facets=[Facet(neighbor=None if f.HasField("wall") else f.neighbor,
                               wall=f.wall if f.HasField("wall") else None,
                               vertices=_array(f.vertices, np.uint32),
-                              area=f.area, normal=_array(f.normal, np.float64)) for f in r.facets],
+                              area=f.area, normal=_array(f.normal, np.float64),
+                              offset=None if offsets is None else offsets[k]) for k, f in enumerate(r.facets)],
                 bounded=r.bounded,
-                volume=r.volume if r.bounded else inf,
-                centroid=_array(r.centroid, np.float64) if r.bounded else None,
-                clipped=r.clipped)
+                volume=0.0 if r.hidden else r.volume if r.bounded else inf,
+                centroid=_array(r.centroid, np.float64) if r.bounded and len(r.centroid) else None,
+                clipped=r.clipped, hidden=r.hidden)
 
 
 # Every spokemesh RPC is idempotent (reads are pure, uploads content-addressed), so a
@@ -162,20 +169,36 @@ class Client:
 
     # ---- point sets -------------------------------------------------------------
 
-    def upload(self, points: np.ndarray, name: str = "", timeout: Optional[float] = None) -> PointSet:
+    def upload(self, points: np.ndarray, name: str = "", timeout: Optional[float] = None, *,
+               weights: Optional[np.ndarray] = None, periodic: Optional[Sequence[Any]] = None) -> PointSet:
         """Uploads an (n, d) array (converted to float64). Idempotent: the id is the
-        SHA-256 of the data, and uploading the same data again does no work."""
+        SHA-256 of the data, and uploading the same data again does no work.
+
+        weights: (n,) power weights (squared radii, CGAL's convention): the set's
+        answers are then the regular triangulation and power cells. periodic: the box
+        of a flat torus, [lo, hi] ((2, d)) or lo_1..lo_d, hi_1..hi_d; every point must
+        lie in [lo, hi). Both are part of the id, and need d <= 8."""
         array = np.ascontiguousarray(points, dtype="<f8")
         if array.ndim != 2:
             raise ValueError(f"points: expected a 2-d array (n, d), got shape {array.shape}")
         data = array.tobytes()
+        weight_bytes = b""
+        if weights is not None:
+            w = np.ascontiguousarray(weights, dtype="<f8")
+            if w.ndim != 1:
+                raise ValueError(f"weights: expected a 1-d array (n,), got shape {w.shape}")
+            weight_bytes = w.tobytes()
+        box = [] if periodic is None else np.asarray(periodic, dtype=np.float64).ravel().tolist()
 
         def messages() -> Iterator[pb.UploadPointSetRequest]:
-            """The header, then 1 MiB chunks of coordinates."""
+            """The header, then 1 MiB chunks of coordinates, then of weights."""
             yield pb.UploadPointSetRequest(
-                header=pb.PointSetHeader(dimension=array.shape[1], count=array.shape[0], display_name=name))
+                header=pb.PointSetHeader(dimension=array.shape[1], count=array.shape[0], display_name=name,
+                                         weighted=weights is not None, periodic_box=box))
             for at in range(0, len(data), _CHUNK):
                 yield pb.UploadPointSetRequest(coordinates=data[at:at + _CHUNK])
+            for at in range(0, len(weight_bytes), _CHUNK):
+                yield pb.UploadPointSetRequest(weights=weight_bytes[at:at + _CHUNK])
 
         r = self._call(self._stub.UploadPointSet, messages, timeout)
         return _point_set(r)
@@ -186,7 +209,8 @@ class Client:
         set's d). Only the new points are sent; the new set's id is the hash of all of
         them, as if uploaded whole (so it is idempotent too), and the stored set stays
         as it is. spokemesh.Error NOT_FOUND for an unknown set, INVALID_ARGUMENT for a
-        new point equal to one already there (naming both indices in the new set)."""
+        new point equal to one already there (naming both indices in the new set),
+        FAILED_PRECONDITION for a weighted or periodic set (upload it whole instead)."""
         array = np.ascontiguousarray(points, dtype="<f8")
         if array.ndim != 2:
             raise ValueError(f"points: expected a 2-d array (k, d), got shape {array.shape}")
@@ -274,7 +298,8 @@ class Client:
                   max_consecutive_misses: int = 0, max_vertices: int = 0) -> np.ndarray:
         """Delaunay neighbours, ascending. mode: "exact" (d <= 8), "approximate" (RSD walk with a
         miss budget) or "spokes"; approximate neighbours are all true neighbours, some may be
-        missed. neighbor_walk() also returns the walk's statistics."""
+        missed. neighbor_walk() also returns the walk's statistics (and, for a periodic set,
+        each neighbour's image offsets)."""
         return self.neighbor_walk(point_set_id, seed, timeout, mode=mode, max_consecutive_misses=max_consecutive_misses,
                                   max_vertices=max_vertices).neighbors
 
@@ -323,33 +348,46 @@ class Client:
     # ---- the whole mesh ---------------------------------------------------------
 
     def shard(self, point_set_id: str, shard_index: int, shard_count: int, batch_size: int = 0,
-              timeout: Optional[float] = None) -> np.ndarray:
-        """The simplices owned by one shard's seeds, (m, d + 1) uint32."""
+              timeout: Optional[float] = None, *, offsets: bool = False) -> Any:
+        """The simplices owned by one shard's seeds, (m, d + 1) uint32; with offsets,
+        the pair (simplices, offsets (m, d + 1, d) int32) (a periodic set's images)."""
         request = pb.StreamSimplicesRequest(point_set_id=point_set_id, shard_index=shard_index,
                                             shard_count=shard_count, batch_size=batch_size)
-        parts, width = [], None
+        parts, offset_parts, d = [], [], None
         try:
             for batch in self._stub.StreamSimplices(request, timeout=timeout or self._timeout,
                                                     metadata=self._metadata):
-                width = batch.dimension + 1
-                parts.append(np.array(batch.simplices, dtype=np.uint32))
+                d = batch.dimension
+                parts.append(_array(batch.simplices, np.uint32))
+                offset_parts.append(_array(batch.offsets, np.int32))
         except grpc.RpcError as e:
             raise Error(e.code(), e.details()) from None
-        if width is None:
-            width = self.get(point_set_id).dimension + 1
-        flat = np.concatenate(parts) if parts else np.zeros(0, dtype=np.uint32)
-        return flat.reshape(-1, width)
+        if d is None:
+            d = self.get(point_set_id).dimension
+        rows = (np.concatenate(parts) if parts else np.zeros(0, dtype=np.uint32)).reshape(-1, d + 1)
+        if not offsets:
+            return rows
+        flat = np.concatenate(offset_parts) if offset_parts else np.zeros(0, dtype=np.int32)
+        return rows, (flat.reshape(-1, d + 1, d) if len(flat) else np.zeros((len(rows), d + 1, d), dtype=np.int32))
 
-    def simplices(self, point_set_id: str, shards: int = 1, timeout: Optional[float] = None) -> np.ndarray:
+    def simplices(self, point_set_id: str, shards: int = 1, timeout: Optional[float] = None, *,
+                  offsets: bool = False) -> Any:
         """The whole Delaunay mesh, (m, d + 1) uint32, positively oriented rows in the
         server's sweep order (the same for any `shards`; sort the rows for lexicographic
         order), fetched as `shards` parallel streams (shard k holds the seeds at sweep
-        positions [k N / shards, (k + 1) N / shards))."""
+        positions [k N / shards, (k + 1) N / shards)).
+
+        A periodic set's mesh (the flat torus) comes seed by seed in index order, and
+        needs offsets=True: the pair (simplices, offsets), vertex v of row s standing at
+        points[simplices[s, v]] + offsets[s, v] * (hi - lo)."""
         if shards < 1:
             raise ValueError("shards: must be at least 1")
         with concurrent.futures.ThreadPoolExecutor(max_workers=min(shards, 16)) as pool:
-            parts = list(pool.map(lambda k: self.shard(point_set_id, k, shards, timeout=timeout), range(shards)))
-        return np.concatenate(parts, axis=0)
+            parts = list(pool.map(lambda k: self.shard(point_set_id, k, shards, timeout=timeout, offsets=offsets),
+                                  range(shards)))
+        if not offsets:
+            return np.concatenate(parts, axis=0)
+        return np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts], axis=0)
 
 
 def _mode(mode: str) -> int:
@@ -368,16 +406,22 @@ def _array(values: Any, dtype: Any) -> np.ndarray:
 
 def _star(r: pb.Star) -> Star:
     d = r.dimension
+    offsets = _array(r.offsets, np.int32).reshape(-1, d + 1, d) if len(r.offsets) else None
     return Star(seed=r.seed, simplices=_array(r.simplices, np.uint32).reshape(-1, d + 1),
-                circumcenters=_array(r.circumcenters, np.float64).reshape(-1, d), hull_facets=r.hull_facets)
+                circumcenters=_array(r.circumcenters, np.float64).reshape(-1, d), hull_facets=r.hull_facets,
+                offsets=offsets, hidden=r.hidden)
 
 
 def _neighbors(r: pb.Neighbors, mode: str) -> Neighbors:
+    k = len(r.neighbors)
+    offsets = _array(r.offsets, np.int32).reshape(k, -1) if len(r.offsets) else None
     return Neighbors(seed=r.seed, neighbors=_array(r.neighbors, np.uint32), exact=r.exact,
                      vertices_visited=r.vertices_visited, consecutive_misses=r.consecutive_misses,
-                     rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode)
+                     rays=r.rays, walk_exhausted=r.walk_exhausted, mode=mode, offsets=offsets)
 
 
 def _point_set(r: pb.PointSet) -> PointSet:
+    box = np.array(r.periodic_box, dtype=np.float64).reshape(2, -1) if len(r.periodic_box) else None
     return PointSet(id=r.id, dimension=r.dimension, count=r.count, display_name=r.display_name,
-                    already_existed=r.already_existed, parent_id=r.parent_id)
+                    already_existed=r.already_existed, parent_id=r.parent_id, weighted=r.weighted,
+                    periodic_box=box)
