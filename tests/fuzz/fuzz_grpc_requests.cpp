@@ -1,7 +1,7 @@
 // libFuzzer target: the gRPC request handlers (service/grpc_service.cpp) as a client
 // reaches them. One in-process server (MesherService over an Engine on a temporary
 // data dir, with small limits and budget) holds a few point sets, 2-d to 5-d, one a
-// grid; each input is one call:
+// grid, one weighted, one weighted and periodic; each input is one call:
 //   byte 0        which RPC (modulo the ten methods);
 //   the rest      its request message, protobuf-encoded. An empty or one-byte
 //                 point_set_id is replaced by a stored set's id (so that fuzzed seeds,
@@ -98,18 +98,34 @@ struct Harness {
       for (int j = 0; j < 6; ++j) grid.insert(grid.end(), {double(i), double(j)});
     }
     ids.push_back(upload(2, grid));
+    // Issue 28: a weighted 3-d set, and a weighted periodic 2-d set (offsets, hidden seeds).
+    std::vector<double> coords(60 * 3), weights(60);
+    for (double& x : coords) x = next();
+    for (double& w : weights) w = next() * 0.02 - 0.005;
+    ids.push_back(upload(3, coords, weights));
+    std::vector<double> torus(70 * 2), torus_weights(70);
+    for (double& x : torus) x = next();
+    for (double& w : torus_weights) w = next() * 0.002;
+    ids.push_back(upload(2, torus, torus_weights, {0, 0, 1, 1}));
   }
 
-  std::string upload(int d, const std::vector<double>& coords) {
+  std::string upload(int d, const std::vector<double>& coords, const std::vector<double>& weights = {},
+                     const std::vector<double>& box = {}) {
     grpc::ClientContext ctx;
     pb::PointSet answer;
     auto writer = stub->UploadPointSet(&ctx, &answer);
     pb::UploadPointSetRequest m;
     m.mutable_header()->set_dimension(static_cast<std::uint32_t>(d));
     m.mutable_header()->set_count(coords.size() / static_cast<std::size_t>(d));
+    m.mutable_header()->set_weighted(!weights.empty());
+    m.mutable_header()->mutable_periodic_box()->Add(box.begin(), box.end());
     writer->Write(m);
     m.set_coordinates(coords.data(), coords.size() * sizeof(double));
     writer->Write(m);
+    if (!weights.empty()) {
+      m.set_weights(weights.data(), weights.size() * sizeof(double));
+      writer->Write(m);
+    }
     writer->WritesDone();
     if (!writer->Finish().ok()) std::abort();
     return answer.id();
@@ -256,6 +272,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         if (s.ok()) {
           const int k = static_cast<int>(a.dimension()) + 1;
           if (k < 3 || a.simplices_size() % k != 0) __builtin_trap();
+          // A periodic set's offsets: d per vertex.
+          if (a.offsets_size() != 0 && a.offsets_size() != a.simplices_size() * (k - 1)) __builtin_trap();
           for (int i = 0; i < a.simplices_size(); i += k) {
             const auto* first = a.simplices().data() + i;
             if (std::find(first, first + k, a.seed()) == first + k) __builtin_trap();  // the star contains its seed
