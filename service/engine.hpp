@@ -142,8 +142,8 @@ class UploadSession {
 struct NeighborQuery {
   enum class Mode { kExact, kApproximate, kSpokes };
   Mode mode = Mode::kExact;
-  std::uint32_t max_consecutive_misses = 0;  // 0 = 100
-  std::uint32_t max_vertices = 0;            // 0 = 20000
+  std::uint32_t max_consecutive_misses = 0;  // 0 = kDefaultMaxMisses (approx.hpp)
+  std::uint32_t max_vertices = 0;            // 0 = kDefaultMaxVertices (approx.hpp)
 };
 
 struct NeighborAnswer {
