@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <sstream>
 
 #include "support.hpp"
@@ -232,6 +233,48 @@ TEST_F(Cli, PeriodicMeshWritesOffsets) {
   EXPECT_EQ(slurp(path("a.npz")), slurp(path("b.npz")));
   EXPECT_NE(slurp(path("a.npz")).find("offsets.npy"), std::string::npos);
 
+  // --seeds: the simplices those points own; two ranges are the whole torus.
+  ASSERT_EQ(run("mesh " + in + " --periodic 0,0,4,4 --seeds 0:7 -q -o " + path("s1.txt")).code, 0);
+  ASSERT_EQ(run("mesh " + in + " --periodic 0,0,4,4 --seeds 7:16 -q -o " + path("s2.txt")).code, 0);
+  auto body_rows = [&](const std::string& file) {
+    std::multiset<std::string> out;
+    std::istringstream in_lines(slurp(path(file)));
+    std::string l;
+    while (std::getline(in_lines, l)) {
+      if (l.rfind("#", 0) != 0) out.insert(l);
+    }
+    return out;
+  };
+  std::multiset<std::string> parts = body_rows("s1.txt");
+  for (const std::string& r : body_rows("s2.txt")) parts.insert(r);
+  EXPECT_EQ(parts, body_rows("t.txt"));
+  // .vtu: the simplices whole (copies of the images they use), for ParaView: every
+  // triangle positive, their areas the box's.
+  const Outcome vtu = run("mesh " + in + " --periodic 0,0,4,4 -q -o " + path("t.vtu"));
+  ASSERT_EQ(vtu.code, 0) << vtu.err;
+  const std::string xml = slurp(path("t.vtu"));
+  EXPECT_NE(xml.find("NumberOfCells=\"32\""), std::string::npos);
+  EXPECT_NE(xml.find("Name=\"point_index\""), std::string::npos);
+  auto numbers_after = [&](const std::string& marker) {
+    std::size_t at = xml.find('>', xml.find(marker)) + 1;
+    std::istringstream values(xml.substr(at, xml.find("</DataArray>", at) - at));
+    return std::vector<double>((std::istream_iterator<double>(values)), std::istream_iterator<double>());
+  };
+  const std::vector<double> xyz = numbers_after("NumberOfComponents=\"3\"");
+  const std::vector<double> conn = numbers_after("Name=\"connectivity\"");
+  ASSERT_EQ(conn.size(), 96u);
+  EXPECT_GT(xyz.size(), 48u);  // the 16 points and some image copies
+  double area = 0;
+  for (std::size_t t = 0; t < 32; ++t) {
+    const double* a = &xyz[3 * static_cast<std::size_t>(conn[3 * t])];
+    const double* b = &xyz[3 * static_cast<std::size_t>(conn[3 * t + 1])];
+    const double* c = &xyz[3 * static_cast<std::size_t>(conn[3 * t + 2])];
+    const double twice = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    EXPECT_GT(twice, 0) << "triangle " << t;
+    area += twice / 2;
+  }
+  EXPECT_EQ(area, 16.0);
+
   // One seed on the torus: its six triangles (each with seed 5 at offset 0), its six
   // neighbour images, its unit-square cell with each facet's offset.
   const Outcome star = run("star " + in + " --seed 5 --periodic 0,0,4,4");
@@ -255,9 +298,10 @@ TEST_F(Cli, PeriodicMeshWritesOffsets) {
       {"mesh " + in + " --periodic 0,0,4 -o " + path("x.npz"), "even count"},
       {"mesh " + in + " --periodic 0,4,4,4 -o " + path("x.npz"), "axis 1"},
       {"mesh " + in + " --periodic 0,0,0,4,4,4 -o " + path("x.npz"), "3-d box"},
-      {"mesh " + in + " --periodic 0,0,4,4 -o " + path("x.vtu"), ".npz"},
+      {"mesh " + in + " --periodic 0,0,4,4 -o " + path("x.msh"), ".vtu"},
       {"mesh " + in + " --periodic 0,0,4,4 --merge-duplicates -o " + path("x.npz"), "--merge-duplicates"},
-      {"mesh " + in + " --periodic 0,0,4,4 --server 127.0.0.1:1 -o " + path("x.npz"), "local files only"},
+      {"mesh " + in + " --periodic 0,0,4,4 --server 127.0.0.1:1 -o " + path("x.npz"), "go with `upload`"},
+      {"mesh " + in + " --periodic 0,0,4,4 --seeds 3:99 -o " + path("x.npz"), "need 0 <= A <= B <= 16"},
       {"cell " + in + " --seed 0 --periodic 0,0,4,4 --box 0,0,1,1", "do not apply"},
       {"star " + in + " --seed 16 --periodic 0,0,4,4", "out of range"},
   };
@@ -265,7 +309,7 @@ TEST_F(Cli, PeriodicMeshWritesOffsets) {
     const Outcome o = run(b.args);
     EXPECT_EQ(o.code, 2) << b.args << "\n" << o.err;
     EXPECT_NE(o.err.find(b.needle), std::string::npos) << b.args << "\n" << o.err;
-    EXPECT_FALSE(fs::exists(path("x.npz")) || fs::exists(path("x.vtu"))) << b.args;
+    EXPECT_FALSE(fs::exists(path("x.npz")) || fs::exists(path("x.msh"))) << b.args;
   }
   for (const std::string& name : listing()) EXPECT_EQ(name.find(".partial"), std::string::npos) << name;
 }

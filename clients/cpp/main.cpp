@@ -170,20 +170,25 @@ void say_margin_too_thin(const Common& common) {
 int run_periodic_mesh(const Common& common, const std::string& input, const std::string& output,
                       const std::string& seeds) {
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
-  if (!seeds.empty()) return report(invalid_argument("--seeds cannot be combined with --periodic yet"));
   auto in = load_periodic(common, input);
   if (!in.is_ok()) return report(in.status());
   const PointSet& ps = in->points;
-  auto writer_or = PeriodicMeshWriter::open(output, ps.dimension());
+  auto writer_or = PeriodicMeshWriter::open(output, ps.dimension(), &ps, &*in->box);
   if (!writer_or.is_ok()) return report(writer_or.status());
   PeriodicMeshWriter& writer = *writer_or.value();
 
   MeshOptions options;
+  if (!seeds.empty()) {
+    // The simplices these points own (as for plain meshes): ranges together are the torus.
+    auto range = parse_seed_range(seeds, ps.size());
+    if (!range.is_ok()) return report(range.status());
+    std::tie(options.seed_begin, options.seed_end) = range.value();
+  }
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
   options.star.weights = in->weights;
   options.facet_cache_bytes = common.cache_mb << 20;
-  Progress progress(common.quiet, ps.size());
+  Progress progress(common.quiet, std::min<std::uint64_t>(options.seed_end, ps.size()) - options.seed_begin);
   std::uint64_t written = 0;
   auto result = mesh_periodic(
       ps, *in->box, options,

@@ -110,13 +110,20 @@ class MeshWriter {
 //   .npz: simplices (m, d + 1) int64, and offsets (m, d + 1, d) int32: vertex v of
 //         simplex s stands at points[simplices[s, v]] + offsets[s, v] * (HI - LO);
 //   .txt / .simplices: a comment line saying so, then one simplex a line: its d + 1
-//         point indices, then each vertex's d offsets in turn.
+//         point indices, then each vertex's d offsets in turn;
+//   .vtu (2-d, 3-d): for ParaView, the simplices whole: the points, then a copy of each
+//         image a simplex uses (point + offset (HI - LO)), which the cells reference;
+//         the point data `point_index` maps every copy to its point.
 // Written to scratch files and renamed into place on commit(), as MeshWriter does.
 // Thread safety: used by one thread.
+class PeriodicBox;
 class PeriodicMeshWriter {
  public:
   // INVALID_ARGUMENT for other extensions (naming the ones that carry offsets).
-  static Result<std::unique_ptr<PeriodicMeshWriter>> open(const std::string& path, int dimension);
+  // points and box (borrowed until commit()): needed for .vtu only.
+  static Result<std::unique_ptr<PeriodicMeshWriter>> open(const std::string& path, int dimension,
+                                                          const PointSet* points = nullptr,
+                                                          const PeriodicBox* box = nullptr);
   virtual ~PeriodicMeshWriter() = default;
   // Appends simplices: (d + 1) indices and (d + 1) d offsets each.
   virtual Status write(std::span<const std::uint32_t> simplices, std::span<const std::int32_t> offsets) = 0;

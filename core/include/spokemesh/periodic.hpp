@@ -115,7 +115,9 @@ using PeriodicSink = std::function<Status(std::span<const std::uint32_t> simplic
 // The Delaunay triangulation of the torus `box` over `points` (validated, inside the
 // box: PeriodicBox::check_contains), each simplex once, in the cover's sweep order (a
 // function of the points and the box). options: threads, random seed, cancel, facet
-// cache (seed and sweep ranges, split and accept are the run's own). When a run proves
+// cache, and a seed range [seed_begin, seed_end) of the points (the simplices those
+// seeds own: consecutive ranges together are the whole torus, each simplex once);
+// sweep ranges, split and accept are the run's own. When a run proves
 // its margin too thin, `restart` is called before the run is repeated: everything
 // given to `sink` so far is void. With options.star.weights (one per point), the regular
 // triangulation of the torus (its power spheres are what the margin must hold).

@@ -330,8 +330,9 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
                                    [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
     MeshOptions run = options;
     run.star.weights = cover.weights();
-    run.seed_begin = 0;
-    run.seed_end = cover.point_count();
+    // The points' seed range (the images are never seeds); the sweep is the cover's.
+    run.seed_begin = std::min(options.seed_begin, cover.point_count());
+    run.seed_end = std::min(options.seed_end, cover.point_count());
     run.sweep_begin = 0;
     run.sweep_end = 0xFFFFFFFFu;
     run.split = nullptr;
