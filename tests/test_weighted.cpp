@@ -352,5 +352,72 @@ TEST(Weighted, PowerCellsTileTheBoxInEveryDimension) {
   }
 }
 
+// The 3-d direct route (a box clipped by power bisectors, BoxCell3d) against the star
+// route: the same facets (neighbours and walls), volumes, centroids and hidden seeds,
+// for weights that hide many points and put seeds outside their own cells, and for a
+// grid with integer weights (exact ties everywhere: those seeds go to the star).
+TEST(Weighted, PowerCellsBuiltDirectlyEqualTheStarsCells) {
+  struct WeightedCase {
+    std::string name;
+    std::vector<double> coords, weights;
+  };
+  std::vector<WeightedCase> cases;
+  for (const double spread : {2e-2, 0.2}) {
+    cases.push_back({"uniform, spread " + std::to_string(spread), uniform_points(3, 1500, 401),
+                     uniform_weights(1500, 0, spread, 402)});
+  }
+  {
+    WeightedCase grid{"integer grid, integer weights", {}, {}};
+    std::mt19937_64 rng(403);
+    for (int i = 0; i < 7; ++i) {
+      for (int j = 0; j < 7; ++j) {
+        for (int k = 0; k < 7; ++k) {
+          grid.coords.insert(grid.coords.end(), {double(i), double(j), double(k)});
+          grid.weights.push_back(static_cast<double>(rng() % 3));
+        }
+      }
+    }
+    cases.push_back(std::move(grid));
+  }
+  for (const WeightedCase& c : cases) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(3, c.coords);
+    const KdTree tree(ps);
+    const Domain box = Domain::bounding_box(ps);
+    StarOptions options;
+    options.weights = c.weights;
+    ClippedCellBuilder direct(tree, box, options, CellRoute::kDirect);
+    ClippedCellBuilder star(tree, box, options, CellRoute::kStar);
+    std::size_t hidden = 0;
+    double total = 0;
+    for (std::uint32_t s = 0; s < ps.size(); ++s) {
+      SCOPED_TRACE("seed " + std::to_string(s));
+      auto a = direct.cell(s);
+      auto b = star.cell(s);
+      ASSERT_TRUE(a.is_ok() && b.is_ok());
+      EXPECT_EQ(a->hidden, b->hidden);
+      hidden += b->hidden ? 1 : 0;
+      total += a->volume;
+      EXPECT_NEAR(a->volume, b->volume, 1e-12 * std::max(1.0, b->volume));
+      ASSERT_EQ(a->facets.size(), b->facets.size());
+      for (std::size_t f = 0; f < a->facets.size(); ++f) {
+        EXPECT_EQ(a->facets[f].neighbor, b->facets[f].neighbor);
+        EXPECT_NEAR(a->facets[f].area, b->facets[f].area, 1e-9 * std::max(1.0, b->facets[f].area));
+      }
+      ASSERT_EQ(a->centroid.size(), b->centroid.size());
+      for (std::size_t k = 0; k < a->centroid.size(); ++k) EXPECT_NEAR(a->centroid[k], b->centroid[k], 1e-9);
+    }
+    const std::vector<double> lo = box.lower(), hi = box.upper();
+    EXPECT_NEAR(total, (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]), 1e-9);
+    // Off the grid, most cells were built directly (hidden ones go to the star, which
+    // says so); on it, every cell meets a tie and goes to the star.
+    if (c.name.rfind("uniform", 0) == 0) {
+      EXPECT_LT(direct.star_fallbacks(), hidden + ps.size() / 5) << direct.star_fallbacks() << " of " << ps.size();
+    }
+    std::printf("[ info ] %s: %zu hidden, %llu of %zu cells from stars\n", c.name.c_str(), hidden,
+                static_cast<unsigned long long>(direct.star_fallbacks()), ps.size());
+  }
+}
+
 }  // namespace
 }  // namespace spokemesh

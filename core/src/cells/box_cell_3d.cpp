@@ -34,7 +34,12 @@ int certified_orientation(const std::array<double, 3>& a, const std::array<doubl
 }
 }  // namespace
 
-BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points), box_(box), predicates_(points) {
+BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights)
+    : points_(points),
+      box_(box),
+      weights_(weights.empty() ? nullptr : weights.data()),
+      max_weight_(weights.empty() ? 0 : *std::max_element(weights.begin(), weights.end())),
+      predicates_(points, weights) {
   v_.reserve(256);
   planes_.reserve(128);
 }
@@ -42,6 +47,8 @@ BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box) : points_(points
 void BoxCell3d::reset(std::uint32_t seed) {
   seed_ = seed;
   s_ = points_.point(seed);
+  // max w - w_s, rounded up (both are doubles: one rounding of a non-negative difference).
+  weight_reach_ = weights_ == nullptr ? 0 : (max_weight_ - weights_[seed]) * (1 + 4 * kUnit);
   planes_.clear();
   // Walls 0..2 are the lower ones (normal -e_c, offset -lo_c), 3..5 the upper ones.
   for (std::uint32_t w = 0; w < 6; ++w) {
@@ -139,7 +146,13 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
   if (a == 0) a = predicates_.spatial_sign_exact(seed_, std::span<const Row>(rows.data(), 3));
   if (a == 0) return 0;
   int m = 0;
-  if (!walls_off_seed) {
+  // Power cells leave exact ties to the star's cell: where the perturbation would
+  // decide, the zero-area facets it makes on the domain's walls follow the star's
+  // clipping, which this polytope does not reproduce (weighted grids showed it).
+  if (!walls_off_seed && weights_ != nullptr) {
+    m = predicates_.lifted_sign_exact(seed_, std::span<const Row>(rows.data(), 4), /*perturb=*/false);
+    if (m == 0) return 0;
+  } else if (!walls_off_seed) {
     m = predicates_.lifted_sign_exact(seed_, std::span<const Row>(rows.data(), 4), /*perturb=*/true);
   } else {
     std::vector<mpq_class> matrix(16);
@@ -152,6 +165,7 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
           matrix[k * 4 + c] = mpq_class(p[c]) - mpq_class(s_[c]);
           norm2 += matrix[k * 4 + c] * matrix[k * 4 + c];
         }
+        if (weights_ != nullptr) norm2 -= mpq_class(weights_[plane.label]) - mpq_class(weights_[seed_]);  // power height
         matrix[k * 4 + 3] = norm2;
       } else {
         const auto wall = static_cast<std::size_t>(plane.label - kWallLabel0);
@@ -160,6 +174,7 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
       }
     }
     m = sgn(exact_determinant(std::move(matrix), 4));
+    if (m == 0 && weights_ != nullptr) return 0;  // a tie: the star's way (above)
     if (m == 0) m = predicates_.perturbation_sign(seed_, std::span<const Row>(rows.data(), 4));
   }
   if (m == 0) return 0;
@@ -175,11 +190,17 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
     pl.a[k] = p[k] - s_[k];
     q2 += pl.a[k] * pl.a[k];
   }
-  pl.c = q2 / 2;
+  pl.dw = weights_ == nullptr ? 0.0 : weights_[label] - weights_[seed_];
+  pl.c = (q2 - pl.dw) / 2;
   pl.a_norm = std::sqrt(q2);
-  // The bisector lies |q| / 2 from the seed: vertices closer (with their error) are
-  // strictly inside, and if all are, it cuts nothing.
-  const double reach = pl.a_norm / 2 * (1 - 1e-12);
+  // The bisector lies c / |q| from the seed: vertices closer (with their error) are
+  // strictly inside, and if all are, it cuts nothing. (A power bisector may pass
+  // behind the seed, c <= 0: no shortcut then.) c's rounding: that of |q|^2 / 2 (as
+  // below) and of the weights' difference and the subtraction.
+  const double c_error = weights_ == nullptr ? 0.0 : 28 * kUnit * (q2 + std::abs(pl.dw) + std::abs(pl.c));
+  const double reach = weights_ == nullptr ? pl.a_norm / 2 * (1 - 1e-12)
+                       : pl.c > c_error    ? (pl.c - c_error) / pl.a_norm * (1 - 1e-12)
+                                           : -1.0;
   if (reach > rmax_) return true;
   const std::size_t n = v_.size();
   side_.resize(n);
@@ -190,14 +211,15 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
       side_[v] = -1;
       continue;
     }
-    double f = -pl.c, magnitude = pl.c;
+    double f = -pl.c, magnitude = std::abs(pl.c);
     for (int k = 0; k < 3; ++k) {
       f += pl.a[k] * x.y[k];
       magnitude += std::abs(pl.a[k] * x.y[k]);
     }
     // The sum's rounding and that of q and |q|^2 / 2 against the exact bisector (as
-    // CellPolytope::plane_value), plus the vertex's own error along the normal.
-    const double bound = 28 * kUnit * (magnitude + pl.c) + pl.a_norm * x.error * (1 + 16 * kUnit);
+    // CellPolytope::plane_value), with weights that of w_p - w_s and of the offset
+    // (c_error), plus the vertex's own error along the normal.
+    const double bound = 28 * kUnit * (magnitude + std::abs(pl.c)) + c_error + pl.a_norm * x.error * (1 + 16 * kUnit);
     if (f > bound) {
       side_[v] = 1;
       any_out = true;
@@ -314,7 +336,7 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
       if (!on_wall && x.error > 1e-12 * norm3(x.y)) {
         std::uint32_t ids[4] = {seed_, planes_[x.plane[0]].label, planes_[x.plane[1]].label, planes_[x.plane[2]].label};
         std::sort(ids, ids + 4);
-        const std::vector<double> cc = circumcentre(points_, ids, 4);
+        const std::vector<double> cc = circumcentre(points_, ids, 4, weights_);
         std::copy(cc.begin(), cc.end(), o);
       }
     }

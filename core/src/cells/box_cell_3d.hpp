@@ -7,6 +7,13 @@
 // records in coordinates relative to the seed, planes in a small table, no heap
 // allocation after the first cells, and measures taken from cones at the seed.
 //
+// With power weights (issue 28) the cuts are power bisectors, |y|^2 - w_s <= |y - q|^2
+// - w_p, i.e. q . y <= (|q|^2 - (w_p - w_s)) / 2: the same planes with other offsets,
+// decided by the same predicates with weighted heights; the cell need not contain the
+// seed (then some offsets are negative), and may become empty (the caller then asks
+// the star whether the seed is hidden); an exact tie, which the perturbation would
+// decide, sends the seed to the star as well (exact_side).
+//
 // Every keep/drop decision is certified: by a forward error bound (the plane's
 // rounding plus the vertex's error) where it holds, otherwise exactly by the star's
 // predicates, ties by its symbolic perturbation (exact_side), so the cell is the
@@ -21,6 +28,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "spokemesh/domain.hpp"
@@ -32,8 +40,9 @@ namespace spokemesh::detail {
 
 class BoxCell3d {
  public:
-  // `box`: a 3-d box domain with lower < upper (is_box()); borrowed, with `points`.
-  BoxCell3d(const PointSet& points, const Domain& box);
+  // `box`: a 3-d box domain with lower < upper (is_box()); borrowed, with `points` and
+  // `weights` (one power weight per point, or empty: plain bisectors).
+  BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights = {});
 
   // Starts over from the box around `seed` (which must lie in the closed box).
   void reset(std::uint32_t seed);
@@ -48,6 +57,9 @@ class BoxCell3d {
   double radius2_upper() const { return rmax_ * rmax_ * (1 + 1e-12); }
   // Unused (CellPolytope's threshold); kept so both polytopes drive the same loop.
   void set_scale(double) {}
+  // An upper bound on w_p - w_s over every point p (0 unweighted): a point can cut a
+  // vertex at distance r from the seed only if it lies within r + sqrt(r^2 + this).
+  double weight_reach() const { return weight_reach_; }
 
   // The finished cell: facets (neighbours ascending, then walls), measures, and unless
   // `measures_only`, the vertices and each facet's loop, counter-clockwise seen from
@@ -59,12 +71,13 @@ class BoxCell3d {
 
  private:
   // A plane a . y <= c in coordinates relative to the seed (y = x - s). Bisectors: a =
-  // q = p - s rounded, c = |q|^2 / 2 rounded. Box walls: a = +-e_axis, c the wall's
+  // q = p - s rounded, c = (|q|^2 - (w_p - w_s)) / 2 rounded. Box walls: a = +-e_axis, c the wall's
   // distance from the seed, rounded (their coordinate is restored exactly on output).
   struct Plane {
     std::array<double, 3> a{};
     double c = 0;
     double a_norm = 0;
+    double dw = 0;            // w_p - w_s rounded (0 unweighted, and for walls)
     std::uint32_t label = 0;  // point index, or kWallLabel0 + wall
     int axis = -1;            // walls: the axis; bisectors: -1
   };
@@ -88,6 +101,9 @@ class BoxCell3d {
 
   const PointSet& points_;
   const Domain& box_;
+  const double* weights_ = nullptr;
+  double max_weight_ = 0;
+  double weight_reach_ = 0;
   Predicates predicates_;
   std::uint32_t seed_ = 0;
   const double* s_ = nullptr;

@@ -50,8 +50,10 @@ ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain,
     : tree_(tree),
       domain_(domain),
       star_options_(star_options),
-      // Power cells (weights) go through their stars: the direct route clips by plain bisectors.
-      direct_ok_(star_options.weights.empty() && takes_direct_route(tree.points().dimension(), domain, route)),
+      // Power cells (weights) go directly only in 3-d (BoxCell3d clips by power
+      // bisectors; the generic polytope by plain ones): elsewhere through their stars.
+      direct_ok_((star_options.weights.empty() || tree.points().dimension() == 3) &&
+                 takes_direct_route(tree.points().dimension(), domain, route)),
       scratch_(std::make_unique<Scratch>()) {}
 
 ClippedCellBuilder::~ClippedCellBuilder() = default;
@@ -93,15 +95,16 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
   if (points.dimension() == 3) {
     // The specialised 3-d cell first; it gives up (rarely, off grids) where its error
     // bounds cannot certify a decision, and the generic polytope decides exactly.
-    if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_);
+    if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_, star_options_.weights);
     detail::BoxCell3d& cell = *sc.box_cell_3d;
     cell.reset(seed);
     const Clipped clipped = clip_by_neighbours(seed, cell);
-    if (clipped == Clipped::kDone) {
+    // An empty power cell: hidden, or only outside the domain; the star tells which.
+    if (clipped == Clipped::kDone && cell.size() != 0) {
       cell.assemble(out, measures_only_);
       return true;
     }
-    if (clipped == Clipped::kTooMany) return false;  // the generic polytope would take as many
+    if (clipped == Clipped::kTooMany || !star_options_.weights.empty()) return false;  // the star's way
     ++generic_fallbacks_;
   }
   if (!sc.polytope) {
@@ -125,8 +128,17 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
   const double* x = points.point(seed);
   std::size_t applied = 0;  // points clipped by so far: a prefix of every round's list
   // Whether every point not yet applied lies farther than twice the security radius,
-  // given that none closer than dist2 (nanoflann's, kDistanceMargin) is left.
-  auto beyond = [&](double dist2, double r2) { return dist2 * (1 - kDistanceMargin) > 4 * r2; };
+  // given that none closer than dist2 (nanoflann's, kDistanceMargin) is left. With
+  // weights, a point p cuts a vertex at distance r from the seed only if |p - s| - r <
+  // sqrt(r^2 + w_p - w_s): the reach is r + sqrt(r^2 + W), W bounding w_p - w_s.
+  double weight_reach = 0;
+  if constexpr (requires { poly.weight_reach(); }) weight_reach = poly.weight_reach();
+  auto reach2 = [&](double r2) {
+    if (weight_reach == 0) return 4 * r2;
+    const double r = std::sqrt(r2), far = r + std::sqrt(r2 + weight_reach);
+    return far * far * (1 + 1e-12);
+  };
+  auto beyond = [&](double dist2, double r2) { return dist2 * (1 - kDistanceMargin) > reach2(r2); };
   // Nearest points first, k at a time, each clip shrinking the security radius (the
   // cell's farthest vertex from the seed, bounded above) until the next point lies
   // beyond twice it. A later round lists only points within twice the radius it
@@ -137,7 +149,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
     sc.ids.resize(k);
     sc.dist2.resize(k);
     sc.coords.resize(k);
-    const double bound2 = round == 0 ? std::numeric_limits<double>::infinity() : 4 * r2 * (1 + 4 * kDistanceMargin);
+    const double bound2 = round == 0 ? std::numeric_limits<double>::infinity() : reach2(r2) * (1 + 4 * kDistanceMargin);
     const std::size_t count = tree_.knn(x, k, sc.ids.data(), sc.dist2.data(), sc.coords.data(), bound2);
     // Points at equal distances come in the tree's order, which depends on the rest of
     // the set: put each such run in index order, and when the list is full leave the
@@ -223,8 +235,8 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // as star runs do (a 50^3 grid: 9.7 s in space order, 8.5 s so), so the first
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
-  // Power cells (weights) go through their stars: the direct route clips by plain bisectors.
-  const bool direct = domain != nullptr && options.star.weights.empty() &&
+  // Power cells (weights) go directly only in 3-d (see ClippedCellBuilder).
+  const bool direct = domain != nullptr && (options.star.weights.empty() || points.dimension() == 3) &&
                       ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
   // (A caller's block_size fixes the rounds: space order from the start, if direct.)
   const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
