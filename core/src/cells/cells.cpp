@@ -194,6 +194,11 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
       }
       ++applied;
       if (poly.changed()) r2 = poly.radius2_upper();
+      // An empty power cell stays empty: the caller asks the star (hidden, or the cell
+      // lies outside the domain).
+      if constexpr (requires { poly.weight_reach(); }) {
+        if (poly.changed() && poly.size() == 0) return Clipped::kDone;
+      }
     }
     // What this round rested on: the points up to the distance where it stopped; a
     // list cut short by the bound, everything within it; one that listed the whole
@@ -248,9 +253,12 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // The run's stars share their wraps through a RunCache, as whole meshes do
   // (mesh.hpp): each star is the same with or without it. (Clipped cells in a box
   // mostly need no star; the cache's pages are only committed where stars touch them.)
+  // Power cells built directly go to stars only for hidden seeds (whose walk stops at
+  // its start) and ties, scattered over the run: the cache then holds pages all over
+  // and saves nothing (3-d 300k: 5.9 s either way, 239 MB with it, 88 MB without).
   std::optional<RunCache> cache;
   StarOptions star_options = options.star;
-  if (options.facet_cache_bytes != 0) {
+  if (options.facet_cache_bytes != 0 && !(direct && !options.star.weights.empty())) {
     cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
                   static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round_size));
     star_options.facets = cache->facets();
