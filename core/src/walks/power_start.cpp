@@ -89,19 +89,23 @@ class StartProgramme {
 
   // Runs the method; false when it does not finish (it should: the programme is
   // feasible and bounded, and after a while Bland's rule, which cannot cycle, picks).
-  bool solve() {
+  // careful: Bland's rule from the start, and B^-1 and the values computed afresh from
+  // the basis at every step, so that rounding drift in the updated inverse cannot make
+  // the rule cycle (integer weights on a grid, all ties, did: a seed's start failed).
+  bool solve(bool careful = false) {
     constexpr double kEps = 1e-12;
     const int points = static_cast<int>(h_->size());
     const int columns = virtuals_ + points;
     std::array<double, kMaxDimension + 1> a, u;
     for (int iteration = 0; iteration < 20 * (columns + rows_); ++iteration) {
+      if (careful && !refactor()) return false;
       // y = c_B B^-1: the plane (a, b).
       std::fill(dual_.begin(), dual_.end(), 0.0);
       for (int k = 0; k < rows_; ++k) {
         const double c = cost(basis_[k]);
         for (int r = 0; r < rows_; ++r) dual_[r] += c * inverse_[k * rows_ + r];
       }
-      const bool bland = iteration >= 64;
+      const bool bland = careful || iteration >= 64;
       int enter = -1;
       double best = 0;
       auto consider = [&](int j, double r, double scale) {
@@ -154,6 +158,42 @@ class StartProgramme {
       basis_[leave] = enter;
     }
     return false;
+  }
+
+  // B^-1 and the basic values (B^-1 e_d) from the basis, by Gauss-Jordan elimination
+  // with partial pivoting; false when B is singular to working precision.
+  bool refactor() {
+    const int r = rows_;
+    std::array<double, (kMaxDimension + 1) * 2 * (kMaxDimension + 1)> m{};
+    std::array<double, kMaxDimension + 1> a;
+    const int w = 2 * r;
+    for (int k = 0; k < r; ++k) {  // B's column k is basis_[k]'s column
+      column(basis_[k], a.data());
+      for (int i = 0; i < r; ++i) m[i * w + k] = a[i];
+      m[k * w + r + k] = 1;
+    }
+    for (int c = 0; c < r; ++c) {
+      int pivot = c;
+      for (int i = c + 1; i < r; ++i) {
+        if (std::fabs(m[i * w + c]) > std::fabs(m[pivot * w + c])) pivot = i;
+      }
+      if (!(std::fabs(m[pivot * w + c]) > 1e-300)) return false;
+      if (pivot != c) {
+        for (int j = 0; j < w; ++j) std::swap(m[c * w + j], m[pivot * w + j]);
+      }
+      const double inv = 1 / m[c * w + c];
+      for (int j = 0; j < w; ++j) m[c * w + j] *= inv;
+      for (int i = 0; i < r; ++i) {
+        if (i == c || m[i * w + c] == 0) continue;
+        const double f = m[i * w + c];
+        for (int j = 0; j < w; ++j) m[i * w + j] -= f * m[c * w + j];
+      }
+    }
+    for (int k = 0; k < r; ++k) {
+      for (int j = 0; j < r; ++j) inverse_[k * r + j] = m[k * w + r + j];
+      value_[k] = std::max(0.0, inverse_[k * r + d_]);
+    }
+    return true;
   }
 
   // The optimum: a (d values, in scaled units) and b.
@@ -440,7 +480,23 @@ Status StarWalker::power_start(bool& hidden, std::uint32_t* start, bool& started
   lp.reset(d, q, h, box);
   for (;;) {  // ends: every round adds points, or enlarges the box (at most 5 times)
     if (!lp.solve()) {
-      return internal_error("the start of a weighted seed's walk did not converge");
+      // Exact ties everywhere (integer weights on a grid) can make the rounded method
+      // cycle. The programme's answer is only a start, checked exactly below, so it is
+      // solved again from scratch on coordinates scaled otherwise (other roundings,
+      // other ties), carefully; the plane found is the same one, scaled back.
+      bool solved = false;
+      for (const double factor : {1.3, 1.7, 2.9}) {
+        scale *= factor;
+        q.clear();
+        h.clear();
+        for (const std::uint32_t id : ids) add_row(id);
+        lp.reset(d, q, h, box);
+        if (lp.solve(/*careful=*/true)) {
+          solved = true;
+          break;
+        }
+      }
+      if (!solved) return internal_error("the start of a weighted seed's walk did not converge");
     }
     const double b = lp.lift();
     constexpr double kTolerance = 1e-9;
@@ -539,6 +595,30 @@ Status StarWalker::power_start(bool& hidden, std::uint32_t* start, bool& started
       if (star_simplex_among(pool, start)) {
         started = true;
         return Status::ok();
+      }
+      // Wider pools of nearest points (a grid with integer weights met this: the star's
+      // simplices reach past the 3 (d + 1) nearest): first all the programme's, then the
+      // k-d tree's 80 nearest. Rare, and each candidate is still certified exactly.
+      for (const std::size_t wanted : {kMaxPool, std::size_t{80}}) {
+        std::vector<std::uint32_t> wider = pool;
+        std::vector<std::uint32_t> nearest;
+        if (wanted <= ids.size()) {
+          nearest.assign(ids.begin(), ids.end());
+        } else {
+          std::vector<std::uint32_t> near(std::min<std::size_t>(wanted + 1, ps_.size()));
+          std::vector<double> near2(near.size());
+          near.resize(tree_.knn(ps_.point(x_), near.size(), near.data(), near2.data()));
+          for (const std::uint32_t id : near) {
+            if (id != x_) nearest.push_back(id);
+          }
+        }
+        for (std::size_t i = 0; i < nearest.size() && wider.size() < wanted; ++i) {
+          if (std::find(wider.begin(), wider.end(), nearest[i]) == wider.end()) wider.push_back(nearest[i]);
+        }
+        if (wider.size() > pool.size() && star_simplex_among(wider, start)) {
+          started = true;
+          return Status::ok();
+        }
       }
       // No simplex of x's star among them: x is hidden unless the perturbed hull
       // passes below it elsewhere, which the pool's simplices would show. Neither was
