@@ -313,6 +313,8 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
   out.dimension = 3;
   out.clipped = true;
   out.bounded = true;
+  out.hidden = false;  // (the record may have held a hidden seed's cell: buffers are reused)
+  out.facet_offsets.clear();
   std::size_t facet_count = 0;  // out.facets is reused, buffers and all
   out.vertices.clear();
   out.vertex_simplices.clear();

@@ -241,8 +241,12 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
   // Power cells (weights) go directly only in 3-d (see ClippedCellBuilder).
-  const bool direct = domain != nullptr && (options.star.weights.empty() || points.dimension() == 3) &&
-                      ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
+  bool direct = domain != nullptr && (options.star.weights.empty() || points.dimension() == 3) &&
+                ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
+  // Power cells go to the star for every hidden seed after trying directly: where most
+  // seeds are hidden (clustered cores under large weights: 82% at 3-d 1M) the run
+  // switches to stars for good, with their cache, once a round shows it.
+  bool weighted_direct = direct && !options.star.weights.empty();
   // (A caller's block_size fixes the rounds: space order from the start, if direct.)
   const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
   const std::uint64_t round_size = options.block_size != 0 ? small_rounds : direct ? 8192 * threads : small_rounds;
@@ -258,21 +262,25 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // and saves nothing (3-d 300k: 5.9 s either way, 239 MB with it, 88 MB without).
   std::optional<RunCache> cache;
   StarOptions star_options = options.star;
-  if (options.facet_cache_bytes != 0 && !(direct && !options.star.weights.empty())) {
-    cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
-                  static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round_size));
+  auto share_stars = [&](std::uint64_t from, std::uint64_t round) {
+    cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(from),
+                  static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round));
     star_options.facets = cache->facets();
     star_options.edges = cache->edges();
-  }
+  };
+  if (options.facet_cache_bytes != 0 && !weighted_direct) share_stars(begin, round_size);
   std::vector<Worker> workers(threads);
-  for (Worker& w : workers) {
-    if (domain == nullptr) {
-      w.walker = std::make_unique<StarWalker>(tree, star_options);
-    } else {
-      w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
-      w.builder->set_measures_only(options.measures_only);
+  auto make_builders = [&](CellRoute route) {
+    for (Worker& w : workers) {
+      if (domain == nullptr) {
+        w.walker = std::make_unique<StarWalker>(tree, star_options);
+      } else {
+        w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options, route);
+        w.builder->set_measures_only(options.measures_only);
+      }
     }
-  }
+  };
+  make_builders(CellRoute::kAuto);
   auto stops = [](const Status& st) { return st.code() == Code::kCancelled || st.code() == Code::kDeadlineExceeded; };
   std::vector<VoronoiCell> cells;    // the round's, by seed; reused (their buffers too)
   std::vector<std::uint32_t> order;  // the round's seeds in leaf order
@@ -322,6 +330,18 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     }
     run(workers[0], at, 0, count / used);
     for (std::thread& th : pool) th.join();
+    if (weighted_direct) {
+      std::uint64_t to_star = 0;
+      for (const Worker& w : workers) to_star += w.builder->star_fallbacks();
+      if (2 * (to_star - stars_before) > (to - begin) - seeds_before) {
+        // (Checked before the round's cells are handed over: the next round is the
+        // first by stars. Either way the cells are the same.)
+        weighted_direct = direct = space_order = probing = false;
+        round_now = small_rounds;
+        if (options.facet_cache_bytes != 0 && to < end) share_stars(to, small_rounds);
+        make_builders(CellRoute::kStar);
+      }
+    }
     if (probing || space_order) {
       std::uint64_t to_star = 0;
       for (const Worker& w : workers) to_star += w.builder->star_fallbacks();
