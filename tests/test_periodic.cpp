@@ -416,6 +416,86 @@ TEST(Periodic, ThinMarginsAreWidened) {
 // The torus's cells: volumes sum to the box's in every dimension, each facet i -> j at
 // offset k has its partner j -> i at -k with the same area, and a cell's facets are its
 // seed's Delaunay neighbours across the torus (the mesh's edges).
+// 3-d cells of the torus are built directly (the cover's region clipped by points and
+// images, BoxCell3d): each equals the seed's cell from its star (periodic_star), facet
+// by facet with offsets, plain and weighted, and on a grid (ties: the star's way).
+TEST(Periodic, DirectCellsEqualTheStarsCells) {
+  const PeriodicBox box = cube(3, 0, 1);
+  struct Set {
+    std::string name;
+    PointSet points;
+    std::vector<double> weights;
+  };
+  std::vector<Set> sets;
+  sets.push_back({"uniform", uniform_in(box, 700, 61), {}});
+  {
+    Set weighted{"weighted", uniform_in(box, 700, 62), {}};
+    std::mt19937_64 rng(63);
+    std::uniform_real_distribution<double> u(0, 0.004);
+    for (std::size_t i = 0; i < 700; ++i) weighted.weights.push_back(u(rng));
+    sets.push_back(std::move(weighted));
+  }
+  {
+    std::vector<double> grid;
+    for (int i = 0; i < 6; ++i) {
+      for (int j = 0; j < 6; ++j) {
+        for (int k = 0; k < 6; ++k) grid.insert(grid.end(), {i / 6.0, j / 6.0, k / 6.0});
+      }
+    }
+    PointSet ps(3, std::move(grid));
+    EXPECT_TRUE(ps.validate("grid").is_ok());
+    sets.push_back({"grid", std::move(ps), {}});
+  }
+  for (const Set& set : sets) {
+    SCOPED_TRACE(set.name);
+    CellsOptions options;
+    options.threads = 2;
+    options.star.weights = set.weights;
+    std::vector<VoronoiCell> cells;
+    ASSERT_TRUE(compute_periodic_cells(
+                    set.points, box, options,
+                    [&](std::span<const VoronoiCell> part, std::uint64_t) {
+                      cells.insert(cells.end(), part.begin(), part.end());
+                      return Status::ok();
+                    },
+                    [&] {
+                      cells.clear();
+                      return Status::ok();
+                    },
+                    "test points")
+                    .is_ok());
+    ASSERT_EQ(cells.size(), set.points.size());
+    StarOptions star_options;
+    star_options.weights = set.weights;
+    for (std::uint32_t s = 0; s < set.points.size(); ++s) {
+      SCOPED_TRACE("seed " + std::to_string(s));
+      VoronoiCell want;
+      ASSERT_TRUE(periodic_star(set.points, box, s, star_options, "test points", &want).is_ok());
+      const VoronoiCell& got = cells[s];
+      EXPECT_EQ(got.hidden, want.hidden);
+      EXPECT_FALSE(got.clipped);
+      EXPECT_NEAR(got.volume, want.volume, 1e-12);
+      ASSERT_EQ(got.facets.size(), want.facets.size());
+      // Facets by (neighbour, offset): the orders of the two routes' lists may differ
+      // where a point neighbours the seed through two images.
+      std::map<std::pair<std::int64_t, std::vector<std::int32_t>>, double> a, b;
+      for (std::size_t f = 0; f < got.facets.size(); ++f) {
+        a[{got.facets[f].neighbor, {got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
+                                    got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] =
+            got.facets[f].area;
+        b[{want.facets[f].neighbor, {want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
+                                     want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] =
+            want.facets[f].area;
+      }
+      ASSERT_EQ(a.size(), b.size());
+      for (auto i = a.begin(), j = b.begin(); i != a.end(); ++i, ++j) {
+        EXPECT_EQ(i->first, j->first);
+        EXPECT_NEAR(i->second, j->second, 1e-10);
+      }
+    }
+  }
+}
+
 TEST(Periodic, CellsTileTheTorus) {
   for (int d : {2, 3, 4}) {
     const PeriodicBox box = cube(d, -1, 1);

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "cells/cell_polytope.hpp"  // kWallLabel0
+#include "spokemesh/periodic_box.hpp"
 #include "predicates/cramer.hpp"
 #include "base/invariant.hpp"
 
@@ -34,12 +35,15 @@ int certified_orientation(const std::array<double, 3>& a, const std::array<doubl
 }
 }  // namespace
 
-BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights)
+BoxCell3d::BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights,
+                     const PeriodicCover* cover)
     : points_(points),
       box_(box),
+      cover_(cover),
       weights_(weights.empty() ? nullptr : weights.data()),
       max_weight_(weights.empty() ? 0 : *std::max_element(weights.begin(), weights.end())),
-      predicates_(points, weights) {
+      predicates_(points, weights, cover != nullptr ? &cover->box() : nullptr,
+                  cover != nullptr ? cover->images() : ImageMap{}) {
   v_.reserve(256);
   planes_.reserve(128);
 }
@@ -159,10 +163,9 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
     for (int k = 0; k < 4; ++k) {
       const Plane& plane = k < 3 ? planes_[v.plane[k]] : bisector;
       if (plane.axis < 0) {
-        const double* p = points_.point(plane.label);
         mpq_class norm2 = 0;
         for (int c = 0; c < 3; ++c) {
-          matrix[k * 4 + c] = mpq_class(p[c]) - mpq_class(s_[c]);
+          matrix[k * 4 + c] = exact_difference(plane.label, c);
           norm2 += matrix[k * 4 + c] * matrix[k * 4 + c];
         }
         if (weights_ != nullptr) norm2 -= mpq_class(weights_[plane.label]) - mpq_class(weights_[seed_]);  // power height
@@ -181,13 +184,26 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
   return m == a ? -1 : 1;
 }
 
+mpq_class BoxCell3d::exact_difference(std::uint32_t id, int c) const {
+  if (cover_ == nullptr || id < cover_->point_count()) return mpq_class(points_.point(id)[c]) - mpq_class(s_[c]);
+  const auto cu = static_cast<std::size_t>(c);
+  const PeriodicBox& box = cover_->box();
+  return mpq_class(points_.point(cover_->point_of(id))[c]) +
+         mpq_class(cover_->offset_of(id)[c]) * (mpq_class(box.hi()[cu]) - mpq_class(box.lo()[cu])) - mpq_class(s_[c]);
+}
+
 bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   changed_ = false;
   Plane pl;
   pl.label = label;
   double q2 = 0;
+  const bool image = cover_ != nullptr && label >= cover_->point_count();
   for (int k = 0; k < 3; ++k) {
-    pl.a[k] = p[k] - s_[k];
+    // An image's difference from its exact position, rounded once (as fl(p - s) is).
+    const auto ku = static_cast<std::size_t>(k);
+    pl.a[k] = image ? image_difference(points_.point(cover_->point_of(label))[k], cover_->offset_of(label)[k],
+                                       cover_->box().lo()[ku], cover_->box().hi()[ku], s_[k])
+                    : p[k] - s_[k];
     q2 += pl.a[k] * pl.a[k];
   }
   pl.dw = weights_ == nullptr ? 0.0 : weights_[label] - weights_[seed_];

@@ -14,6 +14,11 @@
 // the star whether the seed is hidden); an exact tie, which the perturbation would
 // decide, sends the seed to the star as well (exact_side).
 //
+// On a periodic cover (periodic.hpp) the cuts are by the cover's points and images; an
+// image's difference from the seed is computed from its exact position, rounded once
+// (image_difference), and the exact stages read exact images (Predicates' ImageMap), so
+// the decisions are those of the torus's cell.
+//
 // Every keep/drop decision is certified: by a forward error bound (the plane's
 // rounding plus the vertex's error) where it holds, otherwise exactly by the star's
 // predicates, ties by its symbolic perturbation (exact_side), so the cell is the
@@ -31,7 +36,10 @@
 #include <span>
 #include <vector>
 
+#include <gmpxx.h>
+
 #include "spokemesh/domain.hpp"
+#include "spokemesh/periodic.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -42,7 +50,8 @@ class BoxCell3d {
  public:
   // `box`: a 3-d box domain with lower < upper (is_box()); borrowed, with `points` and
   // `weights` (one power weight per point, or empty: plain bisectors).
-  BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights = {});
+  BoxCell3d(const PointSet& points, const Domain& box, std::span<const double> weights = {},
+            const PeriodicCover* cover = nullptr);
 
   // Starts over from the box around `seed` (which must lie in the closed box).
   void reset(std::uint32_t seed);
@@ -101,6 +110,10 @@ class BoxCell3d {
 
   const PointSet& points_;
   const Domain& box_;
+  // The exact coordinate c of point or image `id` minus the seed's, as a rational.
+  mpq_class exact_difference(std::uint32_t id, int c) const;
+
+  const PeriodicCover* cover_ = nullptr;  // a periodic cover's images, or null
   const double* weights_ = nullptr;
   double max_weight_ = 0;
   double weight_reach_ = 0;

@@ -52,7 +52,8 @@ ClippedCellBuilder::ClippedCellBuilder(const KdTree& tree, const Domain& domain,
       star_options_(star_options),
       // Power cells (weights) go directly only in 3-d (BoxCell3d clips by power
       // bisectors; the generic polytope by plain ones): elsewhere through their stars.
-      direct_ok_((star_options.weights.empty() || tree.points().dimension() == 3) &&
+      // So do the cells of a periodic cover (images: BoxCell3d reads them exactly).
+      direct_ok_(((star_options.weights.empty() && star_options.cover == nullptr) || tree.points().dimension() == 3) &&
                  takes_direct_route(tree.points().dimension(), domain, route)),
       scratch_(std::make_unique<Scratch>()) {}
 
@@ -95,7 +96,7 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
   if (points.dimension() == 3) {
     // The specialised 3-d cell first; it gives up (rarely, off grids) where its error
     // bounds cannot certify a decision, and the generic polytope decides exactly.
-    if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_, star_options_.weights);
+    if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_, star_options_.weights, star_options_.cover);
     detail::BoxCell3d& cell = *sc.box_cell_3d;
     cell.reset(seed);
     const Clipped clipped = clip_by_neighbours(seed, cell);
@@ -104,7 +105,8 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
       cell.assemble(out, measures_only_);
       return true;
     }
-    if (clipped == Clipped::kTooMany || !star_options_.weights.empty()) return false;  // the star's way
+    // (The generic polytope takes neither power bisectors nor images: the star's way.)
+    if (clipped == Clipped::kTooMany || !star_options_.weights.empty() || star_options_.cover != nullptr) return false;
     ++generic_fallbacks_;
   }
   if (!sc.polytope) {
@@ -138,7 +140,19 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
     const double r = std::sqrt(r2), far = r + std::sqrt(r2 + weight_reach);
     return far * far * (1 + 1e-12);
   };
-  auto beyond = [&](double dist2, double r2) { return dist2 * (1 - kDistanceMargin) > reach2(r2); };
+  // A periodic cover's images are stored within pad of their positions per axis: their
+  // listed distances are within sqrt(d) pad of the true ones.
+  const double pad = star_options_.cover != nullptr ? star_options_.cover->pad() * std::sqrt(static_cast<double>(d)) : 0.0;
+  auto beyond = [&](double dist2, double r2) {
+    if (pad == 0) return dist2 * (1 - kDistanceMargin) > reach2(r2);
+    const double lower = std::sqrt(dist2 * (1 - kDistanceMargin)) - pad;
+    return lower > 0 && lower * lower > reach2(r2);
+  };
+  auto listed2 = [&](double r2) {  // the listed distance within which every point that may cut lies
+    if (pad == 0) return reach2(r2) * (1 + 4 * kDistanceMargin);
+    const double far = std::sqrt(reach2(r2)) + pad;
+    return far * far * (1 + 4 * kDistanceMargin);
+  };
   // Nearest points first, k at a time, each clip shrinking the security radius (the
   // cell's farthest vertex from the seed, bounded above) until the next point lies
   // beyond twice it. A later round lists only points within twice the radius it
@@ -149,7 +163,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
     sc.ids.resize(k);
     sc.dist2.resize(k);
     sc.coords.resize(k);
-    const double bound2 = round == 0 ? std::numeric_limits<double>::infinity() : reach2(r2) * (1 + 4 * kDistanceMargin);
+    const double bound2 = round == 0 ? std::numeric_limits<double>::infinity() : listed2(r2);
     const std::size_t count = tree_.knn(x, k, sc.ids.data(), sc.dist2.data(), sc.coords.data(), bound2);
     // Points at equal distances come in the tree's order, which depends on the rest of
     // the set: put each such run in index order, and when the list is full leave the

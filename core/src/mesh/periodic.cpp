@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <optional>
 
 #include "spokemesh/voronoi.hpp"
 
@@ -529,13 +530,30 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
     run.star.cover = &cover;
     stats.images = cover.image_count();
     stats.margin = cover.margin();
-    return compute_cells(cover.tree(), nullptr, run, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+    // In 3-d, cells are built directly (cells.hpp): the cover's region, a box, clipped by
+    // the bisectors of points and images. A cell that keeps a facet on the region's
+    // walls reaches past the margin: the run is then thin, as for an unbounded cell.
+    std::optional<Domain> region;
+    if (d == 3) {
+      std::vector<double> lo(du), hi(du);
+      for (std::size_t c = 0; c < du; ++c) {
+        lo[c] = box.lo()[c] - cover.margin()[c];
+        hi[c] = box.hi()[c] + cover.margin()[c];
+      }
+      auto made = Domain::box(lo, hi);
+      if (made.is_ok()) region = std::move(made).value();
+    }
+    return compute_cells(cover.tree(), region ? &*region : nullptr, run,
+                         [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
       mapped.assign(cells.begin(), cells.end());
       for (VoronoiCell& cell : mapped) {
-        if (!cell.bounded) {
+        const bool on_wall = std::any_of(cell.facets.begin(), cell.facets.end(),
+                                         [](const VoronoiFacet& f) { return f.is_wall(); });
+        if (!cell.bounded || on_wall) {
           plan.unbounded();
           continue;
         }
+        cell.clipped = false;  // the region's walls cut nothing
         // Every vertex is the centre of a (power) sphere through the seed.
         const double* x = cover.points().point(cell.seed);
         const double w = cover.weights().empty() ? 0 : cover.weights()[cell.seed];
