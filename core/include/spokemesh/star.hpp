@@ -144,6 +144,9 @@ class StarWalker {
   // out.simplices keeps only the owned simplices (hull_facets still counts the star's).
   // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set.
   Status compute(std::uint32_t seed, Star& out, StarPart part = StarPart::kAll);
+  // With weights: whether `seed` is hidden (its power cell is empty), decided as
+  // compute() decides it (power_start) without walking the star. Without weights: false.
+  Result<bool> hidden(std::uint32_t seed);
 
   // A hint for a caller that knows which seeds come next (no effect on any answer):
   // starts loading the seed's point, its EdgeCache posts and its memo start.
@@ -242,6 +245,8 @@ class StarWalker {
   // no plane below the others passes through lifted x; one simplex of its star (d ids,
   // without x) is written to `start` instead.
   Status power_start(bool& hidden, std::uint32_t* start, bool& started);
+  // The per-seed state compute() and hidden() start from.
+  void begin_seed(std::uint32_t seed);
   // A simplex of x's (perturbed) star among d-subsets of `pool`, if any: written to
   // `start` (d ids, without x).
   bool star_simplex_among(const std::vector<std::uint32_t>& pool, std::uint32_t* start) const;

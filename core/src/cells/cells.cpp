@@ -96,6 +96,24 @@ bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
   if (points.dimension() == 3) {
     // The specialised 3-d cell first; it gives up (rarely, off grids) where its error
     // bounds cannot certify a decision, and the generic polytope decides exactly.
+    if (!star_options_.weights.empty()) {
+      // A hidden seed's cell is empty: said by the start of its star walk (power_start,
+      // usually one tree query), without clipping a box to nothing first. Its record
+      // is the star route's (voronoi_cell of a hidden star), so every caller agrees.
+      auto hidden = walker().hidden(seed);
+      if (!hidden.is_ok()) return false;  // the star route reports the error
+      if (hidden.value()) {
+        star_.seed = seed;
+        star_.dimension = points.dimension();
+        star_.simplices.clear();
+        star_.hull_facets = 0;
+        star_.hidden = true;
+        auto empty = voronoi_cell(points, star_, domain_, star_options_.weights);
+        if (!empty.is_ok()) return false;
+        out = std::move(empty).value();
+        return true;
+      }
+    }
     if (!sc.box_cell_3d) sc.box_cell_3d.emplace(points, domain_, star_options_.weights, star_options_.cover);
     detail::BoxCell3d& cell = *sc.box_cell_3d;
     cell.reset(seed);
@@ -255,12 +273,9 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
   // Power cells (weights) go directly only in 3-d (see ClippedCellBuilder).
-  bool direct = domain != nullptr && (options.star.weights.empty() || points.dimension() == 3) &&
-                ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
-  // Power cells go to the star for every hidden seed after trying directly: where most
-  // seeds are hidden (clustered cores under large weights: 82% at 3-d 1M) the run
-  // switches to stars for good, with their cache, once a round shows it.
-  bool weighted_direct = direct && !options.star.weights.empty();
+  const bool direct = domain != nullptr && (options.star.weights.empty() || points.dimension() == 3) &&
+                      ClippedCellBuilder::takes_direct_route(points.dimension(), *domain, CellRoute::kAuto);
+  const bool weighted_direct = direct && !options.star.weights.empty();
   // (A caller's block_size fixes the rounds: space order from the start, if direct.)
   const std::uint64_t small_rounds = (options.block_size != 0 ? options.block_size : 2048) * threads;
   const std::uint64_t round_size = options.block_size != 0 ? small_rounds : direct ? 8192 * threads : small_rounds;
@@ -271,30 +286,26 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // The run's stars share their wraps through a RunCache, as whole meshes do
   // (mesh.hpp): each star is the same with or without it. (Clipped cells in a box
   // mostly need no star; the cache's pages are only committed where stars touch them.)
-  // Power cells built directly go to stars only for hidden seeds (whose walk stops at
-  // its start) and ties, scattered over the run: the cache then holds pages all over
-  // and saves nothing (3-d 300k: 5.9 s either way, 239 MB with it, 88 MB without).
+  // Power cells built directly go to stars only for ties and cells the domain cuts
+  // away, scattered over the run: the cache then holds pages all over and saves
+  // nothing (3-d 300k: 5.9 s either way, 239 MB with it, 88 MB without).
   std::optional<RunCache> cache;
   StarOptions star_options = options.star;
-  auto share_stars = [&](std::uint64_t from, std::uint64_t round) {
-    cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(from),
-                  static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round));
+  if (options.facet_cache_bytes != 0 && !weighted_direct) {
+    cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
+                  static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round_size));
     star_options.facets = cache->facets();
     star_options.edges = cache->edges();
-  };
-  if (options.facet_cache_bytes != 0 && !weighted_direct) share_stars(begin, round_size);
+  }
   std::vector<Worker> workers(threads);
-  auto make_builders = [&](CellRoute route) {
-    for (Worker& w : workers) {
-      if (domain == nullptr) {
-        w.walker = std::make_unique<StarWalker>(tree, star_options);
-      } else {
-        w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options, route);
-        w.builder->set_measures_only(options.measures_only);
-      }
+  for (Worker& w : workers) {
+    if (domain == nullptr) {
+      w.walker = std::make_unique<StarWalker>(tree, star_options);
+    } else {
+      w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
+      w.builder->set_measures_only(options.measures_only);
     }
-  };
-  make_builders(CellRoute::kAuto);
+  }
   auto stops = [](const Status& st) { return st.code() == Code::kCancelled || st.code() == Code::kDeadlineExceeded; };
   std::vector<VoronoiCell> cells;    // the round's, by seed; reused (their buffers too)
   std::vector<std::uint32_t> order;  // the round's seeds in leaf order
@@ -344,18 +355,6 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     }
     run(workers[0], at, 0, count / used);
     for (std::thread& th : pool) th.join();
-    if (weighted_direct) {
-      std::uint64_t to_star = 0;
-      for (const Worker& w : workers) to_star += w.builder->star_fallbacks();
-      if (2 * (to_star - stars_before) > (to - begin) - seeds_before) {
-        // (Checked before the round's cells are handed over: the next round is the
-        // first by stars. Either way the cells are the same.)
-        weighted_direct = direct = space_order = probing = false;
-        round_now = small_rounds;
-        if (options.facet_cache_bytes != 0 && to < end) share_stars(to, small_rounds);
-        make_builders(CellRoute::kStar);
-      }
-    }
     if (probing || space_order) {
       std::uint64_t to_star = 0;
       for (const Worker& w : workers) to_star += w.builder->star_fallbacks();

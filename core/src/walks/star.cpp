@@ -1163,12 +1163,20 @@ class StarWalker::StarWalk {
   std::size_t prefetched = 0;  // simplices of work_ whose memo entries are being loaded
 };
 
-Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
+Result<bool> StarWalker::hidden(std::uint32_t seed) {
+  if (extras_.weights == nullptr) return false;
   if (seed >= ps_.size()) {
     return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
                         std::to_string(ps_.size()) + " points)");
   }
-  ++stats_.seeds;
+  begin_seed(seed);
+  bool hidden = false, started = false;
+  std::array<std::uint32_t, kMaxDimension> found{};
+  if (Status s = power_start(hidden, found.data(), started); !s.is_ok()) return s;
+  return hidden;
+}
+
+void StarWalker::begin_seed(std::uint32_t seed) {
   x_ = seed;
   // Heights are at least |q|^2 minus this (rounded up: the difference's rounding
   // error is below 2^-53 of it).
@@ -1181,6 +1189,15 @@ Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
   loaded_ = false;
   missed_candidates_ = 0;
   grown_ = false;
+}
+
+Status StarWalker::compute(std::uint32_t seed, Star& out, StarPart part) {
+  if (seed >= ps_.size()) {
+    return out_of_range("seed " + std::to_string(seed) + " is out of range (the point set has " +
+                        std::to_string(ps_.size()) + " points)");
+  }
+  ++stats_.seeds;
+  begin_seed(seed);
   out.hidden = false;
   if (ring_walk_) return ring_walk_->compute(out, part);
   return StarWalk(*this).run(part, out);
