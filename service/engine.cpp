@@ -542,6 +542,40 @@ std::size_t payload_bytes(const VoronoiCell& c) {
   return bytes;
 }
 
+// Cells gathered into batches of at most batch_size cells and about
+// kMessagePayloadBytes, each handed to `emit` when full; finish() sends the rest (or
+// one empty batch, so that a stream always says where its shard lies).
+class CellBatcher {
+ public:
+  CellBatcher(std::uint32_t batch_size, const Engine::CellBatchSink& emit) : batch_size_(batch_size), emit_(emit) {
+    pending_.reserve(batch_size);
+  }
+  Status add(std::span<const VoronoiCell> cells, std::uint64_t done) {
+    for (const VoronoiCell& c : cells) {
+      pending_.push_back(c);
+      bytes_ += payload_bytes(c);
+      if (pending_.size() == batch_size_ || bytes_ > defaults::kMessagePayloadBytes) {
+        bytes_ = 0;
+        emitted_ = true;
+        if (Status st = emit_(pending_, done); !st.is_ok()) return st;
+        pending_.clear();
+      }
+    }
+    return Status::ok();
+  }
+  Status finish(std::uint64_t done) {
+    if (!pending_.empty() || !emitted_) return emit_(pending_, done);
+    return Status::ok();
+  }
+
+ private:
+  std::uint32_t batch_size_;
+  const Engine::CellBatchSink& emit_;
+  std::vector<VoronoiCell> pending_;
+  std::size_t bytes_ = 0;
+  bool emitted_ = false;
+};
+
 template <class Answer, class Compute, class Emit>
 Status in_rounds(std::size_t count, unsigned threads, std::size_t round_size, const CallControl& control,
                  const std::string& what, Compute&& compute, Emit&& emit) {
@@ -749,24 +783,11 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   options.measures_only = measures_only;
   options.star.cancel = control.stop_flag();
   options.star.weights = s.weights;
-  std::vector<VoronoiCell> pending;
-  pending.reserve(batch_size);
-  std::size_t pending_bytes = 0;
-  bool emitted = false;
+  CellBatcher batches(batch_size, emit);
   std::uint64_t done = 0;
   auto sink = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {
     done = seeds_done;
-    for (const VoronoiCell& c : cells) {
-      pending.push_back(c);
-      pending_bytes += payload_bytes(c);
-      if (pending.size() == batch_size || pending_bytes > defaults::kMessagePayloadBytes) {
-        pending_bytes = 0;
-        emitted = true;
-        if (Status st = emit(pending, done); !st.is_ok()) return st;
-        pending.clear();
-      }
-    }
-    return Status::ok();
+    return batches.add(cells, done);
   };
   Status result = compute_cells(*s.tree, &*domain.value(), options, sink);
   if (!result.is_ok()) {
@@ -776,8 +797,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
     }
     return result;
   }
-  if (!pending.empty() || !emitted) return emit(pending, done);
-  return Status::ok();
+  return batches.finish(done);
 }
 
 Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
@@ -907,8 +927,7 @@ Status Engine::stream_periodic_cells(const StoredSet& set, ShardRange range, std
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a streamed shard of cells", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
-  std::vector<VoronoiCell> pending;
-  bool emitted = false;
+  CellBatcher batches(batch_size, emit);
   auto compute = [&](unsigned, std::size_t i, VoronoiCell& cell) -> Status {
     auto r = periodic_star_of(set, static_cast<std::uint32_t>(range.begin + i), control, &cell, false);
     if (!r.is_ok()) return r.status();
@@ -918,28 +937,14 @@ Status Engine::stream_periodic_cells(const StoredSet& set, ShardRange range, std
     }
     return Status::ok();
   };
-  std::size_t pending_bytes = 0;
-  auto take = [&](std::span<const VoronoiCell> cells, std::size_t done) -> Status {
-    for (const VoronoiCell& cell : cells) {
-      pending.push_back(cell);
-      pending_bytes += payload_bytes(cell);
-      if (pending.size() == batch_size || pending_bytes > defaults::kMessagePayloadBytes) {
-        pending_bytes = 0;
-        emitted = true;
-        if (Status st = emit(pending, done); !st.is_ok()) return st;
-        pending.clear();
-      }
-    }
-    return Status::ok();
-  };
+  auto take = [&](std::span<const VoronoiCell> cells, std::size_t done) { return batches.add(cells, done); };
   const std::size_t round = (set.info.dimension <= 3 ? 64 : 16) * threads;
   if (Status st = in_rounds<VoronoiCell>(range.end - range.begin, threads, round, control,
                                          "streaming periodic cells", compute, take);
       !st.is_ok()) {
     return st;
   }
-  if (!pending.empty() || !emitted) return emit(pending, range.end - range.begin);
-  return Status::ok();
+  return batches.finish(range.end - range.begin);
 }
 
 }  // namespace spokemesh::service
