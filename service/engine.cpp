@@ -201,6 +201,11 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
   // tree and split would be built for nothing: queries go to the new set).
   auto parent = store_->info(parent_id);
   if (!parent.is_ok()) return parent.status();
+  if (added.weighted || !added.periodic_box.empty()) {
+    return failed_precondition(std::string(added.weighted ? "weighted" : "periodic_box") +
+                               ": an append adds points only; to store weights or a periodic box, upload the "
+                               "whole set with them");
+  }
   if (parent->weighted || !parent->periodic_box.empty()) {
     return failed_precondition("point set " + parent_id + " is " + (parent->weighted ? "weighted" : "periodic") +
                                ": appending to it is not supported (the new points would need " +

@@ -572,6 +572,9 @@ TEST(Engine, WeightedSetsAnswerThePowerDiagramThroughEveryRoute) {
   approx.mode = NeighborQuery::Mode::kApproximate;
   EXPECT_NE(engine->neighbors(info->id, 0, approx, control).status().message().find("weighted"), std::string::npos);
   EXPECT_EQ(engine->begin_append(info->id, header_of(0, 1, "")).status().code(), Code::kFailedPrecondition);
+  UploadHeader weighted_append = header_of(0, 1, "");
+  weighted_append.weighted = true;
+  EXPECT_EQ(engine->begin_append(plain, weighted_append).status().code(), Code::kFailedPrecondition);
 }
 
 // Rows as sortable (point, offset) keys, for comparing meshes as sets of simplices.
