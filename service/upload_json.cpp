@@ -111,14 +111,18 @@ class UploadSax final : public nlohmann::json_sax<json> {
       return fail(resource_exhausted("body: more than " + std::to_string(max_values_) +
                                      " coordinates (this server's limits --max-points times --max-dimension)"));
     }
-    if (coords_.size() == coords_.capacity() && charge_ != nullptr) {
-      // Grown here, as the vector would, so the charge follows the capacity.
-      const std::size_t next = std::max<std::size_t>(1024, 2 * coords_.capacity());
-      const std::uint64_t more = (next - coords_.capacity()) * sizeof(double);
-      if (!charge_->grow(more)) return fail(budget_->over_budget("parsing the uploaded coordinates", more));
-      coords_.reserve(next);
+    return charged_push(coords_, v, "parsing the uploaded coordinates");
+  }
+  // Appends v to `to`, growing it here as the vector would, so that the charge follows
+  // the capacity (RESOURCE_EXHAUSTED when the budget cannot take it).
+  bool charged_push(std::vector<double>& to, double v, const char* what) {
+    if (to.size() == to.capacity() && charge_ != nullptr) {
+      const std::size_t next = std::max<std::size_t>(1024, 2 * to.capacity());
+      const std::uint64_t more = (next - to.capacity()) * sizeof(double);
+      if (!charge_->grow(more)) return fail(budget_->over_budget(what, more));
+      to.reserve(next);
     }
-    coords_.push_back(v);
+    to.push_back(v);
     return true;
   }
 
@@ -133,14 +137,7 @@ class UploadSax final : public nlohmann::json_sax<json> {
         return fail(resource_exhausted("weights: more than this server's limit --max-points=" +
                                        std::to_string(max_points_)));
       }
-      if (weights_.size() == weights_.capacity() && charge_ != nullptr) {
-        const std::size_t next = std::max<std::size_t>(1024, 2 * weights_.capacity());
-        const std::uint64_t more = (next - weights_.capacity()) * sizeof(double);
-        if (!charge_->grow(more)) return fail(budget_->over_budget("parsing the uploaded weights", more));
-        weights_.reserve(next);
-      }
-      weights_.push_back(v);
-      return true;
+      return charged_push(weights_, v, "parsing the uploaded weights");
     }
     if (depth_ == 2 && field_ == Field::kBox) {
       if (header_.periodic_box.size() >= 2 * static_cast<std::size_t>(kMaxApproxDimension)) {
