@@ -26,6 +26,9 @@ packages=(
   libglpk-dev
   # spokemesh-mpi (issue 26): Open MPI 4.1, its compilers' wrappers and mpirun
   libopenmpi-dev openmpi-bin
+  # the browser page (issue 29): three.js served from the system package, and the
+  # page's tests in headless Chromium driven by Selenium
+  libjs-three chromium chromium-driver python3-selenium
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers
   clang libfuzzer-14-dev libclang-rt-14-dev
   # the container system test (scripts/container-test.sh): rootful podman with runc,

@@ -214,8 +214,8 @@ struct HttpApi::Context {
 };
 
 HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
-                 std::function<bool()> ready)
-    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), ready_(std::move(ready)) {}
+                 std::function<bool()> ready, std::shared_ptr<const UiAssets> ui)
+    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), ready_(std::move(ready)), ui_(std::move(ui)) {}
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
@@ -266,6 +266,18 @@ HttpResponse HttpApi::route(Context& c) {
     HttpResponse r;
     r.body = kOpenApiJson;
     return r;
+  }
+  // The browser page: static files holding no data, so no token is asked for them (the
+  // page asks for one and sends it with each API call).
+  if (ui_ != nullptr && method == http::verb::get && (p.empty() || p[0] == "docs" || p[0] == "ui")) {
+    if (const UiAsset* asset = ui_->find(target.substr(0, target.find('?')))) {
+      c.record.method = "Page";
+      HttpResponse r;
+      r.content_type = asset->content_type;
+      r.body = std::string(asset->body);
+      r.headers = UiAssets::security_headers();
+      return r;
+    }
   }
   if (p.size() == 1 && p[0] == "readyz" && method == http::verb::get) {
     c.record.method = "Readyz";
@@ -350,6 +362,11 @@ HttpResponse HttpApi::route(Context& c) {
     if (method != http::verb::get) return wrong_method();
     c.record.method = "StreamCells";
     return cells(c, id);
+  }
+  if (p.size() == 4 && p[3] == "points") {
+    if (method != http::verb::get) return wrong_method();
+    c.record.method = "DownloadPointSet";
+    return points(c, id);
   }
   if (p.size() == 4 && p[3] == "simplices") {
     if (method != http::verb::get) return wrong_method();
@@ -616,6 +633,63 @@ HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
     };
     Status s = engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
                                         static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
+    return finish_stream(record, timer, std::move(s));
+  };
+  return r;
+}
+
+// GET .../points: the coordinates as a NumPy .npy file (format 1.0: a header naming
+// dtype and shape, then the values in C order), streamed in chunks from the stored set
+// so that no copy of it is held. float32 halves the bytes for a viewer.
+HttpResponse HttpApi::points(Context& c, const std::string& id) {
+  const std::string dtype = c.param("dtype").value_or("float64");
+  if (dtype != "float64" && dtype != "float32") {
+    return c.fail(invalid_argument("dtype: \"" + dtype.substr(0, 40) + "\" is not float64 or float32"));
+  }
+  auto set = engine_.point_set(id);
+  if (!set.is_ok()) return c.fail(set.status());
+  HttpResponse r;
+  r.content_type = "application/octet-stream";
+  r.headers = {{"Content-Disposition", "attachment; filename=\"" + id.substr(0, 64) + ".npy\""}};
+  r.stream = [this, set = std::move(set).value(), wide = dtype == "float64", deadline = c.deadline,
+              gone = c.client_gone, record = c.record,
+              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+    CallControl control(deadline, gone);
+    const auto coords = set->points.coordinates();
+    const std::size_t n = set->points.size(), d = static_cast<std::size_t>(set->points.dimension());
+    std::string header = std::string("{'descr': '") + (wide ? "<f8" : "<f4") +
+                         "', 'fortran_order': False, 'shape': (" + std::to_string(n) + ", " + std::to_string(d) +
+                         "), }";
+    // Magic, version 1.0, a little-endian u16 length, then the dict padded with spaces
+    // and ended by a newline so that the data starts on a 64-byte boundary.
+    const std::size_t unpadded = 10 + header.size() + 1;
+    header.append((64 - unpadded % 64) % 64, ' ');
+    header += '\n';
+    std::string chunk("\x93NUMPY\x01\x00", 8);
+    chunk += static_cast<char>(header.size() & 0xff);
+    chunk += static_cast<char>(header.size() >> 8);
+    chunk += header;
+    Status s = Status::ok();
+    if (!write_chunk(chunk)) s = cancelled("download stopped: the client went away");
+    constexpr std::size_t kValues = defaults::kDownloadChunkBytes / sizeof(double);
+    std::vector<float> narrow;
+    for (std::size_t at = 0; s.is_ok() && at < coords.size(); at += kValues) {
+      if (control.stopped()) {
+        s = control.stopped_status("download");
+        break;
+      }
+      const std::size_t count = std::min(kValues, coords.size() - at);
+      std::string_view bytes;
+      if (wide) {
+        // float64 is stored little-endian already (x86-64 and aarch64 hosts).
+        bytes = {reinterpret_cast<const char*>(coords.data() + at), count * sizeof(double)};
+      } else {
+        narrow.assign(coords.begin() + static_cast<std::ptrdiff_t>(at),
+                      coords.begin() + static_cast<std::ptrdiff_t>(at + count));
+        bytes = {reinterpret_cast<const char*>(narrow.data()), count * sizeof(float)};
+      }
+      if (!write_chunk(bytes)) s = cancelled("download stopped: the client went away");
+    }
     return finish_stream(record, timer, std::move(s));
   };
   return r;

@@ -13,7 +13,10 @@
 //   GET    /v1/pointsets/{id}/seeds/{seed}/star | neighbors | cell
 //   GET    /v1/pointsets/{id}/simplices?shard=k&shards=n[&batch_size=b]
 //                                              NDJSON, one simplex per line, chunked
+//   GET    /v1/pointsets/{id}/points[?dtype=float64|float32]
+//                                              the coordinates as a .npy file (n, d), chunked
 //   GET    /healthz  /readyz  /metrics
+//   GET    /  /docs  /ui/{file}                the browser page (ui.hpp; absent with --no-ui)
 // A request may carry `X-Timeout-Ms: <ms>` to shorten its deadline (default
 // --default-deadline). With an auth token configured, every route but /healthz and
 // /readyz needs `Authorization: Bearer <token>`.
@@ -34,6 +37,7 @@
 #include "auth.hpp"
 #include "engine.hpp"
 #include "telemetry.hpp"
+#include "ui.hpp"
 
 namespace spokemesh::service {
 
@@ -43,6 +47,8 @@ struct HttpResponse {
   unsigned status = 200;
   std::string content_type = "application/json";
   std::string body;
+  // Further header fields (the page's Content-Security-Policy, a download's name).
+  std::vector<std::pair<std::string, std::string>> headers;
   // Streaming responses: called after handle_request() returns, with a function that
   // sends one chunk (false once the client is gone). If it fails before the first
   // chunk, `status`/`body` are replaced by the error it returns.
@@ -55,8 +61,10 @@ std::string error_json(const Status& s, int http_code = 0);
 
 class HttpApi {
  public:
-  // ready(): false while starting or shutting down (/readyz answers 503).
-  HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth, std::function<bool()> ready);
+  // ready(): false while starting or shutting down (/readyz answers 503). ui: the
+  // browser page's files; null (--no-ui) serves no page at all.
+  HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth, std::function<bool()> ready,
+          std::shared_ptr<const UiAssets> ui = nullptr);
 
   // client_gone: polled during long computations to stop work for a closed connection.
   HttpResponse handle_request(const http::request<http::string_body>& request,
@@ -76,6 +84,7 @@ class HttpApi {
                             std::span<const char> weights = {});
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
   HttpResponse simplices(Context& c, const std::string& id);
+  HttpResponse points(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);
   HttpResponse batch(Context& c, const std::string& id, const std::string& what);
   static Result<DomainSpec> domain_from_query(Context& c);
@@ -87,6 +96,7 @@ class HttpApi {
   Telemetry& telemetry_;
   std::shared_ptr<const Authenticator> auth_;
   std::function<bool()> ready_;
+  std::shared_ptr<const UiAssets> ui_;
 };
 
 }  // namespace spokemesh::service

@@ -266,6 +266,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       http::response<http::empty_body> head{http::status::ok, request_.version()};
       head.set(http::field::server, "spokemesh");
       head.set(http::field::content_type, response.content_type);
+      for (const auto& [name, value] : response.headers) head.set(name, value);
       head.keep_alive(keep_alive);
       head.chunked(true);
       http::response_serializer<http::empty_body> serializer{head};
@@ -284,6 +285,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       const Status s = response.stream(write_chunk);
       if (!head_sent && !s.is_ok()) {
         response.stream = nullptr;
+        response.headers.clear();  // a download's name is no error's
         response.status = static_cast<unsigned>(http_status(s));
         response.content_type = "application/json";
         response.body = error_json(s);
@@ -303,6 +305,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       res.result(response.status);
       res.set(http::field::server, "spokemesh");
       res.set(http::field::content_type, response.content_type);
+      for (const auto& [name, value] : response.headers) res.set(name, value);
       res.keep_alive(keep_alive);
       if (response.status == 503) res.set(http::field::retry_after, "1");
       res.body() = std::move(response.body);

@@ -105,7 +105,15 @@ int run_server(const ServerConfig& config) {
   }
 
   MesherService mesher(engine, telemetry, auth);
-  HttpApi api(engine, telemetry, auth, [&ready] { return ready.load(); });
+  std::shared_ptr<const UiAssets> ui;
+  if (config.ui) {
+    ui = UiAssets::load(config.ui_three_dir);
+    if (!ui->missing().empty()) {
+      telemetry.log("warning", "the browser page cannot draw: three.js not found at " + ui->missing() +
+                                   " (install Debian's libjs-three, or give --ui-three-dir)");
+    }
+  }
+  HttpApi api(engine, telemetry, auth, [&ready] { return ready.load(); }, ui);
   HttpServer http_server(api, telemetry, http_options);
 
   grpc::EnableDefaultHealthCheckService(true);
@@ -143,6 +151,10 @@ int run_server(const ServerConfig& config) {
                             http_host + ":" + std::to_string(http_port.value()) +
                             (config.tls_cert.empty() ? "" : " (TLS)") +
                             (auth->enabled() ? " (" + std::to_string(auth->key_count()) + " API keys)" : ""));
+  if (ui) {
+    telemetry.log("info", std::string("the browser page: ") + (config.tls_cert.empty() ? "http" : "https") + "://" +
+                              http_host + ":" + std::to_string(http_port.value()) + "/ (API documentation at /docs)");
+  }
 
   int signal_number = 0;
   for (;;) {

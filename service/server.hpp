@@ -31,6 +31,8 @@ struct ServerConfig {
   std::string tls_cert, tls_key, tls_client_ca;  // PEM files; empty: plain
   std::string token;                             // from --auth-token-file
   std::string keys_file;                         // --keys, re-read on SIGHUP
+  bool ui = true;                                // serve the browser page (--no-ui: not)
+  std::string ui_three_dir = "/usr/share/javascript/three";  // Debian's libjs-three
   std::chrono::milliseconds drain{0}, grace{0};
   std::string drain_text, grace_text;  // as given, for the log
 };
@@ -59,6 +61,8 @@ struct ServerFlags {
   std::string http_write_timeout = defaults::duration_text(defaults::kHttpWriteTimeout);
   std::string tls_handshake_timeout = defaults::duration_text(defaults::kTlsHandshakeTimeout);
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file, keys_file;
+  bool no_ui = false;
+  std::string ui_three_dir = "/usr/share/javascript/three";
 };
 
 // Adds every flag to `app` (its defaults are the fields' values).

@@ -114,6 +114,10 @@ void add_server_flags(CLI::App& app, ServerFlags& f) {
   app.add_option("--auth-token-file", f.auth_token_file,
                  "File holding a bearer token that every request must carry (health and readiness exempt); it "
                  "acts as one admin key");
+  app.add_flag("--no-ui", f.no_ui, "Serve no browser page: /, /docs and /ui/* answer 404 (the API is unchanged)");
+  app.add_option("--ui-three-dir", f.ui_three_dir,
+                 "Where the page finds three.js (Debian's libjs-three), read once at startup")
+      ->capture_default_str();
   app.add_option("--keys", f.keys_file,
                  "API keys with tenants, one `key tenant [admin]` per line (re-read on SIGHUP): a tenant sees only "
                  "its own point sets, an admin all");
@@ -184,6 +188,8 @@ Result<ServerConfig> make_config(const ServerFlags& f) {
     if (c.token.empty()) return invalid_argument("--auth-token-file: " + f.auth_token_file + " is empty");
   }
   c.keys_file = f.keys_file;
+  c.ui = !f.no_ui;
+  c.ui_three_dir = f.ui_three_dir;
   return c;
 }
 
