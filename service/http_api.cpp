@@ -278,6 +278,8 @@ HttpResponse HttpApi::route(Context& c) {
       r.headers = UiAssets::security_headers();
       return r;
     }
+    // /ui/ holds only the page's files: an unknown one is absent, token or not.
+    if (!p.empty() && p[0] == "ui") return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
   }
   if (p.size() == 1 && p[0] == "readyz" && method == http::verb::get) {
     c.record.method = "Readyz";

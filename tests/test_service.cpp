@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -743,6 +744,102 @@ void expect_error(const HttpResponse& r, unsigned status, const std::string& cod
   EXPECT_EQ(j["error"]["code"], status);
   EXPECT_EQ(j["error"]["status"], code);
   EXPECT_NE(j["error"]["message"].get<std::string>().find(fragment), std::string::npos) << r.body;
+}
+
+// GET .../points: a .npy that numpy's format 1.0 reader takes: magic, a padded header
+// naming dtype and shape, the values from a 64-byte boundary, float64 exact or float32.
+TEST(Rest, PointsRouteIsANpyFile) {
+  Rest rest;
+  std::vector<double> raw;
+  for (int i = 0; i < 300; ++i) raw.push_back(0.1 * i + 1.0 / 3.0);  // 100 points in 3-d
+  HttpResponse up = rest.call(http::verb::post, "/v1/pointsets?dimension=3",
+                              std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8),
+                              "application/octet-stream");
+  ASSERT_EQ(up.status, 201u) << up.body;
+  const std::string id = json::parse(up.body)["id"];
+  auto fetch = [&](const std::string& query) {
+    HttpResponse r = rest.call(http::verb::get, "/v1/pointsets/" + id + "/points" + query);
+    EXPECT_TRUE(r.stream) << r.body;
+    std::string body;
+    if (r.stream) {
+      EXPECT_TRUE(r.stream([&](std::string_view chunk) {
+                    body += chunk;
+                    return true;
+                  }).is_ok());
+    }
+    EXPECT_EQ(r.content_type, "application/octet-stream");
+    return body;
+  };
+  for (const bool wide : {true, false}) {
+    const std::string body = fetch(wide ? "" : "?dtype=float32");
+    ASSERT_GT(body.size(), 10u);
+    EXPECT_EQ(body.substr(0, 8), std::string("\x93NUMPY\x01\x00", 8));
+    const std::size_t header = static_cast<unsigned char>(body[8]) | (static_cast<unsigned char>(body[9]) << 8);
+    EXPECT_EQ((10 + header) % 64, 0u);
+    const std::string dict = body.substr(10, header);
+    EXPECT_NE(dict.find(wide ? "'descr': '<f8'" : "'descr': '<f4'"), std::string::npos) << dict;
+    EXPECT_NE(dict.find("'shape': (100, 3)"), std::string::npos) << dict;
+    EXPECT_EQ(dict.back(), '\n');
+    const std::size_t width = wide ? 8 : 4;
+    ASSERT_EQ(body.size(), 10 + header + raw.size() * width);
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      if (wide) {
+        double v;
+        std::memcpy(&v, body.data() + 10 + header + 8 * i, 8);
+        ASSERT_EQ(v, raw[i]) << i;
+      } else {
+        float v;
+        std::memcpy(&v, body.data() + 10 + header + 4 * i, 4);
+        ASSERT_EQ(v, static_cast<float>(raw[i])) << i;
+      }
+    }
+  }
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/points?dtype=int8"), 400, "INVALID_ARGUMENT",
+               "dtype: \"int8\" is not float64 or float32");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + std::string(64, '0') + "/points"), 404, "NOT_FOUND",
+               std::string(64, '0'));
+  expect_error(rest.call(http::verb::post, "/v1/pointsets/" + id + "/points"), 501, "UNIMPLEMENTED", "POST");
+}
+
+// The page: served with its Content-Security-Policy when the server has it, and not at
+// all (404, like any unknown path) when started with --no-ui.
+TEST(Rest, PageIsServedOnlyWithUi) {
+  Rest plain;  // no UiAssets: --no-ui
+  for (const char* path : {"/", "/docs", "/ui/app.js", "/ui/three.min.js"}) {
+    expect_error(plain.call(http::verb::get, path), 404, "NOT_FOUND", "no route");
+  }
+  TempDir three;
+  std::filesystem::create_directories(three.path() + "/build");
+  std::ofstream(three.path() + "/build/three.min.js") << "var THREE = {};";
+  Telemetry telemetry;
+  const auto ui = UiAssets::load(three.path());
+  EXPECT_NE(ui->missing().find("OrbitControls.js"), std::string::npos);  // the other file is absent
+  EXPECT_LE(ui->embedded_bytes(), std::size_t{1} << 20);  // the budget for the page's own files
+  HttpApi api(*plain.engine, telemetry, token_auth("s3cret"), [] { return true; }, ui);
+  auto get = [&](const std::string& target) {
+    http::request<http::string_body> req{http::verb::get, target, 11};
+    return api.handle_request(req);
+  };
+  for (const char* path : {"/", "/docs", "/ui/app.js", "/ui/app.css", "/ui/docs.js", "/ui/three.min.js"}) {
+    HttpResponse r = get(path);  // no token needed: the files hold no data
+    EXPECT_EQ(r.status, 200u) << path << " " << r.body;
+    bool csp = false;
+    for (const auto& [name, value] : r.headers) {
+      if (name == "Content-Security-Policy") {
+        csp = true;
+        EXPECT_NE(value.find("script-src 'self'"), std::string::npos);
+        EXPECT_EQ(value.find("unsafe-inline"), std::string::npos);
+      }
+    }
+    EXPECT_TRUE(csp) << path;
+  }
+  EXPECT_EQ(get("/").content_type, "text/html; charset=utf-8");
+  EXPECT_EQ(get("/ui/app.js").content_type, "text/javascript; charset=utf-8");
+  EXPECT_EQ(get("/ui/three.min.js").body, "var THREE = {};");
+  expect_error(get("/ui/OrbitControls.js"), 404, "NOT_FOUND", "no route");
+  expect_error(get("/ui/missing.js"), 404, "NOT_FOUND", "no route");
+  // The data still needs the token.
+  expect_error(get("/v1/pointsets"), 401, "UNAUTHENTICATED", "Authorization");
 }
 
 TEST(Rest, EveryRoute) {

@@ -522,6 +522,8 @@
       computeFrame();
       setupCamera();
       redraw();
+      status('view-status', 'Projected on ' + state.axes.filter((k) => k >= 0).map((k) => 'x' + (k + 1)).join(', ') +
+        '. Drag to ' + (drawn3d() ? 'orbit' : 'pan') + ', scroll to zoom.');
     });
   }
 
@@ -706,7 +708,9 @@
       });
     } catch (e) {
       progress('view-progress', null);
-      status('view-status', 'The cells stopped: ' + e.message, true);
+      const hint = /outside the domain/.test(e.message) ? ' To draw every cell, the clip box must hold every point ' +
+        '(reset gives the bounding box).' : '';
+      status('view-status', 'The cells stopped: ' + e.message + '.' + hint, true);
       return;
     }
     progress('view-progress', null);
@@ -717,12 +721,12 @@
     for (const cell of cells) {
       if (cell.volume === null || !cell.vertices.length) continue;
       const before = tri.length;
-      cellGeometry(cell, d === 3 ? 0.8 : 1, tri, edges);
+      cellGeometry(cell, d === 3 ? 0.6 : 1, tri, edges);  // 3-d: pulled apart, so one sees between
       const rgb = ramp(hi > lo ? (cell.volume - lo) / (hi - lo) : 0.5);
       for (let i = before; i < tri.length; i += 3) colors.push(...rgb);
     }
     view.layers.overlay.add(meshObject(new Float32Array(tri), new Float32Array(colors), 0, d === 3 ? 0.9 : 0.85));
-    view.layers.overlay.add(segmentsObject(new Float32Array(edges), 0x333333, 0.5));
+    view.layers.overlay.add(segmentsObject(new Float32Array(edges), 0x333333, d === 3 ? 0.2 : 0.5));
     $('overlay').replaceChildren(el('div', { text: 'cell volume ' + num(lo) + ' … ' + num(hi) }), el('div', { class: 'legend' }));
     status('view-status', cells.length + ' cells, coloured by volume (sum ' + num(volumes.reduce((s, v) => s + v, 0)) + ').');
     render();
@@ -885,9 +889,10 @@
     const shift = target.clone().sub(view.controls.target);
     view.controls.target.copy(target);
     view.camera.position.add(shift);
-    const reach = 12 / Math.max(1, Math.cbrt(state.set.count));  // a few mean spacings
+    // A few mean spacings of the drawn points (the drawing spans about [-1, 1]).
+    const reach = 8 / Math.pow(Math.max(1, state.set.count), 1 / (drawn3d() ? 3 : 2));
     if (view.camera.isOrthographicCamera) {
-      view.camera.zoom = Math.min(1e4, 1 / reach);
+      view.camera.zoom = Math.min(1e4, 1.1 / reach);
       view.camera.updateProjectionMatrix();
     } else {
       const dir = view.camera.position.clone().sub(target).normalize();
@@ -897,9 +902,14 @@
     render();
   });
   $('seed').addEventListener('keydown', (e) => { if (e.key === 'Enter') selectSeed(Number($('seed').value)); });
+  $('box-reset').addEventListener('click', () => {
+    if (!state.set || !state.coords || state.set.periodic_box) return;
+    $('box').value = defaultBox().map((v) => num(v)).join(',');
+    $('box').dispatchEvent(new Event('change'));
+  });
   $('box').addEventListener('change', () => {
+    if (state.mode === 'cells') redraw();
     if (state.seed !== null) selectSeed(state.seed);
-    else if (state.mode === 'cells') redraw();
   });
 
   // ---- start ---------------------------------------------------------------------------------

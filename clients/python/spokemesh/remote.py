@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import io
 import json
+import ssl
 import time
+import urllib.error
+import urllib.parse
+import urllib.request
 from typing import Any, Iterator, List, Optional, Sequence
 
 import grpc
@@ -120,13 +125,16 @@ class Client:
     target: "host:port". timeout: seconds allowed for each call (every call has a
     deadline). token: bearer token, if the server requires one. root_certificates /
     private_key / certificate_chain: PEM bytes for TLS / mutual TLS.
+    rest: the same server's REST base URL ("http://host:8080"), if download() should
+    fetch coordinates as one .npy file from GET /v1/pointsets/{id}/points (what the
+    browser page uses; TLS is verified against root_certificates).
     Calls failing with UNAVAILABLE are retried (RETRY_SERVICE_CONFIG).
     Thread safety: a Client may be shared by threads (gRPC channels are thread-safe).
     """
 
     def __init__(self, target: str, *, timeout: float = 60.0, token: Optional[str] = None,
                  root_certificates: Optional[bytes] = None, private_key: Optional[bytes] = None,
-                 certificate_chain: Optional[bytes] = None):
+                 certificate_chain: Optional[bytes] = None, rest: Optional[str] = None):
         options = [("grpc.max_receive_message_length", 64 << 20), ("grpc.enable_retries", 1),
                    ("grpc.service_config", RETRY_SERVICE_CONFIG)]
         if root_certificates is not None:
@@ -137,6 +145,9 @@ class Client:
         self._stub = pb_grpc.MesherStub(self._channel)
         self._timeout = timeout
         self._metadata = [("authorization", f"Bearer {token}")] if token else []
+        self._token = token
+        self._rest = rest.rstrip("/") if rest else None
+        self._rest_tls = ssl.create_default_context(cadata=root_certificates.decode()) if root_certificates else None
 
     def close(self) -> None:
         """Closes the channel (also on leaving a `with` block)."""
@@ -242,8 +253,16 @@ class Client:
         """Deletes a point set (for this caller's tenant; for everyone with an admin key)."""
         self._call(self._stub.DeletePointSet, pb.DeletePointSetRequest(point_set_id=point_set_id))
 
-    def download(self, point_set_id: str) -> np.ndarray:
-        """The uploaded coordinates, (n, d) float64, in upload order."""
+    def download(self, point_set_id: str, dtype: str = "float64") -> np.ndarray:
+        """The uploaded coordinates, (n, d), in upload order: float64 exactly as stored,
+        or float32 (half the transfer, for drawing; needs `rest`). With `rest` they come
+        as one .npy file over REST, else in gRPC chunks."""
+        if dtype not in ("float64", "float32"):
+            raise ValueError(f"dtype: {dtype!r} is not float64 or float32")
+        if self._rest is not None:
+            return self._download_npy(point_set_id, dtype)
+        if dtype != "float64":
+            raise ValueError("dtype: float32 downloads need the REST address (Client(..., rest=...))")
         info = self.get(point_set_id)
         try:
             chunks = [c.coordinates for c in self._stub.DownloadPointSet(
@@ -251,6 +270,25 @@ class Client:
         except grpc.RpcError as e:
             raise Error(e.code(), e.details()) from None
         return np.frombuffer(b"".join(chunks), dtype="<f8").reshape(info.count, info.dimension)
+
+    def _download_npy(self, point_set_id: str, dtype: str) -> np.ndarray:
+        url = (f"{self._rest}/v1/pointsets/{urllib.parse.quote(point_set_id, safe='')}/points?"
+               + urllib.parse.urlencode({"dtype": dtype}))
+        headers = {"Authorization": f"Bearer {self._token}"} if self._token else {}
+        try:
+            with urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=self._timeout,
+                                        context=self._rest_tls) as r:
+                body = r.read()
+        except urllib.error.HTTPError as e:  # the REST error body names the gRPC status
+            try:
+                error = json.loads(e.read())["error"]
+                code, message = getattr(grpc.StatusCode, error["status"], grpc.StatusCode.UNKNOWN), error["message"]
+            except (ValueError, KeyError):
+                code, message = grpc.StatusCode.UNKNOWN, f"HTTP {e.code}"
+            raise Error(code, message) from None
+        except urllib.error.URLError as e:
+            raise Error(grpc.StatusCode.UNAVAILABLE, f"{url}: {e.reason}") from None
+        return np.load(io.BytesIO(body), allow_pickle=False)
 
     # ---- per-seed queries -------------------------------------------------------
 
