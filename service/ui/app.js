@@ -281,7 +281,7 @@
   // ---- drawing ------------------------------------------------------------------------
 
   const view = { ready: false };
-  const COLORS = { points: 0x4a5560, seed: 0xd62728, neighbor: 0xff7f0e, star: 0x1f6feb, centre: 0x2ca02c,
+  const COLORS = { points: 0x4a5560, faded: 0xc5cbd1, seed: 0xd62728, neighbor: 0xff7f0e, star: 0x1f6feb, centre: 0x2ca02c,
     cell: 0x9467bd, box: 0x999999, mesh: 0x1f6feb };
 
   function setupRenderer() {
@@ -823,6 +823,10 @@
       cellGeometry(answer.cell, 1, tri, edges);
       layer.add(meshObject(new Float32Array(tri), null, COLORS.cell, 0.25));
       layer.add(segmentsObject(new Float32Array(edges), COLORS.cell, 1));
+      if (state.mode === 'points') {
+        $('overlay').textContent = 'seed ' + answer.seed + ' (red): its star (blue), circumcentres (green), ' +
+          'Delaunay neighbours (orange) and Voronoi cell (purple)';
+      }
     } else if (answer.cell && answer.cell.vertices.length) {
       const positions = new Float32Array(answer.cell.vertices.length * 3);
       answer.cell.vertices.forEach((p, i) => toWorld(p, positions, 3 * i));
@@ -833,6 +837,9 @@
       try { const o = boxOutline(clipBox(), COLORS.box); if (o) layer.add(o); } catch (e) { /* no box */ }
     }
     layer.add(pointsObject(seedWorld, COLORS.seed, 9));
+    // The seed's drawing stays in front of the cloud, which fades behind it.
+    for (const child of layer.children) { child.material.depthTest = false; child.renderOrder = 10; }
+    if (view.pointsObject) view.pointsObject.material.color.setHex(COLORS.faded);
   }
 
   function showSeedDetails(a) {
