@@ -97,7 +97,14 @@
     if (b < 1 << 30) return (b / (1 << 20)).toFixed(1) + ' MiB';
     return (b / (1 << 30)).toFixed(2) + ' GiB';
   }
-  const num = (x) => (x === null || x === undefined ? '—' : Number(x).toPrecision(6).replace(/\.?0+(e|$)/, '$1'));
+  // Six significant digits, trailing zeros of a fraction dropped (100000 stays 100000).
+  function num(x) {
+    if (x === null || x === undefined) return '—';
+    const t = Number(x).toPrecision(6);
+    return t.includes('.') ? t.replace(/0+(e|$)/, '$1').replace(/\.(e|$)/, '$1') : t;
+  }
+  // A box coordinate: enough digits that rounding cannot move a wall across a point.
+  const boxText = (v) => String(Number(v.toPrecision(15)));
   function el(tag, attrs, ...children) {
     const node = document.createElement(tag);
     for (const [k, v] of Object.entries(attrs || {})) {
@@ -608,7 +615,7 @@
     progress('view-progress', null);
     setupProjection();
     computeFrame();
-    $('box').value = info.periodic_box ? info.periodic_box.join(',') : defaultBox().map((v) => num(v)).join(',');
+    $('box').value = info.periodic_box ? info.periodic_box.join(',') : defaultBox().map(boxText).join(',');
     $('box').disabled = !!info.periodic_box;
     $('box').title = info.periodic_box ? 'a periodic set\'s cells live on its torus' : 'lo_1..lo_d, hi_1..hi_d';
     if (!setupRenderer()) return;
@@ -930,7 +937,7 @@
   $('seed').addEventListener('keydown', (e) => { if (e.key === 'Enter') selectSeed(Number($('seed').value)); });
   $('box-reset').addEventListener('click', () => {
     if (!state.set || !state.coords || state.set.periodic_box) return;
-    $('box').value = defaultBox().map((v) => num(v)).join(',');
+    $('box').value = defaultBox().map(boxText).join(',');
     $('box').dispatchEvent(new Event('change'));
   });
   $('box').addEventListener('change', () => {

@@ -352,3 +352,47 @@ def test_docs_page_renders_every_operation(server, browser):
     assert "/v1/pointsets/{id}/points" in browser.find_element(By.ID, "operations").text
     shot(browser, "docs")
     assert not console_errors(browser), console_errors(browser)
+
+
+def test_drop_a_file_on_the_page(server, browser):
+    """The drop box: a file dropped on it (a synthetic drop event carrying a File, as
+    the browser's own drag and drop delivers it) is parsed, uploaded and opened; a bad
+    one is refused naming its line."""
+    open_page(browser, server.http + "/")
+    wait_for(browser, lambda b: "point set" in text(b, "sets-status"), "the list")
+    drop = """
+        const [name, body] = arguments;
+        const data = new DataTransfer();
+        data.items.add(new File([body], name, {type: 'text/plain'}));
+        document.getElementById('drop').dispatchEvent(new DragEvent('drop', {dataTransfer: data, bubbles: true}));
+    """
+    browser.execute_script(drop, "bad.txt", "0 0\n1 0\n0 x\n")
+    wait_for(browser, lambda b: "line 3, column 2" in text(b, "upload-status"), "the bad file's refusal")
+    pts = uniform(120, 2, 77)
+    browser.execute_script(drop, "dropped.txt", "\n".join(f"{x!r} {y!r}" for x, y in pts) + "\n")
+    wait_for(browser, lambda b: "stored:" in text(b, "upload-status"), "the upload")
+    first_frame(browser)
+    pid = urllib.parse.parse_qs(urllib.parse.urlparse(browser.current_url).fragment)["set"][0]
+    status, info = http_json("GET", f"{server.http}/v1/pointsets/{pid}")
+    assert info["display_name"] == "dropped" and info["count"] == 120
+    status, _, body = http("GET", f"{server.http}/v1/pointsets/{pid}/points")
+    assert np.array_equal(np.load(__import__("io").BytesIO(body)), pts)  # repr() round-trips exactly
+
+
+def test_tenants_see_their_own_sets(start_server, browser, tmp_path):
+    keys = tmp_path / "keys"
+    keys.write_text("key-alice-0123456789 alice\nkey-bob-0123456789ab bob\n")
+    s = start_server("--keys", str(keys))
+    for key, name in (("key-alice-0123456789", "alices"), ("key-bob-0123456789ab", "bobs")):
+        status, _, _ = http("POST", f"{s.http}/v1/pointsets?dimension=2&display_name={name}",
+                            uniform(30, 2, len(name)).tobytes(),
+                            {"Content-Type": "application/octet-stream", "Authorization": f"Bearer {key}"})
+        assert status == 201
+    open_page(browser, s.http + "/")
+    wait_for(browser, lambda b: b.find_element(By.ID, "auth").is_displayed(), "the token prompt")
+    browser.find_element(By.ID, "token").send_keys("key-bob-0123456789ab\n")
+    wait_for(browser, lambda b: text(b, "sets-status") == "1 point set", "bob's list")
+    names = [r.find_elements(By.TAG_NAME, "td")[0].text
+             for r in browser.find_elements(By.CSS_SELECTOR, "#set-table tbody tr")]
+    assert names == ["bobs"]
+    browser.execute_script("sessionStorage.clear()")
