@@ -67,6 +67,11 @@ down
 log "building the images (server: a Release build inside the container)"
 start=$(date +%s)
 "${compose[@]}" build >"$work/build.log" 2>&1 || { tail -n 40 "$work/build.log" >&2; exit 1; }
+# podman-compose's exit status does not always carry a failed image build's: check.
+for image in spokemesh spokemesh-nginx; do
+  podman image exists "localhost/$image:latest" \
+    || { grep -B 5 -m 1 -E '^Error|\*\*\*' "$work/build.log" >&2; log "FAILED: image $image was not built"; exit 1; }
+done
 log "images built in $(( $(date +%s) - start )) s"
 "${compose[@]}" up -d >"$work/up.log" 2>&1 || { tail -n 40 "$work/up.log" >&2; exit 1; }
 log "compose set up: gRPC on 127.0.0.1:$SPOKEMESH_GRPC_PORT, REST on 127.0.0.1:$SPOKEMESH_HTTP_PORT"
@@ -74,3 +79,14 @@ log "compose set up: gRPC on 127.0.0.1:$SPOKEMESH_GRPC_PORT, REST on 127.0.0.1:$
 /usr/bin/python3 tests/container/restart_under_load.py --project "$project" \
   --grpc "127.0.0.1:$SPOKEMESH_GRPC_PORT" --http "http://127.0.0.1:$SPOKEMESH_HTTP_PORT" \
   || { podman logs "${project}_nginx_1" 2>&1 | grep -v ' 200 upstream=' | tail -n 20 >&2; exit 1; }
+# The page through nginx, from a replica: served, with three.js from the image's
+# libjs-three.
+/usr/bin/python3 - "$SPOKEMESH_HTTP_PORT" <<'PY' || { log "FAILED: the page is not served from the image"; exit 1; }
+import sys
+import urllib.request
+base = f"http://127.0.0.1:{sys.argv[1]}"
+for path, needle in (("/", b"/ui/app.js"), ("/ui/three.min.js", b"REVISION"), ("/ui/OrbitControls.js", b"OrbitControls")):
+    with urllib.request.urlopen(base + path, timeout=30) as r:
+        assert r.status == 200 and needle in r.read(), path
+PY
+log "the page is served from the image"

@@ -14,7 +14,7 @@
   const CELLS_LIMIT = 20000;  // points, for every clipped cell at once
   const TOKEN_KEY = 'spokemesh-token';
 
-  const $ = (id) => document.getElementById(id);
+  const { $, el } = window.spokemeshDom;
   const state = {
     token: sessionStorage.getItem(TOKEN_KEY) || '',
     set: null,           // the chosen set's info (id, count, dimension, ...)
@@ -105,14 +105,6 @@
   }
   // A box coordinate: enough digits that rounding cannot move a wall across a point.
   const boxText = (v) => String(Number(v.toPrecision(15)));
-  function el(tag, attrs, ...children) {
-    const node = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs || {})) {
-      if (k === 'class') node.className = v; else if (k === 'text') node.textContent = v; else node.setAttribute(k, v);
-    }
-    for (const c of children) node.append(c);
-    return node;
-  }
   function status(id, text, isError) {
     const node = $(id);
     node.textContent = text;

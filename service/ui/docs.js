@@ -4,15 +4,7 @@
 'use strict';
 
 (() => {
-  const $ = (id) => document.getElementById(id);
-  function el(tag, attrs, ...children) {
-    const node = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs || {})) {
-      if (k === 'class') node.className = v; else if (k === 'text') node.textContent = v; else node.setAttribute(k, v);
-    }
-    for (const c of children) node.append(c);
-    return node;
-  }
+  const { $, el } = window.spokemeshDom;
   // Paragraphs of plain text (blank-line separated), `code` spans kept as code.
   function prose(text) {
     const out = el('div');

@@ -150,7 +150,7 @@ def test_page_headers_and_no_inline_script(server):
         assert " style=" not in page and "<style" not in page and " on" + "click=" not in page
     # The page's own files, and three.js from Debian's libjs-three.
     own = 0
-    for name in ["index.html", "docs.html", "app.js", "docs.js", "app.css", "icon.svg"]:
+    for name in ["index.html", "docs.html", "app.js", "docs.js", "dom.js", "app.css", "icon.svg"]:
         status, _, asset = http("GET", f"{server.http}/ui/{name}")
         assert status == 200, name
         own += len(asset)
