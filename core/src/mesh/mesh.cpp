@@ -3,14 +3,12 @@
 #include "base/dimension.hpp"
 
 #include <algorithm>
-#include <condition_variable>
-#include <deque>
-#include <mutex>
+#include <memory>
 #include <optional>
-#include <thread>
 #include <vector>
 
 #include "spokemesh/front_cache.hpp"
+#include "mesh/ordered_run.hpp"
 
 namespace spokemesh {
 
@@ -23,9 +21,8 @@ std::span<const std::uint32_t> owned_simplices(const Star& star) {
 
 namespace {
 
-struct Block {
-  bool done = false;
-  Status status;
+// A block's rows, as a worker hands them on.
+struct MeshedBlock {
   std::uint64_t seeds = 0;  // seeds of the run in the block
   std::vector<std::uint32_t> simplices;
 };
@@ -75,103 +72,74 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     }
   }
 
-  std::mutex mu;
-  std::condition_variable worker_cv, writer_cv;
-  std::deque<Block> ring;  // ring[i] is block (written + i)
-  std::uint64_t written = 0, next_block = 0;
-  bool stop = false;
   MeshStats total;
   std::size_t worker_bytes = 0;  // the workers' tables, each at its largest
-
-  auto worker = [&] {
+  // A worker: one StarWalker, and with a front its block table.
+  struct Worker {
+    const SpaceSplit& blocks;
+    const MeshOptions& options;
+    const RunOrder& run;  // its seeds, and its sweep range [rank_begin, rank_end)
+    std::uint32_t first_block;
+    MeshStats& total;
+    std::size_t& worker_bytes;
     std::optional<FrontCache> front;
-    if (mail) front.emplace(d, blocks, *mail, run);
-    StarOptions star_options = options.star;
-    star_options.facets = front ? &*front : nullptr;
-    star_options.edges = edges ? &*edges : nullptr;
-    StarWalker walker(tree, star_options);
+    std::optional<StarWalker> walker;
     Star star;
-    std::vector<std::uint32_t> out;
     std::size_t front_bytes = 0;
-    for (;;) {
-      std::uint64_t b;
-      {
-        std::unique_lock lock(mu);
-        worker_cv.wait(lock, [&] { return stop || next_block >= count || next_block < written + window; });
-        if (stop || next_block >= count) break;
-        b = next_block++;
-        if (ring.size() <= b - written) ring.resize(b - written + 1);
-      }
+
+    Status operator()(std::uint64_t b, MeshedBlock& out) {
       const auto block = static_cast<std::uint32_t>(first_block + b);
-      const std::uint32_t lo = std::max(blocks.begin(block), sweep_begin);
-      const std::uint32_t hi = std::min(blocks.end(block), sweep_end);
+      const std::uint32_t lo = std::max(blocks.begin(block), run.rank_begin);
+      const std::uint32_t hi = std::min(blocks.end(block), run.rank_end);
       if (front) front->begin_block(block);
-      out.clear();
-      std::uint64_t seeds = 0;
+      out.simplices.clear();
+      out.seeds = 0;
       Status status;
       for (std::uint32_t r = lo; r < hi; ++r) {
         // The next seeds' points are loads at random (input order): begin them early.
         // (A block's starts are in its worker's table, already in the CPU's caches.)
-        if (r + 4 < hi) walker.prefetch(blocks.point_at(r + 4));
+        if (r + 4 < hi) walker->prefetch(blocks.point_at(r + 4));
         const std::uint32_t s = blocks.point_at(r);
-        if (s < begin || s >= end) continue;
-        ++seeds;
-        status = walker.compute(s, star, options.accept ? StarPart::kWhole : StarPart::kOwned);
+        if (s < run.begin || s >= run.end) continue;
+        ++out.seeds;
+        status = walker->compute(s, star, options.accept ? StarPart::kWhole : StarPart::kOwned);
         if (!status.is_ok()) break;
         if (options.accept && !options.accept(star)) continue;
         const auto owned = owned_simplices(star);
-        out.insert(out.end(), owned.begin(), owned.end());
+        out.simplices.insert(out.simplices.end(), owned.begin(), owned.end());
       }
       if (front) {
         front->end_block();
         front_bytes = std::max(front_bytes, front->held_bytes());
       }
-      std::lock_guard lock(mu);
-      Block& slot = ring[b - written];
-      slot.done = true;
-      slot.status = std::move(status);
-      slot.seeds = seeds;
-      slot.simplices.swap(out);
-      writer_cv.notify_one();
+      return status;
     }
-    std::lock_guard lock(mu);
-    total.star += walker.stats();
-    worker_bytes += front_bytes;
+    void finish() {
+      total.star += walker->stats();
+      worker_bytes += front_bytes;
+    }
   };
-
-  std::vector<std::thread> pool;
-  pool.reserve(threads);
-  for (unsigned t = 0; t < threads; ++t) pool.emplace_back(worker);
-
-  Status failure;
-  std::vector<std::uint32_t> current;
-  std::uint64_t seeds_done = 0;
-  while (written < count) {
-    {
-      std::unique_lock lock(mu);
-      writer_cv.wait(lock, [&] { return !ring.empty() && ring.front().done; });
-      current.swap(ring.front().simplices);
-      failure = std::move(ring.front().status);
-      seeds_done += ring.front().seeds;
-      ring.pop_front();
-      ++written;
-      worker_cv.notify_all();
-    }
-    // Every seed before the next block to write is done: its 2-d posts can go.
-    if (edges) edges->release_before(written < count ? blocks.begin(static_cast<std::uint32_t>(first_block + written))
-                                                     : static_cast<std::uint32_t>(n));
-    if (failure.is_ok()) {
-      total.simplices += current.size() / static_cast<std::size_t>(d + 1);
-      failure = sink(current, seeds_done);
-    }
-    if (!failure.is_ok()) {
-      std::lock_guard lock(mu);
-      stop = true;
-      worker_cv.notify_all();
-      break;
-    }
-  }
-  for (auto& t : pool) t.join();
+  auto make_worker = [&] {
+    auto w = std::unique_ptr<Worker>(new Worker{blocks, options, run, first_block, total, worker_bytes, {}, {}, {}, 0});
+    if (mail) w->front.emplace(d, blocks, *mail, run);
+    StarOptions star_options = options.star;
+    star_options.facets = w->front ? &*w->front : nullptr;
+    star_options.edges = edges ? &*edges : nullptr;
+    w->walker.emplace(tree, star_options);
+    return w;
+  };
+  std::uint64_t written = 0, seeds_done = 0;
+  const Status failure = detail::run_in_order<MeshedBlock>(
+      count, threads, window, make_worker,
+      [&](MeshedBlock& block) -> Status {
+        ++written;
+        // Every seed before the next block to write is done: its 2-d posts can go.
+        if (edges) edges->release_before(written < count ? blocks.begin(static_cast<std::uint32_t>(first_block + written))
+                                                         : static_cast<std::uint32_t>(n));
+        seeds_done += block.seeds;
+        total.simplices += block.simplices.size() / static_cast<std::size_t>(d + 1);
+        return sink(block.simplices, seeds_done);
+      });
   if (!failure.is_ok()) return failure;
   total.seeds = seeds_done;
   total.front_peak_bytes = mail ? mail->peak_bytes() : 0;

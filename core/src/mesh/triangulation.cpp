@@ -10,6 +10,12 @@ namespace spokemesh::detail {
 namespace {
 
 using filter::certified_sign;
+
+// In 3-d, the two vertex positions of a cell other than i and k (i != k): a ridge.
+constexpr int kOthers[4][4][2] = {{{0, 0}, {2, 3}, {1, 3}, {1, 2}},
+                                  {{2, 3}, {0, 0}, {0, 3}, {0, 2}},
+                                  {{1, 3}, {0, 3}, {0, 0}, {0, 1}},
+                                  {{1, 2}, {0, 2}, {0, 1}, {0, 0}}};
 constexpr int kUnknown = filter::kUnknownSign;
 
 // The filters. Each evaluates, in double, the same determinant as the exact stage
@@ -112,17 +118,15 @@ void Triangulation<D>::clear() {
   coords_.assign(D, 0.0);
   pending_.clear();
   cells_.clear();
-  stamp_.clear();
   free_.clear();
   vcell_.assign(1, kNone);
-  mark_.clear();
   gen_ = 0;
   hint_ = kNone;
 }
 
 template <int D>
 std::size_t Triangulation<D>::bytes() const {
-  return cells_.capacity() * (sizeof(Cell) + 2 * sizeof(std::uint32_t)) + free_.capacity() * 4 +
+  return cells_.capacity() * sizeof(Cell) + free_.capacity() * 4 + vcell_.capacity() * 4 +
          global_.capacity() * 8 + coords_.capacity() * sizeof(double);
 }
 
@@ -144,81 +148,90 @@ int Triangulation<D>::infinite_index(std::uint32_t c) const {
 
 template <int D>
 std::uint32_t Triangulation<D>::new_cell() {
+  std::uint32_t c;
   if (!free_.empty()) {
-    const std::uint32_t c = free_.back();
+    c = free_.back();
     free_.pop_back();
-    ++stamp_[c];
-    return c;
+  } else {
+    c = static_cast<std::uint32_t>(cells_.size());
+    cells_.emplace_back();
   }
-  cells_.emplace_back();
-  stamp_.push_back(0);
-  mark_.push_back(0);
-  return static_cast<std::uint32_t>(cells_.size() - 1);
+  cells_[c].mark = 0;
+  cells_[c].tag = 0;
+  return c;
 }
 
 template <int D>
-int Triangulation<D>::orient_at(const Points& x, const Ids& ids) const {
+template <class IdsFn>
+int Triangulation<D>::orient_at(const Points& x, IdsFn&& ids) const {
   int s;
   if constexpr (D == 2) {
     s = orient2_filter(x[0], x[1], x[2]);
   } else {
     s = orient3_filter(x[0], x[1], x[2], x[3]);
   }
-  if (s != kUnknown) return s;
-  ++exact_calls_;
+  if (s != kUnknown) [[likely]] return s;
+  ++stats_.exact_calls;
+  const Ids id = ids();
   std::array<Row, D> rows;
-  for (int r = 0; r < D; ++r) rows[r] = Row::of_point(ids[r + 1]);
-  return pred_.spatial_sign_exact(ids[0], std::span<const Row>(rows.data(), D));
+  for (int r = 0; r < D; ++r) rows[r] = Row::of_point(id[r + 1]);
+  return pred_.spatial_sign_exact(id[0], std::span<const Row>(rows.data(), D));
 }
 
 template <int D>
-int Triangulation<D>::sphere_at(const Points& x, const Ids& ids, const double* q, std::uint32_t q_id) const {
+template <class IdsFn>
+int Triangulation<D>::sphere_at(const Points& x, IdsFn&& ids, const double* q, std::uint32_t q_id) const {
   int s;
   if constexpr (D == 2) {
     s = insphere2_filter(x[0], x[1], x[2], q);
   } else {
     s = insphere3_filter(x[0], x[1], x[2], x[3], q);
   }
-  if (s != kUnknown) return s;
-  ++exact_calls_;
+  if (s != kUnknown) [[likely]] return s;
+  ++stats_.exact_calls;
+  const Ids id = ids();
   std::array<Row, D + 1> rows;
-  for (int r = 0; r < D; ++r) rows[r] = Row::of_point(ids[r + 1]);
+  for (int r = 0; r < D; ++r) rows[r] = Row::of_point(id[r + 1]);
   rows[D] = Row::of_point(q_id);
   // A positive cell: the lifted sign is the side (Predicates::side_of_sphere).
-  return pred_.lifted_sign_exact(ids[0], std::span<const Row>(rows.data(), D + 1), /*perturb=*/true);
+  return pred_.lifted_sign_exact(id[0], std::span<const Row>(rows.data(), D + 1), /*perturb=*/true);
 }
 
 template <int D>
 int Triangulation<D>::orient_points(const std::array<std::uint32_t, D + 1>& v) const {
   Points x;
-  Ids ids;
-  for (int k = 0; k <= D; ++k) {
-    x[k] = coords(v[k]);
-    ids[k] = global_[v[k]];
-  }
-  return orient_at(x, ids);
+  for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
+  return orient_at(x, [&] {
+    Ids ids;
+    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
+    return ids;
+  });
 }
 
 template <int D>
 int Triangulation<D>::orient_with(std::uint32_t c, int i, const double* p, std::uint32_t p_id) const {
+  const auto& v = cells_[c].v;
   Points x;
-  Ids ids;
-  for (int k = 0; k <= D; ++k) {
-    x[k] = k == i ? p : coords(cells_[c].v[k]);
-    ids[k] = k == i ? p_id : global_[cells_[c].v[k]];
-  }
-  return orient_at(x, ids);
+  for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
+  x[i] = p;
+  return orient_at(x, [&] {
+    Ids ids;
+    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
+    ids[i] = p_id;
+    return ids;
+  });
 }
 
 template <int D>
 int Triangulation<D>::side_of_sphere(std::uint32_t c, const double* p, std::uint32_t p_id) const {
+  const auto& v = cells_[c].v;
   Points x;
-  Ids ids;
-  for (int k = 0; k <= D; ++k) {
-    x[k] = coords(cells_[c].v[k]);
-    ids[k] = global_[cells_[c].v[k]];
-  }
-  return sphere_at(x, ids, p, p_id);
+  for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
+  return sphere_at(x, [&] {
+    Ids ids;
+    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
+    return ids;
+  }, p, p_id);
 }
 
 template <int D>
@@ -286,7 +299,7 @@ void Triangulation<D>::start() {
         for (int k = 1; k < have; ++k) rows[r++] = Row::of_point(global_[basis[k]]);
         rows[r++] = Row::of_point(global_[q]);
         for (int k = 0; k < missing; ++k) rows[r++] = Row::of_direction(dirs[pick[k]].data());
-        ++exact_calls_;
+        ++stats_.exact_calls;
         if (pred_.spatial_sign_exact(global_[basis[0]], std::span<const Row>(rows.data(), D)) != 0) {
           independent = true;
           break;
@@ -370,6 +383,7 @@ std::uint32_t Triangulation<D>::locate(std::uint32_t p) const {
       const std::uint32_t nb = cells_[c].n[i];
       if (nb == from) continue;  // p is on c's side of the facet it came through
       if (orient_with(c, i, coords(p), global_[p]) < 0) {
+        ++stats_.walk_steps;
         from = c;
         c = nb;
         moved = true;
@@ -386,7 +400,7 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
   const std::uint32_t start_cell = locate(p);
   // Marks: 2 gen in conflict, 2 gen + 1 tested and not.
   if (gen_ >= 0x7FFFFFF0u) {
-    std::fill(mark_.begin(), mark_.end(), 0);
+    for (Cell& c : cells_) c.mark = 0;
     for (Ridge& r : ridges_) r.gen = 0;
     gen_ = 0;
   }
@@ -398,7 +412,7 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
   cavity_.clear();
   boundary_.clear();
   SPOKEMESH_INVARIANT(conflict_at(start_cell, coords(p), global_[p]), "the cell holding a new point conflicts with it");
-  mark_[start_cell] = in;
+  cells_[start_cell].mark = in;
   stack_.push_back(start_cell);
   while (!stack_.empty()) {
     const std::uint32_t c = stack_.back();
@@ -406,14 +420,14 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
     cavity_.push_back(c);
     for (int i = 0; i <= D; ++i) {
       const std::uint32_t nb = cells_[c].n[i];
-      const std::uint32_t m = mark_[nb];
+      const std::uint32_t m = cells_[nb].mark;
       if (m == in) continue;
       if (m != out && conflict_at(nb, px, pid)) {
-        mark_[nb] = in;
+        cells_[nb].mark = in;
         stack_.push_back(nb);
         continue;
       }
-      mark_[nb] = out;
+      cells_[nb].mark = out;
       boundary_.push_back({c, i});
     }
   }
@@ -430,17 +444,18 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
   // The table holds entries of this insertion only (gen_ stamps them).
   std::uint32_t last = kNone;
   for (const Boundary& b : boundary_) {
-    const Cell old = cells_[b.cell];
     const std::uint32_t nc = new_cell();
     last = nc;
     Cell& cell = cells_[nc];
+    const Cell& old = cells_[b.cell];
     cell.v = old.v;
     cell.v[b.facet] = p;
     const std::uint32_t outside = old.n[b.facet];
     cell.n[b.facet] = outside;
+    Cell& across = cells_[outside];
     for (int j = 0; j <= D; ++j) {
-      if (cells_[outside].n[j] == b.cell) {
-        cells_[outside].n[j] = nc;
+      if (across.n[j] == b.cell) {
+        across.n[j] = nc;
         break;
       }
     }
@@ -451,12 +466,8 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
       if constexpr (D == 2) {
         key = cell.v[3 - b.facet - k];
       } else {
-        std::uint32_t r[2];
-        int t = 0;
-        for (int j = 0; j <= D; ++j) {
-          if (j != b.facet && j != k) r[t++] = cell.v[j];
-        }
-        key = r[0] < r[1] ? (std::uint64_t{r[0]} << 32 | r[1]) : (std::uint64_t{r[1]} << 32 | r[0]);
+        const std::uint32_t r0 = cell.v[kOthers[b.facet][k][0]], r1 = cell.v[kOthers[b.facet][k][1]];
+        key = r0 < r1 ? (std::uint64_t{r0} << 32 | r1) : (std::uint64_t{r1} << 32 | r0);
       }
       std::size_t s = (key * 0x9E3779B97F4A7C15ull) >> 40 & mask;
       for (;;) {
@@ -477,6 +488,8 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
     for (const std::uint32_t v : cell.v) vcell_[v] = nc;
   }
   for (const std::uint32_t c : cavity_) free_.push_back(c);
+  ++stats_.insertions;
+  stats_.cavity_cells += cavity_.size();
   hint_ = last;
 }
 

@@ -55,6 +55,8 @@ class Triangulation {
   struct Cell {
     std::array<std::uint32_t, D + 1> v;  // local vertex ids
     std::array<std::uint32_t, D + 1> n;  // n[i]: the cell across the facet opposite v[i]
+    std::uint32_t mark;  // insertion scratch (in the cell: its line is read anyway)
+    std::uint32_t tag;   // the caller's, 0 when the cell is made (tag(c) below)
   };
 
   Triangulation(const PointSet& points, const Predicates& predicates);
@@ -80,10 +82,11 @@ class Triangulation {
   // Cells currently alive and the peak (for memory accounting).
   std::size_t cell_count() const { return cells_.size() - free_.size(); }
   std::size_t bytes() const;
-  // A cell that was live when read and is a cell of the current triangulation;
-  // kNone when the cells were rebuilt since. Cells are reused after deletion, so a
-  // caller caching per-cell data keys it by `stamp(c)`, which changes on reuse.
-  std::uint32_t stamp(std::uint32_t c) const { return stamp_[c]; }
+  // A word per cell for the caller (the sweep's certificates), 0 whenever the cell is
+  // made: cells are reused after insertions destroy them, and a reused cell starts
+  // at 0 again.
+  std::uint32_t tag(std::uint32_t c) const { return cells_[c].tag; }
+  void set_tag(std::uint32_t c, std::uint32_t tag) { cells_[c].tag = tag; }
 
   // The cells incident to local vertex v (finite and infinite), appended to `out`.
   // Precondition: full(). Safe to call concurrently (`seen` is the caller's scratch).
@@ -98,20 +101,30 @@ class Triangulation {
   // apex across is outside the perturbed sphere). For tests; O(cells).
   bool valid(std::string* why = nullptr) const;
 
-  std::uint64_t exact_calls() const { return exact_calls_; }
+  // Work counters since construction (for benchmarks and tests).
+  struct Stats {
+    std::uint64_t insertions = 0;
+    std::uint64_t walk_steps = 0;    // cells a point location stepped through
+    std::uint64_t cavity_cells = 0;  // cells destroyed by insertions
+    std::uint64_t exact_calls = 0;   // predicates the filters could not decide
+  };
+  const Stats& stats() const { return stats_; }
 
  private:
   std::uint32_t new_cell();
   void insert_local(std::uint32_t p);
   void start();  // builds the first simplex from the buffered points when it can
   std::uint32_t locate(std::uint32_t p) const;
-  // The predicates on points given by coordinates and point ids (the ids for the
-  // exact stage): orientation det[x1 - x0, ..., xD - x0], and the perturbed side of q
-  // against the sphere of the positively oriented simplex x (+1 outside, -1 inside).
+  // The predicates on points given by coordinates, with their point ids for the
+  // exact stage (ids() gives them, only when the filter fails): orientation
+  // det[x1 - x0, ..., xD - x0], and the perturbed side of q against the sphere of the
+  // positively oriented simplex x (+1 outside, -1 inside).
   using Points = std::array<const double*, D + 1>;
   using Ids = std::array<std::uint32_t, D + 1>;
-  int orient_at(const Points& x, const Ids& ids) const;
-  int sphere_at(const Points& x, const Ids& ids, const double* q, std::uint32_t q_id) const;
+  template <class IdsFn>
+  int orient_at(const Points& x, IdsFn&& ids) const;
+  template <class IdsFn>
+  int sphere_at(const Points& x, IdsFn&& ids, const double* q, std::uint32_t q_id) const;
   // The same on cells: cell c's vertices with v[i] replaced by p; the side of p
   // against finite cell c's sphere; whether p conflicts with cell c.
   int orient_points(const std::array<std::uint32_t, D + 1>& v) const;  // all finite
@@ -125,11 +138,9 @@ class Triangulation {
   std::vector<std::uint32_t> global_;  // local id -> point id (0: infinity, unused)
   std::vector<double> coords_;         // local id -> D coordinates
   std::vector<std::uint32_t> pending_;  // local ids waiting for the first simplex
-  std::vector<Cell> cells_;
-  std::vector<std::uint32_t> stamp_;   // per cell: bumped when the slot is reused
+  std::vector<Cell> cells_;            // Cell::mark: 2 gen in conflict, 2 gen + 1 tested and not
   std::vector<std::uint32_t> free_;    // deleted cells, reused first
   std::vector<std::uint32_t> vcell_;   // local id -> an incident cell
-  mutable std::vector<std::uint32_t> mark_;  // per cell: 2 gen (in conflict) or 2 gen + 1 (not)
   std::uint32_t gen_ = 0;
   std::uint32_t hint_ = kNone;  // where the next walk starts
   mutable std::uint32_t walk_turn_ = 0;
@@ -147,7 +158,7 @@ class Triangulation {
     int facet;
   };
   std::vector<Ridge> ridges_;
-  mutable std::uint64_t exact_calls_ = 0;
+  mutable Stats stats_;
 };
 
 extern template class Triangulation<2>;
