@@ -128,6 +128,12 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
                      "0 = none (same output, slower)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
+  w.mesh->add_option("--engine", w.engine,
+                     "How the mesh is computed (the rows are the same): auto (local triangulations with certified stars "
+                     "in 2-d and 3-d, unweighted and not periodic; stars otherwise), stars (every seed's star walked) or "
+                     "triangulations")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"auto", "stars", "triangulations"}));
   w.mesh->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
   if (one_process) {
     w.mesh->add_option("--shards", w.shards, "Remote mode: shards fetched in parallel")
@@ -215,12 +221,23 @@ double Progress::seconds() const {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
 }
 
-void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double t, double shared_mb,
+void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double t, const MeshStats& stats,
                         const std::string& output) {
-  // What the stars shared, at most at once: the sweep's front (docs/algorithm.md).
-  std::fprintf(stderr, "spokemesh: %llu points, %llu simplices, %.2f s, %.0f simplices/s, %.1f MB shared -> %s\n",
+  // The run's own memory at its peak: what the stars shared (the sweep's front), or
+  // the local triangulations held (docs/algorithm.md).
+  const bool triangulated = stats.triangulation.regions != 0 || stats.triangulation.whole_set;
+  const double mb = static_cast<double>(triangulated ? stats.triangulation.peak_bytes : stats.facet_cache_bytes) / (1 << 20);
+  std::fprintf(stderr, "spokemesh: %llu points, %llu simplices, %.2f s, %.0f simplices/s, %.1f MB %s -> %s\n",
                static_cast<unsigned long long>(points), static_cast<unsigned long long>(simplices), t,
-               t > 0 ? static_cast<double>(simplices) / t : 0.0, shared_mb, output.c_str());
+               t > 0 ? static_cast<double>(simplices) / t : 0.0, mb, triangulated ? "in triangulations" : "shared",
+               output.c_str());
+}
+
+Result<MeshEngine> parse_engine(const std::string& text) {
+  if (text == "auto") return MeshEngine::kAuto;
+  if (text == "stars") return MeshEngine::kStars;
+  if (text == "triangulations") return MeshEngine::kTriangulations;
+  return invalid_argument("--engine " + text + ": use auto, stars or triangulations");
 }
 
 void print_graph_summary(std::uint64_t points, std::uint64_t edges, bool approximate, double t,

@@ -16,6 +16,7 @@
 
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
+#include "spokemesh/mesh.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
 
@@ -82,6 +83,7 @@ struct WholeCommands {
   DomainFlags domain;
   std::string input, output;
   std::string seeds;                  // mesh --seeds A:B
+  std::string engine = "auto";        // mesh --engine
   std::size_t cells_cache_mb = 256;   // cells --cache-mb
   unsigned shards = 4;                // mesh --shards (remote mode)
   CLI::App* mesh = nullptr;
@@ -89,6 +91,9 @@ struct WholeCommands {
   CLI::App* cells = nullptr;
 };
 void define_whole_commands(CLI::App& app, WholeCommands& commands, bool one_process);
+
+// Parses mesh --engine.
+Result<MeshEngine> parse_engine(const std::string& text);
 
 // Parses --seeds A:B for n points: [begin, end).
 Result<std::pair<std::uint32_t, std::uint32_t>> parse_seed_range(const std::string& text, std::uint64_t n);
@@ -113,7 +118,7 @@ class Progress {
 };
 
 // The one-line summaries the commands print when done (unless --quiet).
-void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double seconds, double shared_mb,
+void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double seconds, const MeshStats& stats,
                         const std::string& output);
 void print_graph_summary(std::uint64_t points, std::uint64_t edges, bool approximate, double seconds,
                          const std::string& output);

@@ -207,7 +207,7 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   if (!result.is_ok()) return report(result.status());
   if (Status s = writer.commit(); !s.is_ok()) return report(s);
   if (!common.quiet) {
-    print_mesh_summary(ps.size(), result->mesh.simplices, progress.seconds(), 0.0, output);
+    print_mesh_summary(ps.size(), result->mesh.simplices, progress.seconds(), result->mesh, output);
     std::fprintf(stderr, "spokemesh: periodic: %zu images within %.3g of the box, %d run%s\n",
                  static_cast<std::size_t>(result->images), result->margin.empty() ? 0.0 : result->margin[0],
                  result->runs, result->runs == 1 ? "" : "s");
@@ -215,7 +215,14 @@ int run_periodic_mesh(const Common& common, const std::string& input, const std:
   return kExitOk;
 }
 
-int run_mesh(const Common& common, const std::string& input, const std::string& output, const std::string& seeds) {
+int run_mesh(const Common& common, const std::string& input, const std::string& output, const std::string& seeds,
+             const std::string& engine_text) {
+  auto engine = parse_engine(engine_text);
+  if (!engine.is_ok()) return report(engine.status());
+  if (engine.value() == MeshEngine::kTriangulations && (!common.periodic.empty() || common.weighted())) {
+    return report(invalid_argument("--engine triangulations meshes unweighted, non-periodic sets: use --engine stars "
+                                   "(or auto) with --weights, --radii or --periodic"));
+  }
   if (!common.periodic.empty()) return run_periodic_mesh(common, input, output, seeds);
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
   auto loaded_or = load(input, common.merge_duplicates, false, /*sweep=*/true);
@@ -230,6 +237,7 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
   options.facet_cache_bytes = common.cache_mb << 20;
+  options.engine = engine.value();
   if (!seeds.empty()) {
     auto range = parse_seed_range(seeds, n);
     if (!range.is_ok()) return report(range.status());
@@ -255,8 +263,7 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   if (!result.is_ok()) return report(result.status());
   if (Status s = writer.commit(); !s.is_ok()) return report(s);
   if (!common.quiet) {
-    print_mesh_summary(n, result.value().simplices, progress.seconds(),
-                       static_cast<double>(result.value().facet_cache_bytes) / (1 << 20), output);
+    print_mesh_summary(n, result.value().simplices, progress.seconds(), result.value(), output);
     if (!loaded.weights.empty()) {
       std::fprintf(stderr, "spokemesh: %llu of %zu points hidden (empty power cells: in no simplex)\n",
                    static_cast<unsigned long long>(result.value().star.hidden), n);
@@ -736,7 +743,7 @@ int main(int argc, char** argv) {
     return report(invalid_argument(std::string(app.get_subcommands().front()->get_name()) +
                                    ": needs --server HOST:PORT (a spokemesh-server)"));
   }
-  if (*mesh) return run_mesh(common, input, output, whole.seeds);
+  if (*mesh) return run_mesh(common, input, output, whole.seeds, whole.engine);
   if (!common.periodic.empty() && (*star || *neighbors || *cell)) {
     if (*neighbors && approx_flags.enabled) return report(invalid_argument("--periodic needs the exact engine: drop --approx"));
     return run_periodic_seed(common, input, seed, *star ? "star" : *neighbors ? "neighbors" : "cell", json, domain_flags);

@@ -40,6 +40,13 @@
 
 namespace spokemesh {
 
+// How a whole mesh is computed (the rows are the same either way).
+enum class MeshEngine {
+  kAuto,            // local triangulations where they apply (2-d and 3-d, unweighted, not periodic), else stars
+  kStars,           // every seed's star by the star walk, sharing wraps through the front
+  kTriangulations,  // local triangulations with certified stars (an error where they do not apply)
+};
+
 struct MeshOptions {
   unsigned threads = 1;             // worker threads (>= 1)
   std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
@@ -58,6 +65,7 @@ struct MeshOptions {
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
+  MeshEngine engine = MeshEngine::kAuto;
   // When set, every seed's whole star (all its simplices) is given to `accept`, on the
   // worker thread that computed it; a seed whose star it refuses emits nothing. A
   // process meshing its part of a larger set refuses the stars it cannot certify from
@@ -66,9 +74,22 @@ struct MeshOptions {
   std::function<bool(const Star&)> accept;
 };
 
+// What the local triangulations did (MeshEngine::kTriangulations).
+struct TriangulationStats {
+  std::uint64_t regions = 0;            // regions of the sweep triangulated
+  std::uint64_t inserted = 0;           // points inserted, margins included
+  std::uint64_t margin_rounds = 0;      // times a region's box E was grown
+  std::uint64_t ball_queries = 0;       // balls and hull facets certified by a k-d tree query
+  std::uint64_t walked_seeds = 0;       // seeds whose stars were walked instead (few wanted in a region)
+  bool whole_set = false;               // one triangulation of every point served (part of) the run
+  std::uint64_t exact_calls = 0;        // predicates the filters could not decide
+  std::size_t peak_bytes = 0;           // the largest triangulation held, summed over workers
+};
+
 struct MeshStats {
   std::uint64_t seeds = 0;
   std::uint64_t simplices = 0;
+  TriangulationStats triangulation;
   // The most the front's mailboxes held at once (d >= 3): grows with the surface
   // between the blocks done and those to come, O(n^((d-1)/d)), not with n.
   std::size_t front_peak_bytes = 0;

@@ -35,20 +35,23 @@ struct DimensionPolicy {
   // the box's 2^d corners make clipping slow.
   bool direct_cells;
   std::size_t cell_candidates;  // the direct route's first k-NN round
+  // A whole mesh by local triangulations (2-d, 3-d; delaunay_sweep.cpp): the points of
+  // a region triangulated at once (0: the route does not apply).
+  std::uint32_t triangulation_region_points;
 };
 inline const DimensionPolicy& policy(int d) {
   // Simplices per point as meshed here (2-d to 5-d: 5,000 to 1,000,000 points; 6-d to
   // 8-d: rough, they rise with n as the hull's share falls).
   static constexpr std::array<DimensionPolicy, kMaxDimension + 1> kTable = {{
-      {0, 0, 0, false, false, 16},
-      {8, 0, 0, false, false, 16},
-      {16, 2.0, 16384, true, false, 16},
-      {48, 6.8, 4096, false, true, 40},
-      {100, 31, 1024, false, false, 64},
-      {200, 160, 1024, false, false, 128},
-      {400, 900, 1024, false, false, 256},
-      {1280, 6000, 1024, false, false, 512},
-      {2560, 40000, 1024, false, false, 1024},
+      {0, 0, 0, false, false, 16, 0},
+      {8, 0, 0, false, false, 16, 0},
+      {16, 2.0, 16384, true, false, 16, 65536},
+      {48, 6.8, 4096, false, true, 40, 32768},
+      {100, 31, 1024, false, false, 64, 0},
+      {200, 160, 1024, false, false, 128, 0},
+      {400, 900, 1024, false, false, 256, 0},
+      {1280, 6000, 1024, false, false, 512, 0},
+      {2560, 40000, 1024, false, false, 1024, 0},
   }};
   return kTable[static_cast<std::size_t>(std::clamp(d, 0, kMaxDimension))];
 }

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "spokemesh/front_cache.hpp"
+#include "mesh/delaunay_sweep.hpp"
 #include "mesh/ordered_run.hpp"
 
 namespace spokemesh {
@@ -45,6 +46,12 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   }
   const SpaceSplit& blocks = options.split != nullptr ? *options.split : *own_split;
   if (blocks.size() != n) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  if (options.engine != MeshEngine::kStars) {
+    if (detail::triangulation_sweep_applies(tree, options)) return detail::triangulation_sweep(tree, blocks, options, sink);
+    if (options.engine == MeshEngine::kTriangulations) {
+      return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
+    }
+  }
   std::uint32_t block_points = 1;
   for (std::uint32_t b = 0; b < blocks.block_count(); ++b) block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
   const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));

@@ -1,0 +1,653 @@
+#include "mesh/delaunay_sweep.hpp"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <vector>
+
+#include <gmpxx.h>
+
+#include "base/dimension.hpp"
+#include "base/mixing.hpp"
+#include "mesh/ball_bounds.hpp"
+#include "mesh/ordered_run.hpp"
+#include "mesh/triangulation.hpp"
+#include "spokemesh/certify.hpp"
+
+namespace spokemesh::detail {
+
+namespace {
+
+using ball_bounds::Interval;
+
+// A region's box E starts as the region's bounding box widened by this many typical
+// neighbour distances (the distance to the (3 d)-th nearest point, median of a few
+// samples): enough for most balls of the region's boundary seeds.
+constexpr double kMarginSpacings = 2.0;
+// E grows by the boxes of the balls that failed when that adds at most this many times
+// the region's points (and at least kGrowAtLeast); beyond, the failing balls are asked
+// of the k-d tree one by one while there are at most 1/kQueryShare of the region's
+// points of them (and at least kQueriesAtLeast); beyond that, the balls reach across the
+// set and one triangulation of every point serves.
+constexpr std::size_t kGrowFactor = 2;
+constexpr std::size_t kGrowAtLeast = 4096;
+constexpr std::size_t kQueryShare = 128;
+constexpr std::size_t kQueriesAtLeast = 32;
+constexpr int kMaxRounds = 12;
+// A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
+// that cuts it) has its seeds' stars walked instead.
+constexpr std::size_t kWalkShare = 16;
+// Cancellation is looked at every this many insertions.
+constexpr std::uint32_t kCancelEvery = 4096;
+
+// Biased randomized insertion order (Amenta, Choi and Rote 2003; CGAL's
+// spatial_sort with BRIO): rounds of growing random samples, each in the given
+// (spatially coherent) order. A point's round is the number of trailing zero bits of a
+// hash of its id (about half the points in the last round, a quarter in the one before
+// ...), so the order is a function of the points alone. Early rounds spread over the
+// region keep later conflicts local (points on a surface inserted in space-filling
+// order alone met cavities of 150 cells on average; in BRIO order, 22).
+constexpr int kRounds = 24;
+int brio_round(std::uint32_t id) {
+  std::uint64_t state = id;
+  const std::uint64_t h = splitmix64(state);
+  return std::min(__builtin_ctzll(h | (std::uint64_t{1} << (kRounds - 1))), kRounds - 1);
+}
+// Reorders `items` (any type with an id()) into BRIO rounds, coarsest first, keeping
+// the given order within a round (a counting sort).
+template <class T, class IdOf>
+void brio_order(std::vector<T>& items, std::vector<T>& scratch, IdOf&& id_of) {
+  std::array<std::size_t, kRounds + 1> start{};
+  for (const T& t : items) ++start[static_cast<std::size_t>(kRounds - 1 - brio_round(id_of(t))) + 1];
+  for (int k = 0; k < kRounds; ++k) start[static_cast<std::size_t>(k) + 1] += start[static_cast<std::size_t>(k)];
+  scratch.resize(items.size());
+  for (const T& t : items) scratch[start[static_cast<std::size_t>(kRounds - 1 - brio_round(id_of(t)))]++] = t;
+  items.swap(scratch);
+}
+
+template <int D>
+using Box = std::array<double, 2 * D>;  // D lows, then D highs
+
+template <int D>
+bool in_box(const Box<D>& b, const double* x) {
+  for (int k = 0; k < D; ++k) {
+    if (x[k] < b[k] || x[k] > b[D + k]) return false;
+  }
+  return true;
+}
+
+// A k-d tree box (floats, holding its points) inside b.
+template <int D>
+bool box_within(const float* lo, const float* hi, const Box<D>& b) {
+  for (int k = 0; k < D; ++k) {
+    if (static_cast<double>(lo[k]) < b[k] || static_cast<double>(hi[k]) > b[D + k]) return false;
+  }
+  return true;
+}
+
+template <int D>
+bool box_meets(const float* lo, const float* hi, const Box<D>& b) {
+  for (int k = 0; k < D; ++k) {
+    if (static_cast<double>(hi[k]) < b[k] || static_cast<double>(lo[k]) > b[D + k]) return false;
+  }
+  return true;
+}
+
+template <int D>
+bool contains(const Box<D>& outer, const Box<D>& inner) {
+  for (int k = 0; k < D; ++k) {
+    if (inner[k] < outer[k] || inner[D + k] > outer[D + k]) return false;
+  }
+  return true;
+}
+
+// The circumball of a nearly flat simplex, which the filtered bounds cannot place:
+// its centre solved exactly in rationals (2 (v_i - s) . c = |v_i - s|^2), then rounded
+// outwards. Rare (a simplex whose volume is below about 1e-14 of its edges' product).
+template <int D>
+void exact_circumball(const double* s, const std::array<const double*, D>& v, std::array<Interval, D>& centre,
+                      double& radius2_up) {
+  std::array<std::array<mpq_class, D + 1>, D> m;
+  for (int i = 0; i < D; ++i) {
+    mpq_class norm2 = 0;
+    for (int k = 0; k < D; ++k) {
+      const mpq_class a = mpq_class(v[i][k]) - mpq_class(s[k]);
+      m[i][k] = 2 * a;
+      norm2 += a * a;
+    }
+    m[i][D] = norm2;
+  }
+  for (int col = 0; col < D; ++col) {  // Gauss-Jordan (the simplex is not flat: pivots exist)
+    int pivot = col;
+    while (sgn(m[pivot][col]) == 0) ++pivot;
+    std::swap(m[pivot], m[col]);
+    for (int r = 0; r < D; ++r) {
+      if (r == col || sgn(m[r][col]) == 0) continue;
+      const mpq_class f = m[r][col] / m[col][col];
+      for (int k = col; k <= D; ++k) m[r][k] -= f * m[col][k];
+    }
+  }
+  mpq_class r2 = 0;
+  for (int k = 0; k < D; ++k) {
+    const mpq_class c = m[k][D] / m[k][k];
+    r2 += c * c;
+    const double x = mpq_class(c + mpq_class(s[k])).get_d();  // truncated: within an ulp
+    centre[static_cast<std::size_t>(k)] = {std::nextafter(x, -HUGE_VAL), std::nextafter(x, HUGE_VAL)};
+  }
+  radius2_up = ball_bounds::up(std::nextafter(r2.get_d(), HUGE_VAL));
+}
+
+// What a run shares: the set, its order, the options, and the triangulation of every
+// point once a region's balls have reached across the set.
+template <int D>
+struct Run {
+  const KdTree& tree;
+  const PointSet& ps;
+  const SpaceSplit& split;
+  const MeshOptions& options;
+  Predicates pred;
+  Box<D> bounds;  // the set's bounding box (exact)
+  std::uint32_t seed_begin, seed_end;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> regions;  // sweep positions [first, second)
+
+  std::once_flag whole_once;
+  std::unique_ptr<Triangulation<D>> whole;
+  std::vector<std::uint32_t> whole_local;  // point id -> its local id in `whole`
+  Status whole_status;
+  std::atomic<bool> use_whole{false};
+
+  Run(const KdTree& t, const SpaceSplit& s, const MeshOptions& o)
+      : tree(t), ps(t.points()), split(s), options(o), pred(t.points()) {}
+
+  bool cancelled() const {
+    return options.star.cancel != nullptr && options.star.cancel->load(std::memory_order_relaxed);
+  }
+
+  // Builds the triangulation of every point (once; concurrent callers wait).
+  const Status& ensure_whole() {
+    std::call_once(whole_once, [&] {
+      const auto n = static_cast<std::uint32_t>(ps.size());
+      std::vector<std::uint32_t> order(n), scratch;
+      for (std::uint32_t r = 0; r < n; ++r) order[r] = split.point_at(r);
+      brio_order(order, scratch, [](std::uint32_t id) { return id; });
+      auto t = std::make_unique<Triangulation<D>>(ps, pred);
+      whole_local.assign(n, 0);
+      std::uint32_t count = 0;
+      for (const std::uint32_t id : order) {
+        if (++count % kCancelEvery == 0 && cancelled()) {
+          whole_status = spokemesh::cancelled("mesh cancelled");
+          return;
+        }
+        whole_local[id] = t->insert(id);
+      }
+      whole = std::move(t);
+      use_whole.store(true);
+    });
+    return whole_status;
+  }
+};
+
+// The rows a region hands on.
+struct RegionRows {
+  std::uint64_t seeds = 0;
+  std::vector<std::uint32_t> simplices;
+};
+
+// A worker: triangulates regions one at a time and emits their seeds' stars.
+template <int D>
+class RegionMesher {
+ public:
+  RegionMesher(Run<D>& run, MeshStats& total) : run_(run), total_(total), tri_(run.ps, run.pred) {}
+
+  Status operator()(std::uint64_t unit, RegionRows& out) {
+    out.simplices.clear();
+    out.seeds = 0;
+    const auto [first, last] = run_.regions[unit];
+    wanted_.clear();
+    for (std::uint32_t r = first; r < last; ++r) {
+      const std::uint32_t id = run_.split.point_at(r);
+      if (id >= run_.seed_begin && id < run_.seed_end) wanted_.push_back(r);
+    }
+    out.seeds = wanted_.size();
+    if (wanted_.empty()) return Status::ok();
+    if (run_.cancelled()) return cancelled("mesh cancelled");
+    if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) return walk(out);
+    if (!run_.use_whole.load()) {
+      ++stats_.regions;
+      Result<bool> local = triangulate(first, last);
+      if (!local.is_ok()) return local.status();
+      stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
+      if (local.value()) {
+        for (std::size_t k = 0; k < wanted_.size(); ++k) {
+          const std::uint32_t r = wanted_[k];
+          emit(tri_, local_[r - first], run_.split.point_at(r), out.simplices);
+        }
+        return Status::ok();
+      }
+    }
+    if (const Status& s = run_.ensure_whole(); !s.is_ok()) return s;
+    stats_.whole_set = true;
+    for (const std::uint32_t r : wanted_) {
+      const std::uint32_t id = run_.split.point_at(r);
+      emit(*run_.whole, run_.whole_local[id], id, out.simplices);
+    }
+    return Status::ok();
+  }
+
+  void finish() {
+    TriangulationStats& t = total_.triangulation;
+    t.regions += stats_.regions;
+    t.inserted += stats_.inserted;
+    t.margin_rounds += stats_.margin_rounds;
+    t.ball_queries += stats_.ball_queries;
+    t.walked_seeds += stats_.walked_seeds;
+    t.whole_set = t.whole_set || stats_.whole_set;
+    t.exact_calls += tri_.stats().exact_calls;
+    t.peak_bytes += stats_.peak_bytes;
+    if (walker_) total_.star += walker_->stats();
+  }
+
+ private:
+  // Which points of the set are in the triangulation: the region's, those in E, and
+  // the extras that queries found.
+  bool inserted(std::uint32_t id, const double* x) const {
+    const std::uint32_t r = run_.split.position_of(id);
+    if (r >= first_ && r < last_) return true;
+    if (in_box<D>(e_, x)) return true;
+    return std::binary_search(extras_.begin(), extras_.end(), id);
+  }
+
+  void insert_all(std::vector<std::uint32_t>& ids) {
+    brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
+    for (const std::uint32_t id : ids) tri_.insert(id);
+    stats_.inserted += ids.size();
+  }
+
+  // The typical distance to a region point's (3 d)-th nearest neighbour.
+  double spacing(std::uint32_t first, std::uint32_t last) {
+    constexpr std::size_t kSamples = 15;
+    const std::size_t k = 3 * D + 1;
+    std::vector<double> found;
+    std::array<std::uint32_t, 3 * D + 1> ids{};
+    std::array<double, 3 * D + 1> d2{};
+    const std::uint32_t count = last - first;
+    for (std::size_t s = 0; s < kSamples; ++s) {
+      const std::uint32_t r = first + static_cast<std::uint32_t>((2 * s + 1) * count / (2 * kSamples));
+      const std::size_t got = run_.tree.knn(run_.ps.point(run_.split.point_at(r)), k, ids.data(), d2.data());
+      if (got > 1) found.push_back(std::sqrt(d2[got - 1]));
+    }
+    if (found.empty()) return 0;
+    std::nth_element(found.begin(), found.begin() + static_cast<std::ptrdiff_t>(found.size() / 2), found.end());
+    return found[found.size() / 2];
+  }
+
+  // Every point of box g not yet inserted (with E = e_), into `out`; false (and `out`
+  // incomplete) when there are more than `cap`.
+  bool collect_box(const Box<D>& g, std::vector<std::uint32_t>& out, std::size_t cap) {
+    out.clear();
+    bool over = false;
+    run_.tree.find_first(
+        [&](const float* lo, const float* hi) { return box_meets<D>(lo, hi, g) && !box_within<D>(lo, hi, e_); },
+        [&](std::uint32_t id, const double* x) {
+          if (!in_box<D>(g, x) || inserted(id, x)) return false;
+          out.push_back(id);
+          over = out.size() > cap;
+          return over;
+        });
+    return !over;
+  }
+
+  // A cell's certificate: every point of the set that could be inside its ball (or
+  // beyond its hull facet) is inserted. For a finite cell, also the box around the
+  // part of its ball inside the set's box (`extent`), and the ball itself.
+  struct Check {
+    bool ok = false;
+    std::array<Interval, D> centre{};
+    double radius2 = 0;
+    Box<D> extent{};
+  };
+  Check certify(std::uint32_t c) const {
+    Check out;
+    const auto& cell = tri_.cell(c);
+    const int inf = tri_.infinite_index(c);
+    if (inf < 0) {
+      std::array<const double*, D> v{};
+      for (int k = 0; k < D; ++k) v[static_cast<std::size_t>(k)] = tri_.coords(cell.v[static_cast<std::size_t>(k) + 1]);
+      const double* s = tri_.coords(cell.v[0]);
+      if (!ball_bounds::circumball<D>(s, v, out.centre, out.radius2)) exact_circumball<D>(s, v, out.centre, out.radius2);
+      out.extent = ball_bounds::clipped_extent<D>(out.centre, out.radius2, run_.bounds.data());
+      out.ok = ball_bounds::inside<D>(out.extent, e_.data());
+      return out;
+    }
+    if (e_covers_all_) {
+      out.ok = true;
+      return out;
+    }
+    // The hull facet's outer side must miss every point outside E: the slabs of the
+    // set's box beyond E's sides.
+    std::array<const double*, D> f{};
+    for (int k = 0, j = 0; k <= D; ++k) {
+      if (k != inf) f[static_cast<std::size_t>(j++)] = tri_.coords(cell.v[static_cast<std::size_t>(k)]);
+    }
+    const double* inner = apex_across(c, inf);
+    for (int k = 0; k < D; ++k) {
+      for (int side = 0; side < 2; ++side) {
+        Box<D> slab = run_.bounds;
+        if (side == 0) {
+          if (!(e_[k] > run_.bounds[k])) continue;
+          slab[D + k] = e_[k];
+        } else {
+          if (!(e_[D + k] < run_.bounds[D + k])) continue;
+          slab[k] = e_[D + k];
+        }
+        if (StarCertifier::may_be_beyond(D, f.data(), inner, slab.data())) return out;
+      }
+    }
+    out.ok = true;
+    return out;
+  }
+  // The coordinates of the vertex of the finite cell across infinite cell c's hull
+  // facet (at index inf) that is not on the facet.
+  const double* apex_across(std::uint32_t c, int inf) const {
+    const std::uint32_t nb = tri_.cell(c).n[static_cast<std::size_t>(inf)];
+    const auto& v = tri_.cell(nb).v;
+    const auto& mine = tri_.cell(c).v;
+    for (const std::uint32_t x : v) {
+      if (std::find(mine.begin(), mine.end(), x) == mine.end()) return tri_.coords(x);
+    }
+    return tri_.coords(v[0]);  // unreachable
+  }
+
+  // Points of the set not inserted that conflict with cell c (inside its ball, or
+  // beyond its hull facet), appended to `out`.
+  void query(std::uint32_t c, const Check& check, std::vector<std::uint32_t>& out) {
+    ++stats_.ball_queries;
+    const int inf = tri_.infinite_index(c);
+    std::array<const double*, D> f{};
+    const double* inner = nullptr;
+    if (inf >= 0) {
+      for (int k = 0, j = 0; k <= D; ++k) {
+        if (k != inf) f[static_cast<std::size_t>(j++)] = tri_.coords(tri_.cell(c).v[static_cast<std::size_t>(k)]);
+      }
+      inner = apex_across(c, inf);
+    }
+    run_.tree.find_first(
+        [&](const float* lo, const float* hi) {
+          if (box_within<D>(lo, hi, e_)) return false;
+          Box<D> b;
+          for (int k = 0; k < D; ++k) {
+            b[static_cast<std::size_t>(k)] = lo[k];
+            b[static_cast<std::size_t>(D + k)] = hi[k];
+          }
+          if (inf >= 0) return StarCertifier::may_be_beyond(D, f.data(), inner, b.data());
+          return !ball_bounds::misses<D>(check.centre, check.radius2, b.data());
+        },
+        [&](std::uint32_t id, const double* x) {
+          if (!inserted(id, x) && tri_.in_conflict(c, id)) out.push_back(id);
+          return false;
+        });
+  }
+
+  // Triangulates region [first, last) with a margin until every wanted seed's star is
+  // certified; false when the balls reach across the set (the run then takes the
+  // triangulation of every point).
+  Result<bool> triangulate(std::uint32_t first, std::uint32_t last) {
+    first_ = first;
+    last_ = last;
+    tri_.clear();
+    extras_.clear();
+    // The region's points in BRIO order, their local ids kept by position.
+    Box<D> region{};
+    for (int k = 0; k < D; ++k) {
+      region[static_cast<std::size_t>(k)] = HUGE_VAL;
+      region[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
+    }
+    ids_.clear();
+    for (std::uint32_t r = first; r < last; ++r) {
+      const std::uint32_t id = run_.split.point_at(r);
+      ids_.push_back(id);
+      const double* x = run_.ps.point(id);
+      for (int k = 0; k < D; ++k) {
+        region[static_cast<std::size_t>(k)] = std::min(region[static_cast<std::size_t>(k)], x[k]);
+        region[static_cast<std::size_t>(D + k)] = std::max(region[static_cast<std::size_t>(D + k)], x[k]);
+      }
+    }
+    const double margin = kMarginSpacings * spacing(first, last);
+    local_.assign(last - first, 0);
+    order_.resize(last - first);
+    for (std::uint32_t i = 0; i < last - first; ++i) order_[i] = i;
+    brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
+    std::uint32_t count = 0;
+    for (const std::uint32_t i : order_) {
+      if (++count % kCancelEvery == 0 && run_.cancelled()) return cancelled("mesh cancelled");
+      local_[i] = tri_.insert(ids_[i]);
+    }
+    stats_.inserted += last - first;
+    // The margin: E's other points (E is empty until they are in).
+    Box<D> e{};
+    for (int k = 0; k < D; ++k) {
+      e[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], region[static_cast<std::size_t>(k)] - margin);
+      e[static_cast<std::size_t>(D + k)] =
+          std::min(run_.bounds[static_cast<std::size_t>(D + k)], region[static_cast<std::size_t>(D + k)] + margin);
+      e_[static_cast<std::size_t>(k)] = HUGE_VAL;
+      e_[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
+    }
+    collect_box(e, found_, static_cast<std::size_t>(-1));
+    e_ = e;
+    insert_all(found_);
+    e_covers_all_ = contains<D>(e_, run_.bounds);
+
+    const std::size_t region_points = last - first;
+    for (int round = 0;; ++round) {
+      if (run_.cancelled()) return cancelled("mesh cancelled");
+      if (!tri_.full()) return false;
+      if (e_covers_all_) return true;
+      // Certify every wanted seed's cells; the failures' boxes and balls are kept.
+      fails_.clear();
+      for (const std::uint32_t r : wanted_) {
+        cells_.clear();
+        tri_.incident_cells(local_[r - first], cells_, seen_);
+        for (const std::uint32_t c : cells_) {
+          if (tri_.tag(c) != 0) continue;
+          const Check check = certify(c);
+          tri_.set_tag(c, check.ok ? 1 : 2);
+          if (!check.ok) fails_.push_back({c, check});
+        }
+      }
+      if (fails_.empty()) return true;
+      if (round == kMaxRounds) return false;
+      for (const auto& f : fails_) tri_.set_tag(f.first, 0);  // looked at again next round
+      // Grow E by the failing balls' boxes, when that adds few points.
+      Box<D> g = e_;
+      for (const auto& f : fails_) {
+        if (tri_.infinite_index(f.first) >= 0) continue;
+        for (int k = 0; k < D; ++k) {
+          g[static_cast<std::size_t>(k)] = std::min(g[static_cast<std::size_t>(k)], f.second.extent[static_cast<std::size_t>(k)]);
+          g[static_cast<std::size_t>(D + k)] =
+              std::max(g[static_cast<std::size_t>(D + k)], f.second.extent[static_cast<std::size_t>(D + k)]);
+        }
+      }
+      if (g != e_ && collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) {
+        e_ = g;
+        e_covers_all_ = contains<D>(e_, run_.bounds);
+        insert_all(found_);
+        ++stats_.margin_rounds;
+        continue;
+      }
+      // Ask the tree for each failing ball or hull facet.
+      if (fails_.size() > std::max(kQueriesAtLeast, region_points / kQueryShare)) return false;
+      found_.clear();
+      for (const auto& f : fails_) {
+        const std::size_t before = found_.size();
+        query(f.first, f.second, found_);
+        if (found_.size() == before) tri_.set_tag(f.first, 1);  // nothing inside: certified
+      }
+      std::sort(found_.begin(), found_.end());
+      found_.erase(std::unique(found_.begin(), found_.end()), found_.end());
+      std::vector<std::uint32_t> merged;
+      std::merge(extras_.begin(), extras_.end(), found_.begin(), found_.end(), std::back_inserter(merged));
+      extras_.swap(merged);
+      insert_all(found_);
+    }
+  }
+
+  // The seed's rows (owned simplices, canonical) appended to `rows`; with an accept
+  // callback, its whole star is offered first.
+  void emit(const Triangulation<D>& t, std::uint32_t local, std::uint32_t seed, std::vector<std::uint32_t>& rows) {
+    constexpr int w = D + 1;
+    cells_.clear();
+    t.incident_cells(local, cells_, seen_);
+    owned_.clear();
+    others_.clear();
+    std::size_t hull = 0;
+    for (const std::uint32_t c : cells_) {
+      const auto& v = t.cell(c).v;
+      std::array<std::uint32_t, w> g{};
+      bool infinite = false;
+      for (int k = 0; k < w; ++k) {
+        infinite = infinite || v[static_cast<std::size_t>(k)] == Triangulation<D>::kInfinite;
+        g[static_cast<std::size_t>(k)] = t.global(v[static_cast<std::size_t>(k)]);
+      }
+      if (infinite) {
+        ++hull;
+        continue;
+      }
+      // Sorting a positive cell's vertices: an odd permutation leaves them negative.
+      bool odd = false;
+      for (int i = 1; i < w; ++i) {
+        for (int j = i; j > 0 && g[static_cast<std::size_t>(j - 1)] > g[static_cast<std::size_t>(j)]; --j) {
+          std::swap(g[static_cast<std::size_t>(j - 1)], g[static_cast<std::size_t>(j)]);
+          odd = !odd;
+        }
+      }
+      if (g[0] != seed) {
+        if (run_.options.accept) others_.insert(others_.end(), g.begin(), g.end());
+        continue;
+      }
+      g[0] = odd ? 1u : 0u;  // the owner is the seed: its slot carries the parity until written
+      owned_.push_back(g);
+    }
+    std::sort(owned_.begin(), owned_.end(), [](const auto& a, const auto& b) {
+      return std::lexicographical_compare(a.begin() + 1, a.end(), b.begin() + 1, b.end());
+    });
+    const std::size_t at = rows.size();
+    for (auto g : owned_) {
+      if (g[0] != 0) std::swap(g[w - 2], g[w - 1]);
+      g[0] = seed;
+      rows.insert(rows.end(), g.begin(), g.end());
+    }
+    if (run_.options.accept) {
+      star_.seed = seed;
+      star_.dimension = D;
+      star_.hull_facets = hull;
+      star_.hidden = false;
+      star_.simplices = others_;
+      star_.simplices.insert(star_.simplices.end(), rows.begin() + static_cast<std::ptrdiff_t>(at), rows.end());
+      if (!run_.options.accept(star_)) rows.resize(at);
+    }
+  }
+
+  // Few seeds of the region wanted: their stars walked, as the star walk's sweep does.
+  Status walk(RegionRows& out) {
+    if (!walker_) walker_.emplace(run_.tree, run_.options.star);
+    for (const std::uint32_t r : wanted_) {
+      const std::uint32_t s = run_.split.point_at(r);
+      ++stats_.walked_seeds;
+      if (Status st = walker_->compute(s, star_, run_.options.accept ? StarPart::kWhole : StarPart::kOwned); !st.is_ok()) {
+        return st;
+      }
+      if (run_.options.accept && !run_.options.accept(star_)) continue;
+      const auto owned = owned_simplices(star_);
+      out.simplices.insert(out.simplices.end(), owned.begin(), owned.end());
+    }
+    return Status::ok();
+  }
+
+  Run<D>& run_;
+  MeshStats& total_;
+  Triangulation<D> tri_;
+  TriangulationStats stats_;
+  std::optional<StarWalker> walker_;
+  Star star_;
+  // The region being triangulated: positions [first_, last_), box E (every point in it
+  // inserted), and the points outside E that queries inserted (sorted).
+  std::uint32_t first_ = 0, last_ = 0;
+  Box<D> e_{};
+  bool e_covers_all_ = false;
+  std::vector<std::uint32_t> extras_;
+  // Scratch, kept between regions.
+  std::vector<std::uint32_t> wanted_, ids_, order_, local_, scratch_, found_, cells_, seen_, others_;
+  std::vector<std::pair<std::uint32_t, Check>> fails_;
+  std::vector<std::array<std::uint32_t, D + 1>> owned_;
+};
+
+template <int D>
+Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options, const SimplexSink& sink) {
+  const std::uint64_t n = tree.points().size();
+  Run<D> run(tree, split, options);
+  run.seed_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.seed_begin, n));
+  run.seed_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.seed_end, run.seed_begin, n));
+  const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
+  const auto sweep_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.sweep_end, sweep_begin, n));
+  MeshStats total;
+  if (n == 0 || run.seed_begin >= run.seed_end || sweep_begin >= sweep_end) return total;
+  for (int k = 0; k < D; ++k) {
+    run.bounds[static_cast<std::size_t>(k)] = HUGE_VAL;
+    run.bounds[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
+  }
+  for (std::uint32_t b = 0; b < split.block_count(); ++b) {
+    const auto box = split.box(b);
+    for (int k = 0; k < D; ++k) {
+      run.bounds[static_cast<std::size_t>(k)] = std::min(run.bounds[static_cast<std::size_t>(k)], box[static_cast<std::size_t>(k)]);
+      run.bounds[static_cast<std::size_t>(D + k)] =
+          std::max(run.bounds[static_cast<std::size_t>(D + k)], box[static_cast<std::size_t>(D + k)]);
+    }
+  }
+  // Regions: runs of whole blocks of about the policy's size, cut to the sweep range.
+  const std::uint32_t target = policy(D).triangulation_region_points;
+  const std::uint32_t first_block = split.block_of(sweep_begin), last_block = split.block_of(sweep_end - 1);
+  std::uint32_t at = sweep_begin;
+  for (std::uint32_t b = first_block; b <= last_block; ++b) {
+    const std::uint32_t end = std::min(split.end(b), sweep_end);
+    if (end - at >= target || b == last_block) {
+      run.regions.emplace_back(at, end);
+      at = end;
+    }
+  }
+  const unsigned threads = std::max(1u, options.threads);
+  std::uint64_t seeds_done = 0;
+  const Status status = run_in_order<RegionRows>(
+      run.regions.size(), threads, 2ull * threads,
+      [&] { return std::make_unique<RegionMesher<D>>(run, total); },
+      [&](RegionRows& rows) -> Status {
+        seeds_done += rows.seeds;
+        total.simplices += rows.simplices.size() / (D + 1);
+        return sink(rows.simplices, seeds_done);
+      });
+  if (!status.is_ok()) return status;
+  total.seeds = seeds_done;
+  if (run.whole) total.triangulation.peak_bytes += run.whole->bytes();
+  return total;
+}
+
+}  // namespace
+
+bool triangulation_sweep_applies(const KdTree& tree, const MeshOptions& options) {
+  const int d = tree.points().dimension();
+  return (d == 2 || d == 3) && options.star.weights.empty() && options.star.cover == nullptr;
+}
+
+Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,
+                                      const SimplexSink& sink) {
+  switch (tree.points().dimension()) {
+    case 2: return sweep<2>(tree, split, options, sink);
+    case 3: return sweep<3>(tree, split, options, sink);
+    default: return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
+  }
+}
+
+}  // namespace spokemesh::detail
