@@ -231,6 +231,15 @@ void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double t,
                static_cast<unsigned long long>(points), static_cast<unsigned long long>(simplices), t,
                t > 0 ? static_cast<double>(simplices) / t : 0.0, mb, triangulated ? "in triangulations" : "shared",
                output.c_str());
+  if (triangulated) {
+    const TriangulationStats& s = stats.triangulation;
+    std::fprintf(stderr,
+                 "spokemesh: %llu regions, %.2f insertions per point, %llu margins grown, %llu balls asked of the tree%s\n",
+                 static_cast<unsigned long long>(s.regions),
+                 points != 0 ? static_cast<double>(s.inserted) / static_cast<double>(points) : 0.0,
+                 static_cast<unsigned long long>(s.margin_rounds), static_cast<unsigned long long>(s.ball_queries),
+                 s.whole_set ? ", one triangulation of every point (balls across the set)" : "");
+  }
 }
 
 Result<MeshEngine> parse_engine(const std::string& text) {

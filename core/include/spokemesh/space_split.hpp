@@ -89,6 +89,12 @@ class SpaceSplit {
   std::uint32_t end(std::uint32_t b) const { return first_[b + 1]; }
   // The block holding `position` (< size()); O(log block_count()).
   std::uint32_t block_of(std::uint32_t position) const;
+  // The maximal nodes of the split holding at most max_points points each (a leaf when
+  // even a leaf holds more), as position ranges [first, second) in order: they tile
+  // [0, swept()). A node's children are fixed by its count alone (the lower half, by
+  // count, goes left), so these follow from the pieces' ranges: the blocks are the
+  // nodes of at most `block` points, and coarser or finer nodes are as compact.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> nodes_of_at_most(std::uint32_t max_points) const;
   // Block b's bounding box: d lows, then d highs (exact coordinates of its points).
   std::span<const double> box(std::uint32_t b) const {
     return {boxes_.data() + std::size_t{b} * 2 * static_cast<std::size_t>(d_), 2 * static_cast<std::size_t>(d_)};
@@ -100,6 +106,8 @@ class SpaceSplit {
 
   int d_;
   std::uint32_t swept_ = 0;
+  std::uint32_t leaf_ = kLeafPoints;
+  std::vector<std::uint32_t> piece_ends_;  // the pieces' ends in positions (a whole set: one piece)
   std::vector<std::uint32_t> order_, position_;
   std::vector<std::uint32_t> first_;  // block b starts at first_[b]; first_.back() == size()
   std::vector<double> boxes_;

@@ -45,8 +45,8 @@ inline const DimensionPolicy& policy(int d) {
   static constexpr std::array<DimensionPolicy, kMaxDimension + 1> kTable = {{
       {0, 0, 0, false, false, 16, 0},
       {8, 0, 0, false, false, 16, 0},
-      {16, 2.0, 16384, true, false, 16, 65536},
-      {48, 6.8, 4096, false, true, 40, 32768},
+      {16, 2.0, 16384, true, false, 16, 131072},
+      {48, 6.8, 4096, false, true, 40, 65536},
       {100, 31, 1024, false, false, 64, 0},
       {200, 160, 1024, false, false, 128, 0},
       {400, 900, 1024, false, false, 256, 0},

@@ -7,9 +7,12 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <vector>
 
 #include <gmpxx.h>
+#include <cstdio>
+#include <cstdlib>
 
 #include "base/dimension.hpp"
 #include "base/mixing.hpp"
@@ -24,20 +27,24 @@ namespace {
 
 using ball_bounds::Interval;
 
-// A region's box E starts as the region's bounding box widened by this many typical
-// neighbour distances (the distance to the (3 d)-th nearest point, median of a few
-// samples): enough for most balls of the region's boundary seeds.
-constexpr double kMarginSpacings = 2.0;
-// E grows by the boxes of the balls that failed when that adds at most this many times
-// the region's points (and at least kGrowAtLeast); beyond, the failing balls are asked
-// of the k-d tree one by one while there are at most 1/kQueryShare of the region's
-// points of them (and at least kQueriesAtLeast); beyond that, the balls reach across the
-// set and one triangulation of every point serves.
+// A region's box E starts as the region's bounding box widened by a margin: this
+// many times the typical reach of a seed's balls (the median, over a few sample seeds
+// of the region triangulated alone, of how far the parts of their balls inside the
+// set's box reach from them): on a scan, the distance to the next scan line, not to
+// the next point along it.
+constexpr double kMarginReaches = 1.0;
+constexpr std::size_t kMarginSamples = 31;
+// The balls and hull facets that fail against E are asked of the k-d tree one by one
+// while the points those queries test stay below kQueryWork times the region's points in
+// a round; beyond that, E's margin doubles, when that adds at most kGrowFactor times the
+// region's points (and at least kGrowAtLeast). Beyond that, or when a region would hold
+// most of the set, the balls reach across the set (points on a closed surface, whose
+// Delaunay balls span its inside) and one triangulation of every point serves the rest
+// of the run.
 constexpr std::size_t kGrowFactor = 2;
 constexpr std::size_t kGrowAtLeast = 4096;
-constexpr std::size_t kQueryShare = 128;
-constexpr std::size_t kQueriesAtLeast = 32;
-constexpr int kMaxRounds = 12;
+constexpr std::size_t kQueryWork = 4;
+constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
 // that cuts it) has its seeds' stars walked instead.
 constexpr std::size_t kWalkShare = 16;
@@ -197,6 +204,13 @@ struct RegionRows {
   std::vector<std::uint32_t> simplices;
 };
 
+// A cell's certificate in its triangulation's tag: not looked at (a new cell's), its
+// ball or hull facet certified, failed this round, or failed and to be asked of the
+// k-d tree.
+constexpr std::uint32_t kUnknown = 0, kCertified = 1, kFailed = 2, kAskTree = 3;
+// A region point: not a seed of the run, a seed whose star is not yet certified, done.
+constexpr std::uint8_t kNotSeed = 0, kPendingSeed = 1, kDoneSeed = 2;
+
 // A worker: triangulates regions one at a time and emits their seeds' stars.
 template <int D>
 class RegionMesher {
@@ -222,9 +236,14 @@ class RegionMesher {
       if (!local.is_ok()) return local.status();
       stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
       if (local.value()) {
-        for (std::size_t k = 0; k < wanted_.size(); ++k) {
-          const std::uint32_t r = wanted_[k];
-          emit(tri_, local_[r - first], run_.split.point_at(r), out.simplices);
+        if (run_.options.accept) {  // whole stars, one at a time
+          for (const std::uint32_t r : wanted_) {
+            cells_.clear();
+            tri_.incident_cells(local_[r - first], cells_, seen_);
+            emit(tri_, cells_, run_.split.point_at(r), out.simplices);
+          }
+        } else {
+          emit_owned(first, out.simplices);
         }
         return Status::ok();
       }
@@ -233,7 +252,9 @@ class RegionMesher {
     stats_.whole_set = true;
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t id = run_.split.point_at(r);
-      emit(*run_.whole, run_.whole_local[id], id, out.simplices);
+      cells_.clear();
+      run_.whole->incident_cells(run_.whole_local[id], cells_, seen_);
+      emit(*run_.whole, cells_, id, out.simplices);
     }
     return Status::ok();
   }
@@ -267,22 +288,31 @@ class RegionMesher {
     stats_.inserted += ids.size();
   }
 
-  // The typical distance to a region point's (3 d)-th nearest neighbour.
-  double spacing(std::uint32_t first, std::uint32_t last) {
-    constexpr std::size_t kSamples = 15;
-    const std::size_t k = 3 * D + 1;
-    std::vector<double> found;
-    std::array<std::uint32_t, 3 * D + 1> ids{};
-    std::array<double, 3 * D + 1> d2{};
+  // The margin of a region's box E: the median over sample seeds (spread over the
+  // region, triangulated alone) of how far the boxes of their balls' parts inside the
+  // set's box reach from them, times kMarginReaches. 0 when the region has no simplex.
+  double margin(std::uint32_t first, std::uint32_t last) {
+    if (!tri_.full()) return 0;
+    std::vector<double> reaches;
     const std::uint32_t count = last - first;
-    for (std::size_t s = 0; s < kSamples; ++s) {
-      const std::uint32_t r = first + static_cast<std::uint32_t>((2 * s + 1) * count / (2 * kSamples));
-      const std::size_t got = run_.tree.knn(run_.ps.point(run_.split.point_at(r)), k, ids.data(), d2.data());
-      if (got > 1) found.push_back(std::sqrt(d2[got - 1]));
+    for (std::size_t s = 0; s < kMarginSamples; ++s) {
+      const std::uint32_t i = static_cast<std::uint32_t>((2 * s + 1) * count / (2 * kMarginSamples));
+      const double* x = tri_.coords(local_[i]);
+      cells_.clear();
+      tri_.incident_cells(local_[i], cells_, seen_);
+      double reach = 0;
+      for (const std::uint32_t c : cells_) {
+        if (tri_.infinite_index(c) >= 0) continue;
+        const Check check = certify(c);
+        for (int k = 0; k < D; ++k) {
+          reach = std::max({reach, x[k] - check.extent[static_cast<std::size_t>(k)],
+                            check.extent[static_cast<std::size_t>(D + k)] - x[k]});
+        }
+      }
+      reaches.push_back(reach);
     }
-    if (found.empty()) return 0;
-    std::nth_element(found.begin(), found.begin() + static_cast<std::ptrdiff_t>(found.size() / 2), found.end());
-    return found[found.size() / 2];
+    std::nth_element(reaches.begin(), reaches.begin() + static_cast<std::ptrdiff_t>(reaches.size() / 2), reaches.end());
+    return kMarginReaches * reaches[reaches.size() / 2];
   }
 
   // Every point of box g not yet inserted (with E = e_), into `out`; false (and `out`
@@ -362,19 +392,57 @@ class RegionMesher {
     return tri_.coords(v[0]);  // unreachable
   }
 
-  // Points of the set not inserted that conflict with cell c (inside its ball, or
-  // beyond its hull facet), appended to `out`.
+  // A point of the set not inserted that conflicts with cell c (inside its ball, or
+  // beyond its hull facet), appended to `out`; none when no point does (then c is
+  // certified). Of several, the one deepest inside the ball, or farthest beyond the
+  // hull facet (a vertex of the whole set's hull, as Quickhull picks it): inserting it
+  // destroys c, and its new cells are nearer the answer than those of an arbitrary
+  // one (inserting every conflicting point would take whole slabs of points behind a
+  // hull facet of the region). The choice is a heuristic in double; any choice is
+  // correct.
   void query(std::uint32_t c, const Check& check, std::vector<std::uint32_t>& out) {
     ++stats_.ball_queries;
     const int inf = tri_.infinite_index(c);
     std::array<const double*, D> f{};
     const double* inner = nullptr;
+    std::array<double, D> mid{};
     if (inf >= 0) {
       for (int k = 0, j = 0; k <= D; ++k) {
         if (k != inf) f[static_cast<std::size_t>(j++)] = tri_.coords(tri_.cell(c).v[static_cast<std::size_t>(k)]);
       }
       inner = apex_across(c, inf);
+    } else {
+      for (int k = 0; k < D; ++k) {
+        mid[static_cast<std::size_t>(k)] =
+            check.centre[static_cast<std::size_t>(k)].lo / 2 + check.centre[static_cast<std::size_t>(k)].hi / 2;
+      }
     }
+    // How deep inside the ball (|x - centre|^2 - r^2) or how far beyond the facet
+    // (minus the orientation against the inner apex): lower is better.
+    auto depth = [&](const double* x) {
+      if (inf < 0) {
+        double d2 = 0;
+        for (int k = 0; k < D; ++k) d2 += (x[k] - mid[static_cast<std::size_t>(k)]) * (x[k] - mid[static_cast<std::size_t>(k)]);
+        return d2 - check.radius2;
+      }
+      std::array<std::array<double, D>, D> m{};
+      for (int i = 1; i < D; ++i) {
+        for (int k = 0; k < D; ++k) m[static_cast<std::size_t>(i - 1)][static_cast<std::size_t>(k)] = f[static_cast<std::size_t>(i)][k] - f[0][k];
+      }
+      auto volume = [&](const double* q) {
+        for (int k = 0; k < D; ++k) m[D - 1][static_cast<std::size_t>(k)] = q[k] - f[0][k];
+        if constexpr (D == 2) {
+          return m[0][0] * m[1][1] - m[0][1] * m[1][0];
+        } else {
+          return m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+                 m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+        }
+      };
+      const double in = volume(inner);
+      return in > 0 ? volume(x) : -volume(x);  // beyond: the inner apex's opposite sign
+    };
+    std::uint32_t best = 0xFFFFFFFFu;
+    double best_depth = HUGE_VAL;
     run_.tree.find_first(
         [&](const float* lo, const float* hi) {
           if (box_within<D>(lo, hi, e_)) return false;
@@ -387,9 +455,16 @@ class RegionMesher {
           return !ball_bounds::misses<D>(check.centre, check.radius2, b.data());
         },
         [&](std::uint32_t id, const double* x) {
-          if (!inserted(id, x) && tri_.in_conflict(c, id)) out.push_back(id);
+          ++query_work_;
+          if (inserted(id, x)) return false;
+          const double dx = depth(x);
+          if ((best == 0xFFFFFFFFu || dx < best_depth) && tri_.in_conflict(c, id)) {
+            best = id;
+            best_depth = dx;
+          }
           return false;
         });
+    if (best != 0xFFFFFFFFu) out.push_back(best);
   }
 
   // Triangulates region [first, last) with a margin until every wanted seed's star is
@@ -416,7 +491,6 @@ class RegionMesher {
         region[static_cast<std::size_t>(D + k)] = std::max(region[static_cast<std::size_t>(D + k)], x[k]);
       }
     }
-    const double margin = kMarginSpacings * spacing(first, last);
     local_.assign(last - first, 0);
     order_.resize(last - first);
     for (std::uint32_t i = 0; i < last - first; ++i) order_[i] = i;
@@ -427,64 +501,96 @@ class RegionMesher {
       local_[i] = tri_.insert(ids_[i]);
     }
     stats_.inserted += last - first;
-    // The margin: E's other points (E is empty until they are in).
+    // The margin: E's other points (E is empty until they are in: `certify` then
+    // fails every ball, which `margin` only measures).
+    for (int k = 0; k < D; ++k) {
+      e_[static_cast<std::size_t>(k)] = HUGE_VAL;
+      e_[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
+    }
+    const double margin = this->margin(first, last);
+    if (getenv("SMDBG")) fprintf(stderr, "region %u..%u margin %g box %g %g %g\n", first, last, margin, region[D]-region[0], region[D+1]-region[1], D==3?region[5]-region[2]:0.0);
     Box<D> e{};
     for (int k = 0; k < D; ++k) {
       e[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], region[static_cast<std::size_t>(k)] - margin);
       e[static_cast<std::size_t>(D + k)] =
           std::min(run_.bounds[static_cast<std::size_t>(D + k)], region[static_cast<std::size_t>(D + k)] + margin);
-      e_[static_cast<std::size_t>(k)] = HUGE_VAL;
-      e_[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
     }
     collect_box(e, found_, static_cast<std::size_t>(-1));
+    if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size() && last - first < run_.ps.size()) {
+      return false;  // most of the set: take it whole
+    }
     e_ = e;
     insert_all(found_);
     e_covers_all_ = contains<D>(e_, run_.bounds);
 
-    const std::size_t region_points = last - first;
+    const std::uint32_t region_points = last - first;
+    double grown = std::max(margin, 0.0);  // E's next growth on each side
+    // The region's points have local ids 1 .. region_points (inserted first): their
+    // states, and the wanted ones pending.
+    state_.assign(region_points + 1, kNotSeed);
+    blocked_.assign(region_points + 1, 0);
+    pending_.clear();
+    for (const std::uint32_t r : wanted_) {
+      const std::uint32_t x = local_[r - first];
+      state_[x] = kPendingSeed;
+      pending_.push_back(x);
+    }
     for (int round = 0;; ++round) {
       if (run_.cancelled()) return cancelled("mesh cancelled");
       if (!tri_.full()) return false;
-      if (e_covers_all_) return true;
-      // Certify every wanted seed's cells; the failures' boxes and balls are kept.
+      if (e_covers_all_) return true;  // every point is in: every cell is one of the set's
+      // Certify the cells around every seed still pending, in one pass over the cells
+      // (in memory order: a pass per seed chased its cells at random); the failures'
+      // boxes and balls are kept. A seed none of whose cells failed is done: no later
+      // insertion can touch its cells (no point outside is inside their balls).
       fails_.clear();
-      for (const std::uint32_t r : wanted_) {
-        cells_.clear();
-        tri_.incident_cells(local_[r - first], cells_, seen_);
-        for (const std::uint32_t c : cells_) {
-          if (tri_.tag(c) != 0) continue;
+      std::fill(blocked_.begin(), blocked_.end(), 0);
+      for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
+        if (!tri_.is_live(c) || tri_.tag(c) == kCertified) continue;
+        const auto& v = tri_.cell(c).v;
+        bool mine = false;
+        for (const std::uint32_t x : v) mine = mine || (x <= region_points && state_[x] == kPendingSeed);
+        if (!mine) continue;
+        if (tri_.tag(c) == kUnknown) {
           const Check check = certify(c);
-          tri_.set_tag(c, check.ok ? 1 : 2);
-          if (!check.ok) fails_.push_back({c, check});
+          tri_.set_tag(c, check.ok ? kCertified : kFailed);
+          if (check.ok) continue;
+          fails_.push_back({c, check});
+        }
+        for (const std::uint32_t x : v) {
+          if (x <= region_points) blocked_[x] = 1;
         }
       }
-      if (fails_.empty()) return true;
+      std::size_t still = 0;
+      for (const std::uint32_t x : pending_) {
+        if (blocked_[x] != 0) {
+          pending_[still++] = x;
+        } else {
+          state_[x] = kDoneSeed;
+        }
+      }
+      pending_.resize(still);
+      if (pending_.empty()) return true;
       if (round == kMaxRounds) return false;
-      for (const auto& f : fails_) tri_.set_tag(f.first, 0);  // looked at again next round
-      // Grow E by the failing balls' boxes, when that adds few points.
-      Box<D> g = e_;
-      for (const auto& f : fails_) {
-        if (tri_.infinite_index(f.first) >= 0) continue;
-        for (int k = 0; k < D; ++k) {
-          g[static_cast<std::size_t>(k)] = std::min(g[static_cast<std::size_t>(k)], f.second.extent[static_cast<std::size_t>(k)]);
-          g[static_cast<std::size_t>(D + k)] =
-              std::max(g[static_cast<std::size_t>(D + k)], f.second.extent[static_cast<std::size_t>(D + k)]);
-        }
-      }
-      if (g != e_ && collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) {
-        e_ = g;
-        e_covers_all_ = contains<D>(e_, run_.bounds);
-        insert_all(found_);
-        ++stats_.margin_rounds;
-        continue;
-      }
-      // Ask the tree for each failing ball or hull facet.
-      if (fails_.size() > std::max(kQueriesAtLeast, region_points / kQueryShare)) return false;
+      // Each failing ball and hull facet is asked of the tree (a query tests the few
+      // points around a small ball). When the queries of a round test more than
+      // kQueryWork times the region's points (a scan: most balls of the region's edge
+      // reach the next scan line, each query skimming it), E grows instead: its margin
+      // doubles.
+      for (const auto& f : fails_) tri_.set_tag(f.first, kAskTree);
       found_.clear();
+      query_work_ = 0;
+      bool over = false;
       for (const auto& f : fails_) {
+        if (over || query_work_ > kQueryWork * region_points) {
+          over = true;
+          tri_.set_tag(f.first, kUnknown);  // looked at again next round
+          continue;
+        }
         const std::size_t before = found_.size();
         query(f.first, f.second, found_);
-        if (found_.size() == before) tri_.set_tag(f.first, 1);  // nothing inside: certified
+        if (getenv("SMDBG2")) fprintf(stderr, "  %s found %zu r2 %g\n", tri_.infinite_index(f.first) >= 0 ? "hull" : "ball", found_.size() - before, f.second.radius2);
+        tri_.set_tag(f.first, found_.size() == before ? kCertified : kUnknown);  // nothing inside: certified
       }
       std::sort(found_.begin(), found_.end());
       found_.erase(std::unique(found_.begin(), found_.end()), found_.end());
@@ -492,19 +598,98 @@ class RegionMesher {
       std::merge(extras_.begin(), extras_.end(), found_.begin(), found_.end(), std::back_inserter(merged));
       extras_.swap(merged);
       insert_all(found_);
+      if (getenv("SMDBG")) fprintf(stderr, "round %d fails %zu over %d found %zu work %zu inserted %u\n", round, fails_.size(), int(over), found_.size(), query_work_, tri_.vertex_count());
+      if (!over) continue;
+      Box<D> g{};
+      for (int k = 0; k < D; ++k) {
+        g[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], e_[static_cast<std::size_t>(k)] - grown);
+        g[static_cast<std::size_t>(D + k)] =
+            std::min(run_.bounds[static_cast<std::size_t>(D + k)], e_[static_cast<std::size_t>(D + k)] + grown);
+      }
+      grown *= 2;
+      if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) return false;
+      if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) return false;  // most of the set: take it whole
+      e_ = g;
+      e_covers_all_ = contains<D>(e_, run_.bounds);
+      insert_all(found_);
+      ++stats_.margin_rounds;
     }
   }
 
-  // The seed's rows (owned simplices, canonical) appended to `rows`; with an accept
-  // callback, its whole star is offered first.
-  void emit(const Triangulation<D>& t, std::uint32_t local, std::uint32_t seed, std::vector<std::uint32_t>& rows) {
+  // Every wanted seed's rows in sweep order, from one pass over the region's
+  // triangulation: each finite cell goes to its owner (its smallest point id) when the
+  // owner is a wanted seed of the region, then each seed's rows are sorted.
+  void emit_owned(std::uint32_t first, std::vector<std::uint32_t>& rows) {
+    constexpr std::size_t w = D + 1;
+    const std::uint32_t region_points = last_ - first_;
+    // The wanted index of each region position (kNotWanted otherwise).
+    constexpr std::uint32_t kNotWanted = 0xFFFFFFFFu;
+    index_of_.assign(region_points, kNotWanted);
+    for (std::uint32_t k = 0; k < wanted_.size(); ++k) index_of_[wanted_[k] - first] = k;
+    bucket_.assign(wanted_.size() + 1, 0);
+    owned_rows_.clear();
+    owners_.clear();
+    for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
+      if (!tri_.is_live(c)) continue;
+      const auto& v = tri_.cell(c).v;
+      std::array<std::uint32_t, w> g{};
+      bool infinite = false;
+      for (std::size_t k = 0; k < w; ++k) {
+        infinite = infinite || v[k] == Triangulation<D>::kInfinite;
+        g[k] = tri_.global(v[k]);
+      }
+      if (infinite) continue;
+      const bool odd = sort_with_parity(g);
+      const std::uint32_t r = run_.split.position_of(g[0]);
+      if (r < first || r >= last_ || index_of_[r - first] == kNotWanted) continue;
+      const std::uint32_t k = index_of_[r - first];
+      if (odd) std::swap(g[w - 2], g[w - 1]);  // positive again: the order rows are written in
+      owned_rows_.push_back(g);
+      owners_.push_back(k);
+      ++bucket_[k + 1];
+    }
+    for (std::size_t k = 0; k < wanted_.size(); ++k) bucket_[k + 1] += bucket_[k];
+    sorted_rows_.resize(owned_rows_.size());
+    for (std::size_t i = 0; i < owned_rows_.size(); ++i) sorted_rows_[bucket_[owners_[i]]++] = owned_rows_[i];
+    // Within a seed: lexicographic by the sorted vertex lists (the last two may be
+    // swapped for orientation: compare them as sorted).
+    auto key = [](const std::array<std::uint32_t, w>& a) {
+      std::array<std::uint32_t, w> s = a;
+      if (s[w - 2] > s[w - 1]) std::swap(s[w - 2], s[w - 1]);
+      return s;
+    };
+    std::size_t begin = 0;
+    for (std::size_t k = 0; k < wanted_.size(); ++k) {
+      const std::size_t end = bucket_[k];
+      std::sort(sorted_rows_.begin() + static_cast<std::ptrdiff_t>(begin), sorted_rows_.begin() + static_cast<std::ptrdiff_t>(end),
+                [&](const auto& a, const auto& b) { return key(a) < key(b); });
+      for (std::size_t i = begin; i < end; ++i) rows.insert(rows.end(), sorted_rows_[i].begin(), sorted_rows_[i].end());
+      begin = end;
+    }
+  }
+
+  // Sorts a cell's point ids ascending; true when that took an odd permutation (the
+  // sorted cell is then negatively oriented, its cells being positive).
+  static bool sort_with_parity(std::array<std::uint32_t, D + 1>& g) {
+    bool odd = false;
+    for (std::size_t i = 1; i < g.size(); ++i) {
+      for (std::size_t j = i; j > 0 && g[j - 1] > g[j]; --j) {
+        std::swap(g[j - 1], g[j]);
+        odd = !odd;
+      }
+    }
+    return odd;
+  }
+
+  // The seed's rows (owned simplices, canonical) appended to `rows`, from its cells in
+  // `t`; with an accept callback, its whole star is offered first.
+  void emit(const Triangulation<D>& t, std::span<const std::uint32_t> cells, std::uint32_t seed,
+            std::vector<std::uint32_t>& rows) {
     constexpr int w = D + 1;
-    cells_.clear();
-    t.incident_cells(local, cells_, seen_);
     owned_.clear();
     others_.clear();
     std::size_t hull = 0;
-    for (const std::uint32_t c : cells_) {
+    for (const std::uint32_t c : cells) {
       const auto& v = t.cell(c).v;
       std::array<std::uint32_t, w> g{};
       bool infinite = false;
@@ -516,14 +701,7 @@ class RegionMesher {
         ++hull;
         continue;
       }
-      // Sorting a positive cell's vertices: an odd permutation leaves them negative.
-      bool odd = false;
-      for (int i = 1; i < w; ++i) {
-        for (int j = i; j > 0 && g[static_cast<std::size_t>(j - 1)] > g[static_cast<std::size_t>(j)]; --j) {
-          std::swap(g[static_cast<std::size_t>(j - 1)], g[static_cast<std::size_t>(j)]);
-          odd = !odd;
-        }
-      }
+      const bool odd = sort_with_parity(g);
       if (g[0] != seed) {
         if (run_.options.accept) others_.insert(others_.end(), g.begin(), g.end());
         continue;
@@ -579,8 +757,16 @@ class RegionMesher {
   Box<D> e_{};
   bool e_covers_all_ = false;
   std::vector<std::uint32_t> extras_;
+  std::size_t query_work_ = 0;  // points the queries of a round tested
   // Scratch, kept between regions.
   std::vector<std::uint32_t> wanted_, ids_, order_, local_, scratch_, found_, cells_, seen_, others_;
+  // Per local id of a region point: a seed still to certify, done, or not a seed of the
+  // run; whether a cell around it failed this round. The seeds still pending.
+  std::vector<std::uint8_t> state_, blocked_;
+  std::vector<std::uint32_t> pending_;
+  // emit_owned's scratch.
+  std::vector<std::uint32_t> index_of_, bucket_, owners_;
+  std::vector<std::array<std::uint32_t, D + 1>> owned_rows_, sorted_rows_;
   std::vector<std::pair<std::uint32_t, Check>> fails_;
   std::vector<std::array<std::uint32_t, D + 1>> owned_;
 };
@@ -607,16 +793,11 @@ Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshO
           std::max(run.bounds[static_cast<std::size_t>(D + k)], box[static_cast<std::size_t>(D + k)]);
     }
   }
-  // Regions: runs of whole blocks of about the policy's size, cut to the sweep range.
-  const std::uint32_t target = policy(D).triangulation_region_points;
-  const std::uint32_t first_block = split.block_of(sweep_begin), last_block = split.block_of(sweep_end - 1);
-  std::uint32_t at = sweep_begin;
-  for (std::uint32_t b = first_block; b <= last_block; ++b) {
-    const std::uint32_t end = std::min(split.end(b), sweep_end);
-    if (end - at >= target || b == last_block) {
-      run.regions.emplace_back(at, end);
-      at = end;
-    }
+  // Regions: the split's nodes of at most the policy's size (compact boxes), cut to the
+  // sweep range.
+  for (const auto& [first, last] : split.nodes_of_at_most(policy(D).triangulation_region_points)) {
+    const std::uint32_t b = std::max(first, sweep_begin), e = std::min(last, sweep_end);
+    if (b < e) run.regions.emplace_back(b, e);
   }
   const unsigned threads = std::max(1u, options.threads);
   std::uint64_t seeds_done = 0;

@@ -487,7 +487,10 @@ void Triangulation<D>::insert_local(std::uint32_t p) {
     }
     for (const std::uint32_t v : cell.v) vcell_[v] = nc;
   }
-  for (const std::uint32_t c : cavity_) free_.push_back(c);
+  for (const std::uint32_t c : cavity_) {
+    cells_[c].v[0] = kNone;
+    free_.push_back(c);
+  }
   ++stats_.insertions;
   stats_.cavity_cells += cavity_.size();
   hint_ = last;

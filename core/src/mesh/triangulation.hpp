@@ -79,8 +79,11 @@ class Triangulation {
   bool is_infinite(std::uint32_t c) const;
   // The index of the infinite vertex in cell c (an infinite cell).
   int infinite_index(std::uint32_t c) const;
-  // Cells currently alive and the peak (for memory accounting).
+  // Cells currently alive; cell slots (alive or freed: cells are ids below this).
   std::size_t cell_count() const { return cells_.size() - free_.size(); }
+  std::uint32_t cell_slots() const { return static_cast<std::uint32_t>(cells_.size()); }
+  // Whether slot c holds a cell (a freed slot's first vertex is kNone).
+  bool is_live(std::uint32_t c) const { return cells_[c].v[0] != kNone; }
   std::size_t bytes() const;
   // A word per cell for the caller (the sweep's certificates), 0 whenever the cell is
   // made: cells are reused after insertions destroy them, and a reused cell starts

@@ -196,6 +196,12 @@ void SpaceSplit::build(const PointSet& points, std::span<const std::uint32_t> me
     for (const auto& r : recs) order_.push_back(r.id);
   });
   swept_ = static_cast<std::uint32_t>(order_.size());
+  leaf_ = leaf;
+  if (whole) {
+    piece_ends_.assign(1, swept_);
+  } else {
+    piece_ends_.assign(piece_ends.begin(), piece_ends.end());
+  }
   first_.insert(first_.end(), blocks.ends.begin(), blocks.ends.end());
   boxes_ = std::move(blocks.boxes);
   position_.assign(n, 0xFFFFFFFFu);
@@ -226,6 +232,29 @@ std::uint32_t SpaceSplit::default_block_points(int d, std::uint64_t n) {
   // history"): a block's table then outgrows the CPU's caches.
   const std::uint64_t cap = detail::policy(d).sweep_block_points;
   return static_cast<std::uint32_t>(std::clamp<std::uint64_t>(n / 16, 64, cap));
+}
+
+std::vector<std::pair<std::uint32_t, std::uint32_t>> SpaceSplit::nodes_of_at_most(std::uint32_t max_points) const {
+  // The recursion of Splitter::split on counts alone: [b, e) has children
+  // [b, b + (e - b) / 2) and [b + (e - b) / 2, e) until a node holds at most `leaf_`.
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> out, stack;
+  std::uint32_t begin = 0;
+  for (const std::uint32_t end : piece_ends_) {
+    stack.emplace_back(begin, end);
+    while (!stack.empty()) {
+      const auto [b, e] = stack.back();
+      stack.pop_back();
+      if (e - b <= max_points || e - b <= leaf_) {
+        if (e > b) out.emplace_back(b, e);
+        continue;
+      }
+      const std::uint32_t mid = b + (e - b) / 2;
+      stack.emplace_back(mid, e);  // right, after the left
+      stack.emplace_back(b, mid);
+    }
+    begin = end;
+  }
+  return out;
 }
 
 std::uint32_t SpaceSplit::block_of(std::uint32_t position) const {
