@@ -84,8 +84,11 @@ inline PointSet make_points(int d, std::vector<double> coords) {
 inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_t begin = 0,
                           std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed,
                           std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes,
-                          std::uint32_t block_size = 0) {
+                          std::uint32_t block_size = 0, MeshEngine engine = MeshEngine::kAuto,
+                          std::uint32_t region_points = 0) {
   MeshOptions options;
+  options.engine = engine;
+  options.region_points = region_points;
   options.block_size = block_size;
   options.facet_cache_bytes = facet_cache_bytes;
   options.threads = threads;

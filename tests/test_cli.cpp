@@ -83,7 +83,8 @@ TEST_F(Cli, MeshWritesEveryFormatAndCheckAcceptsIt) {
     const Outcome r = run("mesh " + in + " -o " + path(std::string("m.") + ext) + " --threads 2");
     ASSERT_EQ(r.code, 0) << ext << ": " << r.err;
     EXPECT_NE(r.err.find("simplices/s"), std::string::npos) << "summary line: " << r.err;
-    EXPECT_NE(r.err.find("MB shared"), std::string::npos) << "summary line: " << r.err;
+    EXPECT_NE(r.err.find("MB in triangulations"), std::string::npos) << "summary line: " << r.err;
+    EXPECT_NE(r.err.find("insertions per point"), std::string::npos) << "summary line: " << r.err;
   }
   EXPECT_EQ(slurp(path("m.simplices")), slurp(path("m.txt")));
   EXPECT_NE(slurp(path("m.vtu")).find("NumberOfCells"), std::string::npos);
@@ -92,6 +93,11 @@ TEST_F(Cli, MeshWritesEveryFormatAndCheckAcceptsIt) {
   EXPECT_EQ(check.code, 0) << check.out;
   EXPECT_NE(check.out.find("valid"), std::string::npos);
   EXPECT_EQ(run("mesh -q " + in + " -o " + path("q.simplices")).err, "");
+  // The star walk's sweep: the same bytes, and its own summary.
+  const Outcome stars = run("mesh " + in + " -o " + path("s.simplices") + " --engine stars");
+  ASSERT_EQ(stars.code, 0) << stars.err;
+  EXPECT_NE(stars.err.find("MB shared"), std::string::npos) << "summary line: " << stars.err;
+  EXPECT_EQ(slurp(path("s.simplices")), slurp(path("m.simplices")));
 }
 
 TEST_F(Cli, OutputIsTheSameAcrossThreadsAndSeedRangesUniteToIt) {
@@ -191,6 +197,8 @@ TEST_F(Cli, WeightsAndRadiiGiveTheRegularTriangulation) {
       {"mesh " + in + " --weights " + w + " --radii " + w + " -o " + path("x.npy"), "excludes"},
       {"graph " + in + " --weights " + w + " --approx -o " + path("x.npy"), "exact engine"},
       {"mesh " + in + " --weights " + w + " --merge-duplicates -o " + path("x.npy"), "--merge-duplicates"},
+      {"mesh " + in + " --weights " + w + " --engine triangulations -o " + path("x.npy"), "--engine stars"},
+      {"mesh " + in + " --engine quadtree -o " + path("x.npy"), "--engine"},
   };
   for (const Bad& b : bad) {
     const Outcome o = run(b.args);

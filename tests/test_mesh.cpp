@@ -160,6 +160,8 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
     const Simplices one = mesh_all(tree, 1);
     EXPECT_EQ(mesh_all(tree, 2), one);
     EXPECT_EQ(mesh_all(tree, 7), one);
+    // The star walk's sweep and the local triangulations' (d = 2, 3) write the same bytes.
+    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, MeshEngine::kStars), one);
     EXPECT_EQ(mesh_all(tree, 3, 0, 0xFFFFFFFFu, /*random_seed=*/12345), one);
     for (const std::uint32_t block : {1u, 17u, 100u, 100000u}) {
       SCOPED_TRACE("block " + std::to_string(block));
@@ -194,18 +196,21 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
 // included) is the same, for any thread count. circle-2d's centre has 325 neighbours,
 // far more posts than an EdgeCache point keeps.
 TEST(Mesh, FacetCacheChangesNoSimplex) {
+  constexpr auto kStars = MeshEngine::kStars;
+  const std::size_t cache = MeshOptions{}.facet_cache_bytes;
   for (const Case& c : cgal_cases()) {
     SCOPED_TRACE(c.name);
     const PointSet ps = make_points(c.d, c.coords);
     const KdTree tree(ps);
-    const Simplices without = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, /*facet_cache_bytes=*/0);
+    const Simplices without = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, /*facet_cache_bytes=*/0, 0, kStars);
     const std::size_t tiny = ps.size() * 4 + 1024 * (c.d + 3) * 4;  // the smallest table: 1,024 slots
-    EXPECT_EQ(mesh_all(tree, 1), without);
-    EXPECT_EQ(mesh_all(tree, 7), without);
-    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, tiny), without);
+    EXPECT_EQ(mesh_all(tree, 1, 0, 0xFFFFFFFFu, 0x5eed, cache, 0, kStars), without);
+    EXPECT_EQ(mesh_all(tree, 7, 0, 0xFFFFFFFFu, 0x5eed, cache, 0, kStars), without);
+    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, tiny, 0, kStars), without);
     // A partial run shares only among its own seeds.
     const auto third = static_cast<std::uint32_t>(ps.size() / 3);
-    EXPECT_EQ(mesh_all(tree, 2, third, 2 * third), mesh_all(tree, 2, third, 2 * third, 0x5eed, 0));
+    EXPECT_EQ(mesh_all(tree, 2, third, 2 * third, 0x5eed, cache, 0, kStars),
+              mesh_all(tree, 2, third, 2 * third, 0x5eed, 0, 0, kStars));
   }
 }
 
@@ -235,6 +240,7 @@ TEST(FacetCache, WholeMeshesReturnTheirCacheMemory) {
     for (int run = 0; run < 20; ++run) {
       MeshOptions options;
       options.threads = 2;
+      options.engine = MeshEngine::kStars;  // the run-wide caches are the star walk's
       std::size_t cache_bytes = 0;
       auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
       ASSERT_TRUE(r.is_ok());
@@ -362,6 +368,7 @@ TEST(Mesh, EdgeCacheAnswersMostWrapsIn2d) {
   auto run = [&](std::size_t bytes, Simplices& out) {
     MeshOptions options;
     options.threads = 2;
+    options.engine = MeshEngine::kStars;  // the posts are the star walk's
     options.facet_cache_bytes = bytes;
     auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
       out.insert(out.end(), block.begin(), block.end());

@@ -97,20 +97,22 @@ TEST(FrontCache, RecordsReachLaterSeedsOnceAndNeverABlockThatBegan) {
 TEST(FrontCache, TheMailCapDropsPostsAndChangesNoSimplex) {
   const PointSet ps = make_points(3, uniform_points(3, 4000, 12));
   const KdTree tree(ps);
-  const auto whole = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 200);
+  const auto whole = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 200, MeshEngine::kStars);
   for (const std::size_t cap : {std::size_t{1}, std::size_t{4096}, std::size_t{1} << 16}) {
     SCOPED_TRACE("cap " + std::to_string(cap));
-    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, cap, 200), whole);
+    EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, cap, 200, MeshEngine::kStars), whole);
   }
 }
 
 // A whole mesh of n uniform points in d dimensions on two threads with blocks of
-// `block` points, its output discarded: the run's statistics, printed.
+// `block` points by the star walk's sweep (whose front this measures), its output
+// discarded: the run's statistics, printed.
 MeshStats sweep_of_uniform(int d, std::size_t n, std::uint64_t seed, std::uint32_t block) {
   const PointSet ps = make_points(d, uniform_points(d, n, seed));
   const KdTree tree(ps);
   MeshOptions options;
   options.threads = 2;
+  options.engine = MeshEngine::kStars;
   options.block_size = block;
   auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
   EXPECT_TRUE(r.is_ok());

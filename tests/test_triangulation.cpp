@@ -6,13 +6,18 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <mutex>
 #include <numeric>
+#include <set>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "cgal_oracle.hpp"
+#include "inputs.hpp"  // bench/: the shape families
 #include "mesh/triangulation.hpp"
+#include "spokemesh/space_split.hpp"
 #include "support.hpp"
 
 namespace spokemesh {
@@ -147,6 +152,158 @@ TEST(Triangulation, ValidAfterEveryInsertion) {
     const Tuples ours = c.d == 2 ? triangulate<2>(ps, order, true) : triangulate<3>(ps, order, true);
     EXPECT_TRUE(ours == (c.d == 2 ? cgal_2(ps) : cgal_3(ps)));
   }
+}
+
+// --- The whole mesh by local triangulations (delaunay_sweep.cpp) --------------------
+
+constexpr auto kStars = MeshEngine::kStars;
+constexpr auto kTriangulations = MeshEngine::kTriangulations;
+
+Simplices sweep(const KdTree& tree, unsigned threads, std::uint32_t region_points, MeshStats* stats = nullptr,
+                std::uint32_t seed_begin = 0, std::uint32_t seed_end = 0xFFFFFFFFu, std::uint32_t sweep_begin = 0,
+                std::uint32_t sweep_end = 0xFFFFFFFFu) {
+  MeshOptions options;
+  options.engine = kTriangulations;
+  options.threads = threads;
+  options.region_points = region_points;
+  options.seed_begin = seed_begin;
+  options.seed_end = seed_end;
+  options.sweep_begin = sweep_begin;
+  options.sweep_end = sweep_end;
+  Simplices out;
+  auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+    out.insert(out.end(), block.begin(), block.end());
+    return Status::ok();
+  });
+  EXPECT_TRUE(r.is_ok()) << r.status().message();
+  if (stats != nullptr && r.is_ok()) *stats = r.value();
+  return out;
+}
+
+// Every shape family (issue 41) and every degenerate case, at a few thousand points,
+// with regions small enough that margins, tree queries and the triangulation of every
+// point all serve: the same bytes as the star walk's sweep, for any thread count and
+// region size, and CGAL's simplices.
+TEST(TriangulationSweep, SameBytesAsTheStarWalkOnEveryShape) {
+  std::vector<Case> all = cases();
+  for (auto& shape : bench::shape_families(3000, 41)) all.push_back({shape.name, shape.d, std::move(shape.coords)});
+  for (const Case& c : all) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    const Simplices stars = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, kStars);
+    EXPECT_TRUE(as_set(stars, c.d + 1) == (c.d == 2 ? cgal_2(ps) : cgal_3(ps)));
+    for (const std::uint32_t region : {0u, 97u, 600u}) {
+      for (const unsigned threads : {1u, 3u}) {
+        SCOPED_TRACE("region " + std::to_string(region) + ", threads " + std::to_string(threads));
+        EXPECT_EQ(sweep(tree, threads, region), stars);
+      }
+    }
+  }
+}
+
+// Seed ranges and sweep ranges: the parts are the star walk's parts, and consecutive
+// sweep ranges concatenate to the whole run.
+TEST(TriangulationSweep, PartsAreTheStarWalksParts) {
+  for (auto& shape : bench::shape_families(2500, 7)) {
+    if (shape.name != "rings" && shape.name != "contours" && shape.name != "clustered") continue;
+    SCOPED_TRACE(shape.name);
+    const PointSet ps = make_points(shape.d, shape.coords);
+    const KdTree tree(ps);
+    const auto n = static_cast<std::uint32_t>(ps.size());
+    const Simplices whole = sweep(tree, 2, 300);
+    for (const auto& [b, e] : {std::pair{0u, n / 3}, std::pair{n / 3, n / 3 + 40}, std::pair{n - 5, n}}) {
+      EXPECT_EQ(sweep(tree, 2, 300, nullptr, b, e),
+                mesh_all(tree, 2, b, e, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, kStars));
+    }
+    Simplices joined;
+    for (std::uint32_t at = 0; at < n; at += 777) {
+      const Simplices part = sweep(tree, 2, 300, nullptr, 0, 0xFFFFFFFFu, at, at + 777);
+      joined.insert(joined.end(), part.begin(), part.end());
+    }
+    EXPECT_EQ(joined, whole);
+  }
+}
+
+// The input's order does not matter: a permuted set's mesh, mapped back, is the same
+// set of oriented simplices (rows are in sweep order by owner: mapped back, sorted).
+TEST(TriangulationSweep, PermutedInputMapsBack) {
+  for (auto& shape : bench::shape_families(2000, 9)) {
+    if (shape.name != "sphere" && shape.name != "terrain" && shape.name != "contours") continue;
+    SCOPED_TRACE(shape.name);
+    const int d = shape.d;
+    const std::size_t n = shape.coords.size() / d;
+    std::vector<std::uint32_t> perm(n);
+    std::iota(perm.begin(), perm.end(), 0u);
+    std::shuffle(perm.begin(), perm.end(), std::mt19937_64(3));
+    std::vector<double> permuted(shape.coords.size());
+    for (std::size_t i = 0; i < n; ++i) std::copy_n(&shape.coords[perm[i] * d], d, &permuted[i * d]);
+    const PointSet a = make_points(d, shape.coords), b = make_points(d, permuted);
+    const KdTree ta(a), tb(b);
+    Simplices mapped = sweep(tb, 2, 250);
+    for (auto& v : mapped) v = perm[v];
+    EXPECT_TRUE(as_set(mapped, d + 1) == as_set(sweep(ta, 2, 250), d + 1));
+  }
+}
+
+// The certificates each serve where they should: on uniform points, margins and a
+// few tree queries (never every point at once); on a sphere's surface, whose every
+// Delaunay ball is the sphere itself, the triangulation of every point.
+TEST(TriangulationSweep, EachCertificateWhereItBelongs) {
+  {
+    const PointSet ps = make_points(3, uniform_points(3, 60000, 5));
+    const KdTree tree(ps);
+    MeshStats stats;
+    sweep(tree, 2, 20000, &stats);
+    EXPECT_FALSE(stats.triangulation.whole_set);
+    EXPECT_GE(stats.triangulation.regions, 4u);
+    EXPECT_GT(stats.triangulation.ball_queries, 0u);
+    EXPECT_LT(stats.triangulation.inserted, 2 * ps.size()) << "margins should be a fraction of the regions";
+  }
+  {
+    const PointSet ps = make_points(3, bench::sphere_surface(20000, 5));
+    const KdTree tree(ps);
+    MeshStats stats;
+    sweep(tree, 2, 2000, &stats);
+    EXPECT_TRUE(stats.triangulation.whole_set);
+  }
+}
+
+// A refused star emits nothing, as in the star walk's sweep (spokemesh-mpi refuses the
+// stars it cannot certify from the points it holds); accepted stars are whole.
+TEST(TriangulationSweep, AcceptSeesWholeStars) {
+  const PointSet ps = make_points(3, uniform_points(3, 3000, 8));
+  const KdTree tree(ps);
+  auto run = [&](MeshEngine engine) {
+    MeshOptions options;
+    options.engine = engine;
+    options.threads = 2;
+    options.region_points = 400;
+    std::mutex mu;
+    std::map<std::uint32_t, std::set<std::vector<std::uint32_t>>> stars;
+    options.accept = [&](const Star& star) {
+      std::set<std::vector<std::uint32_t>> s;
+      for (std::size_t i = 0; i < star.size(); ++i) {
+        std::vector<std::uint32_t> t(star.simplex(i), star.simplex(i) + 4);
+        std::sort(t.begin(), t.end());
+        s.insert(t);
+      }
+      std::lock_guard lock(mu);
+      stars[star.seed] = std::move(s);
+      return star.seed % 3 != 0;
+    };
+    Simplices out;
+    EXPECT_TRUE(mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+                  out.insert(out.end(), b.begin(), b.end());
+                  return Status::ok();
+                }).is_ok());
+    return std::pair{out, stars};
+  };
+  const auto [stars_rows, stars_seen] = run(kStars);
+  const auto [tri_rows, tri_seen] = run(kTriangulations);
+  EXPECT_EQ(tri_rows, stars_rows);
+  EXPECT_TRUE(tri_seen == stars_seen);
+  EXPECT_EQ(tri_seen.size(), ps.size());
 }
 
 }  // namespace

@@ -258,6 +258,8 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       usage = invalid_argument(w.output + ": graphs are written as text (.edges, .txt) or .npy");
     }
   }
+  auto engine = parse_engine(w.engine);
+  if (usage.is_ok() && !engine.is_ok()) usage = engine.status();
   if (usage.is_ok() && comm.rank == 0) usage = check_not_input(input, w.output);
   if (usage.is_ok() && comm.rank == 0) {
     // The CLI opens its output before meshing: a run that cannot write says so first.
@@ -519,6 +521,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
         options.sweep_end = sweep.swept();
         options.star.random_seed = w.common.random_seed;
         options.facet_cache_bytes = w.common.cache_mb << 20;
+        options.engine = engine.value();
         // The stars share their wraps (the sweep's memo): a wrap a refused star found
         // is still one of the held points' Delaunay triangulation, which every star
         // here is computed in.

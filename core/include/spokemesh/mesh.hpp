@@ -66,6 +66,10 @@ struct MeshOptions {
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
   MeshEngine engine = MeshEngine::kAuto;
+  // Local triangulations: the points of a region triangulated at once (the split's
+  // nodes of at most this many; 0 = the dimension's default). The output is the same
+  // for any size; small regions exercise every certificate on small sets (tests).
+  std::uint32_t region_points = 0;
   // When set, every seed's whole star (all its simplices) is given to `accept`, on the
   // worker thread that computed it; a seed whose star it refuses emits nothing. A
   // process meshing its part of a larger set refuses the stars it cannot certify from

@@ -795,14 +795,16 @@ Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshO
   }
   // Regions: the split's nodes of at most the policy's size (compact boxes), cut to the
   // sweep range.
-  for (const auto& [first, last] : split.nodes_of_at_most(policy(D).triangulation_region_points)) {
+  const std::uint32_t region_points =
+      options.region_points != 0 ? options.region_points : policy(D).triangulation_region_points;
+  for (const auto& [first, last] : split.nodes_of_at_most(region_points)) {
     const std::uint32_t b = std::max(first, sweep_begin), e = std::min(last, sweep_end);
     if (b < e) run.regions.emplace_back(b, e);
   }
   const unsigned threads = std::max(1u, options.threads);
   std::uint64_t seeds_done = 0;
   const Status status = run_in_order<RegionRows>(
-      run.regions.size(), threads, 2ull * threads,
+      run.regions.size(), threads, threads,
       [&] { return std::make_unique<RegionMesher<D>>(run, total); },
       [&](RegionRows& rows) -> Status {
         seeds_done += rows.seeds;

@@ -1,6 +1,9 @@
 #include "mesh/triangulation.hpp"
 
 #include <algorithm>
+#include <cfloat>
+#include <cmath>
+#include <limits>
 #include <string>
 
 #include "base/invariant.hpp"
@@ -9,7 +12,6 @@ namespace spokemesh::detail {
 
 namespace {
 
-using filter::certified_sign;
 
 // In 3-d, the two vertex positions of a cell other than i and k (i != k): a ridge.
 constexpr int kOthers[4][4][2] = {{{0, 0}, {2, 3}, {1, 3}, {1, 2}},
@@ -18,65 +20,92 @@ constexpr int kOthers[4][4][2] = {{{0, 0}, {2, 3}, {1, 3}, {1, 2}},
                                   {{1, 2}, {0, 2}, {0, 1}, {0, 0}}};
 constexpr int kUnknown = filter::kUnknownSign;
 
-// The filters. Each evaluates, in double, the same determinant as the exact stage
-// (Predicates::spatial_sign_exact / lifted_sign_exact with origin p[0]) together with
-// the sum of its monomials' magnitudes, computed alike on absolute values, and its
-// rounding depth in BoundedDouble's model (a difference of inputs: 1; a product: the
-// sum of its factors' depths + 1; a sum: the larger depth + 1). filter::certified_sign
-// then certifies the sign when |value| exceeds (depth + 2) u (1.01) times the
-// magnitude (the bound of predicates.hpp), and returns kUnknownSign otherwise (also
-// when the magnitude could have underflowed or overflowed).
+// The filters. Each evaluates, in floating type T, the same determinant as the exact
+// stage (Predicates::spatial_sign_exact / lifted_sign_exact with origin p[0]) together
+// with the sum of its monomials' magnitudes, computed alike on absolute values, and
+// its rounding depth in BoundedDouble's model (a difference of inputs: 1; a product:
+// the sum of its factors' depths + 1; a sum: the larger depth + 1). The sign is
+// certified when |value| exceeds (depth + 2) u (1.01) times the magnitude (the bound
+// of predicates.hpp, u being T's unit roundoff), and kUnknownSign is returned
+// otherwise (also when the magnitude could have underflowed or overflowed).
+//
+// Two stages: double (u = 2^-53), then x87 extended precision (long double, u = 2^-64
+// on x86-64: 2,048 times tighter) before the exact stage. Points on a sphere or a
+// closed surface make nearly every in-sphere test a near tie (the determinant is the
+// coordinates' rounding, about 1e-16 of the magnitude): the double filter fails, the
+// extended one decides nearly all of them at a few times a double's cost, instead of
+// the microsecond of an exact evaluation.
+template <class T>
+struct Precision;
+template <>
+struct Precision<double> {
+  static constexpr double kUnit = filter::kUnitRoundoff;
+};
+template <>
+struct Precision<long double> {
+  static_assert(std::numeric_limits<long double>::digits >= 64, "the second stage assumes x87 extended precision");
+  static constexpr long double kUnit = 0x1p-64L;
+};
+
+template <class T>
+inline int certified(T value, T magnitude, int depth) {
+  if (!(magnitude >= static_cast<T>(filter::kUnderflowGuard) && magnitude <= static_cast<T>(DBL_MAX))) return kUnknown;
+  const T err = magnitude * (static_cast<T>(depth) + 2) * Precision<T>::kUnit * static_cast<T>(1.01);
+  if (value > err) return 1;
+  if (value < -err) return -1;
+  return kUnknown;
+}
 
 // det[b - a, c - a]: depth 4.
+template <class T>
 inline int orient2_filter(const double* a, const double* b, const double* c) {
-  const double bx = b[0] - a[0], by = b[1] - a[1], cx = c[0] - a[0], cy = c[1] - a[1];
-  const double l = bx * cy, r = by * cx;
-  return certified_sign(l - r, std::fabs(l) + std::fabs(r), 4);
+  const T bx = T(b[0]) - T(a[0]), by = T(b[1]) - T(a[1]), cx = T(c[0]) - T(a[0]), cy = T(c[1]) - T(a[1]);
+  const T l = bx * cy, r = by * cx;
+  return certified<T>(l - r, std::fabs(l) + std::fabs(r), 4);
 }
 
 // det[b - a, c - a, d - a]: 2x2 minors depth 4, times a coordinate 6, sum of three 8.
+template <class T>
 inline int orient3_filter(const double* a, const double* b, const double* c, const double* d) {
-  const double bx = b[0] - a[0], by = b[1] - a[1], bz = b[2] - a[2];
-  const double cx = c[0] - a[0], cy = c[1] - a[1], cz = c[2] - a[2];
-  const double dx = d[0] - a[0], dy = d[1] - a[1], dz = d[2] - a[2];
-  const double m0l = cy * dz, m0r = cz * dy, m1l = cz * dx, m1r = cx * dz, m2l = cx * dy, m2r = cy * dx;
-  const double v = bx * (m0l - m0r) + by * (m1l - m1r) + bz * (m2l - m2r);
-  const double m = std::fabs(bx) * (std::fabs(m0l) + std::fabs(m0r)) + std::fabs(by) * (std::fabs(m1l) + std::fabs(m1r)) +
-                   std::fabs(bz) * (std::fabs(m2l) + std::fabs(m2r));
-  return certified_sign(v, m, 8);
+  const T bx = T(b[0]) - T(a[0]), by = T(b[1]) - T(a[1]), bz = T(b[2]) - T(a[2]);
+  const T cx = T(c[0]) - T(a[0]), cy = T(c[1]) - T(a[1]), cz = T(c[2]) - T(a[2]);
+  const T dx = T(d[0]) - T(a[0]), dy = T(d[1]) - T(a[1]), dz = T(d[2]) - T(a[2]);
+  const T m0l = cy * dz, m0r = cz * dy, m1l = cz * dx, m1r = cx * dz, m2l = cx * dy, m2r = cy * dx;
+  const T v = bx * (m0l - m0r) + by * (m1l - m1r) + bz * (m2l - m2r);
+  const T m = std::fabs(bx) * (std::fabs(m0l) + std::fabs(m0r)) + std::fabs(by) * (std::fabs(m1l) + std::fabs(m1r)) +
+              std::fabs(bz) * (std::fabs(m2l) + std::fabs(m2r));
+  return certified<T>(v, m, 8);
 }
 
 // The lifted determinant with origin a and rows (p - a, |p - a|^2) for p = b, c, q:
 // expanded along the height column, + h_b det(c, q) - h_c det(b, q) + h_q det(b, c).
 // Heights depth 4 (two squares summed), 2x2 minors 4, products 9, sum of three 11.
+template <class T>
 inline int insphere2_filter(const double* a, const double* b, const double* c, const double* q) {
-  const double bx = b[0] - a[0], by = b[1] - a[1], cx = c[0] - a[0], cy = c[1] - a[1];
-  const double qx = q[0] - a[0], qy = q[1] - a[1];
-  const double hb = bx * bx + by * by, hc = cx * cx + cy * cy, hq = qx * qx + qy * qy;
-  const double cq_l = cx * qy, cq_r = cy * qx, bq_l = bx * qy, bq_r = by * qx, bc_l = bx * cy, bc_r = by * cx;
-  const double v = hb * (cq_l - cq_r) - hc * (bq_l - bq_r) + hq * (bc_l - bc_r);
-  const double m = hb * (std::fabs(cq_l) + std::fabs(cq_r)) + hc * (std::fabs(bq_l) + std::fabs(bq_r)) +
-                   hq * (std::fabs(bc_l) + std::fabs(bc_r));
-  return certified_sign(v, m, 11);
+  const T bx = T(b[0]) - T(a[0]), by = T(b[1]) - T(a[1]), cx = T(c[0]) - T(a[0]), cy = T(c[1]) - T(a[1]);
+  const T qx = T(q[0]) - T(a[0]), qy = T(q[1]) - T(a[1]);
+  const T hb = bx * bx + by * by, hc = cx * cx + cy * cy, hq = qx * qx + qy * qy;
+  const T cq_l = cx * qy, cq_r = cy * qx, bq_l = bx * qy, bq_r = by * qx, bc_l = bx * cy, bc_r = by * cx;
+  const T v = hb * (cq_l - cq_r) - hc * (bq_l - bq_r) + hq * (bc_l - bc_r);
+  const T m = hb * (std::fabs(cq_l) + std::fabs(cq_r)) + hc * (std::fabs(bq_l) + std::fabs(bq_r)) +
+              hq * (std::fabs(bc_l) + std::fabs(bc_r));
+  return certified<T>(v, m, 11);
 }
 
 // The lifted determinant with origin a and rows b, c, d, q (4 x 4), expanded along
 // the height column: -h_b M_b + h_c M_c - h_d M_d + h_q M_q, M_r the 3 x 3 spatial
-// determinant of the other three rows (as triple products over shared cross
-// products). Heights depth 5, triple products 8, products 14, sum of four 17.
+// determinant of the other three rows (triple products over shared cross products).
+// Heights depth 5, triple products 8, products 14, sum of four 17.
+template <class T>
 inline int insphere3_filter(const double* a, const double* b, const double* c, const double* d, const double* q) {
-  double r[4][3], h[4];
+  T r[4][3], h[4];
   const double* p[4] = {b, c, d, q};
   for (int i = 0; i < 4; ++i) {
-    for (int k = 0; k < 3; ++k) r[i][k] = p[i][k] - a[k];
+    for (int k = 0; k < 3; ++k) r[i][k] = T(p[i][k]) - T(a[k]);
     h[i] = r[i][0] * r[i][0] + r[i][1] * r[i][1] + r[i][2] * r[i][2];
   }
-  // Cross products of rows (1, 3) [c x q], (0, 3) [b x q], (0, 1) [b x c] with their
-  // magnitudes: M_b = c . (d x q) etc. Written out: the four triple products share
-  // the six row pairs' cross products; three of them suffice per M.
-  auto cross = [](const double* u, const double* w, double* out, double* mag) {
-    const double l0 = u[1] * w[2], r0 = u[2] * w[1], l1 = u[2] * w[0], r1 = u[0] * w[2], l2 = u[0] * w[1],
-                 r2 = u[1] * w[0];
+  auto cross = [](const T* u, const T* w, T* out, T* mag) {
+    const T l0 = u[1] * w[2], r0 = u[2] * w[1], l1 = u[2] * w[0], r1 = u[0] * w[2], l2 = u[0] * w[1], r2 = u[1] * w[0];
     out[0] = l0 - r0;
     out[1] = l1 - r1;
     out[2] = l2 - r2;
@@ -84,22 +113,36 @@ inline int insphere3_filter(const double* a, const double* b, const double* c, c
     mag[1] = std::fabs(l1) + std::fabs(r1);
     mag[2] = std::fabs(l2) + std::fabs(r2);
   };
-  auto dot = [](const double* u, const double* w) { return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]; };
-  auto dot_abs = [](const double* u, const double* w) {
-    return std::fabs(u[0]) * w[0] + std::fabs(u[1]) * w[1] + std::fabs(u[2]) * w[2];
-  };
-  double dq[3], dqm[3], cd[3], cdm[3];
+  auto dot = [](const T* u, const T* w) { return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]; };
+  auto dot_abs = [](const T* u, const T* w) { return std::fabs(u[0]) * w[0] + std::fabs(u[1]) * w[1] + std::fabs(u[2]) * w[2]; };
+  T dq[3], dqm[3], cd[3], cdm[3], bc[3], bcm[3];
   cross(r[2], r[3], dq, dqm);  // d x q
   cross(r[1], r[2], cd, cdm);  // c x d
-  double bc[3], bcm[3];
   cross(r[0], r[1], bc, bcm);  // b x c
   // M_b = det(c, d, q) = c . (d x q); M_c = det(b, d, q) = b . (d x q);
   // M_d = det(b, c, q) = q . (b x c); M_q = det(b, c, d) = b . (c x d).
-  const double mb = dot(r[1], dq), mc = dot(r[0], dq), md = dot(r[3], bc), mq = dot(r[0], cd);
-  const double mbm = dot_abs(r[1], dqm), mcm = dot_abs(r[0], dqm), mdm = dot_abs(r[3], bcm), mqm = dot_abs(r[0], cdm);
-  const double v = -h[0] * mb + h[1] * mc - h[2] * md + h[3] * mq;
-  const double m = h[0] * mbm + h[1] * mcm + h[2] * mdm + h[3] * mqm;
-  return certified_sign(v, m, 17);
+  const T mb = dot(r[1], dq), mc = dot(r[0], dq), md = dot(r[3], bc), mq = dot(r[0], cd);
+  const T mbm = dot_abs(r[1], dqm), mcm = dot_abs(r[0], dqm), mdm = dot_abs(r[3], bcm), mqm = dot_abs(r[0], cdm);
+  const T v = -h[0] * mb + h[1] * mc - h[2] * md + h[3] * mq;
+  const T m = h[0] * mbm + h[1] * mcm + h[2] * mdm + h[3] * mqm;
+  return certified<T>(v, m, 17);
+}
+
+template <int D, class T>
+int orient_filter(const std::array<const double*, D + 1>& x) {
+  if constexpr (D == 2) {
+    return orient2_filter<T>(x[0], x[1], x[2]);
+  } else {
+    return orient3_filter<T>(x[0], x[1], x[2], x[3]);
+  }
+}
+template <int D, class T>
+int insphere_filter(const std::array<const double*, D + 1>& x, const double* q) {
+  if constexpr (D == 2) {
+    return insphere2_filter<T>(x[0], x[1], x[2], q);
+  } else {
+    return insphere3_filter<T>(x[0], x[1], x[2], x[3], q);
+  }
 }
 
 }  // namespace
@@ -164,13 +207,10 @@ std::uint32_t Triangulation<D>::new_cell() {
 template <int D>
 template <class IdsFn>
 int Triangulation<D>::orient_at(const Points& x, IdsFn&& ids) const {
-  int s;
-  if constexpr (D == 2) {
-    s = orient2_filter(x[0], x[1], x[2]);
-  } else {
-    s = orient3_filter(x[0], x[1], x[2], x[3]);
-  }
+  int s = orient_filter<D, double>(x);
   if (s != kUnknown) [[likely]] return s;
+  s = orient_filter<D, long double>(x);
+  if (s != kUnknown) return s;
   ++stats_.exact_calls;
   const Ids id = ids();
   std::array<Row, D> rows;
@@ -181,13 +221,10 @@ int Triangulation<D>::orient_at(const Points& x, IdsFn&& ids) const {
 template <int D>
 template <class IdsFn>
 int Triangulation<D>::sphere_at(const Points& x, IdsFn&& ids, const double* q, std::uint32_t q_id) const {
-  int s;
-  if constexpr (D == 2) {
-    s = insphere2_filter(x[0], x[1], x[2], q);
-  } else {
-    s = insphere3_filter(x[0], x[1], x[2], x[3], q);
-  }
+  int s = insphere_filter<D, double>(x, q);
   if (s != kUnknown) [[likely]] return s;
+  s = insphere_filter<D, long double>(x, q);
+  if (s != kUnknown) return s;
   ++stats_.exact_calls;
   const Ids id = ids();
   std::array<Row, D + 1> rows;
