@@ -548,10 +548,12 @@ def cpu_seconds(pid: int) -> float:
 
 def test_a_stalled_reader_stalls_the_shard(server):
     """Flow control: a client that stops reading stops the server's work once the
-    transport's windows and the engine's bounded window are full (a few MB here),
-    instead of the server computing and buffering the rest of the shard."""
+    transport's windows and the engine's bounded window are full (a region of the
+    sweep per worker beyond the one being written, 50,000 points each here, and the
+    stream's own window of 16 MB), instead of the server computing and buffering the
+    rest of the shard."""
     client = spokemesh.Client(server.grpc)
-    ps = client.upload(uniform(200000, 3, 12))  # about 6 CPU-seconds of meshing
+    ps = client.upload(uniform(800000, 3, 12))  # 16 regions, about 6 CPU-seconds of meshing
     stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
     start = cpu_seconds(server.proc.pid)
     stream = stub.StreamSimplices(pb.StreamSimplicesRequest(point_set_id=ps.id, batch_size=256), timeout=600)
@@ -569,7 +571,7 @@ def test_a_stalled_reader_stalls_the_shard(server):
     stalled_at = now - start
     total = (len(first.simplices) + sum(len(b.simplices) for b in stream)) // 4
     whole = cpu_seconds(server.proc.pid) - start
-    assert total > 1_300_000  # the stream then completed (1,346,109 simplices for this set)
+    assert total > 5_300_000  # the stream then completed (5,397,181 simplices for this set)
     assert stalled_at < 0.5 * whole, f"stalled after {stalled_at:.1f} of {whole:.1f} CPU-s: no backpressure"
 
 
