@@ -269,6 +269,41 @@ TEST(TriangulationSweep, EachCertificateWhereItBelongs) {
   }
 }
 
+// Memory refused (MeshOptions::reserve_bytes): the regions, or only the triangulation
+// of every point that a sphere's surface needs, give way to star walks; the same rows.
+TEST(TriangulationSweep, RefusedMemoryWalksTheStars) {
+  for (const bool sphere : {false, true}) {
+    SCOPED_TRACE(sphere ? "sphere" : "uniform");
+    const PointSet ps = make_points(3, sphere ? bench::sphere_surface(800, 2) : uniform_points(3, 3000, 2));
+    const KdTree tree(ps);
+    const Simplices stars = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, kStars);
+    // Nothing granted; or the first requests granted (16 MiB covers a region here:
+    // each worker asks once), and the rest, the triangulation of every point's among
+    // them, refused.
+    for (const std::size_t grants : {0u, 1u, 2u, 3u}) {
+      MeshOptions options;
+      options.engine = kTriangulations;
+      options.threads = 2;
+      options.region_points = 300;
+      std::size_t asked = 0;
+      options.reserve_bytes = [&](std::size_t) { return ++asked <= grants; };
+      Simplices out;
+      auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+        out.insert(out.end(), b.begin(), b.end());
+        return Status::ok();
+      });
+      ASSERT_TRUE(r.is_ok()) << r.status().message();
+      EXPECT_EQ(out, stars) << grants << " grants";
+      if (grants == 0) {
+        EXPECT_EQ(r.value().triangulation.walked_seeds, ps.size()) << "every region refused: every star walked";
+      }
+      if (asked > grants) {
+        EXPECT_GT(r.value().triangulation.walked_seeds, 0u) << "a refusal walks stars";
+      }
+    }
+  }
+}
+
 // A refused star emits nothing, as in the star walk's sweep (spokemesh-mpi refuses the
 // stars it cannot certify from the points it holds); accepted stars are whole.
 TEST(TriangulationSweep, AcceptSeesWholeStars) {

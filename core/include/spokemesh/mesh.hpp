@@ -70,6 +70,12 @@ struct MeshOptions {
   // nodes of at most this many; 0 = the dimension's default). The output is the same
   // for any size; small regions exercise every certificate on small sets (tests).
   std::uint32_t region_points = 0;
+  // Local triangulations: asked before the run's triangulations grow past what it was
+  // granted so far, with the bytes wanted (16 MiB or more at a time; called from the
+  // workers, one call at a time). False refuses them: the seeds of that region (or of
+  // every region needing the triangulation of the whole set) are walked as stars
+  // instead (the same rows, slower, in bounded memory). Unset: no limit.
+  std::function<bool(std::size_t bytes)> reserve_bytes;
   // When set, every seed's whole star (all its simplices) is given to `accept`, on the
   // worker thread that computed it; a seed whose star it refuses emits nothing. A
   // process meshing its part of a larger set refuses the stars it cannot certify from

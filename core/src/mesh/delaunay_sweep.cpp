@@ -48,8 +48,10 @@ constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
 // that cuts it) has its seeds' stars walked instead.
 constexpr std::size_t kWalkShare = 16;
-// Cancellation is looked at every this many insertions.
+// Cancellation and the memory reserved are looked at every this many insertions.
 constexpr std::uint32_t kCancelEvery = 4096;
+// A run asks MeshOptions::reserve_bytes for memory in steps of at least this.
+constexpr std::size_t kReserveStep = std::size_t{16} << 20;
 
 // Biased randomized insertion order (Amenta, Choi and Rote 2003; CGAL's
 // spatial_sort with BRIO): rounds of growing random samples, each in the given
@@ -162,10 +164,13 @@ struct Run {
   std::vector<std::pair<std::uint32_t, std::uint32_t>> regions;  // sweep positions [first, second)
 
   std::once_flag whole_once;
-  std::unique_ptr<Triangulation<D>> whole;
+  std::unique_ptr<Triangulation<D>> whole;  // null until built, and when its memory was refused
   std::vector<std::uint32_t> whole_local;  // point id -> its local id in `whole`
   Status whole_status;
-  std::atomic<bool> use_whole{false};
+  std::atomic<bool> use_whole{false};      // `whole` was built: every region takes it
+  std::atomic<bool> whole_refused{false};  // its memory was refused: such regions walk their stars
+  std::size_t whole_reserved = 0;
+  std::mutex reserve_mu;
 
   Run(const KdTree& t, const SpaceSplit& s, const MeshOptions& o)
       : tree(t), ps(t.points()), split(s), options(o), pred(t.points()) {}
@@ -174,7 +179,24 @@ struct Run {
     return options.star.cancel != nullptr && options.star.cancel->load(std::memory_order_relaxed);
   }
 
-  // Builds the triangulation of every point (once; concurrent callers wait).
+  // Whether a triangulation that holds `now` bytes, of which `mine` are reserved, may
+  // go on: MeshOptions::reserve_bytes is asked for the difference (at least
+  // kReserveStep), and `mine` grows by what it granted. Always when nothing is asked.
+  bool reserve(std::size_t& mine, std::size_t now) {
+    if (now <= mine) return true;
+    if (!options.reserve_bytes) {
+      mine = now;
+      return true;
+    }
+    const std::size_t ask = std::max(now - mine, kReserveStep);
+    std::lock_guard lock(reserve_mu);
+    if (!options.reserve_bytes(ask)) return false;
+    mine += ask;
+    return true;
+  }
+
+  // Builds the triangulation of every point (once; concurrent callers wait). When its
+  // memory is refused, it is dropped and whole_refused set.
   const Status& ensure_whole() {
     std::call_once(whole_once, [&] {
       const auto n = static_cast<std::uint32_t>(ps.size());
@@ -183,14 +205,24 @@ struct Run {
       brio_order(order, scratch, [](std::uint32_t id) { return id; });
       auto t = std::make_unique<Triangulation<D>>(ps, pred);
       whole_local.assign(n, 0);
+      auto granted = [&] {
+        if (reserve(whole_reserved, t->bytes() + whole_local.capacity() * sizeof(std::uint32_t))) return true;
+        whole_local = {};
+        whole_refused.store(true);
+        return false;
+      };
       std::uint32_t count = 0;
       for (const std::uint32_t id : order) {
-        if (++count % kCancelEvery == 0 && cancelled()) {
-          whole_status = spokemesh::cancelled("mesh cancelled");
-          return;
+        if (++count % kCancelEvery == 0) {
+          if (cancelled()) {
+            whole_status = spokemesh::cancelled("mesh cancelled");
+            return;
+          }
+          if (!granted()) return;
         }
         whole_local[id] = t->insert(id);
       }
+      if (!granted()) return;
       whole = std::move(t);
       use_whole.store(true);
     });
@@ -232,10 +264,11 @@ class RegionMesher {
     if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) return walk(out);
     if (!run_.use_whole.load()) {
       ++stats_.regions;
-      Result<bool> local = triangulate(first, last);
+      Result<Outcome> local = triangulate(first, last);
       if (!local.is_ok()) return local.status();
       stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
-      if (local.value()) {
+      if (local.value() == Outcome::kOverBudget) return walk(out);
+      if (local.value() == Outcome::kDone) {
         if (run_.options.accept) {  // whole stars, one at a time
           for (const std::uint32_t r : wanted_) {
             cells_.clear();
@@ -248,7 +281,9 @@ class RegionMesher {
         return Status::ok();
       }
     }
+    if (run_.whole_refused.load()) return walk(out);
     if (const Status& s = run_.ensure_whole(); !s.is_ok()) return s;
+    if (run_.whole == nullptr) return walk(out);  // refused just now
     stats_.whole_set = true;
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t id = run_.split.point_at(r);
@@ -280,12 +315,6 @@ class RegionMesher {
     if (r >= first_ && r < last_) return true;
     if (in_box<D>(e_, x)) return true;
     return std::binary_search(extras_.begin(), extras_.end(), id);
-  }
-
-  void insert_all(std::vector<std::uint32_t>& ids) {
-    brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
-    for (const std::uint32_t id : ids) tri_.insert(id);
-    stats_.inserted += ids.size();
   }
 
   // The margin of a region's box E: the median over sample seeds (spread over the
@@ -467,10 +496,41 @@ class RegionMesher {
     if (best != 0xFFFFFFFFu) out.push_back(best);
   }
 
+  // What became of a region: every wanted seed's star certified; the balls reach across
+  // the set (the run then takes the triangulation of every point); or its memory was
+  // refused (its seeds' stars are then walked).
+  enum class Outcome { kDone, kWhole, kOverBudget };
+
+  // Inserts the points, in BRIO order (local ids to `local` when given, by index), as
+  // long as the memory reserved allows.
+  Result<bool> insert_points(std::vector<std::uint32_t>& ids, std::vector<std::uint32_t>* local) {
+    std::uint32_t count = 0;
+    if (local == nullptr) {
+      brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
+    } else {
+      order_.resize(ids.size());
+      for (std::uint32_t i = 0; i < ids.size(); ++i) order_[i] = i;
+      brio_order(order_, scratch_, [&](std::uint32_t i) { return ids[i]; });
+      local->assign(ids.size(), 0);
+    }
+    for (std::size_t k = 0; k < ids.size(); ++k) {
+      if (++count % kCancelEvery == 0) {
+        if (run_.cancelled()) return cancelled("mesh cancelled");
+        if (!run_.reserve(reserved_, tri_.bytes())) return false;
+      }
+      if (local == nullptr) {
+        tri_.insert(ids[k]);
+      } else {
+        (*local)[order_[k]] = tri_.insert(ids[order_[k]]);
+      }
+    }
+    stats_.inserted += ids.size();
+    return run_.reserve(reserved_, tri_.bytes());
+  }
+
   // Triangulates region [first, last) with a margin until every wanted seed's star is
-  // certified; false when the balls reach across the set (the run then takes the
-  // triangulation of every point).
-  Result<bool> triangulate(std::uint32_t first, std::uint32_t last) {
+  // certified.
+  Result<Outcome> triangulate(std::uint32_t first, std::uint32_t last) {
     first_ = first;
     last_ = last;
     tri_.clear();
@@ -491,16 +551,10 @@ class RegionMesher {
         region[static_cast<std::size_t>(D + k)] = std::max(region[static_cast<std::size_t>(D + k)], x[k]);
       }
     }
-    local_.assign(last - first, 0);
-    order_.resize(last - first);
-    for (std::uint32_t i = 0; i < last - first; ++i) order_[i] = i;
-    brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
-    std::uint32_t count = 0;
-    for (const std::uint32_t i : order_) {
-      if (++count % kCancelEvery == 0 && run_.cancelled()) return cancelled("mesh cancelled");
-      local_[i] = tri_.insert(ids_[i]);
+    if (auto in = insert_points(ids_, &local_); !in.is_ok() || !in.value()) {
+      if (!in.is_ok()) return in.status();
+      return Outcome::kOverBudget;
     }
-    stats_.inserted += last - first;
     // The margin: E's other points (E is empty until they are in: `certify` then
     // fails every ball, which `margin` only measures).
     for (int k = 0; k < D; ++k) {
@@ -517,10 +571,13 @@ class RegionMesher {
     }
     collect_box(e, found_, static_cast<std::size_t>(-1));
     if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size() && last - first < run_.ps.size()) {
-      return false;  // most of the set: take it whole
+      return Outcome::kWhole;  // most of the set: take it whole
     }
     e_ = e;
-    insert_all(found_);
+    if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+      if (!in.is_ok()) return in.status();
+      return Outcome::kOverBudget;
+    }
     e_covers_all_ = contains<D>(e_, run_.bounds);
 
     const std::uint32_t region_points = last - first;
@@ -537,8 +594,8 @@ class RegionMesher {
     }
     for (int round = 0;; ++round) {
       if (run_.cancelled()) return cancelled("mesh cancelled");
-      if (!tri_.full()) return false;
-      if (e_covers_all_) return true;  // every point is in: every cell is one of the set's
+      if (!tri_.full()) return Outcome::kWhole;
+      if (e_covers_all_) return Outcome::kDone;  // every point is in: every cell is one of the set's
       // Certify the cells around every seed still pending, in one pass over the cells
       // (in memory order: a pass per seed chased its cells at random); the failures'
       // boxes and balls are kept. A seed none of whose cells failed is done: no later
@@ -570,8 +627,8 @@ class RegionMesher {
         }
       }
       pending_.resize(still);
-      if (pending_.empty()) return true;
-      if (round == kMaxRounds) return false;
+      if (pending_.empty()) return Outcome::kDone;
+      if (round == kMaxRounds) return Outcome::kWhole;
       // Each failing ball and hull facet is asked of the tree (a query tests the few
       // points around a small ball). When the queries of a round test more than
       // kQueryWork times the region's points (a scan: most balls of the region's edge
@@ -597,7 +654,10 @@ class RegionMesher {
       std::vector<std::uint32_t> merged;
       std::merge(extras_.begin(), extras_.end(), found_.begin(), found_.end(), std::back_inserter(merged));
       extras_.swap(merged);
-      insert_all(found_);
+      if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+        if (!in.is_ok()) return in.status();
+        return Outcome::kOverBudget;
+      }
       if (getenv("SMDBG")) fprintf(stderr, "round %d fails %zu over %d found %zu work %zu inserted %u\n", round, fails_.size(), int(over), found_.size(), query_work_, tri_.vertex_count());
       if (!over) continue;
       Box<D> g{};
@@ -607,11 +667,14 @@ class RegionMesher {
             std::min(run_.bounds[static_cast<std::size_t>(D + k)], e_[static_cast<std::size_t>(D + k)] + grown);
       }
       grown *= 2;
-      if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) return false;
-      if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) return false;  // most of the set: take it whole
+      if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) return Outcome::kWhole;
+      if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) return Outcome::kWhole;  // most of the set
       e_ = g;
       e_covers_all_ = contains<D>(e_, run_.bounds);
-      insert_all(found_);
+      if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+        if (!in.is_ok()) return in.status();
+        return Outcome::kOverBudget;
+      }
       ++stats_.margin_rounds;
     }
   }
@@ -758,6 +821,7 @@ class RegionMesher {
   bool e_covers_all_ = false;
   std::vector<std::uint32_t> extras_;
   std::size_t query_work_ = 0;  // points the queries of a round tested
+  std::size_t reserved_ = 0;    // memory granted to this worker's triangulation (MeshOptions::reserve_bytes)
   // Scratch, kept between regions.
   std::vector<std::uint32_t> wanted_, ids_, order_, local_, scratch_, found_, cells_, seen_, others_;
   // Per local id of a region point: a seed still to certify, done, or not a seed of the
