@@ -829,9 +829,10 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   const std::size_t width = static_cast<std::size_t>(s.info.dimension) + 1;
 
   // The stream's memory against the budget: its output window (a bounded number of
-  // blocks of simplices and one batch: kStreamWindowBytes covers both), and its facet
-  // cache at the size it would take, or smaller (a smaller cache, or none, gives the
-  // same simplices, only slower) when the budget is short.
+  // blocks of simplices and one batch: kStreamWindowBytes covers both), and either its
+  // local triangulations as they grow, or (star walks) its facet cache at the size it
+  // would take, or smaller (a smaller cache, or none, gives the same simplices, only
+  // slower) when the budget is short.
   MemoryBudget& budget = store_->budget();
   const auto n32 = static_cast<std::uint32_t>(s.info.count);
   auto window = budget.try_charge(kStreamWindowBytes);
@@ -839,11 +840,23 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   MemoryBudget::Charge cache_charge;
   MeshOptions options;
   options.threads = std::max(1u, limits_.stream_threads);
-  options.facet_cache_bytes = charge_sweep_memo(s.info.dimension, n32, options.threads, cache_charge);
   options.sweep_begin = range.begin;  // shards of simplices are parts of the sweep
   options.sweep_end = range.end;
   options.star.cancel = control.stop_flag();
   options.star.weights = s.weights;
+  if (uses_triangulations(*s.tree, options)) {
+    // Local triangulations: their memory is charged as it grows (a region per worker,
+    // and the whole set's triangulation when balls reach across it), up to the stream
+    // cache; what that or the budget refuses is meshed by star walks instead, the same
+    // rows.
+    cache_charge = budget.empty_charge();
+    options.facet_cache_bytes = 0;
+    options.reserve_bytes = [&cache_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
+      return cache_charge.bytes() + bytes <= cap && cache_charge.grow(bytes);
+    };
+  } else {
+    options.facet_cache_bytes = charge_sweep_memo(s.info.dimension, n32, options.threads, cache_charge);
+  }
 
   std::vector<std::uint32_t> pending;  // less than one batch, carried between blocks
   pending.reserve(batch_size * width);

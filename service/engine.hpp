@@ -45,7 +45,7 @@ struct Limits {
   std::chrono::milliseconds default_deadline = defaults::kDefaultDeadline;
   std::chrono::milliseconds upload_idle_timeout = defaults::kUploadIdleTimeout;  // an idle upload stream ends
   unsigned stream_threads = 1;                                      // worker threads per StreamSimplices call
-  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // memo cap per streamed shard: the front's mail (0: none)
+  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // per streamed shard: its local triangulations, or the front's mail (0: none)
   std::size_t max_display_name = defaults::kMaxDisplayName;
 };
 

@@ -70,8 +70,8 @@ void add_server_flags(CLI::App& app, ServerFlags& f) {
                  "RESOURCE_EXHAUSTED. auto: half the cgroup limit or physical memory")
       ->capture_default_str();
   app.add_option("--stream-cache", f.stream_cache,
-                 "Memory per streamed shard for sharing facets between its seeds' stars (0 = none: same "
-                 "simplices, slower)")
+                 "Memory per streamed shard for the work its seeds share: local triangulations (2-d, 3-d "
+                 "meshes), or facets shared between stars (0 = none: same simplices, slower)")
       ->capture_default_str();
   app.add_option("--default-deadline", f.default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
       ->capture_default_str();

@@ -348,37 +348,48 @@ TEST(Engine, HighDimensionalSetsServeApproximateNeighboursAndRefuseExactWork) {
   EXPECT_EQ(replica->neighbors(info->id, 0, q, control).value().neighbors, a->neighbors);
 }
 
-// A simplex stream charges its budget for the sweep's memo: the front's mail at an
-// estimate of the front plus the workers' block tables (a few MB for a small 3-d set,
-// not a table for the whole run), and nothing with --stream-cache 0.
-TEST(Engine, SimplexStreamsChargeTheFrontNotARunWideTable) {
-  for (const std::size_t cap : {std::size_t{256} << 20, std::size_t{0}}) {
-    SCOPED_TRACE("stream cache " + std::to_string(cap));
-    TempDir dir;
-    Limits limits;
-    limits.stream_cache_bytes = cap;
-    auto engine = make_engine(dir.path(), limits);
-    const std::string id = upload(*engine, 3, uniform_points(3, 2000, 8)).value().id;  // its front: under 1 MiB
-    const auto control = no_deadline();
-    std::uint64_t during = 0;
-    auto stream = [&] {
-      return engine->stream_simplices(id, 0, 1, 0, control, [&](std::span<const std::uint32_t>, std::span<const std::int32_t>, std::uint64_t) {
-        during = std::max(during, engine->store().budget().used());
-        return Status::ok();
-      });
-    };
-    ASSERT_TRUE(stream().is_ok());  // loads the set and its tree, which stay charged
-    const std::uint64_t before = engine->store().budget().used();
-    during = 0;
-    ASSERT_TRUE(stream().is_ok());
-    const std::uint64_t memo = during - before - kStreamWindowBytes;
-    if (cap == 0) {
-      EXPECT_EQ(memo, 0u);
-    } else {
-      EXPECT_GT(memo, 0u) << "a small set's stream shares nothing";
-      EXPECT_LT(memo, std::uint64_t{16} << 20) << "charged like a run-wide table";
+// A simplex stream charges its budget for what its seeds share: in 2-d and 3-d its
+// local triangulations as they grow (a region per worker: one 16 MiB step for a small
+// set); in 4-d the sweep's memo, the front's mail at an estimate of the front plus the
+// workers' block tables (a few MB for a small set, not a table for the whole run).
+// Nothing with --stream-cache 0, and the same rows.
+TEST(Engine, SimplexStreamsChargeWhatTheySeedsShare) {
+  for (const int d : {3, 4}) {
+    std::vector<std::uint32_t> rows_with_cache;
+    for (const std::size_t cap : {std::size_t{256} << 20, std::size_t{0}}) {
+      SCOPED_TRACE("d " + std::to_string(d) + ", stream cache " + std::to_string(cap));
+      TempDir dir;
+      Limits limits;
+      limits.stream_cache_bytes = cap;
+      auto engine = make_engine(dir.path(), limits);
+      const std::string id = upload(*engine, d, uniform_points(d, d == 3 ? 2000 : 600, 8)).value().id;
+      const auto control = no_deadline();
+      std::uint64_t during = 0;
+      std::vector<std::uint32_t> rows;
+      auto stream = [&] {
+        rows.clear();
+        return engine->stream_simplices(id, 0, 1, 0, control,
+                                        [&](std::span<const std::uint32_t> b, std::span<const std::int32_t>, std::uint64_t) {
+                                          during = std::max(during, engine->store().budget().used());
+                                          rows.insert(rows.end(), b.begin(), b.end());
+                                          return Status::ok();
+                                        });
+      };
+      ASSERT_TRUE(stream().is_ok());  // loads the set and its tree, which stay charged
+      const std::uint64_t before = engine->store().budget().used();
+      during = 0;
+      ASSERT_TRUE(stream().is_ok());
+      const std::uint64_t shared = during - before - kStreamWindowBytes;
+      if (cap == 0) {
+        EXPECT_EQ(shared, 0u);
+        EXPECT_EQ(rows, rows_with_cache) << "the same rows without the shared work";
+      } else {
+        EXPECT_GT(shared, 0u) << "a small set's stream shares nothing";
+        EXPECT_LE(shared, std::uint64_t{16} << 20) << "charged like a run-wide table";
+        rows_with_cache = rows;
+      }
+      EXPECT_EQ(engine->store().budget().used(), before) << "the charge outlives the stream";
     }
-    EXPECT_EQ(engine->store().budget().used(), before) << "the charge outlives the stream";
   }
 }
 

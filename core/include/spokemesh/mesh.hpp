@@ -117,6 +117,11 @@ using SimplexSink = std::function<Status(std::span<const std::uint32_t> simplice
 
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink);
 
+// Whether mesh_seeds meshes this tree with these options by local triangulations
+// (MeshEngine::kAuto or kTriangulations on an unweighted, non-periodic 2-d or 3-d set):
+// its memory is then what reserve_bytes grants, not the facet cache.
+bool uses_triangulations(const KdTree& tree, const MeshOptions& options);
+
 // The simplices owned by `seed` within its star (a suffix of star.simplices).
 std::span<const std::uint32_t> owned_simplices(const Star& star);
 

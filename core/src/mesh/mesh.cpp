@@ -30,6 +30,10 @@ struct MeshedBlock {
 
 }  // namespace
 
+bool uses_triangulations(const KdTree& tree, const MeshOptions& options) {
+  return options.engine != MeshEngine::kStars && detail::triangulation_sweep_applies(tree, options);
+}
+
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink) {
   const std::uint64_t n = tree.points().size();
   const auto begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.seed_begin, n));
@@ -46,11 +50,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   }
   const SpaceSplit& blocks = options.split != nullptr ? *options.split : *own_split;
   if (blocks.size() != n) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
-  if (options.engine != MeshEngine::kStars) {
-    if (detail::triangulation_sweep_applies(tree, options)) return detail::triangulation_sweep(tree, blocks, options, sink);
-    if (options.engine == MeshEngine::kTriangulations) {
-      return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
-    }
+  if (uses_triangulations(tree, options)) return detail::triangulation_sweep(tree, blocks, options, sink);
+  if (options.engine == MeshEngine::kTriangulations) {
+    return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
   }
   std::uint32_t block_points = 1;
   for (std::uint32_t b = 0; b < blocks.block_count(); ++b) block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
