@@ -34,6 +34,9 @@ using ball_bounds::Interval;
 // the next point along it.
 constexpr double kMarginReaches = 1.0;
 constexpr std::size_t kMarginSamples = 31;
+// The margin is measured on the region's first BRIO rounds, an eighth of its points
+// and at least this many (scaled to its whole density: reach ~ spacing ~ count^(-1/d)).
+constexpr std::size_t kMarginSampleAtLeast = 512;
 // The balls and hull facets that fail against E are asked of the k-d tree one by one
 // while the points those queries test stay below kQueryWork times the region's points in
 // a round; beyond that, E's margin doubles, when that adds at most kGrowFactor times the
@@ -43,7 +46,7 @@ constexpr std::size_t kMarginSamples = 31;
 // of the run.
 constexpr std::size_t kGrowFactor = 2;
 constexpr std::size_t kGrowAtLeast = 4096;
-constexpr std::size_t kQueryWork = 4;
+constexpr std::size_t kQueryWork = 16;
 constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
 // that cuts it) has its seeds' stars walked instead.
@@ -168,6 +171,7 @@ struct Run {
   std::vector<std::uint32_t> whole_local;  // point id -> its local id in `whole`
   Status whole_status;
   std::atomic<bool> use_whole{false};      // `whole` was built: every region takes it
+  std::atomic<bool> whole_wanted{false};   // a region found balls across the set: others stop trying
   std::atomic<bool> whole_refused{false};  // its memory was refused: such regions walk their stars
   std::size_t whole_reserved = 0;
   std::mutex reserve_mu;
@@ -262,7 +266,7 @@ class RegionMesher {
     if (wanted_.empty()) return Status::ok();
     if (run_.cancelled()) return cancelled("mesh cancelled");
     if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) return walk(out);
-    if (!run_.use_whole.load()) {
+    if (!run_.use_whole.load() && !run_.whole_wanted.load()) {
       ++stats_.regions;
       Result<Outcome> local = triangulate(first, last);
       if (!local.is_ok()) return local.status();
@@ -321,18 +325,18 @@ class RegionMesher {
     return std::binary_search(extras_.begin(), extras_.end(), id);
   }
 
-  // The margin of a region's box E: the median over sample seeds (spread over the
-  // region, triangulated alone) of how far the boxes of their balls' parts inside the
-  // set's box reach from them, times kMarginReaches. 0 when the region has no simplex.
-  double margin(std::uint32_t first, std::uint32_t last) {
+  // The margin of a region's box E at the density of the points inserted so far (the
+  // first `inserted` of the region in BRIO order, alone): the median over sample seeds
+  // among them of how far the boxes of their balls' parts inside the set's box reach
+  // from them, times kMarginReaches. 0 when there is no simplex yet.
+  double margin(std::size_t inserted) {
     if (!tri_.full()) return 0;
     std::vector<double> reaches;
-    const std::uint32_t count = last - first;
     for (std::size_t s = 0; s < kMarginSamples; ++s) {
-      const std::uint32_t i = static_cast<std::uint32_t>((2 * s + 1) * count / (2 * kMarginSamples));
-      const double* x = tri_.coords(local_[i]);
+      const std::uint32_t local = local_[order_[(2 * s + 1) * inserted / (2 * kMarginSamples)]];
+      const double* x = tri_.coords(local);
       cells_.clear();
-      tri_.incident_cells(local_[i], cells_, seen_);
+      tri_.incident_cells(local, cells_, seen_);
       double reach = 0;
       for (const std::uint32_t c : cells_) {
         if (tri_.infinite_index(c) >= 0) continue;
@@ -346,6 +350,17 @@ class RegionMesher {
     }
     std::nth_element(reaches.begin(), reaches.begin() + static_cast<std::ptrdiff_t>(reaches.size() / 2), reaches.end());
     return kMarginReaches * reaches[reaches.size() / 2];
+  }
+
+  // Box b widened by `margin` on every side, within the set's box.
+  Box<D> margin_box(const Box<D>& b, double margin) const {
+    Box<D> e{};
+    for (int k = 0; k < D; ++k) {
+      e[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], b[static_cast<std::size_t>(k)] - margin);
+      e[static_cast<std::size_t>(D + k)] =
+          std::min(run_.bounds[static_cast<std::size_t>(D + k)], b[static_cast<std::size_t>(D + k)] + margin);
+    }
+    return e;
   }
 
   // Every point of box g not yet inserted (with E = e_), into `out`; false (and `out`
@@ -507,28 +522,21 @@ class RegionMesher {
 
   // Inserts the points, in BRIO order (local ids to `local` when given, by index), as
   // long as the memory reserved allows.
-  Result<bool> insert_points(std::vector<std::uint32_t>& ids, std::vector<std::uint32_t>* local) {
-    std::uint32_t count = 0;
-    if (local == nullptr) {
-      brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
-    } else {
-      order_.resize(ids.size());
-      for (std::uint32_t i = 0; i < ids.size(); ++i) order_[i] = i;
-      brio_order(order_, scratch_, [&](std::uint32_t i) { return ids[i]; });
-      local->assign(ids.size(), 0);
-    }
-    for (std::size_t k = 0; k < ids.size(); ++k) {
-      if (++count % kCancelEvery == 0) {
+  Result<bool> insert_points(std::vector<std::uint32_t>& ids) {
+    brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
+    return insert_range(ids.size(), [&](std::size_t k) { tri_.insert(ids[k]); });
+  }
+  // Inserts items [0, count) by insert_one(k), as long as the memory reserved allows.
+  template <class InsertOne>
+  Result<bool> insert_range(std::size_t count, InsertOne&& insert_one) {
+    for (std::size_t k = 0; k < count; ++k) {
+      if ((k + 1) % kCancelEvery == 0) {
         if (run_.cancelled()) return cancelled("mesh cancelled");
         if (!run_.reserve(reserved_, tri_.bytes())) return false;
       }
-      if (local == nullptr) {
-        tri_.insert(ids[k]);
-      } else {
-        (*local)[order_[k]] = tri_.insert(ids[order_[k]]);
-      }
+      insert_one(k);
     }
-    stats_.inserted += ids.size();
+    stats_.inserted += count;
     return run_.reserve(reserved_, tri_.bytes());
   }
 
@@ -555,36 +563,50 @@ class RegionMesher {
         region[static_cast<std::size_t>(D + k)] = std::max(region[static_cast<std::size_t>(D + k)], x[k]);
       }
     }
-    if (auto in = insert_points(ids_, &local_); !in.is_ok() || !in.value()) {
-      if (!in.is_ok()) return in.status();
-      return Outcome::kOverBudget;
-    }
-    // The margin: E's other points (E is empty until they are in: `certify` then
-    // fails every ball, which `margin` only measures).
-    for (int k = 0; k < D; ++k) {
+    // The region's points in BRIO order, their local ids kept by position. The first
+    // rounds (about an eighth: a sample spread over the region) come first, and give the
+    // margin: the reach of their seeds' balls, scaled to the region's density.
+    const std::uint32_t region_points = last - first;
+    order_.resize(region_points);
+    for (std::uint32_t i = 0; i < region_points; ++i) order_[i] = i;
+    brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
+    local_.assign(region_points, 0);
+    const std::size_t sample = std::min<std::size_t>(region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points / 8));
+    auto insert_region = [&](std::size_t k) { local_[order_[k]] = tri_.insert(ids_[order_[k]]); };
+    for (int k = 0; k < D; ++k) {  // nothing is in E until its points are (certify then fails every ball)
       e_[static_cast<std::size_t>(k)] = HUGE_VAL;
       e_[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
     }
-    const double margin = this->margin(first, last);
+    if (auto in = insert_range(sample, insert_region); !in.is_ok() || !in.value()) {
+      if (!in.is_ok()) return in.status();
+      return Outcome::kOverBudget;
+    }
+    // Whether the balls reach across the set, judged early: the sample's reach as it is
+    // (on a surface, reach follows the shape, not the density) would put most of the
+    // set in E. Then the region stops here and the run takes the whole set.
+    const std::size_t most = 3 * run_.ps.size() / 4;
+    if (region_points < run_.ps.size() &&
+        (region_points > most || !collect_box(margin_box(region, margin(sample)), found_, most - region_points))) {
+      run_.whole_wanted.store(true);
+      return Outcome::kWhole;
+    }
+    if (auto in = insert_range(region_points - sample, [&](std::size_t k) { insert_region(sample + k); });
+        !in.is_ok() || !in.value()) {
+      if (!in.is_ok()) return in.status();
+      return Outcome::kOverBudget;
+    }
+    if (run_.whole_wanted.load()) return Outcome::kWhole;  // another region found balls across the set
+    // E: the margin at the region's own density.
+    const double margin = this->margin(region_points);
     if (getenv("SMDBG")) fprintf(stderr, "region %u..%u margin %g box %g %g %g\n", first, last, margin, region[D]-region[0], region[D+1]-region[1], D==3?region[5]-region[2]:0.0);
-    Box<D> e{};
-    for (int k = 0; k < D; ++k) {
-      e[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], region[static_cast<std::size_t>(k)] - margin);
-      e[static_cast<std::size_t>(D + k)] =
-          std::min(run_.bounds[static_cast<std::size_t>(D + k)], region[static_cast<std::size_t>(D + k)] + margin);
-    }
+    const Box<D> e = margin_box(region, margin);
     collect_box(e, found_, static_cast<std::size_t>(-1));
-    if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size() && last - first < run_.ps.size()) {
-      return Outcome::kWhole;  // most of the set: take it whole
-    }
     e_ = e;
-    if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+    if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
       if (!in.is_ok()) return in.status();
       return Outcome::kOverBudget;
     }
     e_covers_all_ = contains<D>(e_, run_.bounds);
-
-    const std::uint32_t region_points = last - first;
     double grown = std::max(margin, 0.0);  // E's next growth on each side
     // The region's points have local ids 1 .. region_points (inserted first): their
     // states, and the wanted ones pending.
@@ -632,7 +654,7 @@ class RegionMesher {
       }
       pending_.resize(still);
       if (pending_.empty()) return Outcome::kDone;
-      if (round == kMaxRounds) return Outcome::kWhole;
+      if (round == kMaxRounds || run_.whole_wanted.load()) return Outcome::kWhole;
       // Each failing ball and hull facet is asked of the tree (a query tests the few
       // points around a small ball). When the queries of a round test more than
       // kQueryWork times the region's points (a scan: most balls of the region's edge
@@ -658,24 +680,22 @@ class RegionMesher {
       std::vector<std::uint32_t> merged;
       std::merge(extras_.begin(), extras_.end(), found_.begin(), found_.end(), std::back_inserter(merged));
       extras_.swap(merged);
-      if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+      if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
         if (!in.is_ok()) return in.status();
         return Outcome::kOverBudget;
       }
       if (getenv("SMDBG")) fprintf(stderr, "round %d fails %zu over %d found %zu work %zu inserted %u\n", round, fails_.size(), int(over), found_.size(), query_work_, tri_.vertex_count());
       if (!over) continue;
-      Box<D> g{};
-      for (int k = 0; k < D; ++k) {
-        g[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], e_[static_cast<std::size_t>(k)] - grown);
-        g[static_cast<std::size_t>(D + k)] =
-            std::min(run_.bounds[static_cast<std::size_t>(D + k)], e_[static_cast<std::size_t>(D + k)] + grown);
-      }
+      const Box<D> g = margin_box(e_, grown);
       grown *= 2;
-      if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points))) return Outcome::kWhole;
-      if (4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) return Outcome::kWhole;  // most of the set
+      if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points)) ||
+          4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) {
+        run_.whole_wanted.store(true);
+        return Outcome::kWhole;
+      }
       e_ = g;
       e_covers_all_ = contains<D>(e_, run_.bounds);
-      if (auto in = insert_points(found_, nullptr); !in.is_ok() || !in.value()) {
+      if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
         if (!in.is_ok()) return in.status();
         return Outcome::kOverBudget;
       }
