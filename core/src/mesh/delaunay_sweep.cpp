@@ -208,6 +208,7 @@ struct Run {
       for (std::uint32_t r = 0; r < n; ++r) order[r] = split.point_at(r);
       brio_order(order, scratch, [](std::uint32_t id) { return id; });
       auto t = std::make_unique<Triangulation<D>>(ps, pred);
+      t->reserve(n);
       whole_local.assign(n, 0);
       auto granted = [&] {
         if (reserve(whole_reserved, t->bytes() + whole_local.capacity() * sizeof(std::uint32_t))) return true;
@@ -571,6 +572,7 @@ class RegionMesher {
     for (std::uint32_t i = 0; i < region_points; ++i) order_[i] = i;
     brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
     local_.assign(region_points, 0);
+    tri_.reserve(region_points + region_points / 2);  // the region and a typical margin
     const std::size_t sample = std::min<std::size_t>(region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points / 8));
     auto insert_region = [&](std::size_t k) { local_[order_[k]] = tri_.insert(ids_[order_[k]]); };
     for (int k = 0; k < D; ++k) {  // nothing is in E until its points are (certify then fails every ball)
@@ -708,49 +710,61 @@ class RegionMesher {
   // owner is a wanted seed of the region, then each seed's rows are sorted.
   void emit_owned(std::uint32_t first, std::vector<std::uint32_t>& rows) {
     constexpr std::size_t w = D + 1;
-    const std::uint32_t region_points = last_ - first_;
+    using Row = std::array<std::uint32_t, w>;
     // The wanted index of each region position (kNotWanted otherwise).
     constexpr std::uint32_t kNotWanted = 0xFFFFFFFFu;
-    index_of_.assign(region_points, kNotWanted);
+    index_of_.assign(last_ - first_, kNotWanted);
     for (std::uint32_t k = 0; k < wanted_.size(); ++k) index_of_[wanted_[k] - first] = k;
+    // A finite cell's row: its point ids ascending but for the last two, swapped when
+    // ascending order is negatively oriented (the cell is positive).
+    auto row_of = [&](std::uint32_t c) {
+      const auto& v = tri_.cell(c).v;
+      Row g{};
+      for (std::size_t k = 0; k < w; ++k) g[k] = tri_.global(v[k]);
+      if (sort_with_parity(g)) std::swap(g[w - 2], g[w - 1]);
+      return g;
+    };
+    // Pass 1: each cell's owner among the wanted seeds (its tag, now free: 1 + the
+    // wanted index, or 0), and how many rows each owner has.
     bucket_.assign(wanted_.size() + 1, 0);
-    owned_rows_.clear();
-    owners_.clear();
     for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
       if (!tri_.is_live(c)) continue;
-      const auto& v = tri_.cell(c).v;
-      std::array<std::uint32_t, w> g{};
-      bool infinite = false;
-      for (std::size_t k = 0; k < w; ++k) {
-        infinite = infinite || v[k] == Triangulation<D>::kInfinite;
-        g[k] = tri_.global(v[k]);
+      std::uint32_t owner = kNotWanted;
+      for (const std::uint32_t v : tri_.cell(c).v) {
+        if (v == Triangulation<D>::kInfinite) {
+          owner = kNotWanted;
+          break;
+        }
+        owner = std::min(owner, tri_.global(v));
       }
-      if (infinite) continue;
-      const bool odd = sort_with_parity(g);
-      const std::uint32_t r = run_.split.position_of(g[0]);
-      if (r < first || r >= last_ || index_of_[r - first] == kNotWanted) continue;
-      const std::uint32_t k = index_of_[r - first];
-      if (odd) std::swap(g[w - 2], g[w - 1]);  // positive again: the order rows are written in
-      owned_rows_.push_back(g);
-      owners_.push_back(k);
-      ++bucket_[k + 1];
+      std::uint32_t tag = 0;
+      if (owner != kNotWanted) {
+        const std::uint32_t r = run_.split.position_of(owner);
+        if (r >= first && r < last_ && index_of_[r - first] != kNotWanted) tag = index_of_[r - first] + 1;
+      }
+      tri_.set_tag(c, tag);
+      if (tag != 0) ++bucket_[tag];
     }
     for (std::size_t k = 0; k < wanted_.size(); ++k) bucket_[k + 1] += bucket_[k];
-    sorted_rows_.resize(owned_rows_.size());
-    for (std::size_t i = 0; i < owned_rows_.size(); ++i) sorted_rows_[bucket_[owners_[i]]++] = owned_rows_[i];
-    // Within a seed: lexicographic by the sorted vertex lists (the last two may be
-    // swapped for orientation: compare them as sorted).
-    auto key = [](const std::array<std::uint32_t, w>& a) {
-      std::array<std::uint32_t, w> s = a;
+    // Pass 2: the rows straight into place, owner by owner; then each owner's rows
+    // sorted: lexicographic by their sorted vertex lists (compare the last two sorted).
+    const std::size_t at = rows.size();
+    rows.resize(at + bucket_[wanted_.size()] * w);
+    Row* out = reinterpret_cast<Row*>(rows.data() + at);
+    static_assert(sizeof(Row) == w * sizeof(std::uint32_t));
+    for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
+      if (!tri_.is_live(c) || tri_.tag(c) == 0) continue;
+      out[bucket_[tri_.tag(c) - 1]++] = row_of(c);
+    }
+    auto key = [](const Row& a) {
+      Row s = a;
       if (s[w - 2] > s[w - 1]) std::swap(s[w - 2], s[w - 1]);
       return s;
     };
     std::size_t begin = 0;
     for (std::size_t k = 0; k < wanted_.size(); ++k) {
       const std::size_t end = bucket_[k];
-      std::sort(sorted_rows_.begin() + static_cast<std::ptrdiff_t>(begin), sorted_rows_.begin() + static_cast<std::ptrdiff_t>(end),
-                [&](const auto& a, const auto& b) { return key(a) < key(b); });
-      for (std::size_t i = begin; i < end; ++i) rows.insert(rows.end(), sorted_rows_[i].begin(), sorted_rows_[i].end());
+      std::sort(out + begin, out + end, [&](const Row& a, const Row& b) { return key(a) < key(b); });
       begin = end;
     }
   }
@@ -853,8 +867,7 @@ class RegionMesher {
   std::vector<std::uint8_t> state_, blocked_;
   std::vector<std::uint32_t> pending_;
   // emit_owned's scratch.
-  std::vector<std::uint32_t> index_of_, bucket_, owners_;
-  std::vector<std::array<std::uint32_t, D + 1>> owned_rows_, sorted_rows_;
+  std::vector<std::uint32_t> index_of_, bucket_;
   std::vector<std::pair<std::uint32_t, Check>> fails_;
   std::vector<std::array<std::uint32_t, D + 1>> owned_;
 };

@@ -168,6 +168,18 @@ void Triangulation<D>::clear() {
 }
 
 template <int D>
+void Triangulation<D>::reserve(std::size_t points) {
+  const double per_point = D == 2 ? 2.1 : 7.0;
+  const auto cells = static_cast<std::size_t>(per_point * static_cast<double>(points)) + 64;
+  if (cells > cells_.capacity()) cells_.reserve(cells);
+  if (points + 1 > global_.capacity()) {
+    global_.reserve(points + 1);
+    vcell_.reserve(points + 1);
+    coords_.reserve((points + 1) * D);
+  }
+}
+
+template <int D>
 std::size_t Triangulation<D>::bytes() const {
   return cells_.capacity() * sizeof(Cell) + free_.capacity() * 4 + vcell_.capacity() * 4 +
          global_.capacity() * 8 + coords_.capacity() * sizeof(double);
