@@ -67,6 +67,8 @@ void expect_valid_split(const std::string& name, const PointSet& ps, std::uint32
       ASSERT_EQ(split.end(b), split.begin(b + 1));
     }
     const std::span<const double> box = split.box(b);
+    // The blocks are the split's nodes of at most `block` points, which the counts alone fix.
+    ASSERT_EQ(split.nodes_of_at_most(block)[b], std::make_pair(split.begin(b), split.end(b)));
     for (std::uint32_t i = split.begin(b); i < split.end(b); ++i) {
       ASSERT_EQ(split.block_of(i), b);
       ASSERT_EQ(split.position_of(split.point_at(i)), i);
@@ -264,6 +266,14 @@ TEST(SpaceSplit, PiecesOfTheWholeSplitKeepItsOrder) {
   for (std::uint32_t p = 3751; p < 5000; ++p) ASSERT_LT(part.point_at(p - 1), part.point_at(p));
   EXPECT_EQ(part.end(part.block_count() - 1), 5000u);
   EXPECT_EQ(part.begin(part.block_count() - 1), 3750u);
+  // The pieces' nodes are the whole split's nodes (positions shifted past the gap).
+  const auto whole_nodes = whole.nodes_of_at_most(600), part_nodes = part.nodes_of_at_most(600);
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> expected;
+  for (const auto& [b, e] : whole_nodes) {
+    if (e <= 1250) expected.emplace_back(b, e);
+    if (b >= 2500) expected.emplace_back(b - 1250, e - 1250);
+  }
+  EXPECT_EQ(part_nodes, expected);
 }
 
 }  // namespace

@@ -202,6 +202,72 @@ TEST(TriangulationSweep, SameBytesAsTheStarWalkOnEveryShape) {
   }
 }
 
+// Without a k-d tree (mesh_seeds over the points: the split's own index answers the
+// region's box queries), the same bytes; the star walk's sweep builds its tree.
+TEST(TriangulationSweep, WithoutATreeTheSameBytes) {
+  for (auto& shape : bench::shape_families(3000, 13)) {
+    if (shape.name != "rings" && shape.name != "sphere" && shape.name != "contours" && shape.name != "contrast") continue;
+    SCOPED_TRACE(shape.name);
+    const PointSet ps = make_points(shape.d, shape.coords);
+    const KdTree tree(ps);
+    for (const std::uint32_t region : {0u, 400u}) {
+      MeshOptions options;
+      options.threads = 2;
+      options.region_points = region;
+      Simplices out;
+      auto r = mesh_seeds(ps, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+        out.insert(out.end(), b.begin(), b.end());
+        return Status::ok();
+      });
+      ASSERT_TRUE(r.is_ok()) << r.status().message();
+      EXPECT_EQ(out, sweep(tree, 2, region)) << "region " << region;
+    }
+  }
+}
+
+// A batch of seeds: only those seeds' stars, each whole and canonical (accept_part
+// kAll) as StarWalker::compute gives it on its own, from both engines.
+TEST(TriangulationSweep, SeedListsGiveWholeStars) {
+  for (auto& shape : bench::shape_families(1200, 17)) {
+    if (shape.name != "terrain" && shape.name != "sphere" && shape.name != "contours") continue;
+    SCOPED_TRACE(shape.name);
+    const PointSet ps = make_points(shape.d, shape.coords);
+    const KdTree tree(ps);
+    std::vector<std::uint32_t> seeds;
+    for (std::uint32_t s = 3; s < ps.size(); s += 7) seeds.push_back(s);
+    StarWalker walker(tree);
+    for (const MeshEngine engine : {kStars, kTriangulations}) {
+      MeshOptions options;
+      options.engine = engine;
+      options.threads = 2;
+      options.region_points = 500;
+      options.seeds = seeds;
+      options.accept_part = StarPart::kAll;
+      std::mutex mu;
+      std::map<std::uint32_t, Star> stars;
+      options.accept = [&](const Star& star) {
+        std::lock_guard lock(mu);
+        stars[star.seed] = star;
+        return false;  // no rows: the stars are the answer
+      };
+      Simplices rows;
+      auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
+        rows.insert(rows.end(), b.begin(), b.end());
+        return Status::ok();
+      });
+      ASSERT_TRUE(r.is_ok()) << r.status().message();
+      EXPECT_TRUE(rows.empty());
+      ASSERT_EQ(stars.size(), seeds.size());
+      Star expected;
+      for (const std::uint32_t s : seeds) {
+        ASSERT_TRUE(walker.compute(s, expected).is_ok());
+        EXPECT_EQ(stars[s].simplices, expected.simplices) << "seed " << s;
+        EXPECT_EQ(stars[s].hull_facets, expected.hull_facets) << "seed " << s;
+      }
+    }
+  }
+}
+
 // Seed ranges and sweep ranges: the parts are the star walk's parts, and consecutive
 // sweep ranges concatenate to the whole run.
 TEST(TriangulationSweep, PartsAreTheStarWalksParts) {

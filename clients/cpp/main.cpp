@@ -81,8 +81,10 @@ Status load_weights(const Common& common, Loaded& loaded) {
 // sweep's SpaceSplit, built first (its records are freed before the tree's build
 // copies the points). (A tree laid out in the split's order was tried: no faster on
 // uniform points, 10% slower on a 2-d grid, whose ties nanoflann splits worse in it.)
+// sweep: the SpaceSplit of a whole mesh too; tree: the k-d tree (a whole mesh by local
+// triangulations does without it).
 Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplicates, bool approximate = false,
-                                     bool sweep = false) {
+                                     bool sweep = false, bool tree = true) {
   auto points = read_points(path);
   if (!points.is_ok()) return points.status();
   auto loaded = std::make_unique<Loaded>();
@@ -107,10 +109,8 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
   if (sweep) {
     loaded->split = std::make_unique<SpaceSplit>(loaded->points,
                                                  SpaceSplit::default_block_points(d, loaded->points.size()));
-    loaded->tree = std::make_unique<KdTree>(loaded->points);
-  } else {
-    loaded->tree = std::make_unique<KdTree>(loaded->points);
   }
+  if (tree) loaded->tree = std::make_unique<KdTree>(loaded->points);
   return loaded;
 }
 
@@ -225,7 +225,9 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   }
   if (!common.periodic.empty()) return run_periodic_mesh(common, input, output, seeds);
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
-  auto loaded_or = load(input, common.merge_duplicates, false, /*sweep=*/true);
+  // Local triangulations (unweighted 2-d and 3-d sets) query the split, not a k-d tree.
+  const bool tree = engine.value() == MeshEngine::kStars || common.weighted();
+  auto loaded_or = load(input, common.merge_duplicates, false, /*sweep=*/true, tree);
   if (!loaded_or.is_ok()) return report(loaded_or.status());
   if (Status s = load_weights(common, *loaded_or.value()); !s.is_ok()) return report(s);
   const Loaded& loaded = *loaded_or.value();
@@ -251,14 +253,15 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   Progress progress(common.quiet, std::min<std::uint64_t>(options.seed_end, n) - options.seed_begin);
   std::uint64_t written = 0;
   std::vector<std::uint32_t> mapped;
-  auto result = mesh_seeds(*loaded.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t done) {
+  auto sink = [&](std::span<const std::uint32_t> block, std::uint64_t done) {
     written += block.size() / (loaded.points.dimension() + 1);
     progress.update(done, written);
     if (loaded.original.empty()) return writer.write(block);
     mapped.assign(block.begin(), block.end());
     for (auto& v : mapped) v = loaded.to_original(v);
     return writer.write(mapped);
-  });
+  };
+  auto result = loaded.tree ? mesh_seeds(*loaded.tree, options, sink) : mesh_seeds(loaded.points, options, sink);
   progress.finish();
   if (!result.is_ok()) return report(result.status());
   if (Status s = writer.commit(); !s.is_ok()) return report(s);

@@ -82,6 +82,14 @@ struct MeshOptions {
   // the points it holds, and computes them again with more (spokemesh-mpi). Called
   // concurrently from the workers.
   std::function<bool(const Star&)> accept;
+  // The form of the stars `accept` sees: kWhole (the owned simplices canonical, a
+  // suffix; the others as sorted vertex lists) or kAll (every simplex canonical, as
+  // StarWalker::compute gives a star on its own).
+  StarPart accept_part = StarPart::kWhole;
+  // Only these seeds (ascending, no repeats; not owned, must outlive the run), among
+  // those the ranges above admit; empty: every seed. A batch of seeds computes its
+  // stars as a whole mesh restricted to them would (through `accept`).
+  std::span<const std::uint32_t> seeds;
 };
 
 // What the local triangulations did (MeshEngine::kTriangulations).
@@ -117,9 +125,16 @@ using SimplexSink = std::function<Status(std::span<const std::uint32_t> simplice
 
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink);
 
-// Whether mesh_seeds meshes this tree with these options by local triangulations
+// The same without a k-d tree: a run by local triangulations queries the split's own
+// hierarchy instead (about 60 bytes a point less than a KdTree; a tree is built only
+// for seeds that fall back to star walks); a run by star walks builds the tree.
+// options.split, when given, must be over `points`.
+Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options, const SimplexSink& sink);
+
+// Whether mesh_seeds meshes these points with these options by local triangulations
 // (MeshEngine::kAuto or kTriangulations on an unweighted, non-periodic 2-d or 3-d set):
 // its memory is then what reserve_bytes grants, not the facet cache.
+bool uses_triangulations(const PointSet& points, const MeshOptions& options);
 bool uses_triangulations(const KdTree& tree, const MeshOptions& options);
 
 // The simplices owned by `seed` within its star (a suffix of star.simplices).

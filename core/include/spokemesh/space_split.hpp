@@ -95,6 +95,8 @@ class SpaceSplit {
   // count, goes left), so these follow from the pieces' ranges: the blocks are the
   // nodes of at most `block` points, and coarser or finer nodes are as compact.
   std::vector<std::pair<std::uint32_t, std::uint32_t>> nodes_of_at_most(std::uint32_t max_points) const;
+  // The pieces' ends in positions (a whole set: one piece, ending at swept()).
+  std::span<const std::uint32_t> piece_ends() const { return piece_ends_; }
   // Block b's bounding box: d lows, then d highs (exact coordinates of its points).
   std::span<const double> box(std::uint32_t b) const {
     return {boxes_.data() + std::size_t{b} * 2 * static_cast<std::size_t>(d_), 2 * static_cast<std::size_t>(d_)};

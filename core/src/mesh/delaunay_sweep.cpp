@@ -19,6 +19,7 @@
 #include "mesh/ball_bounds.hpp"
 #include "mesh/ordered_run.hpp"
 #include "mesh/triangulation.hpp"
+#include "search/split_index.hpp"
 #include "spokemesh/certify.hpp"
 
 namespace spokemesh::detail {
@@ -155,9 +156,10 @@ void exact_circumball(const double* s, const std::array<const double*, D>& v, st
 
 // What a run shares: the set, its order, the options, and the triangulation of every
 // point once a region's balls have reached across the set.
-template <int D>
+template <int D, class Index>
 struct Run {
-  const KdTree& tree;
+  const Index& index;     // box queries: the caller's KdTree, or the split's own index
+  const KdTree* tree;     // the caller's, if any (the star walks' fallback builds one)
   const PointSet& ps;
   const SpaceSplit& split;
   const MeshOptions& options;
@@ -176,8 +178,19 @@ struct Run {
   std::size_t whole_reserved = 0;
   std::mutex reserve_mu;
 
-  Run(const KdTree& t, const SpaceSplit& s, const MeshOptions& o)
-      : tree(t), ps(t.points()), split(s), options(o), pred(t.points()) {}
+  std::once_flag tree_once;
+  std::unique_ptr<KdTree> own_tree;
+
+  Run(const Index& i, const KdTree* t, const PointSet& points, const SpaceSplit& s, const MeshOptions& o)
+      : index(i), tree(t), ps(points), split(s), options(o), pred(points) {}
+
+  // The k-d tree the star walks need: the caller's, or one built on first use (only
+  // seeds that fall back to walks need it).
+  const KdTree& walk_tree() {
+    if (tree != nullptr) return *tree;
+    std::call_once(tree_once, [&] { own_tree = std::make_unique<KdTree>(ps); });
+    return *own_tree;
+  }
 
   bool cancelled() const {
     return options.star.cancel != nullptr && options.star.cancel->load(std::memory_order_relaxed);
@@ -249,19 +262,22 @@ constexpr std::uint32_t kUnknown = 0, kCertified = 1, kFailed = 2, kAskTree = 3;
 constexpr std::uint8_t kNotSeed = 0, kPendingSeed = 1, kDoneSeed = 2;
 
 // A worker: triangulates regions one at a time and emits their seeds' stars.
-template <int D>
+template <int D, class Index>
 class RegionMesher {
  public:
-  RegionMesher(Run<D>& run, MeshStats& total) : run_(run), total_(total), tri_(run.ps, run.pred) {}
+  RegionMesher(Run<D, Index>& run, MeshStats& total) : run_(run), total_(total), tri_(run.ps, run.pred) {}
 
   Status operator()(std::uint64_t unit, RegionRows& out) {
     out.simplices.clear();
     out.seeds = 0;
     const auto [first, last] = run_.regions[unit];
     wanted_.clear();
+    const auto& seeds = run_.options.seeds;
     for (std::uint32_t r = first; r < last; ++r) {
       const std::uint32_t id = run_.split.point_at(r);
-      if (id >= run_.seed_begin && id < run_.seed_end) wanted_.push_back(r);
+      if (id < run_.seed_begin || id >= run_.seed_end) continue;
+      if (!seeds.empty() && !std::binary_search(seeds.begin(), seeds.end(), id)) continue;
+      wanted_.push_back(r);
     }
     out.seeds = wanted_.size();
     if (wanted_.empty()) return Status::ok();
@@ -369,7 +385,7 @@ class RegionMesher {
   bool collect_box(const Box<D>& g, std::vector<std::uint32_t>& out, std::size_t cap) {
     out.clear();
     bool over = false;
-    run_.tree.find_first(
+    run_.index.find_first(
         [&](const float* lo, const float* hi) { return box_meets<D>(lo, hi, g) && !box_within<D>(lo, hi, e_); },
         [&](std::uint32_t id, const double* x) {
           if (!in_box<D>(g, x) || inserted(id, x)) return false;
@@ -492,7 +508,7 @@ class RegionMesher {
     };
     std::uint32_t best = 0xFFFFFFFFu;
     double best_depth = HUGE_VAL;
-    run_.tree.find_first(
+    run_.index.find_first(
         [&](const float* lo, const float* hi) {
           if (box_within<D>(lo, hi, e_)) return false;
           Box<D> b;
@@ -786,57 +802,58 @@ class RegionMesher {
   // `t`; with an accept callback, its whole star is offered first.
   void emit(const Triangulation<D>& t, std::span<const std::uint32_t> cells, std::uint32_t seed,
             std::vector<std::uint32_t>& rows) {
-    constexpr int w = D + 1;
-    owned_.clear();
+    constexpr std::size_t w = D + 1;
+    const bool accept = static_cast<bool>(run_.options.accept);
+    const bool all = accept && run_.options.accept_part == StarPart::kAll;  // every simplex canonical
+    sorted_.clear();
     others_.clear();
     std::size_t hull = 0;
     for (const std::uint32_t c : cells) {
       const auto& v = t.cell(c).v;
       std::array<std::uint32_t, w> g{};
       bool infinite = false;
-      for (int k = 0; k < w; ++k) {
-        infinite = infinite || v[static_cast<std::size_t>(k)] == Triangulation<D>::kInfinite;
-        g[static_cast<std::size_t>(k)] = t.global(v[static_cast<std::size_t>(k)]);
+      for (std::size_t k = 0; k < w; ++k) {
+        infinite = infinite || v[k] == Triangulation<D>::kInfinite;
+        g[k] = t.global(v[k]);
       }
       if (infinite) {
         ++hull;
         continue;
       }
       const bool odd = sort_with_parity(g);
-      if (g[0] != seed) {
-        if (run_.options.accept) others_.insert(others_.end(), g.begin(), g.end());
-        continue;
+      if (g[0] == seed || all) {
+        sorted_.emplace_back(g, odd);
+      } else if (accept) {
+        others_.insert(others_.end(), g.begin(), g.end());  // kWhole: as they come
       }
-      g[0] = odd ? 1u : 0u;  // the owner is the seed: its slot carries the parity until written
-      owned_.push_back(g);
     }
-    std::sort(owned_.begin(), owned_.end(), [](const auto& a, const auto& b) {
-      return std::lexicographical_compare(a.begin() + 1, a.end(), b.begin() + 1, b.end());
-    });
+    // Lexicographic by sorted vertex lists, then positive: the last two swapped where
+    // the sort was odd. The seed's own simplices (smallest vertex the seed) come last.
+    std::sort(sorted_.begin(), sorted_.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    star_.simplices = others_;
     const std::size_t at = rows.size();
-    for (auto g : owned_) {
-      if (g[0] != 0) std::swap(g[w - 2], g[w - 1]);
-      g[0] = seed;
-      rows.insert(rows.end(), g.begin(), g.end());
+    for (auto [g, odd] : sorted_) {
+      if (odd) std::swap(g[w - 2], g[w - 1]);
+      if (accept) star_.simplices.insert(star_.simplices.end(), g.begin(), g.end());
+      if (g[0] == seed) rows.insert(rows.end(), g.begin(), g.end());
     }
-    if (run_.options.accept) {
+    if (accept) {
       star_.seed = seed;
       star_.dimension = D;
       star_.hull_facets = hull;
       star_.hidden = false;
-      star_.simplices = others_;
-      star_.simplices.insert(star_.simplices.end(), rows.begin() + static_cast<std::ptrdiff_t>(at), rows.end());
       if (!run_.options.accept(star_)) rows.resize(at);
     }
   }
 
   // Few seeds of the region wanted: their stars walked, as the star walk's sweep does.
   Status walk(RegionRows& out) {
-    if (!walker_) walker_.emplace(run_.tree, run_.options.star);
+    if (!walker_) walker_.emplace(run_.walk_tree(), run_.options.star);
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t s = run_.split.point_at(r);
       ++stats_.walked_seeds;
-      if (Status st = walker_->compute(s, star_, run_.options.accept ? StarPart::kWhole : StarPart::kOwned); !st.is_ok()) {
+      if (Status st = walker_->compute(s, star_, run_.options.accept ? run_.options.accept_part : StarPart::kOwned);
+          !st.is_ok()) {
         return st;
       }
       if (run_.options.accept && !run_.options.accept(star_)) continue;
@@ -846,7 +863,7 @@ class RegionMesher {
     return Status::ok();
   }
 
-  Run<D>& run_;
+  Run<D, Index>& run_;
   MeshStats& total_;
   Triangulation<D> tri_;
   TriangulationStats stats_;
@@ -869,13 +886,14 @@ class RegionMesher {
   // emit_owned's scratch.
   std::vector<std::uint32_t> index_of_, bucket_;
   std::vector<std::pair<std::uint32_t, Check>> fails_;
-  std::vector<std::array<std::uint32_t, D + 1>> owned_;
+  std::vector<std::pair<std::array<std::uint32_t, D + 1>, bool>> sorted_;  // emit's rows and their parities
 };
 
-template <int D>
-Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options, const SimplexSink& sink) {
-  const std::uint64_t n = tree.points().size();
-  Run<D> run(tree, split, options);
+template <int D, class Index>
+Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& points, const SpaceSplit& split,
+                        const MeshOptions& options, const SimplexSink& sink) {
+  const std::uint64_t n = points.size();
+  Run<D, Index> run(index, tree, points, split, options);
   run.seed_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.seed_begin, n));
   run.seed_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.seed_end, run.seed_begin, n));
   const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
@@ -906,7 +924,7 @@ Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshO
   std::uint64_t seeds_done = 0;
   const Status status = run_in_order<RegionRows>(
       run.regions.size(), threads, threads,
-      [&] { return std::make_unique<RegionMesher<D>>(run, total); },
+      [&] { return std::make_unique<RegionMesher<D, Index>>(run, total); },
       [&](RegionRows& rows) -> Status {
         seeds_done += rows.seeds;
         total.simplices += rows.simplices.size() / (D + 1);
@@ -920,16 +938,26 @@ Result<MeshStats> sweep(const KdTree& tree, const SpaceSplit& split, const MeshO
 
 }  // namespace
 
-bool triangulation_sweep_applies(const KdTree& tree, const MeshOptions& options) {
-  const int d = tree.points().dimension();
+bool triangulation_sweep_applies(const PointSet& points, const MeshOptions& options) {
+  const int d = points.dimension();
   return (d == 2 || d == 3) && options.star.weights.empty() && options.star.cover == nullptr;
 }
 
 Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink) {
   switch (tree.points().dimension()) {
-    case 2: return sweep<2>(tree, split, options, sink);
-    case 3: return sweep<3>(tree, split, options, sink);
+    case 2: return sweep<2>(tree, &tree, tree.points(), split, options, sink);
+    case 3: return sweep<3>(tree, &tree, tree.points(), split, options, sink);
+    default: return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
+  }
+}
+
+Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& split, const MeshOptions& options,
+                                      const SimplexSink& sink) {
+  const SplitIndex index(points, split);
+  switch (points.dimension()) {
+    case 2: return sweep<2>(index, nullptr, points, split, options, sink);
+    case 3: return sweep<3>(index, nullptr, points, split, options, sink);
     default: return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
   }
 }

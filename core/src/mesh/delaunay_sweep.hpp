@@ -30,11 +30,15 @@
 namespace spokemesh::detail {
 
 // Whether mesh_seeds may take this route: d = 2 or 3, unweighted, not periodic.
-bool triangulation_sweep_applies(const KdTree& tree, const MeshOptions& options);
+bool triangulation_sweep_applies(const PointSet& points, const MeshOptions& options);
 
 // The run of mesh_seeds over `split`'s positions [sweep_begin, sweep_end) and seeds
-// [seed_begin, seed_end) (clamped as mesh_seeds clamps them).
+// [seed_begin, seed_end) (clamped as mesh_seeds clamps them), with the caller's k-d
+// tree for its box queries, or (no tree) with the split's own index (SplitIndex; a
+// k-d tree is then built only if some seeds fall back to star walks).
 Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,
+                                      const SimplexSink& sink);
+Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink);
 
 }  // namespace spokemesh::detail

@@ -30,8 +30,27 @@ struct MeshedBlock {
 
 }  // namespace
 
-bool uses_triangulations(const KdTree& tree, const MeshOptions& options) {
-  return options.engine != MeshEngine::kStars && detail::triangulation_sweep_applies(tree, options);
+bool uses_triangulations(const PointSet& points, const MeshOptions& options) {
+  return options.engine != MeshEngine::kStars && detail::triangulation_sweep_applies(points, options);
+}
+bool uses_triangulations(const KdTree& tree, const MeshOptions& options) { return uses_triangulations(tree.points(), options); }
+
+Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options, const SimplexSink& sink) {
+  if (!uses_triangulations(points, options)) {
+    if (options.engine == MeshEngine::kTriangulations) {
+      return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
+    }
+    const KdTree tree(points);
+    return mesh_seeds(tree, options, sink);
+  }
+  std::optional<SpaceSplit> own_split;
+  if (options.split == nullptr) {
+    own_split.emplace(points, options.block_size != 0 ? options.block_size
+                                                      : SpaceSplit::default_block_points(points.dimension(), points.size()));
+  }
+  const SpaceSplit& split = options.split != nullptr ? *options.split : *own_split;
+  if (split.size() != points.size()) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  return detail::triangulation_sweep(points, split, options, sink);
 }
 
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink) {
@@ -110,8 +129,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
         if (r + 4 < hi) walker->prefetch(blocks.point_at(r + 4));
         const std::uint32_t s = blocks.point_at(r);
         if (s < run.begin || s >= run.end) continue;
+        if (!options.seeds.empty() && !std::binary_search(options.seeds.begin(), options.seeds.end(), s)) continue;
         ++out.seeds;
-        status = walker->compute(s, star, options.accept ? StarPart::kWhole : StarPart::kOwned);
+        status = walker->compute(s, star, options.accept ? options.accept_part : StarPart::kOwned);
         if (!status.is_ok()) break;
         if (options.accept && !options.accept(star)) continue;
         const auto owned = owned_simplices(star);
