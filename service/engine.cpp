@@ -6,6 +6,7 @@
 #include <atomic>
 #include <cstring>
 #include <mutex>
+#include <unordered_map>
 
 #include "spokemesh/facet_cache.hpp"
 #include "spokemesh/front_cache.hpp"
@@ -673,9 +674,59 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   if (kind == BatchKind::kCells && domain) {
     for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
   }
+  // Exact stars of many seeds of a 2-d or 3-d set: computed together first, as a whole
+  // mesh restricted to them computes them (local triangulations of the regions holding
+  // them, certified: no sphere query per simplex, so a seed on a scan line or a
+  // surface costs what a uniform seed does), kept in memory charged to the budget, then
+  // answered in the request's order. A star the budget could not keep is walked below.
+  std::unordered_map<std::uint32_t, Star> batched;
+  MemoryBudget::Charge batched_charge = store_->budget().empty_charge();
+  const bool from_stars = kind == BatchKind::kStars || (kind == BatchKind::kNeighbors && exact) ||
+                          (kind == BatchKind::kCells && !domain);
+  if (from_stars && !set->periodic && set->tree && set->split && seeds.size() >= defaults::kBatchTogetherAtLeast) {
+    std::vector<std::uint32_t> wanted(seeds.begin(), seeds.end());
+    std::sort(wanted.begin(), wanted.end());
+    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+    MeshOptions options;
+    options.threads = threads;
+    options.split = set->split.get();
+    options.star = star_options;
+    options.seeds = wanted;
+    if (uses_triangulations(*set->tree, options)) {
+      MemoryBudget::Charge tri_charge = store_->budget().empty_charge();
+      options.reserve_bytes = [&tri_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
+        return tri_charge.bytes() + bytes <= cap && tri_charge.grow(bytes);
+      };
+      options.accept_part = StarPart::kAll;
+      std::mutex mu;
+      options.accept = [&](const Star& star) {
+        const std::size_t bytes = star.simplices.size() * sizeof(std::uint32_t) + sizeof(Star) + 32;
+        std::lock_guard lock(mu);
+        if (batched_charge.grow(bytes)) batched.emplace(star.seed, star);
+        return false;  // the stars are the answer, not rows
+      };
+      batched.reserve(wanted.size());
+      auto run = mesh_seeds(*set->tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+      if (!run.is_ok()) {
+        if (run.status().code() == Code::kCancelled) return control.stopped_status("a batch of seeds");
+        return run.status();
+      }
+    }
+  }
   auto answer = [&](unsigned t, std::size_t i, BatchAnswer& a) -> Status {
     a.seed = seeds[i];
     const auto seed = static_cast<std::uint32_t>(seeds[i]);
+    if (const auto found = batched.find(seed); found != batched.end()) {
+      const Star& star = found->second;
+      if (kind == BatchKind::kStars) {
+        a.star = star_answer(*set, star);
+      } else if (kind == BatchKind::kNeighbors) {
+        a.neighbors.neighbors = star_neighbors(star);
+      } else {
+        a.cell = voronoi_cell(set->points, star, set->weights);
+      }
+      return Status::ok();
+    }
     if (set->periodic) {
       VoronoiCell* cell = kind == BatchKind::kCells ? &a.cell : nullptr;
       auto star = periodic_star_of(*set, seed, control, cell, kind == BatchKind::kStars);

@@ -28,6 +28,10 @@ inline constexpr std::uint32_t kBatchSize = 4096, kMaxBatchSize = 65536;
 inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
 // Seeds in one batch call (BatchSeeds, REST .../stars:batch and friends).
 inline constexpr std::size_t kMaxBatchSeeds = 100000;
+// A batch of exact stars (and what comes from them) of a 2-d or 3-d set with at least
+// this many seeds computes them together, by the whole mesh's local triangulations
+// (smaller batches walk each star).
+inline constexpr std::size_t kBatchTogetherAtLeast = 32;
 // Payload per gRPC message: coordinate chunks of a download, and the size at which a
 // batch of answers or a mesh batch is sent early (gRPC's default limit is 4 MiB).
 inline constexpr std::size_t kDownloadChunkBytes = std::size_t{1} << 20;

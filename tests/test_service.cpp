@@ -20,6 +20,7 @@
 #include "http_api.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
+#include "inputs.hpp"  // bench/: the shape families
 #include "support.hpp"
 
 namespace spokemesh::service {
@@ -389,6 +390,44 @@ TEST(Engine, SimplexStreamsChargeWhatTheySeedsShare) {
         rows_with_cache = rows;
       }
       EXPECT_EQ(engine->store().budget().used(), before) << "the charge outlives the stream";
+    }
+  }
+}
+
+// A batch of many seeds computes their stars together (the whole mesh's local
+// triangulations, restricted to them): each answer equals the single call's, on the
+// shapes whose stars reach far (points on a sphere, contour lines), repeats included.
+TEST(Engine, BatchesOfStarsEqualSingleCalls) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto control = no_deadline();
+  for (const auto& [d, coords] : {std::pair{3, bench::sphere_surface(800, 3)}, std::pair{2, bench::contours(5, 0.5, 4)}}) {
+    SCOPED_TRACE(d);
+    const std::string id = upload(*engine, d, coords).value().id;
+    std::vector<std::uint64_t> seeds;
+    for (std::uint64_t s = 1; s < coords.size() / d; s += 9) seeds.push_back(s);
+    seeds.push_back(1);
+    for (const BatchKind kind : {BatchKind::kStars, BatchKind::kNeighbors, BatchKind::kCells}) {
+      std::vector<BatchAnswer> answers;
+      ASSERT_TRUE(engine->batch(id, seeds, kind, {}, {}, control, [&](std::span<const BatchAnswer> got, std::size_t) {
+                    answers.insert(answers.end(), got.begin(), got.end());
+                    return Status::ok();
+                  }).is_ok());
+      ASSERT_EQ(answers.size(), seeds.size());
+      for (std::size_t i = 0; i < seeds.size(); ++i) {
+        ASSERT_EQ(answers[i].seed, seeds[i]);
+        if (kind == BatchKind::kStars) {
+          const auto one = engine->star(id, seeds[i], control).value();
+          EXPECT_EQ(answers[i].star.star.simplices, one.star.simplices) << "seed " << seeds[i];
+          EXPECT_EQ(answers[i].star.circumcentres, one.circumcentres) << "seed " << seeds[i];
+        } else if (kind == BatchKind::kNeighbors) {
+          EXPECT_EQ(answers[i].neighbors.neighbors, engine->neighbors(id, seeds[i], {}, control).value().neighbors);
+        } else {
+          const VoronoiCell one = engine->cell(id, seeds[i], {}, control).value();
+          EXPECT_EQ(answers[i].cell.facets.size(), one.facets.size());
+          EXPECT_EQ(answers[i].cell.vertices, one.vertices);
+        }
+      }
     }
   }
 }
