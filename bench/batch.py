@@ -11,18 +11,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import re
-import subprocess
-import tempfile
 import time
 import urllib.request
-from pathlib import Path
 
 import numpy as np
 import spokemesh
 
-REPO = Path(__file__).resolve().parent.parent
+from local_server import local_server  # bench/ (the script's directory is on sys.path)
 
 
 def main() -> None:
@@ -30,19 +25,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--seeds", type=int, default=10_000)
     args = ap.parse_args()
-    data = tempfile.mkdtemp(prefix="spokemesh-batch-")
-    log = open(os.path.join(data, "server.log"), "wb")
-    proc = subprocess.Popen([str(REPO / "build/bin/spokemesh-server"), "--data-dir", data, "--grpc-listen",
-                             "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--max-points", "10000000"], stderr=log)
-    grpc_target = http_target = None
-    for _ in range(500):
-        text = Path(data, "server.log").read_text()
-        g, h = re.search(r"serving gRPC on ([\d.]+:\d+)", text), re.search(r"HTTP on ([\d.]+:\d+)", text)
-        if g and h:
-            grpc_target, http_target = g.group(1), h.group(1)
-            break
-        time.sleep(0.02)
-    try:
+    with local_server("--max-points", "10000000") as (grpc_target, http_target):
         client = spokemesh.Client(grpc_target)
         ps = client.upload(np.random.default_rng(1).random((args.points, 3)))
         seeds = [int(s) for s in np.random.default_rng(2).integers(0, args.points, args.seeds)]
@@ -77,9 +60,6 @@ def main() -> None:
         print("| --- | ---: | ---: | ---: |")
         for name, b, s in rows:
             print(f"| {name} | {b:.2f} s ({args.seeds / b:,.0f}/s) | {s:.2f} s ({args.seeds / s:,.0f}/s) | **{s / b:.1f}x** |")
-    finally:
-        proc.terminate()
-        proc.wait(timeout=60)
 
 
 if __name__ == "__main__":

@@ -109,35 +109,39 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   // differences, with its forward error bound (cramer.hpp), where that bound meets the
   // target; about 10x cheaper than the QR below, which takes the rest.
   if (k == d && (d == 2 || d == 3)) {
-    bool solved = false;
-    double y[3] = {0, 0, 0};
-    double bound = 0;
-    if (d == 2) {
-      double a[2][2], c[2], y2[2];
-      for (int i = 0; i < 2; ++i) {
-        for (int j = 0; j < 2; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
-        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] - excess(i));
+    // In double, then (slivers: the flat tetrahedra of scans and surfaces) in x87
+    // extended precision before the QR and the exact path.
+    auto solve = [&](auto zero) -> bool {
+      using T = decltype(zero);
+      T y[3] = {0, 0, 0}, bound = 0;
+      bool solved = false;
+      if (d == 2) {
+        T a[2][2], c[2], y2[2];
+        for (int i = 0; i < 2; ++i) {
+          for (int j = 0; j < 2; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
+          c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] - T(excess(i)));
+        }
+        solved = detail::cramer_solve(a, c, y2, bound);
+        y[0] = y2[0], y[1] = y2[1];
+      } else {
+        T a[3][3], c[3];
+        for (int i = 0; i < 3; ++i) {
+          for (int j = 0; j < 3; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
+          c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2] - T(excess(i)));
+        }
+        solved = detail::cramer_solve(a, c, y, bound);
       }
-      solved = detail::cramer_solve(a, c, y2, bound);
-      y[0] = y2[0], y[1] = y2[1];
-    } else {
-      double a[3][3], c[3];
-      for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) a[i][j] = points.point(ids[i + 1])[j] - p0[j];
-        c[i] = 0.5 * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2] - excess(i));
-      }
-      solved = detail::cramer_solve(a, c, y, bound);
-    }
-    double radius = 0;
-    for (int j = 0; j < d; ++j) radius += y[j] * y[j];
-    // A power centre's distance from p0 may be far below the face's size (its
-    // right-hand side cancels): the target is 1e-12 of the larger.
-    if (weights != nullptr) radius = std::max(radius, face_size2(points, ids, count));
-    // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
-    if (solved && std::sqrt(static_cast<double>(d)) * bound <= 1e-12 * std::sqrt(radius)) {
-      for (int j = 0; j < d; ++j) centre[j] += y[j];
-      return centre;
-    }
+      T radius = 0;
+      for (int j = 0; j < d; ++j) radius += y[j] * y[j];
+      // A power centre's distance from p0 may be far below the face's size (its
+      // right-hand side cancels): the target is 1e-12 of the larger.
+      if (weights != nullptr) radius = std::max(radius, T(face_size2(points, ids, count)));
+      // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
+      if (!solved || !(std::sqrt(T(d)) * bound <= T(1e-12) * std::sqrt(radius))) return false;
+      for (int j = 0; j < d; ++j) centre[j] = static_cast<double>(T(centre[j]) + y[j]);
+      return true;
+    };
+    if (solve(0.0) || solve(0.0L)) return centre;
   }
   // Dynamic sizes with fixed capacity: no heap allocation per vertex.
   using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxCols, kMaxCols>;

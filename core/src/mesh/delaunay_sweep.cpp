@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -50,8 +51,13 @@ constexpr std::size_t kGrowAtLeast = 4096;
 constexpr std::size_t kQueryWork = 16;
 constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
-// that cuts it) has its seeds' stars walked instead.
+// that cuts it, a batch of seeds) has its seeds' stars walked instead, as long as that
+// takes less time than triangulating the region would: about kSecondsPerPoint[d] a
+// point of the region (measured: one thread, margins included). The time is read every
+// kWalkProbe seeds. (The rows are the same either way: only the time is measured.)
 constexpr std::size_t kWalkShare = 16;
+constexpr double kSecondsPerPoint[4] = {0, 0, 1.5e-6, 5e-6};
+constexpr std::size_t kWalkProbe = 16;
 // Cancellation and the memory reserved are looked at every this many insertions.
 constexpr std::uint32_t kCancelEvery = 4096;
 // A run asks MeshOptions::reserve_bytes for memory in steps of at least this.
@@ -282,13 +288,22 @@ class RegionMesher {
     out.seeds = wanted_.size();
     if (wanted_.empty()) return Status::ok();
     if (run_.cancelled()) return cancelled("mesh cancelled");
-    if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) return walk(out);
+    if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) {
+      // Few seeds wanted: walk their stars while that costs less than triangulating the
+      // region would; when walking proves dearer (stars reaching far: a sphere's
+      // surface, contour lines), the rest of the region is triangulated.
+      const double region_seconds = kSecondsPerPoint[D] * (last - first);
+      auto walked = walk(out, region_seconds);
+      if (!walked.is_ok()) return walked.status();
+      if (walked.value() == wanted_.size()) return Status::ok();
+      wanted_.erase(wanted_.begin(), wanted_.begin() + static_cast<std::ptrdiff_t>(walked.value()));
+    }
     if (!run_.use_whole.load() && !run_.whole_wanted.load()) {
       ++stats_.regions;
       Result<Outcome> local = triangulate(first, last);
       if (!local.is_ok()) return local.status();
       stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
-      if (local.value() == Outcome::kOverBudget) return walk(out);
+      if (local.value() == Outcome::kOverBudget) return walk(out).status();
       if (local.value() == Outcome::kDone) {
         if (run_.options.accept) {  // whole stars, one at a time
           for (const std::uint32_t r : wanted_) {
@@ -306,9 +321,9 @@ class RegionMesher {
         return Status::ok();
       }
     }
-    if (run_.whole_refused.load()) return walk(out);
+    if (run_.whole_refused.load()) return walk(out).status();
     if (const Status& s = run_.ensure_whole(); !s.is_ok()) return s;
-    if (run_.whole == nullptr) return walk(out);  // refused just now
+    if (run_.whole == nullptr) return walk(out).status();  // refused just now
     stats_.whole_set = true;
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t id = run_.split.point_at(r);
@@ -847,10 +862,18 @@ class RegionMesher {
   }
 
   // Few seeds of the region wanted: their stars walked, as the star walk's sweep does.
-  Status walk(RegionRows& out) {
+  // Walks the wanted seeds' stars in order, rows to `out`; stops once more than
+  // `seconds` have passed (after at least a few seeds, so that one slow star does not
+  // decide). Returns how many were walked.
+  Result<std::size_t> walk(RegionRows& out, double seconds = HUGE_VAL) {
     if (!walker_) walker_.emplace(run_.walk_tree(), run_.options.star);
-    for (const std::uint32_t r : wanted_) {
-      const std::uint32_t s = run_.split.point_at(r);
+    const auto start = std::chrono::steady_clock::now();
+    for (std::size_t k = 0; k < wanted_.size(); ++k) {
+      if (k >= kWalkProbe && k % kWalkProbe == 0 &&
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() > seconds) {
+        return k;
+      }
+      const std::uint32_t s = run_.split.point_at(wanted_[k]);
       ++stats_.walked_seeds;
       if (Status st = walker_->compute(s, star_, run_.options.accept ? run_.options.accept_part : StarPart::kOwned);
           !st.is_ok()) {
@@ -860,7 +883,7 @@ class RegionMesher {
       const auto owned = owned_simplices(star_);
       out.simplices.insert(out.simplices.end(), owned.begin(), owned.end());
     }
-    return Status::ok();
+    return wanted_.size();
   }
 
   Run<D, Index>& run_;

@@ -20,18 +20,22 @@ namespace spokemesh::detail {
 // (|D| - |dD|); the inputs' own rounding (4u relative) moves the exact solution by at
 // most |A^-1| 4u (|A| |y| + 2 |c|), with |A^-1| <= |adj A| / |D| (infinity norms).
 //
+// T is double, or long double (x87 extended precision: u = 2^-64) for systems too
+// ill-conditioned for double; the bound is the same with T's unit roundoff u, the
+// inputs then computed in T too.
+//
 // Thread safety: a pure function.
-template <int N>
-bool cramer_solve(const double (&a)[N][N], const double (&c)[N], double (&y)[N], double& error) {
+template <int N, class T>
+bool cramer_solve(const T (&a)[N][N], const T (&c)[N], T (&y)[N], T& error) {
   static_assert(N == 2 || N == 3);
-  constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
+  constexpr T kUnit = std::numeric_limits<T>::epsilon() / 2;
   // adj[i][k]: the cofactor of a[i][k], so y_k = sum_i c_i adj[i][k] / D; adj_abs its
   // products' absolute-value sums (its rounding).
-  double adj[N][N], adj_abs[N][N];
+  T adj[N][N], adj_abs[N][N];
   if constexpr (N == 3) {
     for (int i = 0; i < 3; ++i) {
-      const double* p = a[(i + 1) % 3];
-      const double* q = a[(i + 2) % 3];
+      const T* p = a[(i + 1) % 3];
+      const T* q = a[(i + 2) % 3];
       for (int k = 0; k < 3; ++k) {
         const int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
         adj[i][k] = p[k1] * q[k2] - p[k2] * q[k1];
@@ -45,17 +49,17 @@ bool cramer_solve(const double (&a)[N][N], const double (&c)[N], double (&y)[N],
       for (int k = 0; k < 2; ++k) adj_abs[i][k] = std::abs(adj[i][k]);
     }
   }
-  double D = 0, DA = 0;
+  T D = 0, DA = 0;
   for (int k = 0; k < N; ++k) {
     D += a[0][k] * adj[0][k];
     DA += std::abs(a[0][k]) * adj_abs[0][k];
   }
   if (!(std::abs(D) > 64 * kUnit * DA)) return false;
-  const double gamma = 16 * kUnit;
-  const double inv_d = 1 / (std::abs(D) - gamma * DA);
-  double y_norm = 0, n_abs = 0;
+  const T gamma = 16 * kUnit;
+  const T inv_d = 1 / (std::abs(D) - gamma * DA);
+  T y_norm = 0, n_abs = 0;
   for (int k = 0; k < N; ++k) {
-    double num = 0, num_abs = 0;
+    T num = 0, num_abs = 0;
     for (int i = 0; i < N; ++i) {
       num += c[i] * adj[i][k];
       num_abs += std::abs(c[i]) * adj_abs[i][k];
@@ -64,9 +68,9 @@ bool cramer_solve(const double (&a)[N][N], const double (&c)[N], double (&y)[N],
     y_norm = std::max(y_norm, std::abs(y[k]));
     n_abs = std::max(n_abs, num_abs);
   }
-  double adj_norm = 0, a_norm = 0, c_norm = 0;
+  T adj_norm = 0, a_norm = 0, c_norm = 0;
   for (int r = 0; r < N; ++r) {
-    double adj_row = 0, a_row = 0;
+    T adj_row = 0, a_row = 0;
     for (int i = 0; i < N; ++i) {
       adj_row += std::abs(adj[i][r]);  // row r of adj(A) as a matrix acting on c
       a_row += std::abs(a[r][i]);
@@ -75,8 +79,8 @@ bool cramer_solve(const double (&a)[N][N], const double (&c)[N], double (&y)[N],
     a_norm = std::max(a_norm, a_row);
     c_norm = std::max(c_norm, std::abs(c[r]));
   }
-  const double err_round = (gamma * n_abs + y_norm * gamma * DA) * inv_d;
-  const double err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * c_norm);
+  const T err_round = (gamma * n_abs + y_norm * gamma * DA) * inv_d;
+  const T err_input = adj_norm * inv_d * 4 * kUnit * (a_norm * y_norm + 2 * c_norm);
   error = 2 * (err_round + err_input);
   return std::isfinite(error);
 }

@@ -1,0 +1,61 @@
+#!/usr/bin/python3
+"""Per-seed cost on the shapes users bring (issue 41): the stars of 10,000 random seeds
+in one gRPC BatchSeeds call, on each shape family (bench/shapes.py) and on uniform
+points of the same count and dimension, against a server of this build on loopback
+(tree warm: one call first). Prints microseconds per seed and the ratio to uniform.
+
+Usage: PYTHONPATH=build/python bench/batch_shapes.py [--seeds 10000] [--only NAME] [--scale 1.0]
+  --scale multiplies each family's default size (0.1: quick look)
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import spokemesh
+
+import shapes  # bench/ (the script's directory is on sys.path)
+from local_server import local_server
+
+
+def per_seed(client, points: np.ndarray, seeds: list[int], repeat: int) -> float:
+    ps = client.upload(points)
+    client.star(ps.id, 0)  # loads the set and its tree
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        stars = client.batch_stars(ps.id, seeds)
+        best = min(best, time.perf_counter() - t)
+        assert len(stars) == len(seeds)
+    client.delete(ps.id)
+    return best / len(seeds) * 1e6
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=10_000)
+    ap.add_argument("--only", default="")
+    ap.add_argument("--scale", type=float, default=1.0)
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args()
+    names = [f for f in shapes.FAMILIES if f not in ("uniform2", "uniform3", "clustered3", "grid3")]
+    print(f"{args.seeds:,} random seeds in one BatchSeeds call (stars), loopback, server with 2 threads:")
+    print("| family | points | us per seed | uniform, same n | ratio |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    with local_server("--max-points", "10000000") as (grpc_target, _):
+        client = spokemesh.Client(grpc_target)
+        for name in names:
+            if args.only and args.only not in name:
+                continue
+            _, _, default_n = shapes.FAMILIES[name]
+            points = shapes.make(name, max(1000, int(default_n * args.scale)))
+            n, d = points.shape
+            seeds = [int(s) for s in np.random.default_rng(2).integers(0, n, args.seeds)]
+            ours = per_seed(client, points, seeds, args.repeat)
+            uniform = per_seed(client, np.random.default_rng(3).random((n, d)), seeds, args.repeat)
+            print(f"| {name} | {n:,} | {ours:.1f} | {uniform:.1f} | {ours / uniform:.2f}x |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
