@@ -8,9 +8,9 @@ Families (FAMILIES maps a name to (generator, dimension, default n)):
   a point every 0.5 along each, rounded to 1e-3 (about 180k points);
 - terrain: 2.5-d, x, y uniform over 1000 x 1000, z a smooth surface of amplitude 3
   plus noise 0.05 (a LiDAR ground model);
-- rings: a scanner 2 m above a ground plane, 32 elevation rings x 3000 azimuths, noise
-  2 mm, rounded to 0.1 mm (96,000 points); rings_buildings: the same with box-shaped
-  buildings around the scanner;
+- rings: a scanner 2 m above a ground plane, 32 elevation rings x 3000 azimuths (n / 32
+  for another n), noise 2 mm, rounded to 0.1 mm (96,000 points); rings_buildings: the
+  same with box-shaped buildings around the scanner;
 - sphere, torus: points on the surfaces (float64);
 - isosurface: the vertices of a marching-cubes isosurface of a blobby implicit (each
   on a grid edge where the function changes sign, linearly interpolated);
@@ -18,9 +18,8 @@ Families (FAMILIES maps a name to (generator, dimension, default n)):
   width 1e-5 in a box of width 100, plus uniform points);
 - uniform, clustered (gaussian clumps), grid (integer grid) in 2-d and 3-d.
 
-`scale(points, n)` is not offered on purpose: each family's own parameters set its
-density (a ring has 3000 azimuths), and `n` only sets how many of a family's copies or
-samples are drawn where the family has a free count.
+`n` sets each family's free count (curves, azimuths, samples, grid resolution); its
+other parameters (spacing along a curve, noise) stay as the family defines them.
 """
 from __future__ import annotations
 
@@ -95,12 +94,12 @@ def _scanner(rng: np.random.Generator, elevations: int, azimuths: int, boxes: li
 
 
 def rings(n: int = 96_000, seed: int = 3) -> np.ndarray:
-    """32 elevation rings x 3000 azimuths over a ground plane (n is ignored)."""
-    return _scanner(np.random.default_rng(seed), 32, 3000, [])
+    """32 elevation rings over a ground plane, n / 32 azimuths each (3000 at the default)."""
+    return _scanner(np.random.default_rng(seed), 32, max(16, n // 32), [])
 
 
 def rings_buildings(n: int = 96_000, seed: int = 4) -> np.ndarray:
-    """The scanner rings with eight box-shaped buildings around the scanner."""
+    """The scanner rings (n / 32 azimuths) with eight box-shaped buildings around the scanner."""
     rng = np.random.default_rng(seed)
     boxes = []
     for k in range(8):
@@ -109,7 +108,7 @@ def rings_buildings(n: int = 96_000, seed: int = 4) -> np.ndarray:
         cx, cy = dist * math.cos(angle), dist * math.sin(angle)
         w, l, h = rng.uniform(4.0, 10.0), rng.uniform(4.0, 10.0), rng.uniform(3.0, 12.0)
         boxes.append(((cx - w / 2, cy - l / 2, 0.0), (cx + w / 2, cy + l / 2, h)))
-    return _scanner(rng, 32, 3000, boxes)
+    return _scanner(rng, 32, max(16, n // 32), boxes)
 
 
 def sphere(n: int = 20_000, seed: int = 5) -> np.ndarray:

@@ -370,6 +370,40 @@ TEST(TriangulationSweep, RefusedMemoryWalksTheStars) {
   }
 }
 
+// The work per point follows the stars, not the shape around them (issue 41): eight
+// times the points on a sphere's surface (where every Delaunay ball is the sphere
+// itself, and a global query per ball visited every point) or on a terrain cost the
+// same per point, in insertions and in k-d tree queries, with no star's sphere queried
+// against the whole set.
+TEST(TriangulationSweep, WorkPerPointDoesNotGrowWithN) {
+  struct Family {
+    const char* name;
+    std::vector<double> (*make)(std::size_t);
+  };
+  const Family families[] = {
+      {"sphere", [](std::size_t n) { return bench::sphere_surface(n, 7); }},
+      {"terrain", [](std::size_t n) { return bench::terrain(n, 1000 * std::sqrt(n / 200000.0), 7); }},
+      {"uniform", [](std::size_t n) { return uniform_points(3, n, 7); }},
+  };
+  for (const Family& f : families) {
+    double per_point[2][2] = {};
+    for (int k = 0; k < 2; ++k) {
+      const std::size_t n = k == 0 ? 12000 : 96000;
+      const PointSet ps = make_points(3, f.make(n));
+      const KdTree tree(ps);
+      MeshStats stats;
+      sweep(tree, 2, 3000, &stats);
+      per_point[k][0] = static_cast<double>(stats.triangulation.inserted) / static_cast<double>(n);
+      per_point[k][1] = static_cast<double>(stats.triangulation.ball_queries) / static_cast<double>(n);
+      std::printf("%s n %zu: %.2f insertions and %.3f tree queries per point, %llu sphere queries\n", f.name, n,
+                  per_point[k][0], per_point[k][1], static_cast<unsigned long long>(stats.star.sphere_queries));
+      EXPECT_EQ(stats.star.sphere_queries, 0u) << f.name << ": no star walked";
+    }
+    EXPECT_LT(per_point[1][0], 1.5 * per_point[0][0] + 0.05) << f.name << ": insertions per point grew with n";
+    EXPECT_LT(per_point[1][1], 1.5 * per_point[0][1] + 0.05) << f.name << ": tree queries per point grew with n";
+  }
+}
+
 // A refused star emits nothing, as in the star walk's sweep (spokemesh-mpi refuses the
 // stars it cannot certify from the points it holds); accepted stars are whole.
 TEST(TriangulationSweep, AcceptSeesWholeStars) {

@@ -452,7 +452,8 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
     };
     // What a seed's certificate may count on: the boxes and balls fetched for it (every
     // point inside them held), and the boxes that may hold points it does not have
-    // (none once its reach covers the whole set).
+    // (none once its reach covers the whole set, or once this rank holds every point).
+    const bool holds_all = points.size() == n;
     struct Regions {
       std::vector<double> held;
       std::span<const double> balls, unheld;
@@ -461,7 +462,7 @@ int run(Comm& comm, Job job, const WholeCommands& w, const std::string& stats_pa
       Regions r;
       const auto piece = static_cast<std::size_t>(local.piece_of[seed]);
       r.held.assign(halo.held_box(piece).begin(), halo.held_box(piece).end());
-      bool everything = false;
+      bool everything = holds_all;
       if (const auto it = reach.find(k); it != reach.end()) {
         r.held.insert(r.held.end(), it->second.begin(), it->second.end());
         everything = covers_all(it->second);

@@ -12,8 +12,13 @@ import signal
 import subprocess
 import time
 
+import sys
+
 import numpy as np
 import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
+import shapes  # noqa: E402  (bench/shapes.py: the shape families of issue 41)
 
 BIN = os.environ.get("SPOKEMESH_BIN_DIR", os.path.join(os.path.dirname(__file__), "..", "..", "build", "bin"))
 CLI = os.path.join(BIN, "spokemesh")
@@ -123,6 +128,33 @@ def test_mesh_is_byte_identical(reference, work, name, ranks):
     assert sum(owned) == n
     # Balance by counts, whatever the distribution (clumps included).
     assert max(owned) / (n / ranks) <= 1.05, owned
+
+
+# The shapes whose Delaunay neighbours lie a scan line or a contour away (issue 41): the
+# same bytes on any number of ranks, and halos that do not grow round after round.
+SHAPES = {
+    "2d-contours-45k": lambda: shapes.contours(45_000, seed=1),
+    "3d-scanner-rings-48k": lambda: shapes.rings(48_000, seed=2),
+}
+
+
+@pytest.mark.parametrize("name", list(SHAPES))
+@pytest.mark.parametrize("ranks", [1, 3, 7])
+def test_scans_and_contours_are_byte_identical(work, name, ranks):
+    path = work / f"{name}.npy"
+    reference = work / f"{name}.simplices"
+    if not reference.exists():
+        np.save(path, SHAPES[name]())
+        run_cli("mesh", str(path), "-o", str(reference), "-q", "--threads", "2")
+    out = work / f"{name}-{ranks}.simplices"
+    stats = work / f"{name}-{ranks}.json"
+    run_mpi(ranks, "mesh", str(path), "-o", str(out), "-q", "--stats", str(stats))
+    assert out.read_bytes() == reference.read_bytes(), f"{name}: {ranks} ranks wrote other bytes than one process"
+    # A few rounds: balls fetched, then the hull facets' regions growing 4x and 16x a
+    # round until they hold the whole box (18 rounds before nearly flat simplices had
+    # their balls placed exactly instead of their boxes doubled).
+    rounds = [r["rounds"] for r in json.loads(stats.read_text())["ranks"]]
+    assert max(rounds) <= 8, f"{name}: halo rounds {rounds}"
 
 
 @pytest.mark.parametrize("name,suffix", [("3d-uniform-50k", ".vtu"), ("3d-linspace-grid-37", ".msh"),

@@ -11,8 +11,9 @@
 // and every hull facet is a hull facet of the whole set; a star is a complete
 // neighbourhood of its seed, so a star made of such simplices is the whole star.
 //
-// Decided in floating point with rigorous error bounds, as a static filter: the
-// circumcentre's offset from the seed is N / D (Cramer), each of N and D computed with
+// Decided in floating point with rigorous error bounds, as a static filter (and for a
+// nearly flat simplex, whose bounds cannot separate D from 0, with the centre solved in
+// rationals): the circumcentre's offset from the seed is N / D (Cramer), each of N and D computed with
 // its magnitude (the same sums of products over absolute values), whose error is at
 // most gamma = 1e-14 (about 90 units in the last place; the longest chain of roundings,
 // the inputs' subtraction included, is 11 for d = 3) times that magnitude; intervals
@@ -41,12 +42,13 @@ namespace spokemesh {
 // What certification found: certified, or what it would take.
 struct StarCertificate {
   bool certified = false;
-  // The box (d lows, d highs) around every circumball that could not be certified:
-  // with every point inside it held, those balls are (empty if none failed).
+  // A box (d lows, d highs) to hold before the star can be decided at all: certify()
+  // leaves it empty (its balls say what to fetch); the distributed run sets it for a
+  // seed whose held points do not yet span the space.
   std::vector<double> reach;
-  // The failing circumballs themselves, each as d centre coordinates and a radius
-  // (rounded outwards): with every point inside them held, they are. (Nearly flat
-  // simplices, whose centre the bounds cannot place, are only in `reach`.)
+  // The failing circumballs, each as d centre coordinates and a radius (rounded
+  // outwards): with every point inside them held, they are certified. A nearly flat
+  // simplex, whose centre the filtered bounds cannot place, has its ball placed exactly.
   std::vector<double> balls;
   // Hull facets whose outer side could not be shown empty: d indices each (the seed's
   // included, ascending), then the facet's inner apex.

@@ -13,6 +13,8 @@
 #include <cmath>
 #include <limits>
 
+#include <gmpxx.h>
+
 namespace spokemesh::ball_bounds {
 
 // Relative error bound of every filtered quantity below, times its magnitude: about 90
@@ -99,6 +101,42 @@ inline bool circumball(const double* s, const std::array<const double*, D>& v, s
   }
   radius2_up = up(radius2_up);
   return true;
+}
+
+// The circumball of a nearly flat simplex, which the filtered bounds cannot place:
+// its centre solved exactly in rationals (2 (v_i - s) . c = |v_i - s|^2), then rounded
+// outwards. Rare (a simplex whose volume is below about 1e-14 of its edges' product).
+template <int D>
+inline void exact_circumball(const double* s, const std::array<const double*, D>& v, std::array<Interval, D>& centre,
+                      double& radius2_up) {
+  std::array<std::array<mpq_class, D + 1>, D> m;
+  for (int i = 0; i < D; ++i) {
+    mpq_class norm2 = 0;
+    for (int k = 0; k < D; ++k) {
+      const mpq_class a = mpq_class(v[i][k]) - mpq_class(s[k]);
+      m[i][k] = 2 * a;
+      norm2 += a * a;
+    }
+    m[i][D] = norm2;
+  }
+  for (int col = 0; col < D; ++col) {  // Gauss-Jordan (the simplex is not flat: pivots exist)
+    int pivot = col;
+    while (sgn(m[pivot][col]) == 0) ++pivot;
+    std::swap(m[pivot], m[col]);
+    for (int r = 0; r < D; ++r) {
+      if (r == col || sgn(m[r][col]) == 0) continue;
+      const mpq_class f = m[r][col] / m[col][col];
+      for (int k = col; k <= D; ++k) m[r][k] -= f * m[col][k];
+    }
+  }
+  mpq_class r2 = 0;
+  for (int k = 0; k < D; ++k) {
+    const mpq_class c = m[k][D] / m[k][k];
+    r2 += c * c;
+    const double x = mpq_class(c + mpq_class(s[k])).get_d();  // truncated: within an ulp
+    centre[static_cast<std::size_t>(k)] = {std::nextafter(x, -HUGE_VAL), std::nextafter(x, HUGE_VAL)};
+  }
+  radius2_up = up(std::nextafter(r2.get_d(), HUGE_VAL));
 }
 
 // Whether the closed ball (centre interval, radius^2 <= radius2_up) misses box b.

@@ -62,12 +62,7 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
   const std::size_t box_words = 2 * D, boxes = unheld.size() / box_words;
   const double* s = ps.point(star.seed);
   const std::size_t w = D + 1;
-  bool failed = false, has_reach = false;
-  std::array<double, 2 * D> reach{};
-  for (int k = 0; k < D; ++k) {
-    reach[static_cast<std::size_t>(k)] = std::numeric_limits<double>::infinity();
-    reach[static_cast<std::size_t>(D + k)] = -std::numeric_limits<double>::infinity();
-  }
+  bool failed = false;
   // Hull facets: the facets through the seed that only one simplex of the star has.
   struct Facet {
     std::array<std::uint32_t, D> vertices;  // ascending, the seed among them
@@ -82,37 +77,38 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
     for (std::size_t j = 0; j < w; ++j) {
       if (simplex[j] != star.seed) v[static_cast<std::size_t>(at++)] = ps.point(simplex[j]);
     }
+    // The ball: by the filtered bounds, or (a nearly flat simplex, which they cannot
+    // place) exactly, so that it is certified once its points are held, as any other.
     std::array<Interval, D> centre{};
     double radius2 = 0;
-    const bool placed = circumball<D>(s, v, centre, radius2);
-    bool ok = placed;
+    if (!circumball<D>(s, v, centre, radius2)) exact_circumball<D>(s, v, centre, radius2);
+    bool ok = true;
     std::array<double, 2 * D> extent{};
-    if (ok) {
-      // Most balls lie well inside the first held box: the ball's own box says so.
-      bool held = false;
-      if (!held_boxes.empty()) {
-        const double r = up(std::sqrt(radius2));
-        held = true;
-        for (int k = 0; k < D && held; ++k) {
-          held = down(centre[k].lo - r) >= held_boxes[static_cast<std::size_t>(k)] &&
-                 up(centre[k].hi + r) <= held_boxes[static_cast<std::size_t>(D + k)];
-        }
+    // Most balls lie well inside the first held box: the ball's own box says so.
+    bool held = false;
+    if (!held_boxes.empty()) {
+      const double r = up(std::sqrt(radius2));
+      held = true;
+      for (int k = 0; k < D && held; ++k) {
+        held = down(centre[k].lo - r) >= held_boxes[static_cast<std::size_t>(k)] &&
+               up(centre[k].hi + r) <= held_boxes[static_cast<std::size_t>(D + k)];
       }
-      if (!held) {
-        extent = clipped_extent<D>(centre, radius2, global);
-        for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
-          held = inside<D>(extent, held_boxes.data() + b);
-        }
-        for (std::size_t b = 0; b + D + 1 <= held_balls.size() && !held; b += D + 1) {
-          held = inside_ball<D>(centre, radius2, held_balls.data() + b);
-        }
-      }
-      for (std::size_t b = 0; b < boxes && ok && !held; ++b) ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
     }
-    if (!ok && placed) {
+    if (!held) {
+      extent = clipped_extent<D>(centre, radius2, global);
+      for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
+        held = inside<D>(extent, held_boxes.data() + b);
+      }
+      for (std::size_t b = 0; b + D + 1 <= held_balls.size() && !held; b += D + 1) {
+        held = inside_ball<D>(centre, radius2, held_balls.data() + b);
+      }
+    }
+    for (std::size_t b = 0; b < boxes && ok && !held; ++b) ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
+    if (!ok) {
       // Ask for the ball itself: a ball query returns only what lies inside (near the
       // hull a ball's part of the set's box is a wide thin cap, a box around it many
       // points).
+      failed = true;
       double spread2 = 0;
       for (int k = 0; k < D; ++k) {
         const double mid = centre[k].lo / 2 + centre[k].hi / 2;
@@ -121,22 +117,6 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
         spread2 += half * half;
       }
       out.balls.push_back(up(up(up(std::sqrt(radius2)) + up(std::sqrt(up(spread2)))) * (1 + 1e-12)));
-    }
-    if (!ok) failed = true;
-    if (!placed) {
-      // A nearly flat simplex: the bounds cannot place its centre, so the box to hold
-      // is the simplex's own to begin with (the caller doubles a seed's box each time
-      // it is refused again, until everything is held).
-      for (int k = 0; k < D; ++k) {
-        const auto lo = static_cast<std::size_t>(k), hi = static_cast<std::size_t>(D + k);
-        reach[lo] = std::min(reach[lo], s[k]);
-        reach[hi] = std::max(reach[hi], s[k]);
-        for (const double* p : v) {
-          reach[lo] = std::min(reach[lo], p[k]);
-          reach[hi] = std::max(reach[hi], p[k]);
-        }
-      }
-      has_reach = true;
     }
     if (star.hull_facets == 0) continue;
     for (std::size_t skip = 0; skip < w; ++skip) {
@@ -151,7 +131,6 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
       facets.push_back(f);
     }
   }
-  if (has_reach) out.reach.assign(reach.begin(), reach.end());
   std::sort(facets.begin(), facets.end(), [](const Facet& a, const Facet& b) { return a.vertices < b.vertices; });
   for (std::size_t i = 0; i < facets.size();) {
     std::size_t j = i + 1;

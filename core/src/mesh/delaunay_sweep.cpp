@@ -124,42 +124,6 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
   return true;
 }
 
-// The circumball of a nearly flat simplex, which the filtered bounds cannot place:
-// its centre solved exactly in rationals (2 (v_i - s) . c = |v_i - s|^2), then rounded
-// outwards. Rare (a simplex whose volume is below about 1e-14 of its edges' product).
-template <int D>
-void exact_circumball(const double* s, const std::array<const double*, D>& v, std::array<Interval, D>& centre,
-                      double& radius2_up) {
-  std::array<std::array<mpq_class, D + 1>, D> m;
-  for (int i = 0; i < D; ++i) {
-    mpq_class norm2 = 0;
-    for (int k = 0; k < D; ++k) {
-      const mpq_class a = mpq_class(v[i][k]) - mpq_class(s[k]);
-      m[i][k] = 2 * a;
-      norm2 += a * a;
-    }
-    m[i][D] = norm2;
-  }
-  for (int col = 0; col < D; ++col) {  // Gauss-Jordan (the simplex is not flat: pivots exist)
-    int pivot = col;
-    while (sgn(m[pivot][col]) == 0) ++pivot;
-    std::swap(m[pivot], m[col]);
-    for (int r = 0; r < D; ++r) {
-      if (r == col || sgn(m[r][col]) == 0) continue;
-      const mpq_class f = m[r][col] / m[col][col];
-      for (int k = col; k <= D; ++k) m[r][k] -= f * m[col][k];
-    }
-  }
-  mpq_class r2 = 0;
-  for (int k = 0; k < D; ++k) {
-    const mpq_class c = m[k][D] / m[k][k];
-    r2 += c * c;
-    const double x = mpq_class(c + mpq_class(s[k])).get_d();  // truncated: within an ulp
-    centre[static_cast<std::size_t>(k)] = {std::nextafter(x, -HUGE_VAL), std::nextafter(x, HUGE_VAL)};
-  }
-  radius2_up = ball_bounds::up(std::nextafter(r2.get_d(), HUGE_VAL));
-}
-
 // What a run shares: the set, its order, the options, and the triangulation of every
 // point once a region's balls have reached across the set.
 template <int D, class Index>
@@ -428,7 +392,7 @@ class RegionMesher {
       std::array<const double*, D> v{};
       for (int k = 0; k < D; ++k) v[static_cast<std::size_t>(k)] = tri_.coords(cell.v[static_cast<std::size_t>(k) + 1]);
       const double* s = tri_.coords(cell.v[0]);
-      if (!ball_bounds::circumball<D>(s, v, out.centre, out.radius2)) exact_circumball<D>(s, v, out.centre, out.radius2);
+      if (!ball_bounds::circumball<D>(s, v, out.centre, out.radius2)) ball_bounds::exact_circumball<D>(s, v, out.centre, out.radius2);
       out.extent = ball_bounds::clipped_extent<D>(out.centre, out.radius2, run_.bounds.data());
       out.ok = ball_bounds::inside<D>(out.extent, e_.data());
       return out;
@@ -955,7 +919,10 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
       });
   if (!status.is_ok()) return status;
   total.seeds = seeds_done;
-  if (run.whole) total.triangulation.peak_bytes += run.whole->bytes();
+  if (run.whole) {
+    total.triangulation.peak_bytes += run.whole->bytes();
+    total.triangulation.inserted += n;
+  }
   return total;
 }
 
