@@ -8,9 +8,9 @@ Families (FAMILIES maps a name to (generator, dimension, default n)):
   a point every 0.5 along each, rounded to 1e-3 (about 180k points);
 - terrain: 2.5-d, x, y uniform over 1000 x 1000, z a smooth surface of amplitude 3
   plus noise 0.05 (a LiDAR ground model);
-- rings: a scanner 2 m above a ground plane, 32 elevation rings x 3000 azimuths (n / 32
-  for another n), noise 2 mm, rounded to 0.1 mm (96,000 points); rings_buildings: the
-  same with box-shaped buildings around the scanner;
+- rings: a scanner 2 m above a ground plane, 32 elevation rings x 3000 azimuths (more
+  rings for more points), noise 2 mm, rounded to 0.1 mm (96,000 points, repeated
+  returns dropped); rings_buildings: the same with box-shaped buildings around it;
 - sphere, torus: points on the surfaces (float64);
 - isosurface: the vertices of a marching-cubes isosurface of a blobby implicit (each
   on a grid edge where the function changes sign, linearly interpolated);
@@ -90,16 +90,25 @@ def _scanner(rng: np.random.Generator, elevations: int, azimuths: int, boxes: li
     keep = t < 120.0
     pts = origin + dirs[keep] * t[keep, None]
     pts += rng.normal(0.0, 0.002, pts.shape)
-    return np.round(pts, 4)
+    # Rounded to 0.1 mm, near the scanner two returns can coincide: one is kept.
+    pts = np.round(pts, 4)
+    _, first = np.unique(pts, axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+def _ring_counts(n: int) -> tuple[int, int]:
+    """(elevation rings, azimuths) for about n points: 32 x 3000 at the default; more
+    rings (a denser scanner) for more points, fewer azimuths for fewer."""
+    return (max(32, n // 3000), max(16, min(3000, n // 32)))
 
 
 def rings(n: int = 96_000, seed: int = 3) -> np.ndarray:
-    """32 elevation rings over a ground plane, n / 32 azimuths each (3000 at the default)."""
-    return _scanner(np.random.default_rng(seed), 32, max(16, n // 32), [])
+    """Elevation rings over a ground plane: 32 x 3000 azimuths at the default n."""
+    return _scanner(np.random.default_rng(seed), *_ring_counts(n), [])
 
 
 def rings_buildings(n: int = 96_000, seed: int = 4) -> np.ndarray:
-    """The scanner rings (n / 32 azimuths) with eight box-shaped buildings around the scanner."""
+    """The scanner rings with eight box-shaped buildings around the scanner."""
     rng = np.random.default_rng(seed)
     boxes = []
     for k in range(8):
@@ -108,7 +117,7 @@ def rings_buildings(n: int = 96_000, seed: int = 4) -> np.ndarray:
         cx, cy = dist * math.cos(angle), dist * math.sin(angle)
         w, l, h = rng.uniform(4.0, 10.0), rng.uniform(4.0, 10.0), rng.uniform(3.0, 12.0)
         boxes.append(((cx - w / 2, cy - l / 2, 0.0), (cx + w / 2, cy + l / 2, h)))
-    return _scanner(rng, 32, max(16, n // 32), boxes)
+    return _scanner(rng, *_ring_counts(n), boxes)
 
 
 def sphere(n: int = 20_000, seed: int = 5) -> np.ndarray:

@@ -8,12 +8,15 @@ RSS of each process (GNU time), and the simplex counts (which must agree; Qhull
 triangulates cospherical facets its own way, so on grids only CGAL's count is checked).
 
 Inputs, made the way users make them (numpy, fixed seeds): uniform points, gaussian
-clumps, and grids written as integers, dyadic steps i/32, decimal steps i*0.1, and
-numpy.linspace.
+clumps, grids written as integers, dyadic steps i/32, decimal steps i*0.1, and
+numpy.linspace, and the shapes users bring (bench/shapes.py: contour lines, terrain,
+scanner rings, surfaces, density contrast; issue 41).
 
-Usage: bench/whole.py [--only SUBSTRING] [--big] [--huge] [--repeat N] [--data DIR]
-  --big   adds 3-d uniform 4M (.npy) with CGAL
-  --huge  adds 3-d uniform 16M (.npy), spokemesh alone (CGAL would need about 10 GB)
+Usage: bench/whole.py [--only SUBSTRING] [--shapes] [--big] [--huge] [--repeat N] [--threads N] [--data DIR]
+  --shapes  the shape families only (at 100k-200k and 1M points)
+  --big     adds 3-d uniform 4M (.npy) with CGAL
+  --huge    adds 3-d uniform 16M (.npy), spokemesh alone (CGAL would need about 10 GB)
+  --threads spokemesh's worker threads (default 2, its own default)
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-import timing  # bench/timing.py (the script's directory is on sys.path)
+import shapes  # bench/shapes.py (the script's directory is on sys.path)
+import timing  # bench/timing.py
 
 REPO = Path(__file__).resolve().parent.parent
 BIN = Path(os.environ.get("SPOKEMESH_BIN_DIR", REPO / "build" / "bin"))
@@ -56,8 +60,23 @@ def grid(side: int, d: int, kind: str) -> np.ndarray:
     return np.stack([m.ravel() for m in mesh], axis=1)
 
 
-def cases(big: bool, huge: bool) -> list[tuple[str, str, callable, bool]]:
+def shape_cases() -> list[tuple[str, str, callable, bool]]:
+    """The shape families of issue 41 at their default sizes (96k-200k) and at 1M."""
+    out = []
+    for name, (_, d, n) in shapes.FAMILIES.items():
+        if name in ("uniform2", "uniform3", "clustered3", "grid3"):
+            continue
+        out.append((f"{name} {n // 1000}k", ".txt", lambda f=name: shapes.make(f), False))
+    for name in ("terrain", "rings", "sphere", "torus", "contrast"):
+        out.append((f"{name} 1M", ".txt", lambda f=name: shapes.make(f, 1_000_000), False))
+    out.append(("contours 1M", ".txt", lambda: shapes.contours(1_000_000), False))
+    return out
+
+
+def cases(big: bool, huge: bool, shapes_only: bool) -> list[tuple[str, str, callable, bool]]:
     """(name, file suffix, points, with Qhull)."""
+    if shapes_only:
+        return shape_cases()
     out = [
         ("3-d uniform 200k", ".txt", lambda: uniform(200_000, 3, 1), False),
         ("3-d uniform 1M", ".txt", lambda: uniform(1_000_000, 3, 2), False),
@@ -109,6 +128,8 @@ def main() -> None:
     ap.add_argument("--only", default="")
     ap.add_argument("--big", action="store_true")
     ap.add_argument("--huge", action="store_true")
+    ap.add_argument("--shapes", action="store_true")
+    ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1, help="runs of each process; the best is reported")
     ap.add_argument("--data", default="/tmp/spokemesh-whole", help="where the generated inputs are kept")
     args = ap.parse_args()
@@ -116,14 +137,14 @@ def main() -> None:
     data.mkdir(parents=True, exist_ok=True)
     print("| input | points | spokemesh | CGAL | Qhull | ratio to the faster peer | simplices |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
-    for name, suffix, make, with_qhull in cases(args.big, args.huge):
+    for name, suffix, make, with_qhull in cases(args.big, args.huge, args.shapes):
         if args.only and args.only not in name:
             continue
         path = materialise(name, suffix, make, data)
         out = data / "out.simplices"
         best = lambda runs: min(runs, key=lambda r: r[0])  # noqa: E731
-        ours = best([timed([str(BIN / "spokemesh"), "mesh", str(path), "-o", str(out), "-q"])
-                     for _ in range(args.repeat)])
+        ours = best([timed([str(BIN / "spokemesh"), "mesh", str(path), "-o", str(out), "-q", "--threads",
+                            str(args.threads)]) for _ in range(args.repeat)])
         with open(out) as f:
             count = sum(1 for _ in f)
         out.unlink()

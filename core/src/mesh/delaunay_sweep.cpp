@@ -11,9 +11,6 @@
 #include <span>
 #include <vector>
 
-#include <gmpxx.h>
-#include <cstdio>
-#include <cstdlib>
 
 #include "base/dimension.hpp"
 #include "base/mixing.hpp"
@@ -30,25 +27,31 @@ namespace {
 using ball_bounds::Interval;
 
 // A region's box E starts as the region's bounding box widened by a margin: this
-// many times the typical reach of a seed's balls (the median, over a few sample seeds
-// of the region triangulated alone, of how far the parts of their balls inside the
-// set's box reach from them): on a scan, the distance to the next scan line, not to
-// the next point along it.
+// many times the typical reach of a seed's balls (the median, over kMarginSamples
+// seeds of the region triangulated alone, of how far the parts of their balls inside
+// the set's box reach from them): on a scan, the distance to the next scan line, not
+// to the next point along it.
 constexpr double kMarginReaches = 1.0;
 constexpr std::size_t kMarginSamples = 31;
-// The margin is measured on the region's first BRIO rounds, an eighth of its points
-// and at least this many (scaled to its whole density: reach ~ spacing ~ count^(-1/d)).
+// Before the rest of a region, its first BRIO rounds (an eighth of its points, at least
+// kMarginSampleAtLeast) are triangulated alone: if their balls' reach (at that lower
+// density: on a surface reach follows the shape) would put three quarters of the set in
+// E, the balls reach across the set and the run takes the whole set at once.
 constexpr std::size_t kMarginSampleAtLeast = 512;
 // The balls and hull facets that fail against E are asked of the k-d tree one by one
-// while the points those queries test stay below kQueryWork times the region's points in
-// a round; beyond that, E's margin doubles, when that adds at most kGrowFactor times the
-// region's points (and at least kGrowAtLeast). Beyond that, or when a region would hold
-// most of the set, the balls reach across the set (points on a closed surface, whose
-// Delaunay balls span its inside) and one triangulation of every point serves the rest
-// of the run.
+// while the points those queries test stay below kQueryWork times the region's points
+// in a round. Beyond that: when the queries skimmed more than kQueryWorkPerBall points
+// each (huge balls nearly following a long curve or surface: a wider E would not hold
+// them either), or when E's margin, doubled, would add more than kGrowFactor times the
+// region's points (and kGrowAtLeast) or hold most of the set, the run takes the whole
+// set; otherwise (scan lines: many cheap queries) E's margin doubles. A region taking
+// more than kMaxRounds rounds also turns to the whole set.
 constexpr std::size_t kGrowFactor = 2;
 constexpr std::size_t kGrowAtLeast = 4096;
 constexpr std::size_t kQueryWork = 16;
+constexpr std::size_t kQueryWorkPerBall = 4096;
+// A query returns at most this many of the points in a ball (the deepest).
+constexpr std::size_t kQueryTakeAtMost = 64;
 constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
 // that cuts it, a batch of seeds) has its seeds' stars walked instead, as long as that
@@ -76,8 +79,8 @@ int brio_round(std::uint32_t id) {
   const std::uint64_t h = splitmix64(state);
   return std::min(__builtin_ctzll(h | (std::uint64_t{1} << (kRounds - 1))), kRounds - 1);
 }
-// Reorders `items` (any type with an id()) into BRIO rounds, coarsest first, keeping
-// the given order within a round (a counting sort).
+// Reorders `items` into BRIO rounds by the point id id_of(item), coarsest first,
+// keeping the given order within a round (a counting sort).
 template <class T, class IdOf>
 void brio_order(std::vector<T>& items, std::vector<T>& scratch, IdOf&& id_of) {
   std::array<std::size_t, kRounds + 1> start{};
@@ -485,8 +488,12 @@ class RegionMesher {
       const double in = volume(inner);
       return in > 0 ? volume(x) : -volume(x);  // beyond: the inner apex's opposite sign
     };
-    std::uint32_t best = 0xFFFFFFFFu;
-    double best_depth = HUGE_VAL;
+    // Conflicting points with their depths: a ball keeps its kQueryTakeAtMost deepest (a
+    // ball reaching into a clump holds many, all of them wanted soon), a hull facet its
+    // farthest.
+    taken_.clear();
+    const std::size_t keep = inf >= 0 ? 1 : kQueryTakeAtMost;
+    const std::size_t work_before = query_work_;
     run_.index.find_first(
         [&](const float* lo, const float* hi) {
           if (box_within<D>(lo, hi, e_)) return false;
@@ -502,13 +509,21 @@ class RegionMesher {
           ++query_work_;
           if (inserted(id, x)) return false;
           const double dx = depth(x);
-          if ((best == 0xFFFFFFFFu || dx < best_depth) && tri_.in_conflict(c, id)) {
-            best = id;
-            best_depth = dx;
+          if (taken_.size() == keep && dx >= taken_.front().first) return false;  // not among the deepest
+          if (!tri_.in_conflict(c, id)) return false;
+          if (taken_.size() == keep) {
+            std::pop_heap(taken_.begin(), taken_.end());
+            taken_.pop_back();
           }
+          taken_.emplace_back(dx, id);
+          std::push_heap(taken_.begin(), taken_.end());  // the shallowest kept on top
           return false;
         });
-    if (best != 0xFFFFFFFFu) out.push_back(best);
+    for (const auto& t : taken_) out.push_back(t.second);
+    if (taken_.empty()) {  // certified: what the queries that found nothing cost
+      empty_work_ += query_work_ - work_before;
+      ++empty_queries_;
+    }
   }
 
   // What became of a region: every wanted seed's star certified; the balls reach across
@@ -595,7 +610,6 @@ class RegionMesher {
     if (run_.whole_wanted.load()) return Outcome::kWhole;  // another region found balls across the set
     // E: the margin at the region's own density.
     const double margin = this->margin(region_points);
-    if (getenv("SMDBG")) fprintf(stderr, "region %u..%u margin %g box %g %g %g\n", first, last, margin, region[D]-region[0], region[D+1]-region[1], D==3?region[5]-region[2]:0.0);
     const Box<D> e = margin_box(region, margin);
     collect_box(e, found_, static_cast<std::size_t>(-1));
     e_ = e;
@@ -661,6 +675,7 @@ class RegionMesher {
       found_.clear();
       query_work_ = 0;
       bool over = false;
+      empty_work_ = empty_queries_ = 0;
       for (const auto& f : fails_) {
         if (over || query_work_ > kQueryWork * region_points) {
           over = true;
@@ -669,7 +684,6 @@ class RegionMesher {
         }
         const std::size_t before = found_.size();
         query(f.first, f.second, found_);
-        if (getenv("SMDBG2")) fprintf(stderr, "  %s found %zu r2 %g\n", tri_.infinite_index(f.first) >= 0 ? "hull" : "ball", found_.size() - before, f.second.radius2);
         tri_.set_tag(f.first, found_.size() == before ? kCertified : kUnknown);  // nothing inside: certified
       }
       std::sort(found_.begin(), found_.end());
@@ -681,8 +695,14 @@ class RegionMesher {
         if (!in.is_ok()) return in.status();
         return Outcome::kOverBudget;
       }
-      if (getenv("SMDBG")) fprintf(stderr, "round %d fails %zu over %d found %zu work %zu inserted %u\n", round, fails_.size(), int(over), found_.size(), query_work_, tri_.vertex_count());
       if (!over) continue;
+      // Empty balls whose queries skimmed thousands of points each (huge balls nearly
+      // following a long smooth curve or surface): a wider E would not hold them
+      // either. Many cheap ones (scan lines): E grows.
+      if (empty_queries_ != 0 && empty_work_ > kQueryWorkPerBall * empty_queries_) {
+        run_.whole_wanted.store(true);
+        return Outcome::kWhole;
+      }
       const Box<D> g = margin_box(e_, grown);
       grown *= 2;
       if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points)) ||
@@ -863,6 +883,8 @@ class RegionMesher {
   bool e_covers_all_ = false;
   std::vector<std::uint32_t> extras_;
   std::size_t query_work_ = 0;  // points the queries of a round tested
+  std::size_t empty_work_ = 0, empty_queries_ = 0;  // of those, the queries that found nothing
+  std::vector<std::pair<double, std::uint32_t>> taken_;  // a query's deepest conflicting points (a max-heap)
   std::size_t reserved_ = 0;    // memory granted to this worker's triangulation (MeshOptions::reserve_bytes)
   // Scratch, kept between regions.
   std::vector<std::uint32_t> wanted_, ids_, order_, local_, scratch_, found_, cells_, seen_, others_;
