@@ -81,6 +81,19 @@ inline PointSet make_points(int d, std::vector<double> coords) {
   return ps;
 }
 
+// The rows of a mesh_seeds run (in sweep order, as written), and its statistics when asked.
+template <class TreeOrPoints>
+Simplices mesh_rows(const TreeOrPoints& tree_or_points, const MeshOptions& options, MeshStats* stats = nullptr) {
+  Simplices out;
+  auto r = mesh_seeds(tree_or_points, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
+    out.insert(out.end(), block.begin(), block.end());
+    return Status::ok();
+  });
+  EXPECT_TRUE(r.is_ok()) << r.status().message();
+  if (stats != nullptr && r.is_ok()) *stats = r.value();
+  return out;
+}
+
 inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_t begin = 0,
                           std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed,
                           std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes,
@@ -95,13 +108,7 @@ inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_
   options.seed_begin = begin;
   options.seed_end = end;
   options.star.random_seed = random_seed;
-  Simplices out;
-  auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
-    out.insert(out.end(), block.begin(), block.end());
-    return Status::ok();
-  });
-  EXPECT_TRUE(r.is_ok()) << r.status().message();
-  return out;
+  return mesh_rows(tree, options);
 }
 
 // The rows of a mesh (width indices each, as written) in lexicographic order of the

@@ -170,14 +170,7 @@ Simplices sweep(const KdTree& tree, unsigned threads, std::uint32_t region_point
   options.seed_end = seed_end;
   options.sweep_begin = sweep_begin;
   options.sweep_end = sweep_end;
-  Simplices out;
-  auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t) {
-    out.insert(out.end(), block.begin(), block.end());
-    return Status::ok();
-  });
-  EXPECT_TRUE(r.is_ok()) << r.status().message();
-  if (stats != nullptr && r.is_ok()) *stats = r.value();
-  return out;
+  return mesh_rows(tree, options, stats);
 }
 
 // Every shape family (issue 41) and every degenerate case, at a few thousand points,
@@ -214,13 +207,7 @@ TEST(TriangulationSweep, WithoutATreeTheSameBytes) {
       MeshOptions options;
       options.threads = 2;
       options.region_points = region;
-      Simplices out;
-      auto r = mesh_seeds(ps, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
-        out.insert(out.end(), b.begin(), b.end());
-        return Status::ok();
-      });
-      ASSERT_TRUE(r.is_ok()) << r.status().message();
-      EXPECT_EQ(out, sweep(tree, 2, region)) << "region " << region;
+      EXPECT_EQ(mesh_rows(ps, options), sweep(tree, 2, region)) << "region " << region;
     }
   }
 }
@@ -250,13 +237,7 @@ TEST(TriangulationSweep, SeedListsGiveWholeStars) {
         stars[star.seed] = star;
         return false;  // no rows: the stars are the answer
       };
-      Simplices rows;
-      auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
-        rows.insert(rows.end(), b.begin(), b.end());
-        return Status::ok();
-      });
-      ASSERT_TRUE(r.is_ok()) << r.status().message();
-      EXPECT_TRUE(rows.empty());
+      EXPECT_TRUE(mesh_rows(tree, options).empty());
       ASSERT_EQ(stars.size(), seeds.size());
       Star expected;
       for (const std::uint32_t s : seeds) {
@@ -353,18 +334,13 @@ TEST(TriangulationSweep, RefusedMemoryWalksTheStars) {
       options.region_points = 300;
       std::size_t asked = 0;
       options.reserve_bytes = [&](std::size_t) { return ++asked <= grants; };
-      Simplices out;
-      auto r = mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
-        out.insert(out.end(), b.begin(), b.end());
-        return Status::ok();
-      });
-      ASSERT_TRUE(r.is_ok()) << r.status().message();
-      EXPECT_EQ(out, stars) << grants << " grants";
+      MeshStats stats;
+      EXPECT_EQ(mesh_rows(tree, options, &stats), stars) << grants << " grants";
       if (grants == 0) {
-        EXPECT_EQ(r.value().triangulation.walked_seeds, ps.size()) << "every region refused: every star walked";
+        EXPECT_EQ(stats.triangulation.walked_seeds, ps.size()) << "every region refused: every star walked";
       }
       if (asked > grants) {
-        EXPECT_GT(r.value().triangulation.walked_seeds, 0u) << "a refusal walks stars";
+        EXPECT_GT(stats.triangulation.walked_seeds, 0u) << "a refusal walks stars";
       }
     }
   }
@@ -427,11 +403,7 @@ TEST(TriangulationSweep, AcceptSeesWholeStars) {
       stars[star.seed] = std::move(s);
       return star.seed % 3 != 0;
     };
-    Simplices out;
-    EXPECT_TRUE(mesh_seeds(tree, options, [&](std::span<const std::uint32_t> b, std::uint64_t) {
-                  out.insert(out.end(), b.begin(), b.end());
-                  return Status::ok();
-                }).is_ok());
+    const Simplices out = mesh_rows(tree, options);
     return std::pair{out, stars};
   };
   const auto [stars_rows, stars_seen] = run(kStars);

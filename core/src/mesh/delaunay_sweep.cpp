@@ -51,7 +51,7 @@ constexpr std::size_t kGrowAtLeast = 4096;
 constexpr std::size_t kQueryWork = 16;
 constexpr std::size_t kQueryWorkPerBall = 4096;
 // A query returns at most this many of the points in a ball (the deepest).
-constexpr std::size_t kQueryTakeAtMost = 64;
+constexpr std::size_t kQueryTakeAtMost = 8;
 constexpr int kMaxRounds = 64;
 // A region with fewer than 1/kWalkShare of its points wanted as seeds (a --seeds range
 // that cuts it, a batch of seeds) has its seeds' stars walked instead, as long as that

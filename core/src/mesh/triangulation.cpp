@@ -247,25 +247,31 @@ int Triangulation<D>::sphere_at(const Points& x, IdsFn&& ids, const double* q, s
 }
 
 template <int D>
-int Triangulation<D>::orient_points(const std::array<std::uint32_t, D + 1>& v) const {
+typename Triangulation<D>::Points Triangulation<D>::points_of(const std::array<std::uint32_t, D + 1>& v) const {
   Points x;
   for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
-  return orient_at(x, [&] {
-    Ids ids;
-    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
-    return ids;
-  });
+  return x;
+}
+
+template <int D>
+typename Triangulation<D>::Ids Triangulation<D>::ids_of(const std::array<std::uint32_t, D + 1>& v) const {
+  Ids ids;
+  for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
+  return ids;
+}
+
+template <int D>
+int Triangulation<D>::orient_points(const std::array<std::uint32_t, D + 1>& v) const {
+  return orient_at(points_of(v), [&] { return ids_of(v); });
 }
 
 template <int D>
 int Triangulation<D>::orient_with(std::uint32_t c, int i, const double* p, std::uint32_t p_id) const {
   const auto& v = cells_[c].v;
-  Points x;
-  for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
+  Points x = points_of(v);
   x[i] = p;
   return orient_at(x, [&] {
-    Ids ids;
-    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
+    Ids ids = ids_of(v);
     ids[i] = p_id;
     return ids;
   });
@@ -274,13 +280,7 @@ int Triangulation<D>::orient_with(std::uint32_t c, int i, const double* p, std::
 template <int D>
 int Triangulation<D>::side_of_sphere(std::uint32_t c, const double* p, std::uint32_t p_id) const {
   const auto& v = cells_[c].v;
-  Points x;
-  for (int k = 0; k <= D; ++k) x[k] = coords(v[k]);
-  return sphere_at(x, [&] {
-    Ids ids;
-    for (int k = 0; k <= D; ++k) ids[k] = global_[v[k]];
-    return ids;
-  }, p, p_id);
+  return sphere_at(points_of(v), [&] { return ids_of(v); }, p, p_id);
 }
 
 template <int D>

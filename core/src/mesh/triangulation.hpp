@@ -128,6 +128,8 @@ class Triangulation {
   // positively oriented simplex x (+1 outside, -1 inside).
   using Points = std::array<const double*, D + 1>;
   using Ids = std::array<std::uint32_t, D + 1>;
+  Points points_of(const std::array<std::uint32_t, D + 1>& v) const;  // local ids -> coordinates
+  Ids ids_of(const std::array<std::uint32_t, D + 1>& v) const;        // local ids -> point ids
   template <class IdsFn>
   int orient_at(const Points& x, IdsFn&& ids) const;
   template <class IdsFn>
