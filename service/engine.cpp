@@ -692,7 +692,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     options.split = set->split.get();
     options.star = star_options;
     options.seeds = wanted;
-    if (uses_triangulations(*set->tree, options)) {
+    options.engine = engine_for(set->points, *set->split, options);
+    if (options.engine == MeshEngine::kTriangulations) {
       MemoryBudget::Charge tri_charge = store_->budget().empty_charge();
       options.reserve_bytes = [&tri_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
         return tri_charge.bytes() + bytes <= cap && tri_charge.grow(bytes);
@@ -895,7 +896,9 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   options.sweep_end = range.end;
   options.star.cancel = control.stop_flag();
   options.star.weights = s.weights;
-  if (uses_triangulations(*s.tree, options)) {
+  options.split = s.split.get();
+  options.engine = engine_for(s.points, *s.split, options);
+  if (options.engine == MeshEngine::kTriangulations) {
     // Local triangulations: their memory is charged as it grows (a region per worker,
     // and the whole set's triangulation when balls reach across it), up to the stream
     // cache; what that or the budget refuses is meshed by star walks instead, the same
@@ -930,7 +933,6 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     }
     return Status::ok();
   };
-  options.split = s.split.get();
   auto result = mesh_seeds(*s.tree, options, sink);
   if (!result.is_ok()) {
     if (result.status().code() == Code::kCancelled && control.stopped()) {

@@ -273,10 +273,10 @@ TEST(TriangulationSweep, PartsAreTheStarWalksParts) {
 }
 
 // The input's order does not matter: a permuted set's mesh, mapped back, is the same
-// set of oriented simplices (rows are in sweep order by owner: mapped back, sorted).
+// set of oriented simplices (rows are in sweep order by owner: mapped back, sorted),
+// and CGAL's, on every shape family.
 TEST(TriangulationSweep, PermutedInputMapsBack) {
   for (auto& shape : bench::shape_families(2000, 9)) {
-    if (shape.name != "sphere" && shape.name != "terrain" && shape.name != "contours") continue;
     SCOPED_TRACE(shape.name);
     const int d = shape.d;
     const std::size_t n = shape.coords.size() / d;
@@ -289,7 +289,9 @@ TEST(TriangulationSweep, PermutedInputMapsBack) {
     const KdTree ta(a), tb(b);
     Simplices mapped = sweep(tb, 2, 250);
     for (auto& v : mapped) v = perm[v];
-    EXPECT_TRUE(as_set(mapped, d + 1) == as_set(sweep(ta, 2, 250), d + 1));
+    const Tuples original = as_set(sweep(ta, 2, 250), d + 1);
+    EXPECT_TRUE(as_set(mapped, d + 1) == original);
+    EXPECT_TRUE(original == (d == 2 ? cgal_2(a) : cgal_3(a)));
   }
 }
 
@@ -378,6 +380,27 @@ TEST(TriangulationSweep, WorkPerPointDoesNotGrowWithN) {
     EXPECT_LT(per_point[1][0], 1.5 * per_point[0][0] + 0.05) << f.name << ": insertions per point grew with n";
     EXPECT_LT(per_point[1][1], 1.5 * per_point[0][1] + 0.05) << f.name << ": tree queries per point grew with n";
   }
+}
+
+// MeshEngine::kAuto: local triangulations, but the star walk where exact ties dominate
+// (grids), and wherever triangulations do not apply (4-d, weights); explicit choices stand.
+TEST(TriangulationSweep, AutoTakesTheStarWalkOnGrids) {
+  auto engine = [](int d, std::vector<double> coords, MeshEngine asked = MeshEngine::kAuto) {
+    const PointSet ps = make_points(d, std::move(coords));
+    const SpaceSplit split(ps, 4096);
+    MeshOptions options;
+    options.engine = asked;
+    return engine_for(ps, split, options);
+  };
+  EXPECT_EQ(engine(3, uniform_points(3, 5000, 1)), kTriangulations);
+  EXPECT_EQ(engine(2, uniform_points(2, 5000, 1)), kTriangulations);
+  EXPECT_EQ(engine(3, bench::sphere_surface(5000, 1)), kTriangulations);
+  EXPECT_EQ(engine(3, grid_points(3, 20)), kStars);
+  EXPECT_EQ(engine(2, grid_points(2, 80)), kStars);
+  EXPECT_EQ(engine(3, scaled_grid_points(3, 20, linspace_value)), kStars);
+  EXPECT_EQ(engine(4, uniform_points(4, 500, 1)), kStars);
+  EXPECT_EQ(engine(3, grid_points(3, 20), kTriangulations), kTriangulations);
+  EXPECT_EQ(engine(3, uniform_points(3, 5000, 1), kStars), kStars);
 }
 
 // A refused star emits nothing, as in the star walk's sweep (spokemesh-mpi refuses the

@@ -42,7 +42,8 @@ namespace spokemesh {
 
 // How a whole mesh is computed (the rows are the same either way).
 enum class MeshEngine {
-  kAuto,            // local triangulations where they apply (2-d and 3-d, unweighted, not periodic), else stars
+  kAuto,            // local triangulations where they apply (2-d and 3-d, unweighted, not periodic) and
+                    // ties do not dominate (engine_for), else stars
   kStars,           // every seed's star by the star walk, sharing wraps through the front
   kTriangulations,  // local triangulations with certified stars (an error where they do not apply)
 };
@@ -65,7 +66,7 @@ struct MeshOptions {
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
   StarOptions star;                 // star.cancel also stops the whole run
-  MeshEngine engine = MeshEngine::kAuto;
+  MeshEngine engine = MeshEngine::kAuto;  // engine_for() below
   // Local triangulations: the points of a region triangulated at once (the split's
   // nodes of at most this many; 0 = the dimension's default). The output is the same
   // for any size; small regions exercise every certificate on small sets (tests).
@@ -131,11 +132,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 // options.split, when given, must be over `points`.
 Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options, const SimplexSink& sink);
 
-// Whether mesh_seeds meshes these points with these options by local triangulations
-// (MeshEngine::kAuto or kTriangulations on an unweighted, non-periodic 2-d or 3-d set):
-// its memory is then what reserve_bytes grants, not the facet cache.
-bool uses_triangulations(const PointSet& points, const MeshOptions& options);
-bool uses_triangulations(const KdTree& tree, const MeshOptions& options);
+// The engine mesh_seeds takes for these options over this split: kTriangulations or
+// kStars (kAuto resolved: local triangulations for unweighted, non-periodic 2-d and 3-d
+// sets, unless exact ties dominate them, as on grids, whose ties the star walk decides
+// faster: measured by triangulating the sweep's first 4,096 points, a few ms). A
+// caller that budgets memory sets the engine it got: local triangulations take what
+// reserve_bytes grants, the star walk the facet cache.
+MeshEngine engine_for(const PointSet& points, const SpaceSplit& split, const MeshOptions& options);
 
 // The simplices owned by `seed` within its star (a suffix of star.simplices).
 std::span<const std::uint32_t> owned_simplices(const Star& star);

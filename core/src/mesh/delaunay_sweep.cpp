@@ -63,6 +63,10 @@ constexpr double kSecondsPerPoint[4] = {0, 0, 1.5e-6, 5e-6};
 constexpr std::size_t kWalkProbe = 16;
 // Cancellation and the memory reserved are looked at every this many insertions.
 constexpr std::uint32_t kCancelEvery = 4096;
+// MeshEngine::kAuto takes the star walk when a probe of this many points of the sweep
+// needs more than kTiesPerPoint exact evaluations a point (ties_dominate).
+constexpr std::uint64_t kTieProbePoints = 4096;
+constexpr double kTiesPerPoint = 2.0;
 // A run asks MeshOptions::reserve_bytes for memory in steps of at least this.
 constexpr std::size_t kReserveStep = std::size_t{16} << 20;
 
@@ -953,6 +957,31 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
 bool triangulation_sweep_applies(const PointSet& points, const MeshOptions& options) {
   const int d = points.dimension();
   return (d == 2 || d == 3) && options.star.weights.empty() && options.star.cover == nullptr;
+}
+
+bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
+  // The first kTieProbePoints of the sweep (a compact node), triangulated alone: the
+  // predicates the filters could not decide, per point. Grids tie on nearly every
+  // in-sphere test (17 exact evaluations a point on a 3-d integer grid), which the star
+  // walk's memoised integer minors decide faster; uniform points, scans and surfaces
+  // stay far below 1.
+  const auto count = static_cast<std::uint32_t>(std::min<std::uint64_t>(split.swept(), kTieProbePoints));
+  if (count < 64) return false;
+  const Predicates pred(points);
+  auto probe = [&](auto dim) -> bool {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      Triangulation<D> t(points, pred);
+      std::vector<std::uint32_t> ids(count), scratch;
+      for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
+      brio_order(ids, scratch, [](std::uint32_t id) { return id; });
+      for (const std::uint32_t id : ids) t.insert(id);
+      return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
+    } else {
+      return false;
+    }
+  };
+  return points.dimension() == 2 ? probe(Dimension<2>{}) : probe(Dimension<3>{});
 }
 
 Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,

@@ -31,6 +31,10 @@ namespace spokemesh::detail {
 
 // Whether mesh_seeds may take this route: d = 2 or 3, unweighted, not periodic.
 bool triangulation_sweep_applies(const PointSet& points, const MeshOptions& options);
+// Whether exact ties dominate the set (a grid), measured on the first few thousand
+// points of the sweep: MeshEngine::kAuto then takes the star walk, which decides ties
+// faster (the rows are the same).
+bool ties_dominate(const PointSet& points, const SpaceSplit& split);
 
 // The run of mesh_seeds over `split`'s positions [sweep_begin, sweep_end) and seeds
 // [seed_begin, seed_end) (clamped as mesh_seeds clamps them), with the caller's k-d

@@ -30,19 +30,15 @@ struct MeshedBlock {
 
 }  // namespace
 
-bool uses_triangulations(const PointSet& points, const MeshOptions& options) {
-  return options.engine != MeshEngine::kStars && detail::triangulation_sweep_applies(points, options);
+MeshEngine engine_for(const PointSet& points, const SpaceSplit& split, const MeshOptions& options) {
+  if (options.engine == MeshEngine::kStars || !detail::triangulation_sweep_applies(points, options)) {
+    return MeshEngine::kStars;
+  }
+  if (options.engine == MeshEngine::kTriangulations) return MeshEngine::kTriangulations;
+  return detail::ties_dominate(points, split) ? MeshEngine::kStars : MeshEngine::kTriangulations;
 }
-bool uses_triangulations(const KdTree& tree, const MeshOptions& options) { return uses_triangulations(tree.points(), options); }
 
 Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options, const SimplexSink& sink) {
-  if (!uses_triangulations(points, options)) {
-    if (options.engine == MeshEngine::kTriangulations) {
-      return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
-    }
-    const KdTree tree(points);
-    return mesh_seeds(tree, options, sink);
-  }
   std::optional<SpaceSplit> own_split;
   if (options.split == nullptr) {
     own_split.emplace(points, options.block_size != 0 ? options.block_size
@@ -50,7 +46,15 @@ Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options,
   }
   const SpaceSplit& split = options.split != nullptr ? *options.split : *own_split;
   if (split.size() != points.size()) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
-  return detail::triangulation_sweep(points, split, options, sink);
+  MeshOptions decided = options;
+  decided.split = &split;
+  decided.engine = engine_for(points, split, options);
+  if (decided.engine == MeshEngine::kTriangulations) return detail::triangulation_sweep(points, split, decided, sink);
+  if (options.engine == MeshEngine::kTriangulations) {
+    return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
+  }
+  const KdTree tree(points);
+  return mesh_seeds(tree, decided, sink);
 }
 
 Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, const SimplexSink& sink) {
@@ -69,7 +73,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   }
   const SpaceSplit& blocks = options.split != nullptr ? *options.split : *own_split;
   if (blocks.size() != n) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
-  if (uses_triangulations(tree, options)) return detail::triangulation_sweep(tree, blocks, options, sink);
+  if (engine_for(tree.points(), blocks, options) == MeshEngine::kTriangulations) {
+    return detail::triangulation_sweep(tree, blocks, options, sink);
+  }
   if (options.engine == MeshEngine::kTriangulations) {
     return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
   }
