@@ -38,21 +38,36 @@ MeshEngine engine_for(const PointSet& points, const SpaceSplit& split, const Mes
   return detail::ties_dominate(points, split) ? MeshEngine::kStars : MeshEngine::kTriangulations;
 }
 
+namespace {
+
+// The run's sweep: the caller's split, or one built into `own` from the points and
+// the block size (8 bytes a point while the run lasts, 32 to 72 more while it is built).
+Result<const SpaceSplit*> sweep_split(const PointSet& points, const MeshOptions& options, std::optional<SpaceSplit>& own) {
+  if (options.split == nullptr) {
+    own.emplace(points, options.block_size != 0 ? options.block_size
+                                                : SpaceSplit::default_block_points(points.dimension(), points.size()));
+  }
+  const SpaceSplit* split = options.split != nullptr ? options.split : &*own;
+  if (split->size() != points.size()) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  return split;
+}
+
+Status triangulations_refused() {
+  return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
+}
+
+}  // namespace
+
 Result<MeshStats> mesh_seeds(const PointSet& points, const MeshOptions& options, const SimplexSink& sink) {
   std::optional<SpaceSplit> own_split;
-  if (options.split == nullptr) {
-    own_split.emplace(points, options.block_size != 0 ? options.block_size
-                                                      : SpaceSplit::default_block_points(points.dimension(), points.size()));
-  }
-  const SpaceSplit& split = options.split != nullptr ? *options.split : *own_split;
-  if (split.size() != points.size()) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  auto split_or = sweep_split(points, options, own_split);
+  if (!split_or.is_ok()) return split_or.status();
+  const SpaceSplit& split = *split_or.value();
   MeshOptions decided = options;
   decided.split = &split;
   decided.engine = engine_for(points, split, options);
   if (decided.engine == MeshEngine::kTriangulations) return detail::triangulation_sweep(points, split, decided, sink);
-  if (options.engine == MeshEngine::kTriangulations) {
-    return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
-  }
+  if (options.engine == MeshEngine::kTriangulations) return triangulations_refused();
   const KdTree tree(points);
   return mesh_seeds(tree, decided, sink);
 }
@@ -67,18 +82,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   // its seeds in that order. The rows come out in that order, which depends on the
   // point set alone (not on the block size or the thread count).
   std::optional<SpaceSplit> own_split;
-  if (options.split == nullptr) {
-    own_split.emplace(tree.points(), options.block_size != 0 ? options.block_size
-                                                             : SpaceSplit::default_block_points(d, n));
-  }
-  const SpaceSplit& blocks = options.split != nullptr ? *options.split : *own_split;
-  if (blocks.size() != n) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  auto split_or = sweep_split(tree.points(), options, own_split);
+  if (!split_or.is_ok()) return split_or.status();
+  const SpaceSplit& blocks = *split_or.value();
   if (engine_for(tree.points(), blocks, options) == MeshEngine::kTriangulations) {
     return detail::triangulation_sweep(tree, blocks, options, sink);
   }
-  if (options.engine == MeshEngine::kTriangulations) {
-    return invalid_argument("mesh_seeds: local triangulations mesh unweighted, non-periodic 2-d and 3-d sets only");
-  }
+  if (options.engine == MeshEngine::kTriangulations) return triangulations_refused();
   std::uint32_t block_points = 1;
   for (std::uint32_t b = 0; b < blocks.block_count(); ++b) block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
   const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
