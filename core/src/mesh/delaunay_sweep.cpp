@@ -285,10 +285,6 @@ class RegionMesher {
         } else {
           emit_owned(first, out.simplices);
         }
-        // The rows are held too until written (a region's: a few MB).
-        if (!run_.reserve(reserved_, tri_.bytes() + out.simplices.capacity() * sizeof(std::uint32_t))) {
-          return resource_exhausted("mesh: the memory granted cannot hold a region's rows");
-        }
         return Status::ok();
       }
     }
