@@ -26,9 +26,9 @@
 // inside the hull's face).
 //
 // Filters: each predicate is first evaluated in double with its monomials'
-// magnitudes and rounding depth (filter::certified_sign, the bound of
-// predicates.hpp), then, when that cannot certify the sign, by Predicates' exact
-// stage and perturbation.
+// magnitudes and rounding depth (the bound of predicates.hpp), then the same in x87
+// extended precision (nearly cospherical points: a sphere's surface), then, when that
+// cannot certify the sign either, by Predicates' exact stage and perturbation.
 //
 // Ownership: borrows the PointSet and the Predicates (which must outlive it); owns
 // copies of the inserted points' coordinates, in insertion order.
@@ -38,6 +38,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "spokemesh/point_set.hpp"
