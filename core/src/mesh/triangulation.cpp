@@ -160,6 +160,7 @@ void Triangulation<D>::clear() {
   global_.assign(1, 0xFFFFFFFFu);
   coords_.assign(D, 0.0);
   pending_.clear();
+  basis_size_ = 0;
   cells_.clear();
   free_.clear();
   vcell_.assign(1, kNone);
@@ -314,54 +315,52 @@ std::uint32_t Triangulation<D>::insert(std::uint32_t id) {
 
 template <int D>
 void Triangulation<D>::start() {
-  // A greedy affine basis among the buffered points: each new one must leave the
-  // span of those kept (exact orientation signs; only the first few points pass here).
-  const std::size_t m = pending_.size();
-  std::array<std::uint32_t, D + 1> basis{};
-  int have = 0;
-  for (std::size_t i = 0; i < m && have <= D; ++i) {
-    const std::uint32_t q = pending_[i];
-    if (have == 0) {
-      basis[have++] = q;
-      continue;
-    }
-    // Independent of the basis so far when some orientation with the basis, q and
-    // D - have further coordinate-axis directions is non-zero: equivalently, when the
-    // rank of the differences grows. Decided exactly by the Predicates on rows.
-    bool independent = false;
-    if (have == D) {
-      std::array<std::uint32_t, D + 1> v{};
-      for (int k = 0; k < D; ++k) v[k] = basis[k];
-      v[D] = q;
-      independent = orient_points(v) != 0;
-    } else {
-      // Fewer than D basis points: try directions e_c as the missing rows.
-      const int missing = D - have;  // rows still to fill after q
-      std::array<std::array<double, D>, D> dirs{};
-      for (int c = 0; c < D; ++c) dirs[c][c] = 1.0;
-      std::array<int, D> pick{};
-      for (int k = 0; k < missing; ++k) pick[k] = k;
-      // Every combination of `missing` axes.
-      for (;;) {
-        std::array<Row, D> rows;
-        int r = 0;
-        for (int k = 1; k < have; ++k) rows[r++] = Row::of_point(global_[basis[k]]);
-        rows[r++] = Row::of_point(global_[q]);
-        for (int k = 0; k < missing; ++k) rows[r++] = Row::of_direction(dirs[pick[k]].data());
-        ++stats_.exact_calls;
-        if (pred_.spatial_sign_exact(global_[basis[0]], std::span<const Row>(rows.data(), D)) != 0) {
-          independent = true;
-          break;
-        }
-        int k = missing - 1;
-        while (k >= 0 && pick[k] == D - missing + k) --k;
-        if (k < 0) break;
-        ++pick[k];
-        for (int j = k + 1; j < missing; ++j) pick[j] = pick[j - 1] + 1;
-      }
-    }
-    if (independent) basis[have++] = q;
+  // A greedy affine basis among the buffered points, grown one point per call: the
+  // newest must leave the span of those kept (exact orientation signs; only points
+  // before the first simplex pass here, each tested once).
+  auto& basis = basis_;
+  int& have = basis_size_;
+  const std::uint32_t q = pending_.back();
+  if (have == 0) {
+    basis[have++] = q;
+    return;
   }
+  // Independent of the basis so far when some orientation with the basis, q and
+  // D - have further coordinate-axis directions is non-zero: equivalently, when the
+  // rank of the differences grows. Decided exactly by the Predicates on rows.
+  bool independent = false;
+  if (have == D) {
+    std::array<std::uint32_t, D + 1> v{};
+    for (int k = 0; k < D; ++k) v[k] = basis[k];
+    v[D] = q;
+    independent = orient_points(v) != 0;
+  } else {
+    // Fewer than D basis points: try directions e_c as the missing rows.
+    const int missing = D - have;  // rows still to fill after q
+    std::array<std::array<double, D>, D> dirs{};
+    for (int c = 0; c < D; ++c) dirs[c][c] = 1.0;
+    std::array<int, D> pick{};
+    for (int k = 0; k < missing; ++k) pick[k] = k;
+    // Every combination of `missing` axes.
+    for (;;) {
+      std::array<Row, D> rows;
+      int r = 0;
+      for (int k = 1; k < have; ++k) rows[r++] = Row::of_point(global_[basis[k]]);
+      rows[r++] = Row::of_point(global_[q]);
+      for (int k = 0; k < missing; ++k) rows[r++] = Row::of_direction(dirs[pick[k]].data());
+      ++stats_.exact_calls;
+      if (pred_.spatial_sign_exact(global_[basis[0]], std::span<const Row>(rows.data(), D)) != 0) {
+        independent = true;
+        break;
+      }
+      int k = missing - 1;
+      while (k >= 0 && pick[k] == D - missing + k) --k;
+      if (k < 0) break;
+      ++pick[k];
+      for (int j = k + 1; j < missing; ++j) pick[j] = pick[j - 1] + 1;
+    }
+  }
+  if (independent) basis[have++] = q;
   if (have <= D) return;  // still in a hyperplane
   if (orient_points(basis) < 0) std::swap(basis[0], basis[1]);
   // The first cell and, across each of its facets, an infinite cell (oriented as in
@@ -382,20 +381,11 @@ void Triangulation<D>::start() {
   const std::uint32_t first = c0, last = inf[D];
   for (std::uint32_t x = first; x <= last; ++x) {
     for (int i = 0; i <= D; ++i) {
-      std::array<std::uint32_t, D> fx{};
-      for (int k = 0, r = 0; k <= D; ++k) {
-        if (k != i) fx[r++] = cells_[x].v[k];
-      }
-      std::sort(fx.begin(), fx.end());
+      const auto fx = sorted_facet(cells_[x].v, i);
       for (std::uint32_t y = first; y <= last; ++y) {
         if (y == x) continue;
         for (int j = 0; j <= D; ++j) {
-          std::array<std::uint32_t, D> fy{};
-          for (int k = 0, r = 0; k <= D; ++k) {
-            if (k != j) fy[r++] = cells_[y].v[k];
-          }
-          std::sort(fy.begin(), fy.end());
-          if (fx == fy) cells_[x].n[i] = y;
+          if (sorted_facet(cells_[y].v, j) == fx) cells_[x].n[i] = y;
         }
       }
     }
@@ -406,12 +396,23 @@ void Triangulation<D>::start() {
   full_ = true;
   hint_ = c0;
   std::vector<std::uint32_t> rest;
-  rest.reserve(m);
-  for (const std::uint32_t q : pending_) {
-    if (std::find(basis.begin(), basis.end(), q) == basis.end()) rest.push_back(q);
+  rest.reserve(pending_.size());
+  for (const std::uint32_t r : pending_) {
+    if (std::find(basis.begin(), basis.end(), r) == basis.end()) rest.push_back(r);
   }
   pending_.clear();
-  for (const std::uint32_t q : rest) insert_local(q);
+  have = 0;
+  for (const std::uint32_t r : rest) insert_local(r);
+}
+
+template <int D>
+std::array<std::uint32_t, D> Triangulation<D>::sorted_facet(const std::array<std::uint32_t, D + 1>& v, int i) {
+  std::array<std::uint32_t, D> f{};
+  for (int k = 0, r = 0; k <= D; ++k) {
+    if (k != i) f[r++] = v[k];
+  }
+  std::sort(f.begin(), f.end());
+  return f;
 }
 
 template <int D>
@@ -601,16 +602,7 @@ bool Triangulation<D>::valid(std::string* why) const {
       }
       if (back < 0) return fail("neighbours are not mutual");
       // The shared facet: the same vertices.
-      std::array<std::uint32_t, D> fa{}, fb{};
-      for (int k = 0, r = 0; k <= D; ++k) {
-        if (k != i) fa[r++] = cell.v[k];
-      }
-      for (int k = 0, r = 0; k <= D; ++k) {
-        if (k != back) fb[r++] = cells_[nb].v[k];
-      }
-      std::sort(fa.begin(), fa.end());
-      std::sort(fb.begin(), fb.end());
-      if (fa != fb) return fail("neighbours do not share the facet");
+      if (sorted_facet(cell.v, i) != sorted_facet(cells_[nb].v, back)) return fail("neighbours do not share the facet");
       const std::uint32_t apex = cells_[nb].v[back];
       if (inf < 0 && apex != kInfinite && side_of_sphere(c, coords(apex), global_[apex]) < 0) return fail("a facet is not locally Delaunay");
       if (inf >= 0 && i == inf && orient_with(c, inf, coords(apex), global_[apex]) >= 0) return fail("an infinite cell is misoriented");

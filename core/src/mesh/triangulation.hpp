@@ -121,8 +121,11 @@ class Triangulation {
  private:
   std::uint32_t new_cell();
   void insert_local(std::uint32_t p);
-  void start();  // builds the first simplex from the buffered points when it can
+  void start();  // tests the newest buffered point; builds the first simplex when it can
   std::uint32_t locate(std::uint32_t p) const;
+  // Cell vertices v without v[i], sorted: the facet opposite v[i] as a set, to match
+  // facets between cells.
+  static std::array<std::uint32_t, D> sorted_facet(const std::array<std::uint32_t, D + 1>& v, int i);
   // The predicates on points given by coordinates, with their point ids for the
   // exact stage (ids() gives them, only when the filter fails): orientation
   // det[x1 - x0, ..., xD - x0], and the perturbed side of q against the sphere of the
@@ -148,6 +151,10 @@ class Triangulation {
   std::vector<std::uint32_t> global_;  // local id -> point id (0: infinity, unused)
   std::vector<double> coords_;         // local id -> D coordinates
   std::vector<std::uint32_t> pending_;  // local ids waiting for the first simplex
+  // The greedy affine basis among pending_ so far (its first basis_size_ entries):
+  // kept across start() calls so each buffered point is tested once.
+  std::array<std::uint32_t, D + 1> basis_{};
+  int basis_size_ = 0;
   std::vector<Cell> cells_;            // Cell::mark: 2 gen in conflict, 2 gen + 1 tested and not
   std::vector<std::uint32_t> free_;    // deleted cells, reused first
   std::vector<std::uint32_t> vcell_;   // local id -> an incident cell
