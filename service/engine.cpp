@@ -444,7 +444,7 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
     return answer;
   }
   ApproxOptions options;
-  options.mode = query.mode == NeighborQuery::Mode::kSpokes ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+  options.mode = approx_walk(query.mode);
   options.max_misses = query.max_consecutive_misses == 0 ? kDefaultMaxMisses : query.max_consecutive_misses;
   options.max_vertices = query.max_vertices == 0 ? kDefaultMaxVertices : query.max_vertices;
   options.cancel = control.stop_flag();

@@ -25,6 +25,7 @@
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "auth.hpp"
@@ -140,7 +141,7 @@ class UploadSession {
 };
 
 struct NeighborQuery {
-  enum class Mode { kExact, kApproximate, kSpokes };
+  using Mode = NeighborMode;  // approx.hpp: one vocabulary for every route
   Mode mode = Mode::kExact;
   std::uint32_t max_consecutive_misses = 0;  // 0 = kDefaultMaxMisses (approx.hpp)
   std::uint32_t max_vertices = 0;            // 0 = kDefaultMaxVertices (approx.hpp)

@@ -64,7 +64,7 @@ Result<std::uint64_t> parse_uint(const std::string& text, const std::string& wha
 // `already_existed` belongs to an upload's answer only (get and list leave it out).
 json point_set_json(const PointSetInfo& info, bool upload = false) {
   json out = {{"id", info.id}, {"dimension", info.dimension}, {"count", info.count}, {"display_name", info.display_name},
-              {"weighted", info.weighted}};
+              {"weighted", info.weighted}, {"expected_simplices", expected_simplices(info.dimension, info.count)}};
   if (!info.periodic_box.empty()) out["periodic_box"] = info.periodic_box;
   if (upload) out["already_existed"] = info.already_existed;
   return out;
@@ -130,10 +130,9 @@ json neighbors_json(const NeighborAnswer& answer, const std::string& id, std::ui
 
 Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t misses, std::uint64_t max_vertices) {
   NeighborQuery query;
-  if (mode == "exact") query.mode = NeighborQuery::Mode::kExact;
-  else if (mode == "approximate") query.mode = NeighborQuery::Mode::kApproximate;
-  else if (mode == "spokes") query.mode = NeighborQuery::Mode::kSpokes;
-  else return invalid_argument("mode: \"" + mode.substr(0, 40) + "\" is not exact, approximate or spokes");
+  auto parsed = parse_neighbor_mode(mode, "mode");
+  if (!parsed.is_ok()) return parsed.status();
+  query.mode = parsed.value();
   if (misses > 100000000) return invalid_argument("max_consecutive_misses: " + std::to_string(misses) + " is too large");
   if (max_vertices > 100000000) return invalid_argument("max_vertices: " + std::to_string(max_vertices) + " is too large");
   query.max_consecutive_misses = static_cast<std::uint32_t>(misses);

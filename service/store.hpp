@@ -35,6 +35,7 @@
 #include "memory_budget.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/periodic_box.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/point_set.hpp"

@@ -32,6 +32,7 @@
 #include <random>
 
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/predicates.hpp"
 #include "support.hpp"
 

@@ -20,6 +20,7 @@
 #include "http_api.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "inputs.hpp"  // bench/: the shape families
 #include "support.hpp"
 

@@ -23,9 +23,15 @@ int report(const Status& status, const char* program) {
   return exit_code(status);
 }
 
+NeighborMode ApproxFlags::neighbor_mode() const {
+  if (!enabled) return NeighborMode::kExact;
+  auto parsed = parse_neighbor_mode(mode, "--mode");
+  return parsed.is_ok() ? parsed.value() : NeighborMode::kApproximate;
+}
+
 ApproxOptions ApproxFlags::options(std::uint64_t random_seed) const {
   ApproxOptions o;
-  o.mode = mode == "spokes" ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+  o.mode = approx_walk(enabled ? neighbor_mode() : NeighborMode::kApproximate);
   o.max_misses = misses;
   o.max_vertices = max_vertices;
   o.random_seed = random_seed;
@@ -40,7 +46,13 @@ void add_approx_flags(CLI::App* cmd, ApproxFlags& f) {
       ->check(CLI::Range(1u, 1000000u));
   cmd->add_option("--mode", f.mode, "With --approx: rsd (Recursive Spoke Darts walk) or spokes (plain Spoke Darts)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"rsd", "spokes"}));
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            auto parsed = parse_neighbor_mode(text, "--mode");
+            if (!parsed.is_ok()) return parsed.status().message();
+            return parsed.value() == NeighborMode::kExact ? "--mode: an approximate walk is rsd or spokes" : "";
+          },
+          "rsd|spokes"));
   cmd->add_option("--max-vertices", f.max_vertices, "With --approx: at most this many Voronoi vertices (or rays) per seed")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000000u));

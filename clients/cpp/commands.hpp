@@ -34,8 +34,10 @@ struct ApproxFlags {
   bool enabled = false;
   std::uint32_t misses = kDefaultMaxMisses;
   std::uint32_t max_vertices = kDefaultMaxVertices;
-  std::string mode = "rsd";
+  std::string mode = "rsd";  // checked by parse_neighbor_mode (approx.hpp) when parsed
 
+  // The mode asked for: kExact without --approx.
+  NeighborMode neighbor_mode() const;
   ApproxOptions options(std::uint64_t random_seed) const;
 };
 void add_approx_flags(CLI::App* cmd, ApproxFlags& flags);

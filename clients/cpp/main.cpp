@@ -26,6 +26,7 @@
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/units.hpp"
 #include "spokemesh/validate.hpp"
@@ -718,7 +719,7 @@ int main(int argc, char** argv) {
         }
       }
       if (seed_list.empty()) return report(invalid_argument("batch: give seeds with --seeds or --seeds-file"));
-      const std::string mode = !approx_flags.enabled ? "exact" : approx_flags.mode == "spokes" ? "spokes" : "approximate";
+      const std::string mode = neighbor_mode_name(approx_flags.neighbor_mode());
       return remote::batch(o, input, batch_kind, seed_list, mode, approx_flags.enabled ? approx_flags.misses : 0,
                            approx_flags.enabled ? approx_flags.max_vertices : 0, domain_flags.box,
                            domain_flags.halfspaces);
@@ -728,7 +729,7 @@ int main(int argc, char** argv) {
     if (*del) return remote::remove(o, input);
     if (*star) return remote::star(o, input, s);
     if (*neighbors) {
-      const std::string mode = !approx_flags.enabled ? "exact" : approx_flags.mode == "spokes" ? "spokes" : "approximate";
+      const std::string mode = neighbor_mode_name(approx_flags.neighbor_mode());
       return remote::neighbors(o, input, s, mode, approx_flags.enabled ? approx_flags.misses : 0,
                                approx_flags.enabled ? approx_flags.max_vertices : 0);
     }

@@ -9,7 +9,7 @@
 #include <memory>
 #include <string_view>
 
-#include "npz.hpp"
+#include "spokemesh/zip_layout.hpp"
 #include "output.hpp"
 #include "spokemesh/io.hpp"
 

@@ -2,8 +2,8 @@
 // bounded rounds to the rank whose slice of the index range holds their seeds, and
 // written there into the CLI's file at offsets computed from every rank's counts:
 // the .npz's arrays (cell_io.hpp: volume, centroid, bounded, facet_ptr,
-// facet_neighbor, facet_area, facet_normal) in the zip container as libzip makes it
-// (npz.hpp), or the .vtu's or .svg's sections (CellFileLayout). Memory stays bounded
+// facet_neighbor, facet_area, facet_normal) in the core's zip layout
+// (spokemesh/zip_layout.hpp, the CLI's writer too), or the .vtu's or .svg's sections (CellFileLayout). Memory stays bounded
 // whatever the number of cells: records go through temporary files, and a rank sends
 // 8 MB of records a round and holds one bucket of its slice (about 16 MB of records)
 // at a time.

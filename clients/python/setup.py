@@ -49,7 +49,7 @@ core = Extension(
     "spokemesh._core",
     sources=[rel(os.path.join(HERE, "src", "core_module.cpp"))] + sorted(rel(p) for p in glob.glob(f"{ROOT}/core/src/**/*.cpp", recursive=True)),
     include_dirs=[f"{ROOT}/core/include", f"{ROOT}/core/src", "/usr/include/eigen3", pybind11.get_include()],
-    libraries=["gmpxx", "gmp", "zip"],
+    libraries=["gmpxx", "gmp", "z"],
     extra_compile_args=["-std=c++20", "-O2", "-ffp-contract=off", "-fno-fast-math", "-DNDEBUG", "-fvisibility=hidden"],
     language="c++",
 )

@@ -648,7 +648,7 @@
     status('view-status', 'streaming the mesh…');
     progress('view-progress', 0);
     const d = info.dimension;
-    const expected = { 2: 2, 3: 6.7, 4: 30 }[d] || 100;  // simplices per point, roughly
+    const expected = Math.max(1, info.expected_simplices || info.count);  // the server's estimate
     const edges = [];
     const seen = new Set();
     let count = 0;
@@ -672,7 +672,7 @@
           }
         }
         if (count % 2000 === 0 && token === state.loadToken) {
-          progress('view-progress', count / (expected * info.count));
+          progress('view-progress', count / expected);
           status('view-status', 'streaming the mesh: ' + count + ' simplices…');
         }
       });

@@ -30,6 +30,7 @@
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -678,7 +679,9 @@ class Triangulation {
 py::tuple approximate_graph(const Points& array, std::uint32_t misses, std::uint32_t max_vertices,
                             std::uint64_t random_seed, const std::string& mode, std::optional<unsigned> threads) {
   PointSet ps = points_from(array, false);
-  if (mode != "rsd" && mode != "spokes") throw py::value_error("mode: '" + mode + "' is not 'rsd' or 'spokes'");
+  auto walk = parse_neighbor_mode(mode, "mode");
+  if (!walk.is_ok()) throw py::value_error(walk.status().message());
+  if (walk.value() == NeighborMode::kExact) throw py::value_error("mode: an approximate walk is 'rsd' or 'spokes'");
   const std::size_t n = ps.size();
   std::vector<std::vector<std::uint32_t>> lists(n);
   std::vector<std::uint8_t> exhausted(n, 0);
@@ -689,7 +692,7 @@ py::tuple approximate_graph(const Points& array, std::uint32_t misses, std::uint
     py::gil_scoped_release release;
     const KdTree tree(ps);
     ApproxOptions o;
-    o.mode = mode == "spokes" ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+    o.mode = approx_walk(walk.value());
     o.max_misses = misses;
     o.max_vertices = max_vertices;
     o.random_seed = random_seed;

@@ -28,6 +28,7 @@
 #include <atomic>
 #include <cstdint>
 #include <optional>
+#include <string_view>
 #include <vector>
 
 #include "spokemesh/kd_tree.hpp"
@@ -48,6 +49,19 @@ struct ApproxOptions {
   std::uint64_t random_seed = 0x5eed;   // mixed with the seed index into every direction
   const std::atomic<bool>* cancel = nullptr;  // checked between rays
 };
+
+// How a seed's neighbours are found, one vocabulary for every route (the CLI's --mode
+// with --approx, Python's mode=, REST's mode=, gRPC's NeighborMode): the exact star;
+// the paper's certified approximate walk (Recursive Spoke Darts); or plain spokes.
+enum class NeighborMode { kExact, kApproximate, kSpokes };
+
+// Parses a neighbour mode: "exact", "approximate" (or "rsd", its walk's name),
+// "spokes". INVALID_ARGUMENT naming `field` and the accepted names otherwise.
+Result<NeighborMode> parse_neighbor_mode(std::string_view text, std::string_view field);
+// The mode's name as the service answers it: "exact", "approximate" or "spokes".
+const char* neighbor_mode_name(NeighborMode mode);
+// The walk an approximate mode runs (kApproximate: RSD). Precondition: not kExact.
+ApproxOptions::Mode approx_walk(NeighborMode mode);
 
 struct ApproxNeighbors {
   std::uint32_t seed = 0;

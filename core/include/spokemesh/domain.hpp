@@ -17,6 +17,7 @@
 
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
+#include "spokemesh/units.hpp"
 
 namespace spokemesh {
 
@@ -61,9 +62,6 @@ class Domain {
   std::vector<double> normals_;  // d per wall
   std::vector<double> offsets_;
 };
-
-// Comma-separated finite numbers ("0,0,1.5"); errors name `what` and the value's index.
-Result<std::vector<double>> parse_number_list(const std::string& text, const std::string& what, std::size_t max_count);
 
 // Exact sign of a . x - b for doubles a, x (d each) and b: -1, 0 or +1. A filter in
 // double with a bound on its rounding error, then rationals where it cannot decide.

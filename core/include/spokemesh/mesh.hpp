@@ -200,4 +200,9 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
                                   std::uint32_t n_old, std::span<const std::uint32_t> old_rows,
                                   const MeshOptions& options, Rows& out);
 
+// About how many simplices the Delaunay triangulation of n well-spread points in
+// dimension d has (the core's sizing estimate; hull effects and clustering move it):
+// for progress reports, never for correctness.
+std::uint64_t expected_simplices(int d, std::uint64_t n);
+
 }  // namespace spokemesh

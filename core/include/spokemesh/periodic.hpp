@@ -33,72 +33,25 @@
 // triangulation is not a simplicial complex (too few points: some simplex holds two
 // images of one point) are meshed all the same; every simplex is still written once.
 //
-// Thread safety: a PeriodicCover is immutable after build(); mesh_periodic() may run
-// concurrently with other calls.
+// The cover is periodic_cover.hpp (the walker reads it); periodic stars and cells are
+// periodic_cells.hpp.
+//
+// Thread safety: mesh_periodic() may run concurrently with other calls.
 #pragma once
 
 #include <cstdint>
 #include <functional>
-#include <memory>
 #include <span>
 #include <string>
 #include <vector>
 
-#include "spokemesh/cells.hpp"
-#include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic_box.hpp"
+#include "spokemesh/periodic_cover.hpp"
 #include "spokemesh/point_set.hpp"
-#include "spokemesh/predicates.hpp"
 #include "spokemesh/status.hpp"
 
 namespace spokemesh {
-
-class PeriodicCover {
- public:
-  // The cover of `points` (validated, inside `box`, same dimension; both borrowed and
-  // must outlive the cover) with the images whose coordinates lie within margin[c] of
-  // the box on every axis c (absolute lengths, d of them). INVALID_ARGUMENT, naming
-  // `source`, when the images cannot be told apart in double precision (points closer
-  // than the rounding of the box's coordinates).
-  // weights: the points' power weights (n of them) or empty; the images carry their
-  // points' weights (weights()).
-  static Result<std::unique_ptr<PeriodicCover>> build(const PointSet& points, const PeriodicBox& box,
-                                                      std::span<const double> margin, const std::string& source,
-                                                      std::span<const double> weights = {});
-
-  const PointSet& points() const { return cover_; }  // the points, then the images
-  const KdTree& tree() const { return *tree_; }
-  const PeriodicBox& box() const { return box_; }
-  std::uint32_t point_count() const { return n_; }  // ids below are points, the rest images
-  std::size_t image_count() const { return image_point_.size(); }
-  ImageMap images() const { return {n_, image_point_.data(), image_offset_.data()}; }
-  // The point an id stands for, and its offset (d integers; zeros for a point).
-  std::uint32_t point_of(std::uint32_t id) const { return id < n_ ? id : image_point_[id - n_]; }
-  const std::int32_t* offset_of(std::uint32_t id) const;
-  const std::vector<double>& margin() const { return margin_; }
-  // How far an image's stored coordinates may lie from its exact position (per axis).
-  double pad() const { return pad_; }
-  // One power weight per cover point (the points', then each image's point's), or empty.
-  std::span<const double> weights() const { return weights_; }
-  // The largest weight (0 when unweighted).
-  double max_weight() const { return max_weight_; }
-
- private:
-  PeriodicCover(const PointSet& points, const PeriodicBox& box) : base_(points), box_(box) {}
-  const PointSet& base_;
-  const PeriodicBox& box_;
-  std::uint32_t n_ = 0;
-  std::vector<double> margin_;
-  double pad_ = 0;
-  PointSet cover_;
-  std::vector<std::uint32_t> image_point_;
-  std::vector<std::int32_t> image_offset_;  // d per image
-  std::vector<std::int32_t> zeros_;
-  std::vector<double> weights_;
-  double max_weight_ = 0;
-  std::unique_ptr<KdTree> tree_;
-};
 
 struct PeriodicMeshStats {
   MeshStats mesh;                 // of the last run (its simplices: the torus's)
@@ -127,30 +80,6 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
                                         const PeriodicSink& sink, const std::function<Status()>& restart,
                                         const std::string& source);
 
-// One seed's star on the torus: its Delaunay simplices among all images, the seed
-// itself at offset 0 in each (d + 1 point indices and (d + 1) d offsets per simplex),
-// in canonical form (canonicalize_periodic_rows); and its cell when asked (facets'
-// neighbours as points, VoronoiCell::facet_offsets their images). The margin grows
-// until every sphere of the star lies inside it, as for meshes. Errors: OUT_OF_RANGE
-// for a seed >= n; the rest as mesh_periodic's.
-struct PeriodicStar {
-  std::uint32_t seed = 0;
-  std::vector<std::uint32_t> simplices;
-  std::vector<std::int32_t> offsets;
-  std::vector<double> centres;  // d per simplex, the (power) circumcentres of the images: when asked
-  bool hidden = false;          // with weights: the seed's power cell is empty (no simplices)
-  std::size_t size(int d) const { return simplices.size() / static_cast<std::size_t>(d + 1); }
-};
-Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
-                                   const StarOptions& options, const std::string& source,
-                                   VoronoiCell* cell = nullptr);
-
-// The seed's Delaunay neighbours on the torus: the images in its star other than the
-// seed itself, each once, ascending by point then offset (lexicographically); d
-// offsets per neighbour. A point can be a neighbour through several images.
-void periodic_neighbors(const PeriodicStar& star, int d, std::vector<std::uint32_t>& points,
-                        std::vector<std::int32_t>& offsets);
-
 // Rows of a periodic triangulation (d + 1 point indices and (d + 1) d offsets each,
 // positively oriented) in a form that depends on the torus alone, not on the cover
 // they were found in: the vertices of each row ascending by (point, offset
@@ -159,55 +88,5 @@ void periodic_neighbors(const PeriodicStar& star, int d, std::vector<std::uint32
 // predicate is evaluated); with sort_rows, the rows then in lexicographic order.
 void canonicalize_periodic_rows(int d, std::vector<std::uint32_t>& simplices, std::vector<std::int32_t>& offsets,
                                 bool sort_rows);
-
-// The stars and cells of one periodic set, seed by seed, on a cover kept between calls:
-// what a server answering single seeds of a stored set needs (periodic_star builds a
-// cover per call). A seed whose spheres reach beyond the kept cover's margin (near a
-// void of a clustered set) gets wider covers for that call only, grown as
-// periodic_star grows them, so an answer is periodic_star's, whatever was asked before.
-//
-// Ownership: borrows points, box and weights, which must outlive it.
-// Thread safety: immutable after build(); star() may be called concurrently.
-class PeriodicStars {
- public:
-  // Errors as PeriodicCover::build's.
-  static Result<std::unique_ptr<PeriodicStars>> build(const PointSet& points, const PeriodicBox& box,
-                                                      std::span<const double> weights, std::string source);
-  // options.weights and options.cover are the set's own (ignored if given). With
-  // centres, PeriodicStar::centres is filled.
-  Result<PeriodicStar> star(std::uint32_t seed, const StarOptions& options, VoronoiCell* cell = nullptr,
-                            bool centres = false) const;
-  const PeriodicCover& cover() const { return *cover_; }
-  // Bytes of a kept cover of n points in d dimensions, about.
-  static std::uint64_t estimated_bytes(std::uint64_t n, int d);
-
- private:
-  PeriodicStars(const PointSet& points, const PeriodicBox& box, std::span<const double> weights, std::string source)
-      : points_(points), box_(box), weights_(weights), source_(std::move(source)) {}
-  const PointSet& points_;
-  const PeriodicBox& box_;
-  std::span<const double> weights_;
-  std::string source_;
-  std::shared_ptr<const PeriodicCover> cover_;
-};
-
-struct PeriodicCellsStats {
-  std::uint64_t images = 0;    // images in the last run's cover
-  std::vector<double> margin;  // its margin per axis
-  int runs = 0;
-};
-
-// The Voronoi cells of the torus `box` over `points` (validated, inside the box), in
-// seed order: each cell is the seed's cell among all images, a bounded polytope around
-// the seed (its vertices may lie outside the box); a facet's neighbor is the
-// neighbour's point and VoronoiCell::facet_offsets its image's offset. Their volumes
-// sum to the box's. options: threads, block size, measures_only, the facet cache, star
-// options (random seed, cancel); seed ranges are not taken (every point's cell). A cell
-// is handed over only if every vertex's sphere lies inside the cover's margin; when one
-// does not, the run measures the margin it needed and is repeated, `restart` called
-// first. Errors as mesh_periodic's.
-Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const PeriodicBox& box,
-                                                  const CellsOptions& options, const CellSink& sink,
-                                                  const std::function<Status()>& restart, const std::string& source);
 
 }  // namespace spokemesh

@@ -23,6 +23,7 @@
 #include <array>
 #include <cfloat>
 #include <cmath>
+#include <limits>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -52,7 +53,12 @@ namespace spokemesh {
 // the 1.01 slack (>= 2^-60 a). Overflow shows as a non-finite magnitude, which
 // is_certifiable() rejects. Sums of doubles never underflow.
 namespace filter {
-inline constexpr double kUnitRoundoff = 0x1p-53;
+// The unit roundoff of a floating type, half its epsilon: every bound in the core is
+// stated in it (2^-53 for double; 2^-64 for x87 long double, the extended stage's).
+template <class T>
+inline constexpr T kUnitRoundoffOf = std::numeric_limits<T>::epsilon() / 2;
+inline constexpr double kUnitRoundoff = kUnitRoundoffOf<double>;
+static_assert(kUnitRoundoff == 0x1p-53);
 inline constexpr double kUnderflowGuard = 0x1p-900;
 // (depth + 2) u (1.01): the bound's factor per unit of magnitude.
 inline constexpr double kErrorPerLevel = kUnitRoundoff * 1.01;

@@ -38,7 +38,7 @@
 #include <span>
 #include <vector>
 
-#include "spokemesh/facet_cache.hpp"
+#include "spokemesh/walk_memo.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/status.hpp"
@@ -349,5 +349,8 @@ class StarWalker {
 
 // Default first candidate count for dimension d.
 std::size_t default_candidates(int d);
+
+// Delaunay neighbours of the seed, ascending.
+std::vector<std::uint32_t> star_neighbors(const Star& star);
 
 }  // namespace spokemesh

@@ -1,5 +1,6 @@
-// Durations and byte sizes as people type them on command lines ("500ms", "30s",
-// "2m", "1h"; "512M", "4G", "1Gi"), shared by the CLI and the server.
+// Values as people type them on command lines and in query strings: durations
+// ("500ms", "30s", "2m", "1h"), byte sizes ("512M", "4G", "1Gi") and lists of numbers
+// ("0,0,1.5"), shared by the CLI and the server.
 //
 // Thread safety: pure functions.
 #pragma once
@@ -7,6 +8,7 @@
 #include <chrono>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "spokemesh/status.hpp"
 
@@ -19,5 +21,8 @@ Result<std::chrono::milliseconds> parse_duration(const std::string& text, const 
 // A positive size: a number with an optional unit K, M, G or T (powers of 1024; "Ki",
 // "MB", "GiB" and lower case also accepted).
 Result<std::uint64_t> parse_bytes(const std::string& text, const std::string& flag);
+
+// Comma-separated finite numbers ("0,0,1.5"); errors name `what` and the value's index.
+Result<std::vector<double>> parse_number_list(const std::string& text, const std::string& what, std::size_t max_count);
 
 }  // namespace spokemesh

@@ -24,6 +24,7 @@
 #include <span>
 #include <vector>
 
+#include "spokemesh/circumcentre.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
@@ -79,23 +80,5 @@ Result<VoronoiCell> voronoi_cell(const PointSet& points, const Star& star, const
 Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Domain& domain);
 // The same for a point given by its coordinates and the index to name it by.
 Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domain& domain);
-
-// Circumcentre of the points `ids` (2..d+1 of them): the centre of the smallest
-// sphere through them, which lies in their affine hull. Solved on the coordinate
-// differences: a triangle in 2-d or a tetrahedron in 3-d by Cramer's rule where its
-// forward error bound meets the target, otherwise by column-pivoting QR, and in exact
-// rationals where the QR's condition estimate says double could miss the bound: within 1e-12 of the circumradius plus
-// one ulp of each coordinate. No heap allocation but the result (d <= 8). With
-// `weights` (one per point, or null): the orthocentre (power centre), the point of the
-// affine hull with equal power |c - p|^2 - w_p to every point, within 1e-12 of the
-// larger of its distance from the first point and the face's size (plus one ulp).
-std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count,
-                                 const double* weights = nullptr);
-// The face's size in circumcentre()'s bound for power centres: the largest squared
-// distance from the first of `ids` to the others.
-double face_size2(const PointSet& points, const std::uint32_t* ids, int count);
-
-// Delaunay neighbours of the seed, ascending.
-std::vector<std::uint32_t> star_neighbors(const Star& star);
 
 }  // namespace spokemesh

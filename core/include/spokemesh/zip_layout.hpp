@@ -1,16 +1,16 @@
-// The zip container of a .npz written in parallel: the bytes libzip 1.7.3 (Debian
-// bookworm) gives the CLI's cell files (core/src/cells/cell_io.cpp), so that
-// `spokemesh-mpi cells` writes the same file. Each member is stored (no compression)
-// with the time stamp 1980-01-02 00:00 and the external attributes of the CLI's
-// scratch files (a regular file, mode 0600); zip64 fields appear exactly where libzip
-// puts them: both sizes in the local header and the central entry of a member of 4 GiB
-// or more, the offset in the central entry of a member that starts beyond 4 GiB, and
-// the zip64 end records when the central directory does. (Checked against libzip with
-// a 4.4 GB member; the boundary at exactly 2^32 - 1 bytes is libzip's ">".)
+// The zip container of a .npz, laid out here byte for byte (no zip library): members
+// stored (no compression) with the time stamp 1980-01-02 00:00 and the external
+// attributes of a regular file of mode 0600, so that the same arrays make the same
+// bytes. Zip64 fields appear only where they are needed: both sizes in the local
+// header and the central entry of a member over 4 GiB - 1, the offset in the central
+// entry of a member that starts beyond it, and the zip64 end records when the central
+// directory does. (This is the layout libzip 1.7.3 gave these files before this writer
+// replaced it, so files written by either compare equal.)
 //
-// The ranks write the members' data at offsets known from their sizes; the CRC-32 of
-// each member is combined from the ranks' parts (zlib's crc32_combine), and rank 0
-// writes the local headers and the central directory last.
+// One writer, two programs: the core's write_npz (io/npz.cpp) writes member after
+// member; spokemesh-mpi's ranks write the members' data at offsets known from their
+// sizes, combine each member's CRC-32 from their parts (zlib's crc32_combine), and
+// rank 0 writes the local headers and the central directory last.
 //
 // Thread safety: pure functions.
 #pragma once
@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-namespace spokemesh::mpi {
+namespace spokemesh {
 
 struct ZipMember {
   std::string name;
@@ -34,4 +34,4 @@ std::string zip_local_header(const ZipMember& member);
 // The central directory and end records for members in order, starting at `at`.
 std::string zip_central_directory(const std::vector<ZipMember>& members, std::uint64_t at);
 
-}  // namespace spokemesh::mpi
+}  // namespace spokemesh

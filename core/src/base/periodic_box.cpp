@@ -5,7 +5,7 @@
 #include <utility>
 #include <cstdio>
 
-#include "spokemesh/domain.hpp"
+#include "spokemesh/units.hpp"
 
 namespace spokemesh {
 

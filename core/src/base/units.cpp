@@ -1,7 +1,10 @@
 #include "spokemesh/units.hpp"
 
+#include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstdlib>
+#include <vector>
 
 namespace spokemesh {
 namespace {
@@ -52,6 +55,25 @@ Result<std::uint64_t> parse_bytes(const std::string& text, const std::string& fl
     return invalid_argument(flag + ": \"" + text + "\" is not a size like 512M or 4G");
   }
   return static_cast<std::uint64_t>(v * scale);
+}
+
+Result<std::vector<double>> parse_number_list(const std::string& text, const std::string& what, std::size_t max_count) {
+  std::vector<double> values;
+  std::size_t at = 0;
+  while (at <= text.size()) {
+    const std::size_t comma = std::min(text.find(',', at), text.size());
+    const std::string item = text.substr(at, comma - at);
+    char* end = nullptr;
+    const double v = std::strtod(item.c_str(), &end);
+    if (item.empty() || end == item.c_str() || *end != '\0' || !std::isfinite(v)) {
+      return invalid_argument(what + ": value " + std::to_string(values.size()) + " ('" + item.substr(0, 40) +
+                              "') is not a finite number");
+    }
+    values.push_back(v);
+    if (values.size() > max_count) return invalid_argument(what + ": more than " + std::to_string(max_count) + " values");
+    at = comma + 1;
+  }
+  return values;
 }
 
 }  // namespace spokemesh

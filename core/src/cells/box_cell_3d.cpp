@@ -12,7 +12,6 @@
 namespace spokemesh::detail {
 
 namespace {
-constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
 constexpr std::uint32_t kNone = 0xFFFFFFFFu;
 
 double norm3(const std::array<double, 3>& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
@@ -29,7 +28,7 @@ int certified_orientation(const std::array<double, 3>& a, const std::array<doubl
   const double permanent = (std::abs(b[1] * c[2]) + std::abs(b[2] * c[1])) * std::abs(a[0]) +
                            (std::abs(b[2] * c[0]) + std::abs(b[0] * c[2])) * std::abs(a[1]) +
                            (std::abs(b[0] * c[1]) + std::abs(b[1] * c[0])) * std::abs(a[2]);
-  const double bound = 8 * kUnit * permanent;
+  const double bound = 8 * filter::kUnitRoundoff * permanent;
   if (!(permanent < 0x1p1000) || permanent < 0x1p-900) return 0;  // overflow or underflow: not certified
   return det > bound ? 1 : det < -bound ? -1 : 0;
 }
@@ -52,7 +51,7 @@ void BoxCell3d::reset(std::uint32_t seed) {
   seed_ = seed;
   s_ = points_.point(seed);
   // max w - w_s, rounded up (both are doubles: one rounding of a non-negative difference).
-  weight_reach_ = weights_ == nullptr ? 0 : (max_weight_ - weights_[seed]) * (1 + 4 * kUnit);
+  weight_reach_ = weights_ == nullptr ? 0 : (max_weight_ - weights_[seed]) * (1 + 4 * filter::kUnitRoundoff);
   planes_.clear();
   // Walls 0..2 are the lower ones (normal -e_c, offset -lo_c), 3..5 the upper ones.
   for (std::uint32_t w = 0; w < 6; ++w) {
@@ -76,7 +75,7 @@ void BoxCell3d::reset(std::uint32_t seed) {
       x.next[c] = v ^ (1u << c);
     }
     // Each coordinate is one rounding from the exact wall minus seed.
-    x.error = 2 * kUnit * norm3(x.y);
+    x.error = 2 * filter::kUnitRoundoff * norm3(x.y);
     x.radius = norm3(x.y) * (1 + 1e-12) + x.error;
     rmax_ = std::max(rmax_, x.radius);
   }
@@ -213,7 +212,7 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   // strictly inside, and if all are, it cuts nothing. (A power bisector may pass
   // behind the seed, c <= 0: no shortcut then.) c's rounding: that of |q|^2 / 2 (as
   // below) and of the weights' difference and the subtraction.
-  const double c_error = weights_ == nullptr ? 0.0 : 28 * kUnit * (q2 + std::abs(pl.dw) + std::abs(pl.c));
+  const double c_error = weights_ == nullptr ? 0.0 : 28 * filter::kUnitRoundoff * (q2 + std::abs(pl.dw) + std::abs(pl.c));
   const double reach = weights_ == nullptr ? pl.a_norm / 2 * (1 - 1e-12)
                        : pl.c > c_error    ? (pl.c - c_error) / pl.a_norm * (1 - 1e-12)
                                            : -1.0;
@@ -235,7 +234,7 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
     // The sum's rounding and that of q and |q|^2 / 2 against the exact bisector (as
     // CellPolytope::plane_value), with weights that of w_p - w_s and of the offset
     // (c_error), plus the vertex's own error along the normal.
-    const double bound = 28 * kUnit * (magnitude + std::abs(pl.c)) + c_error + pl.a_norm * x.error * (1 + 16 * kUnit);
+    const double bound = 28 * filter::kUnitRoundoff * (magnitude + std::abs(pl.c)) + c_error + pl.a_norm * x.error * (1 + 16 * filter::kUnitRoundoff);
     if (f > bound) {
       side_[v] = 1;
       any_out = true;

@@ -14,7 +14,7 @@
 // the star whether the seed is hidden); an exact tie, which the perturbation would
 // decide, sends the seed to the star as well (exact_side).
 //
-// On a periodic cover (periodic.hpp) the cuts are by the cover's points and images; an
+// On a periodic cover (periodic_cover.hpp) the cuts are by the cover's points and images; an
 // image's difference from the seed is computed from its exact position, rounded once
 // (image_difference), and the exact stages read exact images (Predicates' ImageMap), so
 // the decisions are those of the torus's cell.
@@ -39,7 +39,7 @@
 #include <gmpxx.h>
 
 #include "spokemesh/domain.hpp"
-#include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cover.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi.hpp"

@@ -8,13 +8,13 @@
 
 #include "predicates/cramer.hpp"
 #include "base/invariant.hpp"
+#include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi.hpp"
 
 namespace spokemesh::detail {
 
 namespace {
 
-constexpr double kUnit = std::numeric_limits<double>::epsilon() / 2;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 double dot(const double* a, const double* b, int d) {
@@ -189,7 +189,7 @@ CellPolytope::CellPolytope(const PointSet& points, const Star& star, const Domai
     if (weights_ != nullptr) r2 = std::max(r2, face_size2(ps_, simplex, d + 1));
     const double r = std::sqrt(r2);
     // circumcentre(): within 1e-12 of the circumradius plus one ulp per coordinate.
-    error_[v] = 1e-12 * r + std::sqrt(d) * 2 * kUnit * max_abs(c.data(), d);
+    error_[v] = 1e-12 * r + std::sqrt(d) * 2 * filter::kUnitRoundoff * max_abs(c.data(), d);
     scale_ = std::max(scale_, r);
   }
   // Pair the vertices' edges: the edge leaving plane k of v goes to the vertex with the
@@ -287,7 +287,7 @@ double CellPolytope::plane_value(const Plane& pl, const double* x, double& round
       magnitude += std::abs(pl.a[c] * x[c]);
     }
     // A dot product of d terms and an offset: 2 (d + 2) units of its magnitude.
-    rounding = 2 * (d_ + 2) * kUnit * magnitude;
+    rounding = 2 * (d_ + 2) * filter::kUnitRoundoff * magnitude;
     return f;
   }
   for (int c = 0; c < d_; ++c) {
@@ -299,7 +299,7 @@ double CellPolytope::plane_value(const Plane& pl, const double* x, double& round
   // coordinate) and |q|^2 / 2 is a rounded sum: each perturbs f by at most a few units
   // of sum |q_c| |w_c| + |q|^2, which is at most 2 x magnitude (with weights, w_p - w_s
   // and its subtraction are two more roundings of b's magnitude).
-  rounding = 4 * (d_ + 4) * kUnit * (magnitude + pl.b_magnitude);
+  rounding = 4 * (d_ + 4) * filter::kUnitRoundoff * (magnitude + pl.b_magnitude);
   return f;
 }
 
@@ -320,7 +320,7 @@ int CellPolytope::side(std::size_t v, const Plane& pl, const std::vector<int>& s
   double rounding = 0;
   const double f = plane_value(pl, &x_[v * d_], rounding);
   // |computed f - exact value at the exact vertex| <= rounding + |a| |x - exact x|.
-  const double bound = rounding + pl.a_norm * error_[v] * (1 + 4 * d_ * kUnit);
+  const double bound = rounding + pl.a_norm * error_[v] * (1 + 4 * d_ * filter::kUnitRoundoff);
   if (f > bound) return 1;
   if (f < -bound) return -1;
   const auto exact = exact_vertex(v);
@@ -407,7 +407,7 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, con
     if (den > 0) {
       const double ev = error_[in], ew = error_[out];
       error = std::max(ev, ew) + span * (a_norm * (ev + ew) + rv + rw) / den +
-              8 * kUnit * std::sqrt(d) * (max_abs(x, d) + span);
+              8 * filter::kUnitRoundoff * std::sqrt(d) * (max_abs(x, d) + span);
     }
   } else {
     // A ray (ideal end r) from its real end: x = base + t r with a . x = b.
@@ -421,7 +421,7 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, con
     for (int c = 0; c < d; ++c) x[c] = x_[base * d + c] + t * r[c];
     if (ar != 0) {
       error = error_[base] + (a_norm * error_[base] + rb) / std::abs(ar) +
-              8 * kUnit * std::sqrt(d) * (max_abs(x, d) + t * (1 + a_norm / std::abs(ar)));
+              8 * filter::kUnitRoundoff * std::sqrt(d) * (max_abs(x, d) + t * (1 + a_norm / std::abs(ar)));
     }
   }
   // On an axis-aligned wall (a box's) the coordinate across it is known exactly.
@@ -440,7 +440,7 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, con
   if (!(error_[u] <= 1e-10 * scale_)) {
     if (const auto exact = exact_vertex(u)) {
       for (int c = 0; c < d; ++c) x[c] = (*exact)[c].get_d();
-      error_[u] = std::sqrt(d) * 2 * kUnit * max_abs(x, d);
+      error_[u] = std::sqrt(d) * 2 * filter::kUnitRoundoff * max_abs(x, d);
     }
   }
   if (from_box_) radius_[u] = vertex_radius(u);
@@ -488,7 +488,7 @@ bool CellPolytope::solve_bisectors_3d(std::size_t v) {
   if (!cramer_solve(q, half_n2, y, forward)) return false;  // nearly flat: the generic path decides
   double* x = &x_[v * 3];
   for (int c = 0; c < 3; ++c) x[c] = s[c] + y[c];
-  error_[v] = std::sqrt(3.0) * (forward + 2 * kUnit * max_abs(x, 3));
+  error_[v] = std::sqrt(3.0) * (forward + 2 * filter::kUnitRoundoff * max_abs(x, 3));
   return true;
 }
 
@@ -521,7 +521,7 @@ void CellPolytope::solve_vertex(std::size_t v) {
     const int e = row > 0 ? std::ilogb(row) : 0;
     for (int i = 0; i < d; ++i) a[k * d + i] = std::ldexp(a[k * d + i], -e);
     c[k] = std::ldexp(cs, -e);
-    dc[k] = std::ldexp(4 * (d + 4) * kUnit * (mag + std::abs(cs)), -e);
+    dc[k] = std::ldexp(4 * (d + 4) * filter::kUnitRoundoff * (mag + std::abs(cs)), -e);
     a_norm = std::max(a_norm, std::ldexp(row, -e));
   }
   // LU with partial pivoting, in place; then y and the inverse's columns.
@@ -574,7 +574,7 @@ void CellPolytope::solve_vertex(std::size_t v) {
     dc_norm = std::max(dc_norm, dc[i]);
   }
   inv_norm *= 2;
-  const double eta = (3.0 * d * static_cast<double>(1 << (d - 1)) + 8) * kUnit;
+  const double eta = (3.0 * d * static_cast<double>(1 << (d - 1)) + 8) * filter::kUnitRoundoff;
   const double kappa = a_norm * inv_norm;
   if (!(kappa * eta < 1e-3) || !std::isfinite(y_norm)) return;  // ill-conditioned: keep the interpolation
   const double forward = inv_norm * (eta * a_norm * y_norm + dc_norm) / (1 - kappa * eta);
@@ -592,7 +592,7 @@ void CellPolytope::solve_vertex(std::size_t v) {
     if (nonzero == 1 && std::abs(n[axis]) == 1) x[axis] = n[axis] * domain_->offset(l - kWallLabel0);
   }
   // Euclidean: sqrt(d) x the infinity-norm bound, plus the rounding of s + y.
-  const double bound = std::sqrt(d) * (forward + 2 * kUnit * max_abs(x, d));
+  const double bound = std::sqrt(d) * (forward + 2 * filter::kUnitRoundoff * max_abs(x, d));
   if (bound < error_[v]) error_[v] = bound;
 }
 

@@ -110,25 +110,6 @@ Result<Domain> Domain::halfspaces(int dimension, std::vector<double> normals, st
   return out;
 }
 
-Result<std::vector<double>> parse_number_list(const std::string& text, const std::string& what, std::size_t max_count) {
-  std::vector<double> values;
-  std::size_t at = 0;
-  while (at <= text.size()) {
-    const std::size_t comma = std::min(text.find(',', at), text.size());
-    const std::string item = text.substr(at, comma - at);
-    char* end = nullptr;
-    const double v = std::strtod(item.c_str(), &end);
-    if (item.empty() || end == item.c_str() || *end != '\0' || !std::isfinite(v)) {
-      return invalid_argument(what + ": value " + std::to_string(values.size()) + " ('" + item.substr(0, 40) +
-                              "') is not a finite number");
-    }
-    values.push_back(v);
-    if (values.size() > max_count) return invalid_argument(what + ": more than " + std::to_string(max_count) + " values");
-    at = comma + 1;
-  }
-  return values;
-}
-
 Result<Domain> Domain::parse_box(const std::string& text) {
   auto parsed = parse_number_list(text, "--box", 2 * kMaxDimension);
   if (!parsed.is_ok()) return parsed.status();

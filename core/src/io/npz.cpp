@@ -1,12 +1,17 @@
 #include "io/npz.hpp"
 
+#include <sys/stat.h>
 #include <unistd.h>
-#include <zip.h>
+#include <zlib.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
+#include <memory>
 
 #include "spokemesh/io.hpp"
+#include "spokemesh/zip_layout.hpp"
 
 namespace spokemesh {
 
@@ -68,43 +73,74 @@ Status NpyColumn::put(const void* data, std::size_t bytes, std::uint64_t rows) {
 }
 
 Status write_npz(const std::string& path, const std::vector<NpyColumn*>& columns) {
-  int error = 0;
-  // libzip writes the archive under a temporary name and renames it on zip_close.
-  zip_t* zip = zip_open(path.c_str(), ZIP_CREATE | ZIP_TRUNCATE, &error);
-  if (zip == nullptr) {
-    zip_error_t e;
-    zip_error_init_with_code(&e, error);
-    Status s = internal_error("cannot create " + path + ": " + zip_error_strerror(&e));
-    zip_error_fini(&e);
-    return s;
+  // Written under a temporary name beside the target and renamed into place, so a
+  // reader sees the old file or the whole new one, and a failure leaves nothing behind.
+  std::string temp = path + ".XXXXXX";
+  const int fd = ::mkstemp(temp.data());
+  if (fd < 0) return internal_error("cannot create " + path + ": " + std::strerror(errno));
+  // mkstemp makes the file 0600: give it the mode a plain create would (0666 less the
+  // umask, which can only be read by setting it).
+  const mode_t mask = ::umask(0);
+  ::umask(mask);
+  ::fchmod(fd, 0666 & ~mask);
+  std::FILE* out = ::fdopen(fd, "wb");
+  if (out == nullptr) {
+    ::close(fd);
+    ::unlink(temp.c_str());
+    return internal_error("cannot open " + path + ": " + std::strerror(errno));
   }
+  auto fail = [&](const std::string& what) {
+    Status s = internal_error("writing " + path + ": " + what);
+    std::fclose(out);
+    ::unlink(temp.c_str());
+    return s;
+  };
+  std::vector<ZipMember> members;
+  std::uint64_t at = 0;
+  std::vector<char> buffer(1 << 20);
   for (NpyColumn* c : columns) {
     auto file = c->finish();
     if (!file.is_ok()) {
-      zip_discard(zip);
+      std::fclose(out);
+      ::unlink(temp.c_str());
       return file.status();
     }
-    zip_source_t* source = zip_source_filep(zip, file.value(), 0, -1);  // owns the FILE*
-    if (source == nullptr) {
-      std::fclose(file.value());
-      Status s = internal_error("writing " + path + ": " + zip_strerror(zip));
-      zip_discard(zip);
-      return s;
+    std::unique_ptr<std::FILE, int (*)(std::FILE*)> in(file.value(), &std::fclose);
+    if (::fseeko(in.get(), 0, SEEK_END) != 0) return fail(std::strerror(errno));
+    ZipMember m{c->name(), static_cast<std::uint64_t>(::ftello(in.get())), 0, at};
+    std::rewind(in.get());
+    // The member's bytes after room for its header, whose CRC is known only after them.
+    const std::uint64_t header = zip_local_header_size(m.name, m.size);
+    if (::fseeko(out, static_cast<off_t>(at + header), SEEK_SET) != 0) return fail(std::strerror(errno));
+    uLong crc = ::crc32(0L, Z_NULL, 0);
+    for (std::uint64_t left = m.size; left > 0;) {
+      const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(left, buffer.size()));
+      if (std::fread(buffer.data(), 1, want, in.get()) != want) return fail("reading a scratch file back");
+      crc = ::crc32(crc, reinterpret_cast<const Bytef*>(buffer.data()), static_cast<uInt>(want));
+      if (std::fwrite(buffer.data(), 1, want, out) != want) return fail(std::strerror(errno));
+      left -= want;
     }
-    const zip_int64_t index = zip_file_add(zip, c->name().c_str(), source, ZIP_FL_OVERWRITE);
-    // A fixed time stamp (1980-01-02, the start of zip's range in any time zone),
-    // so that the same arrays make the same bytes.
-    if (index < 0 || zip_set_file_compression(zip, static_cast<zip_uint64_t>(index), ZIP_CM_STORE, 0) != 0 ||
-        zip_file_set_mtime(zip, static_cast<zip_uint64_t>(index), 315619200, 0) != 0) {
-      if (index < 0) zip_source_free(source);
-      Status s = internal_error("writing " + path + ": " + zip_strerror(zip));
-      zip_discard(zip);
-      return s;
+    m.crc = static_cast<std::uint32_t>(crc);
+    const std::string local = zip_local_header(m);
+    if (::fseeko(out, static_cast<off_t>(at), SEEK_SET) != 0 ||
+        std::fwrite(local.data(), 1, local.size(), out) != local.size()) {
+      return fail(std::strerror(errno));
     }
+    at += header + m.size;
+    members.push_back(std::move(m));
   }
-  if (zip_close(zip) != 0) {
-    Status s = internal_error("writing " + path + ": " + zip_strerror(zip));
-    zip_discard(zip);
+  const std::string directory = zip_central_directory(members, at);
+  if (::fseeko(out, static_cast<off_t>(at), SEEK_SET) != 0 ||
+      std::fwrite(directory.data(), 1, directory.size(), out) != directory.size() || std::fflush(out) != 0) {
+    return fail(std::strerror(errno));
+  }
+  if (std::fclose(out) != 0) {
+    ::unlink(temp.c_str());
+    return internal_error("writing " + path + ": " + std::strerror(errno));
+  }
+  if (std::rename(temp.c_str(), path.c_str()) != 0) {
+    Status s = internal_error("cannot rename " + temp + " to " + path + ": " + std::strerror(errno));
+    ::unlink(temp.c_str());
     return s;
   }
   return Status::ok();

@@ -1,5 +1,5 @@
 // Internal: NumPy .npy arrays streamed to scratch files and assembled into .npz
-// archives (libzip), for the cell and periodic mesh writers.
+// archives (spokemesh/zip_layout.hpp), for the cell and periodic mesh writers.
 //
 // Thread safety: an NpyColumn is used by one thread.
 #pragma once

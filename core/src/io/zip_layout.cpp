@@ -1,12 +1,12 @@
-#include "npz.hpp"
+#include "spokemesh/zip_layout.hpp"
 
-namespace spokemesh::mpi {
+namespace spokemesh {
 
 namespace {
 
 constexpr std::uint64_t k32 = 0xFFFFFFFFull;
 constexpr std::uint16_t kDosDate = 0x0022;  // 1980-01-02 (time 00:00 is 0)
-constexpr std::uint16_t kMadeBy = 0x033F;   // Unix, zip 6.3 (libzip's)
+constexpr std::uint16_t kMadeBy = 0x033F;   // made by Unix, zip 6.3
 constexpr std::uint32_t kExternal = 0100600u << 16;
 
 void put16(std::string& s, std::uint16_t v) {
@@ -113,4 +113,4 @@ std::string zip_central_directory(const std::vector<ZipMember>& members, std::ui
   return s;
 }
 
-}  // namespace spokemesh::mpi
+}  // namespace spokemesh

@@ -1,5 +1,6 @@
 #include "spokemesh/certify.hpp"
 
+#include "base/dimension.hpp"
 #include "mesh/ball_bounds.hpp"
 
 #include <algorithm>
@@ -184,14 +185,14 @@ StarCertificate StarCertifier::certify(const Star& star, std::span<const double>
     all_held.certified = true;
     return all_held;
   }
-  switch (points_.dimension()) {
-    case 2:
-      return spokemesh::certify<2>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
-    case 3:
-      return spokemesh::certify<3>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
-    default:
-      return {};
-  }
+  return detail::dispatch_dimension(points_.dimension(), [&](auto dim) -> StarCertificate {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return spokemesh::certify<D>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
+    } else {
+      return {};  // certified in 2-d and 3-d only: nothing is
+    }
+  });
 }
 
 namespace {
@@ -222,25 +223,37 @@ bool StarCertifier::ball_is_held(std::uint32_t seed, double radius2, std::span<c
                                  std::span<const double> held_balls, std::span<const double> unheld) const {
   if (unheld.empty()) return true;
   const double* s = points_.point(seed);
-  switch (points_.dimension()) {
-    case 2:
-      return spokemesh::ball_is_held<2>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
-    case 3:
-      return spokemesh::ball_is_held<3>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
-    default:
+  return detail::dispatch_dimension(points_.dimension(), [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return spokemesh::ball_is_held<D>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
+    } else {
       return false;
-  }
+    }
+  });
 }
 
 bool StarCertifier::may_be_beyond(int d, const double* const* f, const double* inner, const double* box) {
-  return d == 2 ? beyond_box<2>(f, inner, box) : d == 3 ? beyond_box<3>(f, inner, box) : true;
+  return detail::dispatch_dimension(d, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return beyond_box<D>(f, inner, box);
+    } else {
+      return true;
+    }
+  });
 }
 
 bool StarCertifier::may_be_beyond_point(int d, const double* const* f, const double* inner, const double* q) {
-  if (d != 2 && d != 3) return true;
-  const int in = d == 2 ? facet_side<2>(f, inner) : facet_side<3>(f, inner);
-  const int at = d == 2 ? facet_side<2>(f, q) : facet_side<3>(f, q);
-  return in == 0 || at != in;
+  return detail::dispatch_dimension(d, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      const int in = facet_side<D>(f, inner), at = facet_side<D>(f, q);
+      return in == 0 || at != in;
+    } else {
+      return true;
+    }
+  });
 }
 
 }  // namespace spokemesh

@@ -977,26 +977,32 @@ bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
       return false;
     }
   };
-  return points.dimension() == 2 ? probe(Dimension<2>{}) : probe(Dimension<3>{});
+  return dispatch_dimension(points.dimension(), probe);
 }
 
 Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink) {
-  switch (tree.points().dimension()) {
-    case 2: return sweep<2>(tree, &tree, tree.points(), split, options, sink);
-    case 3: return sweep<3>(tree, &tree, tree.points(), split, options, sink);
-    default: return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
-  }
+  return dispatch_dimension(tree.points().dimension(), [&](auto dim) -> Result<MeshStats> {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return sweep<D>(tree, &tree, tree.points(), split, options, sink);
+    } else {
+      return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
+    }
+  });
 }
 
 Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink) {
   const SplitIndex index(points, split);
-  switch (points.dimension()) {
-    case 2: return sweep<2>(index, nullptr, points, split, options, sink);
-    case 3: return sweep<3>(index, nullptr, points, split, options, sink);
-    default: return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
-  }
+  return dispatch_dimension(points.dimension(), [&](auto dim) -> Result<MeshStats> {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return sweep<D>(index, nullptr, points, split, options, sink);
+    } else {
+      return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
+    }
+  });
 }
 
 }  // namespace spokemesh::detail

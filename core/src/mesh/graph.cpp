@@ -5,7 +5,7 @@
 #include <mutex>
 #include <thread>
 
-#include "spokemesh/voronoi.hpp"
+#include "spokemesh/star.hpp"
 
 namespace spokemesh {
 

@@ -12,7 +12,7 @@
 
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/predicates.hpp"
-#include "spokemesh/voronoi.hpp"
+#include "spokemesh/circumcentre.hpp"
 
 namespace spokemesh {
 

@@ -192,4 +192,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   return total;
 }
 
+std::uint64_t expected_simplices(int d, std::uint64_t n) {
+  return static_cast<std::uint64_t>(detail::policy(d).simplices_per_point * static_cast<double>(n));
+}
+
 }  // namespace spokemesh

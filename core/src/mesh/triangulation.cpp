@@ -39,12 +39,12 @@ template <class T>
 struct Precision;
 template <>
 struct Precision<double> {
-  static constexpr double kUnit = filter::kUnitRoundoff;
+  static constexpr double kUnit = filter::kUnitRoundoffOf<double>;
 };
 template <>
 struct Precision<long double> {
   static_assert(std::numeric_limits<long double>::digits >= 64, "the second stage assumes x87 extended precision");
-  static constexpr long double kUnit = 0x1p-64L;
+  static constexpr long double kUnit = filter::kUnitRoundoffOf<long double>;
 };
 
 template <class T>

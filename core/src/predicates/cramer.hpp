@@ -3,6 +3,8 @@
 // specialised 3-d cell (box_cell_3d.cpp). Internal to the core.
 #pragma once
 
+#include "spokemesh/predicates.hpp"
+
 #include <cmath>
 #include <limits>
 
@@ -28,7 +30,7 @@ namespace spokemesh::detail {
 template <int N, class T>
 bool cramer_solve(const T (&a)[N][N], const T (&c)[N], T (&y)[N], T& error) {
   static_assert(N == 2 || N == 3);
-  constexpr T kUnit = std::numeric_limits<T>::epsilon() / 2;
+  constexpr T kUnit = filter::kUnitRoundoffOf<T>;
   // adj[i][k]: the cofactor of a[i][k], so y_k = sum_i c_i adj[i][k] / D; adj_abs its
   // products' absolute-value sums (its rounding).
   T adj[N][N], adj_abs[N][N];

@@ -890,4 +890,25 @@ class ApproxWalker::RsdWalk {
 
 Status ApproxWalker::compute_rsd(ApproxNeighbors& out) { return RsdWalk(*this, out).run(); }
 
+Result<NeighborMode> parse_neighbor_mode(std::string_view text, std::string_view field) {
+  if (text == "exact") return NeighborMode::kExact;
+  if (text == "approximate" || text == "rsd") return NeighborMode::kApproximate;
+  if (text == "spokes") return NeighborMode::kSpokes;
+  return invalid_argument(std::string(field) + ": \"" + std::string(text.substr(0, 40)) +
+                          "\" is not exact, approximate (rsd) or spokes");
+}
+
+const char* neighbor_mode_name(NeighborMode mode) {
+  switch (mode) {
+    case NeighborMode::kExact: return "exact";
+    case NeighborMode::kApproximate: return "approximate";
+    case NeighborMode::kSpokes: return "spokes";
+  }
+  return "exact";
+}
+
+ApproxOptions::Mode approx_walk(NeighborMode mode) {
+  return mode == NeighborMode::kSpokes ? ApproxOptions::Mode::kSpokes : ApproxOptions::Mode::kRsd;
+}
+
 }  // namespace spokemesh

@@ -34,8 +34,8 @@
 
 #include "base/invariant.hpp"
 #include "spokemesh/star.hpp"
-#include "spokemesh/periodic.hpp"
-#include "spokemesh/voronoi.hpp"
+#include "spokemesh/periodic_cover.hpp"
+#include "spokemesh/circumcentre.hpp"
 
 namespace spokemesh {
 namespace {

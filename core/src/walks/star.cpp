@@ -1,6 +1,6 @@
 #include "spokemesh/star.hpp"
 
-#include "spokemesh/periodic.hpp"
+#include "spokemesh/periodic_cover.hpp"
 
 #include <algorithm>
 #include <array>
@@ -20,7 +20,6 @@ namespace {
 constexpr int kMaxCols = kMaxDimension + 1;
 using filter::is_certifiable;
 using filter::relative_error;
-constexpr double kUnit = filter::kUnitRoundoff;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Sphere queries that found a point missing from the candidates before the walk
 // loads a neighbourhood twice as large (once per seed: a seed on the hull can have
@@ -743,11 +742,11 @@ class StarWalker::WrapState {
         const double e_c = filter::error_bound(plane[c].magnitude, plane[c].depth);
         const double m = -o_c / (2 * o_d);
         m2 += m * m;
-        delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * kUnit;
+        delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * filter::kUnitRoundoff;
         centre[c] = x[c] + m;
         c_max = std::max(c_max, std::fabs(centre[c]));
       }
-      delta += c_max * 2 * kUnit * d;
+      delta += c_max * 2 * filter::kUnitRoundoff * d;
       const double r = std::sqrt(m2 + w.weight_excess_) * (1 + 1e-12) + 2 * delta;
       if (r * r <= DBL_MAX / 2) r2_outer = r * r * (1 + 1e-9);
     }
@@ -1254,6 +1253,16 @@ void StarWalker::orient_positively(Star& out, std::size_t first) const {
     SPOKEMESH_INVARIANT(sign != 0, "a Delaunay simplex is full-dimensional");
     if (sign < 0) std::swap(s[d - 1], s[d]);
   }
+}
+
+std::vector<std::uint32_t> star_neighbors(const Star& star) {
+  std::vector<std::uint32_t> out;
+  for (std::uint32_t v : star.simplices) {
+    if (v != star.seed) out.push_back(v);
+  }
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
 }
 
 }  // namespace spokemesh
