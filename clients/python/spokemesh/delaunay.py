@@ -457,11 +457,43 @@ def _rebuild_periodic(points, threads, periodic, weights=None):
     return Delaunay(points, threads=threads, periodic=periodic, weights=weights)
 
 
+# Why each scipy member a torus lacks is unavailable: its docstring, and help()'s.
+_UNAVAILABLE_ON_A_TORUS = {
+    "neighbors": "a simplex's neighbours across its facets: on the torus they would need offsets too",
+    "vertex_neighbor_vertices": "neighbours in CSR form: on the torus a neighbour is an image; use neighbors_of(i)",
+    "convex_hull": "the torus has no hull",
+    "transform": "barycentric transforms of the simplices: on the torus they depend on the images' offsets",
+    "equations": "the lifted hull's facet planes: the torus has no hull",
+    "vertex_to_simplex": "a simplex per vertex: use star(i), which gives every simplex around point i",
+    "coplanar": "Qhull's coplanar points: every point of a torus is a vertex",
+    "hidden": "the points in no simplex (weighted sets) are not listed on a torus; such a point's cell(i) has "
+              "volume 0",
+    "vertices": "scipy's old name for simplices: use simplices and offsets",
+    "find_simplex": "point location is not implemented on a torus yet (a query point would have to be located "
+                    "among the images of the simplices; scipy's answer, one row index, cannot name the image)",
+    "lift_points": "the paraboloid lift is defined on the plane, not on the torus (no global lift exists)",
+    "plane_distance": "distances to the lifted hull's facet planes: the torus has no hull and no global lift",
+    "add_points": "incremental insertion is not implemented on a torus yet: the triangulation is built in one "
+                  "pass from all its points (make a new PeriodicDelaunay with the points added)",
+}
+# The ones scipy calls as methods (the rest are attributes).
+_UNAVAILABLE_METHODS = ("find_simplex", "lift_points", "plane_distance", "add_points")
+
+
 def _unavailable(name: str):
+    """A member of scipy's Delaunay that a periodic triangulation lacks: raises
+    ValueError saying why, and says so in help() too."""
+    why = _UNAVAILABLE_ON_A_TORUS[name]
+
     def fail(self, *args, **kwargs):
-        raise ValueError(f"{name} is not available for a periodic triangulation (the torus has no hull, and its "
-                         f"simplices are given with image offsets)")
-    return property(fail) if name not in ("find_simplex", "lift_points", "plane_distance", "add_points") else fail
+        raise ValueError(f"{name} is not available for a periodic triangulation: {why}")
+    fail.__name__ = name
+    fail.__qualname__ = f"PeriodicDelaunay.{name}"
+    fail.__doc__ = (f"Not available on a torus: {why}. Raises ValueError (scipy.spatial.Delaunay has it; "
+                    f"PeriodicDelaunay keeps the name so that code written for scipy fails saying why).")
+    if name in _UNAVAILABLE_METHODS:
+        return fail
+    return property(fail, doc=fail.__doc__)
 
 
 class PeriodicDelaunay(Delaunay):
