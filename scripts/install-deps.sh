@@ -16,8 +16,8 @@ packages=(
   nginx
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
-  # clipped Voronoi cells: .npz output (libzip), and the oracles scipy and Voro++
-  libzip-dev zlib1g-dev python3-scipy voro++
+  # clipped Voronoi cells: .npz output (zlib for the CRC-32s), and the oracles scipy and Voro++
+  zlib1g-dev python3-scipy voro++
   # the in-process Python module (pybind11) and its pip-installable package
   pybind11-dev python3-pybind11 python3-dev python3-venv python3-setuptools
   # the OpenAPI description: compiled in from YAML, and the schema check of REST answers
@@ -31,6 +31,8 @@ packages=(
   libjs-three chromium chromium-driver python3-selenium
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers
   clang libfuzzer-14-dev libclang-rt-14-dev
+  # the C++ format check of the quick tier (scripts/check-format.sh)
+  clang-format
   # the container system test (scripts/container-test.sh): rootful podman with runc,
   # netavark and aardvark-dns (replicas found by name), podman-compose, and
   # debootstrap for the base image (no registry is reachable)

@@ -25,6 +25,18 @@ BIN = Path(os.environ.get("SPOKEMESH_BIN_DIR", REPO / "build" / "bin"))
 SERVER = BIN / "spokemesh-server"
 CLI = BIN / "spokemesh"
 
+def missing(what: str, packages: str) -> None:
+    """The suite's one skip policy for a tool or package this machine lacks. Under CI
+    (CI=true) the run fails: a green CI must mean everything was tested. Elsewhere the
+    test is skipped, naming what is missing and how to install it. Call it at module
+    level or inside a test or fixture."""
+    message = (f"{what} is missing: install it with `sudo apt-get install {packages}` "
+               "(scripts/install-deps.sh installs everything the suite needs)")
+    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+        pytest.fail(message + "; CI=true, so this is a failure, not a skip", pytrace=False)
+    pytest.skip(message, allow_module_level=True)
+
+
 _SERVING = re.compile(r"serving gRPC on ([\d.]+):(\d+) and HTTP on ([\d.]+):(\d+)")
 
 
@@ -161,7 +173,7 @@ def start_nginx(ndir: Path, rest_url: str) -> subprocess.Popen:
     /healthz answers through it (fails the test if nginx exits first)."""
     nginx = shutil.which("nginx") or "/usr/sbin/nginx"
     if not os.path.exists(nginx):
-        pytest.fail("nginx is not installed (scripts/install-deps.sh installs it)")
+        missing("nginx", "nginx")
     proc = subprocess.Popen([nginx, "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
                             stderr=open(ndir / "stderr.log", "wb"))
     deadline = time.time() + 20

@@ -16,7 +16,7 @@ from spokemesh.v1 import mesher_pb2 as pb
 from spokemesh.v1 import mesher_pb2_grpc as pb_grpc
 
 import grpc
-from conftest import cli, http, http_json, uniform
+from conftest import cli, http, http_json, missing, uniform
 
 
 def box_of(d: int, lo: float = 0.0, hi: float = 1.0) -> str:
@@ -251,7 +251,10 @@ def voro(points: np.ndarray, tmp_path, radii=None, periodic: bool = False, lo: f
     """Voro++'s cells of the particles in the cube [lo, hi]^3 ({id: (volume, neighbours)},
     walls left out): -r with radii (radical, i.e. power, cells), -p for a periodic cube.
     Voro++ leaves out the particles whose cells are empty."""
+    import shutil
     import subprocess
+    if shutil.which("voro++") is None:
+        missing("Voro++", "voro++")
     src = tmp_path / "voro.txt"
     with open(src, "w") as f:
         for i, p in enumerate(points):

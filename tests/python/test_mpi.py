@@ -18,18 +18,18 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
-import shapes  # noqa: E402  (bench/shapes.py: the shape families of issue 41)
+import shapes  # noqa: E402  (bench/shapes.py: the shape families)
+from conftest import missing  # noqa: E402
 
 BIN = os.environ.get("SPOKEMESH_BIN_DIR", os.path.join(os.path.dirname(__file__), "..", "..", "build", "bin"))
 CLI = os.path.join(BIN, "spokemesh")
 MPI = os.path.join(BIN, "spokemesh-mpi")
 MPIRUN = shutil.which("mpirun")
 
-pytestmark = pytest.mark.skipif(
-    MPIRUN is None or not os.path.exists(MPI),
-    reason="Open MPI is not installed (scripts/install-deps.sh installs libopenmpi-dev openmpi-bin), "
-    "so spokemesh-mpi was not built",
-)
+if MPIRUN is None:
+    missing("Open MPI's mpirun", "openmpi-bin libopenmpi-dev")
+if not os.path.exists(MPI):
+    missing(f"{MPI} (built only where Open MPI's compilers are found)", "libopenmpi-dev")
 
 RANKS = [1, 2, 3, 4, 7]
 

@@ -29,14 +29,19 @@ import types
 import numpy as np
 import pytest
 
-scipy_spatial = pytest.importorskip("scipy.spatial", reason="python3-scipy is not installed")
+from conftest import missing  # noqa: E402
+
+try:
+    import scipy.spatial as scipy_spatial
+except ImportError:
+    missing("scipy", "python3-scipy")
 import scipy.spatial._qhull as scipy_qhull  # noqa: E402
 
 import spokemesh  # noqa: E402
 
 SCIPY_TESTS = os.path.join(os.path.dirname(scipy_spatial.__file__), "tests", "test_qhull.py")
 if not os.path.exists(SCIPY_TESTS):
-    pytest.skip(f"{SCIPY_TESTS} is not installed", allow_module_level=True)
+    missing(f"scipy's own tests ({SCIPY_TESTS})", "python3-scipy")
 
 _spec = importlib.util.spec_from_file_location("scipy_test_qhull", SCIPY_TESTS)
 scipy_tests = importlib.util.module_from_spec(_spec)

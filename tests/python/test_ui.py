@@ -19,15 +19,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from selenium import webdriver
-from selenium.common.exceptions import TimeoutException
-from selenium.webdriver.chrome.service import Service
-from selenium.webdriver.common.action_chains import ActionChains
-from selenium.webdriver.common.by import By
-from selenium.webdriver.support.ui import WebDriverWait
 
-import spokemesh
-from conftest import REPO, http, http_json, uniform
+from conftest import missing
+
+try:
+    from selenium import webdriver
+    from selenium.common.exceptions import TimeoutException
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+except ImportError:
+    missing("Selenium", "python3-selenium")
+
+import spokemesh  # noqa: E402
+from conftest import REPO, http, http_json, uniform  # noqa: E402
 
 OUT = Path(os.environ.get("SPOKEMESH_TEST_OUTPUT", REPO / "build" / "test-output")) / "ui"
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
@@ -37,8 +43,8 @@ CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 def browser():
     """One headless Chromium for the module (WebGL by SwiftShader, as on a machine
     without a GPU). The profile is fresh, so nothing persists between runs."""
-    assert Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists(), \
-        "Debian's chromium and chromium-driver are needed (scripts/install-deps.sh installs them)"
+    if not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()):
+        missing("Debian's chromium and chromium-driver", "chromium chromium-driver")
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for flag in ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
