@@ -1,0 +1,582 @@
+#include "job.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <functional>
+#include <numeric>
+#include <optional>
+#include <thread>
+
+#include "cell_output.hpp"
+#include "mesh_output.hpp"
+#include "output.hpp"
+#include "spokemesh/cell_io.hpp"
+#include "spokemesh/io.hpp"
+#include "spokemesh/space_split.hpp"
+#include "spokemesh/voronoi.hpp"
+
+namespace spokemesh::mpi {
+namespace {
+
+using cli::Progress;
+
+// ------------------------------------------------------------------ seeds one by one
+
+// One thread's work on a round's seeds: seed() computes, certifies and keeps one
+// seed's answer (locally); flush() hands what it kept to the job, under the round's
+// lock, after each batch and once more (last) when the thread ends.
+class SeedWorker {
+ public:
+  virtual ~SeedWorker() = default;
+  virtual Status seed(std::uint32_t k, StarCertificate& certificate) = 0;
+  virtual void flush(bool last) = 0;
+};
+
+// The round's pending seeds on `threads` threads, in batches of 64 taken in order
+// (neighbouring seeds share their work in the walkers' caches). Seeds not certified go
+// to round.refused; on_batch(seeds done so far) is called under the lock.
+Status walk_pending(Round& round, unsigned threads, std::mutex& mu,
+                    const std::function<std::unique_ptr<SeedWorker>()>& make_worker,
+                    const std::function<void(std::uint64_t)>& on_batch) {
+  constexpr std::size_t kBatch = 64;
+  std::size_t next = 0;
+  std::uint64_t seeds_done = 0;
+  Status failure;
+  std::vector<std::thread> pool;
+  for (unsigned t = 0; t < std::max(1u, threads); ++t) {
+    pool.emplace_back([&] {
+      const std::unique_ptr<SeedWorker> worker = make_worker();
+      for (;;) {
+        std::size_t from, to;
+        {
+          std::lock_guard lock(mu);
+          if (next >= round.pending.size() || !failure.is_ok()) break;
+          from = next;
+          to = std::min(round.pending.size(), next + kBatch);
+          next = to;
+        }
+        std::vector<std::pair<std::uint32_t, StarCertificate>> refused_here;
+        Status s;
+        for (std::size_t i = from; i < to && s.is_ok(); ++i) {
+          const std::uint32_t k = round.pending[i];
+          StarCertificate c;
+          s = worker->seed(k, c);
+          if (s.is_ok() && !c.certified) refused_here.emplace_back(k, std::move(c));
+        }
+        std::lock_guard lock(mu);
+        if (!s.is_ok() && failure.is_ok()) failure = s;
+        for (auto& r : refused_here) round.refused.push_back(std::move(r));
+        worker->flush(false);
+        seeds_done += to - from;
+        if (on_batch) on_batch(seeds_done);
+      }
+      std::lock_guard lock(mu);
+      worker->flush(true);
+    });
+  }
+  for (auto& t : pool) t.join();
+  return failure;
+}
+
+// ------------------------------------------------------------------ mesh and graph
+
+// Rows of the seeds certified after the first round, at their seed's sweep position.
+struct KeptRows {
+  std::uint32_t position;
+  std::vector<std::uint32_t> rows;  // global indices
+};
+
+// Calls its argument with each of the rank's rows, in file order.
+using RowEmitter = std::function<void(std::span<const std::uint32_t>)>;
+
+// Mesh and graph: stars, the first round by the single-process sweep over the rank's
+// pieces, later rounds star by star; text and .npy files written the same way.
+class StarJob : public Job {
+ public:
+  using Job::Job;
+
+  Status compute(Round& round) override { return round.number == 1 ? sweep(round) : walk(round); }
+  void defer_first_round(const Round& round) override { sweep_positions(round); }
+
+ protected:
+  // Row width: mesh d + 1 indices, graph 2.
+  virtual std::size_t width() const = 0;
+  // A certified star's rows in global indices.
+  virtual void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const = 0;
+  // The first round's rows: mesh takes them from the sweep's sink, in sweep order
+  // (keep_swept); graph from each accepted star (keep_accepted, under the lock).
+  virtual bool rows_from_sink() const = 0;
+  virtual Status keep_swept(const LocalSet& /*local*/, const SpaceSplit& /*sweep*/,
+                            std::span<const std::uint32_t> /*block*/) {
+    return Status::ok();
+  }
+  virtual void keep_accepted(std::vector<std::uint32_t>& /*rows*/) {}
+
+  // Writes text or .npy rows: sized in a first pass over the rows, written in a second,
+  // a few MB at a time (the CLI's bytes). Collective.
+  Status write_rows(Comm& comm, std::uint64_t my_rows, std::uint64_t total_rows,
+                    const std::function<void(const RowEmitter&)>& for_each_row) const {
+    const std::size_t w1 = width();
+    auto format = MeshWriter::format_for(w_.output, facts_.d);
+    const bool as_npy = format.is_ok() && format.value() == MeshWriter::Format::kNpy;
+    std::string header;
+    std::uint64_t header_bytes = 0, body_bytes = 0;
+    if (as_npy) {
+      if (comm.rank == 0) header = npy_header("<i8", total_rows, w1);
+      header_bytes = kNpyHeaderBytes;
+      body_bytes = my_rows * w1 * sizeof(std::int64_t);
+    } else {
+      std::string line;
+      for_each_row([&](std::span<const std::uint32_t> row) {
+        line.clear();
+        append_index_lines(line, row, static_cast<int>(w1));
+        body_bytes += line.size();
+      });
+    }
+    return write_ordered(comm, w_.output, header_bytes, header, body_bytes, [&](const PieceWriter& put_piece) {
+      constexpr std::size_t kChunk = std::size_t{8} << 20;
+      std::string chunk;
+      Status s;
+      for_each_row([&](std::span<const std::uint32_t> row) {
+        if (!s.is_ok()) return;
+        if (as_npy) {
+          for (const std::uint32_t v : row) {
+            const std::int64_t wide = v;
+            chunk.append(reinterpret_cast<const char*>(&wide), sizeof wide);  // little-endian host, as MeshWriter
+          }
+        } else {
+          append_index_lines(chunk, row, static_cast<int>(w1));
+        }
+        if (chunk.size() >= kChunk) {
+          s = put_piece(chunk);
+          chunk.clear();
+        }
+      });
+      if (s.is_ok() && !chunk.empty()) s = put_piece(chunk);
+      return s;
+    });
+  }
+
+  std::vector<KeptRows> done_;                 // seeds certified after the first round
+  std::vector<std::uint32_t> position_of_own_;  // owned k -> its seed's sweep position
+  std::mutex mu_;
+
+ private:
+  // The sweep of the rank's pieces, as one process sweeps them; positions recorded.
+  SpaceSplit local_sweep(const Round& round) {
+    const std::size_t owned = round.split.owned.size();
+    std::vector<std::uint32_t> members(owned);
+    for (std::size_t k = 0; k < owned; ++k) members[k] = round.local.local_of_own[k];
+    SpaceSplit sweep(round.local.points, members, round.split.piece_ends,
+                     SpaceSplit::default_block_points(facts_.d, facts_.n));
+    position_of_own_.resize(owned);
+    for (std::size_t k = 0; k < owned; ++k) position_of_own_[k] = sweep.position_of(round.local.local_of_own[k]);
+    return sweep;
+  }
+  void sweep_positions(const Round& round) { local_sweep(round); }
+
+  // Round 1: the single-process sweep over the rank's pieces. The stars share their
+  // wraps (the sweep's memo): a wrap a refused star found is still one of the held
+  // points' Delaunay triangulation, which every star here is computed in.
+  Status sweep(Round& round) {
+    const SpaceSplit sweep = local_sweep(round);
+    round.tree = std::make_unique<KdTree>(round.local.points);
+    MeshOptions options;
+    options.threads = w_.common.threads;
+    options.split = &sweep;
+    options.sweep_end = sweep.swept();
+    options.star.random_seed = w_.common.random_seed;
+    options.facet_cache_bytes = w_.common.cache_mb << 20;
+    options.engine = facts_.engine;
+    options.accept = [&](const Star& star) {
+      StarCertificate c = round.certify.star(star);
+      if (c.certified && rows_from_sink()) return true;
+      std::vector<std::uint32_t> out;
+      if (c.certified) rows_of(round.local, star, out);
+      std::lock_guard lock(mu_);
+      if (!c.certified) {
+        round.refused.emplace_back(round.own_of_local[star.seed], std::move(c));
+        return false;
+      }
+      keep_accepted(out);
+      return true;
+    };
+    auto result =
+        mesh_seeds(*round.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
+          round.progress.update(seeds_done, swept_rows_);
+          return keep_swept(round.local, sweep, block);
+        });
+    return result.status();
+  }
+
+  // Later rounds: the refused seeds, each star on its own.
+  Status walk(Round& round) {
+    const KdTree& tree = *round.tree;
+    return walk_pending(
+        round, w_.common.threads, mu_,
+        [&]() -> std::unique_ptr<SeedWorker> { return std::make_unique<StarWorker>(*this, round, tree); }, nullptr);
+  }
+
+  class StarWorker : public SeedWorker {
+   public:
+    StarWorker(StarJob& job, const Round& round, const KdTree& tree)
+        : job_(job), round_(round), walker_(tree, options(job)) {}
+    Status seed(std::uint32_t k, StarCertificate& c) override {
+      const std::uint32_t seed = round_.local.local_of_own[k];
+      Status s = walker_.compute(seed, star_, StarPart::kAll);
+      if (!s.is_ok()) return s;
+      c = round_.certify.star(star_);
+      if (c.certified) {
+        out_.clear();
+        job_.rows_of(round_.local, star_, out_);
+        kept_.push_back({job_.position_of_own_[k], out_});
+      }
+      return Status::ok();
+    }
+    void flush(bool /*last*/) override {
+      for (auto& r : kept_) job_.done_.push_back(std::move(r));
+      kept_.clear();
+    }
+
+   private:
+    static StarOptions options(const StarJob& job) {
+      StarOptions o;
+      o.random_seed = job.w_.common.random_seed;
+      return o;
+    }
+    StarJob& job_;
+    const Round& round_;
+    StarWalker walker_;
+    Star star_;
+    std::vector<std::uint32_t> out_;
+    std::vector<KeptRows> kept_;
+  };
+
+ protected:
+  std::uint64_t swept_rows_ = 0;  // rows the sweep has kept (mesh), for the progress line
+};
+
+class MeshJob final : public StarJob {
+ public:
+  explicit MeshJob(const cli::WholeCommands& w) : StarJob(w) {}
+
+  Status check_usage() const override {
+    // (The dimension is not known yet: .svg is checked against it once read.)
+    return MeshWriter::format_for(w_.output, 2).status();
+  }
+  Status prepare(Comm& comm, const RunFacts& facts) override {
+    facts_ = facts;
+    auto format = MeshWriter::format_for(w_.output, facts.d);
+    if (Status s = comm.agree(format.status()); !s.is_ok()) return s;
+    format_ = format.value();
+    seed_range_ = {0, static_cast<std::uint32_t>(facts.n)};
+    if (!w_.seeds.empty()) {
+      auto range = cli::parse_seed_range(w_.seeds, facts.n);
+      if (!range.is_ok()) return range.status();
+      seed_range_ = range.value();
+    }
+    spool_ = std::make_unique<Spool>(width());
+    return Status::ok();
+  }
+  // .vtu, .msh and .svg list the points in index order: each rank writes its slice's.
+  bool lists_points() const override {
+    return format_ == MeshWriter::Format::kVtu || format_ == MeshWriter::Format::kMsh ||
+           format_ == MeshWriter::Format::kSvg;
+  }
+
+  Status write(Comm& comm, std::unique_ptr<KdTree>& /*tree*/, std::unique_ptr<LocalSet>& held,
+               std::span<const double> slice_coords) override {
+    // The first round's rows from the spool, with the later rounds' seeds in place.
+    const std::size_t w1 = width();
+    std::sort(done_.begin(), done_.end(), [](const KeptRows& a, const KeptRows& b) { return a.position < b.position; });
+    std::uint64_t my_rows = spool_->rows();
+    for (const KeptRows& r : done_) my_rows += r.rows.size() / w1;
+    auto for_each_row = [&](const RowEmitter& emit) {
+      std::size_t next_done = 0;
+      auto late = [&](const KeptRows& r) {
+        for (std::size_t i = 0; i < r.rows.size(); i += w1) emit(std::span<const std::uint32_t>(r.rows.data() + i, w1));
+      };
+      spool_->for_each([&](std::span<const std::uint32_t> row, std::uint32_t position) {
+        while (next_done < done_.size() && done_[next_done].position < position) late(done_[next_done++]);
+        emit(row);
+      });
+      while (next_done < done_.size()) late(done_[next_done++]);
+    };
+    total_rows_ = comm.allreduce<std::uint64_t>(my_rows, MPI_SUM);
+    if (!lists_points()) return write_rows(comm, my_rows, total_rows_, for_each_row);
+    // .vtu, .msh and .svg section by section; a row's vertices are held points.
+    const LocalSet& points = *held;
+    const auto point = [&](std::uint32_t v) {
+      const auto at = std::lower_bound(points.global.begin(), points.global.end(), std::uint64_t{v});
+      return points.points.point(static_cast<std::size_t>(at - points.global.begin()));
+    };
+    return write_mesh_sections(comm, w_.output, format_, facts_.d, facts_.n, facts_.global_box, slice_coords, my_rows,
+                               for_each_row, point);
+  }
+
+  void print_summary(double seconds, std::uint64_t halo_points, std::uint64_t rounds, int ranks) const override {
+    std::fprintf(stderr,
+                 "spokemesh-mpi: %llu points, %llu simplices, %.2f s on %d processes (%llu halo points, %llu "
+                 "rounds) -> %s\n",
+                 static_cast<unsigned long long>(facts_.n), static_cast<unsigned long long>(total_rows_), seconds,
+                 ranks, static_cast<unsigned long long>(halo_points), static_cast<unsigned long long>(rounds),
+                 w_.output.c_str());
+  }
+
+ protected:
+  std::size_t width() const override { return static_cast<std::size_t>(facts_.d) + 1; }
+  bool in_range(std::uint64_t g) const { return g >= seed_range_.first && g < seed_range_.second; }
+  // The star's owned simplices, when its seed is in --seeds' range.
+  void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
+    if (!in_range(local.global[star.seed])) return;
+    for (const std::uint32_t v : owned_simplices(star)) out.push_back(static_cast<std::uint32_t>(local.global[v]));
+  }
+  bool rows_from_sink() const override { return true; }
+  // The sweep's rows in global indices, each followed by its seed's sweep position.
+  Status keep_swept(const LocalSet& local, const SpaceSplit& sweep, std::span<const std::uint32_t> block) override {
+    const std::size_t w1 = width();
+    std::vector<std::uint32_t> words;
+    words.reserve(block.size() / w1 * (w1 + 1));
+    for (std::size_t i = 0; i < block.size(); i += w1) {
+      if (!in_range(local.global[block[i]])) continue;
+      for (std::size_t j = 0; j < w1; ++j) words.push_back(static_cast<std::uint32_t>(local.global[block[i + j]]));
+      words.push_back(sweep.position_of(block[i]));
+      ++swept_rows_;
+    }
+    spool_->append(words);
+    return spool_->ok() ? Status::ok() : internal_error("cannot write the temporary spool file");
+  }
+
+ private:
+  MeshWriter::Format format_ = MeshWriter::Format::kText;
+  std::pair<std::uint32_t, std::uint32_t> seed_range_{0, 0};
+  std::unique_ptr<Spool> spool_;  // the first round's rows, in sweep order
+  std::uint64_t total_rows_ = 0;
+};
+
+class GraphJob final : public StarJob {
+ public:
+  explicit GraphJob(const cli::WholeCommands& w) : StarJob(w) {}
+
+  Status check_usage() const override {
+    if (w_.approx.enabled) {
+      return invalid_argument(
+          "--approx: spokemesh-mpi computes exact graphs only; approximate graphs run on one process (spokemesh "
+          "graph --approx)");
+    }
+    auto format = MeshWriter::format_for(w_.output, 2);
+    if (!format.is_ok()) return format.status();
+    if (format.value() != MeshWriter::Format::kText && format.value() != MeshWriter::Format::kNpy) {
+      return invalid_argument(w_.output + ": graphs are written as text (.edges, .txt) or .npy");
+    }
+    return Status::ok();
+  }
+  Status prepare(Comm& /*comm*/, const RunFacts& facts) override {
+    facts_ = facts;
+    return Status::ok();
+  }
+
+  // Edges go to the rank holding their first index's slice of the index range, sorted
+  // there: the file is then the ranks' parts in order.
+  Status write(Comm& comm, std::unique_ptr<KdTree>& /*tree*/, std::unique_ptr<LocalSet>& /*held*/,
+               std::span<const double> /*slice_coords*/) override {
+    for (const KeptRows& r : done_) rows_.insert(rows_.end(), r.rows.begin(), r.rows.end());
+    done_ = {};
+    std::vector<std::vector<char>> outgoing(static_cast<std::size_t>(comm.size));
+    for (std::size_t i = 0; i < rows_.size(); i += 2) {
+      const int r = slice_owner(facts_.n, rows_[i], comm.size);
+      put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows_[i]);
+      put<std::uint32_t>(outgoing[static_cast<std::size_t>(r)], rows_[i + 1]);
+    }
+    rows_ = {};
+    const std::vector<char> in = comm.alltoall_bytes(outgoing);
+    outgoing = {};
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges(in.size() / 8);
+    const char* at = in.data();
+    for (auto& e : edges) {
+      e.first = get<std::uint32_t>(at);
+      e.second = get<std::uint32_t>(at);
+    }
+    std::sort(edges.begin(), edges.end());
+    total_rows_ = comm.allreduce<std::uint64_t>(edges.size(), MPI_SUM);
+    return write_rows(comm, edges.size(), total_rows_, [&](const RowEmitter& emit) {
+      for (const auto& e : edges) {
+        const std::uint32_t pair[2] = {e.first, e.second};
+        emit(pair);
+      }
+    });
+  }
+
+  void print_summary(double seconds, std::uint64_t /*halo_points*/, std::uint64_t /*rounds*/,
+                     int /*ranks*/) const override {
+    cli::print_graph_summary(facts_.n, total_rows_, false, seconds, w_.output);
+  }
+
+ protected:
+  std::size_t width() const override { return 2; }
+  // Edges from the seed to its larger neighbours.
+  void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
+    std::vector<std::uint32_t> next;
+    for (const std::uint32_t v : star.simplices) {
+      if (v > star.seed) next.push_back(v);
+    }
+    std::sort(next.begin(), next.end());
+    next.erase(std::unique(next.begin(), next.end()), next.end());
+    for (const std::uint32_t v : next) {
+      out.push_back(static_cast<std::uint32_t>(local.global[star.seed]));
+      out.push_back(static_cast<std::uint32_t>(local.global[v]));
+    }
+  }
+  bool rows_from_sink() const override { return false; }
+  void keep_accepted(std::vector<std::uint32_t>& rows) override { rows_.insert(rows_.end(), rows.begin(), rows.end()); }
+
+ private:
+  std::vector<std::uint32_t> rows_;  // the edges of the first round's stars
+  std::uint64_t total_rows_ = 0;
+};
+
+// ------------------------------------------------------------------ cells
+
+// Cells seed by seed in every round (the first in the tree's order, so that neighbours
+// share their work in the caches), each certified by what decided it, spooled on disk
+// and sent to the rank whose slice of the index range holds their seeds.
+class CellsJob final : public Job {
+ public:
+  explicit CellsJob(const cli::WholeCommands& w) : Job(w) {}
+
+  Status check_usage() const override {
+    // (The dimension is not known yet: 2 admits every extension; checked once read.)
+    return CellWriter::format_for(w_.output, 2).status();
+  }
+  const char* progress_label() const override { return "cells (rank 0's share)"; }
+  Status prepare(Comm& comm, const RunFacts& facts) override {
+    facts_ = facts;
+    const int d = facts.d;
+    auto format = CellWriter::format_for(w_.output, d);
+    if (Status s = comm.agree(format.status()); !s.is_ok()) return s;
+    format_ = format.value();
+    // The domain: by default the whole set's bounding box (the CLI's).
+    const std::vector<double>& box = facts.global_box;
+    auto whole = Domain::box(std::vector<double>(box.begin(), box.begin() + d),
+                             std::vector<double>(box.begin() + d, box.end()));
+    Result<std::optional<Domain>> chosen =
+        whole.is_ok() ? cli::domain_for(w_.domain, d, std::optional<Domain>(std::move(whole).value()))
+                      : Result<std::optional<Domain>>(whole.status());
+    if (Status s = comm.agree(chosen.status()); !s.is_ok()) return s;
+    domain_ = std::move(chosen).value();
+    spool_ = std::make_unique<CellSpool>(d, geometry(), facts.n, comm.size);
+    return Status::ok();
+  }
+  // A seed outside the domain: the lowest one's error, as the CLI reports it.
+  Status check_seeds(Comm& comm, const TopSplit& split) override {
+    const std::uint64_t n = facts_.n;
+    const std::size_t owned = split.owned.size();
+    std::uint64_t outside = n;
+    for (std::size_t k = 0; k < owned; ++k) {
+      if (split.owned.ids[k] < outside && domain_->violated_wall(split.owned.point(k))) outside = split.owned.ids[k];
+    }
+    const std::uint64_t lowest = comm.allreduce<std::uint64_t>(outside, MPI_MIN);
+    Status mine;
+    for (std::size_t k = 0; k < owned && lowest < n; ++k) {
+      if (split.owned.ids[k] == lowest) mine = check_seed_in_domain(split.owned.point(k), lowest, *domain_);
+    }
+    return comm.agree(mine);
+  }
+  bool tree_in_first_round() const override { return true; }
+
+  Status compute(Round& round) override {
+    const KdTree& tree = *round.tree;
+    if (round.number == 1) {
+      round.pending.resize(round.split.owned.size());
+      std::iota(round.pending.begin(), round.pending.end(), 0u);
+      std::sort(round.pending.begin(), round.pending.end(), [&](std::uint32_t a, std::uint32_t b) {
+        return tree.leaf_rank(round.local.local_of_own[a]) < tree.leaf_rank(round.local.local_of_own[b]);
+      });
+    }
+    std::function<void(std::uint64_t)> on_batch;
+    if (round.number == 1) on_batch = [&](std::uint64_t done) { round.progress.update(done, 0); };
+    return walk_pending(
+        round, w_.common.threads, mu_,
+        [&]() -> std::unique_ptr<SeedWorker> { return std::make_unique<CellWorker>(*this, round, tree); }, on_batch);
+  }
+
+  Status write(Comm& comm, std::unique_ptr<KdTree>& tree, std::unique_ptr<LocalSet>& held,
+               std::span<const double> /*slice_coords*/) override {
+    tree.reset();  // (what the rounds held goes before the cells move)
+    held.reset();
+    // Each cell to the rank whose slice of the index range holds its seed, written
+    // there into the file.
+    CellTally tally;
+    std::optional<CellFileLayout> layout;
+    VoronoiCell arriving;
+    if (geometry()) layout.emplace(format_, facts_.d);
+    auto gathered = SliceCells::gather(comm, *spool_, [&](const char* record) {
+      if (!layout) return;
+      read_cell_record(facts_.d, true, record, arriving);
+      layout->add(arriving, tally);
+    });
+    if (!gathered.is_ok()) return gathered.status();
+    SliceCells& cells = *gathered.value();
+    return geometry() ? write_cells_sections(comm, w_.output, format_, cells, tally, written_)
+                      : write_cells_npz(comm, w_.output, facts_.n, cells, written_);
+  }
+
+  void print_summary(double seconds, std::uint64_t /*halo_points*/, std::uint64_t /*rounds*/,
+                     int /*ranks*/) const override {
+    cli::print_cells_summary(facts_.n, domain_->describe(), written_.facets, written_.volume, seconds, w_.output);
+  }
+
+ private:
+  // .vtu and .svg cells are drawn: their records carry vertices and facet loops.
+  bool geometry() const { return format_ != CellWriter::Format::kNpz; }
+
+  class CellWorker : public SeedWorker {
+   public:
+    CellWorker(CellsJob& job, const Round& round, const KdTree& tree)
+        : job_(job), round_(round), builder_(tree, *job.domain_, options(job)), found_(job.facts_.d, job.geometry()) {
+      builder_.set_measures_only(!job.geometry());
+    }
+    Status seed(std::uint32_t k, StarCertificate& c) override {
+      const std::uint32_t seed = round_.local.local_of_own[k];
+      Status s = builder_.cell(seed, cell_);
+      if (!s.is_ok()) return s;
+      c = round_.certify.cell(k, seed, builder_);
+      if (c.certified) found_.add(cell_, round_.local.global[seed], [&](std::uint32_t v) { return round_.local.global[v]; });
+      return Status::ok();
+    }
+    void flush(bool last) override {
+      if (last || found_.size() >= (std::size_t{1} << 20)) job_.spool_->take(found_);
+    }
+
+   private:
+    static StarOptions options(const CellsJob& job) {
+      StarOptions o;
+      o.random_seed = job.w_.common.random_seed;
+      return o;
+    }
+    CellsJob& job_;
+    const Round& round_;
+    ClippedCellBuilder builder_;
+    VoronoiCell cell_;
+    CellRecords found_;
+  };
+
+  CellWriter::Format format_ = CellWriter::Format::kNpz;
+  std::optional<Domain> domain_;
+  std::unique_ptr<CellSpool> spool_;  // the certified cells, on disk
+  CellsWritten written_;
+  std::mutex mu_;
+};
+
+}  // namespace
+
+std::unique_ptr<Job> Job::make(JobKind kind, const cli::WholeCommands& commands) {
+  switch (kind) {
+    case JobKind::kMesh: return std::make_unique<MeshJob>(commands);
+    case JobKind::kGraph: return std::make_unique<GraphJob>(commands);
+    case JobKind::kCells: return std::make_unique<CellsJob>(commands);
+  }
+  return nullptr;
+}
+
+}  // namespace spokemesh::mpi
