@@ -42,6 +42,28 @@ TEST(TextPoints, ParsesCommentsCommasAndBlankLines) {
   EXPECT_EQ(ps->point(3)[0], 2.5);
 }
 
+// README "Input": semicolons separate too, and a first line with no number is a header.
+TEST(TextPoints, SemicolonsAndAHeaderLine) {
+  auto ps = parse_text_points("# from a spreadsheet\n\nx;y\n0;0\n1 ; 0\n0;1\n", "pts.csv");
+  ASSERT_TRUE(ps.is_ok()) << ps.status().message();
+  EXPECT_EQ(ps->size(), 3u);
+  EXPECT_EQ(ps->point(1)[0], 1.0);
+  struct Bad {
+    std::string text, needle;
+  };
+  for (const Bad& b : std::vector<Bad>{
+           {"0 0\nx y\n1 0\n", "pts.csv:2: cannot parse 'x'"},  // only a first line is a header
+           {"x,1\n0 0\n", "pts.csv:1: cannot parse 'x'"},      // a field is a number: no header
+           {"x y\n", "pts.csv: no points"},
+           {"+-1 0\n", "pts.csv:1: cannot parse '+-1'"},
+           {"0x1 0\n", "pts.csv:1: cannot parse '0x1'"},
+       }) {
+    auto bad = parse_text_points(b.text, "pts.csv");
+    ASSERT_FALSE(bad.is_ok()) << b.text;
+    EXPECT_NE(bad.status().message().find(b.needle), std::string::npos) << bad.status().message();
+  }
+}
+
 TEST(TextPoints, RefusesBadInputNamingFileAndLine) {
   struct Bad {
     std::string text, needle;
@@ -93,6 +115,35 @@ TEST(PointSetValidate, MergeDuplicatesMapsToFirstOccurrence) {
   EXPECT_TRUE(ps.validate("x").is_ok());
 }
 
+TEST(NpyPoints, ReadsIntegersExactly) {
+  const std::int64_t edge = std::int64_t{1} << 53;
+  const std::int64_t i64[6] = {0, -edge, 1, 0, edge, 7};
+  std::string b64(sizeof i64, '\0');
+  std::memcpy(b64.data(), i64, sizeof i64);
+  const std::string p64 = temp_path("i64.npy");
+  write_file(p64, npy("<i8", "(3, 2)", b64));
+  auto a = read_points(p64);
+  ASSERT_TRUE(a.is_ok()) << a.status().message();
+  EXPECT_EQ(a->point(0)[1], -9007199254740992.0);
+  EXPECT_EQ(a->point(2)[0], 9007199254740992.0);
+  const std::int32_t i32[6] = {0, 0, 3, 0, 0, -4};
+  std::string b32(sizeof i32, '\0');
+  std::memcpy(b32.data(), i32, sizeof i32);
+  const std::string p32 = temp_path("i32.npy");
+  write_file(p32, npy("<i4", "(3, 2)", b32));
+  auto b = read_points(p32);
+  ASSERT_TRUE(b.is_ok()) << b.status().message();
+  EXPECT_EQ(b->point(2)[1], -4.0);
+  const std::int16_t i16[6] = {0, 0, 3, 0, 0, 5};
+  std::string b16(sizeof i16, '\0');
+  std::memcpy(b16.data(), i16, sizeof i16);
+  const std::string p16 = temp_path("i16.npy");
+  write_file(p16, npy("<i2", "(3, 2)", b16));
+  auto c = read_points(p16);
+  ASSERT_TRUE(c.is_ok()) << c.status().message();
+  EXPECT_EQ(c->point(2)[1], 5.0);
+}
+
 TEST(NpyPoints, ReadsFloat64AndFloat32) {
   const std::string p64 = temp_path("p64.npy");
   write_file(p64, npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0, 1})));
@@ -116,7 +167,15 @@ TEST(NpyPoints, RefusesBadArrays) {
   };
   for (const Bad& b : std::vector<Bad>{
            {"not numpy at all", "bad magic"},
-           {npy("<i8", "(3, 2)", std::string(48, '\0')), "dtype '<i8' is not supported"},
+           {npy(">f8", "(3, 2)", std::string(48, '\0')), "dtype '>f8' is not supported"},
+           {npy("|u1", "(3, 2)", std::string(6, '\0')), "dtype '|u1' is not supported"},
+           {[] {  // an int64 a double would round
+              std::string b(48, '\0');
+              const std::int64_t big = (std::int64_t{1} << 53) + 1;
+              std::memcpy(&b[40], &big, 8);
+              return npy("<i8", "(3, 2)", b);
+            }(),
+            "element [2, 1] = 9007199254740993 is not exactly a double"},
            {npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0, 1}), true), "Fortran order"},
            {npy("<f8", "(6,)", doubles({0, 0, 1, 0, 0, 1})), "shape (n, d)"},
            {npy("<f8", "(3, 2)", doubles({0, 0, 1, 0, 0})), "truncated .npy data"},

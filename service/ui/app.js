@@ -15,6 +15,7 @@
   const TOKEN_KEY = 'spokemesh-token';
 
   const { $, el } = window.spokemeshDom;
+  const { parseText, parseNpy } = window.spokemeshPointFiles;  // point_files.js: the core's rule
   const state = {
     token: sessionStorage.getItem(TOKEN_KEY) || '',
     set: null,           // the chosen set's info (id, count, dimension, ...)
@@ -171,60 +172,6 @@
   $('refresh').addEventListener('click', refreshSets);
 
   // ---- upload -------------------------------------------------------------------------
-
-  // A .npy file -> {d, values: Float64Array}; throws naming what is wrong.
-  function parseNpy(buffer) {
-    const bytes = new Uint8Array(buffer);
-    const magic = String.fromCharCode(...bytes.slice(1, 6));
-    if (bytes[0] !== 0x93 || magic !== 'NUMPY') throw new Error('not a .npy file (no \\x93NUMPY magic)');
-    const view = new DataView(buffer);
-    const major = bytes[6];
-    const headerLength = major === 1 ? view.getUint16(8, true) : view.getUint32(8, true);
-    const start = major === 1 ? 10 : 12;
-    const header = new TextDecoder().decode(bytes.slice(start, start + headerLength));
-    const descr = /'descr':\s*'([^']+)'/.exec(header);
-    const shape = /'shape':\s*\(([^)]*)\)/.exec(header);
-    if (!descr || !shape) throw new Error('.npy header: no descr or shape in ' + header.slice(0, 80));
-    if (/'fortran_order':\s*True/.test(header)) throw new Error('.npy: Fortran order is not supported; save a C-ordered array');
-    const dims = shape[1].split(',').map((s) => s.trim()).filter(Boolean).map(Number);
-    if (dims.length !== 2) throw new Error('.npy: shape (' + shape[1] + ') is not (n, d)');
-    const [n, d] = dims;
-    const offset = start + headerLength;
-    const kinds = { '<f8': Float64Array, '<f4': Float32Array, '<i8': BigInt64Array, '<i4': Int32Array, '<i2': Int16Array };
-    const Kind = kinds[descr[1]];
-    if (!Kind) throw new Error('.npy: dtype ' + descr[1] + ' is not supported (float64, float32, int64, int32, int16)');
-    if (buffer.byteLength - offset < n * d * Kind.BYTES_PER_ELEMENT) throw new Error('.npy: the file is shorter than its shape says');
-    const raw = new Kind(buffer.slice(offset, offset + n * d * Kind.BYTES_PER_ELEMENT));
-    const values = new Float64Array(n * d);
-    for (let i = 0; i < values.length; ++i) values[i] = Number(raw[i]);
-    return { n, d, values };
-  }
-
-  // Text: one point a line, coordinates split by commas, spaces or tabs; blank lines
-  // and # comments skipped; a first line that is not numbers is taken as a header.
-  function parseText(text) {
-    const rows = [];
-    let d = 0;
-    const lines = text.split(/\r?\n/);
-    for (let i = 0; i < lines.length; ++i) {
-      const line = lines[i].trim();
-      if (!line || line.startsWith('#')) continue;
-      const tokens = line.split(/[\s,;]+/).filter(Boolean);
-      const values = tokens.map(Number);
-      const bad = values.findIndex((v, k) => !Number.isFinite(v) || tokens[k] === '');
-      if (bad >= 0) {
-        if (rows.length === 0 && i === lines.findIndex((l) => l.trim())) continue;  // a header
-        throw new Error('line ' + (i + 1) + ', column ' + (bad + 1) + ': "' + tokens[bad].slice(0, 30) + '" is not a finite number');
-      }
-      if (d === 0) d = values.length;
-      if (values.length !== d) throw new Error('line ' + (i + 1) + ': ' + values.length + ' values, but the first point has ' + d);
-      rows.push(values);
-    }
-    if (!rows.length) throw new Error('no points in the file');
-    const out = new Float64Array(rows.length * d);
-    rows.forEach((r, i) => out.set(r, i * d));
-    return { n: rows.length, d, values: out };
-  }
 
   async function uploadFile(file) {
     status('upload-status', 'reading ' + file.name + '…');

@@ -33,7 +33,7 @@ except ImportError:
     missing("Selenium", "python3-selenium")
 
 import spokemesh  # noqa: E402
-from conftest import REPO, http, http_json, uniform  # noqa: E402
+from conftest import REPO, cli, http, http_json, uniform  # noqa: E402
 
 OUT = Path(os.environ.get("SPOKEMESH_TEST_OUTPUT", REPO / "build" / "test-output")) / "ui"
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
@@ -156,7 +156,7 @@ def test_page_headers_and_no_inline_script(server):
         assert " style=" not in page and "<style" not in page and " on" + "click=" not in page
     # The page's own files, and three.js from Debian's libjs-three.
     own = 0
-    for name in ["index.html", "docs.html", "app.js", "docs.js", "dom.js", "app.css", "icon.svg"]:
+    for name in ["index.html", "docs.html", "app.js", "docs.js", "dom.js", "point_files.js", "app.css", "icon.svg"]:
         status, _, asset = http("GET", f"{server.http}/ui/{name}")
         assert status == 200, name
         own += len(asset)
@@ -402,3 +402,86 @@ def test_tenants_see_their_own_sets(start_server, browser, tmp_path):
              for r in browser.find_elements(By.CSS_SELECTOR, "#set-table tbody tr")]
     assert names == ["bobs"]
     browser.execute_script("sessionStorage.clear()")
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buffer = __import__("io").BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    return buffer.getvalue()
+
+
+FOUR = np.array([[0, 0], [1, 0], [0, 1], [1, 1.5]])
+# Point files held to one rule (README "Input"): (name, bytes, accepted).
+TEXT_BODY = "0 0\n1 0\n0 1\n1 1.5\n"
+POINT_FILES = [
+    ("blanks.txt", TEXT_BODY, True),
+    ("semicolons.csv", "0;0\n1;0\n0;1\n1;1.5\n", True),
+    ("header.csv", "x,y\n0,0\n1,0\n0,1\n1,1.5\n", True),
+    ("header_after_comment.txt", "# made by hand\n\nx y\n" + TEXT_BODY, True),
+    ("tabs_crlf.txt", "0\t0\r\n1\t0\r\n0\t1\r\n1\t1.5\r\n", True),
+    ("comments.txt", "0 0 # origin\n1 0\n0 1\n1 1.5 # last\n", True),
+    ("signs_and_points.txt", "+0 0.\n1 -0\n.0 1\n1e0 15e-1\n", True),
+    ("header_later.txt", "0 0\nx y\n1 0\n0 1\n1 1.5\n", False),
+    ("half_header.txt", "x,1\n" + TEXT_BODY, False),
+    ("two_signs.txt", "+-1 0\n" + TEXT_BODY, False),
+    ("hex.txt", "0x1 0\n" + TEXT_BODY, False),
+    ("infinite.txt", "inf 0\n" + TEXT_BODY, False),
+    ("nan.txt", TEXT_BODY + "nan 2\n", False),
+    ("huge.txt", TEXT_BODY + "1e101 2\n", False),
+    ("ragged.txt", TEXT_BODY + "2 2 2\n", False),
+    ("only_header.txt", "x y\n", False),
+    ("empty.txt", "", False),
+    ("float64.npy", _npy_bytes(FOUR), True),
+    ("float32.npy", _npy_bytes(FOUR.astype(np.float32)), True),
+    ("int64.npy", _npy_bytes(np.array([[0, 0], [3, 0], [0, 3], [3, 5]], dtype=np.int64)), True),
+    ("int32.npy", _npy_bytes(np.array([[0, 0], [3, 0], [0, 3], [3, 5]], dtype=np.int32)), True),
+    ("int16.npy", _npy_bytes(np.array([[0, 0], [3, 0], [0, 3], [3, 5]], dtype=np.int16)), True),
+    ("int64_beyond_2_53.npy", _npy_bytes(np.array([[0, 0], [1, 0], [0, 1], [2**53 + 1, 5]], dtype=np.int64)), False),
+    ("big_endian.npy", _npy_bytes(FOUR.astype(">f8")), False),
+    ("uint8.npy", _npy_bytes(FOUR.astype(np.uint8)), False),
+    ("three_axes.npy", _npy_bytes(FOUR.reshape(4, 2, 1)), False),
+    ("fortran.npy", _npy_bytes(np.asfortranarray(np.array([[0, 0, 1], [1, 0, 2], [0, 1, 3], [1, 1.5, 4]]))), False),
+    ("not_finite.npy", _npy_bytes(np.array([[0, 0], [1, 0], [0, np.inf], [1, 1.5]])), False),
+]
+
+
+def test_the_page_and_the_cli_read_point_files_by_one_rule(server, browser, tmp_path):
+    """Every file above: the page's parser (point_files.js, in the browser) and the CLI
+    (the core's read_points) both accept it, with the same points, or both refuse it."""
+    open_page(browser, server.http + "/")
+    parse = """
+        const [name, b64] = arguments;
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const files = window.spokemeshPointFiles;
+        try {
+          const p = name.endsWith('.npy') ? files.parseNpy(bytes.buffer) : files.parseText(new TextDecoder().decode(bytes));
+          return {n: p.n, d: p.d, values: Array.from(p.values)};
+        } catch (e) {
+          return {error: String(e.message)};
+        }
+    """
+    import base64
+    disagreements = []
+    for name, body, accepted in POINT_FILES:
+        raw = body.encode() if isinstance(body, str) else body
+        path = tmp_path / name
+        path.write_bytes(raw)
+        page = browser.execute_script(parse, name, base64.b64encode(raw).decode())
+        run = cli("mesh", str(path), "-o", str(tmp_path / (name + ".simplices")), check=False)
+        cli_ok = run.returncode == 0
+        page_ok = "error" not in page
+        if cli_ok != accepted or page_ok != accepted:
+            disagreements.append(f"{name}: expected {'accepted' if accepted else 'refused'}; CLI "
+                                 f"{'accepted' if cli_ok else 'refused: ' + run.stderr.strip()}; page "
+                                 f"{'accepted' if page_ok else 'refused: ' + page['error']}")
+            continue
+        if accepted:
+            n = int(re.search(r"spokemesh: (\d+) points", run.stderr).group(1))
+            want = np.load(__import__("io").BytesIO(raw)) if name.endswith(".npy") else None
+            assert page["n"] == n == 4 and page["d"] == 2, (name, page, run.stderr)
+            if want is not None:
+                assert np.array_equal(np.array(page["values"]).reshape(4, 2), want.astype(np.float64)), name
+            else:
+                assert np.array_equal(np.array(page["values"]).reshape(4, 2), FOUR), name
+    assert not disagreements, "\n".join(disagreements)
+

@@ -26,7 +26,13 @@
 
 namespace spokemesh {
 
-// Reads points by extension (.npy, else text). Does not validate geometry.
+// Reads points by extension (.npy, else text). Does not validate geometry. The rule
+// every route follows (the CLI, spokemesh-mpi, the Python module, the page; README "Input"):
+// text has one point a line, numbers separated by blanks, commas or semicolons, `#`
+// starting a comment, blank lines skipped, and a first line of fields none of which is
+// a number (a header) skipped; .npy holds a C-order (n, d) array of float64, float32,
+// int64, int32 or int16, little-endian, integers exact (|v| <= 2^53). Coordinates are
+// finite with magnitude at most 1e100.
 Result<PointSet> read_points(const std::string& path);
 Result<PointSet> parse_text_points(const std::string& text, const std::string& source);
 Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& source);
@@ -37,8 +43,9 @@ Result<PointSet> parse_npy_points(const std::string& bytes, const std::string& s
 struct NpyPoints {
   std::uint64_t count = 0;
   int dimension = 0;
-  int item_bytes = 8;           // float64 (8) or float32 (4)
+  int item_bytes = 8;           // float64 (8) or float32 (4); integers: 8, 4 or 2
   std::size_t data_offset = 0;  // where row 0 begins
+  bool integer = false;         // int64, int32 or int16 (exact in double up to 2^53)
 };
 Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_size, const std::string& source);
 // Rows [first_row, first_row + rows) from their bytes at `data`, as float64; errors name

@@ -47,7 +47,10 @@ std::string printable(std::string_view raw) {
   return out;
 }
 
-bool is_separator(char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r' || c == '\v' || c == '\f'; }
+// Between numbers: blanks, commas and semicolons (README, "Input").
+bool is_separator(char c) {
+  return c == ' ' || c == '\t' || c == ',' || c == ';' || c == '\r' || c == '\v' || c == '\f';
+}
 
 // Parses the numbers of one text line (comment already removed) into `out`.
 // Returns the offending token on failure.
@@ -60,7 +63,8 @@ bool parse_numbers(std::string_view line, std::vector<T>& out, std::string& bad_
     std::size_t j = i;
     while (j < line.size() && !is_separator(line[j])) ++j;
     std::string_view token = line.substr(i, j - i);
-    if (!token.empty() && token.front() == '+') token.remove_prefix(1);
+    // One optional sign: '+' is dropped here (from_chars takes only '-'), so '+-1' stays an error.
+    if (token.size() > 1 && token.front() == '+' && token[1] != '-' && token[1] != '+') token.remove_prefix(1);
     T value{};
     const auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
     if (ec != std::errc() || end != token.data() + token.size()) {
@@ -150,17 +154,47 @@ Result<NpyHeader> parse_npy_header(const std::string& bytes, const std::string& 
   return h;
 }
 
+// Whether no field of a line parses as a number: a header ("x,y,z").
+bool is_header(std::string_view line) {
+  std::vector<double> one;
+  std::string bad;
+  bool any = false;
+  for (std::size_t i = 0; i < line.size();) {
+    while (i < line.size() && is_separator(line[i])) ++i;
+    std::size_t j = i;
+    while (j < line.size() && !is_separator(line[j])) ++j;
+    if (j > i) {
+      any = true;
+      one.clear();
+      if (parse_numbers(line.substr(i, j - i), one, bad)) return false;
+    }
+    i = j;
+  }
+  return any;
+}
+
 // Calls on_row(numbers, where) for each line of a text file that holds numbers
 // (`where` names the file and line for messages); a token that is no number stops it.
+// With allow_header, a first line of fields none of which is a number is skipped.
 template <class OnRow>
-Status for_each_number_row(const std::string& text, const std::string& source, OnRow&& on_row) {
+Status for_each_number_row(const std::string& text, const std::string& source, OnRow&& on_row,
+                           bool allow_header = false) {
   std::vector<double> row;
   std::string bad;
+  bool first = true;
   return for_each_line(text, [&](std::string_view line, std::size_t line_no) -> Status {
     row.clear();
     const std::string where = source + ":" + std::to_string(line_no) + ": ";
-    if (!parse_numbers(line, row, bad)) return invalid_argument(where + "cannot parse '" + bad + "' as a number");
+    const bool was_first = first;
+    if (!parse_numbers(line, row, bad)) {
+      if (was_first && allow_header && is_header(line)) {
+        first = false;
+        return Status::ok();
+      }
+      return invalid_argument(where + "cannot parse '" + bad + "' as a number");
+    }
     if (row.empty()) return Status::ok();
+    first = false;
     return on_row(row, where);
   });
 }
@@ -173,7 +207,15 @@ int npy_float_bytes(const std::string& descr) {
   return 0;
 }
 
-// Element k of such an array's data, as a double.
+// The bytes of one element of an int64, int32 or int16 .npy array, or 0.
+int npy_int_bytes(const std::string& descr) {
+  if (descr == "<i8" || descr == "=i8") return 8;
+  if (descr == "<i4" || descr == "=i4") return 4;
+  if (descr == "<i2" || descr == "=i2") return 2;
+  return 0;
+}
+
+// Element k of a float array's data, as a double.
 double npy_float_at(const char* data, std::size_t k, int item_bytes) {
   if (item_bytes == 8) {
     double v;
@@ -183,6 +225,23 @@ double npy_float_at(const char* data, std::size_t k, int item_bytes) {
   float f;
   std::memcpy(&f, data + k * 4, 4);
   return f;
+}
+
+// Element k of an integer array's data.
+std::int64_t npy_int_at(const char* data, std::size_t k, int item_bytes) {
+  if (item_bytes == 8) {
+    std::int64_t v;
+    std::memcpy(&v, data + k * 8, 8);
+    return v;
+  }
+  if (item_bytes == 4) {
+    std::int32_t v;
+    std::memcpy(&v, data + k * 4, 4);
+    return v;
+  }
+  std::int16_t v;
+  std::memcpy(&v, data + k * 2, 2);
+  return v;
 }
 
 }  // namespace
@@ -206,7 +265,7 @@ Result<PointSet> parse_text_points(const std::string& text, const std::string& s
     coords.insert(coords.end(), row.begin(), row.end());
     ++points;
     return Status::ok();
-  });
+  }, /*allow_header=*/true);
   if (!status.is_ok()) return status;
   if (points == 0) return invalid_argument(source + ": no points (the input is empty)");
   return PointSet(d, std::move(coords));
@@ -216,8 +275,12 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
   auto header = parse_npy_header(head, source);
   if (!header.is_ok()) return header.status();
   const NpyHeader& h = header.value();
-  const int item = npy_float_bytes(h.descr);
-  if (item == 0) return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
+  const int float_bytes = npy_float_bytes(h.descr), int_bytes = npy_int_bytes(h.descr);
+  const int item = float_bytes != 0 ? float_bytes : int_bytes;
+  if (item == 0) {
+    return invalid_argument(source + ": .npy dtype '" + printable(h.descr) +
+                            "' is not supported (need float64, float32, int64, int32 or int16, little-endian)");
+  }
   if (h.fortran) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
   if (h.shape.size() != 2) return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) + " axes");
   const std::uint64_t n = h.shape[0], d = h.shape[1];
@@ -226,7 +289,7 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
     return invalid_argument(source + ": dimension " + std::to_string(d) + " is too large (at most " +
                             std::to_string(kMaxApproxDimension) + ")");
   }
-  NpyPoints layout{n, static_cast<int>(d), item, h.data_offset};
+  NpyPoints layout{n, static_cast<int>(d), item, h.data_offset, int_bytes != 0};
   const std::uint64_t need = n * d * layout.item_bytes;
   if (file_size - h.data_offset < need) {
     return invalid_argument(source + ": truncated .npy data: expected " + std::to_string(need) + " bytes, found " +
@@ -241,6 +304,17 @@ Status decode_npy_rows(const NpyPoints& layout, const char* data, std::uint64_t 
   const std::size_t count = static_cast<std::size_t>(rows * d);
   out.resize(count);
   for (std::size_t k = 0; k < count; ++k) {
+    if (layout.integer) {
+      // Integers are exact in double up to 2^53; beyond, a coordinate would be rounded.
+      const std::int64_t i = npy_int_at(data, k, layout.item_bytes);
+      if (i > (std::int64_t{1} << 53) || i < -(std::int64_t{1} << 53)) {
+        return invalid_argument(source + ": element [" + std::to_string(first_row + k / d) + ", " +
+                                std::to_string(k % d) + "] = " + std::to_string(i) +
+                                " is not exactly a double (integers are read up to 2^53 in magnitude)");
+      }
+      out[k] = static_cast<double>(i);
+      continue;
+    }
     const double v = npy_float_at(data, k, layout.item_bytes);
     if (!std::isfinite(v) || std::fabs(v) > kMaxCoordinate) {
       return invalid_argument(source + ": element [" + std::to_string(first_row + k / d) + ", " +
