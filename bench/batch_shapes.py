@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Per-seed cost on the shapes users bring (issue 41): the stars of 10,000 random seeds
+"""Per-seed cost on the shapes users bring: the stars of 10,000 random seeds
 in one gRPC BatchSeeds call, on each shape family (bench/shapes.py) and on uniform
 points of the same count and dimension, against a server of this build on loopback
 (tree warm: one call first). Prints microseconds per seed and the ratio to uniform.

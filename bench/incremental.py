@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Incremental insertion (issue 27): a 3-d set triangulated with its last 1%, 10% or
+"""Incremental insertion: a 3-d set triangulated with its last 1%, 10% or
 50% added afterwards (add_points), against triangulating everything at once, and
 against scipy's incremental Qhull (--scipy). Every spokemesh result is checked to be
 the whole set's triangulation, the same simplices in the same order.

@@ -1,6 +1,6 @@
 // Generated benchmark inputs, shared by the benchmarks of this folder and the tests:
 // uniform random points, grids written the way users write them, and the shapes users
-// bring (issue 41; the same families as bench/shapes.py, drawn with C++'s generators:
+// bring (the same families as bench/shapes.py, drawn with C++'s generators:
 // alike in shape, not in every digit). Fixed seeds: every run meshes the same points.
 // Coordinates are row-major, d per point.
 #pragma once

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Periodic boxes (issue 28) as whole processes, against CGAL on the same files.
+"""Periodic boxes as whole processes, against CGAL on the same files.
 
 `spokemesh mesh P.npy --periodic 0,..,0,1,..,1 -o M.npz` (its defaults: every core)
 against CGAL 5.5's Periodic_2/_3_Delaunay_triangulation (`spokemesh_cgal_mesh P.npy

@@ -2,7 +2,7 @@
 """spokemesh.Delaunay (in-process, 2 threads) against scipy.spatial.Delaunay (Qhull,
 one thread) on the same uniform points: construction time, then the simplices and
 their neighbours (scipy computes both while it builds; spokemesh builds neighbours on
-first use, counted here). Sizes from issue 19: 100k/100k/20k/5k/2k points for d = 2..6.
+first use, counted here). Default sizes: 100k/100k/20k/5k/2k points for d = 2..6.
 
 Usage: PYTHONPATH=build/python bench/python_delaunay.py [--repeat 3] [--sizes 2:1000000,3:300000]
 """
@@ -23,7 +23,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--sizes", default=None, help="d:n,... (default: issue 19's 100k/100k/20k/5k/2k for d = 2..6)")
+    ap.add_argument("--sizes", default=None, help="d:n,... (default: 100k/100k/20k/5k/2k for d = 2..6)")
     args = ap.parse_args()
     sizes = SIZES if args.sizes is None else {int(a): int(b) for a, b in (x.split(":") for x in args.sizes.split(","))}
     print("| d | points | spokemesh.Delaunay | scipy.spatial.Delaunay | ratio | simplices (same set) |")

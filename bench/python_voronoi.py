@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """spokemesh.Voronoi (in-process, 2 threads) against scipy.spatial.Voronoi (Qhull, one
-thread) on the same uniform points (issue 27: 2-d 1M and 3-d 300k). Timed: the
+thread) on the same uniform points (2-d 1M and 3-d 300k). Timed: the
 constructor and reading vertices, regions, point_region, ridge_points and
 ridge_vertices (scipy builds all of them in its constructor; spokemesh makes the
 Python lists on first use, counted here). Checked: the same numbers of vertices and

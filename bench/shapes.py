@@ -1,4 +1,4 @@
-"""The shapes users bring (issue 41): point sets whose nearest neighbours lie along a
+"""The shapes users bring: point sets whose nearest neighbours lie along a
 line, a curve or a surface while their Delaunay neighbours lie across it. Each
 generator takes the point count it aims at (or its own natural size) and a seed, and
 returns a float64 array of shape (n, d); the same arguments give the same points.

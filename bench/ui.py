@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The browser page's first view (issue 29): a stored 1M-point 3-d set opened at
+"""The browser page's first view: a stored 1M-point 3-d set opened at
 http://HOST/#set=ID in Debian's headless Chromium (software WebGL, as on a machine with
 no GPU), timed from navigation start to the first frame drawn with every point.
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Weighted points (issue 28) as whole processes, against their peers on the same files.
+"""Weighted points as whole processes, against their peers on the same files.
 
 Regular triangulations: `spokemesh mesh P.npy --weights W.npy -o M.npy` (its defaults:
 every core) against CGAL 5.5's Regular_triangulation_2/_3 (`spokemesh_cgal_mesh P.npy

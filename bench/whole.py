@@ -10,7 +10,7 @@ triangulates cospherical facets its own way, so on grids only CGAL's count is ch
 Inputs, made the way users make them (numpy, fixed seeds): uniform points, gaussian
 clumps, grids written as integers, dyadic steps i/32, decimal steps i*0.1, and
 numpy.linspace, and the shapes users bring (bench/shapes.py: contour lines, terrain,
-scanner rings, surfaces, density contrast; issue 41).
+scanner rings, surfaces, density contrast).
 
 Usage: bench/whole.py [--only SUBSTRING] [--shapes] [--big] [--huge] [--repeat N] [--threads N] [--data DIR]
   --shapes  the shape families only (at 100k-200k and 1M points)
@@ -61,7 +61,7 @@ def grid(side: int, d: int, kind: str) -> np.ndarray:
 
 
 def shape_cases() -> list[tuple[str, str, callable, bool]]:
-    """The shape families of issue 41 at their default sizes (96k-200k) and at 1M."""
+    """The shape families (bench/shapes.py) at their default sizes (96k-200k) and at 1M."""
     out = []
     for name, (_, d, n) in shapes.FAMILIES.items():
         if name in ("uniform2", "uniform3", "clustered3", "grid3"):

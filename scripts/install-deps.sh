@@ -24,9 +24,9 @@ packages=(
   python3-yaml python3-jsonschema
   # the exact Delaunay-neighbour oracle of the high-dimensional tests (an LP per pair)
   libglpk-dev
-  # spokemesh-mpi (issue 26): Open MPI 4.1, its compilers' wrappers and mpirun
+  # spokemesh-mpi: Open MPI 4.1, its compilers' wrappers and mpirun
   libopenmpi-dev openmpi-bin
-  # the browser page (issue 29): three.js served from the system package, and the
+  # the browser page: three.js served from the system package, and the
   # page's tests in headless Chromium driven by Selenium
   libjs-three chromium chromium-driver python3-selenium
   # the fuzzers (scripts/fuzz.sh): clang with libFuzzer and its sanitizers

@@ -531,14 +531,6 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
 
 namespace {
 
-// Answers items 0..count-1 with `threads` workers, a round of round_size consecutive
-// items at a time: the workers take the round's items one at a time from a shared
-// counter, while the calling thread emits the round before (in order), so encoding and
-// the client's reading overlap the work. (Rounds of 32 with the emission in between
-// kept 2 workers 1 core busy on average.) compute(t, i, answer) runs on worker t;
-// emit(answers, done) on the caller, done = items answered so far. The failure of the
-// lowest item is returned (so the error is the same whatever the threads); the workers
-// stop taking items after any.
 // A cell's size in a message, about. Batches of cells also end at
 // defaults::kMessagePayloadBytes, well within gRPC's default 4 MiB message limit,
 // whatever the cells' size (high-d cells have many vertices).
@@ -582,6 +574,14 @@ class CellBatcher {
   bool emitted_ = false;
 };
 
+// Answers items 0..count-1 with `threads` workers, a round of round_size consecutive
+// items at a time: the workers take the round's items one at a time from a shared
+// counter, while the calling thread emits the round before (in order), so encoding and
+// the client's reading overlap the work. (Rounds of 32 with the emission in between
+// kept 2 workers 1 core busy on average.) compute(t, i, answer) runs on worker t;
+// emit(answers, done) on the caller, done = items answered so far. The failure of the
+// lowest item is returned (so the error is the same whatever the threads); the workers
+// stop taking items after any.
 template <class Answer, class Compute, class Emit>
 Status in_rounds(std::size_t count, unsigned threads, std::size_t round_size, const CallControl& control,
                  const std::string& what, Compute&& compute, Emit&& emit) {

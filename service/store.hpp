@@ -49,7 +49,7 @@ struct PointSetInfo {
   std::uint64_t count = 0;
   std::string display_name;
   bool already_existed = false;
-  bool weighted = false;              // carries one power weight per point (issue 28)
+  bool weighted = false;              // carries one power weight per point
   std::vector<double> periodic_box;   // LO_1..LO_d, HI_1..HI_d of its torus, or empty
 };
 

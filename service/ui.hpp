@@ -39,7 +39,7 @@ class UiAssets {
   static const std::vector<std::pair<std::string, std::string>>& security_headers();
   // What could not be read from three_dir ("" when all was found), for the log.
   const std::string& missing() const { return missing_; }
-  // Bytes of the page's own files (three.js excluded): the issue's <= 1 MB budget.
+  // Bytes of the page's own files (three.js excluded): the page's budget is 1 MB.
   std::size_t embedded_bytes() const { return embedded_bytes_; }
 
  private:

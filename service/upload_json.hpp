@@ -11,7 +11,7 @@
 //   {"points": [[x, y, ...], ...], "display_name": "..."}
 //   {"dimension": d, "coordinates": [x0, y0, ..., x1, y1, ...], "display_name": "..."}
 // either with "weights": [w0, w1, ...] (one power weight per point) and
-// "periodic_box": [LO_1, .., LO_d, HI_1, .., HI_d] (issue 28).
+// "periodic_box": [LO_1, .., LO_d, HI_1, .., HI_d].
 // Unknown keys are ignored if their values are scalars or shallow.
 //
 // Thread safety: a function; no shared state.

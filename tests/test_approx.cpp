@@ -67,7 +67,7 @@ TEST(Approx, RecallOneAndPrecisionOneIn2dAnd3d) {
 }
 
 // walk_exhausted means complete: whenever it is set, the neighbours are the exact set
-// (issue 19: a 2-d grid's seed 143 with 50 misses claimed it with a neighbour missing).
+// (a 2-d grid's seed 143 with 50 misses claimed it with a neighbour missing).
 TEST(Approx, ExhaustedMeansEveryNeighbourWasFound) {
   struct Input {
     const char* name;

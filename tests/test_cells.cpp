@@ -1,4 +1,4 @@
-// Clipped Voronoi cells and their measures (issue 18, parts 3, 4 and 8): invariants
+// Clipped Voronoi cells and their measures: invariants
 // checked on every cell of whole point sets, in every dimension from 2 to 6 (7 and 8
 // with SPOKEMESH_HIGH_D=1), as CGAL's tests validate after every step.
 //   * the clipped cells tile the domain: volumes sum to its volume (relative 1e-12),

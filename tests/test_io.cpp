@@ -198,7 +198,7 @@ TEST(NpyPoints, RefusesBadArrays) {
   }
 }
 
-// Weights (issue 28): one a point, text or .npy; radii become squared weights; every
+// Weights: one a point, text or .npy; radii become squared weights; every
 // bad value or count is named by file and line or index.
 TEST(Weights, ReadsTextAndNpyAndRadii) {
   auto w = parse_text_weights("# power weights\n0.25\n\n-1  # may be negative\n2e-3\n", "w.txt", 3, WeightKind::kPowerWeight);
@@ -262,7 +262,7 @@ TEST(Weights, RefusesBadValuesAndCountsNamingWhere) {
   EXPECT_NE(missing.message().find("no-such-weights.txt: cannot open for reading"), std::string::npos) << missing.message();
 }
 
-// The periodic box (issue 28): parsed as --box is, LO < HI on every axis, and every
+// The periodic box: parsed as --box is, LO < HI on every axis, and every
 // point in [LO, HI), the first one outside named with its axis and side.
 TEST(PeriodicBoxTest, ParsesAndChecksPointsNamingTheFirstOutside) {
   auto box = PeriodicBox::parse("0,-1,2,1", "--periodic");

@@ -176,7 +176,7 @@ TEST(Mesh, ByteIdenticalForAnyThreadCountOrBlockSizeInSweepOrder) {
       return s;
     };
     for (std::size_t i = 0; i < one.size(); i += w) {
-      // Positively oriented (issue 18), ascending but for the last two vertices.
+      // Positively oriented, ascending but for the last two vertices.
       ASSERT_GT(pred.orientation(std::span<const std::uint32_t>(one.data() + i, w)), 0);
       ASSERT_TRUE(std::is_sorted(one.begin() + i, one.begin() + i + w - 1));
       ASSERT_EQ(one[i], sorted(i)[0]);
@@ -693,7 +693,7 @@ TEST(Voronoi, BoundedCellVolumesMatchPolygonAreas) {
     }
     if (!cell.bounded) continue;
     ++bounded;
-    // Shoelace over the vertices in the cell's own order (issue 18, part 8: counter-
+    // Shoelace over the vertices in the cell's own order (counter-
     // clockwise, so the signed area is the volume), and that order is the angular one.
     std::vector<std::pair<double, std::size_t>> by_angle;
     const std::size_t k = cell.vertex_count();

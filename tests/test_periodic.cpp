@@ -1,4 +1,4 @@
-// Periodic boxes (issue 28): Delaunay triangulations of the flat torus, simplex for
+// Periodic boxes: Delaunay triangulations of the flat torus, simplex for
 // simplex with offsets (up to a lattice translation) against CGAL's
 // Periodic_2_Delaunay_triangulation_2 and Periodic_3_Delaunay_triangulation_3 in their
 // 1-sheeted covering; and, in every dimension, checked on their own: every simplex

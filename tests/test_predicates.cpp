@@ -330,7 +330,7 @@ struct CgalRegular : CGAL::Regular_triangulation_3<CgalKernel> {
   using CGAL::Regular_triangulation_3<CgalKernel>::side_of_oriented_power_sphere;
 };
 
-// Weighted points (issue 28): the power test on a small integer grid with small integer
+// Weighted points: the power test on a small integer grid with small integer
 // weights, where many tests are exact ties, equals CGAL's
 // Regular_triangulation_3::side_of_oriented_power_sphere(..., perturb = true) (ON_POSITIVE_SIDE
 // is inside the power sphere, our -1); random real points and weights agree too.
@@ -493,7 +493,7 @@ PointSet explicit_images(const PointSet& ps, const PeriodicBox& box) {
   return make_points(d, coords);
 }
 
-// Periodic sets (issue 28): orientation and the perturbed in-sphere test on images of a
+// Periodic sets: orientation and the perturbed in-sphere test on images of a
 // grid in its own periodic box (every sphere a tie) equal the plain predicates on the
 // explicit images, perturbation included (the images' lexicographic order).
 TEST(PeriodicPredicates, ImagesOfAGridEqualTheExplicitImages) {

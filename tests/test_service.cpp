@@ -480,7 +480,7 @@ TEST(Engine, DeadlinesAndCancellationStopWork) {
   EXPECT_TRUE(engine->star(id, 0, no_deadline()).is_ok());
 }
 
-// ---- weighted and periodic sets (issue 28) ---------------------------------------------
+// ---- weighted and periodic sets ---------------------------------------------
 
 // Uploads coordinates, then weights (if any), in uneven chunks, with a periodic box (if any).
 Result<PointSetInfo> upload_extras(Engine& engine, int d, const std::vector<double>& coords,

@@ -1,7 +1,7 @@
 // Triangulation<D> (core/src/mesh/triangulation.hpp), the whole mesh's kernel in 2-d
 // and 3-d: valid after every insertion on small inputs, equal to CGAL's Delaunay
-// triangulation simplex for simplex (random, grids, cospherical, the surface shapes of
-// issue 41), and the same for any insertion order.
+// triangulation simplex for simplex (random, grids, cospherical, the shape families of
+// bench/shapes.py), and the same for any insertion order.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -173,7 +173,7 @@ Simplices sweep(const KdTree& tree, unsigned threads, std::uint32_t region_point
   return mesh_rows(tree, options, stats);
 }
 
-// Every shape family (issue 41) and every degenerate case, at a few thousand points,
+// Every shape family and every degenerate case, at a few thousand points,
 // with regions small enough that margins, tree queries and the triangulation of every
 // point all serve: the same bytes as the star walk's sweep, for any thread count and
 // region size, and CGAL's simplices.
@@ -348,7 +348,7 @@ TEST(TriangulationSweep, RefusedMemoryWalksTheStars) {
   }
 }
 
-// The work per point follows the stars, not the shape around them (issue 41): eight
+// The work per point follows the stars, not the shape around them: eight
 // times the points on a sphere's surface (where every Delaunay ball is the sphere
 // itself, and a global query per ball visited every point) or on a terrain cost the
 // same per point, in insertions and in k-d tree queries, with no star's sphere queried

@@ -1,4 +1,4 @@
-// Weighted points (issue 28): the stars and whole meshes of the regular (weighted
+// Weighted points: the stars and whole meshes of the regular (weighted
 // Delaunay) triangulation, simplex for simplex against CGAL's Regular_triangulation_2
 // and _3 and dD (hidden points included) and against exhaustive search in 4-d; equal weights
 // give back the Delaunay mesh; the result does not depend on input order.

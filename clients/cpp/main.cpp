@@ -548,8 +548,8 @@ int run_graph(const Common& common, const ApproxFlags& flags, const std::string&
 int main(int argc, char** argv) {
   // A fixed mmap threshold: glibc's default raises it to 32 MB after the first large
   // free (the sweep's split records, freed before the tree's build), after which the
-  // tree's and the front's large buffers come from a heap that never shrinks (3-d 1M:
-  // 178 MB peak instead of 144 MB). 4 MiB keeps the blocks' buffers in the heap.
+  // tree's and the front's large buffers come from a heap that never shrinks (a higher
+  // peak: bench/README.md, "Tuning history"). 4 MiB keeps the blocks' buffers in the heap.
   ::mallopt(M_MMAP_THRESHOLD, 4 << 20);
   CLI::App app{"spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
                "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};

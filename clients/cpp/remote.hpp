@@ -20,7 +20,7 @@ struct RemoteOptions {
   bool quiet = false;
 };
 
-// What an upload carries besides its coordinates (issue 28), both optional: a file of
+// What an upload carries besides its coordinates, both optional: a file of
 // power weights, one per point (one a line, or .npy; with radii, Voro++'s radii,
 // squared into weights), and a periodic box "LO1,...,LOd,HI1,...,HId". The server keeps
 // them with the set (its id hashes them) and answers with power cells and offsets.

@@ -80,7 +80,7 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
   if (w.common.weighted()) {
-    // The halos certify stars with circumspheres, not power spheres (issue 28).
+    // The halos certify stars with circumspheres, not power spheres.
     if (comm.rank == 0) {
       report(invalid_argument("--weights and --radii are not supported by spokemesh-mpi yet: use spokemesh"), kProgram);
     }

@@ -1,4 +1,4 @@
-"""Validates REST answers against docs/openapi.yaml (issue 19, part 4). conftest's http()
+"""Validates REST answers against docs/openapi.yaml. conftest's http()
 calls check() on every response, so every REST test is also a test of the description:
 the operation is found by method and path template, the response by status (or
 `default`), and a JSON body (each line of an NDJSON one) must match its schema."""

@@ -1,4 +1,4 @@
-"""Many seeds in one call (issue 19, part 3): BatchSeeds over gRPC, the REST
+"""Many seeds in one call: BatchSeeds over gRPC, the REST
 .../{stars,neighbors,cells}:batch routes, the Python client and the remote CLI. Every
 answer equals the single call's."""
 

@@ -1,4 +1,4 @@
-"""Clipped Voronoi cells and their measures (issue 18) through every way users reach
+"""Clipped Voronoi cells and their measures through every way users reach
 them: the CLI's `cell` and `cells` (.npz, .vtu), GetVoronoiCell and StreamCells over
 gRPC, the REST routes, the Python client and the remote CLI. scipy's ConvexHull of the
 clipped vertices is the oracle for volumes, surface areas and centroids."""
@@ -245,7 +245,7 @@ def test_cell_domain_errors_over_both_transports(server):
     assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT and "lies outside the domain" in e.value.details
 
 
-# --- Power (Laguerre) cells: weighted points (issue 28) ------------------------------
+# --- Power (Laguerre) cells: weighted points ------------------------------
 
 def voro(points: np.ndarray, tmp_path, radii=None, periodic: bool = False, lo: float = 0.0, hi: float = 1.0) -> dict:
     """Voro++'s cells of the particles in the cube [lo, hi]^3 ({id: (volume, neighbours)},
@@ -333,7 +333,7 @@ def test_power_cells_of_equal_weights_are_the_voronoi_cells_and_cell_says_hidden
     assert 4 not in [f.get("neighbor") for f in cell["facets"]]
 
 
-# --- Periodic cells: the flat torus (issue 28) ---------------------------------------
+# --- Periodic cells: the flat torus ---------------------------------------
 
 @pytest.mark.parametrize("box", [(0.0, 1.0), (-2.0, 3.0)])
 def test_periodic_cells_equal_voro_periodic_cells(tmp_path, box):

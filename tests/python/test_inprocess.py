@@ -231,7 +231,7 @@ def test_qhull_options_pickling_and_lifted_planes():
         assert tri.vertices is tri.simplices
 
 
-# --- Weighted points (issue 28): the regular triangulation -------------------------
+# --- Weighted points: the regular triangulation -------------------------
 
 def weighted_case(d: int, n: int, top: float, seed: int):
     rng = np.random.default_rng(seed)
@@ -320,7 +320,7 @@ def test_weighted_cells_in_process_equal_the_cli(tmp_path):
     assert tri.cell(some, box=[0, 0, 0, 1, 1, 1]).volume == pytest.approx(theirs["volume"][some], rel=1e-12)
 
 
-# --- The flat torus (issue 28) --------------------------------------------------------
+# --- The flat torus --------------------------------------------------------
 
 def test_periodic_delaunay_equals_the_cli_and_tiles_the_box(tmp_path):
     """Delaunay(points, periodic=box): the same rows and offsets as `spokemesh mesh

@@ -130,7 +130,7 @@ def test_mesh_is_byte_identical(reference, work, name, ranks):
     assert max(owned) / (n / ranks) <= 1.05, owned
 
 
-# The shapes whose Delaunay neighbours lie a scan line or a contour away (issue 41): the
+# The shapes whose Delaunay neighbours lie a scan line or a contour away: the
 # same bytes on any number of ranks, and halos that do not grow round after round.
 SHAPES = {
     "2d-contours-45k": lambda: shapes.contours(45_000, seed=1),

@@ -1,5 +1,5 @@
 """scipy's own tests of Delaunay and Voronoi, run on spokemesh.Delaunay and
-spokemesh.Voronoi (issue 27).
+spokemesh.Voronoi.
 
 The test file is the one Debian's python3-scipy installs
 (scipy/spatial/tests/test_qhull.py); nothing of it is copied here. It is loaded as a
@@ -60,7 +60,7 @@ ROW_ORDER = {"test_2d_square", "test_find_simplex", "test_convex_hull",
 # clockwise and one counter-clockwise).
 REGION_ORDER = {"test_simple", "test_furthest_site"}
 
-# What spokemesh.Delaunay does not do yet, and why (issue 27).
+# What spokemesh.Delaunay does not do yet, and why.
 NOT_YET = {
     # The set is degenerate (many cospherical points): half its simplices are broken
     # differently from Qhull's, both Delaunay. Ours (CGAL's symbolic perturbation) leave

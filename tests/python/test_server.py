@@ -614,7 +614,7 @@ def _row_keys(simplices: np.ndarray, offsets: np.ndarray) -> list:
 
 def test_weighted_periodic_sets_answer_as_the_local_engine(server, tmp_path):
     """A set with weights and a periodic box, uploaded over gRPC, REST and the CLI: the
-    same id each way, and every answer the in-process engine's (issue 28)."""
+    same id each way, and every answer the in-process engine's."""
     points = uniform(600, 2, seed=28)
     weights = uniform(600, 1, seed=29).ravel() * 2e-4
     box = [[0.0, 0.0], [1.0, 1.0]]

@@ -1,4 +1,4 @@
-"""The browser page (issue 29), driven in a real browser: Debian's headless Chromium
+"""The browser page, driven in a real browser: Debian's headless Chromium
 through Selenium and chromedriver, against a real spokemesh-server. Upload through the
 page's file input, the list, a click on a drawn point, the seed's cell volume read off
 the page and compared with the REST answer, neighbours clicked in turn, the whole mesh,

@@ -482,7 +482,7 @@ class Triangulation {
 
   int dimension() const { return d_; }
   bool weighted() const { return !weights_.empty(); }
-  // What the weighted triangulation does not offer yet (issue 28): a clear ValueError.
+  // What the weighted triangulation does not offer yet: a clear ValueError.
   void unweighted_only(const char* what) const {
     if (!weights_.empty()) {
       throw py::value_error(std::string(what) + ": not available for a weighted (regular) triangulation yet");

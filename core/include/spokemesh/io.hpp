@@ -61,7 +61,7 @@ std::string npy_header(const std::string& descr, std::uint64_t rows, std::uint64
 std::string npy_vector_header(const std::string& descr, std::uint64_t rows);
 std::string npy_header_of_shape(const std::string& descr, const std::string& shape);
 
-// Weights of weighted points (issue 28), one per point in the points' order: text (one
+// Weights of weighted points, one per point in the points' order: text (one
 // number a line; '#' comments and blank lines as for points) or .npy (float64 or
 // float32, shape (n,) or (n, 1)). kPowerWeight: CGAL's convention, the power weight w
 // (the squared radius; any finite real, |w| <= kMaxWeight); kRadius: Voro++'s, a radius

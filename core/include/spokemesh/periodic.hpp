@@ -1,4 +1,4 @@
-// Delaunay triangulations of the flat torus (issue 28): a point set in a PeriodicBox
+// Delaunay triangulations of the flat torus: a point set in a PeriodicBox
 // whose opposite sides are identified, meshed as the Delaunay triangulation of all its
 // images p + k (HI - LO), each simplex once up to a lattice translation.
 //

@@ -1,5 +1,5 @@
 // PeriodicBox: the axis-aligned box [LO, HI) whose opposite sides are identified, the
-// fundamental domain of a flat torus (issue 28). A point set meshed on the torus lies in
+// fundamental domain of a flat torus. A point set meshed on the torus lies in
 // it; an image of point p is p + k (HI - LO) for an integer vector k (its offset).
 //
 // Preconditions checked by of() and parse(): 2 <= d <= kMaxApproxDimension, finite

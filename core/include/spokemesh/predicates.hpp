@@ -208,7 +208,7 @@ struct ImageMap {
   bool is_image(std::int64_t id) const { return id >= static_cast<std::int64_t>(first); }
 };
 
-// What a point row means beyond the plain PointSet (issue 28), all optional, not
+// What a point row means beyond the plain PointSet, all optional, not
 // owned: power weights (one per point) and the periodic box whose lattice a row's
 // offset counts in, and the images stored as points.
 struct PointExtras {
@@ -246,7 +246,7 @@ struct Image {
 
 // Exact predicates over one PointSet (which must outlive this object).
 //
-// Weighted points (issue 28; CGAL's Regular_triangulation convention): with
+// Weighted points (CGAL's Regular_triangulation convention): with
 // `weights` (one power weight per point, finite, |w| <= kMaxWeight; not owned, must
 // outlive this object), a point's height over the origin x is |p - x|^2 - w_p + w_x,
 // so the lifted determinant is the power test: side_of_sphere() tells on which side of
@@ -258,7 +258,7 @@ struct Image {
 // unweighted answer. The exact stage of a weighted set works in rationals (the
 // integer fast path assumes unweighted heights).
 //
-// Periodic sets (issue 28; CGAL's Periodic_3_Delaunay_triangulation_3 convention):
+// Periodic sets (CGAL's Periodic_3_Delaunay_triangulation_3 convention):
 // with `box`, rows may name images p + k (HI - LO) (Row::of_image), computed exactly
 // (the filter bounds the rounding of HI - LO, of k times it and of the sum; the exact
 // stage adds them in rationals), and the perturbation orders the points of a test by

@@ -17,8 +17,8 @@
 // points arrive in), this order can be reproduced without holding the whole set.
 //
 // Cost: records of coordinates and index are partitioned in place (nth_element), the
-// two halves of the root on two threads from 65,536 points: 0.16 s for 1M 3-d points,
-// 0.70 s for 4M (the KdTree's build: 0.19 s and 0.84 s).
+// two halves of the root on two threads from 65,536 points: a little less than the
+// KdTree's build (bench/README.md, "Tuning history").
 //
 // Ownership: keeps the order both ways (2 n indices) and the blocks' boxes; the
 // PointSet is only read during construction (which copies it once, as records).

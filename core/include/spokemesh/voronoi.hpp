@@ -1,7 +1,7 @@
 // VoronoiCell: the Voronoi cell of a seed, assembled from its Delaunay star, and
 // optionally clipped to a Domain (docs/cells.md).
 //
-// With power weights (issue 28) the cell is the power (Laguerre) cell: vertices are
+// With power weights the cell is the power (Laguerre) cell: vertices are
 // the orthocentres of the regular triangulation's star, facets lie on the power
 // bisectors; a hidden seed's cell is empty (hidden, volume 0, no facets).
 //

@@ -31,8 +31,8 @@ struct DimensionPolicy {
   bool ring_walk;
   // Clipped cells to a box by the direct route (clipping the box by bisectors, as
   // Voro++) unless the caller chooses; the star's route otherwise. Measured: 3-d the
-  // direct route is faster; 2-d the ring walk is 2.5x faster; 4-d they tie; from 6-d
-  // the box's 2^d corners make clipping slow.
+  // direct route is faster; 2-d the ring walk is; 4-d they tie; from 6-d the box's 2^d
+  // corners make clipping slow.
   bool direct_cells;
   std::size_t cell_candidates;  // the direct route's first k-NN round
   // A whole mesh by local triangulations (2-d, 3-d; delaunay_sweep.cpp): the points of

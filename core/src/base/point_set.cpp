@@ -34,9 +34,9 @@ namespace {
 
 // Point indices in lexicographic order of their coordinates, equal points in input
 // order. Sorted as (first coordinate, index) records: the first coordinate nearly
-// always decides, so a comparison rarely reads the points themselves (a stable sort
-// of indices that read both points at random per comparison took 0.39 s for a 2-d
-// million, 2.6x this). Coordinates must be finite (no NaN).
+// always decides, so a comparison rarely reads the points themselves (a sort of bare
+// indices reads both points at random per comparison: bench/README.md, "Tuning
+// history"). Coordinates must be finite (no NaN).
 std::vector<std::uint32_t> lex_order(const PointSet& ps) {
   struct Entry {
     double first;

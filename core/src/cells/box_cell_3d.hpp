@@ -7,7 +7,7 @@
 // records in coordinates relative to the seed, planes in a small table, no heap
 // allocation after the first cells, and measures taken from cones at the seed.
 //
-// With power weights (issue 28) the cuts are power bisectors, |y|^2 - w_s <= |y - q|^2
+// With power weights the cuts are power bisectors, |y|^2 - w_s <= |y - q|^2
 // - w_p, i.e. q . y <= (|q|^2 - (w_p - w_s)) / 2: the same planes with other offsets,
 // decided by the same predicates with weighted heights; the cell need not contain the
 // seed (then some offsets are negative), and may become empty (the caller then asks

@@ -23,19 +23,15 @@ struct ClippedCellBuilder::Scratch {
 
 namespace {
 // A cell whose security ball holds more points than this goes to the star instead (a
-// seed at the edge of a void, say): it bounds the direct route's work. Measured with 2
-// threads: 3-d clustered 50k (100 clumps of sigma 0.01 in the unit cube) 2.1 s at 256
-// against 18 s at 16,384 (30 s before the rounds stopped rescanning what they had
-// applied); 3-d uniform 1M the same bytes and time (18.4 s) at 256 and 1,024.
+// seed at the edge of a void, say): it bounds the direct route's work on clustered
+// sets and costs uniform ones nothing (bench/README.md, "Tuning history").
 constexpr std::size_t kMaxDirectCandidates = 256;
 }  // namespace
 
 bool ClippedCellBuilder::takes_direct_route(int dimension, const Domain& domain, CellRoute route) {
   // The one dispatch point; the dimension policy (base/dimension.hpp) says where the
-  // direct route is the default. Measured (bench/README.md): in 3-d it is faster than
-  // the star's and needs no facet cache (1M points on 2 threads, before its
-  // specialised 3-d stage: 36 s and 150 MB against 38 s and 396 MB; with it, 18-19 s
-  // and 159 MB).
+  // direct route is the default. In 3-d it is faster than the star's and needs no
+  // facet cache (bench/README.md, "Tuning history").
   const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && detail::policy(dimension).direct_cells);
   if (!wanted || !domain.is_box() || domain.dimension() != dimension) return false;
   const std::vector<double> lo = domain.lower(), hi = domain.upper();
@@ -269,7 +265,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // same coordinates (bench/README.md: 12% of a 3-d million's time in file order);
   // either way the round's cells are handed over in seed order. Seeds that go to the
   // star after all (grids: ties everywhere) run faster in seed order and smaller rounds,
-  // as star runs do (a 50^3 grid: 9.7 s in space order, 8.5 s so), so the first
+  // as star runs do (bench/README.md, "Tuning history"), so the first
   // round_size seeds go that way, and space order follows only if most of them were
   // built directly (and stops when a round was not). Only speed depends on it.
   // Power cells (weights) go directly only in 3-d (see ClippedCellBuilder).
@@ -288,7 +284,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // mostly need no star; the cache's pages are only committed where stars touch them.)
   // Power cells built directly go to stars only for ties and cells the domain cuts
   // away, scattered over the run: the cache then holds pages all over and saves
-  // nothing (3-d 300k: 5.9 s either way, 239 MB with it, 88 MB without).
+  // nothing but its memory (bench/README.md, "Tuning history").
   std::optional<RunCache> cache;
   StarOptions star_options = options.star;
   if (options.facet_cache_bytes != 0 && !weighted_direct) {

@@ -25,8 +25,8 @@ Result<PeriodicCellsStats> compute_periodic_cells(const PointSet& points, const 
     run.seed_begin = 0;
     run.seed_end = cover.point_count();
     run.measures_only = false;  // the vertices certify the cells (then are dropped if asked)
-    // Rounds of 2048 cells a thread: their vertices are held until certified (rounds of
-    // 8192 held 40 MB more at 3-d 1M, for no speed).
+    // Rounds of 2048 cells a thread: their vertices are held until certified (larger
+    // rounds hold more for no speed: bench/README.md, "Tuning history").
     if (run.block_size == 0) run.block_size = 2048;
     run.star.cover = &cover;
     stats.images = cover.image_count();

@@ -1,4 +1,4 @@
-// Where a weighted seed's star walk starts (issue 28).
+// Where a weighted seed's star walk starts.
 //
 // The spokes of StarWalker::first_simplex rotate a plane through lifted x that has
 // every other lifted point above it. Unweighted, the tangent plane h = 0 is one: every
