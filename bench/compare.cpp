@@ -58,9 +58,8 @@ std::pair<double, std::size_t> time_spokemesh(const spokemesh::PointSet& ps, uns
   const spokemesh::KdTree tree(ps);
   spokemesh::MeshOptions options;
   options.threads = threads;
-  auto r = spokemesh::mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) {
-    return spokemesh::Status::ok();
-  });
+  auto r = spokemesh::mesh_seeds(tree, options,
+                                 [](std::span<const std::uint32_t>, std::uint64_t) { return spokemesh::Status::ok(); });
   if (r.is_ok()) g_last_stats = r.value().star;
   return {since(t0), r.is_ok() ? r.value().simplices : 0};
 }
@@ -121,10 +120,14 @@ int main(int argc, char** argv) {
   std::string only;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "--threads" && i + 1 < argc) threads = static_cast<unsigned>(std::stoul(argv[++i]));
-    else if (a == "--quick") quick = true;
-    else if (a == "--grids") grids = true;
-    else if (a == "--only" && i + 1 < argc) only = argv[++i];
+    if (a == "--threads" && i + 1 < argc)
+      threads = static_cast<unsigned>(std::stoul(argv[++i]));
+    else if (a == "--quick")
+      quick = true;
+    else if (a == "--grids")
+      grids = true;
+    else if (a == "--only" && i + 1 < argc)
+      only = argv[++i];
     else {
       std::fprintf(stderr, "usage: spokemesh_compare [--threads N] [--quick] [--grids] [--only NAME]\n");
       return 2;
@@ -136,24 +139,23 @@ int main(int argc, char** argv) {
     return Config{std::to_string(d) + "d-" + std::to_string(side) + "-" + how, d, n, d >= 4, d >= 4, kind, side};
   };
   const std::vector<Config> grid_configs = {
-      g(3, 25, Kind::kGridInteger, "int"),    g(3, 25, Kind::kGridDyadic, "dyadic"),
-      g(3, 25, Kind::kGridDecimal, "dec"),    g(3, 25, Kind::kGridLinspace, "lin"),
-      g(3, 25, Kind::kGridJittered, "jit"),   g(3, 50, Kind::kGridLinspace, "lin"),
-      g(3, 50, Kind::kGridInteger, "int"),    g(3, 50, Kind::kGridJittered, "jit"),
-      g(3, 100, Kind::kGridLinspace, "lin"),  g(2, 1000, Kind::kGridLinspace, "lin"),
-      g(2, 1000, Kind::kGridInteger, "int"),  g(2, 1000, Kind::kGridJittered, "jit"),
-      g(4, 10, Kind::kGridInteger, "int"),    g(4, 10, Kind::kGridLinspace, "lin"),
+      g(3, 25, Kind::kGridInteger, "int"),   g(3, 25, Kind::kGridDyadic, "dyadic"),
+      g(3, 25, Kind::kGridDecimal, "dec"),   g(3, 25, Kind::kGridLinspace, "lin"),
+      g(3, 25, Kind::kGridJittered, "jit"),  g(3, 50, Kind::kGridLinspace, "lin"),
+      g(3, 50, Kind::kGridInteger, "int"),   g(3, 50, Kind::kGridJittered, "jit"),
+      g(3, 100, Kind::kGridLinspace, "lin"), g(2, 1000, Kind::kGridLinspace, "lin"),
+      g(2, 1000, Kind::kGridInteger, "int"), g(2, 1000, Kind::kGridJittered, "jit"),
+      g(4, 10, Kind::kGridInteger, "int"),   g(4, 10, Kind::kGridLinspace, "lin"),
       g(4, 10, Kind::kGridJittered, "jit"),
   };
-  const std::vector<Config> configs = grids ? grid_configs : quick ? std::vector<Config>{{"2d-100k", 2, 100000, false, true},
-                                                                  {"3d-20k", 3, 20000, true, true},
-                                                                  {"4d-2k", 4, 2000, true, true}}
-                                            : std::vector<Config>{{"2d-1M", 2, 1000000, false, true},
-                                                                  {"3d-200k", 3, 200000, false, true},
-                                                                  {"3d-1M", 3, 1000000, false, false},
-                                                                  {"4d-20k", 4, 20000, true, true},
-                                                                  {"5d-5k", 5, 5000, true, true},
-                                                                  {"6d-2k", 6, 2000, true, true}};
+  const std::vector<Config> configs =
+      grids   ? grid_configs
+      : quick ? std::vector<Config>{{"2d-100k", 2, 100000, false, true},
+                                    {"3d-20k", 3, 20000, true, true},
+                                    {"4d-2k", 4, 2000, true, true}}
+              : std::vector<Config>{{"2d-1M", 2, 1000000, false, true},  {"3d-200k", 3, 200000, false, true},
+                                    {"3d-1M", 3, 1000000, false, false}, {"4d-20k", 4, 20000, true, true},
+                                    {"5d-5k", 5, 5000, true, true},      {"6d-2k", 6, 2000, true, true}};
   std::printf("%-14s %9s %12s | %10s %10s %10s %10s | %9s %9s | %8s %8s\n", "config", "points", "simplices",
               "spokemesh", "CGAL 2/3", "CGAL dD", "Qhull", "vs best", "agree", "wraps/pt", "exact/pt");
   for (const Config& c : configs) {
@@ -179,13 +181,13 @@ int main(int argc, char** argv) {
     }
     auto cell = [](double t) { return t > 0 ? std::to_string(t).substr(0, 6) + " s" : std::string("-"); };
     const double per_point = 1.0 / static_cast<double>(c.n);
-    std::printf("%-14s %9zu %12zu | %10s %10s %10s %10s | %8.2fx %9s | %8.2f %8.2f\n", c.name.c_str(), c.n,
-                ours.second, cell(ours.first).c_str(), cell(low.first).c_str(), cell(dd.first).c_str(),
-                cell(qh.first).c_str(), ours.first / best, agree ? "yes" : "NO",
-                static_cast<double>(g_last_stats.wraps) * per_point,
+    std::printf("%-14s %9zu %12zu | %10s %10s %10s %10s | %8.2fx %9s | %8.2f %8.2f\n", c.name.c_str(), c.n, ours.second,
+                cell(ours.first).c_str(), cell(low.first).c_str(), cell(dd.first).c_str(), cell(qh.first).c_str(),
+                ours.first / best, agree ? "yes" : "NO", static_cast<double>(g_last_stats.wraps) * per_point,
                 static_cast<double>(g_last_stats.exact_fallbacks) * per_point);
     std::fflush(stdout);
   }
-  std::printf("(spokemesh with %u threads; CGAL and Qhull single-threaded; 'vs best' = our time / fastest other)\n", threads);
+  std::printf("(spokemesh with %u threads; CGAL and Qhull single-threaded; 'vs best' = our time / fastest other)\n",
+              threads);
   return 0;
 }

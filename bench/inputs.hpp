@@ -32,12 +32,18 @@ inline std::vector<double> grid(int d, int side, Kind kind, std::uint64_t seed) 
   std::vector<double> axis(static_cast<std::size_t>(side));
   for (int i = 0; i < side; ++i) {
     switch (kind) {
-      case Kind::kGridDyadic: axis[i] = i / 32.0; break;
+      case Kind::kGridDyadic:
+        axis[i] = i / 32.0;
+        break;
       case Kind::kGridLinspace:  // numpy: arange(side) * step + 0, the last value set to stop
         axis[i] = i + 1 == side ? 1.0 : i * (1.0 / (side - 1));
         break;
-      case Kind::kGridDecimal: axis[i] = i * 0.1; break;
-      default: axis[i] = i; break;
+      case Kind::kGridDecimal:
+        axis[i] = i * 0.1;
+        break;
+      default:
+        axis[i] = i;
+        break;
     }
   }
   std::size_t n = 1;
@@ -86,7 +92,8 @@ inline std::vector<double> terrain(std::size_t n, double side, std::uint64_t see
   std::vector<double> c;
   for (std::size_t i = 0; i < n; ++i) {
     const double x = u(rng), y = u(rng);
-    const double z = 1.5 * std::sin(x / 97) * std::cos(y / 131) + std::sin((x + y) / 53) + 0.5 * std::cos(x / 23 - y / 41);
+    const double z =
+        1.5 * std::sin(x / 97) * std::cos(y / 131) + std::sin((x + y) / 53) + 0.5 * std::cos(x / 23 - y / 41);
     c.insert(c.end(), {x, y, z + noise(rng)});
   }
   return c;
@@ -174,13 +181,15 @@ inline std::vector<double> isosurface(int side, std::uint64_t seed) {
   auto at = [&](int i) { return -1.5 + step * i; };
   auto f = [&](double x, double y, double z) {
     double s = 0;
-    for (const auto& b : blobs) s += std::exp(-((x - b[0]) * (x - b[0]) + (y - b[1]) * (y - b[1]) + (z - b[2]) * (z - b[2])) / (b[3] * b[3]));
+    for (const auto& b : blobs)
+      s += std::exp(-((x - b[0]) * (x - b[0]) + (y - b[1]) * (y - b[1]) + (z - b[2]) * (z - b[2])) / (b[3] * b[3]));
     return s - 1;
   };
   std::vector<double> values(static_cast<std::size_t>(side) * side * side);
   for (int i = 0; i < side; ++i)
     for (int j = 0; j < side; ++j)
-      for (int k = 0; k < side; ++k) values[(static_cast<std::size_t>(i) * side + j) * side + k] = f(at(i), at(j), at(k));
+      for (int k = 0; k < side; ++k)
+        values[(static_cast<std::size_t>(i) * side + j) * side + k] = f(at(i), at(j), at(k));
   std::vector<double> c;
   for (int i = 0; i < side; ++i)
     for (int j = 0; j < side; ++j)

@@ -58,7 +58,9 @@ int run(const Input& input, std::size_t samples, std::size_t candidates) {
   for (const double t : us) mean += t;
   mean /= static_cast<double>(samples);
   std::sort(us.begin(), us.end());
-  auto at = [&](double q) { return us[std::min(samples - 1, static_cast<std::size_t>(q * static_cast<double>(samples)))]; };
+  auto at = [&](double q) {
+    return us[std::min(samples - 1, static_cast<std::size_t>(q * static_cast<double>(samples)))];
+  };
   std::printf("%-22s %9zu %7.2f s | %8.1f %8.1f %8.1f %9.1f %8.1f | %6.1f\n", input.name.c_str(), ps.size(), build_s,
               at(0.5), at(0.9), at(0.99), us.back(), mean,
               static_cast<double>(simplices) / static_cast<double>(samples));
@@ -82,7 +84,8 @@ int main(int argc, char** argv) {
     } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc) {
       only = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: spokemesh_latency [--quick] [--samples N] [--only uniform|linspace] [--candidates K]\n");
+      std::fprintf(stderr,
+                   "usage: spokemesh_latency [--quick] [--samples N] [--only uniform|linspace] [--candidates K]\n");
       return 2;
     }
   }

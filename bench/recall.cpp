@@ -86,10 +86,14 @@ int main(int argc, char** argv) {
   std::string only, svg;
   for (int a = 1; a < argc; ++a) {
     const std::string arg = argv[a];
-    if (arg == "--large") large = true;
-    else if (arg == "--seeds" && a + 1 < argc) seeds = std::atoi(argv[++a]);
-    else if (arg == "--only" && a + 1 < argc) only = argv[++a];
-    else if (arg == "--svg" && a + 1 < argc) svg = argv[++a];
+    if (arg == "--large")
+      large = true;
+    else if (arg == "--seeds" && a + 1 < argc)
+      seeds = std::atoi(argv[++a]);
+    else if (arg == "--only" && a + 1 < argc)
+      only = argv[++a];
+    else if (arg == "--svg" && a + 1 < argc)
+      svg = argv[++a];
     else {
       std::fprintf(stderr, "usage: spokemesh_recall [--large] [--seeds K] [--only NAME] [--svg FILE]\n");
       return 2;
@@ -195,11 +199,12 @@ int main(int argc, char** argv) {
     for (std::uint32_t m : budgets) {
       f << "<text x=\"" << X(m) << "\" y=\"" << H - B + 18 << "\" text-anchor=\"middle\">" << m << "</text>\n";
     }
-    f << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 10 << "\" text-anchor=\"middle\">consecutive-miss budget M</text>\n";
+    f << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 10
+      << "\" text-anchor=\"middle\">consecutive-miss budget M</text>\n";
     f << "<text x=\"14\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 14 " << (T + H - B) / 2
       << ")\" text-anchor=\"middle\">recall</text>\n";
-    const char* colours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
-                             "#bcbd22", "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39"};
+    const char* colours[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+                             "#7f7f7f", "#bcbd22", "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39"};
     int series = 0;
     for (std::size_t i = 0; i < rows.size(); i += budgets.size(), ++series) {
       std::string points;

@@ -31,7 +31,8 @@ Result<std::vector<Authenticator::Key>> Authenticator::read_keys() const {
     const std::string where = "--keys: " + keys_file_ + " line " + std::to_string(number);
     if (!(words >> tenant)) return invalid_argument(where + ": expected `key tenant [admin]`");
     const bool admin = static_cast<bool>(words >> role);
-    if (admin && role != "admin") return invalid_argument(where + ": the third word must be `admin`, not \"" + role + "\"");
+    if (admin && role != "admin")
+      return invalid_argument(where + ": the third word must be `admin`, not \"" + role + "\"");
     if (words >> extra) return invalid_argument(where + ": more than `key tenant [admin]`");
     if (key.size() < 16) return invalid_argument(where + ": keys must be at least 16 characters");
     for (const Key& k : keys) {

@@ -51,7 +51,8 @@ class Authenticator {
     std::string key;
     Principal principal;
   };
-  Authenticator(std::string keys_file, std::string token) : keys_file_(std::move(keys_file)), token_(std::move(token)) {}
+  Authenticator(std::string keys_file, std::string token)
+      : keys_file_(std::move(keys_file)), token_(std::move(token)) {}
   Result<std::vector<Key>> read_keys() const;
 
   const std::string keys_file_;

@@ -146,23 +146,22 @@ ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t
           static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
 }
 
-Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits)
-    : store_(std::move(store)), limits_(limits) {}
+Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits) : store_(std::move(store)), limits_(limits) {}
 
 Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& h) const {
   const std::string d = std::to_string(h.dimension), n = std::to_string(h.count);
   if (h.dimension < 2) return invalid_argument("dimension: " + d + " is not supported; it must be at least 2");
   if (h.dimension > limits_.max_dimension) {
-    return resource_exhausted("dimension: " + d + " exceeds this server's limit --max-dimension=" +
-                              std::to_string(limits_.max_dimension));
+    return resource_exhausted("dimension: " + d +
+                              " exceeds this server's limit --max-dimension=" + std::to_string(limits_.max_dimension));
   }
   if (h.count < h.dimension + 1) {
     return invalid_argument("count: " + n + " points cannot span " + d + " dimensions; at least " +
                             std::to_string(h.dimension + 1) + " are needed");
   }
   if (static_cast<std::uint64_t>(h.count) > limits_.max_points) {
-    return resource_exhausted("count: " + n + " points exceed this server's limit --max-points=" +
-                              std::to_string(limits_.max_points));
+    return resource_exhausted("count: " + n +
+                              " points exceed this server's limit --max-points=" + std::to_string(limits_.max_points));
   }
   if ((h.weighted || !h.periodic_box.empty()) && h.dimension > kMaxDimension) {
     return invalid_argument(std::string(h.weighted ? "weighted" : "periodic_box") +
@@ -214,8 +213,9 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
   }
   const int d = parent->dimension;
   if (added.dimension != 0 && added.dimension != d) {
-    return invalid_argument("dimension: " + std::to_string(added.dimension) + "-d points cannot be appended to point set " +
-                            parent_id + ", whose points are " + std::to_string(d) + "-d");
+    return invalid_argument("dimension: " + std::to_string(added.dimension) +
+                            "-d points cannot be appended to point set " + parent_id + ", whose points are " +
+                            std::to_string(d) + "-d");
   }
   if (added.count < 1) return invalid_argument("count: appending needs at least one point");
   UploadHeader whole = added;
@@ -225,7 +225,8 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
   auto session = begin_upload(whole);
   if (!session.is_ok()) return session.status();
   UploadSession& s = *session.value();
-  if (Status st = store_->read_coordinates(parent_id, [&](const char* bytes, std::size_t size) { return s.append(bytes, size); });
+  if (Status st = store_->read_coordinates(parent_id,
+                                           [&](const char* bytes, std::size_t size) { return s.append(bytes, size); });
       !st.is_ok()) {
     return st;
   }
@@ -362,7 +363,8 @@ Result<PeriodicStar> Engine::periodic_star_of(const StoredSet& set, std::uint32_
   StarOptions options;
   options.cancel = control.stop_flag();
   auto star = set.periodic->star(seed, options, cell, centres);
-  if (star.status().code() == Code::kCancelled) return control.stopped_status("the star of seed " + std::to_string(seed));
+  if (star.status().code() == Code::kCancelled)
+    return control.stopped_status("the star of seed " + std::to_string(seed));
   return star;
 }
 
@@ -385,7 +387,8 @@ NeighborAnswer Engine::periodic_neighbor_answer(const StoredSet& set, const Peri
 
 Status Engine::check_query(const StoredSet& set, const DomainSpec* domain, const NeighborQuery* query) {
   if (set.box && domain != nullptr && !domain->empty()) {
-    return invalid_argument("domain: point set " + set.info.id + " is periodic: its cells fill the torus, so box, "
+    return invalid_argument("domain: point set " + set.info.id +
+                            " is periodic: its cells fill the torus, so box, "
                             "halfspaces and bounding_box do not apply");
   }
   if (query != nullptr && query->mode != NeighborQuery::Mode::kExact && (set.box || !set.weights.empty())) {
@@ -525,7 +528,8 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   options.weights = set.weights;
   ClippedCellBuilder builder(*set.tree, *domain, options);
   auto cell = builder.cell(seed);
-  if (cell.status().code() == Code::kCancelled) return control.stopped_status("the cell of seed " + std::to_string(seed));
+  if (cell.status().code() == Code::kCancelled)
+    return control.stopped_status("the cell of seed " + std::to_string(seed));
   return cell;
 }
 
@@ -535,7 +539,8 @@ namespace {
 // defaults::kMessagePayloadBytes, well within gRPC's default 4 MiB message limit,
 // whatever the cells' size (high-d cells have many vertices).
 std::size_t payload_bytes(const VoronoiCell& c) {
-  std::size_t bytes = 8 * (c.vertices.size() + c.centroid.size()) + 4 * (c.vertex_simplices.size() + c.facet_offsets.size()) + 64;
+  std::size_t bytes =
+      8 * (c.vertices.size() + c.centroid.size()) + 4 * (c.vertex_simplices.size() + c.facet_offsets.size()) + 64;
   for (const VoronoiFacet& f : c.facets) bytes += 8 * f.normal.size() + 4 * f.vertices.size() + 24;
   return bytes;
 }
@@ -681,8 +686,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   // answered in the request's order. A star the budget could not keep is walked below.
   std::unordered_map<std::uint32_t, Star> batched;
   MemoryBudget::Charge batched_charge = store_->budget().empty_charge();
-  const bool from_stars = kind == BatchKind::kStars || (kind == BatchKind::kNeighbors && exact) ||
-                          (kind == BatchKind::kCells && !domain);
+  const bool from_stars =
+      kind == BatchKind::kStars || (kind == BatchKind::kNeighbors && exact) || (kind == BatchKind::kCells && !domain);
   if (from_stars && !set->periodic && set->tree && set->split && seeds.size() >= defaults::kBatchTogetherAtLeast) {
     std::vector<std::uint32_t> wanted(seeds.begin(), seeds.end());
     std::sort(wanted.begin(), wanted.end());
@@ -707,7 +712,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
         return false;  // the stars are the answer, not rows
       };
       batched.reserve(wanted.size());
-      auto run = mesh_seeds(*set->tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
+      auto run =
+          mesh_seeds(*set->tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
       if (!run.is_ok()) {
         if (run.status().code() == Code::kCancelled) return control.stopped_status("a batch of seeds");
         return run.status();
@@ -764,8 +770,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     return Status::ok();
   };
   const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
-  return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds", answer,
-                                emit);
+  return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds", answer, emit);
 }
 
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {
@@ -984,8 +989,8 @@ Status Engine::stream_periodic_simplices(const StoredSet& set, ShardRange range,
     return Status::ok();
   };
   const std::size_t round = (d <= 3 ? 64 : 16) * threads;
-  if (Status st = in_rounds<PeriodicStar>(range.end - range.begin, threads, round, control, "streaming a periodic shard",
-                                          compute, take);
+  if (Status st = in_rounds<PeriodicStar>(range.end - range.begin, threads, round, control,
+                                          "streaming a periodic shard", compute, take);
       !st.is_ok()) {
     return st;
   }
@@ -1010,8 +1015,8 @@ Status Engine::stream_periodic_cells(const StoredSet& set, ShardRange range, std
   };
   auto take = [&](std::span<const VoronoiCell> cells, std::size_t done) { return batches.add(cells, done); };
   const std::size_t round = (set.info.dimension <= 3 ? 64 : 16) * threads;
-  if (Status st = in_rounds<VoronoiCell>(range.end - range.begin, threads, round, control,
-                                         "streaming periodic cells", compute, take);
+  if (Status st = in_rounds<VoronoiCell>(range.end - range.begin, threads, round, control, "streaming periodic cells",
+                                         compute, take);
       !st.is_ok()) {
     return st;
   }

@@ -22,14 +22,14 @@
 #include <thread>
 #include <vector>
 
+#include "auth.hpp"
+#include "limits.hpp"
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
-#include "auth.hpp"
-#include "limits.hpp"
 #include "store.hpp"
 
 namespace spokemesh::service {
@@ -45,8 +45,9 @@ struct Limits {
   std::uint64_t max_memory = 4ull << 30;  // the memory budget (the server's default: half the cgroup limit or RAM)
   std::chrono::milliseconds default_deadline = defaults::kDefaultDeadline;
   std::chrono::milliseconds upload_idle_timeout = defaults::kUploadIdleTimeout;  // an idle upload stream ends
-  unsigned stream_threads = 1;                                      // worker threads per StreamSimplices call
-  std::size_t stream_cache_bytes = defaults::kStreamCacheBytes;    // per streamed shard: its local triangulations, or the front's mail (0: none)
+  unsigned stream_threads = 1;  // worker threads per StreamSimplices call
+  std::size_t stream_cache_bytes =
+      defaults::kStreamCacheBytes;  // per streamed shard: its local triangulations, or the front's mail (0: none)
   std::size_t max_display_name = defaults::kMaxDisplayName;
 };
 
@@ -163,9 +164,7 @@ struct DomainSpec {
   bool empty() const { return box.empty() && halfspaces.empty() && !bounding_box; }
 };
 
-
 enum class BatchKind { kStars, kNeighbors, kCells };
-
 
 struct StarAnswer {
   Star star;

@@ -1,6 +1,5 @@
 #include "grpc_service.hpp"
 
-
 #include <algorithm>
 #include <limits>
 #include <optional>
@@ -27,8 +26,7 @@ class MesherService::Call {
  public:
   Call(MesherService& service, grpc::ServerContext* ctx, const char* method, std::string point_set = {},
        std::optional<std::uint64_t> seed = std::nullopt)
-      : service_(service),
-        control_(deadline_of(ctx, service.engine_.limits()), [ctx] { return ctx->IsCancelled(); }) {
+      : service_(service), control_(deadline_of(ctx, service.engine_.limits()), [ctx] { return ctx->IsCancelled(); }) {
     record_.transport = "grpc";
     record_.method = method;
     record_.point_set = std::move(point_set);
@@ -36,7 +34,8 @@ class MesherService::Call {
     // Who is calling, and whether they may see the set named (auth.hpp).
     const auto& md = ctx->client_metadata();
     const auto it = md.find("authorization");
-    const std::string_view presented = it == md.end() ? std::string_view{} : std::string_view(it->second.data(), it->second.size());
+    const std::string_view presented =
+        it == md.end() ? std::string_view{} : std::string_view(it->second.data(), it->second.size());
     auto principal = service.auth_->authenticate(presented, "'authorization' metadata");
     if (!principal.is_ok()) {
       auth_ = principal.status();
@@ -132,28 +131,34 @@ grpc::Status MesherService::UploadPointSet(grpc::ServerContext* ctx,
                                            grpc::ServerReader<pb::UploadPointSetRequest>* reader,
                                            pb::PointSet* response) {
   Call call(*this, ctx, "UploadPointSet");
-  return receive_points(call, ctx, reader, [&](const pb::PointSetHeader& h) {
-    UploadHeader header;
-    header.dimension = h.dimension();
-    header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
-    header.display_name = h.display_name();
-    header.weighted = h.weighted();
-    header.periodic_box.assign(h.periodic_box().begin(), h.periodic_box().end());
-    return engine_.begin_upload(header);
-  }, response);
+  return receive_points(
+      call, ctx, reader,
+      [&](const pb::PointSetHeader& h) {
+        UploadHeader header;
+        header.dimension = h.dimension();
+        header.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
+        header.display_name = h.display_name();
+        header.weighted = h.weighted();
+        header.periodic_box.assign(h.periodic_box().begin(), h.periodic_box().end());
+        return engine_.begin_upload(header);
+      },
+      response);
 }
 
 grpc::Status MesherService::AppendPoints(grpc::ServerContext* ctx, grpc::ServerReader<pb::AppendPointsRequest>* reader,
                                          pb::PointSet* response) {
   Call call(*this, ctx, "AppendPoints");
   std::string parent;
-  const grpc::Status done = receive_points(call, ctx, reader, [&](const pb::AppendPointsHeader& h) {
-    parent = h.point_set_id();
-    UploadHeader added;
-    added.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
-    added.display_name = h.display_name();
-    return engine_.begin_append(parent, added, call.principal());
-  }, response);
+  const grpc::Status done = receive_points(
+      call, ctx, reader,
+      [&](const pb::AppendPointsHeader& h) {
+        parent = h.point_set_id();
+        UploadHeader added;
+        added.count = static_cast<std::int64_t>(std::min<std::uint64_t>(h.count(), INT64_MAX));
+        added.display_name = h.display_name();
+        return engine_.begin_append(parent, added, call.principal());
+      },
+      response);
   if (done.ok()) response->set_parent_id(parent);
   return done;
 }
@@ -257,10 +262,17 @@ void fill_neighbors(const NeighborAnswer& answer, pb::NeighborMode mode, pb::Nei
 Result<NeighborQuery> neighbor_query(int mode, std::uint32_t misses, std::uint32_t max_vertices) {
   NeighborQuery query;
   switch (mode) {
-    case pb::NEIGHBOR_MODE_EXACT: query.mode = NeighborQuery::Mode::kExact; break;
-    case pb::NEIGHBOR_MODE_APPROXIMATE: query.mode = NeighborQuery::Mode::kApproximate; break;
-    case pb::NEIGHBOR_MODE_SPOKES: query.mode = NeighborQuery::Mode::kSpokes; break;
-    default: return invalid_argument("mode: " + std::to_string(mode) + " is not a NeighborMode");
+    case pb::NEIGHBOR_MODE_EXACT:
+      query.mode = NeighborQuery::Mode::kExact;
+      break;
+    case pb::NEIGHBOR_MODE_APPROXIMATE:
+      query.mode = NeighborQuery::Mode::kApproximate;
+      break;
+    case pb::NEIGHBOR_MODE_SPOKES:
+      query.mode = NeighborQuery::Mode::kSpokes;
+      break;
+    default:
+      return invalid_argument("mode: " + std::to_string(mode) + " is not a NeighborMode");
   }
   query.max_consecutive_misses = misses;
   query.max_vertices = max_vertices;
@@ -332,9 +344,8 @@ grpc::Status MesherService::StreamSimplices(grpc::ServerContext* ctx, const pb::
     telemetry_.add_simplices_served(simplices.size() / static_cast<std::size_t>(dimension + 1));
     return Status::ok();
   };
-  return call.finish(engine_.stream_simplices(request->point_set_id(), request->shard_index(),
-                                              request->shard_count(), request->batch_size(), call.control(), emit,
-                                              &range, &dimension));
+  return call.finish(engine_.stream_simplices(request->point_set_id(), request->shard_index(), request->shard_count(),
+                                              request->batch_size(), call.control(), emit, &range, &dimension));
 }
 
 grpc::Status MesherService::StreamCells(grpc::ServerContext* ctx, const pb::StreamCellsRequest* request,
@@ -367,10 +378,17 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
   if (!call.auth().is_ok()) return call.finish(call.auth());
   BatchKind kind;
   switch (request->kind()) {
-    case pb::BATCH_KIND_STARS: kind = BatchKind::kStars; break;
-    case pb::BATCH_KIND_NEIGHBORS: kind = BatchKind::kNeighbors; break;
-    case pb::BATCH_KIND_CELLS: kind = BatchKind::kCells; break;
-    default: return call.finish(invalid_argument("kind: " + std::to_string(request->kind()) + " is not a BatchKind"));
+    case pb::BATCH_KIND_STARS:
+      kind = BatchKind::kStars;
+      break;
+    case pb::BATCH_KIND_NEIGHBORS:
+      kind = BatchKind::kNeighbors;
+      break;
+    case pb::BATCH_KIND_CELLS:
+      kind = BatchKind::kCells;
+      break;
+    default:
+      return call.finish(invalid_argument("kind: " + std::to_string(request->kind()) + " is not a BatchKind"));
   }
   auto query = neighbor_query(request->mode(), request->max_consecutive_misses(), request->max_vertices());
   if (!query.is_ok()) return call.finish(query.status());

@@ -1,10 +1,9 @@
 #include "http_api.hpp"
 
-
-#include <cctype>
 #include <array>
-#include <cmath>
+#include <cctype>
 #include <charconv>
+#include <cmath>
 #include <cstring>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -63,8 +62,12 @@ Result<std::uint64_t> parse_uint(const std::string& text, const std::string& wha
 
 // `already_existed` belongs to an upload's answer only (get and list leave it out).
 json point_set_json(const PointSetInfo& info, bool upload = false) {
-  json out = {{"id", info.id}, {"dimension", info.dimension}, {"count", info.count}, {"display_name", info.display_name},
-              {"weighted", info.weighted}, {"expected_simplices", expected_simplices(info.dimension, info.count)}};
+  json out = {{"id", info.id},
+              {"dimension", info.dimension},
+              {"count", info.count},
+              {"display_name", info.display_name},
+              {"weighted", info.weighted},
+              {"expected_simplices", expected_simplices(info.dimension, info.count)}};
   if (!info.periodic_box.empty()) out["periodic_box"] = info.periodic_box;
   if (upload) out["already_existed"] = info.already_existed;
   return out;
@@ -88,19 +91,20 @@ std::string media_type_of(std::string_view content_type) {
   while (!type.empty() && (type.back() == ' ' || type.back() == '\t')) type.remove_suffix(1);
   while (!type.empty() && (type.front() == ' ' || type.front() == '\t')) type.remove_prefix(1);
   std::string out(type);
-  std::transform(out.begin(), out.end(), out.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  std::transform(out.begin(), out.end(), out.begin(),
+                 [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
   return out;
 }
 
 json star_json(const StarAnswer& answer, const std::string& id, std::uint64_t seed) {
   const Star& star = answer.star;
   json out = {{"point_set_id", id},
-          {"seed", seed},
-          {"dimension", star.dimension},
-          {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
-          {"circumcenters", rows(answer.circumcentres, static_cast<std::size_t>(star.dimension))},
-          {"hull_facets", star.hull_facets},
-          {"hidden", star.hidden}};
+              {"seed", seed},
+              {"dimension", star.dimension},
+              {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
+              {"circumcenters", rows(answer.circumcentres, static_cast<std::size_t>(star.dimension))},
+              {"hull_facets", star.hull_facets},
+              {"hidden", star.hidden}};
   if (!answer.offsets.empty()) {
     // Per simplex, its vertices' offsets: [[o_1..o_d] x (d + 1)].
     const auto d = static_cast<std::size_t>(star.dimension);
@@ -116,8 +120,8 @@ json star_json(const StarAnswer& answer, const std::string& id, std::uint64_t se
 }
 
 json neighbors_json(const NeighborAnswer& answer, const std::string& id, std::uint64_t seed, const std::string& mode) {
-  json body = {{"point_set_id", id}, {"seed", seed}, {"neighbors", answer.neighbors}, {"exact", answer.exact},
-               {"mode", mode}};
+  json body = {
+      {"point_set_id", id}, {"seed", seed}, {"neighbors", answer.neighbors}, {"exact", answer.exact}, {"mode", mode}};
   if (!answer.offsets.empty()) body["offsets"] = rows(answer.offsets, answer.offsets.size() / answer.neighbors.size());
   if (!answer.exact) {
     body["vertices_visited"] = answer.walk.vertices;
@@ -133,8 +137,10 @@ Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t m
   auto parsed = parse_neighbor_mode(mode, "mode");
   if (!parsed.is_ok()) return parsed.status();
   query.mode = parsed.value();
-  if (misses > 100000000) return invalid_argument("max_consecutive_misses: " + std::to_string(misses) + " is too large");
-  if (max_vertices > 100000000) return invalid_argument("max_vertices: " + std::to_string(max_vertices) + " is too large");
+  if (misses > 100000000)
+    return invalid_argument("max_consecutive_misses: " + std::to_string(misses) + " is too large");
+  if (max_vertices > 100000000)
+    return invalid_argument("max_vertices: " + std::to_string(max_vertices) + " is too large");
   query.max_consecutive_misses = static_cast<std::uint32_t>(misses);
   query.max_vertices = static_cast<std::uint32_t>(max_vertices);
   return query;
@@ -164,9 +170,9 @@ json cell_json(const VoronoiCell& cell) {
   if (cell.hidden) out["hidden"] = true;
   if (!cell.facet_offsets.empty()) {
     for (std::size_t k = 0; k < cell.facets.size(); ++k) {
-      out["facets"][k]["offset"] = std::vector<std::int32_t>(
-          cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
-          cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
+      out["facets"][k]["offset"] =
+          std::vector<std::int32_t>(cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
+                                    cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
     }
   }
   return out;
@@ -175,9 +181,8 @@ json cell_json(const VoronoiCell& cell) {
 }  // namespace
 
 std::string error_json(const Status& s, int http_code) {
-  json error = {{"code", http_code != 0 ? http_code : http_status(s)},
-                {"status", code_name(s.code())},
-                {"message", s.message()}};
+  json error = {
+      {"code", http_code != 0 ? http_code : http_status(s)}, {"status", code_name(s.code())}, {"message", s.message()}};
   if (!s.reason().empty()) error["reason"] = s.reason();
   return dump({{"error", std::move(error)}});
 }
@@ -278,7 +283,8 @@ HttpResponse HttpApi::route(Context& c) {
       return r;
     }
     // /ui/ holds only the page's files: an unknown one is absent, token or not.
-    if (!p.empty() && p[0] == "ui") return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
+    if (!p.empty() && p[0] == "ui")
+      return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
   }
   if (p.size() == 1 && p[0] == "readyz" && method == http::verb::get) {
     c.record.method = "Readyz";
@@ -416,8 +422,8 @@ HttpResponse HttpApi::upload(Context& c, const std::string* parent) {
     }
     const std::size_t row = 8 * dim.value() + (header.weighted ? 8 : 0);
     if (body.size() % row != 0) {
-      return c.fail(invalid_argument("body: " + std::to_string(body.size()) + " bytes are not a whole number of " +
-                                     *d + "-dimensional float64 points (" + std::to_string(row) + " bytes each" +
+      return c.fail(invalid_argument("body: " + std::to_string(body.size()) + " bytes are not a whole number of " + *d +
+                                     "-dimensional float64 points (" + std::to_string(row) + " bytes each" +
                                      (header.weighted ? ", with its weight" : "") + ")"));
     }
     header.dimension = static_cast<std::int64_t>(dim.value());
@@ -632,8 +638,9 @@ HttpResponse HttpApi::simplices(Context& c, const std::string& id) {
       telemetry_.add_simplices_served(batch.size() / width);
       return Status::ok();
     };
-    Status s = engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
-                                        static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
+    Status s =
+        engine_.stream_simplices(id, static_cast<std::uint32_t>(values[0]), static_cast<std::uint32_t>(values[1]),
+                                 static_cast<std::uint32_t>(values[2]), control, emit, nullptr, &dimension);
     return finish_stream(record, timer, std::move(s));
   };
   return r;
@@ -658,9 +665,8 @@ HttpResponse HttpApi::points(Context& c, const std::string& id) {
     CallControl control(deadline, gone);
     const auto coords = set->points.coordinates();
     const std::size_t n = set->points.size(), d = static_cast<std::size_t>(set->points.dimension());
-    std::string header = std::string("{'descr': '") + (wide ? "<f8" : "<f4") +
-                         "', 'fortran_order': False, 'shape': (" + std::to_string(n) + ", " + std::to_string(d) +
-                         "), }";
+    std::string header = std::string("{'descr': '") + (wide ? "<f8" : "<f4") + "', 'fortran_order': False, 'shape': (" +
+                         std::to_string(n) + ", " + std::to_string(d) + "), }";
     // Magic, version 1.0, a little-endian u16 length, then the dict padded with spaces
     // and ended by a newline so that the data starts on a 64-byte boundary.
     const std::size_t unpadded = 10 + header.size() + 1;
@@ -727,7 +733,8 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
     if (!body[key].is_number_unsigned()) return invalid_argument(std::string(key) + ": not a non-negative integer");
     return body[key].get<std::uint64_t>();
   };
-  const std::string mode = body.contains("mode") && body["mode"].is_string() ? body["mode"].get<std::string>() : "exact";
+  const std::string mode =
+      body.contains("mode") && body["mode"].is_string() ? body["mode"].get<std::string>() : "exact";
   auto misses = number("max_consecutive_misses");
   if (!misses.is_ok()) return c.fail(misses.status());
   auto max_vertices = number("max_vertices");
@@ -744,8 +751,11 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
       out.push_back(v.get<double>());
     }
   }
-  spec.bounding_box = body.contains("bounding_box") && body["bounding_box"].is_boolean() && body["bounding_box"].get<bool>();
-  const BatchKind kind = what == "stars" ? BatchKind::kStars : what == "neighbors" ? BatchKind::kNeighbors : BatchKind::kCells;
+  spec.bounding_box =
+      body.contains("bounding_box") && body["bounding_box"].is_boolean() && body["bounding_box"].get<bool>();
+  const BatchKind kind = what == "stars"       ? BatchKind::kStars
+                         : what == "neighbors" ? BatchKind::kNeighbors
+                                               : BatchKind::kCells;
   HttpResponse r;
   r.content_type = "application/x-ndjson";
   r.stream = [this, id, seeds = std::move(seeds), kind, mode, query = query.value(), spec, deadline = c.deadline,

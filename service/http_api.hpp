@@ -67,8 +67,7 @@ class HttpApi {
           std::shared_ptr<const UiAssets> ui = nullptr);
 
   // client_gone: polled during long computations to stop work for a closed connection.
-  HttpResponse handle_request(const http::request<http::string_body>& request,
-                              std::function<bool()> client_gone = {});
+  HttpResponse handle_request(const http::request<http::string_body>& request, std::function<bool()> client_gone = {});
 
  private:
   struct Context;

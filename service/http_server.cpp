@@ -97,11 +97,10 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     }
     if constexpr (kTls) {
       lowest().expires_after(options_.handshake_timeout);
-      stream_.async_handshake(net::ssl::stream_base::server,
-                              [self = shared()](boost::system::error_code ec) {
-                                if (ec) return self->do_close();
-                                self->read_request();
-                              });
+      stream_.async_handshake(net::ssl::stream_base::server, [self = shared()](boost::system::error_code ec) {
+        if (ec) return self->do_close();
+        self->read_request();
+      });
     } else {
       read_request();
     }
@@ -149,8 +148,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     // The body's memory is charged before a byte of it is held: from its
     // Content-Length, or the body limit when it is chunked.
     if (options_.budget != nullptr) {
-      const std::uint64_t bytes =
-          parser_->content_length().value_or(parser_->chunked() ? options_.max_body_bytes : 0);
+      const std::uint64_t bytes = parser_->content_length().value_or(parser_->chunked() ? options_.max_body_bytes : 0);
       if (bytes != 0 && bytes <= options_.max_body_bytes) {
         auto charge = options_.budget->try_charge(bytes);
         if (!charge) {
@@ -169,11 +167,11 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   }
   void fail_read(boost::system::error_code ec) {
     if (ec == http::error::body_limit) {
-      return write_one_off(one_off_response(
-          http::status::payload_too_large,
-          resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
-                             std::to_string(options_.max_body_bytes)),
-          false));
+      return write_one_off(
+          one_off_response(http::status::payload_too_large,
+                           resource_exhausted("body: larger than this server's limit --max-body-bytes=" +
+                                              std::to_string(options_.max_body_bytes)),
+                           false));
     }
     if (quiet_end(ec) || !parser_->got_some()) return do_close();
     write_one_off(one_off_response(http::status::bad_request,
@@ -182,11 +180,10 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   void write_one_off(std::string bytes) {
     auto text = std::make_shared<std::string>(std::move(bytes));
     lowest().expires_after(options_.write_timeout);
-    net::async_write(stream_, net::buffer(*text),
-                     [self = shared(), text](boost::system::error_code ec, std::size_t) {
-                       if (ec) return self->do_close();
-                       self->linger();
-                     });
+    net::async_write(stream_, net::buffer(*text), [self = shared(), text](boost::system::error_code ec, std::size_t) {
+      if (ec) return self->do_close();
+      self->linger();
+    });
   }
   // A lingering close (as nginx's): after an early answer (413, 503) the client may
   // still be sending its body; closing at once would reset the connection before it

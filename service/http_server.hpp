@@ -39,7 +39,7 @@ struct HttpServerOptions {
   std::string listen = "127.0.0.1:8080";  // host:port; port 0 picks a free one
   // Defaults: limits.hpp.
   std::size_t max_body_bytes = defaults::kMaxBodyBytes;
-  std::size_t max_connections = defaults::kHttpMaxConnections;  // open connections in all
+  std::size_t max_connections = defaults::kHttpMaxConnections;                        // open connections in all
   std::size_t max_connections_per_address = defaults::kHttpMaxConnectionsPerAddress;  // from one client address
   std::size_t max_in_flight = defaults::kHttpMaxInFlight;  // requests being handled at once (one thread each)
   std::chrono::milliseconds handshake_timeout = defaults::kTlsHandshakeTimeout;  // TLS handshake

@@ -21,8 +21,9 @@ int main(int argc, char** argv) {
   ::mallopt(M_MMAP_THRESHOLD, 64 << 10);
   ::mallopt(M_TRIM_THRESHOLD, 4 << 20);
   ::mallopt(M_ARENA_MAX, 4);
-  CLI::App app{"spokemesh-server: exact Delaunay/Voronoi meshing service (gRPC and REST).\n"
-               "Point sets are uploaded once, stored durably in --data-dir, and queried per seed."};
+  CLI::App app{
+      "spokemesh-server: exact Delaunay/Voronoi meshing service (gRPC and REST).\n"
+      "Point sets are uploaded once, stored durably in --data-dir, and queried per seed."};
   spokemesh::service::ServerFlags flags;
   spokemesh::service::add_server_flags(app, flags);
   try {

@@ -85,8 +85,9 @@ int run_server(const ServerConfig& config) {
   }
 
   Telemetry telemetry;
-  auto store = PointSetStore::open(config.data_dir, config.limits.max_memory,
-                                   [&telemetry](const std::string& level, const std::string& m) { telemetry.log(level, m); });
+  auto store =
+      PointSetStore::open(config.data_dir, config.limits.max_memory,
+                          [&telemetry](const std::string& level, const std::string& m) { telemetry.log(level, m); });
   if (!store.is_ok()) return config_error(store.status());
   Engine engine(std::move(store).value(), config.limits);
   const std::size_t loaded = engine.store().load_all();
@@ -113,7 +114,8 @@ int run_server(const ServerConfig& config) {
                                    " (install Debian's libjs-three, or give --ui-three-dir)");
     }
   }
-  HttpApi api(engine, telemetry, auth, [&ready] { return ready.load(); }, ui);
+  HttpApi api(
+      engine, telemetry, auth, [&ready] { return ready.load(); }, ui);
   HttpServer http_server(api, telemetry, http_options);
 
   grpc::EnableDefaultHealthCheckService(true);
@@ -147,9 +149,8 @@ int run_server(const ServerConfig& config) {
   ready = true;
   const std::string grpc_host = config.grpc_listen.substr(0, config.grpc_listen.rfind(':'));
   const std::string http_host = config.http.listen.substr(0, config.http.listen.rfind(':'));
-  telemetry.log("info", "serving gRPC on " + grpc_host + ":" + std::to_string(grpc_port) + " and HTTP on " +
-                            http_host + ":" + std::to_string(http_port.value()) +
-                            (config.tls_cert.empty() ? "" : " (TLS)") +
+  telemetry.log("info", "serving gRPC on " + grpc_host + ":" + std::to_string(grpc_port) + " and HTTP on " + http_host +
+                            ":" + std::to_string(http_port.value()) + (config.tls_cert.empty() ? "" : " (TLS)") +
                             (auth->enabled() ? " (" + std::to_string(auth->key_count()) + " API keys)" : ""));
   if (ui) {
     telemetry.log("info", std::string("the browser page: ") + (config.tls_cert.empty() ? "http" : "https") + "://" +
@@ -163,8 +164,8 @@ int run_server(const ServerConfig& config) {
     if (config.keys_file.empty()) {
       telemetry.log("info", "received SIGHUP: no --keys file to re-read");
     } else if (Status s = auth->reload(); s.is_ok()) {
-      telemetry.log("info", "received SIGHUP: " + config.keys_file + " re-read, " +
-                                std::to_string(auth->key_count()) + " API keys");
+      telemetry.log("info", "received SIGHUP: " + config.keys_file + " re-read, " + std::to_string(auth->key_count()) +
+                                " API keys");
     } else {
       telemetry.log("error", "received SIGHUP: " + s.message() + "; the previous keys stay in force");
     }

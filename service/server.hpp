@@ -27,11 +27,11 @@ struct ServerConfig {
   Limits limits;
   std::string memory_why;  // where the memory budget comes from, for the log
   int max_concurrent_rpcs = 0;
-  HttpServerOptions http;  // its `tls` and `budget` are set by run_server
-  std::string tls_cert, tls_key, tls_client_ca;  // PEM files; empty: plain
-  std::string token;                             // from --auth-token-file
-  std::string keys_file;                         // --keys, re-read on SIGHUP
-  bool ui = true;                                // serve the browser page (--no-ui: not)
+  HttpServerOptions http;                                    // its `tls` and `budget` are set by run_server
+  std::string tls_cert, tls_key, tls_client_ca;              // PEM files; empty: plain
+  std::string token;                                         // from --auth-token-file
+  std::string keys_file;                                     // --keys, re-read on SIGHUP
+  bool ui = true;                                            // serve the browser page (--no-ui: not)
   std::string ui_three_dir = "/usr/share/javascript/three";  // Debian's libjs-three
   std::chrono::milliseconds drain{0}, grace{0};
   std::string drain_text, grace_text;  // as given, for the log

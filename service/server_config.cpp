@@ -39,8 +39,7 @@ std::uint64_t default_memory_budget(std::string& why) {
         limit = cgroup;
         why = std::string("the cgroup limit ") + std::to_string(cgroup) + " (" + path + ")";
       }
-    } catch (const std::exception&) {
-    }
+    } catch (const std::exception&) {}
     break;
   }
   return limit / 2;
@@ -49,13 +48,18 @@ std::uint64_t default_memory_budget(std::string& why) {
 }  // namespace
 
 void add_server_flags(CLI::App& app, ServerFlags& f) {
-  app.add_option("--grpc-listen", f.grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")->capture_default_str();
-  app.add_option("--http-listen", f.http_listen, "REST address HOST:PORT (port 0 picks a free port)")->capture_default_str();
-  app.add_option("--data-dir", f.data_dir, "Directory of stored point sets (may be shared by replicas)")->capture_default_str();
+  app.add_option("--grpc-listen", f.grpc_listen, "gRPC address HOST:PORT (port 0 picks a free port)")
+      ->capture_default_str();
+  app.add_option("--http-listen", f.http_listen, "REST address HOST:PORT (port 0 picks a free port)")
+      ->capture_default_str();
+  app.add_option("--data-dir", f.data_dir, "Directory of stored point sets (may be shared by replicas)")
+      ->capture_default_str();
   app.add_option("--threads", f.threads, "Worker threads per streamed shard")
       ->check(CLI::Range(1u, 1024u))
       ->capture_default_str();
-  app.add_option("--max-points", f.max_points, "Largest point set accepted")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--max-points", f.max_points, "Largest point set accepted")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   app.add_option("--max-concurrent-rpcs", f.max_concurrent,
                  "gRPC calls served at once; beyond it gRPC answers RESOURCE_EXHAUSTED (load shedding)")
       ->check(CLI::Range(1, 100000))

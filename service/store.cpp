@@ -143,9 +143,7 @@ bool file_exists(const std::string& path) {
 
 }  // namespace
 
-Sha256::Sha256() : ctx_(EVP_MD_CTX_new()) {
-  EVP_DigestInit_ex(static_cast<EVP_MD_CTX*>(ctx_), EVP_sha256(), nullptr);
-}
+Sha256::Sha256() : ctx_(EVP_MD_CTX_new()) { EVP_DigestInit_ex(static_cast<EVP_MD_CTX*>(ctx_), EVP_sha256(), nullptr); }
 Sha256::~Sha256() { EVP_MD_CTX_free(static_cast<EVP_MD_CTX*>(ctx_)); }
 void Sha256::update(const void* data, std::size_t size) {
   EVP_DigestUpdate(static_cast<EVP_MD_CTX*>(ctx_), data, size);
@@ -434,7 +432,8 @@ Result<PointSetInfo> PointSetStore::info(const std::string& id) {
       if (tag == 'P') {
         info.periodic_box.resize(2ull * d);
         const auto bytes = static_cast<ssize_t>(16ull * d);
-        if (::pread(fd, info.periodic_box.data(), static_cast<std::size_t>(bytes), static_cast<off_t>(at + 1)) != bytes) {
+        if (::pread(fd, info.periodic_box.data(), static_cast<std::size_t>(bytes), static_cast<off_t>(at + 1)) !=
+            bytes) {
           info.periodic_box.clear();
         }
       }
@@ -458,7 +457,8 @@ Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSi
     const std::span<const double> coords = loaded->points.coordinates();
     const auto* bytes = reinterpret_cast<const char*>(coords.data());
     for (std::size_t at = 0; at < coords.size_bytes(); at += defaults::kDownloadChunkBytes) {
-      if (Status s = sink(bytes + at, std::min(defaults::kDownloadChunkBytes, coords.size_bytes() - at)); !s.is_ok()) return s;
+      if (Status s = sink(bytes + at, std::min(defaults::kDownloadChunkBytes, coords.size_bytes() - at)); !s.is_ok())
+        return s;
     }
     return Status::ok();
   }
@@ -516,7 +516,8 @@ Status PointSetStore::read_verified(const std::string& id, const Destination& de
   if (extras != nullptr) *extras = std::move(tail);
   if (!ok || sha.hex_digest() != id) {
     quarantine(id, "its SHA-256 does not match its id (corrupt or truncated, " + std::to_string(size) + " bytes)");
-    return Status{Code::kNotFound, "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
+    return Status{Code::kNotFound,
+                  "point set " + id + " was corrupt on disk and has been quarantined; upload it again"};
   }
   return Status::ok();
 }
@@ -552,7 +553,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& i
 }
 
 Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std::string& id,
-                                                                     MemoryBudget::Charge charge) {
+                                                                       MemoryBudget::Charge charge) {
   std::vector<double> coords;
   std::uint32_t d = 0;
   std::uint64_t n = 0;
@@ -609,7 +610,8 @@ void PointSetStore::quarantine(const std::string& id, const std::string& why) {
   if (moved) fsync_dir(dir_);
   forget(id);
   if (log_) {
-    log_("error", "point set " + id + " quarantined: " + why + (moved ? " (moved to " + target + ")" : " (move failed)"));
+    log_("error",
+         "point set " + id + " quarantined: " + why + (moved ? " (moved to " + target + ")" : " (move failed)"));
   }
 }
 

@@ -3,8 +3,8 @@
 // On disk (--data-dir), one file per point set, `<id>.points`, holding exactly the
 // bytes the id hashes: dimension (uint32 LE), count (uint64 LE), coordinates (float64
 // LE, row-major), then for a weighted set 'W' and its count power weights (float64
-// LE), then for a periodic set 'P' and its box (2 dimension float64 LE: LO then HI). Verifying a file is recomputing its SHA-256, so the id doubles as a
-// checksum. An optional `<id>.name` holds the display name. A file is written to a
+// LE), then for a periodic set 'P' and its box (2 dimension float64 LE: LO then HI). Verifying a file is recomputing
+// its SHA-256, so the id doubles as a checksum. An optional `<id>.name` holds the display name. A file is written to a
 // temporary name, fsynced, renamed into place and the directory fsynced before the
 // upload is acknowledged. A file that fails verification is moved to quarantine/ with
 // a log line; other point sets are unaffected.
@@ -35,10 +35,10 @@
 #include "memory_budget.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/periodic.hpp"
-#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/periodic_box.hpp"
-#include "spokemesh/space_split.hpp"
+#include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/point_set.hpp"
+#include "spokemesh/space_split.hpp"
 #include "spokemesh/status.hpp"
 
 namespace spokemesh::service {
@@ -49,8 +49,8 @@ struct PointSetInfo {
   std::uint64_t count = 0;
   std::string display_name;
   bool already_existed = false;
-  bool weighted = false;              // carries one power weight per point
-  std::vector<double> periodic_box;   // LO_1..LO_d, HI_1..HI_d of its torus, or empty
+  bool weighted = false;             // carries one power weight per point
+  std::vector<double> periodic_box;  // LO_1..LO_d, HI_1..HI_d of its torus, or empty
 };
 
 // A point set ready for queries. Immutable; shared by concurrent requests.
@@ -60,12 +60,12 @@ struct StoredSet {
   // The whole mesh's sweep order (exact dimensions only; null above kMaxDimension),
   // built before the tree (its transient records are freed before the tree's build).
   std::unique_ptr<SpaceSplit> split;
-  std::unique_ptr<KdTree> tree;   // null for a periodic set (its stars walk `periodic`'s cover)
-  std::vector<double> weights;    // one power weight per point, or empty
-  std::optional<PeriodicBox> box;  // a periodic set's torus
+  std::unique_ptr<KdTree> tree;             // null for a periodic set (its stars walk `periodic`'s cover)
+  std::vector<double> weights;              // one power weight per point, or empty
+  std::optional<PeriodicBox> box;           // a periodic set's torus
   std::unique_ptr<PeriodicStars> periodic;  // a periodic set's stars (borrows points, box, weights)
-  std::uint64_t memory_bytes = 0;  // estimate: coordinates + ranks + split + tree
-  MemoryBudget::Charge charge;     // memory_bytes against the server's budget, while the set lives
+  std::uint64_t memory_bytes = 0;           // estimate: coordinates + ranks + split + tree
+  MemoryBudget::Charge charge;              // memory_bytes against the server's budget, while the set lives
 };
 
 // Incremental SHA-256 (OpenSSL EVP).

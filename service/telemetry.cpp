@@ -57,8 +57,10 @@ Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
   // The allocator's view beside the budget's: held minus in use is free memory the
   // allocator keeps (fragmentation); in use minus the budget's used is what is not
   // charged (the process's fixed cost and small per-request answers).
-  heap_in_use_ = gauge("spokemesh_heap_in_use_bytes", "Bytes allocated with malloc and not yet freed (glibc mallinfo2)");
-  heap_held_ = gauge("spokemesh_heap_held_bytes", "Bytes malloc holds from the system, in use or free (glibc mallinfo2)");
+  heap_in_use_ =
+      gauge("spokemesh_heap_in_use_bytes", "Bytes allocated with malloc and not yet freed (glibc mallinfo2)");
+  heap_held_ =
+      gauge("spokemesh_heap_held_bytes", "Bytes malloc holds from the system, in use or free (glibc mallinfo2)");
 }
 
 void Telemetry::log(const std::string& level, const std::string& message) {
@@ -88,8 +90,8 @@ void Telemetry::record(const Request& r) {
   }
   const prometheus::Labels labels{{"transport", r.transport}, {"method", r.method}, {"status", status}};
   requests_->Add(labels).Increment();
-  static const prometheus::Histogram::BucketBoundaries buckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05,
-                                                               0.1,    0.25,  0.5,    1,     2.5,  5,     10, 30};
+  static const prometheus::Histogram::BucketBoundaries buckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1,
+                                                               0.25,   0.5,   1,      2.5,   5,    10,    30};
   latency_->Add(labels, buckets).Observe(r.seconds);
 }
 

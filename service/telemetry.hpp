@@ -35,7 +35,7 @@ class Telemetry {
     std::string point_set;  // may be empty
     std::optional<std::uint64_t> seed;
     Code code = Code::kOk;
-    std::string message;    // the error message, if any
+    std::string message;  // the error message, if any
     double seconds = 0;
   };
   void record(const Request& r);
@@ -44,8 +44,7 @@ class Telemetry {
   void add_points_uploaded(std::uint64_t n) { points_->Increment(static_cast<double>(n)); }
   // store_bytes: loaded sets and trees; budget_used/budget_limit: the whole
   // --max-memory budget (sets, caches, stream windows, upload buffers).
-  void set_memory(std::uint64_t store_bytes, std::size_t sets, std::uint64_t budget_used,
-                  std::uint64_t budget_limit) {
+  void set_memory(std::uint64_t store_bytes, std::size_t sets, std::uint64_t budget_used, std::uint64_t budget_limit) {
     memory_->Set(static_cast<double>(store_bytes));
     loaded_->Set(static_cast<double>(sets));
     budget_used_->Set(static_cast<double>(budget_used));
@@ -74,9 +73,7 @@ class Telemetry {
 class RequestTimer {
  public:
   RequestTimer() : start_(std::chrono::steady_clock::now()) {}
-  double seconds() const {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-  }
+  double seconds() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count(); }
 
  private:
   std::chrono::steady_clock::time_point start_;

@@ -19,8 +19,7 @@ std::shared_ptr<const UiAssets> UiAssets::load(const std::string& three_dir) {
   // Debian's libjs-three (r111): the UMD build and the OrbitControls that attach to
   // the global THREE.
   const std::pair<const char*, const char*> system_files[] = {
-      {"/ui/three.min.js", "/build/three.min.js"},
-      {"/ui/OrbitControls.js", "/examples/js/controls/OrbitControls.js"}};
+      {"/ui/three.min.js", "/build/three.min.js"}, {"/ui/OrbitControls.js", "/examples/js/controls/OrbitControls.js"}};
   for (const auto& [path, file] : system_files) {
     std::ifstream in(three_dir + file, std::ios::binary);
     std::ostringstream text;

@@ -134,8 +134,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
     if (depth_ == 2 && field_ == Field::kCoordinates) return push(v);
     if (depth_ == 2 && field_ == Field::kWeights) {
       if (weights_.size() >= max_points_) {
-        return fail(resource_exhausted("weights: more than this server's limit --max-points=" +
-                                       std::to_string(max_points_)));
+        return fail(
+            resource_exhausted("weights: more than this server's limit --max-points=" + std::to_string(max_points_)));
       }
       return charged_push(weights_, v, "parsing the uploaded weights");
     }
@@ -154,9 +154,9 @@ class UploadSax final : public nlohmann::json_sax<json> {
     if (depth_ == 0) return fail(invalid_argument("body: expected a JSON object"));
     if (field_ == Field::kSkipped) return true;
     if (field_ == Field::kPoints) {
-      return fail(invalid_argument(where() + (depth_ == 2 ? ": expected an array of coordinates, got "
-                                                          : ": expected a number, got ") +
-                                   text.substr(0, 40)));
+      return fail(invalid_argument(
+          where() + (depth_ == 2 ? ": expected an array of coordinates, got " : ": expected a number, got ") +
+          text.substr(0, 40)));
     }
     if (field_ == Field::kCoordinates || field_ == Field::kWeights || field_ == Field::kBox) {
       return fail(invalid_argument(where() + ": expected a number, got " + text.substr(0, 40)));
@@ -228,8 +228,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
                                      " coordinates, but points[0] has " + std::to_string(row_width_)));
       }
       if (++rows_ > max_points_) {
-        return fail(resource_exhausted("points: more than this server's limit --max-points=" +
-                                       std::to_string(max_points_)));
+        return fail(
+            resource_exhausted("points: more than this server's limit --max-points=" + std::to_string(max_points_)));
       }
     }
     if (depth_ == 2) field_ = Field::kNone;
@@ -254,9 +254,8 @@ class UploadSax final : public nlohmann::json_sax<json> {
 
 }  // namespace
 
-Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords, std::vector<double>& weights, MemoryBudget::Charge* charge,
-                        const MemoryBudget* budget) {
+Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header, std::vector<double>& coords,
+                        std::vector<double>& weights, MemoryBudget::Charge* charge, const MemoryBudget* budget) {
   if (charge != nullptr && budget == nullptr) return internal_error("read_upload_json: a charge needs its budget");
   UploadSax sax(limits, header, coords, weights, charge, budget);
   bool parsed = false;

@@ -37,9 +37,8 @@ inline constexpr int kMaxUploadJsonDepth = 3;
 // number, got \"x\""), or the byte offset of a syntax error; RESOURCE_EXHAUSTED past
 // the limits. `charge`, if given, grows with coords' capacity: RESOURCE_EXHAUSTED
 // (reason OVER_BUDGET) when the server's memory budget cannot take it.
-Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header,
-                        std::vector<double>& coords, std::vector<double>& weights,
-                        MemoryBudget::Charge* charge = nullptr,
+Status read_upload_json(std::string_view body, const Limits& limits, UploadHeader& header, std::vector<double>& coords,
+                        std::vector<double>& weights, MemoryBudget::Charge* charge = nullptr,
                         const MemoryBudget* budget = nullptr);
 
 }  // namespace spokemesh::service

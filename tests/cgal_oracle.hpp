@@ -68,7 +68,8 @@ inline Tuples cgal_3(const PointSet& ps) {
   }
   Tuples out;
   for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c) {
-    std::vector<std::uint32_t> t = {c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()};
+    std::vector<std::uint32_t> t = {c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(),
+                                    c->vertex(3)->info()};
     std::sort(t.begin(), t.end());
     out.insert(t);
   }

@@ -96,9 +96,8 @@ Simplices mesh_rows(const TreeOrPoints& tree_or_points, const MeshOptions& optio
 
 inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_t begin = 0,
                           std::uint32_t end = 0xFFFFFFFFu, std::uint64_t random_seed = 0x5eed,
-                          std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes,
-                          std::uint32_t block_size = 0, MeshEngine engine = MeshEngine::kAuto,
-                          std::uint32_t region_points = 0) {
+                          std::size_t facet_cache_bytes = MeshOptions{}.facet_cache_bytes, std::uint32_t block_size = 0,
+                          MeshEngine engine = MeshEngine::kAuto, std::uint32_t region_points = 0) {
   MeshOptions options;
   options.engine = engine;
   options.region_points = region_points;
@@ -115,7 +114,8 @@ inline Simplices mesh_all(const KdTree& tree, unsigned threads = 1, std::uint32_
 // rows themselves: equal for two meshes with the same oriented rows in any order.
 inline Simplices sorted_rows(const Simplices& flat, int width) {
   std::vector<std::vector<std::uint32_t>> rows;
-  for (std::size_t i = 0; i + width <= flat.size(); i += width) rows.emplace_back(flat.begin() + i, flat.begin() + i + width);
+  for (std::size_t i = 0; i + width <= flat.size(); i += width)
+    rows.emplace_back(flat.begin() + i, flat.begin() + i + width);
   std::sort(rows.begin(), rows.end());
   Simplices out;
   for (const auto& r : rows) out.insert(out.end(), r.begin(), r.end());

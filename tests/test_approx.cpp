@@ -59,7 +59,8 @@ TEST(Approx, RecallOneAndPrecisionOneIn2dAnd3d) {
       for (std::uint32_t seed = 0; seed < 600; seed += 7) {
         ApproxNeighbors a;
         ASSERT_TRUE(walker.compute(seed, a).is_ok());
-        EXPECT_EQ(a.neighbors, exact_neighbors(*s.tree, seed)) << "d=" << d << " seed " << seed << " (points seed " << 10 + d << ")";
+        EXPECT_EQ(a.neighbors, exact_neighbors(*s.tree, seed))
+            << "d=" << d << " seed " << seed << " (points seed " << 10 + d << ")";
         EXPECT_EQ(a.uncertified, 0u);
       }
     }
@@ -206,8 +207,8 @@ TEST(Approx, PrecisionOneInHighDimensionsAgainstTheLpOracle) {
         ApproxWalker walker(*s.tree, o);
         ApproxNeighbors a;
         ASSERT_TRUE(walker.compute(seed, a).is_ok());
-        EXPECT_TRUE(subset(a.neighbors, truth)) << "d=" << d << " seed " << seed << " mode " << static_cast<int>(mode)
-                                                << " (points seed " << 20 + d << ")";
+        EXPECT_TRUE(subset(a.neighbors, truth))
+            << "d=" << d << " seed " << seed << " mode " << static_cast<int>(mode) << " (points seed " << 20 + d << ")";
         EXPECT_FALSE(a.neighbors.empty());
         RecordProperty("recall_d" + std::to_string(d) + "_seed" + std::to_string(seed) + "_mode" +
                            std::to_string(static_cast<int>(mode)),

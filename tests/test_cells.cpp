@@ -149,21 +149,26 @@ void check_box_tiling(const PointSet& ps, const Domain& box) {
     centroid[c] = 0.5 * (lo[c] + hi[c]);
   }
   for (int c = 0; c < d; ++c) walls[c] = walls[d + c] = volume / (hi[c] - lo[c]);
-  for_both_routes(ps, box, [&](const std::vector<VoronoiCell>& cells) {
-    check_tiling(ps, cells, volume, centroid, &walls);
-  });
+  for_both_routes(ps, box,
+                  [&](const std::vector<VoronoiCell>& cells) { check_tiling(ps, cells, volume, centroid, &walls); });
 }
 
 int max_dimension() { return std::getenv("SPOKEMESH_HIGH_D") ? 8 : 6; }
 
 std::size_t points_for(int d) {
   switch (d) {
-    case 2: return 400;
-    case 3: return 200;
-    case 4: return 80;
-    case 5: return 40;
-    case 6: return 25;
-    default: return 18;
+    case 2:
+      return 400;
+    case 3:
+      return 200;
+    case 4:
+      return 80;
+    case 5:
+      return 40;
+    case 6:
+      return 25;
+    default:
+      return 18;
   }
 }
 
@@ -284,7 +289,8 @@ TEST(ClippedCellBuilder, TheReachNamesEverythingThatDecidedTheCell) {
       std::uint32_t mine = 0;
       for (std::uint32_t i = 0; i < all.size(); ++i) {
         double d2 = 0;
-        for (int c = 0; c < 3; ++c) d2 += (all.point(i)[c] - all.point(seed)[c]) * (all.point(i)[c] - all.point(seed)[c]);
+        for (int c = 0; c < 3; ++c)
+          d2 += (all.point(i)[c] - all.point(seed)[c]) * (all.point(i)[c] - all.point(seed)[c]);
         if (d2 > reach2 * (1 + 1e-8) && i % 5 != 0) continue;
         if (i == seed) mine = static_cast<std::uint32_t>(global.size());
         sub.insert(sub.end(), all.point(i), all.point(i) + 3);
@@ -537,9 +543,8 @@ TEST(ComputeCells, ThreadsAndBlocksChangeNothing) {
       CellsOptions options;
       options.threads = threads;
       options.block_size = 256;
-      const Status st = compute_cells(tree, &half, options, [](std::span<const VoronoiCell>, std::uint64_t) {
-        return Status::ok();
-      });
+      const Status st =
+          compute_cells(tree, &half, options, [](std::span<const VoronoiCell>, std::uint64_t) { return Status::ok(); });
       EXPECT_EQ(st.code(), Code::kInvalidArgument);
       EXPECT_NE(st.message().find("seed " + std::to_string(first_outside) + " lies outside"), std::string::npos)
           << st.message();

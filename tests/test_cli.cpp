@@ -28,7 +28,8 @@ std::string slurp(const std::string& path) {
 class Cli : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::path(::testing::TempDir()) / ("cli-" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()));
+    dir_ = fs::path(::testing::TempDir()) /
+           ("cli-" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()));
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -135,7 +136,8 @@ TEST_F(Cli, StarNeighborsAndCell) {
   const Outcome star = run("star " + in + " --seed 4");
   ASSERT_EQ(star.code, 0) << star.err;
   EXPECT_EQ(std::count(star.out.begin(), star.out.end(), '\n'), 6)
-      << "the centre of a 3x3 grid: 4 squares, two of them split through the centre by the perturbation:\n" << star.out;
+      << "the centre of a 3x3 grid: 4 squares, two of them split through the centre by the perturbation:\n"
+      << star.out;
   const Outcome nb = run("neighbors " + in + " --seed 4");
   ASSERT_EQ(nb.code, 0);
   const Outcome cell = run("cell " + in + " --seed 4");
@@ -334,7 +336,8 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
       {"mesh " + write("ragged.txt", "0 0\n1 0 3\n") + " -o OUT", "ragged.txt:2: has 3 coordinates"},
       {"mesh " + write("word.txt", "0 0\n1 zero\n") + " -o OUT", "word.txt:2: cannot parse 'zero'"},
       {"mesh " + write("few.txt", "0 0\n1 0\n") + " -o OUT", "2 points given"},
-      {"mesh " + write("dup.txt", "0 0\n1 0\n0 1\n1 0\n") + " -o OUT", "points 1 and 3 are equal (use --merge-duplicates"},
+      {"mesh " + write("dup.txt", "0 0\n1 0\n0 1\n1 0\n") + " -o OUT",
+       "points 1 and 3 are equal (use --merge-duplicates"},
       {"mesh " + write("flat.txt", "0 0 0\n1 0 0\n0 1 0\n1 1 0\n") + " -o OUT", "span only a 2-dimensional"},
       {"mesh " + write("huge.txt", "0 0\n1 0\n0 1e300\n") + " -o OUT", "huge.txt:3: coordinate 1 has magnitude"},
       {"mesh " + good + " -o " + "OUT.unknown", "unknown output format"},
@@ -357,8 +360,9 @@ TEST_F(Cli, BadInputsExitTwoWithOneClearLineAndNoOutput) {
   }
   // An output that is the input is refused, whatever its spelling, and the input kept.
   const std::string before = slurp(good);
-  for (const std::string& cmd : {"mesh " + good + " -o " + good, "graph " + good + " -o " + good,
-                                 "cells " + good + " -o " + good, "mesh " + good + " -o " + path("./") + good.substr(good.rfind('/') + 1)}) {
+  for (const std::string& cmd :
+       {"mesh " + good + " -o " + good, "graph " + good + " -o " + good, "cells " + good + " -o " + good,
+        "mesh " + good + " -o " + path("./") + good.substr(good.rfind('/') + 1)}) {
     const Outcome r = run(cmd);
     EXPECT_EQ(r.code, 2) << cmd;
     EXPECT_NE(r.err.find("would overwrite the input"), std::string::npos) << cmd << "\n" << r.err;

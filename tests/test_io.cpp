@@ -13,12 +13,11 @@ namespace {
 
 std::string temp_path(const std::string& name) { return ::testing::TempDir() + "/" + name; }
 
-void write_file(const std::string& path, const std::string& bytes) {
-  std::ofstream(path, std::ios::binary) << bytes;
-}
+void write_file(const std::string& path, const std::string& bytes) { std::ofstream(path, std::ios::binary) << bytes; }
 
 std::string npy(const std::string& descr, const std::string& shape, const std::string& data, bool fortran = false) {
-  std::string dict = "{'descr': '" + descr + "', 'fortran_order': " + (fortran ? "True" : "False") + ", 'shape': " + shape + ", }";
+  std::string dict =
+      "{'descr': '" + descr + "', 'fortran_order': " + (fortran ? "True" : "False") + ", 'shape': " + shape + ", }";
   while ((10 + dict.size() + 1) % 64 != 0) dict.push_back(' ');
   dict.push_back('\n');
   std::string out("\x93NUMPY\x01\x00", 8);
@@ -53,7 +52,7 @@ TEST(TextPoints, SemicolonsAndAHeaderLine) {
   };
   for (const Bad& b : std::vector<Bad>{
            {"0 0\nx y\n1 0\n", "pts.csv:2: cannot parse 'x'"},  // only a first line is a header
-           {"x,1\n0 0\n", "pts.csv:1: cannot parse 'x'"},      // a field is a number: no header
+           {"x,1\n0 0\n", "pts.csv:1: cannot parse 'x'"},       // a field is a number: no header
            {"x y\n", "pts.csv: no points"},
            {"+-1 0\n", "pts.csv:1: cannot parse '+-1'"},
            {"0x1 0\n", "pts.csv:1: cannot parse '0x1'"},
@@ -201,7 +200,8 @@ TEST(NpyPoints, RefusesBadArrays) {
 // Weights: one a point, text or .npy; radii become squared weights; every
 // bad value or count is named by file and line or index.
 TEST(Weights, ReadsTextAndNpyAndRadii) {
-  auto w = parse_text_weights("# power weights\n0.25\n\n-1  # may be negative\n2e-3\n", "w.txt", 3, WeightKind::kPowerWeight);
+  auto w = parse_text_weights("# power weights\n0.25\n\n-1  # may be negative\n2e-3\n", "w.txt", 3,
+                              WeightKind::kPowerWeight);
   ASSERT_TRUE(w.is_ok()) << w.status().message();
   EXPECT_EQ(w.value(), (std::vector<double>{0.25, -1, 2e-3}));
   auto r = parse_text_weights("0.5\n3\n0\n", "r.txt", 3, WeightKind::kRadius);
@@ -259,7 +259,8 @@ TEST(Weights, RefusesBadValuesAndCountsNamingWhere) {
     EXPECT_NE(w.status().message().find(b.needle), std::string::npos) << w.status().message();
   }
   const Status missing = read_weights(temp_path("no-such-weights.txt"), 3, WeightKind::kPowerWeight).status();
-  EXPECT_NE(missing.message().find("no-such-weights.txt: cannot open for reading"), std::string::npos) << missing.message();
+  EXPECT_NE(missing.message().find("no-such-weights.txt: cannot open for reading"), std::string::npos)
+      << missing.message();
 }
 
 // The periodic box: parsed as --box is, LO < HI on every axis, and every

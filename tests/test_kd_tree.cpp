@@ -40,10 +40,12 @@ std::unique_ptr<KdTree> grown_tree(const PointSet& ps, std::size_t steps) {
   std::vector<std::unique_ptr<PointSet>> prefixes;
   for (std::size_t i = 0; i + 1 < sizes.size(); ++i) {
     prefixes.push_back(std::make_unique<PointSet>(
-        ps.dimension(), std::vector<double>(ps.coordinates().begin(), ps.coordinates().begin() + static_cast<std::ptrdiff_t>(sizes[i] * d))));
+        ps.dimension(), std::vector<double>(ps.coordinates().begin(),
+                                            ps.coordinates().begin() + static_cast<std::ptrdiff_t>(sizes[i] * d))));
   }
   std::unique_ptr<KdTree> tree = std::make_unique<KdTree>(prefixes.empty() ? ps : *prefixes[0]);
-  for (std::size_t i = 1; i < sizes.size(); ++i) tree = KdTree::extended(*tree, i + 1 < sizes.size() ? *prefixes[i] : ps);
+  for (std::size_t i = 1; i < sizes.size(); ++i)
+    tree = KdTree::extended(*tree, i + 1 < sizes.size() ? *prefixes[i] : ps);
   std::size_t parts = 1;  // each step extends the tree, or builds it whole past kMaxParts
   for (std::size_t i = 1; i < sizes.size(); ++i) parts = parts >= KdTree::kMaxParts ? 1 : parts + 1;
   EXPECT_EQ(tree->parts(), parts);
@@ -162,7 +164,8 @@ TEST(KdTree, LargeSetBuiltInParallelMatchesBruteForce) {
       }
       std::partial_sort(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(k), all.end());
       ASSERT_EQ(tree.knn(query, k, ids.data(), d2.data()), k);
-      for (std::size_t i = 0; i < k; ++i) ASSERT_EQ(d2[i], all[i]) << "query " << q << " shift " << shift << " rank " << i;
+      for (std::size_t i = 0; i < k; ++i)
+        ASSERT_EQ(d2[i], all[i]) << "query " << q << " shift " << shift << " rank " << i;
     }
   }
 }
@@ -196,7 +199,9 @@ TEST(KdTree, NearestMatchBruteForceOnAwkwardInputs) {
 TEST(KdTree, AnyBeyondMatchesBruteForce) {
   for (int d = 2; d <= 4; ++d) {
     for (const bool on_grid : {false, true}) {
-      const std::vector<double> coords = on_grid ? grid_points(d, d == 2 ? 20 : d == 3 ? 8 : 5)
+      const std::vector<double> coords = on_grid ? grid_points(d, d == 2   ? 20
+                                                                  : d == 3 ? 8
+                                                                           : 5)
                                                  : uniform_points(d, 600, 40 + d);
       const PointSet ps = make_points(d, coords);
       for (const std::size_t grown : {0, 3}) {  // a tree built whole, and one extended 3 times
@@ -235,10 +240,11 @@ TEST(KdTree, AnyBeyondMatchesBruteForce) {
           }
         }
         std::size_t visited = 0;
-        tree.find_first([](const float*, const float*) { return true; }, [&](std::uint32_t) {
-          ++visited;
-          return false;
-        });
+        tree.find_first([](const float*, const float*) { return true; },
+                        [&](std::uint32_t) {
+                          ++visited;
+                          return false;
+                        });
         EXPECT_EQ(visited, ps.size());
       }
     }

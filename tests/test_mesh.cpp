@@ -12,17 +12,16 @@
 #include <random>
 #include <thread>
 
+#include "cgal_oracle.hpp"
 #include "spokemesh/facet_cache.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
-#include "cgal_oracle.hpp"
 #include "support.hpp"
 
 namespace spokemesh {
 namespace {
 
 using namespace spokemesh::testing;
-
 
 struct Case {
   std::string name;
@@ -525,8 +524,10 @@ TEST(Check, RejectsCorruptedMeshes) {
         std::set_intersection(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(shared));
         if (shared.size() != 2) continue;
         std::uint32_t pa = 0, pb = 0;
-        for (auto v : a) if (v != shared[0] && v != shared[1]) pa = v;
-        for (auto v : b) if (v != shared[0] && v != shared[1]) pb = v;
+        for (auto v : a)
+          if (v != shared[0] && v != shared[1]) pa = v;
+        for (auto v : b)
+          if (v != shared[0] && v != shared[1]) pb = v;
         // Flip only a convex quadrilateral: the new diagonal separates the old one.
         const std::array<std::uint32_t, 3> t1 = {pa, pb, shared[0]}, t2 = {pa, pb, shared[1]};
         if (pred.orientation(t1) * pred.orientation(t2) >= 0) continue;
@@ -664,7 +665,7 @@ TEST(Voronoi, BodyCentredCubicCellsAreTruncatedOctahedraOfVolumeOneHalf) {
   const KdTree tree(ps);
   StarWalker walker(tree);
   Star star;
-  const std::uint32_t corner = (2 * 5 + 2) * 5 + 2;   // (2, 2, 2)
+  const std::uint32_t corner = (2 * 5 + 2) * 5 + 2;        // (2, 2, 2)
   const std::uint32_t centre = 125 + (1 * 4 + 1) * 4 + 1;  // (1.5, 1.5, 1.5)
   for (std::uint32_t seed : {corner, centre}) {
     ASSERT_TRUE(walker.compute(seed, star).is_ok());
@@ -687,9 +688,13 @@ TEST(Voronoi, BoundedCellVolumesMatchPolygonAreas) {
     // Consecutive vertices share an edge of the cell (a path when it is unbounded).
     for (std::size_t v = 0; v + (cell.bounded ? 0 : 1) < cell.vertex_count(); ++v) {
       const auto w = static_cast<std::uint32_t>((v + 1) % cell.vertex_count());
-      EXPECT_TRUE(std::any_of(cell.facets.begin(), cell.facets.end(), [&](const VoronoiFacet& f) {
-        return std::count(f.vertices.begin(), f.vertices.end(), v) + std::count(f.vertices.begin(), f.vertices.end(), w) == 2;
-      })) << "seed " << s << ", vertices " << v << " and " << w;
+      EXPECT_TRUE(std::any_of(cell.facets.begin(), cell.facets.end(),
+                              [&](const VoronoiFacet& f) {
+                                return std::count(f.vertices.begin(), f.vertices.end(), v) +
+                                           std::count(f.vertices.begin(), f.vertices.end(), w) ==
+                                       2;
+                              }))
+          << "seed " << s << ", vertices " << v << " and " << w;
     }
     if (!cell.bounded) continue;
     ++bounded;

@@ -12,9 +12,9 @@
 #include <CGAL/Periodic_2_triangulation_vertex_base_2.h>
 #include <CGAL/Periodic_3_Delaunay_triangulation_3.h>
 #include <CGAL/Periodic_3_Delaunay_triangulation_traits_3.h>
-#include <CGAL/Periodic_3_triangulation_ds_cell_base_3.h>
 #include <CGAL/Periodic_3_regular_triangulation_3.h>
 #include <CGAL/Periodic_3_regular_triangulation_traits_3.h>
+#include <CGAL/Periodic_3_triangulation_ds_cell_base_3.h>
 #include <CGAL/Periodic_3_triangulation_ds_vertex_base_3.h>
 #include <CGAL/Regular_triangulation_cell_base_3.h>
 #include <CGAL/Regular_triangulation_vertex_base_3.h>
@@ -208,15 +208,16 @@ void check_torus(const PointSet& ps, const PeriodicBox& box, const Rows& rows, c
       images[v].point = rows.simplices[s * w + v];
       for (int c = 0; c < d; ++c) {
         images[v].offset[static_cast<std::size_t>(c)] = rows.offsets[(s * w + v) * static_cast<std::size_t>(d) + c];
-        at[v][static_cast<std::size_t>(c)] = ps.point(images[v].point)[c] +
-                                             images[v].offset[static_cast<std::size_t>(c)] * (box.hi()[c] - box.lo()[c]);
+        at[v][static_cast<std::size_t>(c)] =
+            ps.point(images[v].point)[c] + images[v].offset[static_cast<std::size_t>(c)] * (box.hi()[c] - box.lo()[c]);
       }
     }
     ASSERT_EQ(predicates.orientation(images), 1) << "simplex " << s << " is not positively oriented";
     ASSERT_EQ(images[0].offset, Image{}.offset) << "the owner is not at offset 0";
     Eigen::MatrixXd m(d, d);
     for (int r = 0; r < d; ++r) {
-      for (int c = 0; c < d; ++c) m(r, c) = at[static_cast<std::size_t>(r + 1)][static_cast<std::size_t>(c)] - at[0][static_cast<std::size_t>(c)];
+      for (int c = 0; c < d; ++c)
+        m(r, c) = at[static_cast<std::size_t>(r + 1)][static_cast<std::size_t>(c)] - at[0][static_cast<std::size_t>(c)];
     }
     volume += m.determinant() / factorial;
     for (std::size_t skip = 0; skip < w; ++skip) {
@@ -481,12 +482,12 @@ TEST(Periodic, DirectCellsEqualTheStarsCells) {
       // where a point neighbours the seed through two images.
       std::map<std::pair<std::int64_t, std::vector<std::int32_t>>, double> a, b;
       for (std::size_t f = 0; f < got.facets.size(); ++f) {
-        a[{got.facets[f].neighbor, {got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
-                                    got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] =
-            got.facets[f].area;
-        b[{want.facets[f].neighbor, {want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
-                                     want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] =
-            want.facets[f].area;
+        a[{got.facets[f].neighbor,
+           {got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
+            got.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] = got.facets[f].area;
+        b[{want.facets[f].neighbor,
+           {want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f),
+            want.facet_offsets.begin() + 3 * static_cast<std::ptrdiff_t>(f + 1)}}] = want.facets[f].area;
       }
       ASSERT_EQ(a.size(), b.size());
       for (auto i = a.begin(), j = b.begin(); i != a.end(); ++i, ++j) {

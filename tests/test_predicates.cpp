@@ -23,7 +23,8 @@ TEST(BoundedDouble, ErrorBoundHoldsOnNearSingularMatrices) {
     // Last row = sum of two others plus a few ulps: the determinant nearly cancels.
     std::vector<double> base(k * k);
     for (double& v : base) v = u(rng);
-    for (int c = 0; c < k; ++c) base[(k - 1) * k + c] = base[c] + base[k + c] * 0.5 + (c == 0 ? std::ldexp(u(rng), -50) : 0.0);
+    for (int c = 0; c < k; ++c)
+      base[(k - 1) * k + c] = base[c] + base[k + c] * 0.5 + (c == 0 ? std::ldexp(u(rng), -50) : 0.0);
     std::vector<double> origin(k);
     for (double& v : origin) v = u(rng) * 0.1;
     std::vector<BoundedDouble> m(k * k);
@@ -69,7 +70,7 @@ TEST(Predicates, FilteredSignsEqualExactSignsNearDegeneracy) {
           v = g(rng);
           r += v * v;
         }
-        for (double& v : p) v = v / std::sqrt(r) + 0.25;  // on a sphere, up to rounding
+        for (double& v : p) v = v / std::sqrt(r) + 0.25;   // on a sphere, up to rounding
         if (i == d + 1) p[0] = std::nextafter(p[0], 2.0);  // one ulp off
         c.insert(c.end(), p.begin(), p.end());
       }
@@ -416,7 +417,9 @@ int power_sign_by_definition(const PointSet& ps, const std::vector<double>& w, s
                              std::uint32_t q) {
   // (Lambdas return mpq_class, not gmpxx's expression templates over temporaries.)
   auto at = [&](std::uint32_t i, int c) -> mpq_class { return mpq_class(ps.point(i)[c]); };
-  auto norm2 = [&](std::uint32_t i) -> mpq_class { return at(i, 0) * at(i, 0) + at(i, 1) * at(i, 1) + at(i, 2) * at(i, 2); };
+  auto norm2 = [&](std::uint32_t i) -> mpq_class {
+    return at(i, 0) * at(i, 0) + at(i, 1) * at(i, 1) + at(i, 2) * at(i, 2);
+  };
   std::vector<mpq_class> a(12);
   for (int i = 0; i < 3; ++i) {
     for (int c = 0; c < 3; ++c) a[i * 4 + c] = 2 * (at(t[i + 1], c) - at(t[0], c));

@@ -18,10 +18,10 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
+#include "inputs.hpp"  // bench/: the shape families
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
-#include "inputs.hpp"  // bench/: the shape families
 #include "support.hpp"
 
 namespace spokemesh::service {
@@ -132,10 +132,13 @@ TEST(Store, UploadErrorsNameTheFieldAndLeaveNothingBehind) {
     EXPECT_NE(s.message().find(fragment), std::string::npos) << s.message();
   };
   expect(Code::kInvalidArgument, "dimension: 1", [&] { return engine->begin_upload(header_of(1, 10, "")).status(); });
-  expect(Code::kResourceExhausted, "--max-dimension=4", [&] { return engine->begin_upload(header_of(5, 10, "")).status(); });
-  expect(Code::kResourceExhausted, "--max-points=1000", [&] { return engine->begin_upload(header_of(2, 1001, "")).status(); });
+  expect(Code::kResourceExhausted, "--max-dimension=4",
+         [&] { return engine->begin_upload(header_of(5, 10, "")).status(); });
+  expect(Code::kResourceExhausted, "--max-points=1000",
+         [&] { return engine->begin_upload(header_of(2, 1001, "")).status(); });
   expect(Code::kInvalidArgument, "count: 2", [&] { return engine->begin_upload(header_of(2, 2, "")).status(); });
-  expect(Code::kInvalidArgument, "display_name", [&] { return engine->begin_upload(header_of(2, 3, std::string(300, 'x'))).status(); });
+  expect(Code::kInvalidArgument, "display_name",
+         [&] { return engine->begin_upload(header_of(2, 3, std::string(300, 'x'))).status(); });
   // Byte counts: too many is refused at once, too few at the end.
   {
     auto s = engine->begin_upload(header_of(2, 3, ""));
@@ -153,8 +156,12 @@ TEST(Store, UploadErrorsNameTheFieldAndLeaveNothingBehind) {
   expect(Code::kInvalidArgument, "point 2, coordinate 1", [&] { return upload(*engine, 2, c).status(); });
   c[5] = INFINITY;
   expect(Code::kInvalidArgument, "point 2, coordinate 1", [&] { return upload(*engine, 2, c).status(); });
-  expect(Code::kInvalidArgument, "points 0 and 3", [&] { return upload(*engine, 2, {0, 0, 1, 0, 0, 1, 0, 0}).status(); });
-  expect(Code::kInvalidArgument, "span only a 1", [&] { return upload(*engine, 2, {0, 0, 1, 1, 2, 2, 3, 3}).status(); });
+  expect(Code::kInvalidArgument, "points 0 and 3", [&] {
+    return upload(*engine, 2, {0, 0, 1, 0, 0, 1, 0, 0}).status();
+  });
+  expect(Code::kInvalidArgument, "span only a 1", [&] {
+    return upload(*engine, 2, {0, 0, 1, 1, 2, 2, 3, 3}).status();
+  });
   for (const auto& e : fs::directory_iterator(dir.path())) EXPECT_TRUE(e.is_directory()) << e.path();
 }
 
@@ -172,7 +179,8 @@ TEST(Store, CorruptFilesAreQuarantinedAndOthersKeepWorking) {
     f.put('\x7f');
   }
   std::vector<std::string> logs;
-  auto store = PointSetStore::open(dir.path(), 1 << 30, [&](const std::string&, const std::string& m) { logs.push_back(m); });
+  auto store =
+      PointSetStore::open(dir.path(), 1 << 30, [&](const std::string&, const std::string& m) { logs.push_back(m); });
   ASSERT_TRUE(store.is_ok());
   EXPECT_EQ(store.value()->load_all(), 1u);
   ASSERT_EQ(logs.size(), 1u);
@@ -220,7 +228,7 @@ TEST(MemoryBudget, HeapTrimmerTrimsAfterChurnOnlyAndStops) {
   MemoryBudget budget(64u << 20);
   HeapTrimmer trimmer(budget, std::chrono::milliseconds(10), 1u << 20);
   std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  EXPECT_EQ(trimmer.trims(), 0u);  // idle: nothing released, nothing to do
+  EXPECT_EQ(trimmer.trims(), 0u);                 // idle: nothing released, nothing to do
   { auto charge = budget.try_charge(2u << 20); }  // 2 MB charged and given back
   EXPECT_EQ(budget.released(), 2u << 20);
   const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
@@ -370,12 +378,12 @@ TEST(Engine, SimplexStreamsChargeWhatTheySeedsShare) {
       std::vector<std::uint32_t> rows;
       auto stream = [&] {
         rows.clear();
-        return engine->stream_simplices(id, 0, 1, 0, control,
-                                        [&](std::span<const std::uint32_t> b, std::span<const std::int32_t>, std::uint64_t) {
-                                          during = std::max(during, engine->store().budget().used());
-                                          rows.insert(rows.end(), b.begin(), b.end());
-                                          return Status::ok();
-                                        });
+        return engine->stream_simplices(
+            id, 0, 1, 0, control, [&](std::span<const std::uint32_t> b, std::span<const std::int32_t>, std::uint64_t) {
+              during = std::max(during, engine->store().budget().used());
+              rows.insert(rows.end(), b.begin(), b.end());
+              return Status::ok();
+            });
       };
       ASSERT_TRUE(stream().is_ok());  // loads the set and its tree, which stay charged
       const std::uint64_t before = engine->store().budget().used();
@@ -402,7 +410,8 @@ TEST(Engine, BatchesOfStarsEqualSingleCalls) {
   TempDir dir;
   auto engine = make_engine(dir.path());
   const auto control = no_deadline();
-  for (const auto& [d, coords] : {std::pair{3, bench::sphere_surface(800, 3)}, std::pair{2, bench::contours(5, 0.5, 4)}}) {
+  for (const auto& [d, coords] :
+       {std::pair{3, bench::sphere_surface(800, 3)}, std::pair{2, bench::contours(5, 0.5, 4)}}) {
     SCOPED_TRACE(d);
     const std::string id = upload(*engine, d, coords).value().id;
     std::vector<std::uint64_t> seeds;
@@ -410,10 +419,13 @@ TEST(Engine, BatchesOfStarsEqualSingleCalls) {
     seeds.push_back(1);
     for (const BatchKind kind : {BatchKind::kStars, BatchKind::kNeighbors, BatchKind::kCells}) {
       std::vector<BatchAnswer> answers;
-      ASSERT_TRUE(engine->batch(id, seeds, kind, {}, {}, control, [&](std::span<const BatchAnswer> got, std::size_t) {
-                    answers.insert(answers.end(), got.begin(), got.end());
-                    return Status::ok();
-                  }).is_ok());
+      ASSERT_TRUE(engine
+                      ->batch(id, seeds, kind, {}, {}, control,
+                              [&](std::span<const BatchAnswer> got, std::size_t) {
+                                answers.insert(answers.end(), got.begin(), got.end());
+                                return Status::ok();
+                              })
+                      .is_ok());
       ASSERT_EQ(answers.size(), seeds.size());
       for (std::size_t i = 0; i < seeds.size(); ++i) {
         ASSERT_EQ(answers[i].seed, seeds[i]);
@@ -450,7 +462,9 @@ TEST(Engine, DeadlinesAndCancellationStopWork) {
   TempDir dir;
   auto engine = make_engine(dir.path());
   const std::string id = upload(*engine, 3, uniform_points(3, 30000, 7)).value().id;
-  auto ignore = [](std::span<const std::uint32_t>, std::span<const std::int32_t>, std::uint64_t) { return Status::ok(); };
+  auto ignore = [](std::span<const std::uint32_t>, std::span<const std::int32_t>, std::uint64_t) {
+    return Status::ok();
+  };
   {
     CallControl control(Clock::now() + std::chrono::milliseconds(20));
     const auto start = Clock::now();
@@ -492,13 +506,15 @@ Result<PointSetInfo> upload_extras(Engine& engine, int d, const std::vector<doub
   if (!session.is_ok()) return session.status();
   const char* bytes = reinterpret_cast<const char*>(coords.data());
   for (std::size_t at = 0; at < coords.size() * 8; at += 1000) {
-    if (Status s = session.value()->append(bytes + at, std::min<std::size_t>(1000, coords.size() * 8 - at)); !s.is_ok()) {
+    if (Status s = session.value()->append(bytes + at, std::min<std::size_t>(1000, coords.size() * 8 - at));
+        !s.is_ok()) {
       return s;
     }
   }
   const char* w = reinterpret_cast<const char*>(weights.data());
   for (std::size_t at = 0; at < weights.size() * 8; at += 700) {
-    if (Status s = session.value()->append_weights(w + at, std::min<std::size_t>(700, weights.size() * 8 - at)); !s.is_ok()) {
+    if (Status s = session.value()->append_weights(w + at, std::min<std::size_t>(700, weights.size() * 8 - at));
+        !s.is_ok()) {
       return s;
     }
   }
@@ -560,14 +576,15 @@ TEST(Engine, WeightedSetsAnswerThePowerDiagramThroughEveryRoute) {
   for (std::uint32_t shards : {1u, 3u}) {
     std::vector<std::uint32_t> united;
     for (std::uint32_t k = 0; k < shards; ++k) {
-      ASSERT_TRUE(engine->stream_simplices(info->id, k, shards, 0, control,
-                                           [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o,
-                                               std::uint64_t) {
-                                             EXPECT_TRUE(o.empty());
-                                             united.insert(united.end(), b.begin(), b.end());
-                                             return Status::ok();
-                                           })
-                      .is_ok());
+      ASSERT_TRUE(
+          engine
+              ->stream_simplices(info->id, k, shards, 0, control,
+                                 [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o, std::uint64_t) {
+                                   EXPECT_TRUE(o.empty());
+                                   united.insert(united.end(), b.begin(), b.end());
+                                   return Status::ok();
+                                 })
+              .is_ok());
     }
     EXPECT_EQ(united, whole) << shards << " shards";
   }
@@ -581,14 +598,15 @@ TEST(Engine, WeightedSetsAnswerThePowerDiagramThroughEveryRoute) {
   }
   EXPECT_TRUE(hidden[5]);
   double volume = 0;
-  ASSERT_TRUE(engine->stream_cells(info->id, 0, 1, 0, {}, true, control,
-                                   [&](std::span<const VoronoiCell> cells, std::uint64_t) {
-                                     for (const VoronoiCell& c : cells) {
-                                       EXPECT_EQ(c.hidden, hidden[c.seed]) << c.seed;
-                                       volume += c.volume;
-                                     }
-                                     return Status::ok();
-                                   })
+  ASSERT_TRUE(engine
+                  ->stream_cells(info->id, 0, 1, 0, {}, true, control,
+                                 [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+                                   for (const VoronoiCell& c : cells) {
+                                     EXPECT_EQ(c.hidden, hidden[c.seed]) << c.seed;
+                                     volume += c.volume;
+                                   }
+                                   return Status::ok();
+                                 })
                   .is_ok());
   const Domain bounds = Domain::bounding_box(ps);
   double box_volume = 1;
@@ -694,12 +712,14 @@ TEST(Engine, PeriodicSetsAnswerOnTheTorusThroughEveryRoute) {
     // count, and are mesh_periodic's simplices, each once.
     std::vector<std::uint32_t> mesh_rows;
     std::vector<std::int32_t> mesh_offsets;
-    ASSERT_TRUE(mesh_periodic(ps, torus, {},
-                              [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
-                                mesh_rows.insert(mesh_rows.end(), s.begin(), s.end());
-                                mesh_offsets.insert(mesh_offsets.end(), o.begin(), o.end());
-                                return Status::ok();
-                              }, nullptr, "test")
+    ASSERT_TRUE(mesh_periodic(
+                    ps, torus, {},
+                    [&](std::span<const std::uint32_t> s, std::span<const std::int32_t> o, std::uint64_t) {
+                      mesh_rows.insert(mesh_rows.end(), s.begin(), s.end());
+                      mesh_offsets.insert(mesh_offsets.end(), o.begin(), o.end());
+                      return Status::ok();
+                    },
+                    nullptr, "test")
                     .is_ok());
     std::vector<std::uint32_t> first_rows;
     std::vector<std::int32_t> first_offsets;
@@ -707,15 +727,16 @@ TEST(Engine, PeriodicSetsAnswerOnTheTorusThroughEveryRoute) {
       std::vector<std::uint32_t> rows;
       std::vector<std::int32_t> offsets;
       for (std::uint32_t k = 0; k < shards; ++k) {
-        ASSERT_TRUE(engine->stream_simplices(info->id, k, shards, 50, control,
-                                             [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o,
-                                                 std::uint64_t) {
-                                               EXPECT_LE(b.size(), 50u * static_cast<std::size_t>(d + 1));
-                                               EXPECT_EQ(o.size(), b.size() * static_cast<std::size_t>(d));
-                                               rows.insert(rows.end(), b.begin(), b.end());
-                                               offsets.insert(offsets.end(), o.begin(), o.end());
-                                               return Status::ok();
-                                             })
+        ASSERT_TRUE(engine
+                        ->stream_simplices(
+                            info->id, k, shards, 50, control,
+                            [&](std::span<const std::uint32_t> b, std::span<const std::int32_t> o, std::uint64_t) {
+                              EXPECT_LE(b.size(), 50u * static_cast<std::size_t>(d + 1));
+                              EXPECT_EQ(o.size(), b.size() * static_cast<std::size_t>(d));
+                              rows.insert(rows.end(), b.begin(), b.end());
+                              offsets.insert(offsets.end(), o.begin(), o.end());
+                              return Status::ok();
+                            })
                         .is_ok());
       }
       if (shards == 1) {
@@ -729,14 +750,16 @@ TEST(Engine, PeriodicSetsAnswerOnTheTorusThroughEveryRoute) {
     // The cells tile the torus: volumes sum to the box's, every facet has its offset.
     double volume = 0;
     for (std::uint32_t k = 0; k < 2; ++k) {
-      ASSERT_TRUE(engine->stream_cells(info->id, k, 2, 64, {}, false, control,
-                                       [&](std::span<const VoronoiCell> cells, std::uint64_t) {
-                                         for (const VoronoiCell& c : cells) {
-                                           EXPECT_EQ(c.facet_offsets.size(), c.facets.size() * static_cast<std::size_t>(d));
-                                           volume += c.volume;
-                                         }
-                                         return Status::ok();
-                                       })
+      ASSERT_TRUE(engine
+                      ->stream_cells(info->id, k, 2, 64, {}, false, control,
+                                     [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+                                       for (const VoronoiCell& c : cells) {
+                                         EXPECT_EQ(c.facet_offsets.size(),
+                                                   c.facets.size() * static_cast<std::size_t>(d));
+                                         volume += c.volume;
+                                       }
+                                       return Status::ok();
+                                     })
                       .is_ok());
     }
     EXPECT_NEAR(volume, std::pow(2.0, d), 1e-12);
@@ -803,9 +826,9 @@ TEST(Rest, PointsRouteIsANpyFile) {
   Rest rest;
   std::vector<double> raw;
   for (int i = 0; i < 300; ++i) raw.push_back(0.1 * i + 1.0 / 3.0);  // 100 points in 3-d
-  HttpResponse up = rest.call(http::verb::post, "/v1/pointsets?dimension=3",
-                              std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8),
-                              "application/octet-stream");
+  HttpResponse up =
+      rest.call(http::verb::post, "/v1/pointsets?dimension=3",
+                std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8), "application/octet-stream");
   ASSERT_EQ(up.status, 201u) << up.body;
   const std::string id = json::parse(up.body)["id"];
   auto fetch = [&](const std::string& query) {
@@ -814,9 +837,9 @@ TEST(Rest, PointsRouteIsANpyFile) {
     std::string body;
     if (r.stream) {
       EXPECT_TRUE(r.stream([&](std::string_view chunk) {
-                    body += chunk;
-                    return true;
-                  }).is_ok());
+                     body += chunk;
+                     return true;
+                   }).is_ok());
     }
     EXPECT_EQ(r.content_type, "application/octet-stream");
     return body;
@@ -865,8 +888,9 @@ TEST(Rest, PageIsServedOnlyWithUi) {
   Telemetry telemetry;
   const auto ui = UiAssets::load(three.path());
   EXPECT_NE(ui->missing().find("OrbitControls.js"), std::string::npos);  // the other file is absent
-  EXPECT_LE(ui->embedded_bytes(), std::size_t{1} << 20);  // the budget for the page's own files
-  HttpApi api(*plain.engine, telemetry, token_auth("s3cret"), [] { return true; }, ui);
+  EXPECT_LE(ui->embedded_bytes(), std::size_t{1} << 20);                 // the budget for the page's own files
+  HttpApi api(
+      *plain.engine, telemetry, token_auth("s3cret"), [] { return true; }, ui);
   auto get = [&](const std::string& target) {
     http::request<http::string_body> req{http::verb::get, target, 11};
     return api.handle_request(req);
@@ -906,9 +930,9 @@ TEST(Rest, EveryRoute) {
   EXPECT_EQ(json::parse(again.body)["id"], id);
   EXPECT_EQ(json::parse(again.body)["already_existed"], true);
   const std::vector<double> raw = {0, 0, 1, 0, 0, 1, 1, 1, 0.5, 0.4};
-  HttpResponse binary = rest.call(http::verb::post, "/v1/pointsets?dimension=2",
-                                  std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8),
-                                  "application/octet-stream");
+  HttpResponse binary =
+      rest.call(http::verb::post, "/v1/pointsets?dimension=2",
+                std::string(reinterpret_cast<const char*>(raw.data()), raw.size() * 8), "application/octet-stream");
   EXPECT_EQ(json::parse(binary.body)["id"], id);
 
   EXPECT_EQ(rest.get("/v1/pointsets/" + id)["count"], 5);
@@ -927,10 +951,12 @@ TEST(Rest, EveryRoute) {
   ASSERT_TRUE(stream.stream);
   EXPECT_EQ(stream.content_type, "application/x-ndjson");
   std::string body;
-  EXPECT_TRUE(stream.stream([&](std::string_view chunk) {
-                body += chunk;
-                return true;
-              }).is_ok());
+  EXPECT_TRUE(stream
+                  .stream([&](std::string_view chunk) {
+                    body += chunk;
+                    return true;
+                  })
+                  .is_ok());
   // Sweep order: five points are one leaf, seeds in lexicographic order of coordinates.
   EXPECT_EQ(body, "[0,1,4]\n[0,4,2]\n[2,4,3]\n[1,3,4]\n");
 
@@ -951,9 +977,8 @@ TEST(Rest, EveryRoute) {
 
 TEST(Rest, ErrorsInOneShape) {
   Rest rest;
-  const std::string id = json::parse(rest.call(http::verb::post, "/v1/pointsets",
-                                               json({{"points", {{0, 0}, {1, 0}, {0, 1}}}}).dump())
-                                         .body)["id"];
+  const std::string id = json::parse(
+      rest.call(http::verb::post, "/v1/pointsets", json({{"points", {{0, 0}, {1, 0}, {0, 1}}}}).dump()).body)["id"];
   auto post = [&](const std::string& body) { return rest.call(http::verb::post, "/v1/pointsets", body); };
   expect_error(post("{\"points\": [[0,0],[1,0,2]]}"), 400, "INVALID_ARGUMENT", "points[1]: 3 coordinates");
   expect_error(post("{\"points\": [[0,0],[1,\"x\"],[2,2]]}"), 400, "INVALID_ARGUMENT", "points[1][1]");
@@ -966,12 +991,15 @@ TEST(Rest, ErrorsInOneShape) {
   expect_error(post("[1,2]"), 400, "INVALID_ARGUMENT", "expected a JSON object");
   expect_error(post(json({{"points", {std::vector<double>(200, 0.0)}}}).dump()), 429, "RESOURCE_EXHAUSTED",
                "--max-dimension");
-  expect_error(rest.call(http::verb::post, "/v1/pointsets?dimension=2", std::string(20, '\0'), "application/octet-stream"),
-               400, "INVALID_ARGUMENT", "20 bytes");
-  expect_error(rest.call(http::verb::post, "/v1/pointsets", "a", "text/plain"), 400, "INVALID_ARGUMENT", "Content-Type");
+  expect_error(
+      rest.call(http::verb::post, "/v1/pointsets?dimension=2", std::string(20, '\0'), "application/octet-stream"), 400,
+      "INVALID_ARGUMENT", "20 bytes");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets", "a", "text/plain"), 400, "INVALID_ARGUMENT",
+               "Content-Type");
   expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/3/star"), 400, "OUT_OF_RANGE", "seed: 3");
   expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/-1/star"), 400, "INVALID_ARGUMENT", "seed");
-  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + std::string(64, 'c') + "/seeds/0/star"), 404, "NOT_FOUND", "not found");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + std::string(64, 'c') + "/seeds/0/star"), 404, "NOT_FOUND",
+               "not found");
   expect_error(rest.call(http::verb::get, "/v1/pointsets/xyz"), 400, "INVALID_ARGUMENT", "point_set_id");
   expect_error(rest.call(http::verb::get, "/v1/nothing"), 404, "NOT_FOUND", "no route");
   expect_error(rest.call(http::verb::put, "/v1/pointsets/" + id), 501, "UNIMPLEMENTED", "PUT");
@@ -1020,10 +1048,12 @@ TEST(Rest, WeightedAndPeriodicSets) {
   EXPECT_EQ(cell["facets"][0]["offset"].size(), 2u);
   HttpResponse stream = rest.call(http::verb::get, "/v1/pointsets/" + id + "/simplices?shard=0&shards=1");
   std::string lines;
-  ASSERT_TRUE(stream.stream([&](std::string_view chunk) {
-                lines += chunk;
-                return true;
-              }).is_ok());
+  ASSERT_TRUE(stream
+                  .stream([&](std::string_view chunk) {
+                    lines += chunk;
+                    return true;
+                  })
+                  .is_ok());
   std::size_t count = 0;
   for (std::size_t at = 0; at < lines.size(); at = lines.find('\n', at) + 1) {
     const json line = json::parse(lines.substr(at, lines.find('\n', at) - at));
@@ -1032,16 +1062,15 @@ TEST(Rest, WeightedAndPeriodicSets) {
     ++count;
   }
   EXPECT_EQ(count, 32u);  // 2 n triangles on a 2-d torus
-  expect_error(rest.call(http::verb::post, "/v1/pointsets",
-                         json({{"points", points}, {"weights", {1, 2}}}).dump()),
+  expect_error(rest.call(http::verb::post, "/v1/pointsets", json({{"points", points}, {"weights", {1, 2}}}).dump()),
                400, "INVALID_ARGUMENT", "weights");
-  expect_error(rest.call(http::verb::post, "/v1/pointsets",
-                         json({{"points", points}, {"periodic_box", {0, 0, 0.5, 1}}}).dump()),
-               400, "INVALID_ARGUMENT", "lies outside the periodic box");
-  expect_error(rest.call(http::verb::post, "/v1/pointsets", json({{"points", points}, {"weights", {{1}}}}).dump()),
-               400, "INVALID_ARGUMENT", "weights[0]");
-  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/0/cell?box=0,0,1,1"), 400,
-               "INVALID_ARGUMENT", "periodic");
+  expect_error(
+      rest.call(http::verb::post, "/v1/pointsets", json({{"points", points}, {"periodic_box", {0, 0, 0.5, 1}}}).dump()),
+      400, "INVALID_ARGUMENT", "lies outside the periodic box");
+  expect_error(rest.call(http::verb::post, "/v1/pointsets", json({{"points", points}, {"weights", {{1}}}}).dump()), 400,
+               "INVALID_ARGUMENT", "weights[0]");
+  expect_error(rest.call(http::verb::get, "/v1/pointsets/" + id + "/seeds/0/cell?box=0,0,1,1"), 400, "INVALID_ARGUMENT",
+               "periodic");
 }
 
 TEST(Rest, BearerTokenGuardsEverythingButProbes) {
@@ -1284,8 +1313,7 @@ TEST(Grpc, DeadlineAndCancellationOfAStream) {
     auto c = f.ctx(std::chrono::milliseconds(50));
     auto reader = f.stub->StreamSimplices(c.get(), r);
     pb::SimplexBatch batch;
-    while (reader->Read(&batch)) {
-    }
+    while (reader->Read(&batch)) {}
     EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
   }
   {
@@ -1295,8 +1323,7 @@ TEST(Grpc, DeadlineAndCancellationOfAStream) {
     pb::SimplexBatch batch;
     ASSERT_TRUE(reader->Read(&batch));
     c->TryCancel();
-    while (reader->Read(&batch)) {
-    }
+    while (reader->Read(&batch)) {}
     EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
   }
   // The server is still healthy.

@@ -1,7 +1,7 @@
 // SpaceSplit and CountSelect (docs/distributed.md): the order and blocks a distributed
-// run can reproduce, and the median step it computes across processes. It must be a permutation whose blocks tile it in compact, balanced,
-// non-overlapping boxes, and a function of the point set alone: the same coordinates
-// at every position whatever the input order, grids (ties along every axis) included.
+// run can reproduce, and the median step it computes across processes. It must be a permutation whose blocks tile it in
+// compact, balanced, non-overlapping boxes, and a function of the point set alone: the same coordinates at every
+// position whatever the input order, grids (ties along every axis) included.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -33,7 +33,8 @@ std::vector<double> clustered_points(int d, std::size_t n, std::uint64_t seed) {
   std::vector<double> c;
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t k = i % 10;
-    for (int j = 0; j < d; ++j) c.push_back(centres[k * static_cast<std::size_t>(d) + static_cast<std::size_t>(j)] + spread(rng));
+    for (int j = 0; j < d; ++j)
+      c.push_back(centres[k * static_cast<std::size_t>(d) + static_cast<std::size_t>(j)] + spread(rng));
   }
   return c;
 }
@@ -161,7 +162,8 @@ SelectRun select_across_parts(const PointSet& ps, int axis, std::uint64_t k, int
     ids[p].push_back(i);
   }
   std::vector<CountSelect> selects;
-  for (int p = 0; p < parts; ++p) selects.emplace_back(d, axis, coords[static_cast<std::size_t>(p)], ids[static_cast<std::size_t>(p)]);
+  for (int p = 0; p < parts; ++p)
+    selects.emplace_back(d, axis, coords[static_cast<std::size_t>(p)], ids[static_cast<std::size_t>(p)]);
   SelectRun run;
   for (;;) {
     ++run.rounds;
@@ -202,7 +204,8 @@ TEST(CountSelect, FindsTheKthPointAcrossAnyNumberOfParts) {
           const SelectRun run = select_across_parts(ps, axis, k, parts, 100 + static_cast<std::uint64_t>(parts));
           EXPECT_EQ(run.id, all[k].id);
           // Each round keeps at most three quarters of the candidates.
-          EXPECT_LE(run.rounds, static_cast<int>(std::ceil(std::log(static_cast<double>(n)) / std::log(4.0 / 3.0))) + 2);
+          EXPECT_LE(run.rounds,
+                    static_cast<int>(std::ceil(std::log(static_cast<double>(n)) / std::log(4.0 / 3.0))) + 2);
         }
       }
     }

@@ -36,7 +36,12 @@ std::vector<Case> small_cases() {
       {"grid-3d", 3, grid_points(3, 3)},
       {"circle+centre-2d", 2, sphere_points(2, 25, true)},
       {"sphere-3d", 3, sphere_points(3, 9, false)},
-      {"cube+centre-4d", 4, [] { auto c = grid_points(4, 2); c.insert(c.end(), {0.5, 0.5, 0.5, 0.5}); return c; }()},
+      {"cube+centre-4d", 4,
+       [] {
+         auto c = grid_points(4, 2);
+         c.insert(c.end(), {0.5, 0.5, 0.5, 0.5});
+         return c;
+       }()},
   };
 }
 

@@ -97,7 +97,8 @@ TEST(FrontCache, RecordsReachLaterSeedsOnceAndNeverABlockThatBegan) {
 TEST(FrontCache, TheMailCapDropsPostsAndChangesNoSimplex) {
   const PointSet ps = make_points(3, uniform_points(3, 4000, 12));
   const KdTree tree(ps);
-  const auto whole = mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 200, MeshEngine::kStars);
+  const auto whole =
+      mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 200, MeshEngine::kStars);
   for (const std::size_t cap : {std::size_t{1}, std::size_t{4096}, std::size_t{1} << 16}) {
     SCOPED_TRACE("cap " + std::to_string(cap));
     EXPECT_EQ(mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, cap, 200, MeshEngine::kStars), whole);
@@ -117,10 +118,12 @@ MeshStats sweep_of_uniform(int d, std::size_t n, std::uint64_t seed, std::uint32
   auto r = mesh_seeds(tree, options, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); });
   EXPECT_TRUE(r.is_ok());
   const MeshStats stats = r.is_ok() ? r.value() : MeshStats{};
-  std::printf("%d-d n %zu: front peak %zu bytes (%.1f per point), memo %zu bytes (%.1f per point), %.2f cached wraps per seed\n",
-              d, n, stats.front_peak_bytes, static_cast<double>(stats.front_peak_bytes) / static_cast<double>(n),
-              stats.facet_cache_bytes, static_cast<double>(stats.facet_cache_bytes) / static_cast<double>(n),
-              static_cast<double>(stats.star.cached_wraps) / static_cast<double>(n));
+  std::printf(
+      "%d-d n %zu: front peak %zu bytes (%.1f per point), memo %zu bytes (%.1f per point), %.2f cached wraps per "
+      "seed\n",
+      d, n, stats.front_peak_bytes, static_cast<double>(stats.front_peak_bytes) / static_cast<double>(n),
+      stats.facet_cache_bytes, static_cast<double>(stats.facet_cache_bytes) / static_cast<double>(n),
+      static_cast<double>(stats.star.cached_wraps) / static_cast<double>(n));
   return stats;
 }
 
@@ -183,7 +186,8 @@ TEST(Sweep, AcceptSeesWholeStarsAndRefusedSeedsEmitNothing) {
       // The same simplices as vertex sets (only the owned ones need be oriented).
       const auto as_sets = [&](std::vector<std::uint32_t> flat) {
         for (std::size_t i = 0; i < flat.size(); i += static_cast<std::size_t>(d + 1)) {
-          std::sort(flat.begin() + static_cast<std::ptrdiff_t>(i), flat.begin() + static_cast<std::ptrdiff_t>(i + d + 1));
+          std::sort(flat.begin() + static_cast<std::ptrdiff_t>(i),
+                    flat.begin() + static_cast<std::ptrdiff_t>(i + d + 1));
         }
         return sorted_rows(flat, d + 1);
       };

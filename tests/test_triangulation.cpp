@@ -9,8 +9,8 @@
 #include <map>
 #include <mutex>
 #include <numeric>
-#include <set>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -143,8 +143,9 @@ TEST(Triangulation, EqualsCgalInAnyOrder) {
 TEST(Triangulation, ValidAfterEveryInsertion) {
   // Small sets, checked whole after each point (degenerate starts included: the first
   // points of a grid in index order are collinear, then coplanar).
-  for (const Case& c : {Case{"grid-3d", 3, grid_points(3, 4)}, Case{"grid-2d", 2, grid_points(2, 6)},
-                        Case{"uniform-3d", 3, uniform_points(3, 60, 3)}, Case{"sphere-3d", 3, sphere_points(3, 9, true)}}) {
+  for (const Case& c :
+       {Case{"grid-3d", 3, grid_points(3, 4)}, Case{"grid-2d", 2, grid_points(2, 6)},
+        Case{"uniform-3d", 3, uniform_points(3, 60, 3)}, Case{"sphere-3d", 3, sphere_points(3, 9, true)}}) {
     SCOPED_TRACE(c.name);
     const PointSet ps = make_points(c.d, c.coords);
     std::vector<std::uint32_t> order(ps.size());
@@ -199,7 +200,8 @@ TEST(TriangulationSweep, SameBytesAsTheStarWalkOnEveryShape) {
 // region's box queries), the same bytes; the star walk's sweep builds its tree.
 TEST(TriangulationSweep, WithoutATreeTheSameBytes) {
   for (auto& shape : bench::shape_families(3000, 13)) {
-    if (shape.name != "rings" && shape.name != "sphere" && shape.name != "contours" && shape.name != "contrast") continue;
+    if (shape.name != "rings" && shape.name != "sphere" && shape.name != "contours" && shape.name != "contrast")
+      continue;
     SCOPED_TRACE(shape.name);
     const PointSet ps = make_points(shape.d, shape.coords);
     const KdTree tree(ps);

@@ -315,7 +315,12 @@ TEST(Weighted, PowerCellsTileTheBoxInEveryDimension) {
     const KdTree tree(ps);
     const Domain box = Domain::box(std::vector<double>(d, 0.0), std::vector<double>(d, 1.0)).value();
     for (const bool equal : {false, true}) {
-      const auto w = equal ? std::vector<double>(n, 0.3) : uniform_weights(n, 0, d == 2 ? 4e-3 : d == 3 ? 2e-2 : 0.05, 390 + d);
+      const auto w = equal ? std::vector<double>(n, 0.3)
+                           : uniform_weights(n, 0,
+                                             d == 2   ? 4e-3
+                                             : d == 3 ? 2e-2
+                                                      : 0.05,
+                                             390 + d);
       std::vector<VoronoiCell> cells;
       for (const bool weighted : {true, false}) {
         if (!weighted && !equal) continue;

@@ -42,11 +42,14 @@ inline nlohmann::json cell_json(const VoronoiCell& cell, std::uint64_t seed,
   for (std::size_t k = 0; k < cell.facets.size(); ++k) {
     const VoronoiFacet& f = cell.facets[k];
     nlohmann::json facet;
-    if (f.is_wall()) facet["wall"] = f.wall();
-    else facet["neighbor"] = original(static_cast<std::uint32_t>(f.neighbor));
+    if (f.is_wall())
+      facet["wall"] = f.wall();
+    else
+      facet["neighbor"] = original(static_cast<std::uint32_t>(f.neighbor));
     if (!cell.facet_offsets.empty()) {  // on a torus: the neighbour's image
-      facet["offset"] = std::vector<std::int32_t>(cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
-                                                  cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
+      facet["offset"] =
+          std::vector<std::int32_t>(cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
+                                    cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
     }
     facet["vertices"] = f.vertices;
     facet["area"] = std::isfinite(f.area) ? nlohmann::json(f.area) : nlohmann::json(nullptr);
@@ -88,11 +91,14 @@ inline void print_cell(const VoronoiCell& cell, std::uint64_t seed, bool json,
   std::printf("facets %zu\n", cell.facets.size());
   for (std::size_t k = 0; k < cell.facets.size(); ++k) {
     const VoronoiFacet& f = cell.facets[k];
-    if (f.is_wall()) std::printf("f wall %zu", f.wall());
-    else std::printf("f neighbor %u", original(static_cast<std::uint32_t>(f.neighbor)));
+    if (f.is_wall())
+      std::printf("f wall %zu", f.wall());
+    else
+      std::printf("f neighbor %u", original(static_cast<std::uint32_t>(f.neighbor)));
     if (!cell.facet_offsets.empty()) {  // on a torus: the neighbour's image
       std::printf(" offset");
-      for (int c = 0; c < d; ++c) std::printf(" %d", cell.facet_offsets[k * static_cast<std::size_t>(d) + static_cast<std::size_t>(c)]);
+      for (int c = 0; c < d; ++c)
+        std::printf(" %d", cell.facet_offsets[k * static_cast<std::size_t>(d) + static_cast<std::size_t>(c)]);
     }
     std::printf(" area %.17g normal", f.area);
     for (double c : f.normal) std::printf(" %.17g", c);

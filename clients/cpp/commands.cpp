@@ -39,8 +39,9 @@ ApproxOptions ApproxFlags::options(std::uint64_t random_seed) const {
 }
 
 void add_approx_flags(CLI::App* cmd, ApproxFlags& f) {
-  cmd->add_flag("--approx", f.enabled,
-                "Certified approximate neighbours (any dimension): every edge is a true Delaunay edge, some may be missed");
+  cmd->add_flag(
+      "--approx", f.enabled,
+      "Certified approximate neighbours (any dimension): every edge is a true Delaunay edge, some may be missed");
   cmd->add_option("--misses", f.misses, "With --approx: stop after this many consecutive misses (the paper's M)")
       ->capture_default_str()
       ->check(CLI::Range(1u, 1000000u));
@@ -53,7 +54,8 @@ void add_approx_flags(CLI::App* cmd, ApproxFlags& f) {
             return parsed.value() == NeighborMode::kExact ? "--mode: an approximate walk is rsd or spokes" : "";
           },
           "rsd|spokes"));
-  cmd->add_option("--max-vertices", f.max_vertices, "With --approx: at most this many Voronoi vertices (or rays) per seed")
+  cmd->add_option("--max-vertices", f.max_vertices,
+                  "With --approx: at most this many Voronoi vertices (or rays) per seed")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000000u));
 }
@@ -61,15 +63,17 @@ void add_approx_flags(CLI::App* cmd, ApproxFlags& f) {
 void add_common_flags(CLI::App* cmd, Common& common) {
   cmd->add_flag("--merge-duplicates", common.merge_duplicates,
                 "Map exact duplicate points to their first occurrence instead of refusing them");
-  cmd->add_option("--random-seed", common.random_seed, "Seed for the random spoke directions (the result does not depend on it)")
+  cmd->add_option("--random-seed", common.random_seed,
+                  "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
 }
 
 void add_weight_flags(CLI::App* cmd, Common& common) {
-  auto* weights = cmd->add_option("--weights", common.weights,
-                                  "Power weights, one per point (text: one a line; .npy: shape (n,)): the regular "
-                                  "(weighted Delaunay) triangulation, CGAL's convention (a weight is a squared radius); "
-                                  "points whose power cell is empty are hidden and in no simplex");
+  auto* weights =
+      cmd->add_option("--weights", common.weights,
+                      "Power weights, one per point (text: one a line; .npy: shape (n,)): the regular "
+                      "(weighted Delaunay) triangulation, CGAL's convention (a weight is a squared radius); "
+                      "points whose power cell is empty are hidden and in no simplex");
   auto* radii = cmd->add_option("--radii", common.radii,
                                 "Radii, one per point, as Voro++'s -r: --weights with each radius squared");
   weights->excludes(radii);
@@ -85,14 +89,16 @@ void add_periodic_flag(CLI::App* cmd, Common& common) {
 }
 
 void add_domain_flags(CLI::App* cmd, DomainFlags& flags, const char* when_absent) {
-  cmd->add_option("--box", flags.box,
-                  std::string("Clip to the box LO1,...,LOd,HI1,...,HId (walls 0..d-1 low, d..2d-1 high); ") + when_absent);
+  cmd->add_option(
+      "--box", flags.box,
+      std::string("Clip to the box LO1,...,LOd,HI1,...,HId (walls 0..d-1 low, d..2d-1 high); ") + when_absent);
   cmd->add_option("--halfspaces", flags.halfspaces,
                   "Clip to the convex domain given by a file of walls, one per line: a_1 ... a_d b for a.x <= b");
 }
 
 Result<std::optional<Domain>> domain_for(const DomainFlags& flags, int d, const std::optional<Domain>& bounding_box) {
-  if (!flags.box.empty() && !flags.halfspaces.empty()) return invalid_argument("--box and --halfspaces exclude each other");
+  if (!flags.box.empty() && !flags.halfspaces.empty())
+    return invalid_argument("--box and --halfspaces exclude each other");
   if (!flags.box.empty()) {
     auto box = Domain::parse_box(flags.box);
     if (!box.is_ok()) return box.status();
@@ -112,7 +118,8 @@ Result<std::optional<Domain>> domain_for(const DomainFlags& flags, int d, const 
 }
 
 Status check_not_input(const std::string& input, const std::string& output) {
-  struct stat in {}, out {};
+  struct stat in {
+  }, out{};
   if (::stat(input.c_str(), &in) == 0 && ::stat(output.c_str(), &out) == 0 && in.st_dev == out.st_dev &&
       in.st_ino == out.st_ino) {
     return invalid_argument("-o " + output + " is the input file " + input +
@@ -127,23 +134,26 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
 
   w.mesh = app.add_subcommand("mesh", "Mesh a point file (the whole Delaunay mesh, or the simplices owned by --seeds)");
   w.mesh->add_option("INPUT", w.input, "Point file (.txt/.csv/.xyz text or .npy)")->required();
-  w.mesh->add_option("-o,--output", w.output,
-                     "Mesh file: .simplices/.txt (indices), .npy (int64), .vtu or .msh (2-d/3-d), .svg (2-d)")
+  w.mesh
+      ->add_option("-o,--output", w.output,
+                   "Mesh file: .simplices/.txt (indices), .npy (int64), .vtu or .msh (2-d/3-d), .svg (2-d)")
       ->required();
   w.mesh->add_option("--threads", w.common.threads, threads_help)->capture_default_str()->check(CLI::Range(1u, 1024u));
   w.mesh->add_option("--seeds", w.seeds,
                      "Only the simplices owned by seeds A..B-1 (A:B); owner = smallest vertex index. Rows are in sweep "
                      "order (a recursive split of space by counts; the same for any --threads and any number of "
                      "processes): sort them for lexicographic order");
-  w.mesh->add_option("--cache-mb", w.common.cache_mb,
-                     "Memory cap (MiB) on the front: facets shared with blocks still to come (2-d: 64 bytes per point); "
-                     "0 = none (same output, slower)")
+  w.mesh
+      ->add_option("--cache-mb", w.common.cache_mb,
+                   "Memory cap (MiB) on the front: facets shared with blocks still to come (2-d: 64 bytes per point); "
+                   "0 = none (same output, slower)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
-  w.mesh->add_option("--engine", w.engine,
-                     "How the mesh is computed (the rows are the same): auto (local triangulations with certified stars "
-                     "in 2-d and 3-d, unweighted and not periodic; stars otherwise), stars (every seed's star walked) or "
-                     "triangulations")
+  w.mesh
+      ->add_option("--engine", w.engine,
+                   "How the mesh is computed (the rows are the same): auto (local triangulations with certified stars "
+                   "in 2-d and 3-d, unweighted and not periodic; stars otherwise), stars (every seed's star walked) or "
+                   "triangulations")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "stars", "triangulations"}));
   w.mesh->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
@@ -152,13 +162,14 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
         ->capture_default_str()
         ->check(CLI::Range(1u, 4096u));
   }
-  add_weight_flags(w.mesh, w.common);  // spokemesh-mpi refuses them with a message
+  add_weight_flags(w.mesh, w.common);   // spokemesh-mpi refuses them with a message
   add_periodic_flag(w.mesh, w.common);  // and this
   add_common_flags(w.mesh, w.common);
 
   w.graph = app.add_subcommand("graph", "Write the Delaunay graph: one edge \"i j\" per line (i < j, sorted), or .npy");
   w.graph->add_option("INPUT", w.input, "Point file")->required();
-  w.graph->add_option("-o,--output", w.output, "Edge file: .edges/.txt (text) or .npy (int64, shape (m, 2))")->required();
+  w.graph->add_option("-o,--output", w.output, "Edge file: .edges/.txt (text) or .npy (int64, shape (m, 2))")
+      ->required();
   w.graph->add_option("--threads", w.common.threads, threads_help)->capture_default_str()->check(CLI::Range(1u, 1024u));
   w.graph->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
   add_approx_flags(w.graph, w.approx);
@@ -166,20 +177,24 @@ void define_whole_commands(CLI::App& app, WholeCommands& w, bool one_process) {
   add_weight_flags(w.graph, w.common);
 
   w.cells = app.add_subcommand(
-      "cells", "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");
+      "cells",
+      "Write every Voronoi cell clipped to a domain, with volume, centroid and facet areas/normals/neighbours");
   w.cells->add_option("INPUT", w.input, "Point file")->required();
-  w.cells->add_option("-o,--output", w.output,
-                      ".npz (NumPy arrays, any d), .vtu (ParaView polygons/polyhedra, 2-d/3-d) or .svg (a 2-d picture)")
+  w.cells
+      ->add_option("-o,--output", w.output,
+                   ".npz (NumPy arrays, any d), .vtu (ParaView polygons/polyhedra, 2-d/3-d) or .svg (a 2-d picture)")
       ->required();
   add_domain_flags(w.cells, w.domain, "default: the points' bounding box");
   w.cells->add_option("--threads", w.common.threads, threads_help)->capture_default_str()->check(CLI::Range(1u, 1024u));
   w.cells->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
-  w.cells->add_option("--cache-mb", w.cells_cache_mb,
-                      "Memory cap (MiB) for sharing wraps between the seeds' stars; 0 = none (same cells, slower)")
+  w.cells
+      ->add_option("--cache-mb", w.cells_cache_mb,
+                   "Memory cap (MiB) for sharing wraps between the seeds' stars; 0 = none (same cells, slower)")
       ->capture_default_str()
       ->check(CLI::Range(std::size_t{0}, std::size_t{1} << 24));
-  w.cells->add_option("--random-seed", w.common.random_seed,
-                      "Seed for the random spoke directions (the result does not depend on it)")
+  w.cells
+      ->add_option("--random-seed", w.common.random_seed,
+                   "Seed for the random spoke directions (the result does not depend on it)")
       ->capture_default_str();
   add_weight_flags(w.cells, w.common);
   add_periodic_flag(w.cells, w.common);
@@ -195,7 +210,8 @@ Result<std::pair<std::uint32_t, std::uint32_t>> parse_seed_range(const std::stri
   } catch (const std::exception&) {
     return invalid_argument("--seeds: expected A:B (seeds A..B-1), got '" + seeds + "'");
   }
-  if (begin > end || end > n) return invalid_argument("--seeds " + seeds + ": need 0 <= A <= B <= " + std::to_string(n));
+  if (begin > end || end > n)
+    return invalid_argument("--seeds " + seeds + ": need 0 <= A <= B <= " + std::to_string(n));
   return std::pair{static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end)};
 }
 
@@ -219,8 +235,10 @@ void Progress::update(std::uint64_t done, std::uint64_t simplices) {
     std::snprintf(line, sizeof line, "%s: %llu/%llu seeds (%.0f%%), %.1f s", what_,
                   static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_), percent, elapsed);
   }
-  if (tty_) std::fprintf(stderr, "\r%s\033[K", line);
-  else std::fprintf(stderr, "%s\n", line);
+  if (tty_)
+    std::fprintf(stderr, "\r%s\033[K", line);
+  else
+    std::fprintf(stderr, "%s\n", line);
   drawn_ = tty_;
 }
 
@@ -238,19 +256,21 @@ void print_mesh_summary(std::uint64_t points, std::uint64_t simplices, double t,
   // The run's own memory at its peak: what the stars shared (the sweep's front), or
   // the local triangulations held (docs/algorithm.md).
   const bool triangulated = stats.triangulation.regions != 0 || stats.triangulation.whole_set;
-  const double mb = static_cast<double>(triangulated ? stats.triangulation.peak_bytes : stats.facet_cache_bytes) / (1 << 20);
+  const double mb =
+      static_cast<double>(triangulated ? stats.triangulation.peak_bytes : stats.facet_cache_bytes) / (1 << 20);
   std::fprintf(stderr, "spokemesh: %llu points, %llu simplices, %.2f s, %.0f simplices/s, %.1f MB %s -> %s\n",
                static_cast<unsigned long long>(points), static_cast<unsigned long long>(simplices), t,
                t > 0 ? static_cast<double>(simplices) / t : 0.0, mb, triangulated ? "in triangulations" : "shared",
                output.c_str());
   if (triangulated) {
     const TriangulationStats& s = stats.triangulation;
-    std::fprintf(stderr,
-                 "spokemesh: %llu regions, %.2f insertions per point, %llu margins grown, %llu balls asked of the tree%s\n",
-                 static_cast<unsigned long long>(s.regions),
-                 points != 0 ? static_cast<double>(s.inserted) / static_cast<double>(points) : 0.0,
-                 static_cast<unsigned long long>(s.margin_rounds), static_cast<unsigned long long>(s.ball_queries),
-                 s.whole_set ? ", one triangulation of every point (balls across the set)" : "");
+    std::fprintf(
+        stderr,
+        "spokemesh: %llu regions, %.2f insertions per point, %llu margins grown, %llu balls asked of the tree%s\n",
+        static_cast<unsigned long long>(s.regions),
+        points != 0 ? static_cast<double>(s.inserted) / static_cast<double>(points) : 0.0,
+        static_cast<unsigned long long>(s.margin_rounds), static_cast<unsigned long long>(s.ball_queries),
+        s.whole_set ? ", one triangulation of every point (balls across the set)" : "");
   }
 }
 

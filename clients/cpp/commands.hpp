@@ -84,10 +84,10 @@ struct WholeCommands {
   ApproxFlags approx;
   DomainFlags domain;
   std::string input, output;
-  std::string seeds;                  // mesh --seeds A:B
-  std::string engine = "auto";        // mesh --engine
-  std::size_t cells_cache_mb = 256;   // cells --cache-mb
-  unsigned shards = 4;                // mesh --shards (remote mode)
+  std::string seeds;                 // mesh --seeds A:B
+  std::string engine = "auto";       // mesh --engine
+  std::size_t cells_cache_mb = 256;  // cells --cache-mb
+  unsigned shards = 4;               // mesh --shards (remote mode)
   CLI::App* mesh = nullptr;
   CLI::App* graph = nullptr;
   CLI::App* cells = nullptr;

@@ -2,11 +2,11 @@
 //
 // Exit codes: 0 success, 1 failure (including an invalid mesh for `check`),
 // 2 bad usage or bad input.
-#include <CLI/CLI.hpp>
 #include <malloc.h>
-#include <nlohmann/json.hpp>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <chrono>
 #include <cmath>
@@ -18,6 +18,8 @@
 #include <string>
 #include <thread>
 
+#include "cell_print.hpp"
+#include "commands.hpp"
 #include "spokemesh/approx.hpp"
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/cells.hpp"
@@ -31,8 +33,6 @@
 #include "spokemesh/units.hpp"
 #include "spokemesh/validate.hpp"
 #include "spokemesh/voronoi.hpp"
-#include "cell_print.hpp"
-#include "commands.hpp"
 #ifdef SPOKEMESH_REMOTE
 #include "remote.hpp"
 #endif
@@ -49,7 +49,7 @@ struct Loaded {
   PointSet points;
   std::size_t input_count = 0;          // points in the file, before merging duplicates
   std::vector<std::uint32_t> original;  // empty: identity
-  std::unique_ptr<SpaceSplit> split;  // a whole mesh's sweep order (commands that sweep)
+  std::unique_ptr<SpaceSplit> split;    // a whole mesh's sweep order (commands that sweep)
   std::unique_ptr<KdTree> tree;
 
   std::vector<double> weights;  // --weights/--radii: one power weight per point; empty: unweighted
@@ -68,8 +68,9 @@ Result<std::vector<double>> read_weight_flags(const Common& common, std::size_t 
 Status load_weights(const Common& common, Loaded& loaded) {
   if (!common.weighted()) return Status::ok();
   if (!loaded.original.empty()) {
-    return invalid_argument("--merge-duplicates cannot be combined with --weights or --radii (which weight would a "
-                            "merged point keep?): remove the duplicates from both files");
+    return invalid_argument(
+        "--merge-duplicates cannot be combined with --weights or --radii (which weight would a "
+        "merged point keep?): remove the duplicates from both files");
   }
   auto weights = read_weight_flags(common, loaded.points.size());
   if (!weights.is_ok()) return weights.status();
@@ -99,7 +100,8 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
   const int d = loaded->points.dimension();
   if (!approximate && d > kMaxDimension) {
     return invalid_argument(path + ": dimension " + std::to_string(d) + " is above the exact limit " +
-                            std::to_string(kMaxDimension) + "; use --approx for a certified approximate Delaunay graph");
+                            std::to_string(kMaxDimension) +
+                            "; use --approx for a certified approximate Delaunay graph");
   }
   Status valid = approximate ? loaded->points.validate(path, kMaxApproxDimension, d <= kMaxDimension)
                              : loaded->points.validate(path);
@@ -108,8 +110,8 @@ Result<std::unique_ptr<Loaded>> load(const std::string& path, bool merge_duplica
   }
   if (!valid.is_ok()) return valid;
   if (sweep) {
-    loaded->split = std::make_unique<SpaceSplit>(loaded->points,
-                                                 SpaceSplit::default_block_points(d, loaded->points.size()));
+    loaded->split =
+        std::make_unique<SpaceSplit>(loaded->points, SpaceSplit::default_block_points(d, loaded->points.size()));
   }
   if (tree) loaded->tree = std::make_unique<KdTree>(loaded->points);
   return loaded;
@@ -221,8 +223,9 @@ int run_mesh(const Common& common, const std::string& input, const std::string& 
   auto engine = parse_engine(engine_text);
   if (!engine.is_ok()) return report(engine.status());
   if (engine.value() == MeshEngine::kTriangulations && (!common.periodic.empty() || common.weighted())) {
-    return report(invalid_argument("--engine triangulations meshes unweighted, non-periodic sets: use --engine stars "
-                                   "(or auto) with --weights, --radii or --periodic"));
+    return report(
+        invalid_argument("--engine triangulations meshes unweighted, non-periodic sets: use --engine stars "
+                         "(or auto) with --weights, --radii or --periodic"));
   }
   if (!common.periodic.empty()) return run_periodic_mesh(common, input, output, seeds);
   if (Status s = check_not_input(input, output); !s.is_ok()) return report(s);
@@ -316,7 +319,8 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
       cell = voronoi_cell(loaded.points, star, loaded.weights);
     }
     // Original indices (duplicates merged away map to first occurrences).
-    cli::print_cell(cell, static_cast<std::uint64_t>(seed), json, [&](std::uint32_t i) { return loaded.to_original(i); });
+    cli::print_cell(cell, static_cast<std::uint64_t>(seed), json,
+                    [&](std::uint32_t i) { return loaded.to_original(i); });
     return kExitOk;
   });
 }
@@ -325,8 +329,8 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
 // each simplex's indices then its vertices' offsets; neighbors each neighbour image,
 // "index offsets..." (a neighbour may appear at several offsets); cell the unclipped
 // cell with each facet's offset.
-int run_periodic_seed(const Common& common, const std::string& input, std::int64_t seed, const char* what,
-                      bool json, const DomainFlags& flags) {
+int run_periodic_seed(const Common& common, const std::string& input, std::int64_t seed, const char* what, bool json,
+                      const DomainFlags& flags) {
   if (!flags.box.empty() || !flags.halfspaces.empty()) {
     return report(invalid_argument("--periodic cells fill the torus: --box and --halfspaces do not apply"));
   }
@@ -449,14 +453,15 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   Progress progress(common.quiet, loaded.points.size(), "cells");
   std::uint64_t facets = 0;
   double volume = 0;
-  Status status = compute_cells(*loaded.tree, &*domain.value(), options, [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
-    for (const VoronoiCell& c : cells) {
-      facets += c.facets.size();
-      volume += c.volume;
-    }
-    progress.update(done, 0);
-    return writer.value()->write(cells);
-  });
+  Status status = compute_cells(*loaded.tree, &*domain.value(), options,
+                                [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
+                                  for (const VoronoiCell& c : cells) {
+                                    facets += c.facets.size();
+                                    volume += c.volume;
+                                  }
+                                  progress.update(done, 0);
+                                  return writer.value()->write(cells);
+                                });
   progress.finish();
   if (status.is_ok()) status = writer.value()->commit();
   if (!status.is_ok()) return report(status);
@@ -551,8 +556,9 @@ int main(int argc, char** argv) {
   // tree's and the front's large buffers come from a heap that never shrinks (a higher
   // peak: bench/README.md, "Tuning history"). 4 MiB keeps the blocks' buffers in the heap.
   ::mallopt(M_MMAP_THRESHOLD, 4 << 20);
-  CLI::App app{"spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
-               "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};
+  CLI::App app{
+      "spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
+      "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};
   app.require_subcommand(1);
   app.fallthrough();  // global options (--server, --deadline, ...) may follow the command
   app.set_version_flag("--version", "spokemesh 0.1.0");
@@ -607,7 +613,8 @@ int main(int argc, char** argv) {
   add_weight_flags(cell, common);
   add_periodic_flag(cell, common);
 
-  auto* check = app.add_subcommand("check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
+  auto* check = app.add_subcommand(
+      "check", "Validate a mesh of a point file independently (exit 0 only if it is the Delaunay mesh)");
   check->add_option("INPUT", input, "Point file")->required();
   check->add_option("MESH", mesh_path, "Mesh file (.simplices/.txt or .npy)")->required();
 
@@ -631,7 +638,9 @@ int main(int argc, char** argv) {
       "batch", "Remote mode: stars, neighbours or cells of many seeds in one call; one JSON object per line");
   std::string batch_kind, seeds_text, seeds_file;
   batch->add_option("ID", input, "Point-set id")->required();
-  batch->add_option("KIND", batch_kind, "stars, neighbors or cells")->required()->check(CLI::IsMember({"stars", "neighbors", "cells"}));
+  batch->add_option("KIND", batch_kind, "stars, neighbors or cells")
+      ->required()
+      ->check(CLI::IsMember({"stars", "neighbors", "cells"}));
   batch->add_option("--seeds", seeds_text, "Comma-separated seed indices, e.g. 0,5,17");
   batch->add_option("--seeds-file", seeds_file, "File of seed indices (whitespace or commas)");
   add_domain_flags(batch, domain_flags, "cells only; default: unclipped");
@@ -690,8 +699,9 @@ int main(int argc, char** argv) {
     if (seed < -1) return report(out_of_range("--seed: " + std::to_string(seed) + " is negative"));
     const auto s = static_cast<std::uint64_t>(seed);
     if (*upload) {
-      return remote::upload(o, input, display_name,
-                            {common.radii.empty() ? common.weights : common.radii, !common.radii.empty(), common.periodic});
+      return remote::upload(
+          o, input, display_name,
+          {common.radii.empty() ? common.weights : common.radii, !common.radii.empty(), common.periodic});
     }
     if (*append) return remote::append(o, append_id, input, display_name);
     if (*batch) {
@@ -736,7 +746,8 @@ int main(int argc, char** argv) {
     if (*cell) return remote::cell(o, input, s, json, domain_flags.box, domain_flags.halfspaces);
     if (*cells) return remote::cells(o, input, output, domain_flags.box, domain_flags.halfspaces);
     if (*mesh) {
-      if (!whole.seeds.empty()) return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));
+      if (!whole.seeds.empty())
+        return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));
       return remote::mesh(o, input, output, whole.shards);
     }
 #else
@@ -749,8 +760,13 @@ int main(int argc, char** argv) {
   }
   if (*mesh) return run_mesh(common, input, output, whole.seeds, whole.engine);
   if (!common.periodic.empty() && (*star || *neighbors || *cell)) {
-    if (*neighbors && approx_flags.enabled) return report(invalid_argument("--periodic needs the exact engine: drop --approx"));
-    return run_periodic_seed(common, input, seed, *star ? "star" : *neighbors ? "neighbors" : "cell", json, domain_flags);
+    if (*neighbors && approx_flags.enabled)
+      return report(invalid_argument("--periodic needs the exact engine: drop --approx"));
+    return run_periodic_seed(common, input, seed,
+                             *star        ? "star"
+                             : *neighbors ? "neighbors"
+                                          : "cell",
+                             json, domain_flags);
   }
   if (*star) {
     return with_star(common, input, seed, [](const Loaded& loaded, Star& s) {

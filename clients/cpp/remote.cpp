@@ -14,8 +14,8 @@
 #include <thread>
 #include <vector>
 
-#include "grpc/health/v1/health.grpc.pb.h"
 #include "cell_print.hpp"
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
@@ -29,18 +29,21 @@ namespace pb = ::spokemesh::v1;
 constexpr int kExitOk = 0, kExitFailure = 1, kExitUsage = 2;
 
 int report(const RemoteOptions& o, const grpc::Status& s) {
-  static const char* names[] = {"OK", "CANCELLED", "UNKNOWN", "INVALID_ARGUMENT", "DEADLINE_EXCEEDED", "NOT_FOUND",
-                                "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED", "FAILED_PRECONDITION",
-                                "ABORTED", "OUT_OF_RANGE", "UNIMPLEMENTED", "INTERNAL", "UNAVAILABLE", "DATA_LOSS",
-                                "UNAUTHENTICATED"};
+  static const char* names[] = {
+      "OK",        "CANCELLED",      "UNKNOWN",           "INVALID_ARGUMENT",   "DEADLINE_EXCEEDED",
+      "NOT_FOUND", "ALREADY_EXISTS", "PERMISSION_DENIED", "RESOURCE_EXHAUSTED", "FAILED_PRECONDITION",
+      "ABORTED",   "OUT_OF_RANGE",   "UNIMPLEMENTED",     "INTERNAL",           "UNAVAILABLE",
+      "DATA_LOSS", "UNAUTHENTICATED"};
   const int code = static_cast<int>(s.error_code());
   std::cerr << "spokemesh: " << o.server << ": " << (code >= 0 && code <= 16 ? names[code] : "UNKNOWN") << ": "
             << s.error_message() << "\n";
   switch (s.error_code()) {
     case grpc::StatusCode::INVALID_ARGUMENT:
     case grpc::StatusCode::OUT_OF_RANGE:
-    case grpc::StatusCode::NOT_FOUND: return kExitUsage;
-    default: return kExitFailure;
+    case grpc::StatusCode::NOT_FOUND:
+      return kExitUsage;
+    default:
+      return kExitFailure;
   }
 }
 
@@ -92,9 +95,9 @@ namespace {
 // chunks on an upload's or an append's stream; prints the new id (and, unless quiet,
 // what was stored).
 template <class Request>
-int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
-                std::unique_ptr<grpc::ClientWriter<Request>> writer, Request message, const PointSet& points,
-                const pb::PointSet& response, std::span<const double> weights = {}) {
+int send_points(const RemoteOptions& o, grpc::ClientContext& ctx, std::unique_ptr<grpc::ClientWriter<Request>> writer,
+                Request message, const PointSet& points, const pb::PointSet& response,
+                std::span<const double> weights = {}) {
   bool ok = writer->Write(message);
   const auto coords = points.coordinates();
   const char* bytes = reinterpret_cast<const char*>(coords.data());
@@ -119,7 +122,8 @@ int send_points(const RemoteOptions& o, grpc::ClientContext& ctx,
     std::cerr << "spokemesh: " << (response.already_existed() ? "already stored: " : "stored: ") << response.count()
               << (response.weighted() ? " weighted" : "") << " points in " << response.dimension() << "-d"
               << (response.periodic_box_size() > 0 ? " on a periodic box" : "");
-    if (!response.parent_id().empty()) std::cerr << " (the points of " << response.parent_id() << ", then the new ones)";
+    if (!response.parent_id().empty())
+      std::cerr << " (the points of " << response.parent_id() << ", then the new ones)";
     std::cerr << "\n";
   }
   return kExitOk;
@@ -132,7 +136,8 @@ int upload(const RemoteOptions& o, const std::string& input, const std::string& 
   if (!points.is_ok()) return report(points.status());
   std::vector<double> weights, box;
   if (!extras.weights.empty()) {
-    auto w = read_weights(extras.weights, points->size(), extras.radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
+    auto w =
+        read_weights(extras.weights, points->size(), extras.radii ? WeightKind::kRadius : WeightKind::kPowerWeight);
     if (!w.is_ok()) return report(w.status());
     weights = std::move(w).value();
   }
@@ -190,7 +195,8 @@ int unary(const RemoteOptions& o, Call&& call, Response& response) {
     const grpc::Status s = call(*stub, ctx, response);
     if (s.ok()) return kExitOk;
     const auto backoff = std::chrono::milliseconds(100 * (attempt + 1));
-    const bool cut_off = s.error_code() == grpc::StatusCode::CANCELLED || s.error_code() == grpc::StatusCode::UNAVAILABLE;
+    const bool cut_off =
+        s.error_code() == grpc::StatusCode::CANCELLED || s.error_code() == grpc::StatusCode::UNAVAILABLE;
     if (!cut_off || attempt == 2 || std::chrono::system_clock::now() + backoff >= deadline) return report(o, s);
     std::this_thread::sleep_for(backoff);
   }
@@ -207,8 +213,8 @@ pb::SeedRequest seed_request(const std::string& id, std::uint64_t seed) {
 
 int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
   pb::Star response;
-  const int rc = unary(o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetStar(&ctx, seed_request(id, seed), &r); },
-                       response);
+  const int rc = unary(
+      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetStar(&ctx, seed_request(id, seed), &r); }, response);
   if (rc != kExitOk) return rc;
   std::string out;
   const auto w = static_cast<std::size_t>(response.dimension()) + 1;
@@ -216,8 +222,10 @@ int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed) {
     // A periodic set's star as the local `star --periodic` prints it: indices, then offsets.
     const std::size_t d = w - 1;
     for (std::size_t r = 0; r < static_cast<std::size_t>(response.simplices_size()) / w; ++r) {
-      for (std::size_t v = 0; v < w; ++v) out.append(v ? " " : "").append(std::to_string(response.simplices(static_cast<int>(r * w + v))));
-      for (std::size_t k = 0; k < w * d; ++k) out.append(" ").append(std::to_string(response.offsets(static_cast<int>(r * w * d + k))));
+      for (std::size_t v = 0; v < w; ++v)
+        out.append(v ? " " : "").append(std::to_string(response.simplices(static_cast<int>(r * w + v))));
+      for (std::size_t k = 0; k < w * d; ++k)
+        out.append(" ").append(std::to_string(response.offsets(static_cast<int>(r * w * d + k))));
       out += "\n";
     }
   } else {
@@ -239,7 +247,8 @@ int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed,
   request.set_max_consecutive_misses(misses);
   request.set_max_vertices(max_vertices);
   pb::Neighbors response;
-  const int rc = unary(o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, request, &r); }, response);
+  const int rc = unary(
+      o, [&](auto& stub, auto& ctx, auto& r) { return stub.GetNeighbors(&ctx, request, &r); }, response);
   if (rc != kExitOk) return rc;
   const int k = response.neighbors_size();
   const int d = k == 0 ? 0 : response.offsets_size() / k;
@@ -249,7 +258,8 @@ int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed,
     std::printf("\n");
   }
   if (!response.exact() && !o.quiet) {
-    std::fprintf(stderr, "spokemesh: %d certified neighbours (approximate): %llu vertices visited, %llu consecutive misses\n",
+    std::fprintf(stderr,
+                 "spokemesh: %d certified neighbours (approximate): %llu vertices visited, %llu consecutive misses\n",
                  response.neighbors_size(), static_cast<unsigned long long>(response.vertices_visited()),
                  static_cast<unsigned long long>(response.consecutive_misses()));
   }
@@ -303,7 +313,8 @@ Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfs
   return domain;
 }
 
-Result<pb::PointSet> info_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, grpc::Status& status) {
+Result<pb::PointSet> info_of(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id,
+                             grpc::Status& status) {
   grpc::ClientContext ctx;
   prepare(o, ctx);
   pb::GetPointSetRequest r;
@@ -389,14 +400,16 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
   return kExitOk;
 }
 
-int batch(const RemoteOptions& o, const std::string& id, const std::string& kind, const std::vector<std::uint64_t>& seeds,
-          const std::string& mode, std::uint32_t misses, std::uint32_t max_vertices, const std::string& box,
-          const std::string& halfspaces) {
+int batch(const RemoteOptions& o, const std::string& id, const std::string& kind,
+          const std::vector<std::uint64_t>& seeds, const std::string& mode, std::uint32_t misses,
+          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces) {
   auto stub = pb::Mesher::NewStub(channel(o));
   pb::BatchSeedsRequest r;
   r.set_point_set_id(id);
   r.mutable_seeds()->Add(seeds.begin(), seeds.end());
-  r.set_kind(kind == "stars" ? pb::BATCH_KIND_STARS : kind == "neighbors" ? pb::BATCH_KIND_NEIGHBORS : pb::BATCH_KIND_CELLS);
+  r.set_kind(kind == "stars"       ? pb::BATCH_KIND_STARS
+             : kind == "neighbors" ? pb::BATCH_KIND_NEIGHBORS
+                                   : pb::BATCH_KIND_CELLS);
   r.set_mode(mode == "approximate" ? pb::NEIGHBOR_MODE_APPROXIMATE
              : mode == "spokes"    ? pb::NEIGHBOR_MODE_SPOKES
                                    : pb::NEIGHBOR_MODE_EXACT);
@@ -416,11 +429,13 @@ int batch(const RemoteOptions& o, const std::string& id, const std::string& kind
       nlohmann::json j = {{"seed", s.seed()}, {"dimension", d}, {"hull_facets", s.hull_facets()}};
       j["simplices"] = nlohmann::json::array();
       for (int i = 0; i + d < s.simplices_size(); i += d + 1) {
-        j["simplices"].push_back(std::vector<std::uint32_t>(s.simplices().begin() + i, s.simplices().begin() + i + d + 1));
+        j["simplices"].push_back(
+            std::vector<std::uint32_t>(s.simplices().begin() + i, s.simplices().begin() + i + d + 1));
       }
       j["circumcenters"] = nlohmann::json::array();
       for (int i = 0; i + d <= s.circumcenters_size(); i += d) {
-        j["circumcenters"].push_back(std::vector<double>(s.circumcenters().begin() + i, s.circumcenters().begin() + i + d));
+        j["circumcenters"].push_back(
+            std::vector<double>(s.circumcenters().begin() + i, s.circumcenters().begin() + i + d));
       }
       std::cout << j.dump() << "\n";
     }
@@ -523,13 +538,15 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
       pb::SimplexBatch batch;
       while (reader->Read(&batch)) {
         std::fwrite(batch.simplices().data(), 4, static_cast<std::size_t>(batch.simplices_size()), part.spool);
-        if (periodic) std::fwrite(batch.offsets().data(), 4, static_cast<std::size_t>(batch.offsets_size()), part.offsets);
+        if (periodic)
+          std::fwrite(batch.offsets().data(), 4, static_cast<std::size_t>(batch.offsets_size()), part.offsets);
         part.simplices += static_cast<std::uint64_t>(batch.simplices_size()) / (d + 1);
       }
       part.status = reader->Finish();
       if (part.spool == nullptr || std::ferror(part.spool) ||
           (periodic && (part.offsets == nullptr || std::ferror(part.offsets)))) {
-        part.status = grpc::Status(grpc::StatusCode::INTERNAL, "cannot spool shard " + std::to_string(k) + " to a temporary file");
+        part.status = grpc::Status(grpc::StatusCode::INTERNAL,
+                                   "cannot spool shard " + std::to_string(k) + " to a temporary file");
       }
     });
   }
@@ -549,7 +566,8 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
         if (std::fread(offsets.data(), 4, want, part.offsets) != want) {
           return report(internal_error("cannot read back a shard's offsets from its temporary file"));
         }
-        if (Status s = periodic_writer->write({buffer.data(), got}, {offsets.data(), want}); !s.is_ok()) return report(s);
+        if (Status s = periodic_writer->write({buffer.data(), got}, {offsets.data(), want}); !s.is_ok())
+          return report(s);
       }
       std::fclose(part.offsets);
     } else {
@@ -606,7 +624,8 @@ int remove(const RemoteOptions& o, const std::string& id) {
   pb::DeletePointSetResponse response;
   pb::DeletePointSetRequest r;
   r.set_point_set_id(id);
-  return unary(o, [&](auto& stub, auto& ctx, auto& resp) { return stub.DeletePointSet(&ctx, r, &resp); }, response);
+  return unary(
+      o, [&](auto& stub, auto& ctx, auto& resp) { return stub.DeletePointSet(&ctx, r, &resp); }, response);
 }
 
 }  // namespace spokemesh::remote

@@ -12,11 +12,11 @@
 namespace spokemesh::remote {
 
 struct RemoteOptions {
-  std::string server;                      // HOST:PORT
+  std::string server;  // HOST:PORT
   std::chrono::milliseconds deadline{60'000};
-  std::string token;                       // bearer token ("" = none)
-  std::string tls_ca;                      // PEM file: use TLS, trusting this CA
-  std::string tls_cert, tls_key;           // PEM files: client certificate (mTLS)
+  std::string token;              // bearer token ("" = none)
+  std::string tls_ca;             // PEM file: use TLS, trusting this CA
+  std::string tls_cert, tls_key;  // PEM files: client certificate (mTLS)
   bool quiet = false;
 };
 
@@ -48,9 +48,9 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
 int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards);
 // Many seeds in one BatchSeeds call; prints one JSON object per seed (NDJSON), as the
 // REST .../{stars,neighbors,cells}:batch routes answer. kind: stars, neighbors, cells.
-int batch(const RemoteOptions& o, const std::string& id, const std::string& kind, const std::vector<std::uint64_t>& seeds,
-          const std::string& mode, std::uint32_t misses, std::uint32_t max_vertices, const std::string& box,
-          const std::string& halfspaces);
+int batch(const RemoteOptions& o, const std::string& id, const std::string& kind,
+          const std::vector<std::uint64_t>& seeds, const std::string& mode, std::uint32_t misses,
+          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces);
 int health(const RemoteOptions& o);
 int list(const RemoteOptions& o);
 int remove(const RemoteOptions& o, const std::string& id);

@@ -9,9 +9,9 @@
 #include <memory>
 #include <string_view>
 
-#include "spokemesh/zip_layout.hpp"
 #include "output.hpp"
 #include "spokemesh/io.hpp"
+#include "spokemesh/zip_layout.hpp"
 
 namespace spokemesh::mpi {
 
@@ -82,7 +82,8 @@ Result<std::unique_ptr<SliceCells>> SliceCells::gather(Comm& comm, CellSpool& sp
   const std::uint64_t last = slice->last_ = slice_begin(n, comm.rank + 1, comm.size);
   const std::uint64_t cells = last - first;
   Status status;
-  if (!spool.ok()) status = internal_error("cannot write the temporary file of cells (" + std::string(std::strerror(errno)) + ")");
+  if (!spool.ok())
+    status = internal_error("cannot write the temporary file of cells (" + std::string(std::strerror(errno)) + ")");
   if (Status s = comm.agree(status); !s.is_ok()) return s;
 
   // The slice's records go to buckets of consecutive seeds on disk, each small enough
@@ -95,7 +96,8 @@ Result<std::unique_ptr<SliceCells>> SliceCells::gather(Comm& comm, CellSpool& sp
   std::vector<File>& bucket = slice->buckets_;
   for (std::uint64_t b = 0; b < buckets && status.is_ok(); ++b) {
     bucket.emplace_back(std::tmpfile(), &std::fclose);
-    if (bucket.back() == nullptr) status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
+    if (bucket.back() == nullptr)
+      status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
   }
   if (Status s = comm.agree(status); !s.is_ok()) return s;
   auto bucket_of = [&](std::uint64_t seed) { return (seed - first) * buckets / cells; };
@@ -166,9 +168,8 @@ Status SliceCells::for_each(const std::function<Status(const char*)>& f) {
       in_order.push_back(held.data() + from);
       from += view_cell_record(d_, geometry_, held.data() + from).bytes;
     }
-    std::sort(in_order.begin(), in_order.end(), [](const char* x, const char* y) {
-      return get<std::uint32_t>(x) < get<std::uint32_t>(y);
-    });
+    std::sort(in_order.begin(), in_order.end(),
+              [](const char* x, const char* y) { return get<std::uint32_t>(x) < get<std::uint32_t>(y); });
     for (const char* c : in_order) {
       if (Status s = f(c); !s.is_ok()) return s;
     }
@@ -207,7 +208,8 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Sli
   // facet_ptr: n + 1 entries; rank 0's part also holds the leading 0.
   m[3] = {"facet_ptr.npy", npy_vector_header("<i8", n + 1), 8 * (n + 1), comm.rank == 0 ? 0 : 8 * (first + 1),
           8 * (cells + (comm.rank == 0 ? 1 : 0))};
-  m[4] = {"facet_neighbor.npy", npy_vector_header("<i8", facets_total), 8 * facets_total, 8 * facets_before, 8 * my_facets};
+  m[4] = {"facet_neighbor.npy", npy_vector_header("<i8", facets_total), 8 * facets_total, 8 * facets_before,
+          8 * my_facets};
   m[5] = {"facet_area.npy", npy_vector_header("<f8", facets_total), 8 * facets_total, 8 * facets_before, 8 * my_facets};
   m[6] = {"facet_normal.npy", npy_header("<f8", facets_total, dd), 8 * dd * facets_total, 8 * dd * facets_before,
           8 * dd * my_facets};
@@ -250,29 +252,30 @@ Status write_cells_npz(Comm& comm, const std::string& path, std::uint64_t n, Sli
       }
     };
     std::size_t held = 0;
-    if (s.is_ok()) s = slice.for_each([&](const char* c) {
-      const CellRecordView r = view_cell_record(d, false, c);  // (an .npz's records carry no geometry)
-      const std::size_t facet_bytes = 8 * (2 + dd);
-      piece[0].append(r.volume, 8);
-      piece[1].append(r.centroid, 8 * dd);
-      piece[2].append(r.bounded, 1);
-      ptr += r.facets;
-      piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
-      for (std::uint32_t f = 0; f < r.facets; ++f) {
-        const char* q = r.facet + f * facet_bytes;
-        piece[4].append(q, 8);
-        piece[5].append(q + 8, 8);
-        piece[6].append(q + 16, 8 * dd);
-      }
-      const char* volume = r.volume;
-      volumes.push_back(get<double>(volume));
-      held += r.bytes;
-      if (held >= kBucketBytes) {
-        flush();
-        held = 0;
-      }
-      return s;
-    });
+    if (s.is_ok())
+      s = slice.for_each([&](const char* c) {
+        const CellRecordView r = view_cell_record(d, false, c);  // (an .npz's records carry no geometry)
+        const std::size_t facet_bytes = 8 * (2 + dd);
+        piece[0].append(r.volume, 8);
+        piece[1].append(r.centroid, 8 * dd);
+        piece[2].append(r.bounded, 1);
+        ptr += r.facets;
+        piece[3].append(reinterpret_cast<const char*>(&ptr), 8);
+        for (std::uint32_t f = 0; f < r.facets; ++f) {
+          const char* q = r.facet + f * facet_bytes;
+          piece[4].append(q, 8);
+          piece[5].append(q + 8, 8);
+          piece[6].append(q + 16, 8 * dd);
+        }
+        const char* volume = r.volume;
+        volumes.push_back(get<double>(volume));
+        held += r.bytes;
+        if (held >= kBucketBytes) {
+          flush();
+          held = 0;
+        }
+        return s;
+      });
     flush();
     for (std::size_t k = 0; k < m.size() && s.is_ok(); ++k) {
       if (wrote[k] != m[k].part_bytes) s = internal_error(path + ": internal error: a part changed size");
@@ -316,7 +319,8 @@ Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::For
   std::vector<std::int64_t> counts = {tally.cells, tally.points, tally.connectivity, tally.face_values};
   const std::vector<std::int64_t> before_counts = comm.exscan_sum(counts);
   comm.allreduce(counts, MPI_SUM);
-  std::vector<double> lows = {tally.lo[0], tally.lo[1], tally.min_volume}, highs = {tally.hi[0], tally.hi[1], tally.max_volume};
+  std::vector<double> lows = {tally.lo[0], tally.lo[1], tally.min_volume},
+                      highs = {tally.hi[0], tally.hi[1], tally.max_volume};
   comm.allreduce(lows, MPI_MIN);
   comm.allreduce(highs, MPI_MAX);
   CellTally before, totals;
@@ -331,7 +335,8 @@ Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::For
   std::vector<File> part_files;
   for (std::size_t k = 0; k < parts && status.is_ok(); ++k) {
     part_files.emplace_back(std::tmpfile(), &std::fclose);
-    if (part_files.back() == nullptr) status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
+    if (part_files.back() == nullptr)
+      status = internal_error("cannot create a temporary file (" + std::string(std::strerror(errno)) + ")");
   }
   std::vector<std::string> lines(parts);
   std::vector<std::uint64_t> part_bytes(parts, 0);
@@ -349,12 +354,13 @@ Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::For
   std::vector<double> volumes;
   volumes.reserve(slice.cells());
   VoronoiCell cell;
-  if (status.is_ok()) status = slice.for_each([&](const char* record) {
-    read_cell_record(slice.d(), true, record, cell);
-    volumes.push_back(cell.volume);
-    layout.lines(cell, before, totals, lines.data());
-    return flush(1 << 20);
-  });
+  if (status.is_ok())
+    status = slice.for_each([&](const char* record) {
+      read_cell_record(slice.d(), true, record, cell);
+      volumes.push_back(cell.volume);
+      layout.lines(cell, before, totals, lines.data());
+      return flush(1 << 20);
+    });
   if (status.is_ok()) status = flush(1);
   if (Status s = comm.agree(status); !s.is_ok()) return s;
 
@@ -376,7 +382,8 @@ Status write_cells_sections(Comm& comm, const std::string& path, CellWriter::For
       std::FILE* f = part_files[k].get();
       std::rewind(f);
       for (std::uint64_t done_bytes = 0; done_bytes < part_bytes[k] && s.is_ok();) {
-        const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(buffer.size(), part_bytes[k] - done_bytes));
+        const std::size_t want =
+            static_cast<std::size_t>(std::min<std::uint64_t>(buffer.size(), part_bytes[k] - done_bytes));
         if (std::fread(buffer.data(), 1, want, f) != want) {
           s = internal_error("cannot read back a temporary file of cells");
           break;

@@ -3,10 +3,9 @@
 // written there into the CLI's file at offsets computed from every rank's counts:
 // the .npz's arrays (cell_io.hpp: volume, centroid, bounded, facet_ptr,
 // facet_neighbor, facet_area, facet_normal) in the core's zip layout
-// (spokemesh/zip_layout.hpp, the CLI's writer too), or the .vtu's or .svg's sections (CellFileLayout). Memory stays bounded
-// whatever the number of cells: records go through temporary files, and a rank sends
-// 8 MB of records a round and holds one bucket of its slice (about 16 MB of records)
-// at a time.
+// (spokemesh/zip_layout.hpp, the CLI's writer too), or the .vtu's or .svg's sections (CellFileLayout). Memory stays
+// bounded whatever the number of cells: records go through temporary files, and a rank sends 8 MB of records a round
+// and holds one bucket of its slice (about 16 MB of records) at a time.
 //
 // Thread safety: CellRecords is used by one thread; CellSpool::take by one thread at
 // a time (the caller locks); SliceCells and the writers are collective (main thread).
@@ -90,13 +89,14 @@ class CellRecords {
                                                 : cell.centroid[static_cast<std::size_t>(c)]);
     }
     for (const VoronoiFacet& f : cell.facets) {
-      put<std::int64_t>(bytes_, f.is_wall() ? f.neighbor
-                                            : static_cast<std::int64_t>(global(static_cast<std::uint32_t>(f.neighbor))));
+      put<std::int64_t>(
+          bytes_, f.is_wall() ? f.neighbor : static_cast<std::int64_t>(global(static_cast<std::uint32_t>(f.neighbor))));
       put<double>(bytes_, f.area);
       for (int c = 0; c < d_; ++c) put<double>(bytes_, f.normal[static_cast<std::size_t>(c)]);
     }
     if (!geometry_) return;
-    for (std::size_t i = 0; i < cell.vertex_count() * static_cast<std::size_t>(d_); ++i) put<double>(bytes_, cell.vertices[i]);
+    for (std::size_t i = 0; i < cell.vertex_count() * static_cast<std::size_t>(d_); ++i)
+      put<double>(bytes_, cell.vertices[i]);
     for (const VoronoiFacet& f : cell.facets) put<std::uint32_t>(bytes_, static_cast<std::uint32_t>(f.vertices.size()));
     for (const VoronoiFacet& f : cell.facets) {
       for (const std::uint32_t v : f.vertices) put<std::uint32_t>(bytes_, v);

@@ -34,12 +34,18 @@ struct Comm {
 
   template <class T>
   static MPI_Datatype type() {
-    if constexpr (std::is_same_v<T, double>) return MPI_DOUBLE;
-    else if constexpr (std::is_same_v<T, std::uint64_t>) return MPI_UINT64_T;
-    else if constexpr (std::is_same_v<T, std::int64_t>) return MPI_INT64_T;
-    else if constexpr (std::is_same_v<T, std::uint32_t>) return MPI_UINT32_T;
-    else if constexpr (std::is_same_v<T, int>) return MPI_INT;
-    else static_assert(sizeof(T) == 0, "no MPI type");
+    if constexpr (std::is_same_v<T, double>)
+      return MPI_DOUBLE;
+    else if constexpr (std::is_same_v<T, std::uint64_t>)
+      return MPI_UINT64_T;
+    else if constexpr (std::is_same_v<T, std::int64_t>)
+      return MPI_INT64_T;
+    else if constexpr (std::is_same_v<T, std::uint32_t>)
+      return MPI_UINT32_T;
+    else if constexpr (std::is_same_v<T, int>)
+      return MPI_INT;
+    else
+      static_assert(sizeof(T) == 0, "no MPI type");
   }
 
   template <class T>

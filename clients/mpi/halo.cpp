@@ -64,7 +64,7 @@ std::vector<double> Halo::requests_of(const std::vector<std::size_t>& pieces) co
 }
 
 void Halo::fetch(const std::vector<double>& boxes, const std::vector<double>& facets, const std::vector<double>& balls,
-                const KdTree* held_tree, const std::vector<std::uint32_t>* own_of_held) {
+                 const KdTree* held_tree, const std::vector<std::uint32_t>* own_of_held) {
   const auto d = static_cast<std::size_t>(d_);
   std::vector<char> mine;
   for (const std::vector<double>* list : {&boxes, &facets, &balls}) {

@@ -36,8 +36,10 @@ Result<Slice> read_npy_slice(Comm& comm, const std::string& path) {
   Status readable;
   if (comm.rank == 0) {
     std::FILE* f = std::fopen(path.c_str(), "rb");
-    if (f == nullptr) readable = invalid_argument(path + ": cannot open for reading (" + std::strerror(errno) + ")");
-    else std::fclose(f);
+    if (f == nullptr)
+      readable = invalid_argument(path + ": cannot open for reading (" + std::strerror(errno) + ")");
+    else
+      std::fclose(f);
   }
   if (Status s = comm.agree(readable); !s.is_ok()) return s;
   MPI_File file;
@@ -53,14 +55,17 @@ Result<Slice> read_npy_slice(Comm& comm, const std::string& path) {
   NpyPoints layout;
   if (status.is_ok()) {
     auto l = npy_points_layout(head, static_cast<std::uint64_t>(size), path);
-    if (l.is_ok()) layout = l.value();
-    else status = l.status();
+    if (l.is_ok())
+      layout = l.value();
+    else
+      status = l.status();
   }
   if (status.is_ok()) {
     out.n = layout.count;
     out.first = slice_begin(out.n, comm.rank, comm.size);
     const std::uint64_t rows = slice_begin(out.n, comm.rank + 1, comm.size) - out.first;
-    const std::uint64_t row_bytes = static_cast<std::uint64_t>(layout.dimension) * static_cast<std::uint64_t>(layout.item_bytes);
+    const std::uint64_t row_bytes =
+        static_cast<std::uint64_t>(layout.dimension) * static_cast<std::uint64_t>(layout.item_bytes);
     std::vector<char> bytes(rows * row_bytes);
     status = read_at(file, layout.data_offset + out.first * row_bytes, bytes.data(), bytes.size(), path);
     out.points.d = layout.dimension;
@@ -80,8 +85,10 @@ Result<Slice> read_text_slice(Comm& comm, const std::string& path) {
   Status status;
   if (comm.rank == 0) {
     auto read = read_points(path);
-    if (read.is_ok()) all = std::move(read).value();
-    else status = read.status();
+    if (read.is_ok())
+      all = std::move(read).value();
+    else
+      status = read.status();
   }
   if (Status s = comm.agree(status); !s.is_ok()) return s;
   std::uint64_t shape[2] = {all.size(), static_cast<std::uint64_t>(all.dimension())};

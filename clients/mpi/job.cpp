@@ -157,7 +157,7 @@ class StarJob : public Job {
     });
   }
 
-  std::vector<KeptRows> done_;                 // seeds certified after the first round
+  std::vector<KeptRows> done_;                  // seeds certified after the first round
   std::vector<std::uint32_t> position_of_own_;  // owned k -> its seed's sweep position
   std::mutex mu_;
 
@@ -201,11 +201,10 @@ class StarJob : public Job {
       keep_accepted(out);
       return true;
     };
-    auto result =
-        mesh_seeds(*round.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
-          round.progress.update(seeds_done, swept_rows_);
-          return keep_swept(round.local, sweep, block);
-        });
+    auto result = mesh_seeds(*round.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
+      round.progress.update(seeds_done, swept_rows_);
+      return keep_swept(round.local, sweep, block);
+    });
     return result.status();
   }
 
@@ -457,8 +456,8 @@ class CellsJob final : public Job {
     format_ = format.value();
     // The domain: by default the whole set's bounding box (the CLI's).
     const std::vector<double>& box = facts.global_box;
-    auto whole = Domain::box(std::vector<double>(box.begin(), box.begin() + d),
-                             std::vector<double>(box.begin() + d, box.end()));
+    auto whole =
+        Domain::box(std::vector<double>(box.begin(), box.begin() + d), std::vector<double>(box.begin() + d, box.end()));
     Result<std::optional<Domain>> chosen =
         whole.is_ok() ? cli::domain_for(w_.domain, d, std::optional<Domain>(std::move(whole).value()))
                       : Result<std::optional<Domain>>(whole.status());
@@ -541,7 +540,8 @@ class CellsJob final : public Job {
       Status s = builder_.cell(seed, cell_);
       if (!s.is_ok()) return s;
       c = round_.certify.cell(k, seed, builder_);
-      if (c.certified) found_.add(cell_, round_.local.global[seed], [&](std::uint32_t v) { return round_.local.global[v]; });
+      if (c.certified)
+        found_.add(cell_, round_.local.global[seed], [&](std::uint32_t v) { return round_.local.global[v]; });
       return Status::ok();
     }
     void flush(bool last) override {
@@ -572,9 +572,12 @@ class CellsJob final : public Job {
 
 std::unique_ptr<Job> Job::make(JobKind kind, const cli::WholeCommands& commands) {
   switch (kind) {
-    case JobKind::kMesh: return std::make_unique<MeshJob>(commands);
-    case JobKind::kGraph: return std::make_unique<GraphJob>(commands);
-    case JobKind::kCells: return std::make_unique<CellsJob>(commands);
+    case JobKind::kMesh:
+      return std::make_unique<MeshJob>(commands);
+    case JobKind::kGraph:
+      return std::make_unique<GraphJob>(commands);
+    case JobKind::kCells:
+      return std::make_unique<CellsJob>(commands);
   }
   return nullptr;
 }

@@ -19,8 +19,8 @@
 #include <utility>
 #include <vector>
 
-#include "commands.hpp"
 #include "comm.hpp"
+#include "commands.hpp"
 #include "halo.hpp"
 #include "split.hpp"
 #include "spokemesh/cells.hpp"
@@ -59,7 +59,7 @@ struct Round {
   const std::vector<std::uint32_t>& own_of_local;  // local index -> owned k (Halo::kNone: a ghost)
   const TopSplit& split;
   const RoundCertifier& certify;
-  std::unique_ptr<KdTree>& tree;       // the held points' tree, kept between rounds (a job may build it)
+  std::unique_ptr<KdTree>& tree;        // the held points' tree, kept between rounds (a job may build it)
   std::vector<std::uint32_t>& pending;  // owned k to compute (round 1 of cells: the job fills it)
   std::vector<std::pair<std::uint32_t, StarCertificate>>& refused;  // out: owned k, and what it needs
   cli::Progress& progress;

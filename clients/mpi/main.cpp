@@ -19,8 +19,8 @@
 #include <csignal>
 #include <string>
 
-#include "commands.hpp"
 #include "comm.hpp"
+#include "commands.hpp"
 #include "run.hpp"
 
 using namespace spokemesh;
@@ -39,9 +39,10 @@ int main(int argc, char** argv) {
   int provided = 0;
   MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
   Comm comm = Comm::world();
-  CLI::App app{"spokemesh-mpi: the Delaunay mesh, graph or clipped Voronoi cells of one point set by many processes "
-               "(Open MPI), the same bytes as spokemesh writes.\nRun as: mpirun -np P spokemesh-mpi {mesh|graph|cells} "
-               "INPUT -o OUTPUT [flags]"};
+  CLI::App app{
+      "spokemesh-mpi: the Delaunay mesh, graph or clipped Voronoi cells of one point set by many processes "
+      "(Open MPI), the same bytes as spokemesh writes.\nRun as: mpirun -np P spokemesh-mpi {mesh|graph|cells} "
+      "INPUT -o OUTPUT [flags]"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "spokemesh-mpi 0.1.0");
   WholeCommands w;

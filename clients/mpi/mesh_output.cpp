@@ -64,7 +64,8 @@ Status write_mesh_sections(Comm& comm, const std::string& path, MeshWriter::Form
         if (s.is_ok()) s = write_at(at[k] + done, piece);
         done += piece.size();
       });
-      if (s.is_ok() && done != mine[k]) s = internal_error(path + ": internal error: a part changed size while written");
+      if (s.is_ok() && done != mine[k])
+        s = internal_error(path + ": internal error: a part changed size while written");
     }
     return s;
   });

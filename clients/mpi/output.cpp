@@ -67,7 +67,8 @@ Status write_ordered(Comm& comm, const std::string& path, std::uint64_t header_b
         return s;
       });
     }
-    if (status.is_ok() && at != end) status = internal_error(path + ": internal error: a part changed size while written");
+    if (status.is_ok() && at != end)
+      status = internal_error(path + ": internal error: a part changed size while written");
     return status;
   });
 }

@@ -4,8 +4,8 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -13,10 +13,10 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <numeric>
 #include <optional>
 #include <set>
-#include <nlohmann/json.hpp>
 
 #include "halo.hpp"
 #include "input.hpp"
@@ -437,9 +437,12 @@ class DistributedRun {
     stats_.bytes_received = comm_.bytes_received;
     stats_.peak_rss = peak_rss_bytes();
     stats_.seconds = std::chrono::duration<double>(Clock::now() - start_).count();
-    std::vector<double> mine{static_cast<double>(stats_.owned),          static_cast<double>(stats_.ghosts),
-                             static_cast<double>(stats_.rounds),         static_cast<double>(stats_.bytes_sent),
-                             static_cast<double>(stats_.bytes_received), static_cast<double>(stats_.peak_rss),
+    std::vector<double> mine{static_cast<double>(stats_.owned),
+                             static_cast<double>(stats_.ghosts),
+                             static_cast<double>(stats_.rounds),
+                             static_cast<double>(stats_.bytes_sent),
+                             static_cast<double>(stats_.bytes_received),
+                             static_cast<double>(stats_.peak_rss),
                              stats_.seconds};
     std::vector<double> every(comm_.rank == 0 ? mine.size() * static_cast<std::size_t>(comm_.size) : 0);
     MPI_Gather(mine.data(), static_cast<int>(mine.size()), MPI_DOUBLE, every.data(), static_cast<int>(mine.size()),

@@ -16,8 +16,8 @@
 
 #include <string>
 
-#include "commands.hpp"
 #include "comm.hpp"
+#include "commands.hpp"
 #include "job.hpp"
 
 namespace spokemesh::mpi {

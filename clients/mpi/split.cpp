@@ -12,7 +12,8 @@ namespace spokemesh::mpi {
 namespace {
 
 Status duplicate(const std::string& source, std::uint64_t a, std::uint64_t b) {
-  return invalid_argument(source + ": points " + std::to_string(std::min(a, b)) + " and " + std::to_string(std::max(a, b)) +
+  return invalid_argument(source + ": points " + std::to_string(std::min(a, b)) + " and " +
+                          std::to_string(std::max(a, b)) +
                           " are equal (spokemesh-mpi does not merge duplicates: remove them, or mesh on one process "
                           "with spokemesh mesh --merge-duplicates)");
 }
@@ -140,8 +141,8 @@ Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, st
       std::int64_t best = -1;
       for (const std::uint32_t kk : members[a]) {
         if (!before_along(axis[a], d, mine.point(kk), mine.ids[kk], pivot[a].coords.data(), pivot[a].id)) continue;
-        if (best < 0 || before_along(axis[a], d, mine.point(static_cast<std::size_t>(best)), mine.ids[static_cast<std::size_t>(best)],
-                                     mine.point(kk), mine.ids[kk])) {
+        if (best < 0 || before_along(axis[a], d, mine.point(static_cast<std::size_t>(best)),
+                                     mine.ids[static_cast<std::size_t>(best)], mine.point(kk), mine.ids[kk])) {
           best = kk;
         }
       }
@@ -165,7 +166,8 @@ Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, st
       }
     }
     for (std::size_t a = 0; a < m && failure.is_ok(); ++a) {
-      if (last[a].count != 0 && last[a].key.coords == pivot[a].coords) failure = duplicate(source, last[a].key.id, pivot[a].id);
+      if (last[a].count != 0 && last[a].key.coords == pivot[a].coords)
+        failure = duplicate(source, last[a].key.id, pivot[a].id);
     }
     if (!failure.is_ok()) return failure;  // every rank found the same
     // The children replace their parent, left then right: the list stays in order.
@@ -214,7 +216,8 @@ Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, st
     // (n < 2^32 and P < 2^20: the product fits 64 bits.)
     const std::uint64_t middle = (2 * start + t.count) * static_cast<std::uint64_t>(comm.size);
     t.owner = static_cast<int>(std::min<std::uint64_t>(middle / (2 * n), static_cast<std::uint64_t>(comm.size - 1)));
-    t.box.assign(box.begin() + static_cast<std::ptrdiff_t>(i * 2 * dd), box.begin() + static_cast<std::ptrdiff_t>((i + 1) * 2 * dd));
+    t.box.assign(box.begin() + static_cast<std::ptrdiff_t>(i * 2 * dd),
+                 box.begin() + static_cast<std::ptrdiff_t>((i + 1) * 2 * dd));
     for (std::size_t c = 0; c < dd; ++c) t.box[dd + c] = -t.box[dd + c];
     start += t.count;
   }
@@ -254,7 +257,8 @@ Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, st
     std::memcpy(&out.owned.coords[i * dd], in.data() + arrivals[i].at, 8 * dd);
     out.owned.ids[i] = arrivals[i].id;
     if (i == 0 || arrivals[i].node != arrivals[i - 1].node) out.owned_nodes.push_back(arrivals[i].node);
-    if (i + 1 == got || arrivals[i + 1].node != arrivals[i].node) out.piece_ends.push_back(static_cast<std::uint32_t>(i + 1));
+    if (i + 1 == got || arrivals[i + 1].node != arrivals[i].node)
+      out.piece_ends.push_back(static_cast<std::uint32_t>(i + 1));
   }
   // Equal points that no joint cut separated are both here: neighbours in
   // lexicographic order.

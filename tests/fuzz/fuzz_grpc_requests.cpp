@@ -8,8 +8,8 @@
 //                 modes, shards and page tokens reach the geometry, not only
 //                 NOT_FOUND). Bytes that do not parse as the request are sent as they
 //                 are through the generic stub: the server must refuse them with
-//                 INVALID_ARGUMENT (service/grpc_guards.hpp). For UploadPointSet the rest is a sequence of messages, each
-//                 prefixed by its length in one byte.
+//                 INVALID_ARGUMENT (service/grpc_guards.hpp). For UploadPointSet the rest is a sequence of messages,
+//                 each prefixed by its length in one byte.
 // Every call has a 2 s deadline. Invariants: nothing crashes or leaks (ASan, UBSan,
 // LeakSanitizer), every error carries a message, answers are well formed (a star's
 // simplices come in whole simplices that contain the seed), and no byte stays charged
@@ -200,8 +200,7 @@ void server_stream(Harness& h, const char* method, const std::string& bytes, Ope
   with_deadline(ctx);
   auto reader = open(ctx, r);
   Reply reply;
-  for (int k = 0; k < 10000 && reader->Read(&reply); ++k) {
-  }
+  for (int k = 0; k < 10000 && reader->Read(&reply); ++k) {}
   ctx.TryCancel();
   expect_message(reader->Finish());
 }

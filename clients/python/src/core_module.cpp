@@ -8,10 +8,10 @@
 //
 // Thread safety: a Triangulation is immutable after construction; its methods may be
 // called from several Python threads at once.
+#include <gmpxx.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
-#include <gmpxx.h>
 
 #include <algorithm>
 #include <array>
@@ -69,7 +69,8 @@ PointSet points_from(const Points& array, bool exact_span = true) {
   const auto n = static_cast<std::size_t>(array.shape(0));
   const int d = static_cast<int>(array.shape(1));
   // scipy's index arrays are int32: a set in-process stays below 2^31 points.
-  if (n >= (std::size_t{1} << 31)) throw py::value_error("points: " + std::to_string(n) + " points; at most 2^31 - 1 in-process");
+  if (n >= (std::size_t{1} << 31))
+    throw py::value_error("points: " + std::to_string(n) + " points; at most 2^31 - 1 in-process");
   std::vector<double> coords(array.data(), array.data() + n * static_cast<std::size_t>(d));
   PointSet ps(d, std::move(coords));
   const Status s = exact_span ? ps.validate("points") : ps.validate("points", kMaxApproxDimension, d <= kMaxDimension);
@@ -154,7 +155,8 @@ std::optional<Domain> domain_from(int d, const std::optional<std::vector<double>
   if (halfspaces) {
     const Points& h = *halfspaces;
     if (h.ndim() != 2 || h.shape(1) != d + 1) {
-      throw py::value_error("halfspaces: expected shape (m, " + std::to_string(d + 1) + "): rows a_1..a_d b for a.x <= b");
+      throw py::value_error("halfspaces: expected shape (m, " + std::to_string(d + 1) +
+                            "): rows a_1..a_d b for a.x <= b");
     }
     std::vector<double> normals, offsets;
     for (py::ssize_t k = 0; k < h.shape(0); ++k) {
@@ -177,7 +179,8 @@ py::dict cell_dict(const VoronoiCell& c) {
   out["clipped"] = c.clipped;
   out["hidden"] = c.hidden;
   out["volume"] = c.volume;
-  out["centroid"] = c.centroid.empty() ? py::object(py::none()) : py::object(owned(std::vector<double>(c.centroid), {d}));
+  out["centroid"] =
+      c.centroid.empty() ? py::object(py::none()) : py::object(owned(std::vector<double>(c.centroid), {d}));
   py::list facets;
   for (const VoronoiFacet& f : c.facets) {
     py::dict facet;
@@ -206,7 +209,8 @@ std::vector<double> weights_from(const std::optional<Points>& weights, std::size
 
 // IndexError unless seed < n.
 void check_seed(std::uint32_t seed, std::size_t n) {
-  if (seed >= n) throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(n) + " points)");
+  if (seed >= n)
+    throw py::index_error("seed " + std::to_string(seed) + " is out of range (" + std::to_string(n) + " points)");
 }
 
 // Every cell's measures as the .npz of `spokemesh cells` holds them, gathered cell by
@@ -223,8 +227,10 @@ struct CellColumns {
   void add(const VoronoiCell& c) {
     volume.push_back(c.volume);
     bounded.push_back(c.bounded ? 1 : 0);
-    if (c.centroid.empty()) centroid.insert(centroid.end(), static_cast<std::size_t>(d), std::nan(""));
-    else centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
+    if (c.centroid.empty())
+      centroid.insert(centroid.end(), static_cast<std::size_t>(d), std::nan(""));
+    else
+      centroid.insert(centroid.end(), c.centroid.begin(), c.centroid.end());
     for (const VoronoiFacet& f : c.facets) {
       neighbor.push_back(f.neighbor);
       area.push_back(f.area);
@@ -295,7 +301,8 @@ class PeriodicTriangulation {
     return owned(std::move(out), {static_cast<py::ssize_t>(simplices_.size() / (d_ + 1)), d_ + 1});
   }
   py::array_t<std::int32_t> offsets() const {
-    return owned(std::vector<std::int32_t>(offsets_), {static_cast<py::ssize_t>(simplices_.size() / (d_ + 1)), d_ + 1, d_});
+    return owned(std::vector<std::int32_t>(offsets_),
+                 {static_cast<py::ssize_t>(simplices_.size() / (d_ + 1)), d_ + 1, d_});
   }
 
   // One seed's simplices (indices, offsets) and, with `cell`, its cell.
@@ -312,9 +319,10 @@ class PeriodicTriangulation {
     py::list facets = out["facets"];
     for (std::size_t k = 0; k < c.facets.size(); ++k) {
       py::dict f = facets[k];
-      f["offset"] = owned(std::vector<std::int32_t>(c.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d_),
-                                                    c.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d_)),
-                          {d_});
+      f["offset"] =
+          owned(std::vector<std::int32_t>(c.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d_),
+                                          c.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d_)),
+                {d_});
     }
     return out;
   }
@@ -397,15 +405,15 @@ class Triangulation {
   // The triangulation of parent's points followed by `more`, from parent's mesh: only
   // the stars that change are computed (insert_points), and the simplices are those,
   // in the same order, that the whole set's triangulation has.
-  Triangulation(const Triangulation& parent, const Points& more)
-      : d_(parent.d_), threads_(parent.threads_) {
+  Triangulation(const Triangulation& parent, const Points& more) : d_(parent.d_), threads_(parent.threads_) {
     parent.unweighted_only("add_points");
     if (more.ndim() != 2 || more.shape(1) != parent.d_) {
       throw py::value_error("points: expected shape (k, " + std::to_string(parent.d_) + ")");
     }
     const auto k = static_cast<std::size_t>(more.shape(0));
     if (parent.points_.size() + k >= (std::size_t{1} << 31)) {
-      throw py::value_error("points: " + std::to_string(parent.points_.size() + k) + " points; at most 2^31 - 1 in-process");
+      throw py::value_error("points: " + std::to_string(parent.points_.size() + k) +
+                            " points; at most 2^31 - 1 in-process");
     }
     std::vector<double> coords(parent.points_.coordinates().begin(), parent.points_.coordinates().end());
     coords.insert(coords.end(), more.data(), more.data() + k * static_cast<std::size_t>(d_));
@@ -421,7 +429,8 @@ class Triangulation {
     // The split is built beside the tree and the new points' stars (they need only the
     // tree), and waited for when the rows are put in sweep order.
     std::unique_ptr<SpaceSplit> split;
-    std::thread sweep([&] { split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size())); });
+    std::thread sweep(
+        [&] { split = std::make_unique<SpaceSplit>(points_, SpaceSplit::default_block_points(d_, points_.size())); });
     // The parent's tree extended by the new points' (rebuilt whole after a few).
     tree_ = KdTree::extended(*parent.tree_, points_);
     MeshOptions options;
@@ -504,8 +513,8 @@ class Triangulation {
       const std::size_t chunk = 1 << 12;  // (parallel_for shares out more than 1024 items)
       parallel_for((size + chunk - 1) / chunk, [&](std::size_t c) {
         const std::size_t from = c * chunk, end = std::min(size, from + chunk);
-        std::copy(simplices_.begin() + static_cast<std::ptrdiff_t>(from), simplices_.begin() + static_cast<std::ptrdiff_t>(end),
-                  to + from);
+        std::copy(simplices_.begin() + static_cast<std::ptrdiff_t>(from),
+                  simplices_.begin() + static_cast<std::ptrdiff_t>(end), to + from);
       });
     }
     return out;
@@ -592,7 +601,11 @@ class Triangulation {
  private:
   // Another triangulation of `base`'s points (its tree rebuilt over the copy).
   Triangulation(const Triangulation& base, std::vector<std::uint32_t> rows)
-      : points_(base.points_), d_(base.d_), threads_(base.threads_), weights_(base.weights_), simplices_(rows.begin(), rows.end()) {
+      : points_(base.points_),
+        d_(base.d_),
+        threads_(base.threads_),
+        weights_(base.weights_),
+        simplices_(rows.begin(), rows.end()) {
     tree_ = std::make_unique<KdTree>(points_);
   }
 
@@ -813,8 +826,10 @@ PYBIND11_MODULE(_core, m) {
       .def(py::init<const Points&, std::optional<unsigned>, const std::optional<Points>&>(), py::arg("points"),
            py::arg("threads") = py::none(), py::arg("weights") = py::none())
       .def_property_readonly("weighted", &Triangulation::weighted)
-      .def("inserted", [](const Triangulation& self, const Points& more) { return std::make_unique<Triangulation>(self, more); },
-           py::arg("points"), "The triangulation with `points` appended (only the stars that change are computed)")
+      .def(
+          "inserted",
+          [](const Triangulation& self, const Points& more) { return std::make_unique<Triangulation>(self, more); },
+          py::arg("points"), "The triangulation with `points` appended (only the stars that change are computed)")
       .def_property_readonly("stars_computed", &Triangulation::stars_computed)
       .def_property_readonly("dimension", &Triangulation::dimension)
       .def_property_readonly("npoints", &Triangulation::npoints)

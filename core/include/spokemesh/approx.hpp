@@ -46,8 +46,8 @@ struct ApproxOptions {
   Mode mode = Mode::kRsd;
   std::uint32_t max_misses = kDefaultMaxMisses;      // consecutive misses before stopping (the paper's M)
   std::uint32_t max_vertices = kDefaultMaxVertices;  // Voronoi vertices (RSD) or rays (spokes), at most
-  std::uint64_t random_seed = 0x5eed;   // mixed with the seed index into every direction
-  const std::atomic<bool>* cancel = nullptr;  // checked between rays
+  std::uint64_t random_seed = 0x5eed;                // mixed with the seed index into every direction
+  const std::atomic<bool>* cancel = nullptr;         // checked between rays
 };
 
 // How a seed's neighbours are found, one vocabulary for every route (the CLI's --mode

@@ -111,9 +111,9 @@ class ClippedCellBuilder {
 };
 
 struct CellsOptions {
-  unsigned threads = 1;                   // worker threads (>= 1)
-  std::uint32_t seed_begin = 0;           // cells of seeds [seed_begin, seed_end)
-  std::uint32_t seed_end = 0xFFFFFFFFu;   // clamped to n
+  unsigned threads = 1;                  // worker threads (>= 1)
+  std::uint32_t seed_begin = 0;          // cells of seeds [seed_begin, seed_end)
+  std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
   // Seeds per worker and round; 0 = automatic: 8192 where cells are built directly
   // (3-d boxes), whose rounds are visited in space order and gain locality with size
   // (1M points, 2 threads: 1/61 of the set per round), else 2048, in seed order (the
@@ -125,7 +125,7 @@ struct CellsOptions {
   // Cap (bytes) on the cache through which the run's stars share their wraps, as in
   // MeshOptions; 0 for none. The cells are the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 28;
-  StarOptions star;                       // star.cancel also stops the run
+  StarOptions star;  // star.cancel also stops the run
 };
 
 // Receives the cells of consecutive seeds and the number of seeds done so far; a

@@ -43,7 +43,6 @@ namespace spokemesh {
 
 class FacetCache final : public FacetMemo {
  public:
-
   // d: dimension (2..8); n: point count; the run meshes seeds [begin, end) in blocks
   // of `block` seeds, in block order, each block's seeds in any order; max_bytes caps
   // the table and the per-point starts. A cap too small for a useful table gives a

@@ -24,8 +24,8 @@
 #include <span>
 #include <vector>
 
-#include "spokemesh/space_split.hpp"
 #include "spokemesh/facet_cache.hpp"
+#include "spokemesh/space_split.hpp"
 
 namespace spokemesh {
 
@@ -119,12 +119,12 @@ class FrontCache final : public FacetMemo {
   const SpaceSplit& blocks_;
   FrontMail& mail_;
   RunOrder seeds_;
-  std::size_t stride_;                  // words per slot: generation, d ids, apexes a and b
+  std::size_t stride_;             // words per slot: generation, d ids, apexes a and b
   std::uint32_t lo_ = 0, hi_ = 0;  // the block's range of sweep positions
   // Open addressing, the entry in its slot (one cache line holds a probe). A slot of
   // another generation is empty, so a new block forgets the table without clearing it.
   std::vector<std::uint32_t> table_;
-  std::size_t capacity_ = 0;            // slots, a power of two
+  std::size_t capacity_ = 0;  // slots, a power of two
   std::uint32_t generation_ = 0;
   std::size_t count_ = 0;
   std::vector<std::uint32_t> starts_;    // per leaf position in the block: slot + 1, or 0

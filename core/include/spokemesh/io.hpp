@@ -15,8 +15,8 @@
 
 #include <cstdint>
 #include <cstdio>
-#include <memory>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>

@@ -88,8 +88,7 @@ class KdTree {
   // With `bound2`, only points at squared distance < bound2 are reported (fewer than
   // k when fewer lie that close): a good bound prunes most of the search.
   std::size_t knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
-                  const double** coords = nullptr,
-                  double bound2 = std::numeric_limits<double>::infinity()) const;
+                  const double** coords = nullptr, double bound2 = std::numeric_limits<double>::infinity()) const;
 
   // Position of point `id` in the tree's leaf order: points close in this order are
   // close in space (for visiting seeds in a cache-friendly order).
@@ -130,7 +129,7 @@ class KdTree {
 
  private:
   KdTree(const KdTree& base, const PointSet& points);  // the extension (see extended)
-  void build_whole();  // the constructors' build of points_ as one tree
+  void build_whole();                                  // the constructors' build of points_ as one tree
 
   // Reads the PointSet while nanoflann builds, the leaf-ordered copy afterwards.
   struct Adaptor {
@@ -140,10 +139,12 @@ class KdTree {
     std::size_t kdtree_get_point_count() const { return n; }
     double kdtree_get_pt(std::size_t i, std::size_t c) const { return coords[i * d + c]; }
     template <class Box>
-    bool kdtree_get_bbox(Box&) const { return false; }
+    bool kdtree_get_bbox(Box&) const {
+      return false;
+    }
   };
-  using Index = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, Adaptor>,
-                                                    Adaptor, -1, std::uint32_t>;
+  using Index =
+      nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, Adaptor>, Adaptor, -1, std::uint32_t>;
   using Node = typename Index::Node;
 
   template <class ResultSet>
@@ -192,10 +193,10 @@ class KdTree {
   const PointSet& points_;
   std::size_t d_;
   std::vector<std::shared_ptr<Built>> built_;
-  std::vector<Part> parts_;  // over consecutive ranges of leaf positions, in order
-  std::vector<double> bbox_;  // all points' box: d lows, then d highs
-  std::vector<double> leaf_coords_;    // coordinates in leaf order, n * d
-  std::vector<std::uint32_t> id_of_;  // leaf position -> original index
+  std::vector<Part> parts_;             // over consecutive ranges of leaf positions, in order
+  std::vector<double> bbox_;            // all points' box: d lows, then d highs
+  std::vector<double> leaf_coords_;     // coordinates in leaf order, n * d
+  std::vector<std::uint32_t> id_of_;    // leaf position -> original index
   std::vector<std::uint32_t> rank_of_;  // original index -> leaf position
   std::vector<BoxNode> box_nodes_;
   std::vector<float> box_bounds_;  // per box node: d lows, then d highs, rounded outwards

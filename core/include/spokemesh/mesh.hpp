@@ -28,9 +28,9 @@
 #include <functional>
 #include <memory>
 #include <new>
+#include <span>
 #include <type_traits>
 #include <utility>
-#include <span>
 #include <vector>
 
 #include "spokemesh/kd_tree.hpp"
@@ -49,15 +49,15 @@ enum class MeshEngine {
 };
 
 struct MeshOptions {
-  unsigned threads = 1;             // worker threads (>= 1)
-  std::uint32_t seed_begin = 0;     // seeds [seed_begin, seed_end) are meshed
+  unsigned threads = 1;                  // worker threads (>= 1)
+  std::uint32_t seed_begin = 0;          // seeds [seed_begin, seed_end) are meshed
   std::uint32_t seed_end = 0xFFFFFFFFu;  // clamped to n
   // ...and of those, only the seeds at sweep positions [sweep_begin, sweep_end)
   // (clamped to n): a contiguous part of the sweep, so the parts of consecutive ranges
   // concatenate to the whole run's output, byte for byte.
   std::uint32_t sweep_begin = 0;
   std::uint32_t sweep_end = 0xFFFFFFFFu;
-  std::uint32_t block_size = 0;     // points per block at most; 0 = automatic (output is the same)
+  std::uint32_t block_size = 0;  // points per block at most; 0 = automatic (output is the same)
   // The sweep's order and blocks, over the tree's points (borrowed; it must outlive the
   // run); null: built by the run from the tree's points and block_size, 8 bytes per
   // point while the run lasts (and 32 to 72 more while it is built).
@@ -65,7 +65,7 @@ struct MeshOptions {
   // Cap on what the stars of this run share (the front's mailboxes; in 2-d the
   // EdgeCache): bytes, 0 to mesh without it. The output is the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 30;
-  StarOptions star;                 // star.cancel also stops the whole run
+  StarOptions star;                       // star.cancel also stops the whole run
   MeshEngine engine = MeshEngine::kAuto;  // engine_for() below
   // Local triangulations: the points of a region triangulated at once (the split's
   // nodes of at most this many; 0 = the dimension's default). The output is the same
@@ -95,14 +95,14 @@ struct MeshOptions {
 
 // What the local triangulations did (MeshEngine::kTriangulations).
 struct TriangulationStats {
-  std::uint64_t regions = 0;            // regions of the sweep triangulated
-  std::uint64_t inserted = 0;           // points inserted, margins included
-  std::uint64_t margin_rounds = 0;      // times a region's box E was grown
-  std::uint64_t ball_queries = 0;       // balls and hull facets certified by a k-d tree query
-  std::uint64_t walked_seeds = 0;       // seeds whose stars were walked instead (few wanted in a region)
-  bool whole_set = false;               // one triangulation of every point served (part of) the run
-  std::uint64_t exact_calls = 0;        // predicates the filters could not decide
-  std::size_t peak_bytes = 0;           // the largest triangulation held, summed over workers
+  std::uint64_t regions = 0;        // regions of the sweep triangulated
+  std::uint64_t inserted = 0;       // points inserted, margins included
+  std::uint64_t margin_rounds = 0;  // times a region's box E was grown
+  std::uint64_t ball_queries = 0;   // balls and hull facets certified by a k-d tree query
+  std::uint64_t walked_seeds = 0;   // seeds whose stars were walked instead (few wanted in a region)
+  bool whole_set = false;           // one triangulation of every point served (part of) the run
+  std::uint64_t exact_calls = 0;    // predicates the filters could not decide
+  std::size_t peak_bytes = 0;       // the largest triangulation held, summed over workers
 };
 
 struct MeshStats {
@@ -186,14 +186,13 @@ using Rows = std::vector<std::uint32_t, UninitializedAllocator<std::uint32_t>>;
 // the facet cache are not used). Errors: INVALID_ARGUMENT when n_old is not below n or
 // the rows name a point >= n_old; CANCELLED.
 struct InsertStats {
-  std::uint64_t stars = 0;          // stars computed (the new points'; all n when swept whole)
-  std::uint64_t rows_redone = 0;    // old points whose owned rows were brought up to date
-  std::uint64_t rows_kept = 0;      // rows taken from old_rows
-  bool whole = false;               // so many points were new that the whole set was swept
+  std::uint64_t stars = 0;        // stars computed (the new points'; all n when swept whole)
+  std::uint64_t rows_redone = 0;  // old points whose owned rows were brought up to date
+  std::uint64_t rows_kept = 0;    // rows taken from old_rows
+  bool whole = false;             // so many points were new that the whole set was swept
 };
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
-                                  std::span<const std::uint32_t> old_rows, const MeshOptions& options,
-                                  Rows& out);
+                                  std::span<const std::uint32_t> old_rows, const MeshOptions& options, Rows& out);
 // The same, with the split given when first needed (a caller may still be building it
 // while the new points' stars are computed, which need only the tree).
 Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,

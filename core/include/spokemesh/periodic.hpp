@@ -54,10 +54,10 @@
 namespace spokemesh {
 
 struct PeriodicMeshStats {
-  MeshStats mesh;                 // of the last run (its simplices: the torus's)
-  std::uint64_t images = 0;       // images in the last run's cover
-  std::vector<double> margin;     // its margin per axis
-  int runs = 0;                   // 1, or more when a margin proved too thin
+  MeshStats mesh;              // of the last run (its simplices: the torus's)
+  std::uint64_t images = 0;    // images in the last run's cover
+  std::vector<double> margin;  // its margin per axis
+  int runs = 0;                // 1, or more when a margin proved too thin
 };
 
 // Receives a block of simplices of the torus: (d + 1) point indices each, and (d + 1) d

@@ -35,8 +35,7 @@ struct PeriodicStar {
   std::size_t size(int d) const { return simplices.size() / static_cast<std::size_t>(d + 1); }
 };
 Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& box, std::uint32_t seed,
-                                   const StarOptions& options, const std::string& source,
-                                   VoronoiCell* cell = nullptr);
+                                   const StarOptions& options, const std::string& source, VoronoiCell* cell = nullptr);
 
 // The seed's Delaunay neighbours on the torus: the images in its star other than the
 // seed itself, each once, ascending by point then offset (lexicographically); d

@@ -23,8 +23,8 @@
 #include <array>
 #include <cfloat>
 #include <cmath>
-#include <limits>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -69,9 +69,7 @@ inline constexpr double error_bound(double magnitude, int depth) {
   return magnitude * relative_error(static_cast<double>(depth));
 }
 // The magnitude lets the bound hold: no product below the guard, no overflow.
-inline constexpr bool is_certifiable(double magnitude) {
-  return magnitude >= kUnderflowGuard && magnitude <= DBL_MAX;
-}
+inline constexpr bool is_certifiable(double magnitude) { return magnitude >= kUnderflowGuard && magnitude <= DBL_MAX; }
 inline constexpr int kUnknownSign = 2;
 // +1 / -1 when the computed value's sign is certain, else kUnknownSign.
 inline int certified_sign(double value, double magnitude, int depth) {
@@ -119,10 +117,12 @@ struct BoundedDouble {
 };
 
 inline BoundedDouble operator+(const BoundedDouble& x, const BoundedDouble& y) {
-  return {x.value + y.value, x.magnitude + y.magnitude, std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
+  return {x.value + y.value, x.magnitude + y.magnitude,
+          std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
 }
 inline BoundedDouble operator-(const BoundedDouble& x, const BoundedDouble& y) {
-  return {x.value - y.value, x.magnitude + y.magnitude, std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
+  return {x.value - y.value, x.magnitude + y.magnitude,
+          std::min(std::max(x.depth, y.depth) + 1, BoundedDouble::kUnsafe)};
 }
 inline BoundedDouble operator-(const BoundedDouble& x) { return {-x.value, x.magnitude, x.depth}; }
 inline BoundedDouble operator*(const BoundedDouble& x, const BoundedDouble& y) {
@@ -187,12 +187,14 @@ mpq_class exact_determinant(std::vector<mpq_class> m, int k);
 // point row may name an image of the point on a flat torus: p + offset (HI - LO) for
 // the Predicates' PeriodicBox (offset: d integers, not owned; null for p itself).
 struct Row {
-  std::int64_t point = -1;        // >= 0: point index
-  const double* dir = nullptr;    // when point < 0: d exact doubles (not owned)
+  std::int64_t point = -1;      // >= 0: point index
+  const double* dir = nullptr;  // when point < 0: d exact doubles (not owned)
   const std::int32_t* offset = nullptr;
 
   static Row of_point(std::uint32_t i) { return {static_cast<std::int64_t>(i), nullptr, nullptr}; }
-  static Row of_image(std::uint32_t i, const std::int32_t* offset) { return {static_cast<std::int64_t>(i), nullptr, offset}; }
+  static Row of_image(std::uint32_t i, const std::int32_t* offset) {
+    return {static_cast<std::int64_t>(i), nullptr, offset};
+  }
   static Row of_direction(const double* w) { return {-1, w, nullptr}; }
   bool is_point() const { return point >= 0; }
 };

@@ -31,17 +31,17 @@
 // on the same tree are independent and give identical answers.
 #pragma once
 
-#include <atomic>
 #include <array>
-#include <memory>
+#include <atomic>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
 
-#include "spokemesh/walk_memo.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/status.hpp"
+#include "spokemesh/walk_memo.hpp"
 
 namespace spokemesh {
 
@@ -77,12 +77,12 @@ struct StarStats {
   std::uint64_t wraps = 0;
   std::uint64_t candidate_tests = 0;
   std::uint64_t exact_fallbacks = 0;
-  std::uint64_t hull_queries = 0;    // k-d tree halfspace queries (unbounded Voronoi edges)
-  std::uint64_t sphere_queries = 0;  // k-d tree queries certifying spheres beyond the candidates
-  std::uint64_t cached_wraps = 0;    // wraps answered by the FacetCache
-  std::uint64_t cached_starts = 0;   // stars begun at a FacetCache facet instead of by spokes
-  std::uint64_t candidate_loads = 0;  // k-d tree neighbourhoods loaded (a star wholly cached needs none)
-  std::uint64_t hidden = 0;           // with weights: seeds whose power cell is empty
+  std::uint64_t hull_queries = 0;      // k-d tree halfspace queries (unbounded Voronoi edges)
+  std::uint64_t sphere_queries = 0;    // k-d tree queries certifying spheres beyond the candidates
+  std::uint64_t cached_wraps = 0;      // wraps answered by the FacetCache
+  std::uint64_t cached_starts = 0;     // stars begun at a FacetCache facet instead of by spokes
+  std::uint64_t candidate_loads = 0;   // k-d tree neighbourhoods loaded (a star wholly cached needs none)
+  std::uint64_t hidden = 0;            // with weights: seeds whose power cell is empty
   std::uint64_t start_programmes = 0;  // with weights: seeds outside their own power cells (power_start's programme)
 
   StarStats& operator+=(const StarStats& o) {
@@ -116,9 +116,7 @@ struct Star {
   // lower hull of the others'), so it is a vertex of no simplex and the star is empty.
   bool hidden = false;
 
-  std::size_t size() const {
-    return simplices.size() / static_cast<std::size_t>(dimension + 1);
-  }
+  std::size_t size() const { return simplices.size() / static_cast<std::size_t>(dimension + 1); }
   const std::uint32_t* simplex(std::size_t i) const {
     return simplices.data() + i * static_cast<std::size_t>(dimension + 1);
   }
@@ -159,7 +157,7 @@ class StarWalker {
   class TupleSet {
    public:
     void reset(int length);
-    bool insert(const std::uint32_t* sorted_key);  // true if it was new
+    bool insert(const std::uint32_t* sorted_key);                      // true if it was new
     bool insert(const std::uint32_t* sorted_key, std::uint64_t hash);  // hash: hash(sorted_key)
     // The key's position (0, 1, ... in order of first insertion), inserting it if new.
     std::uint32_t position(const std::uint32_t* sorted_key, std::uint64_t hash, bool& inserted);
@@ -310,21 +308,21 @@ class StarWalker {
   // Per-seed state, kept across seeds to avoid allocation.
   std::uint32_t x_ = 0;
   std::vector<std::uint32_t> cand_id_;
-  std::vector<double> cand_q_;      // p - x, rounded, row-major
-  std::vector<double> cand_height_;  // lifted height (|p - x|^2, or with weights) as computed from cand_q_
+  std::vector<double> cand_q_;           // p - x, rounded, row-major
+  std::vector<double> cand_height_;      // lifted height (|p - x|^2, or with weights) as computed from cand_q_
   std::vector<double> cand_height_mag_;  // bound on its monomials (= cand_height_ when unweighted)
-  std::vector<double> cand_block_;  // the pencil scan's column-major copy (see load_candidates)
-  std::size_t cand_stride_ = 0;     // candidate count rounded up to whole pencil-scan chunks
-  std::vector<double> cand_norm_;   // |p - x|, for error bounds
-  std::vector<int> cand_depth_;     // rounding depth of cand_height_, or BoundedDouble::kUnsafe
-  std::vector<double> cand_lower_;  // exact |p - x|^2 of this and later candidates >= this
-  double r2_certified_ = 0;         // every unlisted point has exact |p - x|^2 >= this
-  std::size_t cand_k_ = 0;          // candidates requested from the tree for this seed
+  std::vector<double> cand_block_;       // the pencil scan's column-major copy (see load_candidates)
+  std::size_t cand_stride_ = 0;          // candidate count rounded up to whole pencil-scan chunks
+  std::vector<double> cand_norm_;        // |p - x|, for error bounds
+  std::vector<int> cand_depth_;          // rounding depth of cand_height_, or BoundedDouble::kUnsafe
+  std::vector<double> cand_lower_;       // exact |p - x|^2 of this and later candidates >= this
+  double r2_certified_ = 0;              // every unlisted point has exact |p - x|^2 >= this
+  std::size_t cand_k_ = 0;               // candidates requested from the tree for this seed
   double knn_guess2_ = std::numeric_limits<double>::infinity();  // the last full load's k-th |p - x|^2
-  bool loaded_ = false;             // the candidates are loaded for this seed
-  std::size_t cache_credit_ = 0;    // FacetCache entries reserved and not yet used
-  int missed_candidates_ = 0;       // sphere queries that found a point beyond them
-  bool grown_ = false;              // the neighbourhood was enlarged for this seed
+  bool loaded_ = false;                                          // the candidates are loaded for this seed
+  std::size_t cache_credit_ = 0;                                 // FacetCache entries reserved and not yet used
+  int missed_candidates_ = 0;                                    // sphere queries that found a point beyond them
+  bool grown_ = false;                                           // the neighbourhood was enlarged for this seed
   std::vector<std::uint32_t> knn_ids_;
   std::vector<double> knn_d2_;
   std::vector<const double*> knn_coords_;
@@ -335,14 +333,14 @@ class StarWalker {
     std::uint32_t index;  // into the candidate arrays
     double lower;         // certified lower bound of its pencil parameter
   };
-  std::vector<Contender> contenders_;  // a wrap's pencil-scan contenders
-  std::vector<std::uint32_t> work_;  // star simplices found, d ids each (without x), ascending
+  std::vector<Contender> contenders_;       // a wrap's pencil-scan contenders
+  std::vector<std::uint32_t> work_;         // star simplices found, d ids each (without x), ascending
   std::vector<std::uint32_t> work_facets_;  // per work_ simplex: facet_seen_ position of facet k (without id k)
-  std::vector<std::uint8_t> facet_open_;  // per facet_seen_ position: one side known, not yet walked
-  std::vector<std::uint32_t> facet_apex_;  // per facet_seen_ position: the apex of its first simplex
-  std::vector<std::uint32_t> deferred_;  // facets (simplex * d + k) the cache could not answer, to wrap
+  std::vector<std::uint8_t> facet_open_;    // per facet_seen_ position: one side known, not yet walked
+  std::vector<std::uint32_t> facet_apex_;   // per facet_seen_ position: the apex of its first simplex
+  std::vector<std::uint32_t> deferred_;     // facets (simplex * d + k) the cache could not answer, to wrap
   std::vector<BoundedDouble> work_planes_;  // their lifted planes, d + 1 coefficients each
-  std::vector<std::uint8_t> plane_known_;  // per work_ simplex: work_planes_ is filled in
+  std::vector<std::uint8_t> plane_known_;   // per work_ simplex: work_planes_ is filled in
   std::vector<std::uint64_t> work_hashes_;  // per work_ simplex, with a facet cache: its d facets' hashes
   std::vector<std::uint32_t> sort_flat_, sort_order_;  // canonical ordering scratch
 };

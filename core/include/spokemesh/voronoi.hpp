@@ -27,8 +27,8 @@
 #include "spokemesh/circumcentre.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/point_set.hpp"
-#include "spokemesh/status.hpp"
 #include "spokemesh/star.hpp"
+#include "spokemesh/status.hpp"
 
 namespace spokemesh {
 
@@ -48,15 +48,15 @@ struct VoronoiFacet {
 struct VoronoiCell {
   std::uint32_t seed = 0;
   int dimension = 0;
-  std::vector<double> vertices;            // d coordinates per vertex
+  std::vector<double> vertices;  // d coordinates per vertex
   // The Delaunay simplex of each vertex (d + 1 ids); unclipped cells only.
   std::vector<std::uint32_t> vertex_simplices;
-  std::vector<VoronoiFacet> facets;        // neighbours ascending, then walls ascending
+  std::vector<VoronoiFacet> facets;  // neighbours ascending, then walls ascending
   bool bounded = false;
-  bool clipped = false;                    // clipped to a domain
-  double volume = 0;                       // +infinity when unbounded (docs/service.md)
-  std::vector<double> centroid;            // d; empty when unbounded or hidden
-  bool hidden = false;                     // with weights: the power cell is empty (volume 0)
+  bool clipped = false;          // clipped to a domain
+  double volume = 0;             // +infinity when unbounded (docs/service.md)
+  std::vector<double> centroid;  // d; empty when unbounded or hidden
+  bool hidden = false;           // with weights: the power cell is empty (volume 0)
   // On a torus (periodic.hpp): per facet, the offset (d integers, in box lengths) of the
   // neighbour's image across it; facets[k].neighbor is then the neighbour's point. Empty
   // otherwise.

@@ -66,7 +66,8 @@ std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simpl
 // points (a box grid's faces) the wrap starts, above 2-d, from a simplex of the hull's
 // corners whose sphere holds the others (searched among C(corners - 1, d) of them);
 // INVALID_ARGUMENT when that search would exceed 2e6 sphere tests.
-Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points, std::span<const std::uint32_t> delaunay,
+Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points,
+                                                           std::span<const std::uint32_t> delaunay,
                                                            std::span<const std::int32_t> adjacency);
 
 }  // namespace spokemesh

@@ -51,9 +51,7 @@ struct RunOrder {
     const std::uint32_t r = sweep->position_of(v);
     return r >= rank_begin && r < rank_end ? r : kNotSeed;
   }
-  bool is_seed(std::uint32_t v) const {
-    return sweep != nullptr ? sweep_rank(v) != kNotSeed : v >= begin && v < end;
-  }
+  bool is_seed(std::uint32_t v) const { return sweep != nullptr ? sweep_rank(v) != kNotSeed : v >= begin && v < end; }
   // Seeds v != x of this run that may be meshed before (after) x.
   bool maybe_before(std::uint32_t v, std::uint32_t x) const {
     if (v == x || !is_seed(v)) return false;
@@ -156,8 +154,7 @@ class EdgeCache {
 
   // n: point count; the run meshes seeds [begin, end) in blocks of `block` seeds (see
   // RunOrder); max_bytes caps the memory (too small a cap disables the cache).
-  EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
-            std::uint32_t block = 1)
+  EdgeCache(std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes, std::uint32_t block = 1)
       : EdgeCache(n, RunOrder{begin, end, std::max(block, 1u)}, max_bytes) {}
   // The same for any order of the run's seeds (a sweep's, for one).
   EdgeCache(std::uint32_t n, RunOrder order, std::size_t max_bytes);
@@ -207,8 +204,8 @@ class EdgeCache {
   std::uint32_t n_;
   RunOrder order_;
   MappedWords boxes_;
-  std::size_t released_ = 0;       // bytes from the start given back (whole pages)
-  std::size_t resident_peak_ = 0;  // see resident_peak_bytes()
+  std::size_t released_ = 0;              // bytes from the start given back (whole pages)
+  std::size_t resident_peak_ = 0;         // see resident_peak_bytes()
   std::vector<unsigned char> residency_;  // mincore's answer, kept between samples
 };
 

@@ -68,14 +68,22 @@ template <class Fn>
 decltype(auto) dispatch_dimension(int d, Fn&& fn) {
   static_assert(kMaxDimension == 8, "add or remove the cases below with kMaxDimension");
   switch (d) {
-    case 2: return fn(Dimension<2>{});
-    case 3: return fn(Dimension<3>{});
-    case 4: return fn(Dimension<4>{});
-    case 5: return fn(Dimension<5>{});
-    case 6: return fn(Dimension<6>{});
-    case 7: return fn(Dimension<7>{});
-    case 8: return fn(Dimension<8>{});
-    default: return fn(Dimension<0>{});
+    case 2:
+      return fn(Dimension<2>{});
+    case 3:
+      return fn(Dimension<3>{});
+    case 4:
+      return fn(Dimension<4>{});
+    case 5:
+      return fn(Dimension<5>{});
+    case 6:
+      return fn(Dimension<6>{});
+    case 7:
+      return fn(Dimension<7>{});
+    case 8:
+      return fn(Dimension<8>{});
+    default:
+      return fn(Dimension<0>{});
   }
 }
 

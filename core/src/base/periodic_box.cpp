@@ -2,8 +2,8 @@
 
 #include <array>
 #include <cmath>
-#include <utility>
 #include <cstdio>
+#include <utility>
 
 #include "spokemesh/units.hpp"
 

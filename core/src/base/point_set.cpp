@@ -27,8 +27,7 @@ void widen_binary_span(double v, int& lowest, int& highest) {
   highest = std::max(highest, e);
 }
 
-PointSet::PointSet(int dimension, std::vector<double> coordinates)
-    : d_(dimension), coords_(std::move(coordinates)) {}
+PointSet::PointSet(int dimension, std::vector<double> coordinates) : d_(dimension), coords_(std::move(coordinates)) {}
 
 namespace {
 
@@ -59,9 +58,7 @@ std::vector<std::uint32_t> lex_order(const PointSet& ps) {
   return order;
 }
 
-bool equal_points(const double* a, const double* b, int d) {
-  return std::equal(a, a + d, b);
-}
+bool equal_points(const double* a, const double* b, int d) { return std::equal(a, a + d, b); }
 
 // INVALID_ARGUMENT naming the first coordinate of points [from, to) that is not finite
 // or beyond kMaxCoordinate; OK otherwise.
@@ -111,8 +108,7 @@ Status PointSet::check_count(std::uint64_t n, int d, const std::string& source) 
 Status PointSet::validate(const std::string& source, int max_dimension, bool check_span) {
   const std::size_t n = size();
   if (d_ < 2 || d_ > max_dimension) {
-    return invalid_argument(source + ": dimension " + std::to_string(d_) +
-                            " is not supported (supported: 2.." +
+    return invalid_argument(source + ": dimension " + std::to_string(d_) + " is not supported (supported: 2.." +
                             std::to_string(max_dimension) + ")");
   }
   if (Status s = check_coordinates(*this, 0, n, source); !s.is_ok()) return s;
@@ -200,7 +196,10 @@ std::vector<std::uint32_t> PointSet::affine_basis() const {
     }
     int pc = -1;
     for (int c = 0; c < d_; ++c) {
-      if (sgn(v[c]) != 0) { pc = c; break; }
+      if (sgn(v[c]) != 0) {
+        pc = c;
+        break;
+      }
     }
     if (pc >= 0) {
       basis.push_back(v);
@@ -215,8 +214,8 @@ Status PointSet::check_affine_span(const std::string& source) const {
   const int rank = static_cast<int>(affine_basis().size()) - 1;
   if (rank < d_) {
     return invalid_argument(source + ": the points span only a " + std::to_string(rank) +
-                            "-dimensional affine subspace of R^" + std::to_string(d_) +
-                            " (a " + std::to_string(d_) + "-d mesh needs full dimension)");
+                            "-dimensional affine subspace of R^" + std::to_string(d_) + " (a " + std::to_string(d_) +
+                            "-d mesh needs full dimension)");
   }
   return Status::ok();
 }

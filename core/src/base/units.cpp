@@ -26,10 +26,14 @@ Result<std::chrono::milliseconds> parse_duration(const std::string& text, const 
   std::string unit;
   double scale = 0;
   if (split_number(text, v, unit)) {
-    if (unit.empty() || unit == "ms") scale = 1;
-    else if (unit == "s") scale = 1e3;
-    else if (unit == "m") scale = 60e3;
-    else if (unit == "h") scale = 3600e3;
+    if (unit.empty() || unit == "ms")
+      scale = 1;
+    else if (unit == "s")
+      scale = 1e3;
+    else if (unit == "m")
+      scale = 60e3;
+    else if (unit == "h")
+      scale = 3600e3;
   }
   if (scale == 0 || !(v > 0) || v * scale > 1e12) {
     return invalid_argument(flag + ": \"" + text + "\" is not a duration like 500ms, 30s, 2m or 1h");
@@ -45,11 +49,16 @@ Result<std::uint64_t> parse_bytes(const std::string& text, const std::string& fl
     if (!unit.empty() && (unit.back() == 'B' || unit.back() == 'b')) unit.pop_back();
     if (unit.size() == 2 && unit[1] == 'i') unit.pop_back();
     const char u = unit.empty() ? '\0' : static_cast<char>(std::toupper(static_cast<unsigned char>(unit[0])));
-    if (unit.empty()) scale = 1;
-    else if (unit.size() == 1 && u == 'K') scale = 1024.0;
-    else if (unit.size() == 1 && u == 'M') scale = 1024.0 * 1024;
-    else if (unit.size() == 1 && u == 'G') scale = 1024.0 * 1024 * 1024;
-    else if (unit.size() == 1 && u == 'T') scale = 1024.0 * 1024 * 1024 * 1024;
+    if (unit.empty())
+      scale = 1;
+    else if (unit.size() == 1 && u == 'K')
+      scale = 1024.0;
+    else if (unit.size() == 1 && u == 'M')
+      scale = 1024.0 * 1024;
+    else if (unit.size() == 1 && u == 'G')
+      scale = 1024.0 * 1024 * 1024;
+    else if (unit.size() == 1 && u == 'T')
+      scale = 1024.0 * 1024 * 1024 * 1024;
   }
   if (scale == 0 || !(v > 0) || v * scale > 1.8e19) {
     return invalid_argument(flag + ": \"" + text + "\" is not a size like 512M or 4G");
@@ -70,7 +79,8 @@ Result<std::vector<double>> parse_number_list(const std::string& text, const std
                               "') is not a finite number");
     }
     values.push_back(v);
-    if (values.size() > max_count) return invalid_argument(what + ": more than " + std::to_string(max_count) + " values");
+    if (values.size() > max_count)
+      return invalid_argument(what + ": more than " + std::to_string(max_count) + " values");
     at = comma + 1;
   }
   return values;

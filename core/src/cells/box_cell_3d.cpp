@@ -4,10 +4,10 @@
 #include <cmath>
 #include <limits>
 
-#include "cells/cell_polytope.hpp"  // kWallLabel0
-#include "spokemesh/periodic_box.hpp"
-#include "predicates/cramer.hpp"
 #include "base/invariant.hpp"
+#include "cells/cell_polytope.hpp"  // kWallLabel0
+#include "predicates/cramer.hpp"
+#include "spokemesh/periodic_box.hpp"
 
 namespace spokemesh::detail {
 
@@ -167,7 +167,8 @@ int BoxCell3d::exact_side(const Vertex& v, const Plane& bisector) const {
           matrix[k * 4 + c] = exact_difference(plane.label, c);
           norm2 += matrix[k * 4 + c] * matrix[k * 4 + c];
         }
-        if (weights_ != nullptr) norm2 -= mpq_class(weights_[plane.label]) - mpq_class(weights_[seed_]);  // power height
+        if (weights_ != nullptr)
+          norm2 -= mpq_class(weights_[plane.label]) - mpq_class(weights_[seed_]);  // power height
         matrix[k * 4 + 3] = norm2;
       } else {
         const auto wall = static_cast<std::size_t>(plane.label - kWallLabel0);
@@ -212,7 +213,8 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
   // strictly inside, and if all are, it cuts nothing. (A power bisector may pass
   // behind the seed, c <= 0: no shortcut then.) c's rounding: that of |q|^2 / 2 (as
   // below) and of the weights' difference and the subtraction.
-  const double c_error = weights_ == nullptr ? 0.0 : 28 * filter::kUnitRoundoff * (q2 + std::abs(pl.dw) + std::abs(pl.c));
+  const double c_error =
+      weights_ == nullptr ? 0.0 : 28 * filter::kUnitRoundoff * (q2 + std::abs(pl.dw) + std::abs(pl.c));
   const double reach = weights_ == nullptr ? pl.a_norm / 2 * (1 - 1e-12)
                        : pl.c > c_error    ? (pl.c - c_error) / pl.a_norm * (1 - 1e-12)
                                            : -1.0;
@@ -234,7 +236,8 @@ bool BoxCell3d::clip(std::uint32_t label, const double* p) {
     // The sum's rounding and that of q and |q|^2 / 2 against the exact bisector (as
     // CellPolytope::plane_value), with weights that of w_p - w_s and of the offset
     // (c_error), plus the vertex's own error along the normal.
-    const double bound = 28 * filter::kUnitRoundoff * (magnitude + std::abs(pl.c)) + c_error + pl.a_norm * x.error * (1 + 16 * filter::kUnitRoundoff);
+    const double bound = 28 * filter::kUnitRoundoff * (magnitude + std::abs(pl.c)) + c_error +
+                         pl.a_norm * x.error * (1 + 16 * filter::kUnitRoundoff);
     if (f > bound) {
       side_[v] = 1;
       any_out = true;
@@ -385,7 +388,8 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
     for (int k = 0; k < 3; ++k) normal[k] = pl.a[k] / pl.a_norm;
     // Fan from the loop's first vertex (relative coordinates: small numbers).
     std::array<double, 3> centre{};
-    double area = fan_area(loop_, [&](std::uint32_t v) { return v_[v].y.data(); }, normal.data(), centre.data());
+    double area = fan_area(
+        loop_, [&](std::uint32_t v) { return v_[v].y.data(); }, normal.data(), centre.data());
     if (area < 0) {  // walked clockwise seen from outside
       std::reverse(loop_.begin() + 1, loop_.end());
       area = -area;
@@ -393,8 +397,8 @@ void BoxCell3d::assemble(VoronoiCell& out, bool measures_only) {
     }
     if (out.facets.size() == facet_count) out.facets.emplace_back();
     VoronoiFacet& facet = out.facets[facet_count++];
-    facet.neighbor = pl.axis >= 0 ? -1 - static_cast<std::int64_t>(pl.label - kWallLabel0)
-                                  : static_cast<std::int64_t>(pl.label);
+    facet.neighbor =
+        pl.axis >= 0 ? -1 - static_cast<std::int64_t>(pl.label - kWallLabel0) : static_cast<std::int64_t>(pl.label);
     facet.area = area;
     facet.normal.assign(normal.begin(), normal.end());
     if (measures_only) {

@@ -91,9 +91,9 @@ class BoxCell3d {
     int axis = -1;            // walls: the axis; bisectors: -1
   };
   struct alignas(64) Vertex {
-    std::array<double, 3> y{};       // relative to the seed
-    double error = 0;                // bound on |y - exact vertex - s| (Euclidean)
-    double radius = 0;               // bound on |exact vertex - s|
+    std::array<double, 3> y{};             // relative to the seed
+    double error = 0;                      // bound on |y - exact vertex - s| (Euclidean)
+    double radius = 0;                     // bound on |exact vertex - s|
     std::array<std::uint32_t, 3> plane{};  // indices into planes_
     std::array<std::uint32_t, 3> next{};   // next[k]: the neighbour reached by leaving plane[k]
   };

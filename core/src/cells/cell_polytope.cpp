@@ -6,8 +6,8 @@
 #include <limits>
 #include <map>
 
-#include "predicates/cramer.hpp"
 #include "base/invariant.hpp"
+#include "predicates/cramer.hpp"
 #include "spokemesh/predicates.hpp"
 #include "spokemesh/voronoi.hpp"
 
@@ -158,7 +158,8 @@ std::vector<mpq_class> CellPolytope::exact_ray(const std::uint32_t* labels, std:
     exact_plane(labels[k], n, c);
     a.insert(a.end(), n.begin(), n.end());
   }
-  std::vector<mpq_class> r = gauss_jordan(std::move(a), d_ - 1, d_, std::move(rhs)).value_or(std::vector<mpq_class>(d_));
+  std::vector<mpq_class> r =
+      gauss_jordan(std::move(a), d_ - 1, d_, std::move(rhs)).value_or(std::vector<mpq_class>(d_));
   exact_plane(away_from, n, c);
   mpq_class s = 0;
   for (int i = 0; i < d_; ++i) s += n[i] * r[i];
@@ -368,7 +369,8 @@ std::size_t CellPolytope::cut(std::size_t in, int position, std::size_t out, con
         return ideal_[base] >= 0 ? 0.0 : plane_value(pl, &x_[base * d], rounding);
       };
       const double fv = std::min(base_value(in), 0.0), fw = std::max(base_value(out), 0.0);
-      const mpq_class t = fw - fv > 0 ? mpq_class(std::clamp(-fv / (fw - fv), 1.0 / 1024, 1 - 1.0 / 1024)) : mpq_class(1, 2);
+      const mpq_class t =
+          fw - fv > 0 ? mpq_class(std::clamp(-fv / (fw - fv), 1.0 / 1024, 1 - 1.0 / 1024)) : mpq_class(1, 2);
       mpq_class lv = 0, lw = 0;
       for (int c = 0; c < d; ++c) {
         lv += abs(rv[c]);
@@ -527,7 +529,7 @@ void CellPolytope::solve_vertex(std::size_t v) {
   // LU with partial pivoting, in place; then y and the inverse's columns.
   std::array<int, kMaxDimension> perm{};
   for (int i = 0; i < d; ++i) perm[i] = i;
-  std::array<double, kMaxDimension * kMaxDimension> lu = a;
+  std::array<double, kMaxDimension* kMaxDimension> lu = a;
   for (int col = 0; col < d; ++col) {
     int p = col;
     for (int r = col + 1; r < d; ++r) {
@@ -774,8 +776,7 @@ std::vector<double> CellPolytope::facet_normal(std::uint32_t label) const {
 }
 
 double CellPolytope::face_measure(const std::vector<std::uint32_t>& verts, std::vector<std::uint32_t>& planes,
-                                  std::vector<double>& basis, double* centroid,
-                                  std::vector<FacetMeasure>* top) const {
+                                  std::vector<double>& basis, double* centroid, std::vector<FacetMeasure>* top) const {
   const int d = d_;
   const int dim = d - static_cast<int>(planes.size());
   if (dim == 1 || verts.size() <= 2) {
@@ -952,11 +953,13 @@ PolytopeMeasures CellPolytope::measures_3d() const {
     const double nn = norm(n.data(), 3);
     for (double& c : n) c /= nn;
     std::array<double, 3> centre{};
-    const double area = fan_area(f.vertices, [&](std::uint32_t v) { return &x_[v * 3]; }, n.data(), centre.data());
+    const double area = fan_area(
+        f.vertices, [&](std::uint32_t v) { return &x_[v * 3]; }, n.data(), centre.data());
     f.area = std::max(area, 0.0);
     if (closed && area > 0) {
       for (double& c : centre) c /= area;
-      const double h = std::abs(n[0] * (centre[0] - ref[0]) + n[1] * (centre[1] - ref[1]) + n[2] * (centre[2] - ref[2]));
+      const double h =
+          std::abs(n[0] * (centre[0] - ref[0]) + n[1] * (centre[1] - ref[1]) + n[2] * (centre[2] - ref[2]));
       const double cone = area * h / 3;
       volume += cone;
       for (int c = 0; c < 3; ++c) moment[c] += cone * (ref[c] + 0.75 * (centre[c] - ref[c]));
@@ -972,7 +975,6 @@ PolytopeMeasures CellPolytope::measures_3d() const {
   }
   return out;
 }
-
 
 std::vector<std::uint32_t> CellPolytope::polygon_order() const {
   // 2-d: the cycle through every vertex, counter-clockwise by the shoelace sum (an

@@ -66,8 +66,8 @@ struct FacetMeasure {
 };
 
 struct PolytopeMeasures {
-  double volume = 0;              // +inf when unbounded
-  std::vector<double> centroid;   // empty when unbounded
+  double volume = 0;                 // +inf when unbounded
+  std::vector<double> centroid;      // empty when unbounded
   std::vector<FacetMeasure> facets;  // ascending label
 };
 
@@ -169,19 +169,20 @@ class CellPolytope {
   const double* weights_ = nullptr;  // power weights, or null
   std::uint32_t seed_;
   int d_;
-  double scale_ = 0;                 // the cell's size, for error thresholds
+  double scale_ = 0;  // the cell's size, for error thresholds
   bool from_box_ = false;
-  bool changed_ = false;             // the last clip() cut something
-  std::vector<double> radius_;       // from_box_: vertex_radius() of each vertex
-  std::vector<std::pair<std::uint32_t, const double*>> known_points_;  // clip()'s coordinates            // built by reset_to_box (the direct route)
-  std::vector<double> x_;            // d per vertex: coordinates, or an ideal vertex's direction
+  bool changed_ = false;        // the last clip() cut something
+  std::vector<double> radius_;  // from_box_: vertex_radius() of each vertex
+  std::vector<std::pair<std::uint32_t, const double*>>
+      known_points_;                  // clip()'s coordinates            // built by reset_to_box (the direct route)
+  std::vector<double> x_;             // d per vertex: coordinates, or an ideal vertex's direction
   std::vector<std::uint32_t> label_;  // d per vertex
   std::vector<std::uint32_t> next_;   // d per vertex
-  std::vector<double> error_;        // bound on |x - exact| (real vertices)
-  std::vector<int> ideal_;           // -1, or the index of the exact direction in rays_
+  std::vector<double> error_;         // bound on |x - exact| (real vertices)
+  std::vector<int> ideal_;            // -1, or the index of the exact direction in rays_
   std::vector<std::vector<mpq_class>> rays_;
-  std::vector<int> sides_;               // clip() scratch
-  std::vector<std::uint32_t> index_;     // clip() scratch
+  std::vector<int> sides_;            // clip() scratch
+  std::vector<std::uint32_t> index_;  // clip() scratch
   // measures(): faces of dimension 1 .. d - 3 already measured, by sorted planes.
   mutable std::map<std::vector<std::uint32_t>, std::pair<double, std::array<double, kMaxDimension>>> memo_;
 };

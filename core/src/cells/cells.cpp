@@ -32,7 +32,8 @@ bool ClippedCellBuilder::takes_direct_route(int dimension, const Domain& domain,
   // The one dispatch point; the dimension policy (base/dimension.hpp) says where the
   // direct route is the default. In 3-d it is faster than the star's and needs no
   // facet cache (bench/README.md, "Tuning history").
-  const bool wanted = route == CellRoute::kDirect || (route == CellRoute::kAuto && detail::policy(dimension).direct_cells);
+  const bool wanted =
+      route == CellRoute::kDirect || (route == CellRoute::kAuto && detail::policy(dimension).direct_cells);
   if (!wanted || !domain.is_box() || domain.dimension() != dimension) return false;
   const std::vector<double> lo = domain.lower(), hi = domain.upper();
   for (int c = 0; c < dimension; ++c) {
@@ -156,7 +157,8 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
   };
   // A periodic cover's images are stored within pad of their positions per axis: their
   // listed distances are within sqrt(d) pad of the true ones.
-  const double pad = star_options_.cover != nullptr ? star_options_.cover->pad() * std::sqrt(static_cast<double>(d)) : 0.0;
+  const double pad =
+      star_options_.cover != nullptr ? star_options_.cover->pad() * std::sqrt(static_cast<double>(d)) : 0.0;
   auto beyond = [&](double dist2, double r2) {
     if (pad == 0) return dist2 * (1 - kDistanceMargin) > reach2(r2);
     const double lower = std::sqrt(dist2 * (1 - kDistanceMargin)) - pad;
@@ -231,7 +233,7 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
     // What this round rested on: the points up to the distance where it stopped; a
     // list cut short by the bound, everything within it; one that listed the whole
     // set, there being no other point.
-    last_reach2_ = std::max(last_reach2_, count == 0      ? bound2
+    last_reach2_ = std::max(last_reach2_, count == 0       ? bound2
                                           : closed || full ? sc.dist2[std::min(i, count - 1)]
                                           : count < k      ? bound2
                                                            : std::numeric_limits<double>::infinity());
@@ -249,14 +251,14 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   const std::uint64_t end = std::clamp<std::uint64_t>(options.seed_end, begin, n);
   const unsigned threads = std::max(1u, options.threads);
   if (domain != nullptr && domain->dimension() != points.dimension()) {
-    return invalid_argument("domain: dimension " + std::to_string(domain->dimension()) + " does not match the points' " +
-                            std::to_string(points.dimension()));
+    return invalid_argument("domain: dimension " + std::to_string(domain->dimension()) +
+                            " does not match the points' " + std::to_string(points.dimension()));
   }
   struct Worker {
-    std::unique_ptr<StarWalker> walker;            // unclipped cells
+    std::unique_ptr<StarWalker> walker;           // unclipped cells
     std::unique_ptr<ClippedCellBuilder> builder;  // clipped cells
     Star star;
-    Status status;            // the error of the lowest failing seed in its slice
+    Status status;             // the error of the lowest failing seed in its slice
     std::uint64_t failed = 0;  // that seed
   };
   // Seeds go in rounds of `block` per thread. Where cells are built directly, a

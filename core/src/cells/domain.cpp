@@ -33,8 +33,8 @@ Result<Domain> Domain::box(const std::vector<double>& lo, const std::vector<doub
                             " upper bounds");
   }
   if (d < 2 || d > static_cast<std::size_t>(kMaxDimension)) {
-    return invalid_argument("box: dimension " + std::to_string(d) + " is outside [2, " +
-                            std::to_string(kMaxDimension) + "]");
+    return invalid_argument("box: dimension " + std::to_string(d) + " is outside [2, " + std::to_string(kMaxDimension) +
+                            "]");
   }
   Domain out;
   out.d_ = static_cast<int>(d);
@@ -100,7 +100,8 @@ Result<Domain> Domain::halfspaces(int dimension, std::vector<double> normals, st
     }
     if (zero) return invalid_argument("halfspaces: wall " + std::to_string(k) + " has a zero normal");
     if (!std::isfinite(offsets[k]) || std::abs(offsets[k]) > kMaxCoordinate) {
-      return invalid_argument("halfspaces: wall " + std::to_string(k) + " has an offset that is not finite or exceeds 1e100");
+      return invalid_argument("halfspaces: wall " + std::to_string(k) +
+                              " has an offset that is not finite or exceeds 1e100");
     }
   }
   Domain out;
@@ -129,9 +130,7 @@ std::vector<double> Domain::lower() const {
   return lo;
 }
 
-std::vector<double> Domain::upper() const {
-  return {offsets_.begin() + d_, offsets_.begin() + 2 * d_};
-}
+std::vector<double> Domain::upper() const { return {offsets_.begin() + d_, offsets_.begin() + 2 * d_}; }
 
 std::optional<std::size_t> Domain::violated_wall(const double* x) const {
   for (std::size_t k = 0; k < wall_count(); ++k) {

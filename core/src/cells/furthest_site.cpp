@@ -13,8 +13,8 @@
 #include <algorithm>
 #include <array>
 #include <deque>
-#include <numeric>
 #include <map>
+#include <numeric>
 #include <optional>
 #include <string>
 #include <vector>
@@ -89,7 +89,8 @@ std::vector<mpq_class> normal_of(const PointSet& points, const std::uint32_t* id
 
 }  // namespace
 
-Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points, std::span<const std::uint32_t> delaunay,
+Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& points,
+                                                           std::span<const std::uint32_t> delaunay,
                                                            std::span<const std::int32_t> adjacency) {
   const int d = points.dimension();
   const int w = d + 1;
@@ -132,7 +133,8 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
   // side are (the points between them lie below the chord on the paraboloid); above 2-d
   // the start would need a furthest-site triangulation within the plane, and is refused.
   auto on_plane_of = [&](const HullFacet& f, std::uint32_t v) {
-    return std::find(f.ids.begin(), f.ids.begin() + d, v) == f.ids.begin() + d && orientation_with(f.ids.data(), v) == 0;
+    return std::find(f.ids.begin(), f.ids.begin() + d, v) == f.ids.begin() + d &&
+           orientation_with(f.ids.data(), v) == 0;
   };
   std::optional<HullFacet> start;
   for (const HullFacet& f : hull) {
@@ -174,7 +176,8 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
       if (rank_of(normals, d) == d) corners.push_back(v);
     }
     double subsets = 1;  // C(corners - 1, d)
-    for (int j = 0; j < d; ++j) subsets = subsets * static_cast<double>(static_cast<int>(corners.size()) - 1 - j) / (j + 1);
+    for (int j = 0; j < d; ++j)
+      subsets = subsets * static_cast<double>(static_cast<int>(corners.size()) - 1 - j) / (j + 1);
     constexpr double kCornerTestBudget = 2e6;
     if (static_cast<int>(corners.size()) > d && subsets * static_cast<double>(corners.size()) <= kCornerTestBudget) {
       std::vector<int> pick(static_cast<std::size_t>(d));
@@ -213,7 +216,8 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
     const HullFacet& f = hull.front();
     std::string ids;
     for (int j = 0; j < d; ++j) ids += std::to_string(f.ids[static_cast<std::size_t>(j)]) + ", ";
-    const auto extra = std::find_if(vertices.begin(), vertices.end(), [&](std::uint32_t v) { return on_plane_of(f, v); });
+    const auto extra =
+        std::find_if(vertices.begin(), vertices.end(), [&](std::uint32_t v) { return on_plane_of(f, v); });
     return invalid_argument("furthest_site: points " + ids + "and " + std::to_string(*extra) +
                             " lie on one facet of the convex hull, as on every facet, and the hull has too many " +
                             "corners to search for a first furthest-site simplex among them");
@@ -269,7 +273,8 @@ Result<std::vector<std::uint32_t>> furthest_site_simplices(const PointSet& point
       std::copy_n(task.facet.begin(), d, simplex.begin());
       simplex[d] = static_cast<std::uint32_t>(best);
       // side_of_sphere wants a positively oriented simplex: swap two vertices if not.
-      if (predicates.orientation(std::span<const std::uint32_t>(simplex.data(), w)) < 0) std::swap(simplex[0], simplex[1]);
+      if (predicates.orientation(std::span<const std::uint32_t>(simplex.data(), w)) < 0)
+        std::swap(simplex[0], simplex[1]);
       if (predicates.side_of_sphere(std::span<const std::uint32_t>(simplex.data(), w), c) > 0) best = c;
     }
     if (best < 0) continue;  // a hull facet: nothing beyond

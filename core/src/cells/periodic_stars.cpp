@@ -51,8 +51,8 @@ Status star_on_cover(const PeriodicCover& cover, MarginPlan& plan, std::uint32_t
         const std::uint32_t p = out.simplices[r * (du + 1) + v];
         const std::int32_t* k = out.offsets.data() + (r * (du + 1) + v) * du;
         for (std::size_t c = 0; c < du; ++c) {
-          local[v * du + c] = image_difference(cover.points().point(p)[c], k[c], cover.box().lo()[c],
-                                               cover.box().hi()[c], x[c]);
+          local[v * du + c] =
+              image_difference(cover.points().point(p)[c], k[c], cover.box().lo()[c], cover.box().hi()[c], x[c]);
         }
         local_w[v] = w != nullptr ? w[p] : 0;
         ids[v] = static_cast<std::uint32_t>(v);
@@ -87,8 +87,8 @@ Result<PeriodicStar> periodic_star(const PointSet& points, const PeriodicBox& bo
   PeriodicStar out;
   auto runs = with_growing_margins(points, box, options.weights, source, nullptr,
                                    [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
-    return star_on_cover(cover, plan, seed, options, cell, false, out);
-  });
+                                     return star_on_cover(cover, plan, seed, options, cell, false, out);
+                                   });
   if (!runs.is_ok()) return runs.status();
   return out;
 }
@@ -146,10 +146,12 @@ Result<PeriodicStar> PeriodicStars::star(std::uint32_t seed, const StarOptions& 
   // were asked before, on this server or another.
   std::shared_ptr<const PeriodicCover> cover = cover_;
   PeriodicStar out;
-  auto runs = with_growing_margins(points_, box_, weights_, source_, nullptr,
-                                   [&](const PeriodicCover& c, MarginPlan& plan) -> Status {
-    return star_on_cover(c, plan, seed, options, cell, centres, out);
-  }, &cover);
+  auto runs = with_growing_margins(
+      points_, box_, weights_, source_, nullptr,
+      [&](const PeriodicCover& c, MarginPlan& plan) -> Status {
+        return star_on_cover(c, plan, seed, options, cell, centres, out);
+      },
+      &cover);
   if (!runs.is_ok()) return runs.status();
   return out;
 }

@@ -1,7 +1,7 @@
 #include "spokemesh/voronoi.hpp"
 
-#include <Eigen/Dense>
 #include <gmpxx.h>
+#include <Eigen/Dense>
 
 #include <algorithm>
 #include <array>
@@ -9,9 +9,9 @@
 #include <limits>
 #include <numeric>
 
+#include "base/invariant.hpp"
 #include "cells/cell_polytope.hpp"
 #include "predicates/cramer.hpp"
-#include "base/invariant.hpp"
 
 namespace spokemesh {
 
@@ -68,7 +68,7 @@ void add_facets(const detail::CellPolytope& polytope, const std::vector<std::int
   for (const detail::FacetMeasure& m : measures.facets) {
     VoronoiFacet facet;
     facet.neighbor = detail::is_wall_label(m.label) ? -1 - static_cast<std::int64_t>(m.label - detail::kWallLabel0)
-                                                     : static_cast<std::int64_t>(m.label);
+                                                    : static_cast<std::int64_t>(m.label);
     for (const std::uint32_t v : m.vertices) {
       if (index[v] >= 0) facet.vertices.push_back(static_cast<std::uint32_t>(index[v]));
     }

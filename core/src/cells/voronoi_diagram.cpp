@@ -62,13 +62,15 @@ void append_collapsed(std::vector<std::int32_t>& out, std::size_t from, bool cyc
 // The simplices around each point, ascending (CSR).
 class Incidence {
  public:
-  Incidence(std::span<const std::uint32_t> simplices, int w, std::size_t n) : first_(n + 1, 0), around_(simplices.size()) {
+  Incidence(std::span<const std::uint32_t> simplices, int w, std::size_t n)
+      : first_(n + 1, 0), around_(simplices.size()) {
     for (const std::uint32_t v : simplices) ++first_[v + 1];
     std::partial_sum(first_.begin(), first_.end(), first_.begin());
     std::vector<std::int64_t> at(first_.begin(), first_.end() - 1);
     const std::size_t m = simplices.size() / static_cast<std::size_t>(w);
     for (std::size_t s = 0; s < m; ++s) {
-      for (int k = 0; k < w; ++k) around_[static_cast<std::size_t>(at[simplices[s * w + k]]++)] = static_cast<std::uint32_t>(s);
+      for (int k = 0; k < w; ++k)
+        around_[static_cast<std::size_t>(at[simplices[s * w + k]]++)] = static_cast<std::uint32_t>(s);
     }
   }
   std::span<const std::uint32_t> of(std::size_t p) const {
@@ -178,8 +180,10 @@ std::vector<std::int32_t> simplex_adjacency(std::span<const std::uint32_t> simpl
       std::sort(facets.begin(), facets.end());
       for (std::size_t i = 0; i + 1 < facets.size(); ++i) {
         if (facets[i].key != facets[i + 1].key) continue;
-        adjacency[std::size_t{facets[i].simplex} * w + facets[i].opposite] = static_cast<std::int32_t>(facets[i + 1].simplex);
-        adjacency[std::size_t{facets[i + 1].simplex} * w + facets[i + 1].opposite] = static_cast<std::int32_t>(facets[i].simplex);
+        adjacency[std::size_t{facets[i].simplex} * w + facets[i].opposite] =
+            static_cast<std::int32_t>(facets[i + 1].simplex);
+        adjacency[std::size_t{facets[i + 1].simplex} * w + facets[i + 1].opposite] =
+            static_cast<std::int32_t>(facets[i].simplex);
         ++i;
       }
     }
@@ -223,7 +227,8 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
   Groups groups(m);
   for (std::size_t s = 0; s < m; ++s) {
     for (int k = 0; k < w; ++k) {
-      if (cospherical[s * w + k]) groups.join(static_cast<std::uint32_t>(s), static_cast<std::uint32_t>(adjacency[s * w + k]));
+      if (cospherical[s * w + k])
+        groups.join(static_cast<std::uint32_t>(s), static_cast<std::uint32_t>(adjacency[s * w + k]));
     }
   }
   cospherical = {};
@@ -253,7 +258,8 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
     vertex_of_root[groups.root(representatives[k])] = static_cast<std::int64_t>(k);
   }
   out.vertex_of_simplex.resize(m);
-  for (std::size_t s = 0; s < m; ++s) out.vertex_of_simplex[s] = vertex_of_root[groups.root(static_cast<std::uint32_t>(s))];
+  for (std::size_t s = 0; s < m; ++s)
+    out.vertex_of_simplex[s] = vertex_of_root[groups.root(static_cast<std::uint32_t>(s))];
   vertex_of_root = {};
   out.vertices.resize(representatives.size() * static_cast<std::size_t>(d));
   in_chunks(representatives.size(), threads, [&](std::size_t, std::size_t begin, std::size_t end) {
@@ -299,7 +305,8 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
       for (std::size_t i = 0; i < size; ++i) {
         const std::uint32_t s = star[i];
         for (int k = 0; k < w; ++k) {
-          if (simplices[static_cast<std::size_t>(s) * w + k] != p32 && adjacency[static_cast<std::size_t>(s) * w + k] < 0) {
+          if (simplices[static_cast<std::size_t>(s) * w + k] != p32 &&
+              adjacency[static_cast<std::size_t>(s) * w + k] < 0) {
             // In 2-d the walk starts where the hull edge is the clockwise side.
             const int i_p = position_in(s, p32);
             if (!unbounded && (d != 2 || k == (i_p + 2) % 3)) start = s;
@@ -317,21 +324,24 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
           for (std::size_t steps = 0; steps < size; ++steps) {
             part.regions.push_back(vertex(s));
             const int i_p = position_in(s, p32);
-            const std::int32_t next = adjacency[static_cast<std::size_t>(s) * 3 + static_cast<std::size_t>((i_p + 1) % 3)];
+            const std::int32_t next =
+                adjacency[static_cast<std::size_t>(s) * 3 + static_cast<std::size_t>((i_p + 1) % 3)];
             if (next < 0 || static_cast<std::uint32_t>(next) == start) break;
             s = static_cast<std::uint32_t>(next);
           }
           append_collapsed(part.regions, path_at, !unbounded);
           if (!unbounded) {
-            std::rotate(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at),
-                        std::min_element(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at), part.regions.end()),
-                        part.regions.end());
+            std::rotate(
+                part.regions.begin() + static_cast<std::ptrdiff_t>(path_at),
+                std::min_element(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at), part.regions.end()),
+                part.regions.end());
           }
         } else {
           for (std::size_t i = 0; i < size; ++i) part.regions.push_back(vertex(star[i]));
           std::sort(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at), part.regions.end());
-          part.regions.erase(std::unique(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at), part.regions.end()),
-                             part.regions.end());
+          part.regions.erase(
+              std::unique(part.regions.begin() + static_cast<std::ptrdiff_t>(path_at), part.regions.end()),
+              part.regions.end());
         }
       }
       part.region_sizes.push_back(static_cast<std::int64_t>(part.regions.size() - region_at));
@@ -416,9 +426,9 @@ VoronoiDiagram voronoi_diagram(const PointSet& points, std::span<const std::uint
         } else {
           for (std::size_t e = a; e < b; ++e) part.ridge_vertices.push_back(vertex(edges[e].second));
           std::sort(part.ridge_vertices.begin() + static_cast<std::ptrdiff_t>(path_at), part.ridge_vertices.end());
-          part.ridge_vertices.erase(
-              std::unique(part.ridge_vertices.begin() + static_cast<std::ptrdiff_t>(path_at), part.ridge_vertices.end()),
-              part.ridge_vertices.end());
+          part.ridge_vertices.erase(std::unique(part.ridge_vertices.begin() + static_cast<std::ptrdiff_t>(path_at),
+                                                part.ridge_vertices.end()),
+                                    part.ridge_vertices.end());
         }
         // A ridge with fewer than d vertices, counting the one at infinity, is left out,
         // as Qhull leaves it out: bounded, it has no area (its edge lies inside a group

@@ -68,7 +68,8 @@ class NpzCellWriter final : public CellWriter {
     for (const VoronoiCell& c : cells) {
       const std::uint8_t b = c.bounded ? 1 : 0;
       Status s = volume_.append(&c.volume, 1);
-      if (s.is_ok()) s = centroid_.append(c.centroid.empty() ? nan.data() : c.centroid.data(), static_cast<std::size_t>(d_));
+      if (s.is_ok())
+        s = centroid_.append(c.centroid.empty() ? nan.data() : c.centroid.data(), static_cast<std::size_t>(d_));
       if (s.is_ok()) s = bounded_.append(&b, 1);
       for (const VoronoiFacet& f : c.facets) {
         if (s.is_ok()) s = neighbor_.append(&f.neighbor, 1);
@@ -105,7 +106,8 @@ class NpzCellWriter final : public CellWriter {
 // centroid and vertices, in binary) and their lines written at commit().
 class SectionedCellWriter final : public CellWriter {
  public:
-  SectionedCellWriter(std::string path, Format format, int d) : path_(std::move(path)), format_(format), layout_(format, d) {}
+  SectionedCellWriter(std::string path, Format format, int d)
+      : path_(std::move(path)), format_(format), layout_(format, d) {}
   ~SectionedCellWriter() override {
     for (std::FILE* f : parts_) std::fclose(f);
     if (spool_ != nullptr) std::fclose(spool_);
@@ -140,7 +142,8 @@ class SectionedCellWriter final : public CellWriter {
         layout_.lines(c, totals_, totals_, lines_.data());
       }
     }
-    if (spool_ != nullptr && std::ferror(spool_)) return internal_error("writing " + path_ + ": " + std::strerror(errno));
+    if (spool_ != nullptr && std::ferror(spool_))
+      return internal_error("writing " + path_ + ": " + std::strerror(errno));
     return flush_lines(1 << 20);
   }
 
@@ -245,7 +248,11 @@ Result<std::unique_ptr<CellWriter>> CellWriter::open(const std::string& path, in
 }
 
 CellFileLayout::CellFileLayout(CellWriter::Format format, int d)
-    : format_(format), d_(d), parts_(format == CellWriter::Format::kSvg ? 2 : d == 3 ? 8 : 6) {}
+    : format_(format),
+      d_(d),
+      parts_(format == CellWriter::Format::kSvg ? 2
+             : d == 3                           ? 8
+                                                : 6) {}
 
 bool CellFileLayout::shows(const VoronoiCell& cell) const {
   // A hidden (weighted) seed's cell is empty: nothing to draw.
@@ -313,7 +320,8 @@ void CellFileLayout::lines(const VoronoiCell& c, CellTally& before, const CellTa
       append_format(out[0], v == 0 ? "%.9g,%.9g" : " %.9g,%.9g", c.vertices[2 * v], c.vertices[2 * v + 1]);
     }
     out[0] += "\"/>\n";
-    append_format(out[1], "<circle cx=\"%.9g\" cy=\"%.9g\" r=\"%.9g\"/>\n", c.centroid[0], c.centroid[1], 1.5 / frame.scale);
+    append_format(out[1], "<circle cx=\"%.9g\" cy=\"%.9g\" r=\"%.9g\"/>\n", c.centroid[0], c.centroid[1],
+                  1.5 / frame.scale);
     add(c, before);
     return;
   }
@@ -323,7 +331,8 @@ void CellFileLayout::lines(const VoronoiCell& c, CellTally& before, const CellTa
     const double* x = &c.vertices[v * static_cast<std::size_t>(d_)];
     append_format(out[0], "%.17g %.17g %.17g\n", x[0], x[1], d_ == 3 ? x[2] : 0.0);
   }
-  for (std::size_t v = 0; v < k; ++v) append_format(out[1], "%lld ", static_cast<long long>(first + static_cast<std::int64_t>(v)));
+  for (std::size_t v = 0; v < k; ++v)
+    append_format(out[1], "%lld ", static_cast<long long>(first + static_cast<std::int64_t>(v)));
   add(c, before);
   append_format(out[2], "%lld\n", static_cast<long long>(before.connectivity));
   append_format(out[3], "%d\n", d_ == 2 ? 7 : 42);  // VTK_POLYGON, VTK_POLYHEDRON
@@ -358,9 +367,9 @@ std::vector<CellFileLayout::Section> CellFileLayout::sections(const CellTally& t
   if (format_ == CellWriter::Format::kSvg) {
     const SvgFrame f(totals);
     std::string head;
-    append_format(head,
-                  "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" viewBox=\"0 0 %.0f %.0f\">\n",
-                  f.w * f.scale, f.h * f.scale, f.w * f.scale, f.h * f.scale);
+    append_format(
+        head, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" viewBox=\"0 0 %.0f %.0f\">\n",
+        f.w * f.scale, f.h * f.scale, f.w * f.scale, f.h * f.scale);
     const std::string frame = [&] {
       std::string g;
       append_format(g, "<g transform=\"translate(0 %.0f) scale(%.17g %.17g) translate(%.17g %.17g)\"", f.h * f.scale,
@@ -377,10 +386,11 @@ std::vector<CellFileLayout::Section> CellFileLayout::sections(const CellTally& t
     return s;
   }
   std::string head;
-  append_format(head,
-                "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
-                "header_type=\"UInt64\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%lld\" NumberOfCells=\"%lld\">\n",
-                static_cast<long long>(totals.points), static_cast<long long>(totals.cells));
+  append_format(
+      head,
+      "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
+      "header_type=\"UInt64\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"%lld\" NumberOfCells=\"%lld\">\n",
+      static_cast<long long>(totals.points), static_cast<long long>(totals.cells));
   text(head + "<Points>\n");
   int k = 0;
   auto array = [&](const char* head_line) {
@@ -420,7 +430,8 @@ Result<Domain> read_halfspaces(const std::string& path, int dimension) {
     while (fields >> item) {
       char* end = nullptr;
       const double v = std::strtod(item.c_str(), &end);
-      if (*end != '\0') return invalid_argument(path + ":" + std::to_string(number) + ": '" + item + "' is not a number");
+      if (*end != '\0')
+        return invalid_argument(path + ":" + std::to_string(number) + ": '" + item + "' is not a number");
       values.push_back(v);
     }
     if (values.empty()) continue;

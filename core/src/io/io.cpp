@@ -39,9 +39,12 @@ std::string printable(std::string_view raw) {
       break;
     }
     const unsigned char u = static_cast<unsigned char>(ch);
-    if (u >= 0x20 && u < 0x7F) out.push_back(ch);
-    else if (ch == '\t' || ch == '\n' || ch == '\r') out.push_back(' ');
-    else out += "?";
+    if (u >= 0x20 && u < 0x7F)
+      out.push_back(ch);
+    else if (ch == '\t' || ch == '\n' || ch == '\r')
+      out.push_back(' ');
+    else
+      out += "?";
   }
   while (!out.empty() && out.back() == ' ') out.pop_back();
   return out;
@@ -93,7 +96,9 @@ Status for_each_line(const std::string& text, OnLine&& on_line) {
   return Status::ok();
 }
 
-std::uint32_t read_le32(const unsigned char* p) { return p[0] | (p[1] << 8) | (p[2] << 16) | (std::uint32_t{p[3]} << 24); }
+std::uint32_t read_le32(const unsigned char* p) {
+  return p[0] | (p[1] << 8) | (p[2] << 16) | (std::uint32_t{p[3]} << 24);
+}
 
 struct NpyHeader {
   std::string descr;
@@ -131,7 +136,8 @@ Result<NpyHeader> parse_npy_header(const std::string& bytes, const std::string& 
     ++colon;
     while (colon < header.size() && header[colon] == ' ') ++colon;
     if (colon < header.size() && header[colon] == '(') return header.substr(colon, header.find(')', colon) - colon + 1);
-    if (colon < header.size() && header[colon] == '\'') return header.substr(colon + 1, header.find('\'', colon + 1) - colon - 1);
+    if (colon < header.size() && header[colon] == '\'')
+      return header.substr(colon + 1, header.find('\'', colon + 1) - colon - 1);
     const auto stop = header.find_first_of(",}", colon);
     return header.substr(colon, stop - colon);
   };
@@ -250,22 +256,26 @@ Result<PointSet> parse_text_points(const std::string& text, const std::string& s
   std::vector<double> coords;
   int d = 0;
   std::size_t points = 0;
-  Status status = for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
-    if (d == 0) d = static_cast<int>(row.size());
-    if (static_cast<int>(row.size()) != d) {
-      return invalid_argument(where + "has " + std::to_string(row.size()) + " coordinates, but earlier lines have " +
-                              std::to_string(d));
-    }
-    for (std::size_t c = 0; c < row.size(); ++c) {
-      if (!std::isfinite(row[c])) return invalid_argument(where + "coordinate " + std::to_string(c) + " is not finite");
-      if (std::fabs(row[c]) > kMaxCoordinate) {
-        return invalid_argument(where + "coordinate " + std::to_string(c) + " has magnitude above 1e100");
-      }
-    }
-    coords.insert(coords.end(), row.begin(), row.end());
-    ++points;
-    return Status::ok();
-  }, /*allow_header=*/true);
+  Status status = for_each_number_row(
+      text, source,
+      [&](const std::vector<double>& row, const std::string& where) -> Status {
+        if (d == 0) d = static_cast<int>(row.size());
+        if (static_cast<int>(row.size()) != d) {
+          return invalid_argument(where + "has " + std::to_string(row.size()) +
+                                  " coordinates, but earlier lines have " + std::to_string(d));
+        }
+        for (std::size_t c = 0; c < row.size(); ++c) {
+          if (!std::isfinite(row[c]))
+            return invalid_argument(where + "coordinate " + std::to_string(c) + " is not finite");
+          if (std::fabs(row[c]) > kMaxCoordinate) {
+            return invalid_argument(where + "coordinate " + std::to_string(c) + " has magnitude above 1e100");
+          }
+        }
+        coords.insert(coords.end(), row.begin(), row.end());
+        ++points;
+        return Status::ok();
+      },
+      /*allow_header=*/true);
   if (!status.is_ok()) return status;
   if (points == 0) return invalid_argument(source + ": no points (the input is empty)");
   return PointSet(d, std::move(coords));
@@ -282,7 +292,9 @@ Result<NpyPoints> npy_points_layout(const std::string& head, std::uint64_t file_
                             "' is not supported (need float64, float32, int64, int32 or int16, little-endian)");
   }
   if (h.fortran) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
-  if (h.shape.size() != 2) return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) + " axes");
+  if (h.shape.size() != 2)
+    return invalid_argument(source + ": .npy array must have shape (n, d), found " + std::to_string(h.shape.size()) +
+                            " axes");
   const std::uint64_t n = h.shape[0], d = h.shape[1];
   if (n == 0 || d == 0) return invalid_argument(source + ": no points (the input is empty)");
   if (d > static_cast<std::uint64_t>(kMaxApproxDimension)) {
@@ -373,7 +385,8 @@ Result<std::vector<double>> weights_from_values(std::span<const double> values, 
   std::vector<double> out;
   out.reserve(values.size());
   for (std::size_t k = 0; k < values.size(); ++k) {
-    if (Status s = take_weight(values[k], kind, source + ": index " + std::to_string(k) + ": ", out); !s.is_ok()) return s;
+    if (Status s = take_weight(values[k], kind, source + ": index " + std::to_string(k) + ": ", out); !s.is_ok())
+      return s;
   }
   return out;
 }
@@ -381,13 +394,14 @@ Result<std::vector<double>> weights_from_values(std::span<const double> values, 
 Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,
                                                WeightKind kind) {
   std::vector<double> out;
-  Status status = for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
-    if (row.size() != 1) {
-      return invalid_argument(where + "has " + std::to_string(row.size()) + " numbers; expected one " +
-                              (kind == WeightKind::kRadius ? "radius" : "weight") + " a line");
-    }
-    return take_weight(row[0], kind, where, out);
-  });
+  Status status =
+      for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
+        if (row.size() != 1) {
+          return invalid_argument(where + "has " + std::to_string(row.size()) + " numbers; expected one " +
+                                  (kind == WeightKind::kRadius ? "radius" : "weight") + " a line");
+        }
+        return take_weight(row[0], kind, where, out);
+      });
   if (!status.is_ok()) return status;
   if (Status s = check_weight_count(out.size(), count, kind, source); !s.is_ok()) return s;
   return out;
@@ -400,9 +414,11 @@ Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const st
   const NpyHeader& h = header.value();
   const int item_bytes = npy_float_bytes(h.descr);
   if (item_bytes == 0) {
-    return invalid_argument(source + ": .npy dtype '" + printable(h.descr) + "' is not supported (need float64 or float32)");
+    return invalid_argument(source + ": .npy dtype '" + printable(h.descr) +
+                            "' is not supported (need float64 or float32)");
   }
-  if (h.fortran && h.shape.size() == 2) return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
+  if (h.fortran && h.shape.size() == 2)
+    return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
   if (!(h.shape.size() == 1 || (h.shape.size() == 2 && h.shape[1] == 1))) {
     return invalid_argument(source + ": .npy weights must have shape (n,) or (n, 1), found " +
                             std::to_string(h.shape.size()) + " axes");
@@ -439,7 +455,9 @@ Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int w
     if (!header.is_ok()) return header.status();
     const NpyHeader& h = header.value();
     const bool i8 = h.descr == "<i8", i4 = h.descr == "<i4";
-    if (!i8 && !i4) return invalid_argument(path + ": .npy dtype '" + printable(h.descr) + "' is not supported for a mesh (need int64 or int32)");
+    if (!i8 && !i4)
+      return invalid_argument(path + ": .npy dtype '" + printable(h.descr) +
+                              "' is not supported for a mesh (need int64 or int32)");
     if (h.shape.size() != 2 || h.shape[1] != static_cast<std::uint64_t>(width)) {
       return invalid_argument(path + ": mesh array must have shape (m, " + std::to_string(width) + ")");
     }
@@ -457,7 +475,8 @@ Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int w
         v = w;
       }
       if (v < 0 || v > 0xFFFFFFFFll) {
-        return invalid_argument(path + ": simplex " + std::to_string(k / width) + " has invalid index " + std::to_string(v));
+        return invalid_argument(path + ": simplex " + std::to_string(k / width) + " has invalid index " +
+                                std::to_string(v));
       }
       out[k] = static_cast<std::uint32_t>(v);
     }
@@ -471,7 +490,8 @@ Result<std::vector<std::uint32_t>> read_simplices(const std::string& path, int w
     if (!parse_numbers(line, row, bad)) return invalid_argument(where + "cannot parse '" + bad + "' as an index");
     if (row.empty()) return Status::ok();
     if (static_cast<int>(row.size()) != width) {
-      return invalid_argument(where + "has " + std::to_string(row.size()) + " indices, expected " + std::to_string(width));
+      return invalid_argument(where + "has " + std::to_string(row.size()) + " indices, expected " +
+                              std::to_string(width));
     }
     for (std::int64_t v : row) {
       if (v < 0 || v > 0xFFFFFFFFll) return invalid_argument(where + "invalid index " + std::to_string(v));
@@ -512,7 +532,6 @@ std::string npy_header_of_shape(const std::string& descr, const std::string& sha
   out.push_back(static_cast<char>(dict.size() >> 8));
   return out + dict;
 }
-
 
 namespace {
 
@@ -660,11 +679,14 @@ MeshFileLayout::MeshFileLayout(MeshWriter::Format format, int d, std::uint64_t n
   const std::string count = std::to_string(simplices);
   if (format == MeshWriter::Format::kVtu) {
     sections_ = {
-        {K::kText, "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
-                   "<UnstructuredGrid>\n<Piece NumberOfPoints=\"" + std::to_string(n) + "\" NumberOfCells=\"" + count +
-                   "\">\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n"},
+        {K::kText,
+         "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
+         "<UnstructuredGrid>\n<Piece NumberOfPoints=\"" +
+             std::to_string(n) + "\" NumberOfCells=\"" + count +
+             "\">\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n"},
         {K::kPoints, "", 0},
-        {K::kText, "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n"},
+        {K::kText,
+         "</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n"},
         {K::kRows, "", 0},
         {K::kText, "</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n"},
         {K::kRows, "", 1},
@@ -692,10 +714,10 @@ MeshFileLayout::MeshFileLayout(MeshWriter::Format format, int d, std::uint64_t n
     radius_ = std::clamp(300.0 / std::sqrt(static_cast<double>(n)), 0.5, 4.0);
     sections_ = {
         {K::kText, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + std::to_string(static_cast<int>(w)) +
-                   "\" height=\"" + std::to_string(static_cast<int>(h)) + "\" viewBox=\"0 0 " + std::to_string(w) + " " +
-                   std::to_string(h) +
-                   "\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
-                   "<g fill=\"#cfe3f7\" stroke=\"#1f4e79\" stroke-width=\"0.6\" stroke-linejoin=\"round\">\n"},
+                       "\" height=\"" + std::to_string(static_cast<int>(h)) + "\" viewBox=\"0 0 " + std::to_string(w) +
+                       " " + std::to_string(h) +
+                       "\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
+                       "<g fill=\"#cfe3f7\" stroke=\"#1f4e79\" stroke-width=\"0.6\" stroke-linejoin=\"round\">\n"},
         {K::kRows, "", 0},
         {K::kText, "</g>\n<g fill=\"#c0392b\">\n"},
         {K::kPoints, "", 0},
@@ -772,7 +794,8 @@ Result<MeshWriter::Format> MeshWriter::format_for(const std::string& path, int d
     return ends_with(path, ".vtu") ? Format::kVtu : Format::kMsh;
   }
   if (ends_with(path, ".svg")) {
-    if (dimension != 2) return invalid_argument(path + ": .svg output is for 2-d meshes; use .simplices, .npy, .vtu or .msh");
+    if (dimension != 2)
+      return invalid_argument(path + ": .svg output is for 2-d meshes; use .simplices, .npy, .vtu or .msh");
     return Format::kSvg;
   }
   return invalid_argument(path + ": unknown output format (use .simplices, .txt, .npy, .vtu, .msh or .svg)");
@@ -786,9 +809,15 @@ Result<std::unique_ptr<MeshWriter>> MeshWriter::open(const std::string& path, co
   if (file == nullptr) return invalid_argument(path + ": cannot open for writing (" + std::strerror(errno) + ")");
   std::unique_ptr<MeshWriter> writer;
   switch (format.value()) {
-    case Format::kText: writer.reset(new TextWriter(path, points, file, temp)); break;
-    case Format::kNpy: writer.reset(new NpyWriter(path, points, file, temp)); break;
-    default: writer.reset(new SpooledWriter(path, points, file, temp, format.value())); break;
+    case Format::kText:
+      writer.reset(new TextWriter(path, points, file, temp));
+      break;
+    case Format::kNpy:
+      writer.reset(new NpyWriter(path, points, file, temp));
+      break;
+    default:
+      writer.reset(new SpooledWriter(path, points, file, temp, format.value()));
+      break;
   }
   return writer;
 }

@@ -51,10 +51,9 @@ Status NpyColumn::open(const std::string& dir) {
 }
 
 Result<std::FILE*> NpyColumn::finish() {
-  const std::string header =
-      !tail_.empty() ? npy_header_of_shape(descr_, std::to_string(rows_) + ", " + tail_)
-      : width_ == 1  ? npy_vector_header(descr_, rows_)
-                     : npy_header(descr_, rows_, static_cast<std::uint64_t>(width_));
+  const std::string header = !tail_.empty() ? npy_header_of_shape(descr_, std::to_string(rows_) + ", " + tail_)
+                             : width_ == 1  ? npy_vector_header(descr_, rows_)
+                                            : npy_header(descr_, rows_, static_cast<std::uint64_t>(width_));
   if (std::fseek(file_, 0, SEEK_SET) != 0 || std::fwrite(header.data(), 1, header.size(), file_) != header.size() ||
       std::fflush(file_) != 0 || std::fseek(file_, 0, SEEK_SET) != 0) {
     return internal_error("writing " + name_ + ": " + std::strerror(errno));

@@ -172,11 +172,12 @@ class VtuPeriodicWriter final : public PeriodicMeshWriter {
     std::FILE* out = std::fopen(temp.c_str(), "wb");
     if (out == nullptr) return invalid_argument(path_ + ": cannot open for writing (" + std::strerror(errno) + ")");
     const std::uint64_t n = points_.size(), copies = n + image_list_.size();
-    std::string text = "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
-                       "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"" +
-                       std::to_string(copies) + "\" NumberOfCells=\"" + std::to_string(rows_) +
-                       "\">\n<PointData Scalars=\"point_index\">\n"
-                       "<DataArray type=\"Int64\" Name=\"point_index\" format=\"ascii\">\n";
+    std::string text =
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
+        "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"" +
+        std::to_string(copies) + "\" NumberOfCells=\"" + std::to_string(rows_) +
+        "\">\n<PointData Scalars=\"point_index\">\n"
+        "<DataArray type=\"Int64\" Name=\"point_index\" format=\"ascii\">\n";
     Status s = Status::ok();
     auto flush = [&] {
       if (s.is_ok() && text.size() > (1u << 20)) {
@@ -189,8 +190,9 @@ class VtuPeriodicWriter final : public PeriodicMeshWriter {
       text += '\n';
       flush();
     }
-    text += "</DataArray>\n</PointData>\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" "
-            "format=\"ascii\">\n";
+    text +=
+        "</DataArray>\n</PointData>\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" "
+        "format=\"ascii\">\n";
     std::vector<double> at(3, 0.0);
     for (std::uint64_t i = 0; i < copies; ++i) {
       const std::uint32_t p = i < n ? static_cast<std::uint32_t>(i) : static_cast<std::uint32_t>(image_list_[i - n][0]);
@@ -273,7 +275,8 @@ Result<std::unique_ptr<PeriodicMeshWriter>> PeriodicMeshWriter::open(const std::
   } else if (has_suffix(path, ".txt") || has_suffix(path, ".simplices")) {
     writer = std::make_unique<TextPeriodicWriter>(path, dimension);
   } else {
-    return invalid_argument(path + ": a periodic mesh is written as .npz (simplices and offsets), as text "
+    return invalid_argument(path +
+                            ": a periodic mesh is written as .npz (simplices and offsets), as text "
                             "(.txt, .simplices: indices then offsets on each line) or as .vtu (2-d, 3-d: the "
                             "simplices whole, with copies of the images they use)");
   }

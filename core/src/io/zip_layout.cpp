@@ -19,7 +19,9 @@ void put32(std::string& s, std::uint32_t v) {
 void put64(std::string& s, std::uint64_t v) {
   for (int b = 0; b < 8; ++b) s += static_cast<char>((v >> (8 * b)) & 0xFF);
 }
-std::uint32_t low32(std::uint64_t v, bool saturate) { return saturate ? static_cast<std::uint32_t>(k32) : static_cast<std::uint32_t>(v); }
+std::uint32_t low32(std::uint64_t v, bool saturate) {
+  return saturate ? static_cast<std::uint32_t>(k32) : static_cast<std::uint32_t>(v);
+}
 
 // The fields a local header and a central entry share, from "version needed" to the
 // uncompressed size: no flags, stored, the fixed time stamp, the CRC and the sizes.

@@ -108,7 +108,7 @@ inline bool circumball(const double* s, const std::array<const double*, D>& v, s
 // outwards. Rare (a simplex whose volume is below about 1e-14 of its edges' product).
 template <int D>
 inline void exact_circumball(const double* s, const std::array<const double*, D>& v, std::array<Interval, D>& centre,
-                      double& radius2_up) {
+                             double& radius2_up) {
   std::array<std::array<mpq_class, D + 1>, D> m;
   for (int i = 0; i < D; ++i) {
     mpq_class norm2 = 0;
@@ -155,7 +155,8 @@ inline bool misses(const std::array<Interval, D>& centre, double radius2_up, con
 // be): along axis k, the ball's chord over the nearest point of g's other axes. The
 // huge balls of nearly flat simplices at the hull cut only a thin cap out of g.
 template <int D>
-inline std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& centre, double radius2_up, const double* g) {
+inline std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& centre, double radius2_up,
+                                                const double* g) {
   std::array<double, D> gap{};
   for (int j = 0; j < D; ++j) {
     gap[static_cast<std::size_t>(j)] = std::max({0.0, down(g[j] - centre[j].hi), down(centre[j].lo - g[D + j])});
@@ -163,7 +164,8 @@ inline std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& c
   std::array<double, 2 * D> out{};
   for (int k = 0; k < D; ++k) {
     double gap2 = 0;
-    for (int j = 0; j < D; ++j) gap2 += j == k ? 0.0 : gap[static_cast<std::size_t>(j)] * gap[static_cast<std::size_t>(j)];
+    for (int j = 0; j < D; ++j)
+      gap2 += j == k ? 0.0 : gap[static_cast<std::size_t>(j)] * gap[static_cast<std::size_t>(j)];
     const double h = up(std::sqrt(std::max(0.0, up(radius2_up - down(gap2)))));
     out[static_cast<std::size_t>(k)] = std::max(g[k], down(centre[k].lo - h));
     out[static_cast<std::size_t>(D + k)] = std::min(g[D + k], up(centre[k].hi + h));
@@ -175,7 +177,8 @@ inline std::array<double, 2 * D> clipped_extent(const std::array<Interval, D>& c
 template <int D>
 inline bool inside(const std::array<double, 2 * D>& extent, const double* box) {
   for (int k = 0; k < D; ++k) {
-    if (extent[static_cast<std::size_t>(k)] < box[k] || extent[static_cast<std::size_t>(D + k)] > box[D + k]) return false;
+    if (extent[static_cast<std::size_t>(k)] < box[k] || extent[static_cast<std::size_t>(D + k)] > box[D + k])
+      return false;
   }
   return true;
 }

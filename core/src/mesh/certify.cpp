@@ -37,8 +37,7 @@ int side(const double* s, const std::array<const double*, D - 1>& f, const doubl
   for (int k = 0; k < D; ++k) a[D - 1][k] = q[k] - s[k];
   Filtered det;
   if constexpr (D == 2) {
-    det = {a[0][0] * a[1][1] - a[0][1] * a[1][0],
-           std::fabs(a[0][0] * a[1][1]) + std::fabs(a[0][1] * a[1][0])};
+    det = {a[0][0] * a[1][1] - a[0][1] * a[1][0], std::fabs(a[0][0] * a[1][1]) + std::fabs(a[0][1] * a[1][0])};
   } else {
     double v = 0, m = 0;
     for (int k = 0; k < 3; ++k) {
@@ -55,9 +54,8 @@ int side(const double* s, const std::array<const double*, D - 1>& f, const doubl
 }
 
 template <int D>
-StarCertificate certify(const PointSet& ps, const double* global, const Star& star,
-                        std::span<const double> held_boxes, std::span<const double> held_balls,
-                        std::span<const double> unheld,
+StarCertificate certify(const PointSet& ps, const double* global, const Star& star, std::span<const double> held_boxes,
+                        std::span<const double> held_balls, std::span<const double> unheld,
                         const std::function<bool(std::span<const std::uint32_t>)>& known_hull) {
   StarCertificate out;
   const std::size_t box_words = 2 * D, boxes = unheld.size() / box_words;
@@ -104,7 +102,8 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
         held = inside_ball<D>(centre, radius2, held_balls.data() + b);
       }
     }
-    for (std::size_t b = 0; b < boxes && ok && !held; ++b) ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
+    for (std::size_t b = 0; b < boxes && ok && !held; ++b)
+      ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
     if (!ok) {
       // Ask for the ball itself: a ball query returns only what lies inside (near the
       // hull a ball's part of the set's box is a wide thin cap, a box around it many
@@ -138,7 +137,8 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
     while (j < facets.size() && facets[j].vertices == facets[i].vertices) ++j;
     if (j - i == 1 && !known_hull(facets[i].vertices)) {  // a hull facet: its outer side must miss every unheld box
       std::array<const double*, D> f{};
-      for (int k = 0; k < D; ++k) f[static_cast<std::size_t>(k)] = ps.point(facets[i].vertices[static_cast<std::size_t>(k)]);
+      for (int k = 0; k < D; ++k)
+        f[static_cast<std::size_t>(k)] = ps.point(facets[i].vertices[static_cast<std::size_t>(k)]);
       bool ok = true;
       for (std::size_t b = 0; b < boxes && ok; ++b) {
         ok = !StarCertifier::may_be_beyond(D, f.data(), ps.point(facets[i].apex), unheld.data() + b * box_words);
@@ -178,8 +178,8 @@ bool beyond_box(const double* const* f, const double* inner, const double* box) 
 }  // namespace
 
 StarCertificate StarCertifier::certify(const Star& star, std::span<const double> held_boxes,
-                                      std::span<const double> held_balls, std::span<const double> unheld,
-                                      const std::function<bool(std::span<const std::uint32_t>)>& known_hull) const {
+                                       std::span<const double> held_balls, std::span<const double> unheld,
+                                       const std::function<bool(std::span<const std::uint32_t>)>& known_hull) const {
   if (unheld.empty()) {
     StarCertificate all_held;
     all_held.certified = true;

@@ -11,7 +11,6 @@
 #include <span>
 #include <vector>
 
-
 #include "base/dimension.hpp"
 #include "base/mixing.hpp"
 #include "mesh/ball_bounds.hpp"
@@ -135,8 +134,8 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
 // point once a region's balls have reached across the set.
 template <int D, class Index>
 struct Run {
-  const Index& index;     // box queries: the caller's KdTree, or the split's own index
-  const KdTree* tree;     // the caller's, if any (the star walks' fallback builds one)
+  const Index& index;  // box queries: the caller's KdTree, or the split's own index
+  const KdTree* tree;  // the caller's, if any (the star walks' fallback builds one)
   const PointSet& ps;
   const SpaceSplit& split;
   const MeshOptions& options;
@@ -147,7 +146,7 @@ struct Run {
 
   std::once_flag whole_once;
   std::unique_ptr<Triangulation<D>> whole;  // null until built, and when its memory was refused
-  std::vector<std::uint32_t> whole_local;  // point id -> its local id in `whole`
+  std::vector<std::uint32_t> whole_local;   // point id -> its local id in `whole`
   Status whole_status;
   std::atomic<bool> use_whole{false};      // `whole` was built: every region takes it
   std::atomic<bool> whole_wanted{false};   // a region found balls across the set: others stop trying
@@ -355,7 +354,8 @@ class RegionMesher {
   Box<D> margin_box(const Box<D>& b, double margin) const {
     Box<D> e{};
     for (int k = 0; k < D; ++k) {
-      e[static_cast<std::size_t>(k)] = std::max(run_.bounds[static_cast<std::size_t>(k)], b[static_cast<std::size_t>(k)] - margin);
+      e[static_cast<std::size_t>(k)] =
+          std::max(run_.bounds[static_cast<std::size_t>(k)], b[static_cast<std::size_t>(k)] - margin);
       e[static_cast<std::size_t>(D + k)] =
           std::min(run_.bounds[static_cast<std::size_t>(D + k)], b[static_cast<std::size_t>(D + k)] + margin);
     }
@@ -395,7 +395,8 @@ class RegionMesher {
       std::array<const double*, D> v{};
       for (int k = 0; k < D; ++k) v[static_cast<std::size_t>(k)] = tri_.coords(cell.v[static_cast<std::size_t>(k) + 1]);
       const double* s = tri_.coords(cell.v[0]);
-      if (!ball_bounds::circumball<D>(s, v, out.centre, out.radius2)) ball_bounds::exact_circumball<D>(s, v, out.centre, out.radius2);
+      if (!ball_bounds::circumball<D>(s, v, out.centre, out.radius2))
+        ball_bounds::exact_circumball<D>(s, v, out.centre, out.radius2);
       out.extent = ball_bounds::clipped_extent<D>(out.centre, out.radius2, run_.bounds.data());
       out.ok = ball_bounds::inside<D>(out.extent, e_.data());
       return out;
@@ -469,12 +470,14 @@ class RegionMesher {
     auto depth = [&](const double* x) {
       if (inf < 0) {
         double d2 = 0;
-        for (int k = 0; k < D; ++k) d2 += (x[k] - mid[static_cast<std::size_t>(k)]) * (x[k] - mid[static_cast<std::size_t>(k)]);
+        for (int k = 0; k < D; ++k)
+          d2 += (x[k] - mid[static_cast<std::size_t>(k)]) * (x[k] - mid[static_cast<std::size_t>(k)]);
         return d2 - check.radius2;
       }
       std::array<std::array<double, D>, D> m{};
       for (int i = 1; i < D; ++i) {
-        for (int k = 0; k < D; ++k) m[static_cast<std::size_t>(i - 1)][static_cast<std::size_t>(k)] = f[static_cast<std::size_t>(i)][k] - f[0][k];
+        for (int k = 0; k < D; ++k)
+          m[static_cast<std::size_t>(i - 1)][static_cast<std::size_t>(k)] = f[static_cast<std::size_t>(i)][k] - f[0][k];
       }
       auto volume = [&](const double* q) {
         for (int k = 0; k < D; ++k) m[D - 1][static_cast<std::size_t>(k)] = q[k] - f[0][k];
@@ -583,7 +586,8 @@ class RegionMesher {
     brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
     local_.assign(region_points, 0);
     tri_.reserve(region_points + region_points / 2);  // the region and a typical margin
-    const std::size_t sample = std::min<std::size_t>(region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points / 8));
+    const std::size_t sample =
+        std::min<std::size_t>(region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points / 8));
     auto insert_region = [&](std::size_t k) { local_[order_[k]] = tri_.insert(ids_[order_[k]]); };
     for (int k = 0; k < D; ++k) {  // nothing is in E until its points are (certify then fails every ball)
       e_[static_cast<std::size_t>(k)] = HUGE_VAL;
@@ -882,10 +886,10 @@ class RegionMesher {
   Box<D> e_{};
   bool e_covers_all_ = false;
   std::vector<std::uint32_t> extras_;
-  std::size_t query_work_ = 0;  // points the queries of a round tested
-  std::size_t empty_work_ = 0, empty_queries_ = 0;  // of those, the queries that found nothing
+  std::size_t query_work_ = 0;                           // points the queries of a round tested
+  std::size_t empty_work_ = 0, empty_queries_ = 0;       // of those, the queries that found nothing
   std::vector<std::pair<double, std::uint32_t>> taken_;  // a query's deepest conflicting points (a max-heap)
-  std::size_t reserved_ = 0;    // memory granted to this worker's triangulation (MeshOptions::reserve_bytes)
+  std::size_t reserved_ = 0;  // memory granted to this worker's triangulation (MeshOptions::reserve_bytes)
   // Scratch, kept between regions.
   std::vector<std::uint32_t> wanted_, ids_, order_, local_, scratch_, found_, cells_, seen_, others_;
   // Per local id of a region point: a seed still to certify, done, or not a seed of the
@@ -916,7 +920,8 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
   for (std::uint32_t b = 0; b < split.block_count(); ++b) {
     const auto box = split.box(b);
     for (int k = 0; k < D; ++k) {
-      run.bounds[static_cast<std::size_t>(k)] = std::min(run.bounds[static_cast<std::size_t>(k)], box[static_cast<std::size_t>(k)]);
+      run.bounds[static_cast<std::size_t>(k)] =
+          std::min(run.bounds[static_cast<std::size_t>(k)], box[static_cast<std::size_t>(k)]);
       run.bounds[static_cast<std::size_t>(D + k)] =
           std::max(run.bounds[static_cast<std::size_t>(D + k)], box[static_cast<std::size_t>(D + k)]);
     }
@@ -932,8 +937,7 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
   const unsigned threads = std::max(1u, options.threads);
   std::uint64_t seeds_done = 0;
   const Status status = run_in_order<RegionRows>(
-      run.regions.size(), threads, threads,
-      [&] { return std::make_unique<RegionMesher<D, Index>>(run, total); },
+      run.regions.size(), threads, threads, [&] { return std::make_unique<RegionMesher<D, Index>>(run, total); },
       [&](RegionRows& rows) -> Status {
         seeds_done += rows.seeds;
         total.simplices += rows.simplices.size() / (D + 1);

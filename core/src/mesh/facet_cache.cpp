@@ -36,7 +36,6 @@ std::uint32_t tag_of(std::uint64_t hash) {
 
 }  // namespace
 
-
 // The table's slot count for n points within max_bytes (with the per-point starts);
 // 0 when the cache would be disabled.
 std::size_t FacetCache::slots_for(int d, std::uint32_t n, std::size_t max_bytes) {
@@ -61,7 +60,10 @@ std::size_t FacetCache::bytes_for(int d, std::uint32_t n, std::size_t max_bytes)
 
 FacetCache::FacetCache(int d, std::uint32_t n, std::uint32_t begin, std::uint32_t end, std::size_t max_bytes,
                        std::uint32_t block)
-    : FacetMemo(d), n_(n), order_{begin, std::min(end, n), std::max(block, 1u)}, stride_(static_cast<std::size_t>(d) + 3) {
+    : FacetMemo(d),
+      n_(n),
+      order_{begin, std::min(end, n), std::max(block, 1u)},
+      stride_(static_cast<std::size_t>(d) + 3) {
   if (order_.begin >= order_.end) return;
   const std::size_t slots = slots_for(d, n, max_bytes);
   if (slots == 0) return;
@@ -142,12 +144,14 @@ void FacetCache::insert(std::uint32_t x, const std::uint32_t* facet, std::uint64
       for (int i = 0; i < d_; ++i) {
         if (order_.maybe_after(facet[i], x)) {
           Word start(starts_[facet[i]]);
-          if (start.load(std::memory_order_relaxed) == 0) start.store(static_cast<std::uint32_t>(s + 1), std::memory_order_release);
+          if (start.load(std::memory_order_relaxed) == 0)
+            start.store(static_cast<std::uint32_t>(s + 1), std::memory_order_release);
         }
       }
       return;
     }
-    if (state == tag && detail::same_indices(facet, w + 1, static_cast<std::size_t>(d_))) return;  // another star got there first
+    if (state == tag && detail::same_indices(facet, w + 1, static_cast<std::size_t>(d_)))
+      return;  // another star got there first
   }
 }
 

@@ -18,8 +18,8 @@ FrontMail::Estimate FrontMail::estimate(int d, std::uint64_t n, unsigned threads
   // sets and for higher d, where the surface is most of the set.
   const double surface = std::min(static_cast<double>(n), 8 * std::pow(static_cast<double>(n), (d - 1.0) / d));
   // A table at most half full, grown by doubling: up to 4 slots of d + 3 words per entry.
-  const double table = std::min<double>(static_cast<double>(block_points), static_cast<double>(n)) * facets *
-                       4 * (d + 3) * sizeof(std::uint32_t);
+  const double table = std::min<double>(static_cast<double>(block_points), static_cast<double>(n)) * facets * 4 *
+                       (d + 3) * sizeof(std::uint32_t);
   return {static_cast<std::size_t>(surface * facets * words * sizeof(std::uint32_t)),
           static_cast<std::size_t>(table) * std::max(threads, 1u)};
 }
@@ -83,8 +83,7 @@ void FrontCache::end_block() {
 }
 
 std::size_t FrontCache::held_bytes() const {
-  return (table_.capacity() + starts_.capacity() + outgoing_.capacity() + incoming_.capacity()) *
-         sizeof(std::uint32_t);
+  return (table_.capacity() + starts_.capacity() + outgoing_.capacity() + incoming_.capacity()) * sizeof(std::uint32_t);
 }
 
 std::int64_t FrontCache::find(const std::uint32_t* facet, std::uint64_t hash, std::size_t& empty) const {

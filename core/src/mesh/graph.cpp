@@ -35,8 +35,10 @@ Result<Edges> delaunay_graph(const KdTree& tree, const GraphOptions& options, Gr
     approx_options.cancel = options.cancel;
     std::unique_ptr<StarWalker> exact;
     std::unique_ptr<ApproxWalker> approx;
-    if (options.approximate) approx = std::make_unique<ApproxWalker>(tree, approx_options);
-    else exact = std::make_unique<StarWalker>(tree, star_options);
+    if (options.approximate)
+      approx = std::make_unique<ApproxWalker>(tree, approx_options);
+    else
+      exact = std::make_unique<StarWalker>(tree, star_options);
     Star star;
     ApproxNeighbors neighbors;
     for (;;) {

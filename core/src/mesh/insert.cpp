@@ -4,15 +4,15 @@
 #include <array>
 #include <atomic>
 #include <cmath>
-#include <numeric>
 #include <memory>
 #include <mutex>
+#include <numeric>
 #include <thread>
 #include <vector>
 
+#include "spokemesh/circumcentre.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/predicates.hpp"
-#include "spokemesh/circumcentre.hpp"
 
 namespace spokemesh {
 
@@ -59,9 +59,9 @@ Status for_each_star(const KdTree& tree, const MeshOptions& options, const std::
 }  // namespace
 
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
-                                  std::span<const std::uint32_t> old_rows, const MeshOptions& options,
-                                  Rows& out) {
-  return insert_points(tree, [&]() -> const SpaceSplit& { return split; }, n_old, old_rows, options, out);
+                                  std::span<const std::uint32_t> old_rows, const MeshOptions& options, Rows& out) {
+  return insert_points(
+      tree, [&]() -> const SpaceSplit& { return split; }, n_old, old_rows, options, out);
 }
 
 Result<InsertStats> insert_points(const KdTree& tree, const std::function<const SpaceSplit&()>& split_when_needed,
@@ -167,8 +167,9 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   // then in the star's order: lexicographic by their sorted indices.
   const Predicates predicates(points);
   // The new points alone, for the circumsphere queries (a small tree: ids - n_old).
-  const PointSet new_points(d, std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old) * d,
-                                                   points.coordinates().end()));
+  const PointSet new_points(d,
+                            std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old) * d,
+                                                points.coordinates().end()));
   const KdTree new_tree(new_points);
   std::atomic<std::size_t> next{0};
   std::vector<std::uint8_t> same_rows(old_seeds.size(), 0);  // written by one worker each
@@ -187,7 +188,8 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       for (std::uint32_t r = 0; r < row_count[v]; ++r) {
         const std::uint32_t* row = &old_rows[(first_row[v] + r) * w];
         bool all_changed = true;
-        for (std::size_t j = 0; j < w && all_changed; ++j) all_changed = changed[row[j]].load(std::memory_order_relaxed) != 0;
+        for (std::size_t j = 0; j < w && all_changed; ++j)
+          all_changed = changed[row[j]].load(std::memory_order_relaxed) != 0;
         bool killed = false;
         if (all_changed) {
           const std::vector<double> c = circumcentre(points, row, static_cast<int>(w));
@@ -253,9 +255,9 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   std::vector<std::size_t> at(order.size() + 1, 0);
   for (std::size_t k = 0; k < order.size(); ++k) {
     const std::uint32_t seed = order[k];
-    at[k + 1] = at[k] + (seed >= n_old           ? rows_of[seed - n_old].size()
-                         : redone[seed] != ~0u   ? old_rows_of[redone[seed]].size()
-                                                 : std::size_t{row_count[seed]} * w);
+    at[k + 1] = at[k] + (seed >= n_old         ? rows_of[seed - n_old].size()
+                         : redone[seed] != ~0u ? old_rows_of[redone[seed]].size()
+                                               : std::size_t{row_count[seed]} * w);
     if (seed < n_old && redone[seed] == ~0u) stats.rows_kept += row_count[seed];
   }
   out.resize(at.back());
@@ -263,15 +265,14 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     for (std::size_t k = from; k < to; ++k) {
       if (at[k + 1] == at[k]) continue;
       const std::uint32_t seed = order[k];
-      const std::uint32_t* src = seed >= n_old           ? rows_of[seed - n_old].data()
-                                 : redone[seed] != ~0u   ? old_rows_of[redone[seed]].data()
-                                                         : old_rows.data() + first_row[seed] * w;
+      const std::uint32_t* src = seed >= n_old         ? rows_of[seed - n_old].data()
+                                 : redone[seed] != ~0u ? old_rows_of[redone[seed]].data()
+                                                       : old_rows.data() + first_row[seed] * w;
       std::copy(src, src + (at[k + 1] - at[k]), out.begin() + static_cast<std::ptrdiff_t>(at[k]));
     }
   };
-  on_threads(options.threads, [&](unsigned t, unsigned threads) {
-    copy(order.size() * t / threads, order.size() * (t + 1) / threads);
-  });
+  on_threads(options.threads,
+             [&](unsigned t, unsigned threads) { copy(order.size() * t / threads, order.size() * (t + 1) / threads); });
   return stats;
 }
 

@@ -7,9 +7,9 @@
 #include <optional>
 #include <vector>
 
-#include "spokemesh/front_cache.hpp"
 #include "mesh/delaunay_sweep.hpp"
 #include "mesh/ordered_run.hpp"
+#include "spokemesh/front_cache.hpp"
 
 namespace spokemesh {
 
@@ -42,13 +42,15 @@ namespace {
 
 // The run's sweep: the caller's split, or one built into `own` from the points and
 // the block size (8 bytes a point while the run lasts, 32 to 72 more while it is built).
-Result<const SpaceSplit*> sweep_split(const PointSet& points, const MeshOptions& options, std::optional<SpaceSplit>& own) {
+Result<const SpaceSplit*> sweep_split(const PointSet& points, const MeshOptions& options,
+                                      std::optional<SpaceSplit>& own) {
   if (options.split == nullptr) {
     own.emplace(points, options.block_size != 0 ? options.block_size
                                                 : SpaceSplit::default_block_points(points.dimension(), points.size()));
   }
   const SpaceSplit* split = options.split != nullptr ? options.split : &*own;
-  if (split->size() != points.size()) return invalid_argument("mesh_seeds: the sweep's split is over another point set");
+  if (split->size() != points.size())
+    return invalid_argument("mesh_seeds: the sweep's split is over another point set");
   return split;
 }
 
@@ -90,7 +92,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   }
   if (options.engine == MeshEngine::kTriangulations) return triangulations_refused();
   std::uint32_t block_points = 1;
-  for (std::uint32_t b = 0; b < blocks.block_count(); ++b) block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
+  for (std::uint32_t b = 0; b < blocks.block_count(); ++b)
+    block_points = std::max(block_points, blocks.end(b) - blocks.begin(b));
   const auto sweep_begin = static_cast<std::uint32_t>(std::min<std::uint64_t>(options.sweep_begin, n));
   const auto sweep_end = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(options.sweep_end, sweep_begin, n));
   const RunOrder run{begin, end, 1, &blocks, sweep_begin, sweep_end};
@@ -101,8 +104,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
   // Blocks in flight beyond the next one to write: 4 per worker, and no more points
   // than 4 blocks of 32,768 per worker (this caps the large 2-d blocks), so that a
   // slow reader leaves at most a few MB of simplices buffered.
-  const std::uint64_t window = std::max<std::uint64_t>(
-      threads, std::min<std::uint64_t>(4ull * threads, 4ull * threads * 32768 / block_points));
+  const std::uint64_t window =
+      std::max<std::uint64_t>(threads, std::min<std::uint64_t>(4ull * threads, 4ull * threads * 32768 / block_points));
 
   // What the stars share (see front_cache.hpp; in 2-d, the EdgeCache's posts per point).
   std::optional<EdgeCache> edges;
@@ -174,13 +177,13 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     return w;
   };
   std::uint64_t written = 0, seeds_done = 0;
-  const Status failure = detail::run_in_order<MeshedBlock>(
-      count, threads, window, make_worker,
-      [&](MeshedBlock& block) -> Status {
+  const Status failure =
+      detail::run_in_order<MeshedBlock>(count, threads, window, make_worker, [&](MeshedBlock& block) -> Status {
         ++written;
         // Every seed before the next block to write is done: its 2-d posts can go.
-        if (edges) edges->release_before(written < count ? blocks.begin(static_cast<std::uint32_t>(first_block + written))
-                                                         : static_cast<std::uint32_t>(n));
+        if (edges)
+          edges->release_before(written < count ? blocks.begin(static_cast<std::uint32_t>(first_block + written))
+                                                : static_cast<std::uint32_t>(n));
         seeds_done += block.seeds;
         total.simplices += block.simplices.size() / static_cast<std::size_t>(d + 1);
         return sink(block.simplices, seeds_done);

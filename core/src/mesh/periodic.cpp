@@ -19,55 +19,55 @@ Result<PeriodicMeshStats> mesh_periodic(const PointSet& points, const PeriodicBo
   const int d = points.dimension();
   const auto du = static_cast<std::size_t>(d);
   PeriodicMeshStats stats;
-  auto runs = with_growing_margins(points, box, options.star.weights, source, restart,
-                                   [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
-    MeshOptions run = options;
-    run.star.weights = cover.weights();
-    // The points' seed range (the images are never seeds); the sweep is the cover's.
-    run.seed_begin = std::min(options.seed_begin, cover.point_count());
-    run.seed_end = std::min(options.seed_end, cover.point_count());
-    run.sweep_begin = 0;
-    run.sweep_end = 0xFFFFFFFFu;
-    run.split = nullptr;
-    run.star.cover = &cover;
-    run.accept = [&](const Star& star) {
-      if (!star.bounded_cell()) {
-        plan.unbounded();
-        return true;
-      }
-      const auto owned = owned_simplices(star);
-      for (std::size_t at = 0; at < owned.size(); at += du + 1) {
-        const std::uint32_t* s = owned.data() + at;
-        if (is_representative(cover, s, d)) power_sphere_of(cover, s, d, plan);
-      }
-      return true;
-    };
-    std::vector<std::uint32_t> kept;
-    std::vector<std::int32_t> offsets;
-    std::uint64_t written = 0;
-    auto result = mesh_seeds(cover.tree(), run, [&](std::span<const std::uint32_t> rows, std::uint64_t done) {
-      kept.clear();
-      offsets.clear();
-      for (std::size_t at = 0; at < rows.size(); at += du + 1) {
-        const std::uint32_t* s = rows.data() + at;
-        if (!is_representative(cover, s, d)) continue;
-        for (std::size_t v = 0; v <= du; ++v) {
-          kept.push_back(cover.point_of(s[v]));
-          const std::int32_t* k = cover.offset_of(s[v]);
-          offsets.insert(offsets.end(), k, k + d);
-        }
-      }
-      canonicalize_periodic_rows(d, kept, offsets, false);
-      written += kept.size() / (du + 1);
-      return sink(kept, offsets, done);
-    });
-    if (!result.is_ok()) return result.status();
-    stats.mesh = result.value();
-    stats.mesh.simplices = written;  // the torus's (the run's rows less the translates)
-    stats.images = cover.image_count();
-    stats.margin = cover.margin();
-    return Status::ok();
-  });
+  auto runs = with_growing_margins(
+      points, box, options.star.weights, source, restart, [&](const PeriodicCover& cover, MarginPlan& plan) -> Status {
+        MeshOptions run = options;
+        run.star.weights = cover.weights();
+        // The points' seed range (the images are never seeds); the sweep is the cover's.
+        run.seed_begin = std::min(options.seed_begin, cover.point_count());
+        run.seed_end = std::min(options.seed_end, cover.point_count());
+        run.sweep_begin = 0;
+        run.sweep_end = 0xFFFFFFFFu;
+        run.split = nullptr;
+        run.star.cover = &cover;
+        run.accept = [&](const Star& star) {
+          if (!star.bounded_cell()) {
+            plan.unbounded();
+            return true;
+          }
+          const auto owned = owned_simplices(star);
+          for (std::size_t at = 0; at < owned.size(); at += du + 1) {
+            const std::uint32_t* s = owned.data() + at;
+            if (is_representative(cover, s, d)) power_sphere_of(cover, s, d, plan);
+          }
+          return true;
+        };
+        std::vector<std::uint32_t> kept;
+        std::vector<std::int32_t> offsets;
+        std::uint64_t written = 0;
+        auto result = mesh_seeds(cover.tree(), run, [&](std::span<const std::uint32_t> rows, std::uint64_t done) {
+          kept.clear();
+          offsets.clear();
+          for (std::size_t at = 0; at < rows.size(); at += du + 1) {
+            const std::uint32_t* s = rows.data() + at;
+            if (!is_representative(cover, s, d)) continue;
+            for (std::size_t v = 0; v <= du; ++v) {
+              kept.push_back(cover.point_of(s[v]));
+              const std::int32_t* k = cover.offset_of(s[v]);
+              offsets.insert(offsets.end(), k, k + d);
+            }
+          }
+          canonicalize_periodic_rows(d, kept, offsets, false);
+          written += kept.size() / (du + 1);
+          return sink(kept, offsets, done);
+        });
+        if (!result.is_ok()) return result.status();
+        stats.mesh = result.value();
+        stats.mesh.simplices = written;  // the torus's (the run's rows less the translates)
+        stats.images = cover.image_count();
+        stats.margin = cover.margin();
+        return Status::ok();
+      });
   if (!runs.is_ok()) return runs.status();
   stats.runs = runs.value();
   return stats;

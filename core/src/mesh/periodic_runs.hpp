@@ -54,8 +54,7 @@ inline bool is_representative(const PeriodicCover& cover, const std::uint32_t* s
 // Raises `slot` to at least v (atomically; rarely contended: only a larger need writes).
 inline void raise_to(std::atomic<double>& slot, double v) {
   double seen = slot.load(std::memory_order_relaxed);
-  while (v > seen && !slot.compare_exchange_weak(seen, v, std::memory_order_relaxed)) {
-  }
+  while (v > seen && !slot.compare_exchange_weak(seen, v, std::memory_order_relaxed)) {}
 }
 
 // The margins of a periodic run and how they grow: per axis, the first from the mean
@@ -96,7 +95,9 @@ class MarginPlan {
   // points within sqrt(r2 + max w) of c can enter it.
   void power_sphere(const double* centre, double r2, double max_weight, double pad) {
     const double reach2 = r2 + max_weight;
-    sphere(centre, std::sqrt(std::max(0.0, reach2) + 1e-12 * std::fabs(r2) + 8 * filter::kUnitRoundoff * (std::fabs(r2) + std::fabs(max_weight))),
+    sphere(centre,
+           std::sqrt(std::max(0.0, reach2) + 1e-12 * std::fabs(r2) +
+                     8 * filter::kUnitRoundoff * (std::fabs(r2) + std::fabs(max_weight))),
            pad);
   }
   // A cell of the run was unbounded: the cover is too thin somewhere.
@@ -120,8 +121,10 @@ class MarginPlan {
     }
     if (!thin) return false;
     if (!can_grow) {
-      return invalid_argument(source + ": too few points for a periodic Delaunay triangulation of this box: the "
-                              "circumspheres reach more than " + std::to_string(static_cast<int>(kMostMarginBoxes)) +
+      return invalid_argument(source +
+                              ": too few points for a periodic Delaunay triangulation of this box: the "
+                              "circumspheres reach more than " +
+                              std::to_string(static_cast<int>(kMostMarginBoxes)) +
                               " box lengths beyond it (add points)");
     }
     margin_ = next;
@@ -146,7 +149,8 @@ inline void power_sphere_of(const PeriodicCover& cover, const std::uint32_t* s, 
   const std::vector<double> centre = circumcentre(cover.points(), s, d + 1, weights);
   const double* x = cover.points().point(s[0]);
   double r2 = 0;
-  for (int c = 0; c < d; ++c) r2 += (centre[static_cast<std::size_t>(c)] - x[c]) * (centre[static_cast<std::size_t>(c)] - x[c]);
+  for (int c = 0; c < d; ++c)
+    r2 += (centre[static_cast<std::size_t>(c)] - x[c]) * (centre[static_cast<std::size_t>(c)] - x[c]);
   if (weights != nullptr) r2 -= weights[s[0]];
   plan.power_sphere(centre.data(), r2, cover.max_weight(), cover.pad());
 }
@@ -157,8 +161,8 @@ inline void power_sphere_of(const PeriodicCover& cover, const std::uint32_t* s, 
 // return, the last run's).
 template <class Attempt>
 Result<int> with_growing_margins(const PointSet& points, const PeriodicBox& box, std::span<const double> weights,
-                                 const std::string& source, const std::function<Status()>& restart,
-                                 Attempt&& attempt, std::shared_ptr<const PeriodicCover>* kept = nullptr) {
+                                 const std::string& source, const std::function<Status()>& restart, Attempt&& attempt,
+                                 std::shared_ptr<const PeriodicCover>* kept = nullptr) {
   std::shared_ptr<const PeriodicCover> cover = kept != nullptr ? *kept : nullptr;
   MarginPlan plan(points, box, cover != nullptr ? std::span<const double>(cover->margin()) : std::span<const double>());
   for (int runs = 1;; ++runs) {

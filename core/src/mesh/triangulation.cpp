@@ -12,7 +12,6 @@ namespace spokemesh::detail {
 
 namespace {
 
-
 // In 3-d, the two vertex positions of a cell other than i and k (i != k): a ridge.
 constexpr int kOthers[4][4][2] = {{{0, 0}, {2, 3}, {1, 3}, {1, 2}},
                                   {{2, 3}, {0, 0}, {0, 3}, {0, 2}},
@@ -114,7 +113,9 @@ inline int insphere3_filter(const double* a, const double* b, const double* c, c
     mag[2] = std::fabs(l2) + std::fabs(r2);
   };
   auto dot = [](const T* u, const T* w) { return u[0] * w[0] + u[1] * w[1] + u[2] * w[2]; };
-  auto dot_abs = [](const T* u, const T* w) { return std::fabs(u[0]) * w[0] + std::fabs(u[1]) * w[1] + std::fabs(u[2]) * w[2]; };
+  auto dot_abs = [](const T* u, const T* w) {
+    return std::fabs(u[0]) * w[0] + std::fabs(u[1]) * w[1] + std::fabs(u[2]) * w[2];
+  };
   T dq[3], dqm[3], cd[3], cdm[3], bc[3], bcm[3];
   cross(r[2], r[3], dq, dqm);  // d x q
   cross(r[1], r[2], cd, cdm);  // c x d
@@ -148,8 +149,7 @@ int insphere_filter(const std::array<const double*, D + 1>& x, const double* q) 
 }  // namespace
 
 template <int D>
-Triangulation<D>::Triangulation(const PointSet& points, const Predicates& predicates)
-    : ps_(points), pred_(predicates) {
+Triangulation<D>::Triangulation(const PointSet& points, const Predicates& predicates) : ps_(points), pred_(predicates) {
   SPOKEMESH_INVARIANT(points.dimension() == D, "a triangulation of the set's dimension");
   clear();
 }
@@ -182,8 +182,8 @@ void Triangulation<D>::reserve(std::size_t points) {
 
 template <int D>
 std::size_t Triangulation<D>::bytes() const {
-  return cells_.capacity() * sizeof(Cell) + free_.capacity() * 4 + vcell_.capacity() * 4 +
-         global_.capacity() * 8 + coords_.capacity() * sizeof(double);
+  return cells_.capacity() * sizeof(Cell) + free_.capacity() * 4 + vcell_.capacity() * 4 + global_.capacity() * 8 +
+         coords_.capacity() * sizeof(double);
 }
 
 template <int D>
@@ -221,7 +221,8 @@ template <int D>
 template <class IdsFn>
 int Triangulation<D>::orient_at(const Points& x, IdsFn&& ids) const {
   int s = orient_filter<D, double>(x);
-  if (s != kUnknown) [[likely]] return s;
+  if (s != kUnknown) [[likely]]
+    return s;
   s = orient_filter<D, long double>(x);
   if (s != kUnknown) return s;
   ++stats_.exact_calls;
@@ -235,7 +236,8 @@ template <int D>
 template <class IdsFn>
 int Triangulation<D>::sphere_at(const Points& x, IdsFn&& ids, const double* q, std::uint32_t q_id) const {
   int s = insphere_filter<D, double>(x, q);
-  if (s != kUnknown) [[likely]] return s;
+  if (s != kUnknown) [[likely]]
+    return s;
   s = insphere_filter<D, long double>(x, q);
   if (s != kUnknown) return s;
   ++stats_.exact_calls;
@@ -281,7 +283,8 @@ int Triangulation<D>::orient_with(std::uint32_t c, int i, const double* p, std::
 template <int D>
 int Triangulation<D>::side_of_sphere(std::uint32_t c, const double* p, std::uint32_t p_id) const {
   const auto& v = cells_[c].v;
-  return sphere_at(points_of(v), [&] { return ids_of(v); }, p, p_id);
+  return sphere_at(
+      points_of(v), [&] { return ids_of(v); }, p, p_id);
 }
 
 template <int D>
@@ -604,8 +607,10 @@ bool Triangulation<D>::valid(std::string* why) const {
       // The shared facet: the same vertices.
       if (sorted_facet(cell.v, i) != sorted_facet(cells_[nb].v, back)) return fail("neighbours do not share the facet");
       const std::uint32_t apex = cells_[nb].v[back];
-      if (inf < 0 && apex != kInfinite && side_of_sphere(c, coords(apex), global_[apex]) < 0) return fail("a facet is not locally Delaunay");
-      if (inf >= 0 && i == inf && orient_with(c, inf, coords(apex), global_[apex]) >= 0) return fail("an infinite cell is misoriented");
+      if (inf < 0 && apex != kInfinite && side_of_sphere(c, coords(apex), global_[apex]) < 0)
+        return fail("a facet is not locally Delaunay");
+      if (inf >= 0 && i == inf && orient_with(c, inf, coords(apex), global_[apex]) >= 0)
+        return fail("an infinite cell is misoriented");
     }
   }
   return true;

@@ -56,8 +56,8 @@ class Triangulation {
   struct Cell {
     std::array<std::uint32_t, D + 1> v;  // local vertex ids
     std::array<std::uint32_t, D + 1> n;  // n[i]: the cell across the facet opposite v[i]
-    std::uint32_t mark;  // insertion scratch (in the cell: its line is read anyway)
-    std::uint32_t tag;   // the caller's, 0 when the cell is made (tag(c) below)
+    std::uint32_t mark;                  // insertion scratch (in the cell: its line is read anyway)
+    std::uint32_t tag;                   // the caller's, 0 when the cell is made (tag(c) below)
   };
 
   Triangulation(const PointSet& points, const Predicates& predicates);
@@ -148,16 +148,16 @@ class Triangulation {
   const PointSet& ps_;
   const Predicates& pred_;
   bool full_ = false;
-  std::vector<std::uint32_t> global_;  // local id -> point id (0: infinity, unused)
-  std::vector<double> coords_;         // local id -> D coordinates
+  std::vector<std::uint32_t> global_;   // local id -> point id (0: infinity, unused)
+  std::vector<double> coords_;          // local id -> D coordinates
   std::vector<std::uint32_t> pending_;  // local ids waiting for the first simplex
   // The greedy affine basis among pending_ so far (its first basis_size_ entries):
   // kept across start() calls so each buffered point is tested once.
   std::array<std::uint32_t, D + 1> basis_{};
   int basis_size_ = 0;
-  std::vector<Cell> cells_;            // Cell::mark: 2 gen in conflict, 2 gen + 1 tested and not
-  std::vector<std::uint32_t> free_;    // deleted cells, reused first
-  std::vector<std::uint32_t> vcell_;   // local id -> an incident cell
+  std::vector<Cell> cells_;           // Cell::mark: 2 gen in conflict, 2 gen + 1 tested and not
+  std::vector<std::uint32_t> free_;   // deleted cells, reused first
+  std::vector<std::uint32_t> vcell_;  // local id -> an incident cell
   std::uint32_t gen_ = 0;
   std::uint32_t hint_ = kNone;  // where the next walk starts
   mutable std::uint32_t walk_turn_ = 0;

@@ -155,8 +155,8 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
     const int inner = side(key, apex);
     for (int r = 0; r + 1 < d; ++r) rows[r] = Row::of_point(key[r + 1]);
     pred.spatial_normal(key[0], std::span<const Row>(rows.data(), d - 1), normal.data());
-    const std::optional<std::uint32_t> beyond = tree.any_beyond(ps.point(key[0]), normal.data(), -inner,
-                                                [&](std::uint32_t q) { return side(key, q); });
+    const std::optional<std::uint32_t> beyond =
+        tree.any_beyond(ps.point(key[0]), normal.data(), -inner, [&](std::uint32_t q) { return side(key, q); });
     if (beyond) {
       fail("boundary facet " + tuple_text(key.data(), d) + " is not on the convex hull: point " +
            std::to_string(*beyond) + " lies beyond it");
@@ -172,10 +172,13 @@ MeshCheck check_mesh(const KdTree& tree, std::span<const std::uint32_t> simplice
   }
   if (report.violations.empty()) {
     mpq_class mesh_volume = 0;
-    for (std::size_t i = 0; i < m; ++i) mesh_volume += abs(exact_volume_det(ps, simplices[i * w], &simplices[i * w + 1]));
+    for (std::size_t i = 0; i < m; ++i)
+      mesh_volume += abs(exact_volume_det(ps, simplices[i * w], &simplices[i * w + 1]));
     if (mesh_volume != hull_volume) {
-      fail("the simplices' volume (" + std::to_string(mesh_volume.get_d()) + " x d!) differs from the volume enclosed by "
-           "the boundary facets (" + std::to_string(hull_volume.get_d()) + " x d!): the simplices overlap or leave gaps");
+      fail("the simplices' volume (" + std::to_string(mesh_volume.get_d()) +
+           " x d!) differs from the volume enclosed by "
+           "the boundary facets (" +
+           std::to_string(hull_volume.get_d()) + " x d!): the simplices overlap or leave gaps");
     }
   }
   report.valid = report.violations.empty();

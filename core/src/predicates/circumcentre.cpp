@@ -1,15 +1,15 @@
 #include "spokemesh/circumcentre.hpp"
 
-#include <Eigen/Dense>
 #include <gmpxx.h>
+#include <Eigen/Dense>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
 
-#include "predicates/cramer.hpp"
 #include "base/invariant.hpp"
+#include "predicates/cramer.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
@@ -39,8 +39,9 @@ std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32
       a[i * (k + 1) + j] = dot;
       if (i == j) {
         // Power centre: v_i . y = (|v_i|^2 - (w_i - w_0)) / 2.
-        a[i * (k + 1) + k] = weights == nullptr ? mpq_class(dot / 2)
-                                                : mpq_class((dot - (mpq_class(weights[ids[i + 1]]) - mpq_class(weights[ids[0]]))) / 2);
+        a[i * (k + 1) + k] = weights == nullptr
+                                 ? mpq_class(dot / 2)
+                                 : mpq_class((dot - (mpq_class(weights[ids[i + 1]]) - mpq_class(weights[ids[0]]))) / 2);
       }
     }
   }

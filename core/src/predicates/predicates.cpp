@@ -2,26 +2,31 @@
 
 #include "spokemesh/periodic_box.hpp"
 
-#include <boost/multiprecision/cpp_int.hpp>
 #include <gmpxx.h>
+#include <boost/multiprecision/cpp_int.hpp>
 
 #include <algorithm>
 #include <array>
-#include <limits>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <vector>
 
 namespace spokemesh {
 
-void minors_table(const BoundedDouble* m, int rows, int cols, BoundedDouble* table) { minors_table_loop(m, rows, cols, table); }
+void minors_table(const BoundedDouble* m, int rows, int cols, BoundedDouble* table) {
+  minors_table_loop(m, rows, cols, table);
+}
 
 mpq_class exact_determinant(std::vector<mpq_class> m, int k) {
   mpq_class det = 1;
   for (int col = 0; col < k; ++col) {
     int pivot = -1;
     for (int r = col; r < k; ++r) {
-      if (sgn(m[r * k + col]) != 0) { pivot = r; break; }
+      if (sgn(m[r * k + col]) != 0) {
+        pivot = r;
+        break;
+      }
     }
     if (pivot < 0) return 0;
     if (pivot != col) {
@@ -97,7 +102,10 @@ int bareiss_sign(const std::array<i128, kMaxCols * kMaxCols>& entries, int k) {
   for (int col = 0; col < k; ++col) {
     int pivot = -1;
     for (int r = col; r < k; ++r) {
-      if (m[r * k + col] != 0) { pivot = r; break; }
+      if (m[r * k + col] != 0) {
+        pivot = r;
+        break;
+      }
     }
     if (pivot < 0) return 0;
     if (pivot != col) {
@@ -311,7 +319,7 @@ class ExactMatrix {
     return sgn(exact_determinant(std::move(m), k));
   }
 
- // The lifted determinant's sign and the signs of its derivatives in every height
+  // The lifted determinant's sign and the signs of its derivatives in every height
   // (the symbolic perturbation's coefficients), from one table of spatial minors, for
   // a scaled matrix of k = d + 1 rows; false when the matrix is not scaled (the
   // caller then takes the general route). Writes signs[0] = sign det M, signs[1] =
@@ -563,9 +571,8 @@ int Predicates::lifted_sign_staged(std::uint32_t origin, std::span<const Row> ro
   }
   // Decreasing lexicographic order: of the points' ranks, or of their images' exact
   // coordinates on a torus.
-  std::sort(who.begin(), who.begin() + count, [&](int a, int b) {
-    return image_before(origin, b < 0 ? nullptr : &rows[b], a < 0 ? nullptr : &rows[a]);
-  });
+  std::sort(who.begin(), who.begin() + count,
+            [&](int a, int b) { return image_before(origin, b < 0 ? nullptr : &rows[b], a < 0 ? nullptr : &rows[a]); });
 
   for (int i = 0; i < count; ++i) {
     const int w = who[i];

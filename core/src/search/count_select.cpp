@@ -45,7 +45,8 @@ CountSelect::Key CountSelect::pivot_of(std::span<const Proposal> proposals, int 
     given.push_back(&p);
     total += p.count;
   }
-  std::sort(given.begin(), given.end(), [&](const Proposal* a, const Proposal* b) { return before(a->key, b->key, axis); });
+  std::sort(given.begin(), given.end(),
+            [&](const Proposal* a, const Proposal* b) { return before(a->key, b->key, axis); });
   std::uint64_t seen = 0;
   for (const Proposal* p : given) {
     seen += p->count;

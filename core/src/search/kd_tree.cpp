@@ -23,7 +23,7 @@ std::vector<std::uint32_t> z_order(const PointSet& points, const double* lo, con
   const std::size_t n = points.size(), d = static_cast<std::size_t>(points.dimension());
   int total_bits = 0;
   while (total_bits < 20 && (std::size_t{1} << total_bits) < n) ++total_bits;
-  const int bits = std::max(1, total_bits / static_cast<int>(d));  // per coordinate
+  const int bits = std::max(1, total_bits / static_cast<int>(d));                           // per coordinate
   const std::size_t used = std::min(d, static_cast<std::size_t>(std::max(total_bits, 1)));  // coordinates keyed
   std::vector<double> scale(used, 0.0);
   const double cells = std::ldexp(1.0, bits);
@@ -59,8 +59,7 @@ void in_two_halves(std::size_t n, bool parallel, Fn&& fn) {
   if (parallel) {
     try {
       other = std::thread([&] { fn(n / 2, n); });
-    } catch (const std::system_error&) {
-    }
+    } catch (const std::system_error&) {}
   }
   fn(0, other.joinable() ? n / 2 : n);
   if (other.joinable()) other.join();
@@ -180,7 +179,7 @@ void KdTree::build_whole() {
         right_low = std::min(right_low, v);
       }
     }
-    b.top.node_type.sub.divlow = left_high;  // as nanoflann: the left box's high side
+    b.top.node_type.sub.divlow = left_high;   // as nanoflann: the left box's high side
     b.top.node_type.sub.divhigh = right_low;  // and the right box's low side
     b.top.child1 = b.halves[0]->root_node;
     b.top.child2 = b.halves[1]->root_node;
@@ -198,8 +197,9 @@ KdTree::KdTree(const KdTree& base, const PointSet& points)
   const std::size_t d = d_, n_old = base.points().size(), n = points.size();
   // The new points' own tree, whose nodes become the last part (leaf positions
   // shifted past the base's) and whose arrays are appended to copies of the base's.
-  const PointSet more(static_cast<int>(d), std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old * d),
-                                                              points.coordinates().end()));
+  const PointSet more(static_cast<int>(d),
+                      std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old * d),
+                                          points.coordinates().end()));
   KdTree extra(more);
   for (const std::shared_ptr<Built>& b : extra.built_) {
     if (b->halves[0] != nullptr) shift_leaves(b->halves[0]->root_node, static_cast<std::uint32_t>(n_old));
@@ -425,8 +425,8 @@ void KdTree::search(const double* query, ResultSet& result) const {
   }
 }
 
-std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2,
-                        const double** coords, double bound2) const {
+std::size_t KdTree::knn(const double* query, std::size_t k, std::uint32_t* ids, double* dist2, const double** coords,
+                        double bound2) const {
   nanoflann::KNNResultSet<double, std::uint32_t> result(k);
   result.init(ids, dist2);
   // The set's worst distance starts at "infinity" in its last slot and only falls:

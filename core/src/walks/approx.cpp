@@ -1,7 +1,7 @@
 #include "spokemesh/approx.hpp"
 
-#include <Eigen/Dense>
 #include <gmpxx.h>
+#include <Eigen/Dense>
 
 #include <algorithm>
 #include <cmath>
@@ -176,7 +176,7 @@ std::optional<std::uint32_t> ApproxWalker::shoot(const double* y, const double* 
             q2 += scratch_[c] * scratch_[c];
           }
           if (q2 >= cand_radius2_) consider(id, scratch_.data(), q2);  // listed points were considered
-          return false;  // visit every box that may still improve the hit
+          return false;                                                // visit every box that may still improve the hit
         });
   }
   t_out = t_best;
@@ -265,8 +265,8 @@ Status ApproxWalker::compute(std::uint32_t seed, ApproxNeighbors& out) {
   rays_ = 0;
   // Every direction is drawn from the seed index and the options: replicas and thread
   // counts agree.
-  rng_ = detail::seed_state(options_.random_seed, seed) ^
-         (static_cast<std::uint64_t>(options_.mode) << 56) ^ (std::uint64_t{options_.max_misses} << 32);
+  rng_ = detail::seed_state(options_.random_seed, seed) ^ (static_cast<std::uint64_t>(options_.mode) << 56) ^
+         (std::uint64_t{options_.max_misses} << 32);
   out = ApproxNeighbors{};
   out.seed = seed;
   // Enough neighbours that most rays end inside the list (a point at distance r from
@@ -281,7 +281,8 @@ Status ApproxWalker::compute(std::uint32_t seed, ApproxNeighbors& out) {
 
 Status ApproxWalker::compute_spokes(ApproxNeighbors& out) {
   const int d = d_;
-  std::vector<double> u(static_cast<std::size_t>(d)), y(static_cast<std::size_t>(d), 0.0), w(static_cast<std::size_t>(d));
+  std::vector<double> u(static_cast<std::size_t>(d)), y(static_cast<std::size_t>(d), 0.0),
+      w(static_cast<std::size_t>(d));
   std::unordered_set<std::uint32_t> found;
   std::uint64_t misses = 0;
   while (misses < options_.max_misses && out.vertices < options_.max_vertices) {
@@ -335,9 +336,28 @@ Status ApproxWalker::compute_spokes(ApproxNeighbors& out) {
 class ApproxWalker::RsdWalk {
  public:
   RsdWalk(ApproxWalker& walker, ApproxNeighbors& out)
-      : walker_(walker), out_(out), d(walker.d_), x(walker.ps_.point(walker.x_)), y(d), B(d, d), E(d, d), v(d),
-        f(d), e(d), witness(d), rhs(d), rE(d, d), rv(d), re(d), r_row(d), r_col(d), r_p(d), r_u(d), kept_v(d),
-        origin(VectorXd::Zero(d)), kept_E(d, d) {}
+      : walker_(walker),
+        out_(out),
+        d(walker.d_),
+        x(walker.ps_.point(walker.x_)),
+        y(d),
+        B(d, d),
+        E(d, d),
+        v(d),
+        f(d),
+        e(d),
+        witness(d),
+        rhs(d),
+        rE(d, d),
+        rv(d),
+        re(d),
+        r_row(d),
+        r_col(d),
+        r_p(d),
+        r_u(d),
+        kept_v(d),
+        origin(VectorXd::Zero(d)),
+        kept_E(d, d) {}
 
   Status run() {
     const bool reached_first = descend(nullptr, std::nullopt);
@@ -476,9 +496,9 @@ class ApproxWalker::RsdWalk {
     }
     std::sort(S.begin(), S.end());
     // Each level's point had an offset independent of the levels above it.
-    SPOKEMESH_INVARIANT(std::adjacent_find(S.begin(), S.end()) == S.end() &&
-                            std::find(S.begin(), S.end(), walker_.x_) == S.end(),
-                        "a descent ends at d distinct points other than the seed");
+    SPOKEMESH_INVARIANT(
+        std::adjacent_find(S.begin(), S.end()) == S.end() && std::find(S.begin(), S.end(), walker_.x_) == S.end(),
+        "a descent ends at d distinct points other than the seed");
     return true;
   }
 
@@ -847,7 +867,7 @@ class ApproxWalker::RsdWalk {
   const double* x;  // the seed
   // The current vertex: its d equidistant points (sorted), found by descend or a leg.
   std::vector<std::uint32_t> S, next;
-  VectorXd y;                                        // where a descent's spoke starts
+  VectorXd y;                                       // where a descent's spoke starts
   std::unordered_map<std::uint32_t, int> attempts;  // failed certifications per point
   bool descent_found = false;                       // the last descent certified a new neighbour
   // The certified neighbours: id -> index in found_q, their offsets s - x (d per
@@ -900,9 +920,12 @@ Result<NeighborMode> parse_neighbor_mode(std::string_view text, std::string_view
 
 const char* neighbor_mode_name(NeighborMode mode) {
   switch (mode) {
-    case NeighborMode::kExact: return "exact";
-    case NeighborMode::kApproximate: return "approximate";
-    case NeighborMode::kSpokes: return "spokes";
+    case NeighborMode::kExact:
+      return "exact";
+    case NeighborMode::kApproximate:
+      return "approximate";
+    case NeighborMode::kSpokes:
+      return "spokes";
   }
   return "exact";
 }

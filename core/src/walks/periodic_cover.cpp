@@ -74,7 +74,8 @@ Result<std::unique_ptr<PeriodicCover>> PeriodicCover::build(const PointSet& poin
   if (Status s = cover->cover_.validate(source); !s.is_ok()) {
     // The points are valid, so two images (or an image and a point) fell on the same
     // double: points closer than the box's coordinates can resolve.
-    return invalid_argument(source + ": the periodic images of the points cannot be told apart in double precision "
+    return invalid_argument(source +
+                            ": the periodic images of the points cannot be told apart in double precision "
                             "(points closer together than the rounding of the box's coordinates, about " +
                             std::to_string(cover->pad_) + "): " + s.message());
   }

@@ -33,9 +33,9 @@
 #include <gmpxx.h>
 
 #include "base/invariant.hpp"
-#include "spokemesh/star.hpp"
-#include "spokemesh/periodic_cover.hpp"
 #include "spokemesh/circumcentre.hpp"
+#include "spokemesh/periodic_cover.hpp"
+#include "spokemesh/star.hpp"
 
 namespace spokemesh {
 namespace {
@@ -292,17 +292,16 @@ std::size_t StarWalker::points_not_above(const double* slope, std::uint32_t* out
   const double r = std::sqrt(half2 + weight_excess_) * (1 + 1e-12) + c_max * 4 * filter::kUnitRoundoff * d;
   const double r2 = r * r * (1 + 1e-9);
   std::size_t found = 0;
-  tree_.find_first(
-      [&](const float* lo, const float* hi) { return box_distance2(lo, hi, centre.data(), d) <= r2; },
-      [&](std::uint32_t p, const double* pp) {
-        // (An image's stored coordinates are not its position: the exact test decides it.)
-        if (p == x_ || (p < image_first_ && point_distance2(pp, centre.data(), d) > r2) ||
-            sign_above_slope(p, slope) > 0) {
-          return false;
-        }
-        out[found++] = p;
-        return found == most;
-      });
+  tree_.find_first([&](const float* lo, const float* hi) { return box_distance2(lo, hi, centre.data(), d) <= r2; },
+                   [&](std::uint32_t p, const double* pp) {
+                     // (An image's stored coordinates are not its position: the exact test decides it.)
+                     if (p == x_ || (p < image_first_ && point_distance2(pp, centre.data(), d) > r2) ||
+                         sign_above_slope(p, slope) > 0) {
+                       return false;
+                     }
+                     out[found++] = p;
+                     return found == most;
+                   });
   return found;
 }
 
@@ -389,8 +388,9 @@ bool StarWalker::power_sphere_empty(std::span<const std::uint32_t> simplex) cons
   // Slack for the centre's error (1e-12 of size moves R^2 by 2e-12 size^2 and each
   // distance by 1e-12 size) and for the roundings of R^2 + max w (a few units of the
   // weights' magnitudes).
-  const double slack2 = 1e-9 * size * size + 8 * filter::kUnitRoundoff * (std::fabs(extras_.weights[simplex[0]]) +
-                                                                         std::fabs(max_weight_) + std::fabs(r2));
+  const double slack2 =
+      1e-9 * size * size +
+      8 * filter::kUnitRoundoff * (std::fabs(extras_.weights[simplex[0]]) + std::fabs(max_weight_) + std::fabs(r2));
   // (An image's stored coordinates lie within image_pad_ of its position, per axis.)
   const double reach = std::sqrt(std::max(0.0, r2 + max_weight_) + slack2) * (1 + 1e-9) + 1e-9 * size +
                        4 * image_pad_ * std::sqrt(static_cast<double>(d));
@@ -589,7 +589,8 @@ Status StarWalker::power_start(bool& hidden, std::uint32_t* start, bool& started
       for (int i = 0; i < static_cast<int>(ids.size()) && pool.size() < kMaxPool; ++i) {
         if (std::fabs(lp.slack(i)) <= 1e-9) pool.push_back(ids[i]);
       }
-      for (std::size_t i = 0; i < ids.size() && i < 3 * static_cast<std::size_t>(d + 1) && pool.size() < kMaxPool; ++i) {
+      for (std::size_t i = 0; i < ids.size() && i < 3 * static_cast<std::size_t>(d + 1) && pool.size() < kMaxPool;
+           ++i) {
         if (std::find(pool.begin(), pool.end(), ids[i]) == pool.end()) pool.push_back(ids[i]);
       }
       if (star_simplex_among(pool, start)) {
@@ -625,8 +626,8 @@ Status StarWalker::power_start(bool& hidden, std::uint32_t* start, bool& started
       // found: say so rather than guess.
       return internal_error("weighted seed " + std::to_string(x_) +
                             " has a power cell of no volume that only the symbolic perturbation decides, and no "
-                            "simplex of its star was found among its " + std::to_string(pool.size()) +
-                            " nearest points");
+                            "simplex of its star was found among its " +
+                            std::to_string(pool.size()) + " nearest points");
     }
     if (lp.slope_boxed() && box < 1e12) {
       box *= 64;  // the optimum may lie beyond the slope's box

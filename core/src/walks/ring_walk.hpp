@@ -33,7 +33,7 @@ class StarWalker::RingWalk {
   };
   StarWalker& w_;
   std::vector<RingNode> ring_;
-  std::vector<std::uint32_t> ring_open_;        // nodes with a side unknown when the walk began
+  std::vector<std::uint32_t> ring_open_;       // nodes with a side unknown when the walk began
   std::vector<std::uint64_t> ring_triangles_;  // found, as (low id << 32) | high id
 };
 

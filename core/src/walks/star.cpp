@@ -11,8 +11,8 @@
 #include "base/dimension.hpp"
 #include "base/invariant.hpp"
 #include "base/mixing.hpp"
-#include "walks/ring_walk.hpp"
 #include "base/simd.hpp"
+#include "walks/ring_walk.hpp"
 
 namespace spokemesh {
 namespace {
@@ -47,12 +47,12 @@ inline int certified(double v, double a, int depth) {
 // One wrap's pencil (see WrapState::pencil_scan, step 1a): the rotation's vertical normal nn
 // and reference plane h, with the magnitudes and depths of their error bounds.
 struct Pencil {
-  const double* nn;    // d coefficients
-  const double* h;     // d + 1 coefficients
+  const double* nn;  // d coefficients
+  const double* h;   // d + 1 coefficients
   double n_mag, h_mag, h_mag_d;
-  double n_eps;        // relative error factor of nn . q
-  double h_depth_base; // rounding depth of h(q), less the candidate's height depth
-  std::size_t mag_row; // the block's row of height magnitudes (the height row itself when unweighted)
+  double n_eps;         // relative error factor of nn . q
+  double h_depth_base;  // rounding depth of h(q), less the candidate's height depth
+  std::size_t mag_row;  // the block's row of height magnitudes (the height row itself when unweighted)
 };
 
 using detail::Double2;
@@ -72,8 +72,8 @@ using detail::Mask4;
 // operations in the same order for any lane count, so the results are bit-identical.
 template <int D, class V, class M>
 [[gnu::always_inline]] inline std::size_t pencil_filter_lanes(const double* block, std::size_t stride,
-                                                               const Pencil& pencil, double u_best, std::size_t limit,
-                                                               double* nv, double* hv, std::uint8_t* keep) {
+                                                              const Pencil& pencil, double u_best, std::size_t limit,
+                                                              double* nv, double* hv, std::uint8_t* keep) {
   constexpr std::size_t kLanes = sizeof(V) / sizeof(double);
   static_assert(kPencilChunk % kLanes == 0);
   const double* heights = block + D * stride;
@@ -127,9 +127,9 @@ std::size_t pencil_filter_sse2(const double* block, std::size_t stride, const Pe
 }
 
 template <int D>
-SPOKEMESH_TARGET_AVX2 std::size_t pencil_filter_avx2(const double* block, std::size_t stride,
-                                                                const Pencil& pencil, double u_best, std::size_t limit,
-                                                                double* nv, double* hv, std::uint8_t* keep) {
+SPOKEMESH_TARGET_AVX2 std::size_t pencil_filter_avx2(const double* block, std::size_t stride, const Pencil& pencil,
+                                                     double u_best, std::size_t limit, double* nv, double* hv,
+                                                     std::uint8_t* keep) {
   return pencil_filter_lanes<D, Double4, Mask4>(block, stride, pencil, u_best, limit, nv, hv, keep);
 }
 
@@ -209,7 +209,8 @@ std::uint32_t StarWalker::TupleSet::position(const std::uint32_t* key, std::uint
   for (std::uint64_t slot = slots_[s]; (slot >> kGenerationShift) == generation_; slot = slots_[s]) {
     if ((slot & kTagMask) == tag) {
       const std::uint32_t at = static_cast<std::uint32_t>((slot & kPositionMask) - 1);
-      if (detail::same_indices(key, &keys_[at * static_cast<std::size_t>(length_)], static_cast<std::size_t>(length_))) {
+      if (detail::same_indices(key, &keys_[at * static_cast<std::size_t>(length_)],
+                               static_cast<std::size_t>(length_))) {
         inserted = false;
         return at;
       }
@@ -269,8 +270,7 @@ void StarWalker::load_candidates(std::size_t k) {
   // k points inside it) only costs a second, unbounded search.
   const bool initial = !loaded_;  // not the enlarged neighbourhood of a near-hull seed
   const double guess2 = initial ? knn_guess2_ * kGuessSlack : kInf;
-  std::size_t got =
-      tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data(), knn_coords_.data(), guess2);
+  std::size_t got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data(), knn_coords_.data(), guess2);
   if (got < want && guess2 < kInf) {
     got = tree_.knn(ps_.point(x_), want, knn_ids_.data(), knn_d2_.data(), knn_coords_.data());
   }
@@ -375,7 +375,8 @@ double StarWalker::exit_estimate(double slope2) const {
   return reach * reach * (1 + 1e-9);
 }
 
-StarWalker::WrapResult StarWalker::wrap(const Row* pivot, Side side, const BoundedDouble* reference, BoundedDouble* hit_plane) {
+StarWalker::WrapResult StarWalker::wrap(const Row* pivot, Side side, const BoundedDouble* reference,
+                                        BoundedDouble* hit_plane) {
   return (this->*kernels_.wrap)(pivot, side, reference, hit_plane);
 }
 
@@ -571,12 +572,13 @@ class StarWalker::WrapState {
   //    when there is none (the facet is on the hull: the Voronoi edge is unbounded).
   bool hull_query() {
     ++w.stats_.hull_queries;
-    const std::optional<std::uint32_t> beyond = w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
-      if (p == w.x_ || is_pivot(p)) return 0;  // on the hyperplane
-      std::array<double, kMaxDimension> q;
-      w.relative(p, pp, q.data());
-      return spatial_side(q.data(), p);
-    });
+    const std::optional<std::uint32_t> beyond =
+        w.tree_.any_beyond(x, normal.data(), sigma, [&](std::uint32_t p, const double* pp) {
+          if (p == w.x_ || is_pivot(p)) return 0;  // on the hyperplane
+          std::array<double, kMaxDimension> q;
+          w.relative(p, pp, q.data());
+          return spatial_side(q.data(), p);
+        });
     if (!beyond) return false;
     take_point(*beyond);
     return true;
@@ -669,9 +671,7 @@ class StarWalker::WrapState {
     for (int c = 0; c < d; ++c) s += plane[c].value * plane[c].value;
     next_exit_test = w.exit_estimate(s / (plane[d].value * plane[d].value));  // |slope|^2 = (2r)^2 unweighted
   }
-  Lift candidate_lift(std::size_t j) const {
-    return {0, w.cand_height_[j], w.cand_height_mag_[j], w.cand_depth_[j]};
-  }
+  Lift candidate_lift(std::size_t j) const { return {0, w.cand_height_[j], w.cand_height_mag_[j], w.cand_depth_[j]}; }
   void take_candidate(std::size_t j) {
     std::array<BoundedDouble, kMaxCols> b;
     w.lifted_row(&w.cand_q_[j * d], candidate_lift(j), b.data());
@@ -731,7 +731,7 @@ class StarWalker::WrapState {
     // |O_c - true| <= e_c, |O_d - true| <= e_d and A = O_d - e_d > 0,
     // |dm_c| <= (e_c / A + |O_c| e_d / (A O_d)) / 2, plus the roundings of m and x + m.
     std::array<double, kMaxDimension> centre{};  // absolute coordinates
-    double r2_outer = kInf;                       // prune beyond this; kInf: no pruning
+    double r2_outer = kInf;                      // prune beyond this; kInf: no pruning
     const double o_d = std::fabs(plane[d].value);
     const double e_d = filter::error_bound(plane[d].magnitude, plane[d].depth);
     const double A = o_d - e_d;
@@ -742,7 +742,8 @@ class StarWalker::WrapState {
         const double e_c = filter::error_bound(plane[c].magnitude, plane[c].depth);
         const double m = -o_c / (2 * o_d);
         m2 += m * m;
-        delta += (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * filter::kUnitRoundoff;
+        delta +=
+            (e_c / A + std::fabs(o_c) * e_d / (A * o_d)) * 0.5 * (1 + 1e-9) + std::fabs(m) * 4 * filter::kUnitRoundoff;
         centre[c] = x[c] + m;
         c_max = std::max(c_max, std::fabs(centre[c]));
       }
@@ -799,7 +800,7 @@ class StarWalker::WrapState {
 // tree finishes it.
 template <int D>
 StarWalker::WrapResult StarWalker::wrap_kernel(const Row* pivot, Side side, const BoundedDouble* reference,
-                                   BoundedDouble* hit_plane) {
+                                               BoundedDouble* hit_plane) {
   static_assert(D >= 2 && D <= kMaxDimension);
   ++stats_.wraps;
   WrapState<D> wrap(*this, pivot);
@@ -912,7 +913,8 @@ void StarWalker::prefetch(std::uint32_t seed) const {
 // nothing is allocated once warm; this class names what each step does with them.
 class StarWalker::StarWalk {
  public:
-  explicit StarWalk(StarWalker& walker) : w(walker), d(walker.d_), sd(static_cast<std::size_t>(walker.d_)), memo(walker.options_.facets) {}
+  explicit StarWalk(StarWalker& walker)
+      : w(walker), d(walker.d_), sd(static_cast<std::size_t>(walker.d_)), memo(walker.options_.facets) {}
 
   Status run(StarPart part, Star& out) {
     reset();
@@ -1179,7 +1181,8 @@ void StarWalker::begin_seed(std::uint32_t seed) {
   x_ = seed;
   // Heights are at least |q|^2 minus this (rounded up: the difference's rounding
   // error is below 2^-53 of it).
-  weight_excess_ = extras_.weights != nullptr ? std::max(0.0, (max_weight_ - extras_.weights[seed]) * (1 + 0x1p-50)) : 0.0;
+  weight_excess_ =
+      extras_.weights != nullptr ? std::max(0.0, (max_weight_ - extras_.weights[seed]) * (1 + 0x1p-50)) : 0.0;
   // Spoke directions lie in the tangent plane unless power_start tilts it for this seed.
   std::fill(slope_.begin(), slope_.end(), 0.0);
   extras_.slope = nullptr;
@@ -1224,13 +1227,14 @@ void StarWalker::emit_canonical(std::size_t hull, StarPart part, Star& out) {
   // as they come; only the owned suffix is ordered.
   const auto owned_from =
       part == StarPart::kWhole
-          ? static_cast<std::size_t>(std::stable_partition(order.begin(), order.end(),
-                                                           [&](std::uint32_t a) { return flat[a * w] != x_; }) -
-                                     order.begin())
+          ? static_cast<std::size_t>(
+                std::stable_partition(order.begin(), order.end(), [&](std::uint32_t a) { return flat[a * w] != x_; }) -
+                order.begin())
           : std::size_t{0};
-  std::sort(order.begin() + static_cast<std::ptrdiff_t>(owned_from), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);
-  });
+  std::sort(order.begin() + static_cast<std::ptrdiff_t>(owned_from), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) {
+              return std::lexicographical_compare(&flat[a * w], &flat[a * w] + w, &flat[b * w], &flat[b * w] + w);
+            });
   out.seed = x_;
   out.dimension = d;
   out.hull_facets = hull;
