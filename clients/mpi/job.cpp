@@ -219,7 +219,7 @@ class StarJob : public Job {
   class StarWorker : public SeedWorker {
    public:
     StarWorker(StarJob& job, const Round& round, const KdTree& tree)
-        : job_(job), round_(round), walker_(tree, options(job)) {}
+        : job_(job), round_(round), walker_(tree, job.star_options()) {}
     Status seed(std::uint32_t k, StarCertificate& c) override {
       const std::uint32_t seed = round_.local.local_of_own[k];
       Status s = walker_.compute(seed, star_, StarPart::kAll);
@@ -238,11 +238,6 @@ class StarJob : public Job {
     }
 
    private:
-    static StarOptions options(const StarJob& job) {
-      StarOptions o;
-      o.random_seed = job.w_.common.random_seed;
-      return o;
-    }
     StarJob& job_;
     const Round& round_;
     StarWalker walker_;
@@ -532,7 +527,10 @@ class CellsJob final : public Job {
   class CellWorker : public SeedWorker {
    public:
     CellWorker(CellsJob& job, const Round& round, const KdTree& tree)
-        : job_(job), round_(round), builder_(tree, *job.domain_, options(job)), found_(job.facts_.d, job.geometry()) {
+        : job_(job),
+          round_(round),
+          builder_(tree, *job.domain_, job.star_options()),
+          found_(job.facts_.d, job.geometry()) {
       builder_.set_measures_only(!job.geometry());
     }
     Status seed(std::uint32_t k, StarCertificate& c) override {
@@ -549,11 +547,6 @@ class CellsJob final : public Job {
     }
 
    private:
-    static StarOptions options(const CellsJob& job) {
-      StarOptions o;
-      o.random_seed = job.w_.common.random_seed;
-      return o;
-    }
     CellsJob& job_;
     const Round& round_;
     ClippedCellBuilder builder_;

@@ -99,6 +99,12 @@ class Job {
 
  protected:
   explicit Job(const cli::WholeCommands& commands) : w_(commands) {}
+  // A walker's options for a seed walked on its own: the run's random seed.
+  StarOptions star_options() const {
+    StarOptions o;
+    o.random_seed = w_.common.random_seed;
+    return o;
+  }
   const cli::WholeCommands& w_;
   RunFacts facts_;
 };
