@@ -25,16 +25,29 @@ BIN = Path(os.environ.get("SPOKEMESH_BIN_DIR", REPO / "build" / "bin"))
 SERVER = BIN / "spokemesh-server"
 CLI = BIN / "spokemesh"
 
-def missing(what: str, packages: str) -> None:
-    """The suite's one skip policy for a tool or package this machine lacks. Under CI
-    (CI=true) the run fails: a green CI must mean everything was tested. Elsewhere the
-    test is skipped, naming what is missing and how to install it. Call it at module
-    level or inside a test or fixture."""
-    message = (f"{what} is missing: install it with `sudo apt-get install {packages}` "
-               "(scripts/install-deps.sh installs everything the suite needs)")
+def unavailable(message: str) -> None:
+    """The suite's one skip policy: under CI (CI=true) a test that cannot run fails the
+    run, since a green CI must mean everything was tested; elsewhere it is skipped,
+    saying why. Call it at module level or inside a test or fixture."""
     if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
         pytest.fail(message + "; CI=true, so this is a failure, not a skip", pytrace=False)
     pytest.skip(message, allow_module_level=True)
+
+
+def missing(what: str, packages: str) -> None:
+    """unavailable() for a tool or package this machine lacks, naming how to install it."""
+    unavailable(f"{what} is missing: install it with `sudo apt-get install {packages}` "
+                "(scripts/install-deps.sh installs everything the suite needs)")
+
+
+def as_root(command: list) -> list:
+    """The command run as root: directly when the suite runs as root, else through a
+    sudo that asks no password; None when neither can."""
+    if os.geteuid() == 0:
+        return command
+    if shutil.which("sudo") and subprocess.run(["sudo", "-n", "true"], capture_output=True).returncode == 0:
+        return ["sudo", "-n", *command]
+    return None
 
 
 _SERVING = re.compile(r"serving gRPC on ([\d.]+):(\d+) and HTTP on ([\d.]+):(\d+)")
