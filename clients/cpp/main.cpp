@@ -377,6 +377,18 @@ int run_periodic_seed(const Common& common, const std::string& input, std::int64
 }
 
 // cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
+// Hands a block of cells to the writer, counting their facets and volume for the
+// summary and reporting progress (the cells commands' sink).
+Status write_tallied(std::span<const VoronoiCell> cells, std::uint64_t done, CellWriter& writer, Progress& progress,
+                     std::uint64_t& facets, double& volume) {
+  for (const VoronoiCell& c : cells) {
+    facets += c.facets.size();
+    volume += c.volume;
+  }
+  progress.update(done, 0);
+  return writer.write(cells);
+}
+
 int run_periodic_cells(const Common& common, const std::string& input, const std::string& output,
                        const DomainFlags& flags) {
   if (!flags.box.empty() || !flags.halfspaces.empty()) {
@@ -400,12 +412,7 @@ int run_periodic_cells(const Common& common, const std::string& input, const std
   auto result = compute_periodic_cells(
       ps, *in->box, options,
       [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
-        for (const VoronoiCell& c : cells) {
-          facets += c.facets.size();
-          volume += c.volume;
-        }
-        progress.update(done, 0);
-        return writer.value()->write(cells);
+        return write_tallied(cells, done, *writer.value(), progress, facets, volume);
       },
       [&] {
         facets = 0;
@@ -455,12 +462,7 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   double volume = 0;
   Status status = compute_cells(*loaded.tree, &*domain.value(), options,
                                 [&](std::span<const VoronoiCell> cells, std::uint64_t done) {
-                                  for (const VoronoiCell& c : cells) {
-                                    facets += c.facets.size();
-                                    volume += c.volume;
-                                  }
-                                  progress.update(done, 0);
-                                  return writer.value()->write(cells);
+                                  return write_tallied(cells, done, *writer.value(), progress, facets, volume);
                                 });
   progress.finish();
   if (status.is_ok()) status = writer.value()->commit();
