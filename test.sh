@@ -60,6 +60,8 @@ containers() {
 }
 
 stage install scripts/install-deps.sh
+# Every C++ file as .clang-format lays it out (the quick tier checks changed files only).
+stage format scripts/check-format.sh --all
 stage build scripts/build.sh
 stage ctest ctest_all
 # The fuzzers: the checked-in corpus replayed, then 30 s of fuzzing per target.
