@@ -6,6 +6,9 @@
 // FacetCache (facet_cache.hpp) and the sweep's per-worker FrontCache
 // (front_cache.hpp); EdgeCache is the 2-d ring walk's per-point posts. RunOrder says
 // which seeds of a run may come before or after which, for both.
+//
+// Thread safety: RunOrder is an immutable value; FacetMemo's implementations are safe
+// to call concurrently (each says how); EdgeCache as stated on it.
 #pragma once
 
 #include <algorithm>
@@ -19,7 +22,7 @@
 
 namespace spokemesh {
 
-// Words mapped from the OS by the caches (see allocate_zeroed in facet_cache.cpp),
+// Words mapped from the OS by the caches (see allocate_zeroed in walks/walk_memo.cpp),
 // unmapped when released.
 struct UnmapWords {
   std::size_t bytes = 0;  // of the mapping
