@@ -12,6 +12,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <type_traits>
+#include <utility>
 
 #include "spokemesh/point_set.hpp"
 
@@ -85,6 +86,21 @@ decltype(auto) dispatch_dimension(int d, Fn&& fn) {
     default:
       return fn(Dimension<0>{});
   }
+}
+
+// dispatch_dimension for kernels compiled in 2-d and 3-d only (the local
+// triangulations and the halo certificates): fn(Dimension<d>{}) there, `otherwise`
+// in every other dimension.
+template <class R, class Fn>
+R dispatch_2d_3d(int d, R otherwise, Fn&& fn) {
+  return dispatch_dimension(d, [&](auto dim) -> R {
+    constexpr int D = decltype(dim)::value;
+    if constexpr (D == 2 || D == 3) {
+      return fn(dim);
+    } else {
+      return std::move(otherwise);
+    }
+  });
 }
 
 }  // namespace spokemesh::detail

@@ -185,13 +185,10 @@ StarCertificate StarCertifier::certify(const Star& star, std::span<const double>
     all_held.certified = true;
     return all_held;
   }
-  return detail::dispatch_dimension(points_.dimension(), [&](auto dim) -> StarCertificate {
+  // Certified in 2-d and 3-d only: elsewhere nothing is.
+  return detail::dispatch_2d_3d(points_.dimension(), StarCertificate{}, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      return spokemesh::certify<D>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
-    } else {
-      return {};  // certified in 2-d and 3-d only: nothing is
-    }
+    return spokemesh::certify<D>(points_, global_.data(), star, held_boxes, held_balls, unheld, known_hull);
   });
 }
 
@@ -223,36 +220,21 @@ bool StarCertifier::ball_is_held(std::uint32_t seed, double radius2, std::span<c
                                  std::span<const double> held_balls, std::span<const double> unheld) const {
   if (unheld.empty()) return true;
   const double* s = points_.point(seed);
-  return detail::dispatch_dimension(points_.dimension(), [&](auto dim) {
+  return detail::dispatch_2d_3d(points_.dimension(), false, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      return spokemesh::ball_is_held<D>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
-    } else {
-      return false;
-    }
+    return spokemesh::ball_is_held<D>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
   });
 }
 
 bool StarCertifier::may_be_beyond(int d, const double* const* f, const double* inner, const double* box) {
-  return detail::dispatch_dimension(d, [&](auto dim) {
-    constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      return beyond_box<D>(f, inner, box);
-    } else {
-      return true;
-    }
-  });
+  return detail::dispatch_2d_3d(d, true, [&](auto dim) { return beyond_box<decltype(dim)::value>(f, inner, box); });
 }
 
 bool StarCertifier::may_be_beyond_point(int d, const double* const* f, const double* inner, const double* q) {
-  return detail::dispatch_dimension(d, [&](auto dim) {
+  return detail::dispatch_2d_3d(d, true, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      const int in = facet_side<D>(f, inner), at = facet_side<D>(f, q);
-      return in == 0 || at != in;
-    } else {
-      return true;
-    }
+    const int in = facet_side<D>(f, inner), at = facet_side<D>(f, q);
+    return in == 0 || at != in;
   });
 }
 

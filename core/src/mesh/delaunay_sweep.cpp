@@ -952,6 +952,9 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
   return total;
 }
 
+// What a triangulation sweep answers outside 2-d and 3-d.
+Status not_2d_3d() { return invalid_argument("local triangulations mesh 2-d and 3-d sets only"); }
+
 }  // namespace
 
 bool triangulation_sweep_applies(const PointSet& points, const MeshOptions& options) {
@@ -968,44 +971,29 @@ bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
   const auto count = static_cast<std::uint32_t>(std::min<std::uint64_t>(split.swept(), kTieProbePoints));
   if (count < 64) return false;
   const Predicates pred(points);
-  auto probe = [&](auto dim) -> bool {
+  return dispatch_2d_3d(points.dimension(), false, [&](auto dim) {
     constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      Triangulation<D> t(points, pred);
-      std::vector<std::uint32_t> ids(count), scratch;
-      for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
-      brio_order(ids, scratch, [](std::uint32_t id) { return id; });
-      for (const std::uint32_t id : ids) t.insert(id);
-      return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
-    } else {
-      return false;
-    }
-  };
-  return dispatch_dimension(points.dimension(), probe);
+    Triangulation<D> t(points, pred);
+    std::vector<std::uint32_t> ids(count), scratch;
+    for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
+    brio_order(ids, scratch, [](std::uint32_t id) { return id; });
+    for (const std::uint32_t id : ids) t.insert(id);
+    return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
+  });
 }
 
 Result<MeshStats> triangulation_sweep(const KdTree& tree, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink) {
-  return dispatch_dimension(tree.points().dimension(), [&](auto dim) -> Result<MeshStats> {
-    constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      return sweep<D>(tree, &tree, tree.points(), split, options, sink);
-    } else {
-      return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
-    }
+  return dispatch_2d_3d(tree.points().dimension(), Result<MeshStats>(not_2d_3d()), [&](auto dim) {
+    return sweep<decltype(dim)::value>(tree, &tree, tree.points(), split, options, sink);
   });
 }
 
 Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& split, const MeshOptions& options,
                                       const SimplexSink& sink) {
   const SplitIndex index(points, split);
-  return dispatch_dimension(points.dimension(), [&](auto dim) -> Result<MeshStats> {
-    constexpr int D = decltype(dim)::value;
-    if constexpr (D == 2 || D == 3) {
-      return sweep<D>(index, nullptr, points, split, options, sink);
-    } else {
-      return invalid_argument("local triangulations mesh 2-d and 3-d sets only");
-    }
+  return dispatch_2d_3d(points.dimension(), Result<MeshStats>(not_2d_3d()), [&](auto dim) {
+    return sweep<decltype(dim)::value>(index, nullptr, points, split, options, sink);
   });
 }
 
