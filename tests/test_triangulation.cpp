@@ -318,6 +318,15 @@ TEST(TriangulationSweep, EachCertificateWhereItBelongs) {
     sweep(tree, 2, 2000, &stats);
     EXPECT_TRUE(stats.triangulation.whole_set);
   }
+  {
+    // The whole set's rows come from its owner index: the star walk's bytes.
+    const PointSet ps = make_points(3, bench::sphere_surface(1500, 7));
+    const KdTree tree(ps);
+    MeshStats stats;
+    const Simplices rows = sweep(tree, 2, 300, &stats);
+    EXPECT_TRUE(stats.triangulation.whole_set);
+    EXPECT_EQ(rows, mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, MeshEngine::kStars));
+  }
 }
 
 // Memory refused (MeshOptions::reserve_bytes): the regions, or only the triangulation

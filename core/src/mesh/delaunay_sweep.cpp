@@ -14,6 +14,7 @@
 #include "base/dimension.hpp"
 #include "base/mixing.hpp"
 #include "mesh/ball_bounds.hpp"
+#include "mesh/insertion_order.hpp"
 #include "mesh/ordered_run.hpp"
 #include "mesh/triangulation.hpp"
 #include "search/split_index.hpp"
@@ -69,31 +70,6 @@ constexpr double kTiesPerPoint = 2.0;
 // A run asks MeshOptions::reserve_bytes for memory in steps of at least this.
 constexpr std::size_t kReserveStep = std::size_t{16} << 20;
 
-// Biased randomized insertion order (Amenta, Choi and Rote 2003; CGAL's
-// spatial_sort with BRIO): rounds of growing random samples, each in the given
-// (spatially coherent) order. A point's round is the number of trailing zero bits of a
-// hash of its id (about half the points in the last round, a quarter in the one before
-// ...), so the order is a function of the points alone. Early rounds spread over the
-// region keep later conflicts local (points on a surface inserted in space-filling
-// order alone met cavities of 150 cells on average; in BRIO order, 22).
-constexpr int kRounds = 24;
-int brio_round(std::uint32_t id) {
-  std::uint64_t state = id;
-  const std::uint64_t h = splitmix64(state);
-  return std::min(__builtin_ctzll(h | (std::uint64_t{1} << (kRounds - 1))), kRounds - 1);
-}
-// Reorders `items` into BRIO rounds by the point id id_of(item), coarsest first,
-// keeping the given order within a round (a counting sort).
-template <class T, class IdOf>
-void brio_order(std::vector<T>& items, std::vector<T>& scratch, IdOf&& id_of) {
-  std::array<std::size_t, kRounds + 1> start{};
-  for (const T& t : items) ++start[static_cast<std::size_t>(kRounds - 1 - brio_round(id_of(t))) + 1];
-  for (int k = 0; k < kRounds; ++k) start[static_cast<std::size_t>(k) + 1] += start[static_cast<std::size_t>(k)];
-  scratch.resize(items.size());
-  for (const T& t : items) scratch[start[static_cast<std::size_t>(kRounds - 1 - brio_round(id_of(t)))]++] = t;
-  items.swap(scratch);
-}
-
 template <int D>
 using Box = std::array<double, 2 * D>;  // D lows, then D highs
 
@@ -147,6 +123,11 @@ struct Run {
   std::once_flag whole_once;
   std::unique_ptr<Triangulation<D>> whole;  // null until built, and when its memory was refused
   std::vector<std::uint32_t> whole_local;   // point id -> its local id in `whole`
+  // The finite cells of `whole` by owner (their smallest point id): owner p's are
+  // whole_owned[whole_owned_start[p] .. whole_owned_start[p + 1]). Built with `whole`
+  // unless the run offers whole stars (MeshOptions::accept), which read the cells
+  // around each seed instead.
+  std::vector<std::uint32_t> whole_owned_start, whole_owned;
   Status whole_status;
   std::atomic<bool> use_whole{false};      // `whole` was built: every region takes it
   std::atomic<bool> whole_wanted{false};   // a region found balls across the set: others stop trying
@@ -195,7 +176,7 @@ struct Run {
       const auto n = static_cast<std::uint32_t>(ps.size());
       std::vector<std::uint32_t> order(n), scratch;
       for (std::uint32_t r = 0; r < n; ++r) order[r] = split.point_at(r);
-      brio_order(order, scratch, [](std::uint32_t id) { return id; });
+      insertion_order<D>(order, scratch);
       auto t = std::make_unique<Triangulation<D>>(ps, pred);
       t->reserve(n);
       whole_local.assign(n, 0);
@@ -217,11 +198,49 @@ struct Run {
         whole_local[id] = t->insert(id);
       }
       if (!granted()) return;
+      if (!options.accept) {
+        index_owners(*t);
+        if (!reserve(whole_reserved,
+                     t->bytes() + (whole_local.capacity() + whole_owned_start.capacity() + whole_owned.capacity()) *
+                                      sizeof(std::uint32_t))) {
+          whole_local = whole_owned_start = whole_owned = {};
+          whole_refused.store(true);
+          return;
+        }
+      }
       whole = std::move(t);
       use_whole.store(true);
     });
     return whole_status;
   }
+
+  // whole_owned_start and whole_owned from t: a counting sort of the finite cells by
+  // owner. A seed's rows then cost its own cells, not a search around it (on a torus's
+  // surface a point has 76 cells around it and owns 19).
+  void index_owners(const Triangulation<D>& t) {
+    const std::size_t n = ps.size();
+    whole_owned_start.assign(n + 1, 0);
+    auto owner = [&](std::uint32_t c) {
+      std::uint32_t o = kNoOwner;
+      for (const std::uint32_t v : t.cell(c).v) {
+        if (v == Triangulation<D>::kInfinite) return kNoOwner;
+        o = std::min(o, t.global(v));
+      }
+      return o;
+    };
+    for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
+      if (!t.is_live(c)) continue;
+      if (const std::uint32_t o = owner(c); o != kNoOwner) ++whole_owned_start[o + 1];
+    }
+    for (std::size_t p = 0; p < n; ++p) whole_owned_start[p + 1] += whole_owned_start[p];
+    whole_owned.resize(whole_owned_start[n]);
+    std::vector<std::uint32_t> next(whole_owned_start.begin(), whole_owned_start.end() - 1);
+    for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
+      if (!t.is_live(c)) continue;
+      if (const std::uint32_t o = owner(c); o != kNoOwner) whole_owned[next[o]++] = c;
+    }
+  }
+  static constexpr std::uint32_t kNoOwner = 0xFFFFFFFFu;
 };
 
 // The rows a region hands on.
@@ -293,6 +312,10 @@ class RegionMesher {
     stats_.whole_set = true;
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t id = run_.split.point_at(r);
+      if (!run_.options.accept) {
+        emit_whole_owned(id, out.simplices);
+        continue;
+      }
       cells_.clear();
       run_.whole->incident_cells(run_.whole_local[id], cells_, seen_);
       emit(*run_.whole, cells_, id, out.simplices);
@@ -534,10 +557,10 @@ class RegionMesher {
   // refused (its seeds' stars are then walked).
   enum class Outcome { kDone, kWhole, kOverBudget };
 
-  // Inserts the points, in BRIO order (local ids to `local` when given, by index), as
+  // Inserts the points, in insertion_order (local ids to `local` when given, by index), as
   // long as the memory reserved allows.
   Result<bool> insert_points(std::vector<std::uint32_t>& ids) {
-    brio_order(ids, scratch_, [](std::uint32_t id) { return id; });
+    insertion_order<D>(ids, scratch_);
     return insert_range(ids.size(), [&](std::size_t k) { tri_.insert(ids[k]); });
   }
   // Inserts items [0, count) by insert_one(k), as long as the memory reserved allows.
@@ -578,16 +601,16 @@ class RegionMesher {
       }
     }
     // The region's points in BRIO order, their local ids kept by position. The first
-    // rounds (about an eighth: a sample spread over the region) come first, and give the
+    // rounds (an eighth in 3-d, a quarter in 2-d: a sample spread over the region) come first, and give the
     // margin: the reach of their seeds' balls, scaled to the region's density.
     const std::uint32_t region_points = last - first;
     order_.resize(region_points);
     for (std::uint32_t i = 0; i < region_points; ++i) order_[i] = i;
-    brio_order(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
+    insertion_order<D>(order_, scratch_, [&](std::uint32_t i) { return ids_[i]; });
     local_.assign(region_points, 0);
     tri_.reserve(region_points + region_points / 2);  // the region and a typical margin
-    const std::size_t sample =
-        std::min<std::size_t>(region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points / 8));
+    const std::size_t sample = std::min<std::size_t>(
+        region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points >> kRoundBits[D]));
     auto insert_region = [&](std::size_t k) { local_[order_[k]] = tri_.insert(ids_[order_[k]]); };
     for (int k = 0; k < D; ++k) {  // nothing is in E until its points are (certify then fails every ball)
       e_[static_cast<std::size_t>(k)] = HUGE_VAL;
@@ -729,20 +752,10 @@ class RegionMesher {
   // owner is a wanted seed of the region, then each seed's rows are sorted.
   void emit_owned(std::uint32_t first, std::vector<std::uint32_t>& rows) {
     constexpr std::size_t w = D + 1;
-    using Row = std::array<std::uint32_t, w>;
     // The wanted index of each region position (kNotWanted otherwise).
     constexpr std::uint32_t kNotWanted = 0xFFFFFFFFu;
     index_of_.assign(last_ - first_, kNotWanted);
     for (std::uint32_t k = 0; k < wanted_.size(); ++k) index_of_[wanted_[k] - first] = k;
-    // A finite cell's row: its point ids ascending but for the last two, swapped when
-    // ascending order is negatively oriented (the cell is positive).
-    auto row_of = [&](std::uint32_t c) {
-      const auto& v = tri_.cell(c).v;
-      Row g{};
-      for (std::size_t k = 0; k < w; ++k) g[k] = tri_.global(v[k]);
-      if (sort_with_parity(g)) std::swap(g[w - 2], g[w - 1]);
-      return g;
-    };
     // Pass 1: each cell's owner among the wanted seeds (its tag, now free: 1 + the
     // wanted index, or 0), and how many rows each owner has.
     bucket_.assign(wanted_.size() + 1, 0);
@@ -770,22 +783,49 @@ class RegionMesher {
     const std::size_t at = rows.size();
     rows.resize(at + bucket_[wanted_.size()] * w);
     Row* out = reinterpret_cast<Row*>(rows.data() + at);
-    static_assert(sizeof(Row) == w * sizeof(std::uint32_t));
     for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
       if (!tri_.is_live(c) || tri_.tag(c) == 0) continue;
-      out[bucket_[tri_.tag(c) - 1]++] = row_of(c);
+      out[bucket_[tri_.tag(c) - 1]++] = row_of(tri_, c);
     }
-    auto key = [](const Row& a) {
-      Row s = a;
-      if (s[w - 2] > s[w - 1]) std::swap(s[w - 2], s[w - 1]);
-      return s;
-    };
     std::size_t begin = 0;
     for (std::size_t k = 0; k < wanted_.size(); ++k) {
       const std::size_t end = bucket_[k];
-      std::sort(out + begin, out + end, [&](const Row& a, const Row& b) { return key(a) < key(b); });
+      sort_rows(out + begin, out + end);
       begin = end;
     }
+  }
+
+  // Seed `id`'s rows from the whole set's triangulation and its owner index.
+  void emit_whole_owned(std::uint32_t id, std::vector<std::uint32_t>& rows) {
+    const Triangulation<D>& t = *run_.whole;
+    const std::uint32_t begin = run_.whole_owned_start[id], end = run_.whole_owned_start[id + 1];
+    const std::size_t at = rows.size();
+    rows.resize(at + static_cast<std::size_t>(end - begin) * (D + 1));
+    Row* out = reinterpret_cast<Row*>(rows.data() + at);
+    for (std::uint32_t k = begin; k < end; ++k) out[k - begin] = row_of(t, run_.whole_owned[k]);
+    sort_rows(out, out + (end - begin));
+  }
+
+  using Row = std::array<std::uint32_t, D + 1>;
+  static_assert(sizeof(Row) == (D + 1) * sizeof(std::uint32_t));
+  // A finite cell's row: its point ids ascending but for the last two, swapped when
+  // ascending order is negatively oriented (the cell is positive).
+  static Row row_of(const Triangulation<D>& t, std::uint32_t c) {
+    const auto& v = t.cell(c).v;
+    Row g{};
+    for (std::size_t k = 0; k <= D; ++k) g[k] = t.global(v[k]);
+    if (sort_with_parity(g)) std::swap(g[D - 1], g[D]);
+    return g;
+  }
+  // One owner's rows in order: lexicographic by their sorted vertex lists (compare the
+  // last two sorted).
+  static void sort_rows(Row* begin, Row* end) {
+    auto key = [](const Row& a) {
+      Row s = a;
+      if (s[D - 1] > s[D]) std::swap(s[D - 1], s[D]);
+      return s;
+    };
+    std::sort(begin, end, [&](const Row& a, const Row& b) { return key(a) < key(b); });
   }
 
   // Sorts a cell's point ids ascending; true when that took an odd permutation (the
@@ -976,7 +1016,7 @@ bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
     Triangulation<D> t(points, pred);
     std::vector<std::uint32_t> ids(count), scratch;
     for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
-    brio_order(ids, scratch, [](std::uint32_t id) { return id; });
+    insertion_order<D>(ids, scratch);
     for (const std::uint32_t id : ids) t.insert(id);
     return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
   });
@@ -998,3 +1038,4 @@ Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& 
 }
 
 }  // namespace spokemesh::detail
+

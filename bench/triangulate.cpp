@@ -1,0 +1,107 @@
+// The whole mesh's kernel alone: Triangulation<D> (core/src/mesh/triangulation.hpp)
+// inserting every point of a file in the order the whole-set triangulation uses
+// (insertion_order: BRIO rounds over the split's order), one thread, against CGAL's Delaunay_triangulation_2/3
+// (Epick) inserting the same points in the same order, each with the previous
+// insertion's vertex as its hint. Reading and ordering are not timed. Prints, per
+// insertion: microseconds, the walk's steps, cells destroyed, exact evaluations.
+//
+//   build/bin/spokemesh_triangulate FILE [--no-cgal]
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <vector>
+
+#include "base/dimension.hpp"
+#include "mesh/insertion_order.hpp"
+#include "mesh/triangulation.hpp"
+#include "spokemesh/io.hpp"
+#include "spokemesh/space_split.hpp"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+
+double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+template <int D>
+void run(const spokemesh::PointSet& ps, const std::vector<std::uint32_t>& order, bool cgal) {
+  const double n = static_cast<double>(order.size());
+  {
+    const spokemesh::Predicates pred(ps);
+    spokemesh::detail::Triangulation<D> t(ps, pred);
+    t.reserve(ps.size());
+    const auto start = Clock::now();
+    for (const std::uint32_t id : order) t.insert(id);
+    const double s = seconds_since(start);
+    const auto& st = t.stats();
+    std::printf("spokemesh  %.3f s  %.3f us/insertion  %.1f walk steps  %.1f cells destroyed  %.3f exact  %zu cells\n",
+                s, 1e6 * s / n, static_cast<double>(st.walk_steps) / n, static_cast<double>(st.cavity_cells) / n,
+                static_cast<double>(st.exact_calls) / n, t.cell_count());
+  }
+  if (!cgal) return;
+  if constexpr (D == 2) {
+    std::vector<K::Point_2> p;
+    for (const std::uint32_t id : order) p.emplace_back(ps.point(id)[0], ps.point(id)[1]);
+    CGAL::Delaunay_triangulation_2<K> t;
+    const auto start = Clock::now();
+    CGAL::Delaunay_triangulation_2<K>::Vertex_handle hint;
+    for (const auto& q : p)
+      hint = t.insert(q, hint == nullptr ? CGAL::Delaunay_triangulation_2<K>::Face_handle() : hint->face());
+    const double s = seconds_since(start);
+    std::printf("CGAL       %.3f s  %.3f us/insertion  %zu faces\n", s, 1e6 * s / n, t.number_of_faces());
+  } else {
+    std::vector<K::Point_3> p;
+    for (const std::uint32_t id : order) p.emplace_back(ps.point(id)[0], ps.point(id)[1], ps.point(id)[2]);
+    CGAL::Delaunay_triangulation_3<K> t;
+    const auto start = Clock::now();
+    CGAL::Delaunay_triangulation_3<K>::Vertex_handle hint;
+    for (const auto& q : p)
+      hint = t.insert(q, hint == nullptr ? CGAL::Delaunay_triangulation_3<K>::Cell_handle() : hint->cell());
+    const double s = seconds_since(start);
+    std::printf("CGAL       %.3f s  %.3f us/insertion  %zu cells\n", s, 1e6 * s / n, t.number_of_cells());
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || (argc == 3 && std::strcmp(argv[2], "--no-cgal") != 0) || argc > 3) {
+    std::fprintf(stderr, "usage: spokemesh_triangulate FILE [--no-cgal]\n");
+    return 2;
+  }
+  auto read = spokemesh::read_points(argv[1]);
+  if (!read.is_ok()) {
+    std::fprintf(stderr, "%s\n", read.status().message().c_str());
+    return 1;
+  }
+  spokemesh::PointSet& ps = read.value();
+  if (const auto valid = ps.validate(argv[1]); !valid.is_ok()) {  // the predicates' ranks and scale
+    std::fprintf(stderr, "%s\n", valid.message().c_str());
+    return 1;
+  }
+  const int d = ps.dimension();
+  if (d != 2 && d != 3) {
+    std::fprintf(stderr, "2-d and 3-d sets only\n");
+    return 2;
+  }
+  const spokemesh::SpaceSplit split(ps, spokemesh::SpaceSplit::default_block_points(d, ps.size()));
+  std::vector<std::uint32_t> order(ps.size()), scratch;
+  for (std::uint32_t r = 0; r < order.size(); ++r) order[r] = split.point_at(r);
+  const auto t0 = Clock::now();
+  if (d == 2)
+    spokemesh::detail::insertion_order<2>(order, scratch);
+  else
+    spokemesh::detail::insertion_order<3>(order, scratch);
+  std::printf("order %.3f s\n", seconds_since(t0));
+  const bool cgal = argc == 2;
+  if (d == 2)
+    run<2>(ps, order, cgal);
+  else
+    run<3>(ps, order, cgal);
+  return 0;
+}
