@@ -1038,4 +1038,3 @@ Result<MeshStats> triangulation_sweep(const PointSet& points, const SpaceSplit& 
 }
 
 }  // namespace spokemesh::detail
-
