@@ -9,6 +9,7 @@
 #include <mutex>
 #include <optional>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "base/dimension.hpp"
@@ -133,6 +134,7 @@ struct Run {
   std::atomic<bool> whole_wanted{false};   // a region found balls across the set: others stop trying
   std::atomic<bool> whole_refused{false};  // its memory was refused: such regions walk their stars
   std::size_t whole_reserved = 0;
+  std::size_t whole_inserted = 0;  // the points ensure_whole inserted (a donor held the rest)
   std::mutex reserve_mu;
 
   std::once_flag tree_once;
@@ -170,23 +172,39 @@ struct Run {
   }
 
   // Builds the triangulation of every point (once; concurrent callers wait). When its
-  // memory is refused, it is dropped and whole_refused set.
-  const Status& ensure_whole() {
+  // memory is refused, it is dropped and whole_refused set. The caller that builds it
+  // may give its own region's triangulation (`donor`, with the memory reserved for it):
+  // any Delaunay triangulation of some of the points is a start, so the points it holds
+  // are not inserted again (contour lines: a region triangulated before its balls
+  // showed they reach across the set). The donor is left empty.
+  const Status& ensure_whole(Triangulation<D>* donor = nullptr, std::size_t* donor_reserved = nullptr) {
     std::call_once(whole_once, [&] {
       const auto n = static_cast<std::uint32_t>(ps.size());
-      std::vector<std::uint32_t> order(n), scratch;
-      for (std::uint32_t r = 0; r < n; ++r) order[r] = split.point_at(r);
+      std::unique_ptr<Triangulation<D>> t;
+      if (donor != nullptr && donor->vertex_count() > 1) {
+        t = std::make_unique<Triangulation<D>>(std::move(*donor));
+        donor->clear();
+        whole_reserved = std::exchange(*donor_reserved, 0);
+      } else {
+        t = std::make_unique<Triangulation<D>>(ps, pred);
+      }
+      whole_local.assign(n, 0);  // 0: not inserted yet (local id 0 is infinity)
+      for (std::uint32_t local = 1; local < t->vertex_count(); ++local) whole_local[t->global(local)] = local;
+      std::vector<std::uint32_t> order, scratch;
+      order.reserve(n - (t->vertex_count() - 1));
+      for (std::uint32_t r = 0; r < n; ++r) {
+        if (whole_local[split.point_at(r)] == 0) order.push_back(split.point_at(r));
+      }
       insertion_order<D>(order, scratch);
-      auto t = std::make_unique<Triangulation<D>>(ps, pred);
+      whole_inserted = order.size();
       t->reserve(n);
-      whole_local.assign(n, 0);
       auto granted = [&] {
         if (reserve(whole_reserved, t->bytes() + whole_local.capacity() * sizeof(std::uint32_t))) return true;
         whole_local = {};
         whole_refused.store(true);
         return false;
       };
-      for (std::uint32_t k = 0; k < n; ++k) {
+      for (std::size_t k = 0; k < order.size(); ++k) {
         if ((k + 1) % kCancelEvery == 0) {
           if (cancelled()) {
             whole_status = spokemesh::cancelled("mesh cancelled");
@@ -194,7 +212,7 @@ struct Run {
           }
           if (!granted()) return;
         }
-        if (k + kPrefetchAhead < n) t->prefetch(order[k + kPrefetchAhead]);
+        if (k + kPrefetchAhead < order.size()) t->prefetch(order[k + kPrefetchAhead]);
         whole_local[order[k]] = t->insert(order[k]);
       }
       if (!granted()) return;
@@ -307,7 +325,7 @@ class RegionMesher {
       }
     }
     if (run_.whole_refused.load()) return walk(out).status();
-    if (const Status& s = run_.ensure_whole(); !s.is_ok()) return s;
+    if (const Status& s = run_.ensure_whole(&tri_, &reserved_); !s.is_ok()) return s;
     if (run_.whole == nullptr) return walk(out).status();  // refused just now
     stats_.whole_set = true;
     for (const std::uint32_t r : wanted_) {
@@ -994,7 +1012,7 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
   total.seeds = seeds_done;
   if (run.whole) {
     total.triangulation.peak_bytes += run.whole->bytes();
-    total.triangulation.inserted += n;
+    total.triangulation.inserted += run.whole_inserted;
   }
   return total;
 }
