@@ -704,6 +704,20 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
         return tri_charge.bytes() + bytes <= cap && tri_charge.grow(bytes);
       };
       options.accept_part = StarPart::kAll;
+      // Where the balls reach across the set, the triangulation of every point is
+      // built once and kept with the set: later batches read their stars from it.
+      {
+        std::lock_guard lock(set->whole_mu);
+        options.whole = set->whole;
+      }
+      options.keep_whole = [this, &set](std::shared_ptr<const WholeTriangulation> whole) {
+        MemoryBudget::Charge charge = store_->budget().empty_charge();
+        if (!charge.grow(whole->bytes())) return;  // not kept: later batches build their own
+        std::lock_guard lock(set->whole_mu);
+        if (set->whole != nullptr) return;  // a concurrent batch kept one first
+        set->whole = std::move(whole);
+        set->whole_charge = std::move(charge);
+      };
       std::mutex mu;
       options.accept = [&](const Star& star) {
         const std::size_t bytes = star.simplices.size() * sizeof(std::uint32_t) + sizeof(Star) + 32;

@@ -445,6 +445,52 @@ TEST(Engine, BatchesOfStarsEqualSingleCalls) {
   }
 }
 
+// On a closed surface a batch's stars need the triangulation of every point (its
+// Delaunay balls reach across the set); the set keeps it, charged to the budget, and
+// later batches read it instead of building it again: the same answers, nothing more
+// charged, and the charge goes with the set.
+TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto control = no_deadline();
+  const std::size_t n = 70000;  // more than a 3-d region's points, so regions are tried first
+  const std::string id = upload(*engine, 3, bench::sphere_surface(n, 11)).value().id;
+  std::vector<std::uint64_t> seeds;
+  // An eighth of the points: more than a sixteenth of every region, so no region walks
+  // its seeds' stars (on a sphere each walk asks about the whole set).
+  for (std::uint64_t s = 5; s < n; s += 8) seeds.push_back(s);
+  ASSERT_TRUE(engine->star(id, 0, control).is_ok());  // loaded, tree built
+  const MemoryBudget& budget = engine->store().budget();
+  const std::uint64_t loaded = budget.used();
+  auto batch = [&] {
+    std::vector<BatchAnswer> answers;
+    EXPECT_TRUE(engine
+                    ->batch(id, seeds, BatchKind::kStars, {}, {}, control,
+                            [&](std::span<const BatchAnswer> got, std::size_t) {
+                              answers.insert(answers.end(), got.begin(), got.end());
+                              return Status::ok();
+                            })
+                    .is_ok());
+    return answers;
+  };
+  const std::vector<BatchAnswer> first = batch();
+  const std::uint64_t kept = budget.used() - loaded;
+  EXPECT_GT(kept, n * 40) << "the triangulation of every point is kept with the set, charged";
+  const std::vector<BatchAnswer> second = batch();
+  EXPECT_EQ(budget.used(), loaded + kept) << "read, not built again";
+  ASSERT_EQ(first.size(), seeds.size());
+  ASSERT_EQ(second.size(), seeds.size());
+  for (std::size_t i = 0; i < seeds.size(); ++i) {
+    EXPECT_EQ(second[i].star.star.simplices, first[i].star.star.simplices) << "seed " << seeds[i];
+    EXPECT_EQ(second[i].star.circumcentres, first[i].star.circumcentres) << "seed " << seeds[i];
+  }
+  for (std::size_t i = 0; i < seeds.size(); i += seeds.size() / 2) {
+    EXPECT_EQ(second[i].star.star.simplices, engine->star(id, seeds[i], control).value().star.simplices);
+  }
+  ASSERT_TRUE(engine->delete_point_set(id).is_ok());
+  EXPECT_LT(budget.used(), loaded) << "the kept triangulation goes with the set";
+}
+
 TEST(Engine, SeedAndIdErrors) {
   TempDir dir;
   auto engine = make_engine(dir.path());

@@ -326,6 +326,52 @@ TEST(TriangulationSweep, EachCertificateWhereItBelongs) {
     const Simplices rows = sweep(tree, 2, 300, &stats);
     EXPECT_TRUE(stats.triangulation.whole_set);
     EXPECT_EQ(rows, mesh_all(tree, 2, 0, 0xFFFFFFFFu, 0x5eed, MeshOptions{}.facet_cache_bytes, 0, MeshEngine::kStars));
+
+    // Kept (MeshOptions::keep_whole) by a run that offers whole stars, as the service's
+    // batches do, then given to later runs (MeshOptions::whole): they build nothing and
+    // give the same rows, with or without the owner index; a set that is not the one it
+    // was built on ignores it.
+    std::shared_ptr<const WholeTriangulation> kept;
+    MeshOptions options;
+    options.engine = kTriangulations;
+    options.threads = 2;
+    options.region_points = 300;
+    options.accept_part = StarPart::kAll;
+    std::map<std::uint32_t, std::vector<std::uint32_t>> stars, again;
+    std::mutex mu;
+    auto collect = [&](std::map<std::uint32_t, std::vector<std::uint32_t>>& into) {
+      return [&](const Star& star) {
+        std::lock_guard lock(mu);
+        into[star.seed] = star.simplices;
+        return true;
+      };
+    };
+    options.accept = collect(stars);
+    options.keep_whole = [&](std::shared_ptr<const WholeTriangulation> w) { kept = std::move(w); };
+    mesh_rows(tree, options, nullptr);
+    ASSERT_NE(kept, nullptr);
+    EXPECT_GT(kept->bytes(), 0u);
+    options.keep_whole = nullptr;
+    options.whole = kept;
+    options.accept = collect(again);
+    MeshStats with_kept;
+    mesh_rows(tree, options, &with_kept);
+    EXPECT_EQ(again, stars);
+    EXPECT_TRUE(with_kept.triangulation.whole_set);
+    EXPECT_EQ(with_kept.triangulation.inserted, 0u) << "a kept triangulation is read, not rebuilt";
+    MeshOptions rows_only;
+    rows_only.engine = kTriangulations;
+    rows_only.threads = 3;
+    rows_only.region_points = 300;
+    rows_only.whole = kept;  // built without the owner index: its rows by the cells around each seed
+    MeshStats rows_stats;
+    EXPECT_EQ(mesh_rows(tree, rows_only, &rows_stats), rows);
+    EXPECT_EQ(rows_stats.triangulation.inserted, 0u);
+    const PointSet copy = make_points(3, bench::sphere_surface(1500, 7));  // equal points, another object
+    const KdTree copy_tree(copy);
+    MeshStats copy_stats;
+    EXPECT_EQ(mesh_rows(copy_tree, rows_only, &copy_stats), rows);
+    EXPECT_GT(copy_stats.triangulation.inserted, 0u) << "another set's triangulation is ignored";
   }
 }
 

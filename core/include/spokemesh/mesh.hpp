@@ -48,6 +48,19 @@ enum class MeshEngine {
   kTriangulations,  // local triangulations with certified stars (an error where they do not apply)
 };
 
+// The triangulation of every point of a 2-d or 3-d set, which a run by local
+// triangulations builds when the set's Delaunay balls reach across it (closed
+// surfaces: a sphere, a torus), as a caller may keep it for later runs on the same
+// set (MeshOptions::whole and keep_whole): those runs read their stars from it and
+// build nothing. Opaque.
+// Ownership: borrows the PointSet it was built on, which must outlive it.
+// Thread safety: immutable once handed out; concurrent runs may share it.
+class WholeTriangulation {
+ public:
+  virtual ~WholeTriangulation() = default;
+  virtual std::size_t bytes() const = 0;  // what it holds (its cells, points and indexes)
+};
+
 struct MeshOptions {
   unsigned threads = 1;                  // worker threads (>= 1)
   std::uint32_t seed_begin = 0;          // seeds [seed_begin, seed_end) are meshed
@@ -91,6 +104,12 @@ struct MeshOptions {
   // those the ranges above admit; empty: every seed. A batch of seeds computes its
   // stars as a whole mesh restricted to them would (through `accept`).
   std::span<const std::uint32_t> seeds;
+  // A triangulation of every point kept from an earlier run on the same PointSet object
+  // (null: none). Ignored unless it was built on this run's points (same object).
+  std::shared_ptr<const WholeTriangulation> whole;
+  // When set, a run that builds the triangulation of every point hands it here once it
+  // is complete (the caller may keep it, charged to its memory, for later runs).
+  std::function<void(std::shared_ptr<const WholeTriangulation>)> keep_whole;
 };
 
 // What the local triangulations did (MeshEngine::kTriangulations).

@@ -109,6 +109,23 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
 
 // What a run shares: the set, its order, the options, and the triangulation of every
 // point once a region's balls have reached across the set.
+// The triangulation of every point with what reads it: each point's local id, and
+// the finite cells by owner (their smallest point id): owner p's are
+// owned[owned_start[p] .. owned_start[p + 1]), built unless the run that built it
+// offered whole stars (MeshOptions::accept), which read the cells around each seed
+// instead. It owns (shares) the Predicates its triangulation borrows, so a caller may
+// keep it past the run (MeshOptions::keep_whole).
+template <int D>
+struct Whole final : WholeTriangulation {
+  std::shared_ptr<const Predicates> pred;
+  const PointSet* points = nullptr;
+  std::unique_ptr<Triangulation<D>> tri;
+  std::vector<std::uint32_t> local, owned_start, owned;
+  std::size_t bytes() const override {
+    return tri->bytes() + (local.capacity() + owned_start.capacity() + owned.capacity()) * sizeof(std::uint32_t);
+  }
+};
+
 template <int D, class Index>
 struct Run {
   const Index& index;  // box queries: the caller's KdTree, or the split's own index
@@ -116,19 +133,14 @@ struct Run {
   const PointSet& ps;
   const SpaceSplit& split;
   const MeshOptions& options;
-  Predicates pred;
+  std::shared_ptr<const Predicates> shared_pred;  // shared with the whole set's triangulation
+  const Predicates& pred;
   Box<D> bounds;  // the set's bounding box (exact)
   std::uint32_t seed_begin, seed_end;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> regions;  // sweep positions [first, second)
 
   std::once_flag whole_once;
-  std::unique_ptr<Triangulation<D>> whole;  // null until built, and when its memory was refused
-  std::vector<std::uint32_t> whole_local;   // point id -> its local id in `whole`
-  // The finite cells of `whole` by owner (their smallest point id): owner p's are
-  // whole_owned[whole_owned_start[p] .. whole_owned_start[p + 1]). Built with `whole`
-  // unless the run offers whole stars (MeshOptions::accept), which read the cells
-  // around each seed instead.
-  std::vector<std::uint32_t> whole_owned_start, whole_owned;
+  std::shared_ptr<const Whole<D>> whole;  // null until built, and when its memory was refused
   Status whole_status;
   std::atomic<bool> use_whole{false};      // `whole` was built: every region takes it
   std::atomic<bool> whole_wanted{false};   // a region found balls across the set: others stop trying
@@ -141,7 +153,21 @@ struct Run {
   std::unique_ptr<KdTree> own_tree;
 
   Run(const Index& i, const KdTree* t, const PointSet& points, const SpaceSplit& s, const MeshOptions& o)
-      : index(i), tree(t), ps(points), split(s), options(o), pred(points) {}
+      : index(i),
+        tree(t),
+        ps(points),
+        split(s),
+        options(o),
+        shared_pred(std::make_shared<const Predicates>(points)),
+        pred(*shared_pred) {
+    // A triangulation of every point kept from an earlier run on these points: every
+    // region reads it, nothing is built.
+    if (auto kept = std::dynamic_pointer_cast<const Whole<D>>(o.whole); kept != nullptr && kept->points == &points) {
+      whole = std::move(kept);
+      use_whole.store(true);
+      std::call_once(whole_once, [] {});
+    }
+  }
 
   // The k-d tree the star walks need: the caller's, or one built on first use (only
   // seeds that fall back to walks need it).
@@ -180,27 +206,29 @@ struct Run {
   const Status& ensure_whole(Triangulation<D>* donor = nullptr, std::size_t* donor_reserved = nullptr) {
     std::call_once(whole_once, [&] {
       const auto n = static_cast<std::uint32_t>(ps.size());
-      std::unique_ptr<Triangulation<D>> t;
+      auto w = std::make_shared<Whole<D>>();
+      w->pred = shared_pred;
+      w->points = &ps;
       if (donor != nullptr && donor->vertex_count() > 1) {
-        t = std::make_unique<Triangulation<D>>(std::move(*donor));
+        w->tri = std::make_unique<Triangulation<D>>(std::move(*donor));
         donor->clear();
         whole_reserved = std::exchange(*donor_reserved, 0);
       } else {
-        t = std::make_unique<Triangulation<D>>(ps, pred);
+        w->tri = std::make_unique<Triangulation<D>>(ps, pred);
       }
-      whole_local.assign(n, 0);  // 0: not inserted yet (local id 0 is infinity)
-      for (std::uint32_t local = 1; local < t->vertex_count(); ++local) whole_local[t->global(local)] = local;
+      Triangulation<D>& t = *w->tri;
+      w->local.assign(n, 0);  // 0: not inserted yet (local id 0 is infinity)
+      for (std::uint32_t local = 1; local < t.vertex_count(); ++local) w->local[t.global(local)] = local;
       std::vector<std::uint32_t> order, scratch;
-      order.reserve(n - (t->vertex_count() - 1));
+      order.reserve(n - (t.vertex_count() - 1));
       for (std::uint32_t r = 0; r < n; ++r) {
-        if (whole_local[split.point_at(r)] == 0) order.push_back(split.point_at(r));
+        if (w->local[split.point_at(r)] == 0) order.push_back(split.point_at(r));
       }
       insertion_order<D>(order, scratch);
       whole_inserted = order.size();
-      t->reserve(n);
+      t.reserve(n);
       auto granted = [&] {
-        if (reserve(whole_reserved, t->bytes() + whole_local.capacity() * sizeof(std::uint32_t))) return true;
-        whole_local = {};
+        if (reserve(whole_reserved, w->bytes())) return true;
         whole_refused.store(true);
         return false;
       };
@@ -212,32 +240,28 @@ struct Run {
           }
           if (!granted()) return;
         }
-        if (k + kPrefetchAhead < order.size()) t->prefetch(order[k + kPrefetchAhead]);
-        whole_local[order[k]] = t->insert(order[k]);
+        if (k + kPrefetchAhead < order.size()) t.prefetch(order[k + kPrefetchAhead]);
+        w->local[order[k]] = t.insert(order[k]);
       }
       if (!granted()) return;
       if (!options.accept) {
-        index_owners(*t);
-        if (!reserve(whole_reserved,
-                     t->bytes() + (whole_local.capacity() + whole_owned_start.capacity() + whole_owned.capacity()) *
-                                      sizeof(std::uint32_t))) {
-          whole_local = whole_owned_start = whole_owned = {};
-          whole_refused.store(true);
-          return;
-        }
+        index_owners(*w);
+        if (!granted()) return;
       }
-      whole = std::move(t);
+      whole = w;
       use_whole.store(true);
+      if (options.keep_whole) options.keep_whole(std::move(w));
     });
     return whole_status;
   }
 
-  // whole_owned_start and whole_owned from t: a counting sort of the finite cells by
-  // owner. A seed's rows then cost its own cells, not a search around it (on a torus's
-  // surface a point has 76 cells around it and owns 19).
-  void index_owners(const Triangulation<D>& t) {
-    const std::size_t n = ps.size();
-    whole_owned_start.assign(n + 1, 0);
+  // w's owner index: a counting sort of the finite cells by owner. A seed's rows then
+  // cost its own cells, not a search around it (on a torus's surface a point has 76
+  // cells around it and owns 19).
+  static void index_owners(Whole<D>& w) {
+    const Triangulation<D>& t = *w.tri;
+    const std::size_t n = w.points->size();
+    w.owned_start.assign(n + 1, 0);
     auto owner = [&](std::uint32_t c) {
       std::uint32_t o = kNoOwner;
       for (const std::uint32_t v : t.cell(c).v) {
@@ -248,14 +272,14 @@ struct Run {
     };
     for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
       if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner(c); o != kNoOwner) ++whole_owned_start[o + 1];
+      if (const std::uint32_t o = owner(c); o != kNoOwner) ++w.owned_start[o + 1];
     }
-    for (std::size_t p = 0; p < n; ++p) whole_owned_start[p + 1] += whole_owned_start[p];
-    whole_owned.resize(whole_owned_start[n]);
-    std::vector<std::uint32_t> next(whole_owned_start.begin(), whole_owned_start.end() - 1);
+    for (std::size_t p = 0; p < n; ++p) w.owned_start[p + 1] += w.owned_start[p];
+    w.owned.resize(w.owned_start[n]);
+    std::vector<std::uint32_t> next(w.owned_start.begin(), w.owned_start.end() - 1);
     for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
       if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner(c); o != kNoOwner) whole_owned[next[o]++] = c;
+      if (const std::uint32_t o = owner(c); o != kNoOwner) w.owned[next[o]++] = c;
     }
   }
   static constexpr std::uint32_t kNoOwner = 0xFFFFFFFFu;
@@ -328,15 +352,16 @@ class RegionMesher {
     if (const Status& s = run_.ensure_whole(&tri_, &reserved_); !s.is_ok()) return s;
     if (run_.whole == nullptr) return walk(out).status();  // refused just now
     stats_.whole_set = true;
+    const Whole<D>& whole = *run_.whole;
     for (const std::uint32_t r : wanted_) {
       const std::uint32_t id = run_.split.point_at(r);
-      if (!run_.options.accept) {
-        emit_whole_owned(id, out.simplices);
+      if (!run_.options.accept && !whole.owned_start.empty()) {
+        emit_whole_owned(whole, id, out.simplices);
         continue;
       }
       cells_.clear();
-      run_.whole->incident_cells(run_.whole_local[id], cells_, seen_);
-      emit(*run_.whole, cells_, id, out.simplices);
+      whole.tri->incident_cells(whole.local[id], cells_, seen_);
+      emit(*whole.tri, cells_, id, out.simplices);
     }
     return Status::ok();
   }
@@ -821,13 +846,13 @@ class RegionMesher {
   }
 
   // Seed `id`'s rows from the whole set's triangulation and its owner index.
-  void emit_whole_owned(std::uint32_t id, std::vector<std::uint32_t>& rows) {
-    const Triangulation<D>& t = *run_.whole;
-    const std::uint32_t begin = run_.whole_owned_start[id], end = run_.whole_owned_start[id + 1];
+  void emit_whole_owned(const Whole<D>& whole, std::uint32_t id, std::vector<std::uint32_t>& rows) {
+    const Triangulation<D>& t = *whole.tri;
+    const std::uint32_t begin = whole.owned_start[id], end = whole.owned_start[id + 1];
     const std::size_t at = rows.size();
     rows.resize(at + static_cast<std::size_t>(end - begin) * (D + 1));
     Row* out = reinterpret_cast<Row*>(rows.data() + at);
-    for (std::uint32_t k = begin; k < end; ++k) out[k - begin] = row_of(t, run_.whole_owned[k]);
+    for (std::uint32_t k = begin; k < end; ++k) out[k - begin] = row_of(t, whole.owned[k]);
     sort_rows(out, out + (end - begin));
   }
 
