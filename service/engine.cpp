@@ -627,6 +627,21 @@ Status in_rounds(std::size_t count, unsigned threads, std::size_t round_size, co
 
 }  // namespace
 
+void Engine::share_whole_triangulation(const StoredSet& set, MeshOptions& options) {
+  {
+    std::lock_guard lock(set.whole_mu);
+    options.whole = set.whole;
+  }
+  options.keep_whole = [this, &set](std::shared_ptr<const WholeTriangulation> whole) {
+    MemoryBudget::Charge charge = store_->budget().empty_charge();
+    if (!charge.grow(whole->bytes())) return;  // not kept: later runs build their own
+    std::lock_guard lock(set.whole_mu);
+    if (set.whole != nullptr) return;  // a concurrent run kept one first
+    set.whole = std::move(whole);
+    set.whole_charge = std::move(charge);
+  };
+}
+
 Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
                      const AnswerSink& emit) {
@@ -704,20 +719,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
         return tri_charge.bytes() + bytes <= cap && tri_charge.grow(bytes);
       };
       options.accept_part = StarPart::kAll;
-      // Where the balls reach across the set, the triangulation of every point is
-      // built once and kept with the set: later batches read their stars from it.
-      {
-        std::lock_guard lock(set->whole_mu);
-        options.whole = set->whole;
-      }
-      options.keep_whole = [this, &set](std::shared_ptr<const WholeTriangulation> whole) {
-        MemoryBudget::Charge charge = store_->budget().empty_charge();
-        if (!charge.grow(whole->bytes())) return;  // not kept: later batches build their own
-        std::lock_guard lock(set->whole_mu);
-        if (set->whole != nullptr) return;  // a concurrent batch kept one first
-        set->whole = std::move(whole);
-        set->whole_charge = std::move(charge);
-      };
+      share_whole_triangulation(*set, options);
       std::mutex mu;
       options.accept = [&](const Star& star) {
         const std::size_t bytes = star.simplices.size() * sizeof(std::uint32_t) + sizeof(Star) + 32;
@@ -927,6 +929,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     options.reserve_bytes = [&cache_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
       return cache_charge.bytes() + bytes <= cap && cache_charge.grow(bytes);
     };
+    share_whole_triangulation(s, options);
   } else {
     options.facet_cache_bytes = charge_sweep_memo(s.info.dimension, n32, options.threads, cache_charge);
   }

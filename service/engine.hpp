@@ -291,6 +291,10 @@ class Engine {
   // The same for a whole-mesh stream's sweep: charges its memo (the front's mail and
   // the workers' tables) and returns the mail cap to run with (0: no memo).
   std::size_t charge_sweep_memo(int dimension, std::uint32_t n, unsigned threads, MemoryBudget::Charge& charge);
+  // Gives a run by local triangulations the set's kept triangulation of every point,
+  // and has it keep the one the run builds (charged to the budget while the set lives;
+  // not kept when it does not fit). `set` must outlive the run.
+  void share_whole_triangulation(const StoredSet& set, MeshOptions& options);
   // RESOURCE_EXHAUSTED for exact work on a set above the exact dimension limit.
   static Status exact_allowed(const StoredSet& set, const char* what);
 
