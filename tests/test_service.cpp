@@ -487,6 +487,23 @@ TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
   for (std::size_t i = 0; i < seeds.size(); i += seeds.size() / 2) {
     EXPECT_EQ(second[i].star.star.simplices, engine->star(id, seeds[i], control).value().star.simplices);
   }
+  // A stream of the set's simplices in two shards reads the kept triangulation too:
+  // the whole mesh's bytes, nothing more charged.
+  const PointSet points = testing::make_points(3, bench::sphere_surface(n, 11));
+  const testing::Simplices expected = testing::mesh_rows(points, MeshOptions{});
+  testing::Simplices streamed;
+  for (std::uint32_t k = 0; k < 2; ++k) {
+    ASSERT_TRUE(
+        engine
+            ->stream_simplices(id, k, 2, 4096, control,
+                               [&](std::span<const std::uint32_t> b, std::span<const std::int32_t>, std::uint64_t) {
+                                 streamed.insert(streamed.end(), b.begin(), b.end());
+                                 return Status::ok();
+                               })
+            .is_ok());
+  }
+  EXPECT_EQ(streamed, expected);
+  EXPECT_EQ(budget.used(), loaded + kept);
   ASSERT_TRUE(engine->delete_point_set(id).is_ok());
   EXPECT_LT(budget.used(), loaded) << "the kept triangulation goes with the set";
 }
