@@ -107,8 +107,6 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
   return true;
 }
 
-// What a run shares: the set, its order, the options, and the triangulation of every
-// point once a region's balls have reached across the set.
 // The triangulation of every point with what reads it: each point's local id, and
 // the finite cells by owner (their smallest point id): owner p's are
 // owned[owned_start[p] .. owned_start[p + 1]), built unless the run that built it
@@ -126,6 +124,8 @@ struct Whole final : WholeTriangulation {
   }
 };
 
+// What a run shares: the set, its order, the options, and the triangulation of every
+// point once a region's balls have reached across the set (or kept from an earlier run).
 template <int D, class Index>
 struct Run {
   const Index& index;  // box queries: the caller's KdTree, or the split's own index
