@@ -67,10 +67,11 @@ struct StoredSet {
   std::unique_ptr<PeriodicStars> periodic;  // a periodic set's stars (borrows points, box, weights)
   std::uint64_t memory_bytes = 0;           // estimate: coordinates + ranks + split + tree
   MemoryBudget::Charge charge;              // memory_bytes against the server's budget, while the set lives
-  // The triangulation of every point that a batch of this set's stars built (its
-  // Delaunay balls reach across the set: closed surfaces), kept for later batches as
-  // the tree is kept, charged to the budget (whole_charge) while the set lives; null
-  // until a batch builds one. Guarded by whole_mu (the set is otherwise immutable).
+  // The triangulation of every point that a batch of this set's stars or a stream of
+  // its simplices built (its Delaunay balls reach across the set: closed surfaces),
+  // kept for later ones as the tree is kept, charged to the budget (whole_charge) while
+  // the set lives; null until one is built. Guarded by whole_mu (the set is otherwise
+  // immutable).
   mutable std::mutex whole_mu;
   mutable std::shared_ptr<const WholeTriangulation> whole;
   mutable MemoryBudget::Charge whole_charge;
