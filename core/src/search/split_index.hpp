@@ -65,6 +65,9 @@ std::optional<std::uint32_t> SplitIndex::find_first(MayContain&& may_contain, Ac
       continue;
     }
     if (node.skip == i + 1) {  // a leaf
+      // Its points lie at random places in the set: ask for them all before the first
+      // is read (they are a few, and each is read).
+      for (std::uint32_t r = node.begin; r < node.end; ++r) __builtin_prefetch(points_.point(split_.point_at(r)));
       for (std::uint32_t r = node.begin; r < node.end; ++r) {
         const std::uint32_t p = split_.point_at(r);
         if (accept(p, points_.point(p))) return p;
