@@ -603,6 +603,10 @@ class RegionMesher {
 
   // Inserts the points, in insertion_order, as long as the memory reserved allows.
   Result<bool> insert_points(std::vector<std::uint32_t>& ids) {
+    // In the split's order first (queries hand their points over sorted by id, which
+    // is no order in space), so that each round walks from point to nearby point.
+    std::sort(ids.begin(), ids.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return run_.split.position_of(a) < run_.split.position_of(b); });
     insertion_order<D>(ids, scratch_);
     return insert_range(
         ids.size(), [&](std::size_t k) { return ids[k]; }, [](std::size_t, std::uint32_t) {});
