@@ -1,9 +1,10 @@
 // The whole mesh's kernel alone: Triangulation<D> (core/src/mesh/triangulation.hpp)
 // inserting every point of a file in the order the whole-set triangulation uses
-// (insertion_order: BRIO rounds over the split's order), one thread, against CGAL's Delaunay_triangulation_2/3
-// (Epick) inserting the same points in the same order, each with the previous
-// insertion's vertex as its hint. Reading and ordering are not timed. Prints, per
-// insertion: microseconds, the walk's steps, cells destroyed, exact evaluations.
+// (insertion_order: BRIO rounds over the split's order), one thread, against CGAL's
+// Delaunay_triangulation_2/3 (Epick) inserting the same points in the same order, each
+// with the previous insertion's vertex as its hint. Reading and ordering are not
+// timed. Prints, per insertion: microseconds, the walk's steps, cells destroyed, exact
+// evaluations.
 //
 //   build/bin/spokemesh_triangulate FILE [--no-cgal]
 #include <CGAL/Delaunay_triangulation_2.h>
@@ -36,11 +37,7 @@ void run(const spokemesh::PointSet& ps, const std::vector<std::uint32_t>& order,
     spokemesh::detail::Triangulation<D> t(ps, pred);
     t.reserve(ps.size());
     const auto start = Clock::now();
-    for (std::size_t k = 0; k < order.size(); ++k) {
-      if (k + spokemesh::detail::kPrefetchAhead < order.size())
-        t.prefetch(order[k + spokemesh::detail::kPrefetchAhead]);
-      t.insert(order[k]);
-    }
+    for (std::size_t k = 0; k < order.size(); ++k) t.insert_next(order, k);
     const double s = seconds_since(start);
     const auto& st = t.stats();
     std::printf("spokemesh  %.3f s  %.3f us/insertion  %.1f walk steps  %.1f cells destroyed  %.3f exact  %zu cells\n",

@@ -376,7 +376,6 @@ int run_periodic_seed(const Common& common, const std::string& input, std::int64
   return kExitOk;
 }
 
-// cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
 // Hands a block of cells to the writer, counting their facets and volume for the
 // summary and reporting progress (the cells commands' sink).
 Status write_tallied(std::span<const VoronoiCell> cells, std::uint64_t done, CellWriter& writer, Progress& progress,
@@ -389,6 +388,7 @@ Status write_tallied(std::span<const VoronoiCell> cells, std::uint64_t done, Cel
   return writer.write(cells);
 }
 
+// cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
 int run_periodic_cells(const Common& common, const std::string& input, const std::string& output,
                        const DomainFlags& flags) {
   if (!flags.box.empty() || !flags.halfspaces.empty()) {

@@ -107,6 +107,19 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
   return true;
 }
 
+// A finite cell's owner, its smallest point id (the seed whose rows hold it); kNoOwner
+// for an infinite cell.
+constexpr std::uint32_t kNoOwner = 0xFFFFFFFFu;
+template <int D>
+std::uint32_t owner_of(const Triangulation<D>& t, std::uint32_t c) {
+  std::uint32_t owner = kNoOwner;
+  for (const std::uint32_t v : t.cell(c).v) {
+    if (v == Triangulation<D>::kInfinite) return kNoOwner;
+    owner = std::min(owner, t.global(v));
+  }
+  return owner;
+}
+
 // The triangulation of every point with what reads it: each point's local id, and
 // the finite cells by owner (their smallest point id): owner p's are
 // owned[owned_start[p] .. owned_start[p + 1]), built unless the run that built it
@@ -240,8 +253,7 @@ struct Run {
           }
           if (!granted()) return;
         }
-        if (k + kPrefetchAhead < order.size()) t.prefetch(order[k + kPrefetchAhead]);
-        w->local[order[k]] = t.insert(order[k]);
+        w->local[order[k]] = t.insert_next(order, k);
       }
       if (!granted()) return;
       if (!options.accept) {
@@ -262,27 +274,18 @@ struct Run {
     const Triangulation<D>& t = *w.tri;
     const std::size_t n = w.points->size();
     w.owned_start.assign(n + 1, 0);
-    auto owner = [&](std::uint32_t c) {
-      std::uint32_t o = kNoOwner;
-      for (const std::uint32_t v : t.cell(c).v) {
-        if (v == Triangulation<D>::kInfinite) return kNoOwner;
-        o = std::min(o, t.global(v));
-      }
-      return o;
-    };
     for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
       if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner(c); o != kNoOwner) ++w.owned_start[o + 1];
+      if (const std::uint32_t o = owner_of(t, c); o != kNoOwner) ++w.owned_start[o + 1];
     }
     for (std::size_t p = 0; p < n; ++p) w.owned_start[p + 1] += w.owned_start[p];
     w.owned.resize(w.owned_start[n]);
     std::vector<std::uint32_t> next(w.owned_start.begin(), w.owned_start.end() - 1);
     for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
       if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner(c); o != kNoOwner) w.owned[next[o]++] = c;
+      if (const std::uint32_t o = owner_of(t, c); o != kNoOwner) w.owned[next[o]++] = c;
     }
   }
-  static constexpr std::uint32_t kNoOwner = 0xFFFFFFFFu;
 };
 
 // The rows a region hands on.
@@ -620,7 +623,7 @@ class RegionMesher {
         if (run_.cancelled()) return cancelled("mesh cancelled");
         if (!run_.reserve(reserved_, tri_.bytes())) return false;
       }
-      if (k + kPrefetchAhead < count) tri_.prefetch(id_at(k + kPrefetchAhead));
+      if (k + Triangulation<D>::kPrefetchAhead < count) tri_.prefetch(id_at(k + Triangulation<D>::kPrefetchAhead));
       inserted(k, tri_.insert(id_at(k)));
     }
     stats_.inserted += count;
@@ -651,8 +654,9 @@ class RegionMesher {
       }
     }
     // The region's points in BRIO order, their local ids kept by position. The first
-    // rounds (an eighth in 3-d, a quarter in 2-d: a sample spread over the region) come first, and give the
-    // margin: the reach of their seeds' balls, scaled to the region's density.
+    // rounds (an eighth in 3-d, a quarter in 2-d: a sample spread over the region) come
+    // first, and give the margin: the reach of their seeds' balls, scaled to the
+    // region's density.
     const std::uint32_t region_points = last - first;
     order_.resize(region_points);
     for (std::uint32_t i = 0; i < region_points; ++i) order_[i] = i;
@@ -815,16 +819,9 @@ class RegionMesher {
     bucket_.assign(wanted_.size() + 1, 0);
     for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
       if (!tri_.is_live(c)) continue;
-      std::uint32_t owner = kNotWanted;
-      for (const std::uint32_t v : tri_.cell(c).v) {
-        if (v == Triangulation<D>::kInfinite) {
-          owner = kNotWanted;
-          break;
-        }
-        owner = std::min(owner, tri_.global(v));
-      }
+      const std::uint32_t owner = owner_of(tri_, c);
       std::uint32_t tag = 0;
-      if (owner != kNotWanted) {
+      if (owner != kNoOwner) {
         const std::uint32_t r = run_.split.position_of(owner);
         if (r >= first && r < last_ && index_of_[r - first] != kNotWanted) tag = index_of_[r - first] + 1;
       }
@@ -1071,10 +1068,7 @@ bool ties_dominate(const PointSet& points, const SpaceSplit& split) {
     std::vector<std::uint32_t> ids(count), scratch;
     for (std::uint32_t r = 0; r < count; ++r) ids[r] = split.point_at(r);
     insertion_order<D>(ids, scratch);
-    for (std::uint32_t k = 0; k < count; ++k) {
-      if (k + kPrefetchAhead < count) t.prefetch(ids[k + kPrefetchAhead]);
-      t.insert(ids[k]);
-    }
+    for (std::uint32_t k = 0; k < count; ++k) t.insert_next(ids, k);
     return static_cast<double>(t.stats().exact_calls) > kTiesPerPoint * count;
   });
 }

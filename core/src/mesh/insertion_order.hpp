@@ -55,9 +55,6 @@ void insertion_order(std::vector<std::uint32_t>& items, std::vector<std::uint32_
   for (const std::uint32_t i : items) scratch[start[slot(i)]++] = i;
   items.swap(scratch);
 }
-// How far ahead of an insertion its caller prefetches (Triangulation::prefetch).
-inline constexpr std::size_t kPrefetchAhead = 8;
-
 // The same for point ids.
 template <int D>
 void insertion_order(std::vector<std::uint32_t>& ids, std::vector<std::uint32_t>& scratch) {
