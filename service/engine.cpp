@@ -1,5 +1,8 @@
 #include "engine.hpp"
 
+#include "spokemesh/certify.hpp"
+#include "spokemesh/pieces.hpp"
+
 #include "spokemesh/cells.hpp"
 
 #include <algorithm>
@@ -146,7 +149,64 @@ ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t
           static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
 }
 
-Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits) : store_(std::move(store)), limits_(limits) {}
+Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSettings shards)
+    : store_(std::move(store)), limits_(limits), shards_(shards) {}
+
+namespace {
+
+// Whether a set of this shape is cut into pieces (2-d and 3-d plain sets: the exact
+// engine's halos and certificates are those dimensions').
+bool pieces_apply(const ShardSettings& shards, const PointSetInfo& info) {
+  return shards.pieces_above > 0 && info.count >= shards.pieces_above && (info.dimension == 2 || info.dimension == 3) &&
+         !info.weighted && info.periodic_box.empty();
+}
+
+}  // namespace
+
+Status Engine::ensure_pieces(const PointSetInfo& info, const PointSet* points) {
+  if (!pieces_apply(shards_, info)) return Status::ok();
+  auto layout = store_->layout(info.id);
+  if (!layout.is_ok()) return layout.status();
+  if (layout.value()) return Status::ok();
+  std::shared_ptr<const StoredSet> loaded;
+  if (points == nullptr) {
+    auto set = store_->get(info.id);
+    if (!set.is_ok()) return set.status();
+    loaded = std::move(set).value();
+    points = &loaded->points;
+  }
+  // The whole mesh's run and the halo lists, about (bench/README.md, "Sharded serving").
+  const std::uint64_t bytes = info.count * (160 + 24 * static_cast<std::uint64_t>(info.dimension));
+  auto charge = store_->budget().try_charge(bytes);
+  if (!charge) {
+    return store_->budget().over_budget(
+        "cutting point set " + info.id + " into pieces (or cut it with mpirun spokemesh-mpi store)", bytes);
+  }
+  PieceOptions options;
+  options.piece_points = shards_.piece_points;
+  options.threads = std::max(1u, limits_.stream_threads);
+  auto stored = store_->put_pieces(info.id, *points, options);
+  if (!stored.is_ok()) {
+    return Status{stored.status().code(), "point set " + info.id +
+                                              " is stored, but cutting it into pieces failed (upload it again to "
+                                              "retry): " +
+                                              stored.status().message()};
+  }
+  return Status::ok();
+}
+
+SeedRoute Engine::route_seed(const std::string& id, std::uint64_t seed) {
+  SeedRoute route;
+  if (!shards_.sharded() || !is_valid_id(id)) return route;
+  auto layout = store_->layout(id);
+  if (!layout.is_ok() || !layout.value() || seed >= layout.value()->manifest().count) return route;
+  auto piece = layout.value()->piece_of(seed);
+  if (!piece.is_ok()) return route;
+  route.piece = piece.value();
+  route.shard = shard_of_piece(piece.value(), layout.value()->pieces(), shards_.count);
+  route.here = route.shard == shards_.index;
+  return route;
+}
 
 Result<std::unique_ptr<UploadSession>> Engine::begin_upload(const UploadHeader& h) const {
   const std::string d = std::to_string(h.dimension), n = std::to_string(h.count);
@@ -258,6 +318,8 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
   if (auto existing = store_->info(info.id); existing.is_ok()) {
     const bool had = who.tenant.empty() || store_->owned_by(info.id, who.tenant);
     if (Status st = store_->add_owner(info.id, who.tenant); !st.is_ok()) return st;
+    // Its pieces, if an earlier upload stored it but could not cut it.
+    if (Status st = ensure_pieces(existing.value(), nullptr); !st.is_ok()) return st;
     existing->already_existed = had;
     return existing;
   }
@@ -287,6 +349,10 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
   // A concurrent identical upload may have created it first (already_existed): for a
   // tenant, what counts is whether it had the set before.
   if (stored.is_ok() && !who.tenant.empty()) stored->already_existed = had;
+  // A large set is also cut into pieces before it is acknowledged (sharded serving).
+  if (stored.is_ok()) {
+    if (Status st = ensure_pieces(info, &points); !st.is_ok()) return st;
+  }
   return stored;
 }
 
@@ -326,7 +392,27 @@ Status Engine::delete_point_set(const std::string& id, const Principal& who) {
 }
 
 Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_of(const std::string& id,
-                                                                                   std::uint64_t seed) {
+                                                                                   std::uint64_t seed, bool pieces) {
+  if (pieces && shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return layout.status();
+    if (layout.value()) {
+      const std::uint64_t n = layout.value()->manifest().count;
+      if (seed >= n) {
+        return out_of_range("seed: " + std::to_string(seed) + " is out of range; point set " + id + " has " +
+                            std::to_string(n) + " points (seeds 0.." + std::to_string(n - 1) + ")");
+      }
+      auto piece = layout.value()->piece_of(seed);
+      if (!piece.is_ok()) return piece.status();
+      auto set = store_->get_piece(id, piece.value());
+      if (!set.is_ok()) return set.status();
+      const std::uint32_t local = local_index(set.value()->piece->ids, seed);
+      if (local == kNotHeld)
+        return internal_error("point set " + id + ": piece " + std::to_string(piece.value()) +
+                              " does not hold its point " + std::to_string(seed));
+      return std::make_pair(std::move(set).value(), local);
+    }
+  }
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();
   const std::uint64_t n = set.value()->info.count;
@@ -400,7 +486,7 @@ Status Engine::check_query(const StoredSet& set, const DomainSpec* domain, const
 }
 
 Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const CallControl& control) {
-  auto target = seed_of(id, seed);
+  auto target = seed_of(id, seed, true);
   if (!target.is_ok()) return target.status();
   const auto& [set, s] = target.value();
   if (set->periodic) {
@@ -410,7 +496,9 @@ Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const
   }
   auto star = compute_star(*set, s, control);
   if (!star.is_ok()) return star.status();
-  return star_answer(*set, std::move(star).value());
+  StarAnswer answer = star_answer(*set, std::move(star).value());
+  if (set->piece) to_global(answer.star, set->piece->ids);
+  return answer;
 }
 
 StarAnswer Engine::star_answer(const StoredSet& set, Star star) {
@@ -429,7 +517,8 @@ StarAnswer Engine::star_answer(const StoredSet& set, Star star) {
 
 Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
                                          const CallControl& control) {
-  auto target = seed_of(id, seed);
+  // Approximate walks are answered from the whole set: their answer depends on it.
+  auto target = seed_of(id, seed, query.mode == NeighborQuery::Mode::kExact);
   if (!target.is_ok()) return target.status();
   const StoredSet& set = *target.value().first;
   if (Status s = check_query(set, nullptr, &query); !s.is_ok()) return s;
@@ -443,6 +532,7 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
     if (Status s = exact_allowed(set, "GetNeighbors with mode EXACT"); !s.is_ok()) return s;
     auto star = compute_star(set, target.value().second, control);
     if (!star.is_ok()) return star.status();
+    if (set.piece) to_global(star.value(), set.piece->ids);
     answer.neighbors = star_neighbors(star.value());
     return answer;
   }
@@ -491,13 +581,20 @@ Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const
     if (!h.is_ok()) return invalid_argument("domain." + h.status().message());
     return std::optional<Domain>(std::move(h).value());
   }
+  if ((spec.bounding_box || default_box) && set.piece) {
+    // The whole set's box (Domain::bounding_box of the whole set is this box).
+    const auto& g = set.piece->global_box;
+    auto box = Domain::box({g.begin(), g.begin() + d}, {g.begin() + d, g.end()});
+    if (!box.is_ok()) return box.status();
+    return std::optional<Domain>(std::move(box).value());
+  }
   if (spec.bounding_box || default_box) return std::optional<Domain>(Domain::bounding_box(set.points));
   return std::optional<Domain>();
 }
 
 Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const DomainSpec& spec,
                                  const CallControl& control) {
-  auto target = seed_of(id, seed);
+  auto target = seed_of(id, seed, true);
   if (!target.is_ok()) return target.status();
   const StoredSet& set = *target.value().first;
   if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
@@ -518,7 +615,9 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   if (domain == nullptr) {
     auto star = compute_star(set, seed, control);
     if (!star.is_ok()) return star.status();
-    return voronoi_cell(set.points, star.value(), set.weights);
+    VoronoiCell cell = voronoi_cell(set.points, star.value(), set.weights);
+    if (set.piece) to_global(cell, set.piece->ids);
+    return cell;
   }
   // Clipped: the same builder as StreamCells and `spokemesh cells`, so every route
   // gives the same bytes.
@@ -530,7 +629,89 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   auto cell = builder.cell(seed);
   if (cell.status().code() == Code::kCancelled)
     return control.stopped_status("the cell of seed " + std::to_string(seed));
+  if (cell.is_ok() && set.piece) {
+    // A piece's cell is the whole set's when the points within the reach that decided
+    // it are all held (as spokemesh-mpi certifies its cells); otherwise completed.
+    const double reach2 = builder.last_reach2();
+    const StarCertifier certifier(set.points, set.piece->global_box);
+    if (reach2 > 0 && !certifier.ball_is_held(seed, reach2 * (1 + 4 * kDistanceMargin), set.piece->held_box, {},
+                                              set.piece->global_box)) {
+      return complete_cell(set, seed, *domain, control);
+    }
+    to_global(cell.value(), set.piece->ids);
+  }
   return cell;
+}
+
+Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t seed, const Domain& domain,
+                                          const CallControl& control) {
+  const int d = piece.info.dimension;
+  const auto dd = static_cast<std::size_t>(d);
+  const std::uint64_t global_seed = piece.piece->ids[seed];
+  auto layout = store_->layout(piece.info.id);
+  if (!layout.is_ok()) return layout.status();
+  const PieceManifest& m = layout.value()->manifest();
+  const std::vector<double>& g = m.global_box;
+  const double* x = piece.points.point(seed);
+  // Start from the piece's held box's depth around the seed; double until held.
+  double radius = 0;
+  for (std::size_t c = 0; c < dd; ++c) {
+    radius = std::max(radius, piece.piece->held_box[dd + c] - piece.piece->held_box[c]);
+  }
+  for (;;) {
+    std::vector<double> around(2 * dd);
+    bool everything = true;
+    for (std::size_t c = 0; c < dd; ++c) {
+      around[c] = std::max(g[c], x[c] - radius);
+      around[dd + c] = std::min(g[dd + c], x[c] + radius);
+      everything = everything && around[c] <= g[c] && around[dd + c] >= g[dd + c];
+    }
+    // Every point inside `around` lies in a piece whose box meets it.
+    std::vector<std::pair<std::uint64_t, const double*>> held;
+    std::vector<std::shared_ptr<const StoredSet>> pieces;
+    for (std::uint32_t p = 0; p < m.pieces.size(); ++p) {
+      const std::vector<double>& b = m.pieces[p].box;
+      bool meets = true;
+      for (std::size_t c = 0; c < dd && meets; ++c) meets = b[c] <= around[dd + c] && b[dd + c] >= around[c];
+      if (!meets) continue;
+      auto other = store_->get_piece(piece.info.id, p);
+      if (!other.is_ok()) return other.status();
+      pieces.push_back(std::move(other).value());
+      const StoredSet& o = *pieces.back();
+      for (std::size_t k = 0; k < o.piece->ids.size(); ++k) held.emplace_back(o.piece->ids[k], o.points.point(k));
+    }
+    std::sort(held.begin(), held.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    held.erase(std::unique(held.begin(), held.end(), [](const auto& a, const auto& b) { return a.first == b.first; }),
+               held.end());
+    std::vector<double> coords;
+    std::vector<std::uint64_t> ids;
+    coords.reserve(held.size() * dd);
+    for (const auto& [id, p] : held) {
+      ids.push_back(id);
+      coords.insert(coords.end(), p, p + dd);
+    }
+    held = {};
+    pieces.clear();
+    PointSet points(d, std::move(coords));
+    if (Status s = points.validate("point set " + piece.info.id); !s.is_ok()) return s;
+    const KdTree tree(points);
+    StarOptions options;
+    options.cancel = control.stop_flag();
+    ClippedCellBuilder builder(tree, domain, options);
+    const std::uint32_t local = local_index(ids, global_seed);
+    auto cell = builder.cell(local);
+    if (cell.status().code() == Code::kCancelled) {
+      return control.stopped_status("the cell of seed " + std::to_string(global_seed));
+    }
+    if (!cell.is_ok()) return cell.status();
+    const double reach2 = builder.last_reach2();
+    const StarCertifier certifier(points, g);
+    if (everything || reach2 <= 0 || certifier.ball_is_held(local, reach2 * (1 + 4 * kDistanceMargin), around, {}, g)) {
+      to_global(cell.value(), ids);
+      return cell;
+    }
+    radius *= 2;
+  }
 }
 
 namespace {
@@ -649,6 +830,13 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   if (seeds.size() > defaults::kMaxBatchSeeds) {
     return invalid_argument("seeds: " + std::to_string(seeds.size()) + " exceed the limit of " +
                             std::to_string(defaults::kMaxBatchSeeds) + " per call");
+  }
+  if (shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return layout.status();
+    if (layout.value()) {
+      return batch_from_pieces(id, layout.value()->manifest().count, seeds, kind, query, spec, control, emit);
+    }
   }
   auto set_or = store_->get(id);
   if (!set_or.is_ok()) return set_or.status();
@@ -787,6 +975,38 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   };
   const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
   return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds", answer, emit);
+}
+
+Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
+                                 BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
+                                 const CallControl& control, const AnswerSink& emit) {
+  for (std::size_t i = 0; i < seeds.size(); ++i) {
+    if (seeds[i] >= count) {
+      return out_of_range("seeds[" + std::to_string(i) + "]: seed " + std::to_string(seeds[i]) +
+                          " is out of range (the point set has " + std::to_string(count) + " points)");
+    }
+  }
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  // Each seed as its single call answers it, from the piece holding it.
+  auto answer = [&](unsigned, std::size_t i, BatchAnswer& a) -> Status {
+    a.seed = seeds[i];
+    if (kind == BatchKind::kStars) {
+      auto r = star(id, seeds[i], control);
+      if (r.is_ok()) a.star = std::move(r).value();
+      return r.status();
+    }
+    if (kind == BatchKind::kNeighbors) {
+      auto r = neighbors(id, seeds[i], query, control);
+      if (r.is_ok()) a.neighbors = std::move(r).value();
+      return r.status();
+    }
+    auto r = cell(id, seeds[i], spec, control);
+    if (r.is_ok()) a.cell = std::move(r).value();
+    return r.status();
+  };
+  return in_rounds<BatchAnswer>(seeds.size(), threads, 128 * threads, control, "a batch of seeds", answer, emit);
 }
 
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {

@@ -186,9 +186,32 @@ struct ShardRange {
 };
 ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count);
 
+// Sharded serving (docs/service.md, "Sharded serving"): sets of at least
+// `pieces_above` points are also stored as pieces (pieces.hpp), and a replica of shard
+// `index` of `count` answers the seeds of its pieces from them alone.
+struct ShardSettings {
+  std::uint32_t index = 0;
+  std::uint32_t count = 0;         // 0: not sharded (sets are held whole)
+  std::uint64_t pieces_above = 0;  // 0: uploads are not cut into pieces
+  std::uint32_t piece_points = kDefaultPiecePoints;
+  bool sharded() const { return count > 0; }
+};
+
+// Where a seed's request is answered: here, or by a replica of `shard`.
+struct SeedRoute {
+  bool here = true;
+  std::uint32_t shard = 0;
+  std::uint32_t piece = 0;
+};
+
 class Engine {
  public:
-  Engine(std::unique_ptr<PointSetStore> store, Limits limits);
+  Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSettings shards = {});
+
+  const ShardSettings& shards() const { return shards_; }
+  // The shard whose replicas answer `seed` of set `id` (here for a set held whole, for
+  // a replica that is not sharded, and for any error, which the local call reports).
+  SeedRoute route_seed(const std::string& id, std::uint64_t seed);
 
   const Limits& limits() const { return limits_; }
   PointSetStore& store() { return *store_; }
@@ -265,7 +288,21 @@ class Engine {
                       const CallControl& control, const CellBatchSink& emit, ShardRange* range = nullptr);
 
  private:
-  Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed);
+  // The set holding a seed and the seed's index in it: the whole set, or on a sharded
+  // replica (with `pieces`) the piece holding it (StoredSet::piece; map answers back).
+  Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed,
+                                                                             bool pieces = false);
+  // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
+  Status batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
+                           BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
+                           const CallControl& control, const AnswerSink& emit);
+  // Cuts a stored set into pieces when its shape and size call for it (ShardSettings)
+  // and it has none yet; `points` null: loaded from the store.
+  Status ensure_pieces(const PointSetInfo& info, const PointSet* points);
+  // A clipped cell of a piece's seed whose reach the piece does not hold: rebuilt from
+  // the pieces whose boxes meet a box around the seed, grown until it holds the reach.
+  Result<VoronoiCell> complete_cell(const StoredSet& piece, std::uint32_t seed, const Domain& domain,
+                                    const CallControl& control);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
   // A periodic set's star (and cell, when asked) of one seed.
   static Result<PeriodicStar> periodic_star_of(const StoredSet& set, std::uint32_t seed, const CallControl& control,
@@ -300,6 +337,7 @@ class Engine {
 
   std::unique_ptr<PointSetStore> store_;
   Limits limits_;
+  ShardSettings shards_;
 };
 
 }  // namespace spokemesh::service

@@ -50,6 +50,15 @@ class MesherService::Call {
   const Principal& principal() const { return principal_; }
   const CallControl& control() const { return control_; }
 
+  // A call answered by another shard's replica, recorded with its code.
+  grpc::Status finish_relayed(const grpc::Status& s) {
+    record_.code = static_cast<Code>(s.error_code());
+    record_.message = s.error_message();
+    record_.seconds = timer_.seconds();
+    service_.telemetry_.record(record_);
+    return s;
+  }
+
   grpc::Status finish(const Status& s) {
     record_.code = s.code();
     record_.message = s.message();
@@ -76,8 +85,9 @@ class MesherService::Call {
   Telemetry::Request record_;
 };
 
-MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth)
-    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)) {}
+MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
+                             ShardPeers* peers)
+    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), peers_(peers) {}
 
 template <class Request, class Open>
 grpc::Status MesherService::receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
@@ -209,9 +219,36 @@ grpc::Status MesherService::DownloadPointSet(grpc::ServerContext* ctx, const pb:
   return call.finish(Status::ok());
 }
 
+template <class Request, class Response, class Method>
+std::optional<grpc::Status> MesherService::relay(Call& call, grpc::ServerContext* ctx, const Request& request,
+                                                 Response* response, Method method) {
+  if (peers_ == nullptr) return std::nullopt;
+  const auto& md = ctx->client_metadata();
+  if (md.find(kForwardedHeader) != md.end()) return std::nullopt;  // relayed once: answered here
+  const SeedRoute route = engine_.route_seed(request.point_set_id(), request.seed());
+  if (route.here) return std::nullopt;
+  auto stub = pb::Mesher::NewStub(peers_->grpc_channel(route.shard));
+  grpc::ClientContext client;
+  client.set_deadline(
+      std::chrono::system_clock::now() +
+      std::chrono::duration_cast<std::chrono::system_clock::duration>(call.control().deadline() - Clock::now()));
+  client.AddMetadata(kForwardedHeader, std::to_string(peers_->shards().index));
+  if (const auto it = md.find("authorization"); it != md.end()) {
+    client.AddMetadata("authorization", std::string(it->second.data(), it->second.size()));
+  }
+  grpc::Status status = ((*stub).*method)(&client, request, response);
+  telemetry_.add_forwarded(route.shard, static_cast<Code>(status.error_code()));
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+    response->Clear();
+    return call.finish(peers_->unavailable(route.shard, peers_->grpc_address(route.shard), status.error_message()));
+  }
+  return call.finish_relayed(status);
+}
+
 grpc::Status MesherService::GetStar(grpc::ServerContext* ctx, const pb::SeedRequest* request, pb::Star* response) {
   Call call(*this, ctx, "GetStar", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
+  if (auto relayed = relay(call, ctx, *request, response, &pb::Mesher::Stub::GetStar)) return *relayed;
   auto answer = engine_.star(request->point_set_id(), request->seed(), call.control());
   if (!answer.is_ok()) return call.finish(answer.status());
   response->set_point_set_id(request->point_set_id());
@@ -225,6 +262,7 @@ grpc::Status MesherService::GetNeighbors(grpc::ServerContext* ctx, const pb::Get
                                          pb::Neighbors* response) {
   Call call(*this, ctx, "GetNeighbors", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
+  if (auto relayed = relay(call, ctx, *request, response, &pb::Mesher::Stub::GetNeighbors)) return *relayed;
   auto query_or = neighbor_query(request->mode(), request->max_consecutive_misses(), request->max_vertices());
   if (!query_or.is_ok()) return call.finish(query_or.status());
   const NeighborQuery query = query_or.value();
@@ -314,6 +352,7 @@ grpc::Status MesherService::GetVoronoiCell(grpc::ServerContext* ctx, const pb::G
                                            pb::VoronoiCell* response) {
   Call call(*this, ctx, "GetVoronoiCell", request->point_set_id(), request->seed());
   if (!call.auth().is_ok()) return call.finish(call.auth());
+  if (auto relayed = relay(call, ctx, *request, response, &pb::Mesher::Stub::GetVoronoiCell)) return *relayed;
   auto cell = engine_.cell(request->point_set_id(), request->seed(), domain_spec(request->domain()), call.control());
   if (!cell.is_ok()) return call.finish(cell.status());
   response->set_point_set_id(request->point_set_id());

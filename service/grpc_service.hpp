@@ -12,6 +12,7 @@
 
 #include "auth.hpp"
 #include "engine.hpp"
+#include "shard_peers.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 #include "telemetry.hpp"
 
@@ -24,7 +25,9 @@ grpc::Status to_grpc(const Status& s);
 class MesherService final : public pb::Mesher::Service {
  public:
   // auth: who may call and which sets they see (auth.hpp); shared with the REST API.
-  MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth);
+  // peers: on a sharded replica, the way to the other shards (null otherwise).
+  MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
+                ShardPeers* peers = nullptr);
 
   grpc::Status UploadPointSet(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadPointSetRequest>* reader,
                               pb::PointSet* response) override;
@@ -57,9 +60,15 @@ class MesherService final : public pb::Mesher::Service {
   template <class Request, class Open>
   grpc::Status receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
                               const Open& open, pb::PointSet* response);
+  // A seed's call for another shard's piece, answered by a replica of that shard
+  // (nullopt: answer it here). UNAVAILABLE names the shard when none answers.
+  template <class Request, class Response, class Method>
+  std::optional<grpc::Status> relay(Call& call, grpc::ServerContext* ctx, const Request& request, Response* response,
+                                    Method method);
   Engine& engine_;
   Telemetry& telemetry_;
   std::shared_ptr<const Authenticator> auth_;
+  ShardPeers* peers_;
 };
 
 void fill_point_set(const PointSetInfo& info, pb::PointSet* out);

@@ -218,8 +218,13 @@ struct HttpApi::Context {
 };
 
 HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
-                 std::function<bool()> ready, std::shared_ptr<const UiAssets> ui)
-    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), ready_(std::move(ready)), ui_(std::move(ui)) {}
+                 std::function<bool()> ready, std::shared_ptr<const UiAssets> ui, ShardPeers* peers)
+    : engine_(engine),
+      telemetry_(telemetry),
+      auth_(std::move(auth)),
+      ready_(std::move(ready)),
+      ui_(std::move(ui)),
+      peers_(peers) {}
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
@@ -303,6 +308,8 @@ HttpResponse HttpApi::route(Context& c) {
     c.record.method = "Metrics";
     auto& store = engine_.store();
     telemetry_.set_memory(store.memory_in_use(), store.loaded_count(), store.budget().used(), store.budget().limit());
+    const auto [pieces, piece_bytes] = store.pieces_in_memory();
+    telemetry_.set_pieces(pieces, piece_bytes);
     HttpResponse r;
     r.content_type = "text/plain; version=0.0.4";
     r.body = telemetry_.render_metrics();
@@ -480,6 +487,12 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   auto seed = parse_uint(seed_text, "seed");
   if (!seed.is_ok()) return c.fail(seed.status());
   c.record.seed = seed.value();
+  // A seed of another shard's piece is answered there (once: a relayed request is not
+  // relayed again, it is answered here from the piece).
+  if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
+    const SeedRoute route = engine_.route_seed(id, seed.value());
+    if (!route.here) return forward(c, route.shard);
+  }
   CallControl control(c.deadline, c.client_gone);
   if (what == "star") {
     auto answer = engine_.star(id, seed.value(), control);
@@ -511,6 +524,46 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   json body = cell_json(cell.value());
   body["point_set_id"] = id;
   return c.ok(body);
+}
+
+HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
+  ShardPeers::HttpRequest request = c.request;
+  // The peer's deadline is what is left of this one.
+  const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(c.deadline - Clock::now());
+  request.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
+  auto relayed = peers_->forward_http(shard, std::move(request), c.deadline);
+  telemetry_.add_forwarded(shard, relayed.status().code());
+  if (!relayed.is_ok()) return c.fail(relayed.status());
+  ShardPeers::HttpResponse& peer = relayed.value();
+  HttpResponse r;
+  r.status = peer.result_int();
+  if (r.status >= 400) {
+    // Recorded here as the peer answered it (the gRPC code its error names).
+    const json error = json::parse(peer.body(), nullptr, false);
+    c.record.code = Code::kInternal;
+    if (error.is_object() && error.contains("error") && error["error"].is_object()) {
+      const std::string name = error["error"].value("status", "");
+      for (Code k : {Code::kCancelled, Code::kInvalidArgument, Code::kDeadlineExceeded, Code::kNotFound,
+                     Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
+                     Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
+        if (name == code_name(k)) c.record.code = k;
+      }
+      c.record.message = error["error"].value("message", "");
+    }
+  }
+  r.content_type = std::string(peer[http::field::content_type]);
+  r.body = std::move(peer.body());
+  for (const auto& field : peer) {
+    const auto name = field.name();
+    if (name == http::field::content_type || name == http::field::content_length || name == http::field::connection ||
+        name == http::field::keep_alive || name == http::field::transfer_encoding || name == http::field::server ||
+        name == http::field::date) {
+      continue;
+    }
+    r.headers.emplace_back(std::string(field.name_string()), std::string(field.value()));
+  }
+  r.headers.emplace_back("X-Spokemesh-Shard", std::to_string(shard));
+  return r;
 }
 
 // A stream records its own outcome once it ends (after the headers went out).

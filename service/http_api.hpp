@@ -11,6 +11,7 @@
 //   GET    /v1/pointsets/{id}
 //   DELETE /v1/pointsets/{id}
 //   GET    /v1/pointsets/{id}/seeds/{seed}/star | neighbors | cell
+//                                              (on a sharded replica, relayed to the seed's shard)
 //   GET    /v1/pointsets/{id}/simplices?shard=k&shards=n[&batch_size=b]
 //                                              NDJSON, one simplex per line, chunked
 //   GET    /v1/pointsets/{id}/points[?dtype=float64|float32]
@@ -36,6 +37,7 @@
 
 #include "auth.hpp"
 #include "engine.hpp"
+#include "shard_peers.hpp"
 #include "telemetry.hpp"
 #include "ui.hpp"
 
@@ -63,8 +65,10 @@ class HttpApi {
  public:
   // ready(): false while starting or shutting down (/readyz answers 503). ui: the
   // browser page's files; null (--no-ui) serves no page at all.
+  // peers: on a sharded replica, the way to the other shards (a seed's request for
+  // another shard's piece is relayed there); null otherwise.
   HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth, std::function<bool()> ready,
-          std::shared_ptr<const UiAssets> ui = nullptr);
+          std::shared_ptr<const UiAssets> ui = nullptr, ShardPeers* peers = nullptr);
 
   // client_gone: polled during long computations to stop work for a closed connection.
   HttpResponse handle_request(const http::request<http::string_body>& request, std::function<bool()> client_gone = {});
@@ -82,6 +86,8 @@ class HttpApi {
   HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent,
                             std::span<const char> weights = {});
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
+  // The request relayed to a replica of `shard`, its response returned as it came.
+  HttpResponse forward(Context& c, std::uint32_t shard);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse points(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);
@@ -96,6 +102,7 @@ class HttpApi {
   std::shared_ptr<const Authenticator> auth_;
   std::function<bool()> ready_;
   std::shared_ptr<const UiAssets> ui_;
+  ShardPeers* peers_;
 };
 
 }  // namespace spokemesh::service

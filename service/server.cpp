@@ -89,8 +89,21 @@ int run_server(const ServerConfig& config) {
       PointSetStore::open(config.data_dir, config.limits.max_memory,
                           [&telemetry](const std::string& level, const std::string& m) { telemetry.log(level, m); });
   if (!store.is_ok()) return config_error(store.status());
-  Engine engine(std::move(store).value(), config.limits);
-  const std::size_t loaded = engine.store().load_all();
+  Engine engine(std::move(store).value(), config.limits, config.shards);
+  // A shard replica loads the pieces it is asked for, never a set kept as pieces whole.
+  const std::size_t loaded = engine.store().load_all([&](const std::string& id) {
+    if (!config.shards.sharded()) return false;
+    auto layout = engine.store().layout(id);
+    return !layout.is_ok() || layout.value() != nullptr;
+  });
+  std::unique_ptr<ShardPeers> peers;
+  telemetry.set_shard(config.shards.index, config.shards.count);
+  if (config.shards.sharded()) {
+    peers = std::make_unique<ShardPeers>(config.shards, config.shard_http, config.shard_grpc);
+    telemetry.log("info", "serving shard " + std::to_string(config.shards.index) + " of " +
+                              std::to_string(config.shards.count) + "; other shards at " + config.shard_http +
+                              " (REST) and " + config.shard_grpc + " (gRPC)");
+  }
   // Free pages back to the system after every 4 MB of churn, checked twice a second.
   HeapTrimmer trimmer(engine.store().budget(), std::chrono::milliseconds(500), 4u << 20);
   telemetry.log("info",
@@ -105,7 +118,7 @@ int run_server(const ServerConfig& config) {
     if (Status s = setup_tls(config, grpc_credentials, http_options.tls); !s.is_ok()) return config_error(s);
   }
 
-  MesherService mesher(engine, telemetry, auth);
+  MesherService mesher(engine, telemetry, auth, peers.get());
   std::shared_ptr<const UiAssets> ui;
   if (config.ui) {
     ui = UiAssets::load(config.ui_three_dir);
@@ -115,7 +128,7 @@ int run_server(const ServerConfig& config) {
     }
   }
   HttpApi api(
-      engine, telemetry, auth, [&ready] { return ready.load(); }, ui);
+      engine, telemetry, auth, [&ready] { return ready.load(); }, ui, peers.get());
   HttpServer http_server(api, telemetry, http_options);
 
   grpc::EnableDefaultHealthCheckService(true);

@@ -33,6 +33,8 @@ struct ServerConfig {
   std::string keys_file;                                     // --keys, re-read on SIGHUP
   bool ui = true;                                            // serve the browser page (--no-ui: not)
   std::string ui_three_dir = "/usr/share/javascript/three";  // Debian's libjs-three
+  ShardSettings shards;                                      // --shard, --pieces-above, --piece-points
+  std::string shard_http, shard_grpc;                        // the other shards' addresses ({shard} templates)
   std::chrono::milliseconds drain{0}, grace{0};
   std::string drain_text, grace_text;  // as given, for the log
 };
@@ -63,6 +65,10 @@ struct ServerFlags {
   std::string tls_cert, tls_key, tls_client_ca, auth_token_file, keys_file;
   bool no_ui = false;
   std::string ui_three_dir = "/usr/share/javascript/three";
+  std::string shard;  // K/N
+  std::string shard_http = "spokemesh-shard-{shard}:8080", shard_grpc = "spokemesh-shard-{shard}:50051";
+  std::string pieces_above = "auto";
+  std::uint32_t piece_points = kDefaultPiecePoints;
 };
 
 // Adds every flag to `app` (its defaults are the fields' values).

@@ -1,6 +1,7 @@
 // spokemesh-server's flags and the ServerConfig they make (server.hpp).
 #include <unistd.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 #include <thread>
@@ -122,6 +123,23 @@ void add_server_flags(CLI::App& app, ServerFlags& f) {
   app.add_option("--ui-three-dir", f.ui_three_dir,
                  "Where the page finds three.js (Debian's libjs-three), read once at startup")
       ->capture_default_str();
+  app.add_option("--shard", f.shard,
+                 "Serve shard K of N (K/N, 0 <= K < N): of each set kept as pieces, hold only the pieces of shard K "
+                 "(contiguous runs in sweep order) and relay other seeds' requests to their shard "
+                 "(docs/service.md, \"Sharded serving\")");
+  app.add_option("--shard-http", f.shard_http,
+                 "REST address of shard {shard}'s replicas (a name resolving to them), or one entry per shard "
+                 "separated by ';', each listing its replicas' HOST:PORT separated by ','")
+      ->capture_default_str();
+  app.add_option("--shard-grpc", f.shard_grpc, "gRPC address of shard {shard}'s replicas (as --shard-http)")
+      ->capture_default_str();
+  app.add_option("--pieces-above", f.pieces_above,
+                 "Uploads of 2-d and 3-d sets of at least this many points are also stored as pieces before they "
+                 "are acknowledged (auto: 8000000 with --shard, else never; 0: never)")
+      ->capture_default_str();
+  app.add_option("--piece-points", f.piece_points, "Most points in a piece (the layout of sets cut from now on)")
+      ->check(CLI::Range(std::uint32_t{64}, std::uint32_t{1} << 30))
+      ->capture_default_str();
   app.add_option("--keys", f.keys_file,
                  "API keys with tenants, one `key tenant [admin]` per line (re-read on SIGHUP): a tenant sees only "
                  "its own point sets, an admin all");
@@ -192,6 +210,45 @@ Result<ServerConfig> make_config(const ServerFlags& f) {
     if (c.token.empty()) return invalid_argument("--auth-token-file: " + f.auth_token_file + " is empty");
   }
   c.keys_file = f.keys_file;
+  if (!f.shard.empty()) {
+    const std::size_t slash = f.shard.find('/');
+    std::uint64_t k = 0, n = 0;
+    const bool parsed = slash != std::string::npos && slash > 0 && slash + 1 < f.shard.size() &&
+                        f.shard.find_first_not_of("0123456789/") == std::string::npos &&
+                        f.shard.find('/', slash + 1) == std::string::npos;
+    if (parsed) {
+      k = std::stoull(f.shard.substr(0, slash));
+      n = std::stoull(f.shard.substr(slash + 1));
+    }
+    if (!parsed || n == 0 || k >= n || n > 4096) {
+      return invalid_argument("--shard: \"" + f.shard + "\" is not K/N with 0 <= K < N <= 4096 (e.g. 0/4)");
+    }
+    if (!f.tls_cert.empty()) {
+      return invalid_argument(
+          "--shard with --tls-cert: the hop between shards is plain; serve TLS at the front door instead");
+    }
+    for (const auto* t : {&f.shard_http, &f.shard_grpc}) {
+      const bool listed = static_cast<std::uint64_t>(std::count(t->begin(), t->end(), ';')) + 1 == n;
+      if (t->find(':') == std::string::npos || (t->find("{shard}") == std::string::npos && !listed)) {
+        return invalid_argument(std::string(t == &f.shard_http ? "--shard-http" : "--shard-grpc") + ": \"" + *t +
+                                "\" must be HOST:PORT with {shard} where the shard's number goes, or " +
+                                std::to_string(n) + " entries separated by ';' (one per shard, replicas by ',')");
+      }
+    }
+    c.shards.index = static_cast<std::uint32_t>(k);
+    c.shards.count = static_cast<std::uint32_t>(n);
+  }
+  c.shard_http = f.shard_http;
+  c.shard_grpc = f.shard_grpc;
+  c.shards.piece_points = f.piece_points;
+  if (f.pieces_above == "auto") {
+    c.shards.pieces_above = c.shards.sharded() ? 8000000 : 0;
+  } else if (!f.pieces_above.empty() && f.pieces_above.find_first_not_of("0123456789") == std::string::npos &&
+             f.pieces_above.size() < 19) {
+    c.shards.pieces_above = std::stoull(f.pieces_above);
+  } else {
+    return invalid_argument("--pieces-above: \"" + f.pieces_above + "\" is not a number of points or auto");
+  }
   c.ui = !f.no_ui;
   c.ui_three_dir = f.ui_three_dir;
   return c;

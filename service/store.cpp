@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <cstring>
 #include <ctime>
+#include <filesystem>
 #include <random>
 
 namespace spokemesh::service {
@@ -266,7 +267,7 @@ void PointSetStore::reclaim(std::uint64_t bytes) {
       if (it->use_count() != 1) continue;  // a request is using it: dropping frees nothing now
       freed += (*it)->memory_bytes;
       in_use_ -= (*it)->memory_bytes;
-      index_.erase((*it)->info.id);
+      index_.erase((*it)->cache_key());
       dropped.push_back(std::move(*it));
       it = lru_.erase(it);
     }
@@ -617,23 +618,141 @@ void PointSetStore::quarantine(const std::string& id, const std::string& why) {
 
 std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const StoredSet> set) {
   std::lock_guard lock(mutex_);
-  if (auto it = index_.find(set->info.id); it != index_.end()) {
+  const std::string key = set->cache_key();
+  if (auto it = index_.find(key); it != index_.end()) {
     lru_.splice(lru_.begin(), lru_, it->second);
     return *it->second;  // another request loaded it first
   }
   lru_.push_front(set);
-  index_[set->info.id] = lru_.begin();
+  index_[key] = lru_.begin();
   in_use_ += set->memory_bytes;
   return set;  // the budget, not a count, decides when sets leave memory (reclaim)
 }
 
 void PointSetStore::forget(const std::string& id) {
+  std::vector<std::shared_ptr<const StoredSet>> dropped;  // destroyed outside the lock
   std::lock_guard lock(mutex_);
   if (auto it = index_.find(id); it != index_.end()) {
     in_use_ -= (*it->second)->memory_bytes;
+    dropped.push_back(std::move(*it->second));
     lru_.erase(it->second);
     index_.erase(it);
   }
+  // Its pieces and layout too (a set deleted, possibly through another server).
+  if (layouts_.erase(id) != 0) {
+    for (auto it = lru_.begin(); it != lru_.end();) {
+      if ((*it)->piece && (*it)->info.id == id) {
+        in_use_ -= (*it)->memory_bytes;
+        index_.erase((*it)->cache_key());
+        dropped.push_back(std::move(*it));
+        it = lru_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+}
+
+PieceLayout::~PieceLayout() {
+  if (owners_fd_ >= 0) ::close(owners_fd_);
+}
+
+Result<std::uint32_t> PieceLayout::piece_of(std::uint64_t seed) const {
+  std::uint32_t piece = 0;
+  const ssize_t got = ::pread(owners_fd_, &piece, 4, static_cast<off_t>(seed * 4));
+  if (got != 4 || piece >= pieces()) {
+    return internal_error("point set " + manifest_.set_id + ": its owner map has no valid entry for point " +
+                          std::to_string(seed));
+  }
+  return piece;
+}
+
+Result<std::shared_ptr<const PieceLayout>> PointSetStore::layout(const std::string& id) {
+  if (!is_valid_id(id)) return not_an_id(id);
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = layouts_.find(id); it != layouts_.end()) return it->second;
+  }
+  auto manifest = read_manifest(dir_, id);
+  if (manifest.status().code() == Code::kNotFound) return std::shared_ptr<const PieceLayout>();
+  if (!manifest.is_ok()) return manifest.status();
+  const std::string owners = pieces_dir(dir_, id) + "/owners";
+  const int fd = ::open(owners.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return internal_error(owners + ": cannot open: " + errno_text());
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || static_cast<std::uint64_t>(st.st_size) != manifest->count * 4) {
+    ::close(fd);
+    return internal_error(owners + ": not one 4-byte entry per point of the manifest");
+  }
+  auto layout = std::make_shared<const PieceLayout>(std::move(manifest).value(), fd);
+  std::lock_guard lock(mutex_);
+  return layouts_.emplace(id, std::move(layout)).first->second;
+}
+
+Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::string& id, std::uint32_t piece) {
+  if (!file_exists(data_path(id))) {
+    forget(id);  // deleted, possibly through another server sharing the data dir
+    return Status{Code::kNotFound, "point set " + id + " not found"};
+  }
+  const std::string key = id + "/" + std::to_string(piece);
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = index_.find(key); it != index_.end()) {
+      lru_.splice(lru_.begin(), lru_, it->second);
+      return *it->second;
+    }
+  }
+  auto layout = this->layout(id);
+  if (!layout.is_ok()) return layout.status();
+  if (!layout.value() || piece >= layout.value()->pieces()) {
+    return internal_error("point set " + id + " has no piece " + std::to_string(piece));
+  }
+  const PieceManifest& m = layout.value()->manifest();
+  const PieceEntry& entry = m.pieces[piece];
+  // Charged before it is read: its points, ids and tree.
+  const std::uint64_t bytes = estimated_memory(entry.held, m.dimension) + 9 * entry.held;
+  auto charge = budget_.try_charge(bytes);
+  if (!charge) return budget_.over_budget("loading piece " + std::to_string(piece) + " of point set " + id, bytes);
+  auto read = read_piece(pieces_dir(dir_, id) + "/" + std::to_string(piece) + ".piece", m, piece);
+  if (!read.is_ok()) {
+    log_("error", read.status().message());
+    return Status{Code::kUnavailable, "point set " + id + ": piece " + std::to_string(piece) +
+                                          " cannot be read: " + read.status().message()};
+  }
+  auto points = piece_point_set(read.value());
+  if (!points.is_ok()) return points.status();
+  auto set = std::make_shared<StoredSet>();
+  set->points = std::move(points).value();
+  set->info.id = id;
+  set->info.dimension = m.dimension;
+  set->info.count = entry.held;
+  PieceOf of;
+  of.index = piece;
+  of.ids = std::move(read->ids);
+  of.held_box = std::move(read->held_box);
+  of.global_box = m.global_box;
+  set->piece = std::move(of);
+  set->tree = std::make_unique<KdTree>(set->points);
+  set->memory_bytes = bytes;
+  set->charge = std::move(*charge);
+  return remember(std::shared_ptr<const StoredSet>(std::move(set)));
+}
+
+Result<PieceManifest> PointSetStore::put_pieces(const std::string& id, const PointSet& points,
+                                                const PieceOptions& options) {
+  return store_pieces(points, id, dir_, options);
+}
+
+std::pair<std::size_t, std::uint64_t> PointSetStore::pieces_in_memory() const {
+  std::lock_guard lock(mutex_);
+  std::pair<std::size_t, std::uint64_t> out{0, 0};
+  for (const auto& set : lru_) {
+    if (set->piece) {
+      ++out.first;
+      out.second += set->memory_bytes;
+    }
+  }
+  return out;
 }
 
 std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::size_t limit, bool* more,
@@ -669,12 +788,14 @@ Status PointSetStore::remove(const std::string& id) {
     return {Code::kInternal, "cannot delete point set " + id + ": " + errno_text()};
   }
   ::unlink(name_path(id).c_str());
+  std::error_code ignored;
+  std::filesystem::remove_all(pieces_dir(dir_, id), ignored);
   remove_owner_markers(id);
   fsync_dir(dir_);
   return Status::ok();
 }
 
-std::size_t PointSetStore::load_all() {
+std::size_t PointSetStore::load_all(const std::function<bool(const std::string&)>& skip) {
   std::size_t loaded = 0;
   bool more = true;
   std::string after;
@@ -686,6 +807,7 @@ std::size_t PointSetStore::load_all() {
         std::lock_guard lock(mutex_);
         if (index_.count(info.id) != 0) continue;
       }
+      if (skip && skip(info.id)) continue;
       // Verifies (quarantining what fails); keeps what fits the budget as it is now.
       auto charge = budget_.try_charge(
           estimated_memory(info.count, info.dimension, info.weighted, !info.periodic_box.empty()), /*reclaim=*/false);

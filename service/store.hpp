@@ -38,6 +38,7 @@
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_box.hpp"
 #include "spokemesh/periodic_cells.hpp"
+#include "spokemesh/pieces.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/status.hpp"
@@ -52,6 +53,15 @@ struct PointSetInfo {
   bool already_existed = false;
   bool weighted = false;             // carries one power weight per point
   std::vector<double> periodic_box;  // LO_1..LO_d, HI_1..HI_d of its torus, or empty
+};
+
+// What a StoredSet holding one piece of a set (pieces.hpp) knows of it: its local
+// index k is global index ids[k].
+struct PieceOf {
+  std::uint32_t index = 0;
+  std::vector<std::uint64_t> ids;  // ascending
+  std::vector<double> held_box;    // every point of the set inside is held
+  std::vector<double> global_box;  // the whole set's box (the default domain of its cells)
 };
 
 // A point set ready for queries. Immutable; shared by concurrent requests.
@@ -75,6 +85,27 @@ struct StoredSet {
   mutable std::mutex whole_mu;
   mutable std::shared_ptr<const WholeTriangulation> whole;
   mutable MemoryBudget::Charge whole_charge;
+  // Set when this holds one piece of the set (info.count is then the piece's held points).
+  std::optional<PieceOf> piece;
+  // The key it is cached under: the id, or for a piece "<id>/<piece>".
+  std::string cache_key() const { return piece ? info.id + "/" + std::to_string(piece->index) : info.id; }
+};
+
+// A set kept as pieces (pieces.hpp): its manifest, and its owner map open for lookups.
+class PieceLayout {
+ public:
+  PieceLayout(PieceManifest manifest, int owners_fd) : manifest_(std::move(manifest)), owners_fd_(owners_fd) {}
+  ~PieceLayout();
+  PieceLayout(const PieceLayout&) = delete;
+  PieceLayout& operator=(const PieceLayout&) = delete;
+  const PieceManifest& manifest() const { return manifest_; }
+  std::uint32_t pieces() const { return static_cast<std::uint32_t>(manifest_.pieces.size()); }
+  // The piece holding point `seed` (< manifest().count): one 4-byte read of the owner map.
+  Result<std::uint32_t> piece_of(std::uint64_t seed) const;
+
+ private:
+  PieceManifest manifest_;
+  int owners_fd_;
 };
 
 // Incremental SHA-256 (OpenSSL EVP).
@@ -133,6 +164,16 @@ class PointSetStore {
   // INVALID_ARGUMENT for a malformed id.
   Result<std::shared_ptr<const StoredSet>> get(const std::string& id);
 
+  // Pieces (pieces.hpp): the layout of a set kept as pieces, cached (null when the set
+  // has none); one piece loaded with its tree, cached and charged like a set (least
+  // recently used first out); and writing a set's pieces (the set must be stored).
+  Result<std::shared_ptr<const PieceLayout>> layout(const std::string& id);
+  Result<std::shared_ptr<const StoredSet>> get_piece(const std::string& id, std::uint32_t piece);
+  Result<PieceManifest> put_pieces(const std::string& id, const PointSet& points, const PieceOptions& options);
+  // Pieces loaded now, and their bytes (for /metrics).
+  std::pair<std::size_t, std::uint64_t> pieces_in_memory() const;
+  const std::string& directory() const { return dir_; }
+
   // Metadata only (reads the 12-byte header and the extras' tags and box, does not load
   // or verify coordinates).
   Result<PointSetInfo> info(const std::string& id);
@@ -164,8 +205,10 @@ class PointSetStore {
 
   Status remove(const std::string& id);
 
-  // Loads and verifies every point set on disk (start-up). Returns how many loaded.
-  std::size_t load_all();
+  // Loads and verifies every point set on disk (start-up), but those `skip` names (a
+  // sharded replica's sets kept as pieces, checked piece by piece as they load).
+  // Returns how many loaded.
+  std::size_t load_all(const std::function<bool(const std::string&)>& skip = {});
 
   // Bytes of the sets loaded in memory (their estimates), and how many.
   std::uint64_t memory_in_use() const;
@@ -204,6 +247,7 @@ class PointSetStore {
   std::list<std::shared_ptr<const StoredSet>> lru_;
   std::unordered_map<std::string, std::list<std::shared_ptr<const StoredSet>>::iterator> index_;
   std::uint64_t in_use_ = 0;
+  std::unordered_map<std::string, std::shared_ptr<const PieceLayout>> layouts_;  // guarded by mutex_
 };
 
 }  // namespace spokemesh::service

@@ -61,6 +61,25 @@ Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
       gauge("spokemesh_heap_in_use_bytes", "Bytes allocated with malloc and not yet freed (glibc mallinfo2)");
   heap_held_ =
       gauge("spokemesh_heap_held_bytes", "Bytes malloc holds from the system, in use or free (glibc mallinfo2)");
+  pieces_ = gauge("spokemesh_pieces_loaded", "Pieces of sharded point sets held in memory (with their trees)");
+  piece_bytes_ = gauge("spokemesh_pieces_memory_bytes", "Estimated bytes of the pieces held in memory");
+  forwarded_ = &prometheus::BuildCounter()
+                    .Name("spokemesh_forwarded_requests_total")
+                    .Help("Requests handed to a replica of another shard, by shard and outcome")
+                    .Register(*registry_);
+  shard_ = &prometheus::BuildGauge()
+                .Name("spokemesh_shard_info")
+                .Help("1, labelled with the shard this replica serves and the number of shards (0 of 0: whole sets)")
+                .Register(*registry_);
+}
+
+void Telemetry::set_shard(std::uint32_t index, std::uint32_t count) {
+  shard_->Add({{"shard", std::to_string(index)}, {"shards", std::to_string(count)}}).Set(1);
+}
+
+void Telemetry::add_forwarded(std::uint32_t shard, Code code) {
+  forwarded_->Add({{"shard", std::to_string(shard)}, {"outcome", code == Code::kOk ? "ok" : code_name(code)}})
+      .Increment();
 }
 
 void Telemetry::log(const std::string& level, const std::string& message) {

@@ -51,6 +51,15 @@ class Telemetry {
     budget_limit_->Set(static_cast<double>(budget_limit));
   }
 
+  // Sharded serving: which shard this replica serves, the pieces it holds, and the
+  // requests it handed to other shards (by shard and outcome: ok, or the error's code).
+  void set_shard(std::uint32_t index, std::uint32_t count);
+  void set_pieces(std::size_t pieces, std::uint64_t bytes) {
+    pieces_->Set(static_cast<double>(pieces));
+    piece_bytes_->Set(static_cast<double>(bytes));
+  }
+  void add_forwarded(std::uint32_t shard, Code code);
+
   // The Prometheus text exposition of every metric.
   std::string render_metrics() const;
 
@@ -66,6 +75,10 @@ class Telemetry {
   prometheus::Gauge* budget_limit_;
   prometheus::Gauge* heap_in_use_;
   prometheus::Gauge* heap_held_;
+  prometheus::Gauge* pieces_;
+  prometheus::Gauge* piece_bytes_;
+  prometheus::Family<prometheus::Counter>* forwarded_;
+  prometheus::Family<prometheus::Gauge>* shard_;
   std::mutex log_mutex_;
 };
 

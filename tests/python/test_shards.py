@@ -1,0 +1,235 @@
+"""Sharded serving (docs/service.md, "Sharded serving"): real spokemesh-server processes
+sharing one data dir, sets kept as pieces, replicas of 2 and 3 shards each holding only
+their shard's pieces. Every seed of a few sets (uniform, clustered, a grid, 2-d; the
+clustered set's clipped cells often reach past their piece's halo and are completed
+from the store) gets the same bytes from any shard replica, through REST and gRPC, as
+from one replica holding the whole set; batches and whole-mesh streams too. A killed
+replica costs no request; a shard with no replica answers 503 / UNAVAILABLE naming it;
+tenants' sets stay invisible to others."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import random
+
+import grpc
+import numpy as np
+import pytest
+from spokemesh.v1 import mesher_pb2 as pb
+from spokemesh.v1 import mesher_pb2_grpc as pb_grpc
+
+from conftest import free_port, http as http_request, http_json, local_mesh, uniform
+
+PIECE_FLAGS = ("--pieces-above", "500", "--piece-points", "300")
+
+
+def clustered(n: int, d: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    centres = rng.random((5, d))
+    return centres[np.arange(n) % 5] + rng.normal(0, 0.02, (n, d))
+
+
+def grid(side: int, d: int) -> np.ndarray:
+    axes = np.meshgrid(*[np.arange(side, dtype=float)] * d, indexing="ij")
+    return np.stack([a.ravel() for a in axes], axis=1)
+
+
+SETS = {
+    "uniform 3-d": lambda: uniform(1500, 3, seed=5),
+    "clustered 3-d": lambda: clustered(1500, 3, seed=6),
+    "grid 3-d": lambda: grid(9, 3),
+    "uniform 2-d": lambda: uniform(2000, 2, seed=7),
+}
+
+
+class Rest:
+    """One kept-alive REST connection: GET -> (status, headers, body)."""
+
+    def __init__(self, url: str):
+        host, port = url.removeprefix("http://").split(":")
+        self.conn = http.client.HTTPConnection(host, int(port), timeout=60)
+
+    def get(self, path: str, headers=None):
+        self.conn.request("GET", path, headers=headers or {})
+        r = self.conn.getresponse()
+        return r.status, dict(r.getheaders()), r.read()
+
+
+def start_shards(start_server, data, shards: int, replicas: int, *extra: str, name: str = "shard"):
+    """shards x replicas servers on ports chosen first, each told where the others are."""
+    ports = [[(free_port(), free_port()) for _ in range(replicas)] for _ in range(shards)]
+    rest = ";".join(",".join(f"127.0.0.1:{h}" for _, h in ports[k]) for k in range(shards))
+    grpc_list = ";".join(",".join(f"127.0.0.1:{g}" for g, _ in ports[k]) for k in range(shards))
+    servers = []
+    for k in range(shards):
+        row = []
+        for r in range(replicas):
+            g, h = ports[k][r]
+            row.append(start_server("--shard", f"{k}/{shards}", "--shard-http", rest, "--shard-grpc", grpc_list,
+                                    *PIECE_FLAGS, *extra, data_dir=data, name=f"{name}{k}-{r}", grpc_port=g,
+                                    http_port=h))
+        servers.append(row)
+    return servers
+
+
+def upload(url: str, points: np.ndarray, headers=None) -> str:
+    status, body = http_json("POST", f"{url}/v1/pointsets",
+                             {"dimension": points.shape[1], "coordinates": points.ravel().tolist()}, headers)
+    assert status in (200, 201), body
+    return body["id"]
+
+
+def piece_count(data, set_id: str) -> int:
+    manifest = (data / "pieces" / set_id / "manifest").read_text().splitlines()
+    return int(next(line.split()[1] for line in manifest if line.startswith("pieces ")))
+
+
+def metric(url: str, name: str) -> float:
+    _, _, body = http_request("GET", f"{url}/metrics")
+    total = 0.0
+    for line in body.decode().splitlines():
+        if line.startswith(name):
+            total += float(line.split()[-1])
+    return total
+
+
+@pytest.fixture
+def stored(start_server, tmp_path):
+    """The sets uploaded through a whole-set replica (which cuts them into pieces)."""
+    data = tmp_path / "shared"
+    whole = start_server(*PIECE_FLAGS, data_dir=data, name="whole")
+    ids = {}
+    for name, make in SETS.items():
+        points = make()
+        ids[name] = (upload(whole.http, points), points)
+        assert piece_count(data, ids[name][0]) >= 4, name
+    return data, whole, ids
+
+
+@pytest.mark.parametrize("shards", [2, 3])
+def test_every_seed_from_any_shard_is_the_whole_sets_answer(stored, start_server, shards):
+    data, whole, ids = stored
+    cluster = start_shards(start_server, data, shards, 1)
+    replicas = [row[0] for row in cluster]
+    rest = [Rest(r.http) for r in replicas]
+    reference = Rest(whole.http)
+    stubs = [pb_grpc.MesherStub(grpc.insecure_channel(r.grpc)) for r in replicas]
+    whole_stub = pb_grpc.MesherStub(grpc.insecure_channel(whole.grpc))
+    rng = random.Random(shards)
+    for name, (set_id, points) in ids.items():
+        n = points.shape[0]
+        for seed in range(n):
+            at = rng.randrange(len(replicas))
+            routes = ["star", "cell?bounding_box=true"] + (["neighbors", "cell"] if seed % 5 == 0 else [])
+            for route in routes:
+                path = f"/v1/pointsets/{set_id}/seeds/{seed}/{route}"
+                got = rest[at].get(path)
+                want = reference.get(path)
+                assert got[0] == want[0] == 200, (name, seed, route, got[2][:300])
+                assert got[2] == want[2], f"{name}: seed {seed} {route} differs through shard replica {at}"
+            if seed % 4 == 0:
+                request = pb.SeedRequest(point_set_id=set_id, seed=seed)
+                assert (stubs[at].GetStar(request, timeout=30).SerializeToString() ==
+                        whole_stub.GetStar(request, timeout=30).SerializeToString()), (name, seed)
+                cell = pb.GetVoronoiCellRequest(point_set_id=set_id, seed=seed, domain=pb.Domain(bounding_box=True))
+                assert (stubs[at].GetVoronoiCell(cell, timeout=30).SerializeToString() ==
+                        whole_stub.GetVoronoiCell(cell, timeout=30).SerializeToString()), (name, seed)
+        # Per-seed answers came from pieces alone: no replica loaded a whole set (before
+        # the first stream below, which still reads the set whole).
+        for r in replicas if name == "uniform 3-d" else []:
+            assert metric(r.http, "spokemesh_pieces_loaded") > 0
+            assert metric(r.http, "spokemesh_store_loaded_point_sets") == metric(r.http, "spokemesh_pieces_loaded")
+        # Out of range: the same error from a shard as from the whole set.
+        got = rest[0].get(f"/v1/pointsets/{set_id}/seeds/{n}/star")
+        want = reference.get(f"/v1/pointsets/{set_id}/seeds/{n}/star")
+        assert got[0] == want[0] == 400 and got[2] == want[2]
+        # A batch of every seed, and the whole mesh's stream, through one shard replica.
+        seeds = list(range(n))
+        for what in ("stars", "cells"):
+            body = {"seeds": seeds}
+            if what == "cells":
+                body["bounding_box"] = True
+            got = http_request("POST", f"{replicas[-1].http}/v1/pointsets/{set_id}/{what}:batch", body)
+            want = http_request("POST", f"{whole.http}/v1/pointsets/{set_id}/{what}:batch", body)
+            assert got[0] == want[0] == 200 and got[2] == want[2], (name, what)
+        status, _, stream = http_request("GET", f"{replicas[0].http}/v1/pointsets/{set_id}/simplices")
+        assert status == 200
+        assert stream == http_request("GET", f"{whole.http}/v1/pointsets/{set_id}/simplices")[2], name
+    # Each replica holds only its own shard's pieces (and those its completions read).
+    forwarded = sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas)
+    assert forwarded > 0
+    for r in replicas:
+        assert 'spokemesh_shard_info{shard="' in http_request("GET", f"{r.http}/metrics")[2].decode()
+
+
+def test_mesh_stream_equals_the_cli(stored, start_server, tmp_path):
+    data, _, ids = stored
+    replica = start_shards(start_server, data, 2, 1)[1][0]
+    set_id, points = ids["uniform 3-d"]
+    status, _, stream = http_request("GET", f"{replica.http}/v1/pointsets/{set_id}/simplices")
+    assert status == 200
+    rows = np.array([json.loads(line) for line in stream.decode().splitlines()])
+    assert np.array_equal(rows, local_mesh(points, tmp_path))
+
+
+def test_a_killed_replica_costs_nothing_and_a_shard_with_none_is_named(stored, start_server):
+    data, whole, ids = stored
+    cluster = start_shards(start_server, data, 2, 2)
+    front = Rest(cluster[0][0].http)
+    set_id, points = ids["uniform 3-d"]
+    reference = Rest(whole.http)
+    owners = np.fromfile(data / "pieces" / set_id / "owners", dtype="<u4")
+    pieces = piece_count(data, set_id)
+    on_shard1 = [s for s in range(points.shape[0]) if owners[s] * 2 // pieces == 1][:200]
+    on_shard0 = [s for s in range(points.shape[0]) if owners[s] * 2 // pieces == 0][:50]
+    assert on_shard1 and on_shard0
+
+    def all_answered(seeds):
+        for seed in seeds:
+            path = f"/v1/pointsets/{set_id}/seeds/{seed}/star"
+            got = front.get(path)
+            assert got[0] == 200, got[2][:300]
+            assert got[2] == reference.get(path)[2]
+
+    all_answered(on_shard1)
+    cluster[1][0].kill()  # one replica of shard 1: its twin answers
+    all_answered(on_shard1)
+    cluster[1][0].start()
+    cluster[1][1].kill()
+    all_answered(on_shard1)
+    cluster[1][0].kill()  # shard 1 has no replica now
+    status, _, body = front.get(f"/v1/pointsets/{set_id}/seeds/{on_shard1[0]}/star")
+    assert status == 503, body
+    error = json.loads(body)["error"]
+    assert error["status"] == "UNAVAILABLE" and "shard 1 of 2" in error["message"], error
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(cluster[0][1].grpc))
+    with pytest.raises(grpc.RpcError) as e:
+        stub.GetStar(pb.SeedRequest(point_set_id=set_id, seed=on_shard1[0]), timeout=30)
+    assert e.value.code() == grpc.StatusCode.UNAVAILABLE and "shard 1 of 2" in e.value.details()
+    # Nothing else degrades: shard 0's seeds, and a small set held whole.
+    all_answered(on_shard0)
+    small = upload(cluster[0][0].http, uniform(100, 3, seed=1))
+    assert front.get(f"/v1/pointsets/{small}/seeds/99/star")[0] == 200
+
+
+def test_tenants_sets_stay_invisible(start_server, tmp_path):
+    data = tmp_path / "tenants"
+    keys = tmp_path / "keys"
+    keys.write_text("alice-key-0123456789 alice\nbob-key-0123456789ab bob\n")
+    cluster = start_shards(start_server, data, 2, 1, "--keys", str(keys))
+    alice = {"Authorization": "Bearer alice-key-0123456789"}
+    bob = {"Authorization": "Bearer bob-key-0123456789ab"}
+    set_id = upload(cluster[0][0].http, uniform(1200, 3, seed=9), alice)
+    assert piece_count(data, set_id) >= 4
+    for row in cluster:
+        r = Rest(row[0].http)
+        for seed in (0, 600, 1199):
+            assert r.get(f"/v1/pointsets/{set_id}/seeds/{seed}/star", alice)[0] == 200
+            status, _, body = r.get(f"/v1/pointsets/{set_id}/seeds/{seed}/star", bob)
+            assert status == 404, body
+        stub = pb_grpc.MesherStub(grpc.insecure_channel(row[0].grpc))
+        with pytest.raises(grpc.RpcError) as e:
+            stub.GetStar(pb.SeedRequest(point_set_id=set_id, seed=600), metadata=[("authorization", "Bearer bob-key-0123456789ab")],
+                         timeout=30)
+        assert e.value.code() == grpc.StatusCode.NOT_FOUND
