@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <numeric>
 #include <optional>
+#include <random>
 #include <thread>
 
 #include "cell_output.hpp"
@@ -12,8 +14,10 @@
 #include "output.hpp"
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/io.hpp"
+#include "spokemesh/pieces.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/voronoi.hpp"
+#include "store_output.hpp"
 
 namespace spokemesh::mpi {
 namespace {
@@ -561,10 +565,285 @@ class CellsJob final : public Job {
   std::mutex mu_;
 };
 
+// ------------------------------------------------------------------ store
+
+// `store`: the set kept as pieces in a server's data directory (pieces.hpp), the same
+// bytes as spokemesh-server writes for an upload of the same points, whatever P. The
+// split is cut into the pieces themselves; each piece's halo is its points' Delaunay
+// neighbours (from their certified stars) and every point inside its held box
+// (fetched after the rounds).
+class StoreJob final : public StarJob {
+ public:
+  StoreJob(const cli::WholeCommands& w, StoreSettings settings) : StarJob(w), settings_(std::move(settings)) {}
+
+  Status check_usage() const override {
+    if (settings_.data_dir.empty()) return invalid_argument("--data-dir: the servers' data directory is required");
+    std::error_code ec;
+    if (!std::filesystem::is_directory(settings_.data_dir, ec)) {
+      return invalid_argument("--data-dir: " + settings_.data_dir + " is not a directory");
+    }
+    return Status::ok();
+  }
+  const char* progress_label() const override { return "finding the pieces' halos (rank 0's share)"; }
+  Status prepare(Comm& /*comm*/, const RunFacts& facts) override {
+    facts_ = facts;
+    if (facts.d != 2 && facts.d != 3) {
+      return invalid_argument(w_.input + ": " + std::to_string(facts.d) +
+                              "-d; sets are kept as pieces in 2-d and 3-d (a server holds others whole)");
+    }
+    return Status::ok();
+  }
+  Status check_seeds(Comm& /*comm*/, const TopSplit& split) override {
+    split_ = &split;
+    return Status::ok();
+  }
+  bool lists_points() const override { return true; }  // the set's file, from the slices
+  std::uint64_t split_target(std::uint64_t /*n*/, int /*ranks*/) const override {
+    return std::max<std::uint64_t>(settings_.piece_points, SpaceSplit::kLeafPoints);
+  }
+  std::vector<double> final_boxes(const TopSplit& split) const override {
+    std::vector<double> boxes;
+    for (const std::uint32_t node : split.owned_nodes) {
+      const std::vector<double> held = held_box_of(split.nodes[node].box, split.nodes[node].count, facts_.global_box);
+      boxes.insert(boxes.end(), held.begin(), held.end());
+    }
+    return boxes;
+  }
+
+  Status write(Comm& comm, std::unique_ptr<KdTree>& tree, std::unique_ptr<LocalSet>& held,
+               std::span<const double> slice_coords) override {
+    tree.reset();
+    namespace fs = std::filesystem;
+    const std::string& dir = settings_.data_dir;
+    auto file = write_set_file(comm, dir, facts_.d, facts_.n, slice_coords);
+    if (!file.is_ok()) return file.status();
+    id_ = file->first;
+    const std::string set_file = dir + "/" + id_ + ".points";
+    // Already kept as pieces (the same points stored before): nothing more to write.
+    int exists = comm.rank == 0 && fs::exists(pieces_dir(dir, id_) + "/manifest") ? 1 : 0;
+    MPI_Bcast(&exists, 1, MPI_INT, 0, comm.comm);
+    if (exists != 0) {
+      already_ = true;
+      if (comm.rank == 0) finish_set_file(file->second, set_file);
+      return Status::ok();
+    }
+    // The pieces' directory, under a temporary name until complete.
+    std::string tmp_dir;
+    Status made;
+    if (comm.rank == 0) {
+      std::random_device entropy;
+      tmp_dir = dir + "/pieces/.tmp-" + id_ + "-mpi-" + std::to_string(entropy());
+      std::error_code ec;
+      fs::create_directories(tmp_dir, ec);
+      if (ec) made = internal_error(tmp_dir + ": cannot create: " + ec.message());
+    }
+    if (Status s = comm.agree(made); !s.is_ok()) return s;
+    std::uint64_t length = tmp_dir.size();
+    MPI_Bcast(&length, 1, MPI_UINT64_T, 0, comm.comm);
+    tmp_dir.resize(length);
+    MPI_Bcast(tmp_dir.data(), static_cast<int>(length), MPI_CHAR, 0, comm.comm);
+
+    // Each owned piece: its points, their neighbours in other pieces, and every point
+    // inside its held box, in global index order.
+    const LocalSet& local = *held;
+    const TopSplit& split = *split_;
+    const auto dd = static_cast<std::size_t>(facts_.d);
+    const auto pieces = static_cast<std::uint32_t>(split.owned_nodes.size());
+    const auto total = static_cast<std::uint32_t>(split.nodes.size());
+    for (const KeptRows& r : done_) rows_.insert(rows_.end(), r.rows.begin(), r.rows.end());
+    done_ = {};
+    auto local_of = [&](std::uint64_t g) {
+      return static_cast<std::size_t>(std::lower_bound(local.global.begin(), local.global.end(), g) -
+                                      local.global.begin());
+    };
+    std::vector<std::vector<std::uint64_t>> halo(pieces);
+    for (std::size_t i = 0; i + 1 < rows_.size(); i += 2) {
+      const std::int32_t k = local.piece_of[local_of(rows_[i])];
+      const std::size_t v = local_of(rows_[i + 1]);
+      if (k >= 0 && local.piece_of[v] != k) halo[static_cast<std::size_t>(k)].push_back(rows_[i + 1]);
+    }
+    rows_ = {};
+    std::vector<std::vector<double>> held_boxes(pieces);
+    for (std::uint32_t k = 0; k < pieces; ++k) {
+      const TopNode& node = split.nodes[split.owned_nodes[k]];
+      held_boxes[k] = held_box_of(node.box, node.count, facts_.global_box);
+    }
+    for (std::size_t i = 0; i < local.global.size(); ++i) {
+      const double* x = local.points.point(i);
+      for (std::uint32_t k = 0; k < pieces; ++k) {
+        if (local.piece_of[i] == static_cast<std::int32_t>(k)) continue;
+        const std::vector<double>& h = held_boxes[k];
+        bool inside = true;
+        for (std::size_t c = 0; c < dd && inside; ++c) inside = x[c] >= h[c] && x[c] <= h[dd + c];
+        if (inside) halo[k].push_back(local.global[i]);
+      }
+    }
+    std::vector<char> entries;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> owners;
+    Status status;
+    for (std::uint32_t k = 0; k < pieces && status.is_ok(); ++k) {
+      const std::uint32_t node_index = split.owned_nodes[k];
+      const TopNode& node = split.nodes[node_index];
+      Piece piece;
+      piece.index = node_index;
+      piece.dimension = facts_.d;
+      piece.set_count = facts_.n;
+      piece.start = node.start;
+      piece.box = node.box;
+      piece.held_box = held_boxes[k];
+      std::vector<std::uint64_t>& ids = halo[k];
+      const std::uint32_t from = k == 0 ? 0 : split.piece_ends[k - 1];
+      for (std::uint32_t j = from; j < split.piece_ends[k]; ++j) {
+        ids.push_back(split.owned.ids[j]);
+        owners.emplace_back(split.owned.ids[j], node_index);
+      }
+      std::sort(ids.begin(), ids.end());
+      ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+      piece.ids = ids;
+      piece.own.resize(ids.size());
+      piece.coords.resize(ids.size() * dd);
+      for (std::size_t j = 0; j < ids.size(); ++j) {
+        const std::size_t at = local_of(ids[j]);
+        if (at >= local.global.size() || local.global[at] != ids[j]) {
+          status = internal_error("piece " + std::to_string(node_index) + ": point " + std::to_string(ids[j]) +
+                                  " of its halo is not held");
+          break;
+        }
+        piece.own[j] = local.piece_of[at] == static_cast<std::int32_t>(k) ? 1 : 0;
+        std::copy(local.points.point(at), local.points.point(at) + dd, piece.coords.begin() + j * dd);
+      }
+      std::vector<std::uint64_t>().swap(ids);
+      if (!status.is_ok()) break;
+      const std::string bytes = piece_bytes(piece, total);
+      std::uint32_t crc = 0;
+      std::memcpy(&crc, bytes.data() + bytes.size() - 4, 4);
+      status = write_file_durably(tmp_dir + "/" + std::to_string(node_index) + ".piece", bytes);
+      put<std::uint32_t>(entries, node_index);
+      for (std::uint64_t v : {node.start, node.count, static_cast<std::uint64_t>(piece.ids.size()),
+                              static_cast<std::uint64_t>(bytes.size())}) {
+        put<std::uint64_t>(entries, v);
+      }
+      put<std::uint32_t>(entries, crc);
+      for (double v : piece.box) put<double>(entries, v);
+      for (double v : piece.held_box) put<double>(entries, v);
+      halo_points_ += piece.ids.size() - node.count;
+    }
+    if (Status s = comm.agree(status); !s.is_ok()) return cleanup(comm, tmp_dir, file->second, s);
+    held.reset();
+    if (Status s = write_owner_map(comm, tmp_dir + "/owners", facts_.n, owners); !s.is_ok()) {
+      return cleanup(comm, tmp_dir, file->second, s);
+    }
+    owners = {};
+    std::vector<std::uint64_t> counts;
+    const std::vector<char> all = comm.allgather_bytes(entries, counts);
+    halo_points_ = comm.allreduce<std::uint64_t>(halo_points_, MPI_SUM);
+    pieces_ = total;
+    Status done;
+    if (comm.rank == 0) {
+      PieceManifest m;
+      m.set_id = id_;
+      m.dimension = facts_.d;
+      m.count = facts_.n;
+      m.piece_points = settings_.piece_points;
+      m.global_box = facts_.global_box;
+      m.pieces.resize(total);
+      for (const char* at = all.data(); at < all.data() + all.size();) {
+        const auto p = get<std::uint32_t>(at);
+        PieceEntry& e = m.pieces[p];
+        e.start = get<std::uint64_t>(at);
+        e.count = get<std::uint64_t>(at);
+        e.held = get<std::uint64_t>(at);
+        e.bytes = get<std::uint64_t>(at);
+        e.crc = get<std::uint32_t>(at);
+        e.box.resize(2 * dd);
+        e.held_box.resize(2 * dd);
+        for (double& v : e.box) v = get<double>(at);
+        for (double& v : e.held_box) v = get<double>(at);
+      }
+      done = write_file_durably(tmp_dir + "/manifest", manifest_text(m));
+      if (done.is_ok() && std::rename(tmp_dir.c_str(), pieces_dir(dir, id_).c_str()) != 0) {
+        // Another run stored the same set meanwhile: the same bytes.
+        std::error_code ignored;
+        fs::remove_all(tmp_dir, ignored);
+        already_ = true;
+      }
+      if (done.is_ok()) finish_set_file(file->second, set_file);
+    }
+    if (Status s = comm.agree(done); !s.is_ok()) return cleanup(comm, tmp_dir, file->second, s);
+    return Status::ok();
+  }
+
+  void print_summary(double seconds, std::uint64_t /*halo_points*/, std::uint64_t rounds, int ranks) const override {
+    if (already_) {
+      std::fprintf(stderr, "spokemesh-mpi: point set %s (%llu points) is already kept as pieces in %s\n", id_.c_str(),
+                   static_cast<unsigned long long>(facts_.n), settings_.data_dir.c_str());
+      return;
+    }
+    std::fprintf(stderr,
+                 "spokemesh-mpi: stored point set %s: %llu points in %u pieces (%llu halo points), %.2f s on %d "
+                 "processes (%llu rounds) -> %s\n",
+                 id_.c_str(), static_cast<unsigned long long>(facts_.n), pieces_,
+                 static_cast<unsigned long long>(halo_points_), seconds, ranks, static_cast<unsigned long long>(rounds),
+                 settings_.data_dir.c_str());
+  }
+
+ protected:
+  std::size_t width() const override { return 2; }
+  // Every neighbour of the seed (the pieces' halos).
+  void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
+    std::vector<std::uint32_t> next;
+    for (const std::uint32_t v : star.simplices) {
+      if (v != star.seed) next.push_back(v);
+    }
+    std::sort(next.begin(), next.end());
+    next.erase(std::unique(next.begin(), next.end()), next.end());
+    for (const std::uint32_t v : next) {
+      out.push_back(static_cast<std::uint32_t>(local.global[star.seed]));
+      out.push_back(static_cast<std::uint32_t>(local.global[v]));
+    }
+  }
+  bool rows_from_sink() const override { return false; }
+  void keep_accepted(std::vector<std::uint32_t>& rows) override { rows_.insert(rows_.end(), rows.begin(), rows.end()); }
+
+ private:
+  // The set's file in place (rank 0): renamed from the temporary one, or dropped when a
+  // server already has it (the same bytes).
+  static void finish_set_file(const std::string& tmp, const std::string& set_file) {
+    if (std::filesystem::exists(set_file)) {
+      ::unlink(tmp.c_str());
+    } else {
+      std::rename(tmp.c_str(), set_file.c_str());
+    }
+  }
+  // Nothing half-written is left: the temporary directory and file go (collective).
+  static Status cleanup(Comm& comm, const std::string& tmp_dir, const std::string& tmp_file, const Status& s) {
+    if (comm.rank == 0) {
+      std::error_code ignored;
+      std::filesystem::remove_all(tmp_dir, ignored);
+      ::unlink(tmp_file.c_str());
+    }
+    return s;
+  }
+
+  StoreSettings settings_;
+  const TopSplit* split_ = nullptr;
+  std::vector<std::uint32_t> rows_;  // (seed, neighbour) of the first round's stars
+  std::string id_;
+  bool already_ = false;
+  std::uint32_t pieces_ = 0;
+  std::uint64_t halo_points_ = 0;
+};
 }  // namespace
 
-std::unique_ptr<Job> Job::make(JobKind kind, const cli::WholeCommands& commands) {
+std::uint64_t Job::split_target(std::uint64_t n, int ranks) const {
+  const auto p = static_cast<std::uint64_t>(ranks);
+  return ranks == 1 ? n : std::max<std::uint64_t>(SpaceSplit::kLeafPoints, (n + 32 * p - 1) / (32 * p));
+}
+
+std::unique_ptr<Job> Job::make(JobKind kind, const cli::WholeCommands& commands, const StoreSettings& store) {
   switch (kind) {
+    case JobKind::kStore:
+      return std::make_unique<StoreJob>(commands, store);
     case JobKind::kMesh:
       return std::make_unique<MeshJob>(commands);
     case JobKind::kGraph:

@@ -31,7 +31,13 @@
 
 namespace spokemesh::mpi {
 
-enum class JobKind { kMesh, kGraph, kCells };
+enum class JobKind { kMesh, kGraph, kCells, kStore };
+
+// `store`: where the pieces go and how large they are (pieces.hpp).
+struct StoreSettings {
+  std::string data_dir;
+  std::uint32_t piece_points = 0;
+};
 
 // What every step knows once the input is read.
 struct RunFacts {
@@ -67,7 +73,7 @@ struct Round {
 
 class Job {
  public:
-  static std::unique_ptr<Job> make(JobKind kind, const cli::WholeCommands& commands);
+  static std::unique_ptr<Job> make(JobKind kind, const cli::WholeCommands& commands, const StoreSettings& store = {});
   virtual ~Job() = default;
 
   // Before reading (the dimension unknown): the job's flags and the output's extension.
@@ -82,6 +88,13 @@ class Job {
   virtual bool lists_points() const { return false; }
   // Whether round 1 needs the held points' tree before compute() (the sweep builds its own).
   virtual bool tree_in_first_round() const { return false; }
+  // The most points in a node of the split dealt out: nodes of at most n / (32 P)
+  // points keep every rank within 1/32 of its share (one process takes the whole set as
+  // one node); `store` cuts the set into its pieces, whatever P.
+  virtual std::uint64_t split_target(std::uint64_t n, int ranks) const;
+  // Boxes (2 d doubles each) every point inside of which the rank must hold before
+  // write() (collective fetch after the rounds); none by default.
+  virtual std::vector<double> final_boxes(const TopSplit& /*split*/) const { return {}; }
 
   // One round on the rank's pending seeds (held points spanning the space): computes,
   // certifies, keeps what is certified and lists the rest in round.refused. Returns

@@ -2,6 +2,7 @@
 // `spokemesh` writes (docs/distributed.md).
 //
 //   mpirun -np P spokemesh-mpi {mesh|graph|cells} IN -o OUT [flags]
+//   mpirun -np P spokemesh-mpi store IN --data-dir DIR [flags]   (pieces for sharded serving)
 //
 // Every rank reads a slice of IN (MPI-IO for .npy; rank 0 reads text and scatters);
 // the ranks cut the set together into the nodes of SpaceSplit's recursion and deal
@@ -22,6 +23,7 @@
 #include "comm.hpp"
 #include "commands.hpp"
 #include "run.hpp"
+#include "spokemesh/pieces.hpp"
 
 using namespace spokemesh;
 using namespace spokemesh::cli;
@@ -48,9 +50,29 @@ int main(int argc, char** argv) {
   WholeCommands w;
   w.common.threads = 1;  // one worker per process unless asked: mpirun places processes on cores
   define_whole_commands(app, w, /*one_process=*/false);
+  mpi::StoreSettings store_settings;
+  store_settings.piece_points = kDefaultPiecePoints;
+  CLI::App* store = app.add_subcommand(
+      "store",
+      "Keep a point set as pieces in spokemesh-server's data directory for sharded serving (docs/service.md, "
+      "\"Sharded serving\"): the set's file as an upload stores it, each piece of its split with its halo, a "
+      "manifest and an owner map; the same bytes on any number of processes");
+  store->add_option("INPUT", w.input, "Point file (.txt/.csv/.xyz text or .npy), 2-d or 3-d")->required();
+  store->add_option("--data-dir", store_settings.data_dir, "The servers' shared data directory")->required();
+  store->add_option("--piece-points", store_settings.piece_points, "Most points in a piece")
+      ->capture_default_str()
+      ->check(CLI::Range(std::uint32_t{64}, std::uint32_t{1} << 30));
+  store->add_option("--threads", w.common.threads, "Worker threads per process")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 1024u));
+  store
+      ->add_option("--random-seed", w.common.random_seed,
+                   "Seed for the random spoke directions (the result does not depend on it)")
+      ->capture_default_str();
+  store->add_flag("-q,--quiet", w.common.quiet, "No progress or summary on stderr");
   std::string stats_path;
   double first_halo = 2.5;
-  for (CLI::App* cmd : {w.mesh, w.graph, w.cells}) {
+  for (CLI::App* cmd : {w.mesh, w.graph, w.cells, store}) {
     cmd->add_option("--stats", stats_path,
                     "Write JSON {\"ranks\": [{rank, owned, ghosts, rounds, bytes_sent, bytes_received, "
                     "peak_rss_bytes, seconds}]}");
@@ -89,7 +111,11 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
   mpi::RunOptions options;
-  options.kind = *w.mesh ? mpi::JobKind::kMesh : *w.graph ? mpi::JobKind::kGraph : mpi::JobKind::kCells;
+  options.kind = *w.mesh    ? mpi::JobKind::kMesh
+                 : *w.graph ? mpi::JobKind::kGraph
+                 : *store   ? mpi::JobKind::kStore
+                            : mpi::JobKind::kCells;
+  options.store = store_settings;
   options.stats_path = stats_path;
   options.first_halo = first_halo;
   code = mpi::run_distributed(comm, w, options);

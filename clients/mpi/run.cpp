@@ -180,7 +180,7 @@ struct RankStats {
 class DistributedRun {
  public:
   DistributedRun(Comm& comm, const cli::WholeCommands& commands, const RunOptions& options)
-      : comm_(comm), w_(commands), options_(options), job_(Job::make(options.kind, commands)) {}
+      : comm_(comm), w_(commands), options_(options), job_(Job::make(options.kind, commands, options.store)) {}
 
   int run() {
     if (Status s = check_usage(); !s.is_ok()) return fail(s);
@@ -189,6 +189,13 @@ class DistributedRun {
     if (Status s = split(); !s.is_ok()) return fail(s);
     if (Status s = rounds(); !s.is_ok()) return fail(s);
     note_peak(comm_, "rounds done");
+    // What the job needs held beyond the stars' points (store: every piece's held box).
+    const std::vector<double> boxes = job_->final_boxes(*split_);
+    if (comm_.allreduce<std::uint64_t>(boxes.size(), MPI_SUM) != 0) {
+      halo_->fetch(boxes, {}, {});
+      held_tree_.reset();
+      held_ = std::make_unique<LocalSet>(gather_local(*split_, halo_->ghosts()));
+    }
     if (Status s = job_->write(comm_, held_tree_, held_, slice_coords_); !s.is_ok()) return fail(s);
     note_peak(comm_, "written");
     if (Status s = report_stats(); !s.is_ok()) return fail(s);
@@ -253,14 +260,11 @@ class DistributedRun {
     return Status::ok();
   }
 
-  // The top of the split dealt out, and the first halo fetched. Nodes of at most
-  // n / (32 P) points keep every rank within 1/32 of its share (one process takes the
-  // whole set as one piece).
+  // The top of the split dealt out (Job::split_target), and the first halo fetched.
   Status split() {
     const std::uint64_t n = facts_.n;
     const auto ranks = static_cast<std::uint64_t>(comm_.size);
-    const std::uint64_t target =
-        comm_.size == 1 ? n : std::max<std::uint64_t>(SpaceSplit::kLeafPoints, (n + 32 * ranks - 1) / (32 * ranks));
+    const std::uint64_t target = job_->split_target(n, static_cast<int>(ranks));
     auto split = split_across_ranks(comm_, std::move(slice_.points), n, target, w_.input);
     if (!split.is_ok()) return split.status();
     split_.emplace(std::move(split).value());

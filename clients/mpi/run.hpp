@@ -26,6 +26,7 @@ struct RunOptions {
   JobKind kind = JobKind::kMesh;
   std::string stats_path;   // --stats: per-rank JSON, or empty
   double first_halo = 2.5;  // --first-halo: mean spacings
+  StoreSettings store;      // `store`'s --data-dir and --piece-points
 };
 
 // Runs the job on every rank (collective); returns the exit code (the CLI's: 0, 1, 2),

@@ -393,3 +393,85 @@ def test_a_killed_rank_fails_the_job_and_leaves_the_output_as_it_was(work):
     _, err = job.communicate(timeout=120)
     assert job.returncode != 0, err
     assert out.read_text() == "the previous contents\n"
+
+
+# ------------------------------------------------------------------ store (sharded serving)
+
+STORE_PIECE_POINTS = "4096"
+
+
+def read_tree(root):
+    """Every file under root, as {relative path: bytes}."""
+    out = {}
+    for dirpath, _, files in os.walk(root):
+        for f in files:
+            full = os.path.join(dirpath, f)
+            out[os.path.relpath(full, root)] = open(full, "rb").read()
+    return out
+
+
+@pytest.fixture(scope="module")
+def stored(reference, work):
+    """Each set stored as pieces at P = 1, 2, 3: {name: [tree at P=1, P=2, P=3]}."""
+    out = {}
+    for name, (path, *_rest) in reference.items():
+        trees = []
+        for ranks in (1, 2, 3):
+            d = work / f"store-{name}-{ranks}"
+            d.mkdir()
+            run_mpi(ranks, "store", str(path), "--data-dir", str(d), "--piece-points", STORE_PIECE_POINTS, "-q")
+            trees.append(read_tree(d))
+        out[name] = trees
+    return out
+
+
+@pytest.mark.parametrize("name", list(SETS))
+def test_store_writes_the_same_pieces_on_any_number_of_processes(stored, name):
+    trees = stored[name]
+    names = sorted(trees[0])
+    assert any(n.endswith("manifest") for n in names) and any(n.endswith(".points") for n in names)
+    assert sum(n.endswith(".piece") for n in names) >= 8
+    for ranks, tree in zip((2, 3), trees[1:]):
+        assert sorted(tree) == names, f"P={ranks}: other files"
+        for n in names:
+            assert tree[n] == trees[0][n], f"{name}: {n} differs at P={ranks}"
+
+
+def test_stored_pieces_are_what_a_server_writes_and_serves(stored, reference, work, start_server):
+    import urllib.request
+    name = "3d-clustered-50k"
+    path, _, _, count = reference[name]
+    pts = np.load(path)
+    # A server cutting the same upload writes the same files.
+    data = work / "server-cut"
+    server = start_server("--pieces-above", "1000", "--piece-points", STORE_PIECE_POINTS, data_dir=data,
+                          name="cutting")
+    req = urllib.request.Request(f"{server.http}/v1/pointsets?dimension=3", data=pts.astype("<f8").tobytes(),
+                                 method="POST", headers={"Content-Type": "application/octet-stream"})
+    with urllib.request.urlopen(req, timeout=120) as r:
+        set_id = json.loads(r.read())["id"]
+    tree = read_tree(data)
+    for n, b in stored[name][0].items():
+        assert tree.get(n) == b, f"{n}: the server's cut differs from spokemesh-mpi store's"
+    # A one-shard replica over spokemesh-mpi's directory answers as the whole set does.
+    mpi_dir = work / f"store-{name}-3"
+    shard = start_server("--shard", "0/1", "--shard-http", "127.0.0.1:1", "--shard-grpc", "127.0.0.1:1",
+                         data_dir=mpi_dir, name="shard")
+    for seed in range(0, count, count // 97):
+        for route in ("star", "cell?bounding_box=true"):
+            with urllib.request.urlopen(f"{shard.http}/v1/pointsets/{set_id}/seeds/{seed}/{route}") as a, \
+                    urllib.request.urlopen(f"{server.http}/v1/pointsets/{set_id}/seeds/{seed}/{route}") as b:
+                assert a.read() == b.read(), (seed, route)
+
+
+def test_store_refuses_what_cannot_be_pieces(work):
+    pts = uniform(500, 4, 5)
+    src = work / "four-d.npy"
+    np.save(src, pts)
+    d = work / "store-4d"
+    d.mkdir()
+    done = run_mpi(2, "store", str(src), "--data-dir", str(d), check=False)
+    assert done.returncode == 2 and "dimension 4" in done.stderr, done.stderr
+    assert os.listdir(d) == []
+    done = run_mpi(1, "store", str(src), "--data-dir", str(work / "absent"), check=False)
+    assert done.returncode == 2 and "--data-dir" in done.stderr, done.stderr
