@@ -1009,6 +1009,112 @@ Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, con
   return in_rounds<BatchAnswer>(seeds.size(), threads, 128 * threads, control, "a batch of seeds", answer, emit);
 }
 
+Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceManifest& m, ShardRange range,
+                                            std::uint32_t batch_size, const CallControl& control,
+                                            const BatchSink& emit) {
+  const std::size_t width = static_cast<std::size_t>(m.dimension) + 1;
+  MemoryBudget& budget = store_->budget();
+  auto window = budget.try_charge(kStreamWindowBytes);
+  if (!window) return budget.over_budget("a streamed shard", kStreamWindowBytes);
+  std::vector<std::uint32_t> pending;  // less than one batch, carried between blocks and pieces
+  pending.reserve(batch_size * width);
+  bool emitted = false;
+  std::uint64_t done = 0, done_before = 0;
+  // The pieces overlapping the range in sweep order, each swept over its own points
+  // as the whole set's sweep takes them (its halo holds every neighbour: the same rows).
+  for (std::uint32_t p = 0; p < m.pieces.size(); ++p) {
+    const std::uint64_t first = m.pieces[p].start, last = first + m.pieces[p].count;
+    if (last <= range.begin || first >= range.end) continue;
+    auto loaded = store_->get_piece(id, p);
+    if (!loaded.is_ok()) return loaded.status();
+    const StoredSet& s = *loaded.value();
+    const PieceOf& piece = *s.piece;
+    std::vector<std::uint32_t> members;
+    members.reserve(m.pieces[p].count);
+    for (std::uint32_t k = 0; k < piece.own.size(); ++k) {
+      if (piece.own[k] != 0) members.push_back(k);
+    }
+    const std::uint32_t ends[1] = {static_cast<std::uint32_t>(members.size())};
+    const SpaceSplit split(s.points, members, ends, SpaceSplit::default_block_points(m.dimension, m.count));
+    MemoryBudget::Charge cache_charge;
+    MeshOptions options;
+    options.threads = std::max(1u, limits_.stream_threads);
+    options.sweep_begin = static_cast<std::uint32_t>(std::max<std::uint64_t>(range.begin, first) - first);
+    options.sweep_end = static_cast<std::uint32_t>(std::min<std::uint64_t>(range.end, last) - first);
+    options.star.cancel = control.stop_flag();
+    options.split = &split;
+    options.engine = engine_for(s.points, split, options);
+    if (options.engine == MeshEngine::kTriangulations) {
+      cache_charge = budget.empty_charge();
+      options.facet_cache_bytes = 0;
+      options.reserve_bytes = [&cache_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
+        return cache_charge.bytes() + bytes <= cap && cache_charge.grow(bytes);
+      };
+    } else {
+      options.facet_cache_bytes =
+          charge_sweep_memo(m.dimension, static_cast<std::uint32_t>(s.info.count), options.threads, cache_charge);
+    }
+    auto sink = [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) -> Status {
+      done = done_before + seeds_done;
+      for (const std::uint32_t v : block) {
+        pending.push_back(static_cast<std::uint32_t>(piece.ids[v]));
+        if (pending.size() == batch_size * width) {
+          emitted = true;
+          if (Status st = emit(pending, {}, done); !st.is_ok()) return st;
+          pending.clear();
+        }
+      }
+      return Status::ok();
+    };
+    auto result = mesh_seeds(*s.tree, options, sink);
+    if (!result.is_ok()) {
+      if (result.status().code() == Code::kCancelled && control.stopped()) {
+        return control.stopped_status("streaming the simplices of point set " + id);
+      }
+      return result.status();
+    }
+    done_before += options.sweep_end - options.sweep_begin;
+    done = done_before;
+  }
+  if (!pending.empty() || !emitted) return emit(pending, {}, done);
+  return Status::ok();
+}
+
+Status Engine::stream_cells_from_pieces(const std::string& id, ShardRange range, std::uint32_t batch_size,
+                                        const DomainSpec& spec, bool measures_only, const CallControl& control,
+                                        const CellBatchSink& emit) {
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("a streamed shard of cells", kStreamWindowBytes);
+  // Each seed's cell as its single call answers it (from its piece), clipped to the
+  // set's bounding box unless the request names a domain, as a whole set's stream.
+  DomainSpec clip = spec;
+  if (clip.empty()) clip.bounding_box = true;
+  CellBatcher batches(batch_size, emit);
+  auto answer = [&](unsigned, std::size_t i, VoronoiCell& c) -> Status {
+    auto r = cell(id, range.begin + i, clip, control);
+    if (!r.is_ok()) return r.status();
+    c = std::move(r).value();
+    if (measures_only) {
+      c.vertices.clear();
+      c.vertex_simplices.clear();
+      for (VoronoiFacet& f : c.facets) f.vertices.clear();
+    }
+    return Status::ok();
+  };
+  std::uint64_t done = 0;
+  auto forward = [&](std::span<const VoronoiCell> cells, std::uint64_t so_far) -> Status {
+    done = so_far;
+    return batches.add(cells, done);
+  };
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  if (Status s = in_rounds<VoronoiCell>(range.end - range.begin, threads, 64 * threads, control,
+                                        "streaming the cells of point set " + id, answer, forward);
+      !s.is_ok()) {
+    return s;
+  }
+  return batches.finish(done);
+}
+
 std::size_t Engine::charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge) {
   // A smaller cache, or none, gives the same answers, only slower.
   MemoryBudget& budget = store_->budget();
@@ -1054,6 +1160,15 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   if (batch_size > defaults::kMaxCellBatchSize) {
     return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum " +
                             std::to_string(defaults::kMaxCellBatchSize) + " cells");
+  }
+  if (shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return layout.status();
+    if (layout.value()) {
+      const ShardRange range = shard_range(layout.value()->manifest().count, shard_index, shard_count);
+      if (range_out != nullptr) *range_out = range;
+      return stream_cells_from_pieces(id, range, batch_size, spec, measures_only, control, emit);
+    }
   }
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();
@@ -1110,6 +1225,17 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   if (batch_size > defaults::kMaxBatchSize) {
     return invalid_argument("batch_size: " + std::to_string(batch_size) + " is above the maximum " +
                             std::to_string(defaults::kMaxBatchSize));
+  }
+  if (shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return layout.status();
+    if (layout.value()) {
+      const PieceManifest& m = layout.value()->manifest();
+      const ShardRange range = shard_range(m.count, shard_index, shard_count);
+      if (range_out != nullptr) *range_out = range;
+      if (dimension_out != nullptr) *dimension_out = m.dimension;
+      return stream_simplices_from_pieces(id, m, range, batch_size, control, emit);
+    }
   }
   auto set = store_->get(id);
   if (!set.is_ok()) return set.status();

@@ -292,6 +292,13 @@ class Engine {
   // replica (with `pieces`) the piece holding it (StoredSet::piece; map answers back).
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed,
                                                                              bool pieces = false);
+  // Streams of a set kept as pieces: simplices piece by piece in sweep order (each
+  // piece swept over its own points), cells seed by seed as their single calls.
+  Status stream_simplices_from_pieces(const std::string& id, const PieceManifest& manifest, ShardRange range,
+                                      std::uint32_t batch_size, const CallControl& control, const BatchSink& emit);
+  Status stream_cells_from_pieces(const std::string& id, ShardRange range, std::uint32_t batch_size,
+                                  const DomainSpec& spec, bool measures_only, const CallControl& control,
+                                  const CellBatchSink& emit);
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
   Status batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                            BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,

@@ -710,7 +710,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::str
   const PieceManifest& m = layout.value()->manifest();
   const PieceEntry& entry = m.pieces[piece];
   // Charged before it is read: its points, ids and tree.
-  const std::uint64_t bytes = estimated_memory(entry.held, m.dimension) + 9 * entry.held;
+  const std::uint64_t bytes = estimated_memory(entry.held, m.dimension) + 10 * entry.held;
   auto charge = budget_.try_charge(bytes);
   if (!charge) return budget_.over_budget("loading piece " + std::to_string(piece) + " of point set " + id, bytes);
   auto read = read_piece(pieces_dir(dir_, id) + "/" + std::to_string(piece) + ".piece", m, piece);
@@ -729,6 +729,8 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::str
   PieceOf of;
   of.index = piece;
   of.ids = std::move(read->ids);
+  of.own = std::move(read->own);
+  of.start = read->start;
   of.held_box = std::move(read->held_box);
   of.global_box = m.global_box;
   set->piece = std::move(of);

@@ -60,6 +60,8 @@ struct PointSetInfo {
 struct PieceOf {
   std::uint32_t index = 0;
   std::vector<std::uint64_t> ids;  // ascending
+  std::vector<std::uint8_t> own;   // 1: the piece's own point (0: its halo)
+  std::uint64_t start = 0;         // its first sweep position in the whole set
   std::vector<double> held_box;    // every point of the set inside is held
   std::vector<double> global_box;  // the whole set's box (the default domain of its cells)
 };

@@ -135,9 +135,8 @@ def test_every_seed_from_any_shard_is_the_whole_sets_answer(stored, start_server
                 cell = pb.GetVoronoiCellRequest(point_set_id=set_id, seed=seed, domain=pb.Domain(bounding_box=True))
                 assert (stubs[at].GetVoronoiCell(cell, timeout=30).SerializeToString() ==
                         whole_stub.GetVoronoiCell(cell, timeout=30).SerializeToString()), (name, seed)
-        # Per-seed answers came from pieces alone: no replica loaded a whole set (before
-        # the first stream below, which still reads the set whole).
-        for r in replicas if name == "uniform 3-d" else []:
+        # Every answer came from pieces alone: no replica loaded a whole set.
+        for r in replicas:
             assert metric(r.http, "spokemesh_pieces_loaded") > 0
             assert metric(r.http, "spokemesh_store_loaded_point_sets") == metric(r.http, "spokemesh_pieces_loaded")
         # Out of range: the same error from a shard as from the whole set.
@@ -153,9 +152,11 @@ def test_every_seed_from_any_shard_is_the_whole_sets_answer(stored, start_server
             got = http_request("POST", f"{replicas[-1].http}/v1/pointsets/{set_id}/{what}:batch", body)
             want = http_request("POST", f"{whole.http}/v1/pointsets/{set_id}/{what}:batch", body)
             assert got[0] == want[0] == 200 and got[2] == want[2], (name, what)
-        status, _, stream = http_request("GET", f"{replicas[0].http}/v1/pointsets/{set_id}/simplices")
-        assert status == 200
-        assert stream == http_request("GET", f"{whole.http}/v1/pointsets/{set_id}/simplices")[2], name
+        for stream_path in ("simplices", "simplices?shard=1&shards=3", "cells", "cells?measures_only=true&shard=2&shards=3"):
+            status, _, stream = http_request("GET", f"{replicas[0].http}/v1/pointsets/{set_id}/{stream_path}")
+            assert status == 200
+            assert stream == http_request("GET", f"{whole.http}/v1/pointsets/{set_id}/{stream_path}")[2], \
+                (name, stream_path)
     # Each replica holds only its own shard's pieces (and those its completions read).
     forwarded = sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas)
     assert forwarded > 0
