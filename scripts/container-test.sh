@@ -3,7 +3,9 @@
 # (three replicas sharing a volume, behind nginx) started with podman-compose, replicas
 # stopped, killed and restarted under load; tests/container/restart_under_load.py
 # checks that every request is answered correctly and promptly and that each restarted
-# replica (on a new address) serves again.
+# replica (on a new address) serves again. Then the sharded set (docker/compose-sharded.yaml:
+# 2 shards x 2 replicas, the set cut into pieces) with one replica of each shard killed
+# and restarted under load.
 #
 # No registry is reachable, so debian:bookworm-slim is made here with debootstrap (from
 # Debian's archive) and imported, once; the images then build from Debian's packages.
@@ -58,16 +60,28 @@ free_port() { /usr/bin/python3 -c 'import socket; s=socket.socket(); s.bind(("12
 export SPOKEMESH_GRPC_PORT="${SPOKEMESH_GRPC_PORT:-$(free_port)}"
 export SPOKEMESH_HTTP_PORT="${SPOKEMESH_HTTP_PORT:-$(free_port)}"
 compose=(podman-compose -p "$project" -f docker/compose.yaml)
+sharded_project=${project}-sharded
+sharded=(podman-compose -p "$sharded_project" -f docker/compose-sharded.yaml)
 
-down() {
+down_plain() {
   podman logs "${project}_nginx_1" >"$work/nginx.log" 2>&1 || true
+  "${compose[@]}" down -v >"$work/down.log" 2>&1 || true
+  podman volume rm -f "${project}_spokemesh-data" >/dev/null 2>&1 || true
+}
+down_sharded() {
+  podman logs "${sharded_project}_nginx_1" >"$work/nginx-sharded.log" 2>&1 || true
+  "${sharded[@]}" down -v >"$work/down-sharded.log" 2>&1 || true
+  podman volume rm -f "${sharded_project}_spokemesh-data" >/dev/null 2>&1 || true
+}
+down() {
   if [[ $keep == 0 ]]; then
-    "${compose[@]}" down -v >"$work/down.log" 2>&1 || true
-    podman volume rm -f "${project}_spokemesh-data" >/dev/null 2>&1 || true
+    down_plain
+    down_sharded
   fi
 }
 trap down EXIT
-down
+down_plain
+down_sharded
 
 log "building the images (server: a Release build inside the container)"
 start=$(date +%s)
@@ -95,3 +109,14 @@ for path, needle in (("/", b"/ui/app.js"), ("/ui/three.min.js", b"REVISION"), ("
         assert r.status == 200 and needle in r.read(), path
 PY
 log "the page is served from the image"
+
+# The sharded set: the same images, 2 shards x 2 replicas; small pieces so that the
+# test's set of 20,000 points is cut into 16.
+down_plain
+export SPOKEMESH_PIECES_ABOVE=10000 SPOKEMESH_PIECE_POINTS=2000
+"${sharded[@]}" up -d >"$work/up-sharded.log" 2>&1 || { tail -n 40 "$work/up-sharded.log" >&2; exit 1; }
+log "sharded set up: 2 shards x 2 replicas behind nginx"
+/usr/bin/python3 tests/container/restart_under_load.py --project "$sharded_project" --sharded \
+  --grpc "127.0.0.1:$SPOKEMESH_GRPC_PORT" --http "http://127.0.0.1:$SPOKEMESH_HTTP_PORT" \
+  || { podman logs "${sharded_project}_nginx_1" 2>&1 | grep -v ' 200 upstream=' | tail -n 20 >&2; exit 1; }
+log "sharded set: passed"

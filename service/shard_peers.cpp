@@ -7,6 +7,9 @@
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/beast/core.hpp>
 
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+
 #include <optional>
 
 namespace spokemesh::service {
@@ -21,6 +24,16 @@ namespace {
 
 // How long an address that refused a connection is passed over.
 constexpr auto kRefusedFor = std::chrono::seconds(3);
+// A connection attempt to a replica (on the deployment's network: a dead address costs
+// this, then the next is tried, as nginx's proxy_connect_timeout in docker/nginx.conf).
+constexpr auto kConnectTimeout = std::chrono::milliseconds(250);
+// How long a relayed request's bytes may go unacknowledged before the connection is
+// dropped (TCP_USER_TIMEOUT): a replica killed without closing its connections is found
+// out in this long, and the request goes to another, instead of waiting for an answer
+// that never comes.
+constexpr unsigned kUnacknowledgedMs = 500;
+// How long a name's addresses are kept before it is resolved again (nginx: valid=2s).
+constexpr auto kResolvedFor = std::chrono::seconds(2);
 // The most a forwarded answer may hold (a cell of a high-dimensional seed is the largest).
 constexpr std::uint64_t kMaxForwardedBody = std::uint64_t{256} << 20;
 
@@ -136,20 +149,30 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
   request.prepare_payload();
 
   std::vector<tcp::endpoint> endpoints;
-  std::string resolve_error;
-  for (const std::string& replica : replicas) {
-    const auto [host, port] = host_port(replica);
-    asio::io_context io;
-    tcp::resolver resolver(io);
-    beast::error_code ec;
-    const auto found = resolver.resolve(host, port, ec);
-    if (ec) resolve_error = "cannot resolve " + host + ": " + ec.message();
-    if (!ec) {
-      for (const auto& e : found) endpoints.push_back(e.endpoint());
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = resolved_.find(shard); it != resolved_.end() && SteadyClock::now() < it->second.second) {
+      endpoints = it->second.first;
     }
   }
   if (endpoints.empty()) {
-    return unavailable(shard, address, resolve_error.empty() ? "it names no address" : resolve_error);
+    std::string resolve_error;
+    for (const std::string& replica : replicas) {
+      const auto [host, port] = host_port(replica);
+      asio::io_context io;
+      tcp::resolver resolver(io);
+      beast::error_code ec;
+      const auto found = resolver.resolve(host, port, ec);
+      if (ec) resolve_error = "cannot resolve " + host + ": " + ec.message();
+      if (!ec) {
+        for (const auto& e : found) endpoints.push_back(e.endpoint());
+      }
+    }
+    if (endpoints.empty()) {
+      return unavailable(shard, address, resolve_error.empty() ? "it names no address" : resolve_error);
+    }
+    std::lock_guard lock(mutex_);
+    resolved_[shard] = {endpoints, SteadyClock::now() + kResolvedFor};
   }
   std::size_t start = 0;
   {
@@ -174,7 +197,12 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
           c->endpoint = name;
           beast::error_code ec;
           c->stream.async_connect(e, [&](beast::error_code e2) { ec = e2; });
-          c->run(std::min(deadline, SteadyClock::now() + std::chrono::seconds(2)));
+          c->run(std::min(deadline, SteadyClock::now() + kConnectTimeout));
+          if (!ec) {
+            const int ms = static_cast<int>(kUnacknowledgedMs), one = 1;
+            ::setsockopt(c->stream.socket().native_handle(), IPPROTO_TCP, TCP_USER_TIMEOUT, &ms, sizeof ms);
+            ::setsockopt(c->stream.socket().native_handle(), IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+          }
           if (ec) {
             last_error = name + ": " + ec.message();
             note_refused(name);
@@ -208,6 +236,10 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
       }
     }
   }
+  {
+    std::lock_guard lock(mutex_);
+    resolved_.erase(shard);  // resolved again by the next request
+  }
   return unavailable(shard, address, last_error);
 }
 
@@ -217,6 +249,8 @@ std::shared_ptr<grpc::Channel> ShardPeers::grpc_channel(std::uint32_t shard) {
   if (!channel) {
     grpc::ChannelArguments args;
     args.SetLoadBalancingPolicyName("round_robin");
+    // A replica restarted on a new address is found within a second, not the default 30.
+    args.SetInt(GRPC_ARG_DNS_MIN_TIME_BETWEEN_RESOLUTIONS_MS, 1000);
     args.SetInt(GRPC_ARG_MAX_RECEIVE_MESSAGE_LENGTH, static_cast<int>(kMaxForwardedBody));
     // One name (resolved to every replica), or a list of IPv4 replicas.
     const std::vector<std::string> replicas = split_commas(grpc_address(shard));

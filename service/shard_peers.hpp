@@ -18,6 +18,7 @@
 // Thread safety: all member functions are safe to call concurrently.
 #pragma once
 
+#include <boost/asio/ip/tcp.hpp>
 #include <boost/beast/http.hpp>
 
 #include <chrono>
@@ -77,6 +78,9 @@ class ShardPeers {
   std::mutex mutex_;
   std::map<std::pair<std::uint32_t, std::string>, std::vector<std::unique_ptr<Connection>>> idle_;
   std::map<std::string, std::chrono::steady_clock::time_point> refused_until_;
+  // Each shard's addresses, as last resolved, and until when they are used.
+  std::map<std::uint32_t, std::pair<std::vector<boost::asio::ip::tcp::endpoint>, std::chrono::steady_clock::time_point>>
+      resolved_;
   std::map<std::uint32_t, std::shared_ptr<grpc::Channel>> channels_;
   std::uint64_t turn_ = 0;
 };

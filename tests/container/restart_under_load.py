@@ -6,6 +6,9 @@ front), several client threads ask for stars over REST and gRPC through nginx wh
 this script, in turn:
   1. stops replica 2 gracefully (SIGTERM: the server drains) and starts it again;
   2. kills replica 3 (SIGKILL: in-flight requests die with it) and starts it again.
+With --sharded (docker/compose-sharded.yaml: 2 shards x 2 replicas, the set cut into
+pieces), it kills one replica of each shard in turn and starts it again, while the
+other replicas relay each seed to a live replica of its shard.
 Each restarted replica comes back on a new address (the script checks that it did).
 The test fails unless:
   * every request is answered, correctly: each star equals the one computed by the
@@ -120,8 +123,14 @@ def main() -> int:
     parser.add_argument("--grpc", required=True)
     parser.add_argument("--http", required=True)
     parser.add_argument("--workdir", default=str(REPO / "build-container"))
+    parser.add_argument("--sharded", action="store_true", help="docker/compose-sharded.yaml's set")
     args = parser.parse_args()
-    replicas = [f"{args.project}_spokemesh_{k}" for k in (1, 2, 3)]
+    if args.sharded:
+        replicas = [f"{args.project}_spokemesh-shard-{s}_{k}" for s in (0, 1) for k in (1, 2)]
+        plan = [(replicas[1], "kill"), (replicas[2], "kill")]  # one replica of each shard
+    else:
+        replicas = [f"{args.project}_spokemesh_{k}" for k in (1, 2, 3)]
+        plan = [(replicas[1], "stop"), (replicas[2], "kill")]
     nginx = f"{args.project}_nginx_1"
 
     deadline = time.time() + 120
@@ -146,6 +155,10 @@ def main() -> int:
     status, body = http("POST", f"{args.http}/v1/pointsets?dimension=3", points.astype("<f8").tobytes(), timeout=60)
     assert status in (200, 201), (status, body)
     pid = json.loads(body)["id"]
+    if args.sharded:
+        pieces = podman("exec", replicas[0], "ls", f"/data/pieces/{pid}").split()
+        assert "manifest" in pieces and len(pieces) > 4, f"the set was not cut into pieces: {pieces}"
+        print(f"set {pid[:12]}...: {len(pieces) - 2} pieces on the shared volume")
 
     cli = REPO / "build" / "bin" / "spokemesh"
     expected: dict[int, list] = {}
@@ -176,7 +189,7 @@ def main() -> int:
     failures = []
     try:
         time.sleep(5)
-        for replica, how in ((replicas[1], "stop"), (replicas[2], "kill")):
+        for replica, how in plan:
             before = address_of(replica)
             served_before = load.count()
             if how == "stop":

@@ -649,10 +649,11 @@ def test_nginx_re_resolves_replicas_that_restart_elsewhere(start_server, tmp_pat
     front_grpc, front_rest = free_port(), free_port()
     conf = (Path(__file__).resolve().parents[2] / "docker" / "nginx.conf").read_text()
     conf = (conf.replace("@RESOLVER@", f"127.0.0.1:{dns.port}")
+            .replace("@HOSTS@", "default spokemesh;")
             .replace("listen 50051 http2;", f"listen 127.0.0.1:{front_grpc} http2;")
             .replace("listen 8080;", f"listen 127.0.0.1:{front_rest};")
-            .replace("spokemesh:50051", f"spokemesh:{grpc_port}")
-            .replace("spokemesh:8080", f"spokemesh:{rest_port}")
+            .replace("$spokemesh_host:50051", f"$spokemesh_host:{grpc_port}")
+            .replace("$spokemesh_host:8080", f"$spokemesh_host:{rest_port}")
             .replace("worker_processes auto;", ("user root;\n" if os.geteuid() == 0 else "") +
                      f"worker_processes 1;\npid {ndir}/nginx.pid;\nerror_log {ndir}/error.log warn;")
             .replace("http {", f"http {{\n  access_log {ndir}/access.log;\n  client_body_temp_path {ndir}/body;\n"

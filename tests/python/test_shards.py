@@ -234,3 +234,39 @@ def test_tenants_sets_stay_invisible(start_server, tmp_path):
             stub.GetStar(pb.SeedRequest(point_set_id=set_id, seed=600), metadata=[("authorization", "Bearer bob-key-0123456789ab")],
                          timeout=30)
         assert e.value.code() == grpc.StatusCode.NOT_FOUND
+
+
+def test_the_sharded_deployments_agree_with_themselves():
+    """docker/k8s/spokemesh-sharded.yaml and docker/compose-sharded.yaml: every shard
+    K of N has replicas started with --shard K/N under the name the others reach it by
+    (the servers' default spokemesh-shard-{shard}), a budget keeping one up (k8s), and
+    the front door reaches every shard."""
+    import pathlib
+    import yaml
+    docker = pathlib.Path(__file__).resolve().parents[2] / "docker"
+    docs = list(yaml.safe_load_all((docker / "k8s" / "spokemesh-sharded.yaml").read_text()))
+    kinds = {}
+    for d in docs:
+        kinds.setdefault(d["kind"], {})[d["metadata"]["name"]] = d
+    shards = sorted(kinds["Deployment"])
+    n = len(shards)
+    assert n >= 2
+    for k, name in enumerate(shards):
+        assert name == f"spokemesh-shard-{k}"
+        pod = kinds["Deployment"][name]["spec"]["template"]
+        args = pod["spec"]["containers"][0]["args"]
+        assert args[args.index("--shard") + 1] == f"{k}/{n}"
+        labels = pod["metadata"]["labels"]
+        service = kinds["Service"][name]
+        assert service["spec"]["clusterIP"] == "None" and service["spec"]["selector"] == labels
+        assert kinds["PodDisruptionBudget"][name]["spec"]["minAvailable"] == 1
+        assert kinds["Service"]["spokemesh"]["spec"]["selector"].items() <= labels.items()
+    compose = yaml.safe_load((docker / "compose-sharded.yaml").read_text())["services"]
+    names = sorted(s for s in compose if s.startswith("spokemesh-shard-"))
+    assert len(names) == 2
+    for k, name in enumerate(names):
+        command = compose[name]["command"]
+        assert name == f"spokemesh-shard-{k}" and command[command.index("--shard") + 1] == f"{k}/2"
+        assert compose[name]["deploy"]["replicas"] == 2
+    nginx = " ".join(compose["nginx"]["command"])
+    assert all(name in nginx for name in names)
