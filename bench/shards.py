@@ -252,7 +252,7 @@ def main() -> None:
                     print(f"spokemesh mesh: {time.perf_counter() - t:.1f} s")
                 expected = np.load(mesh, mmap_mode="r")
                 t = time.perf_counter()
-                got = spokemesh.Client(f"127.0.0.1:{shards[0].grpc_port}").simplices(set_id)
+                got = spokemesh.Client(f"127.0.0.1:{shards[0].grpc_port}", timeout=3600).simplices(set_id, shards=2)
                 print(f"stream from shard replica 0: {len(got)} simplices in {time.perf_counter() - t:.1f} s")
                 same = got.shape == expected.shape and all(
                     np.array_equal(got[i:i + 10_000_000], expected[i:i + 10_000_000])

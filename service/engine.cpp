@@ -195,6 +195,10 @@ Status Engine::ensure_pieces(const PointSetInfo& info, const PointSet* points) {
   return Status::ok();
 }
 
+bool Engine::is_own_piece(std::uint32_t piece, std::uint32_t pieces) const {
+  return !shards_.sharded() || shard_of_piece(piece, pieces, shards_.count) == shards_.index;
+}
+
 SeedRoute Engine::route_seed(const std::string& id, std::uint64_t seed) {
   SeedRoute route;
   if (!shards_.sharded() || !is_valid_id(id)) return route;
@@ -581,9 +585,9 @@ Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const
     if (!h.is_ok()) return invalid_argument("domain." + h.status().message());
     return std::optional<Domain>(std::move(h).value());
   }
-  if ((spec.bounding_box || default_box) && set.piece) {
-    // The whole set's box (Domain::bounding_box of the whole set is this box).
-    const auto& g = set.piece->global_box;
+  if ((spec.bounding_box || default_box) && (set.piece || !set.bounds.empty())) {
+    // The whole set's box, kept with it (Domain::bounding_box of the points is this box).
+    const auto& g = set.piece ? set.piece->global_box : set.bounds;
     auto box = Domain::box({g.begin(), g.begin() + d}, {g.begin() + d, g.end()});
     if (!box.is_ok()) return box.status();
     return std::optional<Domain>(std::move(box).value());
@@ -636,28 +640,34 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
     const StarCertifier certifier(set.points, set.piece->global_box);
     if (reach2 > 0 && !certifier.ball_is_held(seed, reach2 * (1 + 4 * kDistanceMargin), set.piece->held_box, {},
                                               set.piece->global_box)) {
-      return complete_cell(set, seed, *domain, control);
+      return complete_cell(set, seed, reach2 * (1 + 4 * kDistanceMargin), *domain, control);
     }
     to_global(cell.value(), set.piece->ids);
   }
   return cell;
 }
 
-Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t seed, const Domain& domain,
-                                          const CallControl& control) {
+Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t seed, double reach2,
+                                          const Domain& domain, const CallControl& control) {
   const int d = piece.info.dimension;
   const auto dd = static_cast<std::size_t>(d);
-  const std::uint64_t global_seed = piece.piece->ids[seed];
+  const PieceOf& of = *piece.piece;
+  const std::uint64_t global_seed = of.ids[seed];
   auto layout = store_->layout(piece.info.id);
   if (!layout.is_ok()) return layout.status();
   const PieceManifest& m = layout.value()->manifest();
   const std::vector<double>& g = m.global_box;
   const double* x = piece.points.point(seed);
-  // Start from the piece's held box's depth around the seed; double until held.
-  double radius = 0;
-  for (std::size_t c = 0; c < dd; ++c) {
-    radius = std::max(radius, piece.piece->held_box[dd + c] - piece.piece->held_box[c]);
-  }
+  // The seed's neighbours (its piece holds them, and so its whole star), which the
+  // builder's star route needs besides the points within the reach.
+  auto star = compute_star(piece, seed, control);
+  if (!star.is_ok()) return star.status();
+  std::vector<std::uint32_t> ring = star->simplices;
+  std::sort(ring.begin(), ring.end());
+  ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
+  // A box around the ball that decided the cell, doubled until it holds the reach of
+  // the cell built from every point inside it.
+  double radius = std::sqrt(reach2) * (1 + 1e-6);
   for (;;) {
     std::vector<double> around(2 * dd);
     bool everything = true;
@@ -666,19 +676,40 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
       around[dd + c] = std::min(g[dd + c], x[c] + radius);
       everything = everything && around[c] <= g[c] && around[dd + c] >= g[dd + c];
     }
-    // Every point inside `around` lies in a piece whose box meets it.
-    std::vector<std::pair<std::uint64_t, const double*>> held;
-    std::vector<std::shared_ptr<const StoredSet>> pieces;
+    auto inside = [&](const double* p) {
+      for (std::size_t c = 0; c < dd; ++c) {
+        if (p[c] < around[c] || p[c] > around[dd + c]) return false;
+      }
+      return true;
+    };
+    // Every point of the set inside `around` is one of the own points of a piece whose
+    // box meets it: read from that piece's file (this piece's from memory).
+    std::vector<std::pair<std::uint64_t, std::vector<double>>> held;
+    for (const std::uint32_t v : ring)
+      held.emplace_back(of.ids[v], std::vector<double>(piece.points.point(v), piece.points.point(v) + dd));
     for (std::uint32_t p = 0; p < m.pieces.size(); ++p) {
       const std::vector<double>& b = m.pieces[p].box;
       bool meets = true;
       for (std::size_t c = 0; c < dd && meets; ++c) meets = b[c] <= around[dd + c] && b[dd + c] >= around[c];
       if (!meets) continue;
-      auto other = store_->get_piece(piece.info.id, p);
-      if (!other.is_ok()) return other.status();
-      pieces.push_back(std::move(other).value());
-      const StoredSet& o = *pieces.back();
-      for (std::size_t k = 0; k < o.piece->ids.size(); ++k) held.emplace_back(o.piece->ids[k], o.points.point(k));
+      if (p == of.index) {
+        for (std::size_t k = 0; k < of.ids.size(); ++k) {
+          if (of.own[k] != 0 && inside(piece.points.point(k))) {
+            held.emplace_back(of.ids[k], std::vector<double>(piece.points.point(k), piece.points.point(k) + dd));
+          }
+        }
+        continue;
+      }
+      auto other =
+          read_piece(pieces_dir(store_->directory(), piece.info.id) + "/" + std::to_string(p) + ".piece", m, p);
+      if (!other.is_ok()) {
+        return Status{Code::kUnavailable, "point set " + piece.info.id + ": piece " + std::to_string(p) +
+                                              " cannot be read: " + other.status().message()};
+      }
+      for (std::size_t k = 0; k < other->ids.size(); ++k) {
+        const double* q = other->coords.data() + k * dd;
+        if (other->own[k] != 0 && inside(q)) held.emplace_back(other->ids[k], std::vector<double>(q, q + dd));
+      }
     }
     std::sort(held.begin(), held.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     held.erase(std::unique(held.begin(), held.end(), [](const auto& a, const auto& b) { return a.first == b.first; }),
@@ -688,10 +719,9 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
     coords.reserve(held.size() * dd);
     for (const auto& [id, p] : held) {
       ids.push_back(id);
-      coords.insert(coords.end(), p, p + dd);
+      coords.insert(coords.end(), p.begin(), p.end());
     }
     held = {};
-    pieces.clear();
     PointSet points(d, std::move(coords));
     if (Status s = points.validate("point set " + piece.info.id); !s.is_ok()) return s;
     const KdTree tree(points);
@@ -704,13 +734,13 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
       return control.stopped_status("the cell of seed " + std::to_string(global_seed));
     }
     if (!cell.is_ok()) return cell.status();
-    const double reach2 = builder.last_reach2();
+    const double reach = builder.last_reach2();
     const StarCertifier certifier(points, g);
-    if (everything || reach2 <= 0 || certifier.ball_is_held(local, reach2 * (1 + 4 * kDistanceMargin), around, {}, g)) {
+    if (everything || reach <= 0 || certifier.ball_is_held(local, reach * (1 + 4 * kDistanceMargin), around, {}, g)) {
       to_global(cell.value(), ids);
       return cell;
     }
-    radius *= 2;
+    radius = std::max(2 * radius, std::sqrt(reach) * (1 + 1e-6));
   }
 }
 
@@ -823,14 +853,49 @@ void Engine::share_whole_triangulation(const StoredSet& set, MeshOptions& option
   };
 }
 
-Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
-                     const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
-                     const AnswerSink& emit) {
+namespace {
+
+// The errors of a batch's seeds (every transport's, and relayed batches'): none, too
+// many, or the first one out of range.
+Status check_batch_seeds(const std::vector<std::uint64_t>& seeds, std::uint64_t count) {
   if (seeds.empty()) return invalid_argument("seeds: none given");
   if (seeds.size() > defaults::kMaxBatchSeeds) {
     return invalid_argument("seeds: " + std::to_string(seeds.size()) + " exceed the limit of " +
                             std::to_string(defaults::kMaxBatchSeeds) + " per call");
   }
+  for (std::size_t i = 0; i < seeds.size(); ++i) {
+    if (seeds[i] >= count) {
+      return out_of_range("seeds[" + std::to_string(i) + "]: seed " + std::to_string(seeds[i]) +
+                          " is out of range (the point set has " + std::to_string(count) + " points)");
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
+Result<std::vector<std::uint32_t>> Engine::batch_routes(const std::string& id,
+                                                        const std::vector<std::uint64_t>& seeds) {
+  std::vector<std::uint32_t> routes;
+  if (!shards_.sharded()) return routes;
+  auto layout = store_->layout(id);
+  if (!layout.is_ok()) return layout.status();
+  if (!layout.value()) return routes;
+  if (Status s = check_batch_seeds(seeds, layout.value()->manifest().count); !s.is_ok()) return s;
+  routes.reserve(seeds.size());
+  for (const std::uint64_t seed : seeds) {
+    auto piece = layout.value()->piece_of(seed);
+    if (!piece.is_ok()) return piece.status();
+    routes.push_back(shard_of_piece(piece.value(), layout.value()->pieces(), shards_.count));
+  }
+  return routes;
+}
+
+Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
+                     const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
+                     const AnswerSink& emit) {
+  // None or too many, before the set is loaded; the range once its count is known.
+  if (Status s = check_batch_seeds(seeds, ~std::uint64_t{0}); !s.is_ok()) return s;
   if (shards_.sharded()) {
     auto layout = store_->layout(id);
     if (!layout.is_ok()) return layout.status();
@@ -841,12 +906,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   auto set_or = store_->get(id);
   if (!set_or.is_ok()) return set_or.status();
   const std::shared_ptr<const StoredSet> set = set_or.value();
-  for (std::size_t i = 0; i < seeds.size(); ++i) {
-    if (seeds[i] >= set->info.count) {
-      return out_of_range("seeds[" + std::to_string(i) + "]: seed " + std::to_string(seeds[i]) +
-                          " is out of range (the point set has " + std::to_string(set->info.count) + " points)");
-    }
-  }
+  if (Status s = check_batch_seeds(seeds, set->info.count); !s.is_ok()) return s;
   std::optional<Domain> domain;
   if (kind == BatchKind::kCells) {
     if (Status s = exact_allowed(*set, "a batch of cells"); !s.is_ok()) return s;
@@ -980,12 +1040,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
 Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                                  BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
                                  const CallControl& control, const AnswerSink& emit) {
-  for (std::size_t i = 0; i < seeds.size(); ++i) {
-    if (seeds[i] >= count) {
-      return out_of_range("seeds[" + std::to_string(i) + "]: seed " + std::to_string(seeds[i]) +
-                          " is out of range (the point set has " + std::to_string(count) + " points)");
-    }
-  }
+  if (Status s = check_batch_seeds(seeds, count); !s.is_ok()) return s;
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
@@ -1020,11 +1075,24 @@ Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceMa
   pending.reserve(batch_size * width);
   bool emitted = false;
   std::uint64_t done = 0, done_before = 0;
+  const std::vector<std::uint32_t> held_before = store_->pieces_held(id);
   // The pieces overlapping the range in sweep order, each swept over its own points
   // as the whole set's sweep takes them (its halo holds every neighbour: the same rows).
   for (std::uint32_t p = 0; p < m.pieces.size(); ++p) {
     const std::uint64_t first = m.pieces[p].start, last = first + m.pieces[p].count;
     if (last <= range.begin || first >= range.end) continue;
+    // Another shard's piece this stream loads is given back once swept.
+    struct GiveBack {
+      PointSetStore& store;
+      const std::string& id;
+      std::uint32_t piece;
+      bool give;
+      ~GiveBack() {
+        if (give) store.drop_piece(id, piece);
+      }
+    } give_back{*store_, id, p,
+                !is_own_piece(p, static_cast<std::uint32_t>(m.pieces.size())) &&
+                    std::find(held_before.begin(), held_before.end(), p) == held_before.end()};
     auto loaded = store_->get_piece(id, p);
     if (!loaded.is_ok()) return loaded.status();
     const StoredSet& s = *loaded.value();
@@ -1106,12 +1174,20 @@ Status Engine::stream_cells_from_pieces(const std::string& id, ShardRange range,
     done = so_far;
     return batches.add(cells, done);
   };
+  // Other shards' pieces this stream loads are given back when it ends.
+  const std::vector<std::uint32_t> held_before = store_->pieces_held(id);
   const unsigned threads = std::max(1u, limits_.stream_threads);
-  if (Status s = in_rounds<VoronoiCell>(range.end - range.begin, threads, 64 * threads, control,
-                                        "streaming the cells of point set " + id, answer, forward);
-      !s.is_ok()) {
-    return s;
+  Status s = in_rounds<VoronoiCell>(range.end - range.begin, threads, 64 * threads, control,
+                                    "streaming the cells of point set " + id, answer, forward);
+  if (auto layout = store_->layout(id); layout.is_ok() && layout.value()) {
+    for (const std::uint32_t p : store_->pieces_held(id)) {
+      if (!is_own_piece(p, layout.value()->pieces()) &&
+          std::find(held_before.begin(), held_before.end(), p) == held_before.end()) {
+        store_->drop_piece(id, p);
+      }
+    }
   }
+  if (!s.is_ok()) return s;
   return batches.finish(done);
 }
 

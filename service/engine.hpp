@@ -209,6 +209,10 @@ class Engine {
   Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSettings shards = {});
 
   const ShardSettings& shards() const { return shards_; }
+  // A batch's seeds' shards on a sharded replica, in the request's order; empty when
+  // the batch is answered here whole (a set held whole, a replica that is not sharded).
+  // The errors batch() gives for the seeds (none, too many, one out of range).
+  Result<std::vector<std::uint32_t>> batch_routes(const std::string& id, const std::vector<std::uint64_t>& seeds);
   // The shard whose replicas answer `seed` of set `id` (here for a set held whole, for
   // a replica that is not sharded, and for any error, which the local call reports).
   SeedRoute route_seed(const std::string& id, std::uint64_t seed);
@@ -292,6 +296,8 @@ class Engine {
   // replica (with `pieces`) the piece holding it (StoredSet::piece; map answers back).
   Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed,
                                                                              bool pieces = false);
+  // Whether this replica's shard serves the piece (every piece when not sharded).
+  bool is_own_piece(std::uint32_t piece, std::uint32_t pieces) const;
   // Streams of a set kept as pieces: simplices piece by piece in sweep order (each
   // piece swept over its own points), cells seed by seed as their single calls.
   Status stream_simplices_from_pieces(const std::string& id, const PieceManifest& manifest, ShardRange range,
@@ -306,9 +312,11 @@ class Engine {
   // Cuts a stored set into pieces when its shape and size call for it (ShardSettings)
   // and it has none yet; `points` null: loaded from the store.
   Status ensure_pieces(const PointSetInfo& info, const PointSet* points);
-  // A clipped cell of a piece's seed whose reach the piece does not hold: rebuilt from
-  // the pieces whose boxes meet a box around the seed, grown until it holds the reach.
-  Result<VoronoiCell> complete_cell(const StoredSet& piece, std::uint32_t seed, const Domain& domain,
+  // A clipped cell of a piece's seed whose reach (squared) the piece does not hold:
+  // rebuilt from the seed's neighbours and every point inside a box around the reach
+  // (read from the pieces whose boxes meet it), the box doubled until it holds the
+  // reach of the cell built.
+  Result<VoronoiCell> complete_cell(const StoredSet& piece, std::uint32_t seed, double reach2, const Domain& domain,
                                     const CallControl& control);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
   // A periodic set's star (and cell, when asked) of one seed.

@@ -1,7 +1,9 @@
 #include "grpc_service.hpp"
 
 #include <algorithm>
+#include <future>
 #include <limits>
+#include <map>
 #include <optional>
 
 namespace spokemesh::service {
@@ -432,44 +434,174 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
   auto query = neighbor_query(request->mode(), request->max_consecutive_misses(), request->max_vertices());
   if (!query.is_ok()) return call.finish(query.status());
   const std::vector<std::uint64_t> seeds(request->seeds().begin(), request->seeds().end());
+  // On a sharded replica, the seeds of other shards' pieces go to those shards.
+  if (peers_ != nullptr && ctx->client_metadata().find(kForwardedHeader) == ctx->client_metadata().end()) {
+    auto routes = engine_.batch_routes(request->point_set_id(), seeds);
+    if (!routes.is_ok()) return call.finish(routes.status());
+    const std::uint32_t here = peers_->shards().index;
+    if (!std::all_of(routes->begin(), routes->end(), [&](std::uint32_t s) { return s == here; })) {
+      return call.finish(relay_batch(call, ctx, *request, seeds, routes.value(), kind, query.value(), writer));
+    }
+  }
   pb::BatchSeedsResponse response;
   auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t done) -> Status {
     // Messages of at most about 2 MiB (gRPC's default limit is 4 MiB).
     std::size_t bytes = 0;
-    auto flush = [&]() -> Status {
-      if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
-      response.Clear();
-      bytes = 0;
-      return Status::ok();
-    };
     for (std::size_t i = 0; i < answers.size(); ++i) {
-      const BatchAnswer& a = answers[i];
-      if (kind == BatchKind::kStars) {
-        pb::Star* out = response.add_stars();
-        out->set_seed(a.seed);
-        fill_star(a.star, out);
-        telemetry_.add_simplices_served(a.star.star.size());
-        bytes += out->ByteSizeLong();
-      } else if (kind == BatchKind::kNeighbors) {
-        pb::Neighbors* out = response.add_neighbors();
-        out->set_seed(a.seed);
-        fill_neighbors(a.neighbors, request->mode(), out);
-        bytes += out->ByteSizeLong();
-      } else {
-        pb::VoronoiCell* out = response.add_cells();
-        out->set_seed(a.seed);
-        fill_cell(a.cell, out);
-        bytes += out->ByteSizeLong();
-      }
+      bytes += add_answer(answers[i], kind, request->mode(), response);
       if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
         response.set_done(done - (answers.size() - 1 - i));
-        if (Status s = flush(); !s.is_ok()) return s;
+        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+        response.Clear();
+        bytes = 0;
       }
     }
     return Status::ok();
   };
   return call.finish(engine_.batch(request->point_set_id(), seeds, kind, query.value(), domain_spec(request->domain()),
                                    call.control(), emit));
+}
+
+std::size_t MesherService::add_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,
+                                      pb::BatchSeedsResponse& response) {
+  if (kind == BatchKind::kStars) {
+    pb::Star* out = response.add_stars();
+    out->set_seed(a.seed);
+    fill_star(a.star, out);
+    telemetry_.add_simplices_served(a.star.star.size());
+    return out->ByteSizeLong();
+  }
+  if (kind == BatchKind::kNeighbors) {
+    pb::Neighbors* out = response.add_neighbors();
+    out->set_seed(a.seed);
+    fill_neighbors(a.neighbors, mode, out);
+    return out->ByteSizeLong();
+  }
+  pb::VoronoiCell* out = response.add_cells();
+  out->set_seed(a.seed);
+  fill_cell(a.cell, out);
+  return out->ByteSizeLong();
+}
+
+Status MesherService::relay_batch(Call& call, grpc::ServerContext* ctx, const pb::BatchSeedsRequest& request,
+                                  const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes,
+                                  BatchKind kind, const NeighborQuery& query,
+                                  grpc::ServerWriter<pb::BatchSeedsResponse>* writer) {
+  const std::uint32_t here = peers_->shards().index;
+  const auto& md = ctx->client_metadata();
+  std::string authorization;
+  if (const auto it = md.find("authorization"); it != md.end()) {
+    authorization.assign(it->second.data(), it->second.size());
+  }
+  // One shard's answers to its seeds of a part of the request (retried on the shard's
+  // other replicas while nothing has arrived).
+  auto ask = [&](std::uint32_t shard, pb::BatchSeedsRequest part) -> Result<pb::BatchSeedsResponse> {
+    auto stub = pb::Mesher::NewStub(peers_->grpc_channel(shard));
+    grpc::Status status;
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      grpc::ClientContext client;
+      client.set_deadline(
+          std::chrono::system_clock::now() +
+          std::chrono::duration_cast<std::chrono::system_clock::duration>(call.control().deadline() - Clock::now()));
+      client.AddMetadata(kForwardedHeader, std::to_string(here));
+      if (!authorization.empty()) client.AddMetadata("authorization", authorization);
+      auto reader = stub->BatchSeeds(&client, part);
+      pb::BatchSeedsResponse all, message;
+      bool any = false;
+      while (reader->Read(&message)) {
+        any = true;
+        all.MergeFrom(message);
+      }
+      status = reader->Finish();
+      telemetry_.add_forwarded(shard, static_cast<Code>(status.error_code()));
+      if (status.ok()) return all;
+      if (status.error_code() != grpc::StatusCode::UNAVAILABLE || any || call.control().stopped()) break;
+    }
+    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+      return peers_->unavailable(shard, peers_->grpc_address(shard), status.error_message());
+    }
+    return Status{static_cast<Code>(status.error_code()), status.error_message()};
+  };
+  // A bounded part of the request at a time: each shard's seeds of it asked at once
+  // (the other shards' concurrently), the answers written in the request's order.
+  constexpr std::size_t kPart = 1024;
+  const DomainSpec spec = domain_spec(request.domain());
+  for (std::size_t at = 0; at < seeds.size(); at += kPart) {
+    const std::size_t end = std::min(seeds.size(), at + kPart);
+    std::map<std::uint32_t, std::vector<std::size_t>> by_shard;
+    for (std::size_t i = at; i < end; ++i) by_shard[routes[i]].push_back(i);
+    std::vector<std::pair<std::uint32_t, std::future<Result<pb::BatchSeedsResponse>>>> asked;
+    for (const auto& [shard, positions] : by_shard) {
+      if (shard == here) continue;
+      pb::BatchSeedsRequest part = request;
+      part.clear_seeds();
+      for (const std::size_t i : positions) part.add_seeds(seeds[i]);
+      asked.emplace_back(shard, std::async(std::launch::async, ask, shard, std::move(part)));
+    }
+    // Each answer's place: (the response holding it, its index there).
+    std::vector<std::pair<const pb::BatchSeedsResponse*, int>> place(end - at);
+    pb::BatchSeedsResponse local;
+    Status failed;
+    if (auto mine = by_shard.find(here); mine != by_shard.end()) {
+      std::vector<std::uint64_t> part;
+      for (const std::size_t i : mine->second) part.push_back(seeds[i]);
+      int k = 0;
+      failed = engine_.batch(request.point_set_id(), part, kind, query, spec, call.control(),
+                             [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
+                               for (const BatchAnswer& a : answers) {
+                                 add_answer(a, kind, request.mode(), local);
+                                 place[mine->second[static_cast<std::size_t>(k)] - at] = {&local, k};
+                                 ++k;
+                               }
+                               return Status::ok();
+                             });
+    }
+    std::vector<pb::BatchSeedsResponse> remote(asked.size());
+    for (std::size_t r = 0; r < asked.size(); ++r) {
+      auto answer = asked[r].second.get();
+      if (!failed.is_ok()) continue;
+      if (!answer.is_ok()) {
+        failed = answer.status();
+        continue;
+      }
+      remote[r] = std::move(answer).value();
+      const std::vector<std::size_t>& positions = by_shard[asked[r].first];
+      const int got = kind == BatchKind::kStars       ? remote[r].stars_size()
+                      : kind == BatchKind::kNeighbors ? remote[r].neighbors_size()
+                                                      : remote[r].cells_size();
+      if (static_cast<std::size_t>(got) != positions.size()) {
+        failed =
+            Status{Code::kUnavailable, "shard " + std::to_string(asked[r].first) + " answered " + std::to_string(got) +
+                                           " of " + std::to_string(positions.size()) + " seeds"};
+        continue;
+      }
+      for (std::size_t k = 0; k < positions.size(); ++k) place[positions[k] - at] = {&remote[r], static_cast<int>(k)};
+    }
+    if (!failed.is_ok()) return failed;
+    // Written as the whole set's batch writes them: messages of about 2 MiB at most.
+    pb::BatchSeedsResponse response;
+    std::size_t bytes = 0;
+    for (std::size_t i = 0; i < place.size(); ++i) {
+      const auto& [from, k] = place[i];
+      if (kind == BatchKind::kStars) {
+        *response.add_stars() = from->stars(k);
+        bytes += from->stars(k).ByteSizeLong();
+      } else if (kind == BatchKind::kNeighbors) {
+        *response.add_neighbors() = from->neighbors(k);
+        bytes += from->neighbors(k).ByteSizeLong();
+      } else {
+        *response.add_cells() = from->cells(k);
+        bytes += from->cells(k).ByteSizeLong();
+      }
+      if (bytes > defaults::kMessagePayloadBytes || i + 1 == place.size()) {
+        response.set_done(at + i + 1);
+        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+        response.Clear();
+        bytes = 0;
+      }
+    }
+  }
+  return Status::ok();
 }
 
 }  // namespace spokemesh::service

@@ -60,6 +60,13 @@ class MesherService final : public pb::Mesher::Service {
   template <class Request, class Open>
   grpc::Status receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
                               const Open& open, pb::PointSet* response);
+  // One answer of a batch into `response` (its kind's list); returns its size.
+  std::size_t add_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode, pb::BatchSeedsResponse& response);
+  // A batch whose seeds lie in several shards' pieces: each shard's seeds answered
+  // there (this one's here), written in the request's order.
+  Status relay_batch(Call& call, grpc::ServerContext* ctx, const pb::BatchSeedsRequest& request,
+                     const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes, BatchKind kind,
+                     const NeighborQuery& query, grpc::ServerWriter<pb::BatchSeedsResponse>* writer);
   // A seed's call for another shard's piece, answered by a replica of that shard
   // (nullopt: answer it here). UNAVAILABLE names the shard when none answers.
   template <class Request, class Response, class Method>

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstring>
+#include <future>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -526,6 +527,25 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   return c.ok(body);
 }
 
+namespace {
+
+// The status an error body ({"error": {"status", "message"}}) names.
+Status status_of_error_body(const std::string& body) {
+  const json error = json::parse(body, nullptr, false);
+  Status s{Code::kInternal, "a shard answered: " + body.substr(0, 200)};
+  if (error.is_object() && error.contains("error") && error["error"].is_object()) {
+    const std::string name = error["error"].value("status", "");
+    for (Code k : {Code::kCancelled, Code::kInvalidArgument, Code::kDeadlineExceeded, Code::kNotFound,
+                   Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
+                   Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
+      if (name == code_name(k)) s = Status{k, error["error"].value("message", "")};
+    }
+  }
+  return s;
+}
+
+}  // namespace
+
 HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
   ShardPeers::HttpRequest request = c.request;
   // The peer's deadline is what is left of this one.
@@ -539,17 +559,9 @@ HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
   r.status = peer.result_int();
   if (r.status >= 400) {
     // Recorded here as the peer answered it (the gRPC code its error names).
-    const json error = json::parse(peer.body(), nullptr, false);
-    c.record.code = Code::kInternal;
-    if (error.is_object() && error.contains("error") && error["error"].is_object()) {
-      const std::string name = error["error"].value("status", "");
-      for (Code k : {Code::kCancelled, Code::kInvalidArgument, Code::kDeadlineExceeded, Code::kNotFound,
-                     Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
-                     Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
-        if (name == code_name(k)) c.record.code = k;
-      }
-      c.record.message = error["error"].value("message", "");
-    }
+    const Status error = status_of_error_body(peer.body());
+    c.record.code = error.code();
+    c.record.message = error.message();
   }
   r.content_type = std::string(peer[http::field::content_type]);
   r.body = std::move(peer.body());
@@ -809,25 +821,39 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
   const BatchKind kind = what == "stars"       ? BatchKind::kStars
                          : what == "neighbors" ? BatchKind::kNeighbors
                                                : BatchKind::kCells;
+  // On a sharded replica, the seeds of other shards' pieces go to those shards.
+  std::vector<std::uint32_t> routes;
+  if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
+    auto r = engine_.batch_routes(id, seeds);
+    if (!r.is_ok()) return c.fail(r.status());
+    routes = std::move(r).value();
+    const std::uint32_t here = peers_->shards().index;
+    if (std::all_of(routes.begin(), routes.end(), [&](std::uint32_t s) { return s == here; })) routes.clear();
+  }
+  const bool relays = !routes.empty();
   HttpResponse r;
   r.content_type = "application/x-ndjson";
-  r.stream = [this, id, seeds = std::move(seeds), kind, mode, query = query.value(), spec, deadline = c.deadline,
-              gone = c.client_gone, record = c.record,
+  r.stream = [this, id, seeds = std::move(seeds), routes = std::move(routes), body = std::move(body),
+              request = relays ? c.request : http::request<http::string_body>(), kind, mode, query = query.value(),
+              spec, deadline = c.deadline, gone = c.client_gone, record = c.record,
               timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
     CallControl control(deadline, gone);
+    auto line_of = [&](const BatchAnswer& a) {
+      if (kind == BatchKind::kStars) return dump(star_json(a.star, id, a.seed));
+      if (kind == BatchKind::kNeighbors) return dump(neighbors_json(a.neighbors, id, a.seed, mode));
+      json cell = cell_json(a.cell);
+      cell["point_set_id"] = id;
+      return dump(cell);
+    };
+    if (!routes.empty()) {
+      Status s = relay_batch(request, body, id, seeds, routes, kind, query, spec, control, line_of, write_chunk);
+      return finish_stream(record, timer, std::move(s));
+    }
     std::string text;
     auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
       text.clear();
       for (const BatchAnswer& a : answers) {
-        if (kind == BatchKind::kStars) {
-          text += dump(star_json(a.star, id, a.seed));
-        } else if (kind == BatchKind::kNeighbors) {
-          text += dump(neighbors_json(a.neighbors, id, a.seed, mode));
-        } else {
-          json cell = cell_json(a.cell);
-          cell["point_set_id"] = id;
-          text += dump(cell);
-        }
+        text += line_of(a);
         text += '\n';
       }
       if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
@@ -837,6 +863,86 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
     return finish_stream(record, timer, std::move(s));
   };
   return r;
+}
+
+Status HttpApi::relay_batch(const http::request<http::string_body>& request, const json& body, const std::string& id,
+                            const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes,
+                            BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
+                            const CallControl& control, const std::function<std::string(const BatchAnswer&)>& line_of,
+                            const std::function<bool(std::string_view)>& write_chunk) {
+  const std::uint32_t here = peers_->shards().index;
+  // A bounded part of the request at a time: each shard's seeds of it asked at once
+  // (the other shards' concurrently), the answers written in the request's order.
+  constexpr std::size_t kPart = 1024;
+  for (std::size_t at = 0; at < seeds.size(); at += kPart) {
+    const std::size_t end = std::min(seeds.size(), at + kPart);
+    std::vector<std::string> lines(end - at);
+    std::map<std::uint32_t, std::vector<std::size_t>> by_shard;
+    for (std::size_t i = at; i < end; ++i) by_shard[routes[i]].push_back(i);
+    std::vector<std::pair<std::uint32_t, std::future<Result<ShardPeers::HttpResponse>>>> asked;
+    for (const auto& [shard, positions] : by_shard) {
+      if (shard == here) continue;
+      json part = body;
+      part["seeds"] = json::array();
+      for (const std::size_t i : positions) part["seeds"].push_back(seeds[i]);
+      ShardPeers::HttpRequest relayed = request;
+      relayed.body() = dump(part);
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(control.deadline() - Clock::now());
+      relayed.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
+      asked.emplace_back(shard, std::async(std::launch::async, [this, shard, relayed = std::move(relayed),
+                                                                deadline = control.deadline()]() mutable {
+                           return peers_->forward_http(shard, std::move(relayed), deadline);
+                         }));
+    }
+    if (auto mine = by_shard.find(here); mine != by_shard.end()) {
+      std::vector<std::uint64_t> part;
+      for (const std::size_t i : mine->second) part.push_back(seeds[i]);
+      std::size_t k = 0;
+      Status s = engine_.batch(id, part, kind, query, spec, control,
+                               [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
+                                 for (const BatchAnswer& a : answers) lines[mine->second[k++] - at] = line_of(a);
+                                 return Status::ok();
+                               });
+      if (!s.is_ok()) {
+        for (auto& [shard, answer] : asked) answer.wait();
+        return s;
+      }
+    }
+    Status failed;
+    for (auto& [shard, future] : asked) {
+      Result<ShardPeers::HttpResponse> answer = future.get();
+      telemetry_.add_forwarded(shard, answer.status().code());
+      if (!failed.is_ok()) continue;
+      if (!answer.is_ok()) {
+        failed = answer.status();
+        continue;
+      }
+      if (answer->result_int() != 200) {
+        failed = status_of_error_body(answer->body());
+        continue;
+      }
+      const std::vector<std::size_t>& positions = by_shard[shard];
+      std::string_view text = answer->body();
+      std::size_t k = 0;
+      while (!text.empty() && k < positions.size()) {
+        const std::size_t newline = text.find('\n');
+        lines[positions[k++] - at] = std::string(text.substr(0, newline));
+        text = newline == std::string_view::npos ? std::string_view() : text.substr(newline + 1);
+      }
+      if (k != positions.size()) {
+        failed = Status{Code::kUnavailable, "shard " + std::to_string(shard) + " answered " + std::to_string(k) +
+                                                " of " + std::to_string(positions.size()) + " seeds"};
+      }
+    }
+    if (!failed.is_ok()) return failed;
+    std::string text;
+    for (const std::string& line : lines) {
+      text += line;
+      text += '\n';
+    }
+    if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
+  }
+  return Status::ok();
 }
 
 }  // namespace spokemesh::service

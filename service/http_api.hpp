@@ -26,6 +26,7 @@
 #pragma once
 
 #include <boost/beast/http.hpp>
+#include <nlohmann/json.hpp>
 
 #include <array>
 #include <functional>
@@ -86,6 +87,13 @@ class HttpApi {
   HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent,
                             std::span<const char> weights = {});
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
+  // A batch whose seeds lie in several shards' pieces: each shard's seeds answered
+  // there (this one's here), the lines written in the request's order.
+  Status relay_batch(const http::request<http::string_body>& request, const nlohmann::json& body, const std::string& id,
+                     const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes, BatchKind kind,
+                     const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
+                     const std::function<std::string(const BatchAnswer&)>& line_of,
+                     const std::function<bool(std::string_view)>& write_chunk);
   // The request relayed to a replica of `shard`, its response returned as it came.
   HttpResponse forward(Context& c, std::uint32_t shard);
   HttpResponse simplices(Context& c, const std::string& id);

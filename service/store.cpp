@@ -600,6 +600,18 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::load_from_disk(const std
   } else {
     set->tree = std::make_unique<KdTree>(set->points);
   }
+  // Once, not per request (a clipped cell of a 20M set would scan it: 50 ms).
+  if (n > 0) {
+    set->bounds.assign(set->points.point(0), set->points.point(0) + d);
+    set->bounds.insert(set->bounds.end(), set->points.point(0), set->points.point(0) + d);
+    for (std::uint64_t i = 1; i < n; ++i) {
+      const double* p = set->points.point(i);
+      for (std::uint32_t c = 0; c < d; ++c) {
+        set->bounds[c] = std::min(set->bounds[c], p[c]);
+        set->bounds[d + c] = std::max(set->bounds[d + c], p[c]);
+      }
+    }
+  }
   set->memory_bytes = estimated_memory(n, static_cast<int>(d), set->info.weighted, set->box.has_value());
   set->charge = std::move(charge);
   return std::shared_ptr<const StoredSet>(std::move(set));
@@ -743,6 +755,26 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::str
 Result<PieceManifest> PointSetStore::put_pieces(const std::string& id, const PointSet& points,
                                                 const PieceOptions& options) {
   return store_pieces(points, id, dir_, options);
+}
+
+std::vector<std::uint32_t> PointSetStore::pieces_held(const std::string& id) const {
+  std::lock_guard lock(mutex_);
+  std::vector<std::uint32_t> out;
+  for (const auto& set : lru_) {
+    if (set->piece && set->info.id == id) out.push_back(set->piece->index);
+  }
+  return out;
+}
+
+void PointSetStore::drop_piece(const std::string& id, std::uint32_t piece) {
+  std::shared_ptr<const StoredSet> dropped;  // destroyed outside the lock
+  std::lock_guard lock(mutex_);
+  if (auto it = index_.find(id + "/" + std::to_string(piece)); it != index_.end()) {
+    in_use_ -= (*it->second)->memory_bytes;
+    dropped = std::move(*it->second);
+    lru_.erase(it->second);
+    index_.erase(it);
+  }
 }
 
 std::pair<std::size_t, std::uint64_t> PointSetStore::pieces_in_memory() const {

@@ -77,6 +77,7 @@ struct StoredSet {
   std::vector<double> weights;              // one power weight per point, or empty
   std::optional<PeriodicBox> box;           // a periodic set's torus
   std::unique_ptr<PeriodicStars> periodic;  // a periodic set's stars (borrows points, box, weights)
+  std::vector<double> bounds;               // the points' bounding box (d lows, d highs): cells' default domain
   std::uint64_t memory_bytes = 0;           // estimate: coordinates + ranks + split + tree
   MemoryBudget::Charge charge;              // memory_bytes against the server's budget, while the set lives
   // The triangulation of every point that a batch of this set's stars or a stream of
@@ -171,6 +172,11 @@ class PointSetStore {
   // recently used first out); and writing a set's pieces (the set must be stored).
   Result<std::shared_ptr<const PieceLayout>> layout(const std::string& id);
   Result<std::shared_ptr<const StoredSet>> get_piece(const std::string& id, std::uint32_t piece);
+  // The pieces of set `id` held in memory now, and dropping one from memory (requests
+  // holding it keep it until they end): a sharded replica's streams read other shards'
+  // pieces and give them back when done.
+  std::vector<std::uint32_t> pieces_held(const std::string& id) const;
+  void drop_piece(const std::string& id, std::uint32_t piece);
   Result<PieceManifest> put_pieces(const std::string& id, const PointSet& points, const PieceOptions& options);
   // Pieces loaded now, and their bytes (for /metrics).
   std::pair<std::size_t, std::uint64_t> pieces_in_memory() const;

@@ -152,12 +152,30 @@ def test_every_seed_from_any_shard_is_the_whole_sets_answer(stored, start_server
             got = http_request("POST", f"{replicas[-1].http}/v1/pointsets/{set_id}/{what}:batch", body)
             want = http_request("POST", f"{whole.http}/v1/pointsets/{set_id}/{what}:batch", body)
             assert got[0] == want[0] == 200 and got[2] == want[2], (name, what)
+            # gRPC: the same answers, in order (messages may be cut elsewhere).
+            request = pb.BatchSeedsRequest(point_set_id=set_id, seeds=seeds[::-1],
+                                           kind=pb.BATCH_KIND_STARS if what == "stars" else pb.BATCH_KIND_CELLS,
+                                           domain=pb.Domain(bounding_box=what == "cells"))
+
+            def answers(stub):
+                out = []
+                for m in stub.BatchSeeds(request, timeout=120):
+                    out += [a.SerializeToString() for a in (m.stars if what == "stars" else m.cells)]
+                return out
+            assert answers(stubs[0]) == answers(whole_stub), (name, what, "gRPC")
         for stream_path in ("simplices", "simplices?shard=1&shards=3", "cells", "cells?measures_only=true&shard=2&shards=3"):
             status, _, stream = http_request("GET", f"{replicas[0].http}/v1/pointsets/{set_id}/{stream_path}")
             assert status == 200
             assert stream == http_request("GET", f"{whole.http}/v1/pointsets/{set_id}/{stream_path}")[2], \
                 (name, stream_path)
-    # Each replica holds only its own shard's pieces (and those its completions read).
+    # Each replica holds only its own shard's pieces: batches went to their shards, and
+    # the streams gave back the other shards' pieces they read.
+    for k, r in enumerate(replicas):
+        own = 0
+        for set_id, _ in ids.values():
+            p = piece_count(data, set_id)
+            own += sum(1 for q in range(p) if q * shards // p == k)
+        assert metric(r.http, "spokemesh_pieces_loaded") <= own, (k, own)
     forwarded = sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas)
     assert forwarded > 0
     for r in replicas:
