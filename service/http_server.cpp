@@ -213,9 +213,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     }
     ++requests_;
     request_ = parser_->release();
-    try {
-      std::thread([self = shared()] { self->handle(); }).detach();
-    } catch (const std::system_error&) {  // no thread to be had
+    if (!server_.workers_.run([self = shared()] { self->handle(); })) {  // no thread to be had
       server_.end_request();
       write_one_off(one_off_response(http::status::service_unavailable,
                                      Status{Code::kUnavailable, "the server is out of threads; retry later"}, true));
@@ -344,6 +342,57 @@ HttpServer::HttpServer(HttpApi& api, Telemetry& telemetry, HttpServerOptions opt
     : api_(api), telemetry_(telemetry), options_(std::move(options)) {}
 
 HttpServer::~HttpServer() { stop(std::chrono::milliseconds(0)); }
+
+// How long a request's thread waits for the next request before it ends.
+constexpr auto kIdleWorkerFor = std::chrono::seconds(10);
+
+HttpServer::Workers::~Workers() {
+  std::unique_lock lock(mutex_);
+  stop_ = true;
+  cv_.notify_all();
+  gone_.wait(lock, [this] { return live_ == 0; });
+}
+
+bool HttpServer::Workers::run(std::function<void()> job) {
+  {
+    std::lock_guard lock(mutex_);
+    if (idle_ > jobs_.size()) {
+      jobs_.push_back(std::move(job));
+      cv_.notify_one();
+      return true;
+    }
+    ++live_;
+  }
+  try {
+    std::thread([this, first = std::move(job)] {
+      first();
+      serve();
+    }).detach();
+    return true;
+  } catch (const std::system_error&) {
+    std::lock_guard lock(mutex_);
+    --live_;
+    gone_.notify_all();
+    return false;
+  }
+}
+
+void HttpServer::Workers::serve() {
+  std::unique_lock lock(mutex_);
+  for (;;) {
+    ++idle_;
+    const bool got = cv_.wait_for(lock, kIdleWorkerFor, [this] { return stop_ || !jobs_.empty(); });
+    --idle_;
+    if (!got || jobs_.empty()) break;  // idle too long, or stopping
+    std::function<void()> job = std::move(jobs_.front());
+    jobs_.pop_front();
+    lock.unlock();
+    job();
+    lock.lock();
+  }
+  --live_;
+  gone_.notify_all();
+}
 
 Result<unsigned short> HttpServer::start() {
   auto endpoint = parse_endpoint(options_.listen, "--http-listen");

@@ -22,6 +22,8 @@
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -100,8 +102,27 @@ class HttpServer {
 
   boost::asio::io_context io_;
   std::optional<boost::asio::executor_work_guard<boost::asio::io_context::executor_type>> work_;
+  // Threads for requests, kept a while once their request is done: a request takes an
+  // idle one, or a new one (computations block, so each request in flight has its own).
+  // Reuse saves a thread's creation per request, which a relayed request pays twice
+  // (bench/README.md, "Sharded serving").
+  class Workers {
+   public:
+    ~Workers();
+    // Runs `job` on a thread of its own; false when no thread can be had.
+    bool run(std::function<void()> job);
+
+   private:
+    void serve();
+    std::mutex mutex_;
+    std::condition_variable cv_, gone_;
+    std::deque<std::function<void()>> jobs_;
+    std::size_t idle_ = 0, live_ = 0;
+    bool stop_ = false;
+  };
   std::unique_ptr<boost::asio::ip::tcp::acceptor> acceptor_;
   std::vector<std::thread> io_threads_;
+  Workers workers_;  // last: destroyed first, after stop() (its threads end before the server)
 };
 
 // host:port -> endpoint (IPv4/IPv6 literal or "localhost").
