@@ -288,3 +288,28 @@ def test_the_sharded_deployments_agree_with_themselves():
         assert compose[name]["deploy"]["replicas"] == 2
     nginx = " ".join(compose["nginx"]["command"])
     assert all(name in nginx for name in names)
+
+
+def test_the_python_client_and_the_cli_work_unchanged(stored, start_server, tmp_path):
+    """The Python Client and the CLI's remote mode pointed at any one replica of a
+    sharded deployment: the same answers as against the whole-set replica."""
+    import spokemesh
+    from conftest import cli
+    data, whole, ids = stored
+    cluster = start_shards(start_server, data, 2, 1)
+    set_id, points = ids["uniform 3-d"]
+    front, reference = spokemesh.Client(cluster[1][0].grpc), spokemesh.Client(whole.grpc)
+    seeds = list(range(0, points.shape[0], 37))
+    for seed in seeds[:20]:
+        a, b = front.star(set_id, seed), reference.star(set_id, seed)
+        assert np.array_equal(a.simplices, b.simplices) and np.array_equal(a.circumcenters, b.circumcenters)
+        assert list(front.neighbors(set_id, seed)) == list(reference.neighbors(set_id, seed))
+    assert [s.simplices.tolist() for s in front.batch_stars(set_id, seeds)] == \
+        [s.simplices.tolist() for s in reference.batch_stars(set_id, seeds)]
+    assert np.array_equal(front.simplices(set_id, shards=3), reference.simplices(set_id))
+    out = tmp_path / "remote.simplices"
+    cli("--server", cluster[0][0].grpc, "mesh", set_id, "-o", str(out), "--shards", "3", "-q")
+    assert np.array_equal(np.loadtxt(out, dtype=np.int64), local_mesh(points, tmp_path))
+    got = cli("--server", cluster[0][0].grpc, "batch", set_id, "stars", "--seeds", ",".join(map(str, seeds))).stdout
+    want = cli("--server", whole.grpc, "batch", set_id, "stars", "--seeds", ",".join(map(str, seeds))).stdout
+    assert got == want
