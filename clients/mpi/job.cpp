@@ -90,6 +90,21 @@ struct KeptRows {
   std::vector<std::uint32_t> rows;  // global indices
 };
 
+// (seed, neighbour) pairs in global indices, neighbours ascending: all of them, or only
+// those larger than the seed (each Delaunay edge once, as `graph` writes it).
+void neighbour_pairs(const LocalSet& local, const Star& star, bool larger_only, std::vector<std::uint32_t>& out) {
+  std::vector<std::uint32_t> next;
+  for (const std::uint32_t v : star.simplices) {
+    if (v > star.seed || (!larger_only && v != star.seed)) next.push_back(v);
+  }
+  std::sort(next.begin(), next.end());
+  next.erase(std::unique(next.begin(), next.end()), next.end());
+  for (const std::uint32_t v : next) {
+    out.push_back(static_cast<std::uint32_t>(local.global[star.seed]));
+    out.push_back(static_cast<std::uint32_t>(local.global[v]));
+  }
+}
+
 // Calls its argument with each of the rank's rows, in file order.
 using RowEmitter = std::function<void(std::span<const std::uint32_t>)>;
 
@@ -414,16 +429,7 @@ class GraphJob final : public StarJob {
   std::size_t width() const override { return 2; }
   // Edges from the seed to its larger neighbours.
   void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
-    std::vector<std::uint32_t> next;
-    for (const std::uint32_t v : star.simplices) {
-      if (v > star.seed) next.push_back(v);
-    }
-    std::sort(next.begin(), next.end());
-    next.erase(std::unique(next.begin(), next.end()), next.end());
-    for (const std::uint32_t v : next) {
-      out.push_back(static_cast<std::uint32_t>(local.global[star.seed]));
-      out.push_back(static_cast<std::uint32_t>(local.global[v]));
-    }
+    neighbour_pairs(local, star, /*larger_only=*/true, out);
   }
   bool rows_from_sink() const override { return false; }
   void keep_accepted(std::vector<std::uint32_t>& rows) override { rows_.insert(rows_.end(), rows.begin(), rows.end()); }
@@ -791,16 +797,7 @@ class StoreJob final : public StarJob {
   std::size_t width() const override { return 2; }
   // Every neighbour of the seed (the pieces' halos).
   void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
-    std::vector<std::uint32_t> next;
-    for (const std::uint32_t v : star.simplices) {
-      if (v != star.seed) next.push_back(v);
-    }
-    std::sort(next.begin(), next.end());
-    next.erase(std::unique(next.begin(), next.end()), next.end());
-    for (const std::uint32_t v : next) {
-      out.push_back(static_cast<std::uint32_t>(local.global[star.seed]));
-      out.push_back(static_cast<std::uint32_t>(local.global[v]));
-    }
+    neighbour_pairs(local, star, /*larger_only=*/false, out);
   }
   bool rows_from_sink() const override { return false; }
   void keep_accepted(std::vector<std::uint32_t>& rows) override { rows_.insert(rows_.end(), rows.begin(), rows.end()); }
