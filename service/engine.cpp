@@ -1,9 +1,8 @@
 #include "engine.hpp"
 
+#include "spokemesh/cells.hpp"
 #include "spokemesh/certify.hpp"
 #include "spokemesh/pieces.hpp"
-
-#include "spokemesh/cells.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -175,7 +174,8 @@ Status Engine::ensure_pieces(const PointSetInfo& info, const PointSet* points) {
     loaded = std::move(set).value();
     points = &loaded->points;
   }
-  // The whole mesh's run and the halo lists, about (bench/README.md, "Sharded serving").
+  // About: the whole mesh's sweep at its peak (134 bytes a point in 3-d, bench/README.md),
+  // the split and the owner map (16), and a piece's copy as it is written.
   const std::uint64_t bytes = info.count * (160 + 24 * static_cast<std::uint64_t>(info.dimension));
   auto charge = store_->budget().try_charge(bytes);
   if (!charge) {

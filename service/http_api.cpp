@@ -889,9 +889,9 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
       relayed.body() = dump(part);
       const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(control.deadline() - Clock::now());
       relayed.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
-      asked.emplace_back(shard, std::async(std::launch::async, [this, shard, relayed = std::move(relayed),
+      asked.emplace_back(shard, std::async(std::launch::async, [this, to = shard, relayed = std::move(relayed),
                                                                 deadline = control.deadline()]() mutable {
-                           return peers_->forward_http(shard, std::move(relayed), deadline);
+                           return peers_->forward_http(to, std::move(relayed), deadline);
                          }));
     }
     if (auto mine = by_shard.find(here); mine != by_shard.end()) {
