@@ -182,11 +182,17 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
   std::string last_error = "no address tried";
   // Each address in turn: a kept-alive connection first (it may have been closed by
   // the peer: then once more on a new one), skipping addresses that just refused.
+  // The addresses that refused lately are tried last (one may be back), once each.
+  std::vector<bool> skipped(endpoints.size(), false);
   for (int pass = 0; pass < 2; ++pass) {
     for (std::size_t k = 0; k < endpoints.size(); ++k) {
       const tcp::endpoint& e = endpoints[(start + k) % endpoints.size()];
       std::string name = e.address().to_string() + ":" + std::to_string(e.port());
-      if (pass == 0 && recently_refused(name)) continue;
+      if (pass == 0 && recently_refused(name)) {
+        skipped[k] = true;
+        continue;
+      }
+      if (pass == 1 && !skipped[k]) continue;
       for (int attempt = 0; attempt < 2; ++attempt) {
         if (SteadyClock::now() >= deadline)
           return Status{Code::kDeadlineExceeded, "deadline exceeded forwarding to shard " + std::to_string(shard)};
