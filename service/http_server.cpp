@@ -347,51 +347,46 @@ HttpServer::~HttpServer() { stop(std::chrono::milliseconds(0)); }
 constexpr auto kIdleWorkerFor = std::chrono::seconds(10);
 
 HttpServer::Workers::~Workers() {
-  std::unique_lock lock(mutex_);
-  stop_ = true;
-  cv_.notify_all();
-  gone_.wait(lock, [this] { return live_ == 0; });
+  std::lock_guard lock(state_->mutex);
+  state_->stop = true;
+  state_->cv.notify_all();
 }
 
 bool HttpServer::Workers::run(std::function<void()> job) {
   {
-    std::lock_guard lock(mutex_);
-    if (idle_ > jobs_.size()) {
-      jobs_.push_back(std::move(job));
-      cv_.notify_one();
+    std::lock_guard lock(state_->mutex);
+    if (state_->idle > state_->jobs.size()) {
+      state_->jobs.push_back(std::move(job));
+      state_->cv.notify_one();
       return true;
     }
-    ++live_;
   }
   try {
-    std::thread([this, first = std::move(job)] {
+    std::thread([state = state_, first = std::move(job)]() mutable {
       first();
-      serve();
+      first = nullptr;  // an idle thread keeps no request's session alive
+      serve(state);
     }).detach();
     return true;
   } catch (const std::system_error&) {
-    std::lock_guard lock(mutex_);
-    --live_;
-    gone_.notify_all();
     return false;
   }
 }
 
-void HttpServer::Workers::serve() {
-  std::unique_lock lock(mutex_);
+void HttpServer::Workers::serve(const std::shared_ptr<State>& state) {
+  std::unique_lock lock(state->mutex);
   for (;;) {
-    ++idle_;
-    const bool got = cv_.wait_for(lock, kIdleWorkerFor, [this] { return stop_ || !jobs_.empty(); });
-    --idle_;
-    if (!got || jobs_.empty()) break;  // idle too long, or stopping
-    std::function<void()> job = std::move(jobs_.front());
-    jobs_.pop_front();
+    ++state->idle;
+    const bool got = state->cv.wait_for(lock, kIdleWorkerFor, [&] { return state->stop || !state->jobs.empty(); });
+    --state->idle;
+    if (!got || state->jobs.empty()) return;  // idle too long, or stopping
+    std::function<void()> job = std::move(state->jobs.front());
+    state->jobs.pop_front();
     lock.unlock();
     job();
+    job = nullptr;
     lock.lock();
   }
-  --live_;
-  gone_.notify_all();
 }
 
 Result<unsigned short> HttpServer::start() {

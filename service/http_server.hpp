@@ -106,23 +106,29 @@ class HttpServer {
   // idle one, or a new one (computations block, so each request in flight has its own).
   // Reuse saves a thread's creation per request, which a relayed request pays twice
   // (bench/README.md, "Sharded serving").
+  // The threads share their state (not the server): destroying Workers tells the idle
+  // ones to end and waits for none, as a request's thread ends with its request.
   class Workers {
    public:
+    Workers() : state_(std::make_shared<State>()) {}
     ~Workers();
     // Runs `job` on a thread of its own; false when no thread can be had.
     bool run(std::function<void()> job);
 
    private:
-    void serve();
-    std::mutex mutex_;
-    std::condition_variable cv_, gone_;
-    std::deque<std::function<void()>> jobs_;
-    std::size_t idle_ = 0, live_ = 0;
-    bool stop_ = false;
+    struct State {
+      std::mutex mutex;
+      std::condition_variable cv;
+      std::deque<std::function<void()>> jobs;
+      std::size_t idle = 0;
+      bool stop = false;
+    };
+    static void serve(const std::shared_ptr<State>& state);
+    std::shared_ptr<State> state_;
   };
   std::unique_ptr<boost::asio::ip::tcp::acceptor> acceptor_;
   std::vector<std::thread> io_threads_;
-  Workers workers_;  // last: destroyed first, after stop() (its threads end before the server)
+  Workers workers_;
 };
 
 // host:port -> endpoint (IPv4/IPv6 literal or "localhost").
