@@ -526,6 +526,8 @@ Status MesherService::relay_batch(Call& call, grpc::ServerContext* ctx, const pb
   // (the other shards' concurrently), the answers written in the request's order.
   constexpr std::size_t kPart = 1024;
   const DomainSpec spec = domain_spec(request.domain());
+  pb::BatchSeedsRequest base = request;  // the request without its seeds, copied once
+  base.clear_seeds();
   for (std::size_t at = 0; at < seeds.size(); at += kPart) {
     const std::size_t end = std::min(seeds.size(), at + kPart);
     std::map<std::uint32_t, std::vector<std::size_t>> by_shard;
@@ -533,8 +535,7 @@ Status MesherService::relay_batch(Call& call, grpc::ServerContext* ctx, const pb
     std::vector<std::pair<std::uint32_t, std::future<Result<pb::BatchSeedsResponse>>>> asked;
     for (const auto& [shard, positions] : by_shard) {
       if (shard == here) continue;
-      pb::BatchSeedsRequest part = request;
-      part.clear_seeds();
+      pb::BatchSeedsRequest part = base;
       for (const std::size_t i : positions) part.add_seeds(seeds[i]);
       asked.emplace_back(shard, std::async(std::launch::async, ask, shard, std::move(part)));
     }

@@ -874,6 +874,8 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
   // A bounded part of the request at a time: each shard's seeds of it asked at once
   // (the other shards' concurrently), the answers written in the request's order.
   constexpr std::size_t kPart = 1024;
+  json base = body;  // the request without its seeds, copied once
+  base.erase("seeds");
   for (std::size_t at = 0; at < seeds.size(); at += kPart) {
     const std::size_t end = std::min(seeds.size(), at + kPart);
     std::vector<std::string> lines(end - at);
@@ -882,7 +884,7 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
     std::vector<std::pair<std::uint32_t, std::future<Result<ShardPeers::HttpResponse>>>> asked;
     for (const auto& [shard, positions] : by_shard) {
       if (shard == here) continue;
-      json part = body;
+      json part = base;
       part["seeds"] = json::array();
       for (const std::size_t i : positions) part["seeds"].push_back(seeds[i]);
       ShardPeers::HttpRequest relayed = request;

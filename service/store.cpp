@@ -861,7 +861,7 @@ std::uint64_t PointSetStore::memory_in_use() const {
 
 std::size_t PointSetStore::loaded_count() const {
   std::lock_guard lock(mutex_);
-  return index_.size();
+  return static_cast<std::size_t>(std::count_if(lru_.begin(), lru_.end(), [](const auto& set) { return !set->piece; }));
 }
 
 }  // namespace spokemesh::service

@@ -218,7 +218,8 @@ class PointSetStore {
   // Returns how many loaded.
   std::size_t load_all(const std::function<bool(const std::string&)>& skip = {});
 
-  // Bytes of the sets loaded in memory (their estimates), and how many.
+  // Bytes of the sets and pieces loaded in memory (their estimates), and how many sets
+  // are held whole (pieces: pieces_in_memory).
   std::uint64_t memory_in_use() const;
   std::size_t loaded_count() const;
   MemoryBudget& budget() { return budget_; }
