@@ -676,12 +676,6 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
       around[dd + c] = std::min(g[dd + c], x[c] + radius);
       everything = everything && around[c] <= g[c] && around[dd + c] >= g[dd + c];
     }
-    auto inside = [&](const double* p) {
-      for (std::size_t c = 0; c < dd; ++c) {
-        if (p[c] < around[c] || p[c] > around[dd + c]) return false;
-      }
-      return true;
-    };
     // Every point of the set inside `around` is one of the own points of a piece whose
     // box meets it: read from that piece's file (this piece's from memory).
     std::vector<std::pair<std::uint64_t, std::vector<double>>> held;
@@ -694,7 +688,7 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
       if (!meets) continue;
       if (p == of.index) {
         for (std::size_t k = 0; k < of.ids.size(); ++k) {
-          if (of.own[k] != 0 && inside(piece.points.point(k))) {
+          if (of.own[k] != 0 && in_box(around, piece.points.point(k))) {
             held.emplace_back(of.ids[k], std::vector<double>(piece.points.point(k), piece.points.point(k) + dd));
           }
         }
@@ -708,7 +702,7 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
       }
       for (std::size_t k = 0; k < other->ids.size(); ++k) {
         const double* q = other->coords.data() + k * dd;
-        if (other->own[k] != 0 && inside(q)) held.emplace_back(other->ids[k], std::vector<double>(q, q + dd));
+        if (other->own[k] != 0 && in_box(around, q)) held.emplace_back(other->ids[k], std::vector<double>(q, q + dd));
       }
     }
     std::sort(held.begin(), held.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
@@ -1162,11 +1156,7 @@ Status Engine::stream_cells_from_pieces(const std::string& id, ShardRange range,
     auto r = cell(id, range.begin + i, clip, control);
     if (!r.is_ok()) return r.status();
     c = std::move(r).value();
-    if (measures_only) {
-      c.vertices.clear();
-      c.vertex_simplices.clear();
-      for (VoronoiFacet& f : c.facets) f.vertices.clear();
-    }
+    if (measures_only) keep_measures_only(c);
     return Status::ok();
   };
   std::uint64_t done = 0;

@@ -678,10 +678,7 @@ class StoreJob final : public StarJob {
       const double* x = local.points.point(i);
       for (std::uint32_t k = 0; k < pieces; ++k) {
         if (local.piece_of[i] == static_cast<std::int32_t>(k)) continue;
-        const std::vector<double>& h = held_boxes[k];
-        bool inside = true;
-        for (std::size_t c = 0; c < dd && inside; ++c) inside = x[c] >= h[c] && x[c] <= h[dd + c];
-        if (inside) halo[k].push_back(local.global[i]);
+        if (in_box(held_boxes[k], x)) halo[k].push_back(local.global[i]);
       }
     }
     std::vector<char> entries;

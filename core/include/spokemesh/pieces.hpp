@@ -60,6 +60,16 @@ inline std::uint32_t shard_of_piece(std::uint32_t piece, std::uint32_t pieces, s
 // count^(1/d) when the box is flat), clipped to the set's box.
 std::vector<double> held_box_of(std::span<const double> box, std::uint64_t count, std::span<const double> global_box);
 
+// Whether point p lies in the closed box (d lows, d highs): the held box's rule, the
+// same for every writer of pieces and for the server's completed cells.
+inline bool in_box(std::span<const double> box, const double* p) {
+  const std::size_t d = box.size() / 2;
+  for (std::size_t c = 0; c < d; ++c) {
+    if (p[c] < box[c] || p[c] > box[d + c]) return false;
+  }
+  return true;
+}
+
 struct PieceEntry {
   std::uint64_t start = 0;       // first sweep position
   std::uint64_t count = 0;       // own points

@@ -81,4 +81,8 @@ Status check_seed_in_domain(const PointSet& points, std::uint32_t seed, const Do
 // The same for a point given by its coordinates and the index to name it by.
 Status check_seed_in_domain(const double* point, std::uint64_t seed, const Domain& domain);
 
+// Drops a cell's vertex coordinates, vertex simplices and facet vertex lists, keeping
+// its measures and neighbours (what `measures_only` streams and `.npz` files carry).
+void keep_measures_only(VoronoiCell& cell);
+
 }  // namespace spokemesh

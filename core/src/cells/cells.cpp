@@ -329,11 +329,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
         if (stops(w.status)) return;
         continue;
       }
-      if (options.measures_only) {
-        c.vertices.clear();
-        c.vertex_simplices.clear();
-        for (VoronoiFacet& f : c.facets) f.vertices.clear();
-      }
+      if (options.measures_only) keep_measures_only(c);
     }
   };
   for (std::uint64_t at = begin; at < end;) {

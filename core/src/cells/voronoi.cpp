@@ -187,4 +187,10 @@ VoronoiCell assemble_clipped(const CellPolytope& polytope, std::uint32_t seed, i
 
 }  // namespace detail
 
+void keep_measures_only(VoronoiCell& cell) {
+  cell.vertices.clear();
+  cell.vertex_simplices.clear();
+  for (VoronoiFacet& f : cell.facets) f.vertices.clear();
+}
+
 }  // namespace spokemesh

@@ -421,10 +421,7 @@ Result<PieceManifest> store_pieces(const PointSet& points, const std::string& se
     const double* x = points.point(i);
     for (std::uint32_t p = 0; p < P; ++p) {
       if (p == piece_of[i]) continue;
-      const double* h = held_boxes.data() + p * 2 * dd;
-      bool inside = true;
-      for (std::size_t c = 0; c < dd && inside; ++c) inside = x[c] >= h[c] && x[c] <= h[dd + c];
-      if (inside) halo[p].push_back(i);
+      if (in_box({held_boxes.data() + p * 2 * dd, 2 * dd}, x)) halo[p].push_back(i);
     }
   }
 
