@@ -20,6 +20,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/facet_cache.hpp"
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/shape_domain.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/status.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -126,6 +127,10 @@ struct CellsOptions {
   // MeshOptions; 0 for none. The cells are the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 28;
   StarOptions star;  // star.cancel also stops the run
+  // A domain of any shape (shape_domain.hpp): each cell is first clipped to `domain`,
+  // which must then be ShapeClipper::box(points, *shape), and intersected with the
+  // shape (measures only). Unweighted points only. nullptr: none.
+  const ShapeDomain* shape = nullptr;
 };
 
 // Receives the cells of consecutive seeds and the number of seeds done so far; a

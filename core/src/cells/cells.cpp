@@ -250,6 +250,9 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   const std::uint64_t begin = std::min<std::uint64_t>(options.seed_begin, n);
   const std::uint64_t end = std::clamp<std::uint64_t>(options.seed_end, begin, n);
   const unsigned threads = std::max(1u, options.threads);
+  if (options.shape != nullptr && (domain == nullptr || !options.star.weights.empty())) {
+    return invalid_argument("a domain of any shape needs its box and unweighted points");
+  }
   if (domain != nullptr && domain->dimension() != points.dimension()) {
     return invalid_argument("domain: dimension " + std::to_string(domain->dimension()) +
                             " does not match the points' " + std::to_string(points.dimension()));
@@ -257,6 +260,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   struct Worker {
     std::unique_ptr<StarWalker> walker;           // unclipped cells
     std::unique_ptr<ClippedCellBuilder> builder;  // clipped cells
+    std::unique_ptr<ShapeClipper> shape;          // cells in a domain of any shape
     Star star;
     Status status;             // the error of the lowest failing seed in its slice
     std::uint64_t failed = 0;  // that seed
@@ -301,7 +305,8 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
       w.walker = std::make_unique<StarWalker>(tree, star_options);
     } else {
       w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
-      w.builder->set_measures_only(options.measures_only);
+      w.builder->set_measures_only(options.measures_only && options.shape == nullptr);
+      if (options.shape != nullptr) w.shape = std::make_unique<ShapeClipper>(points, *options.shape);
     }
   }
   auto stops = [](const Status& st) { return st.code() == Code::kCancelled || st.code() == Code::kDeadlineExceeded; };
@@ -318,6 +323,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
         if (st.is_ok()) c = voronoi_cell(points, w.star, options.star.weights);
       } else {
         st = w.builder->cell(s, c);
+        if (st.is_ok() && w.shape) w.shape->clip(s, c);
       }
       if (!st.is_ok()) {
         // Cancelled: stop. Otherwise keep going, so that the error reported is the

@@ -1,0 +1,472 @@
+// ShapeClipper (shape_domain.hpp): a convex cell intersected with a non-convex domain
+// by a signed sum of convex clips. See the header for the identity it rests on.
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+#include "cells/shape_index.hpp"
+#include "spokemesh/shape_domain.hpp"
+
+namespace spokemesh {
+
+namespace {
+
+using V3 = std::array<double, 3>;
+
+V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+V3 add(const V3& a, const V3& b) { return {a[0] + b[0], a[1] + b[1], a[2] + b[2]}; }
+V3 scale(const V3& a, double s) { return {a[0] * s, a[1] * s, a[2] * s}; }
+double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+V3 cross(const V3& a, const V3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+// A closed halfspace n . x <= c (relative coordinates).
+struct Plane {
+  V3 n{};
+  double c = 0;
+};
+
+// Sutherland-Hodgman: the part of a polygon (a loop; in 2-d the third coordinate is 0)
+// on the kept side of `p`. Points where an edge crosses the plane are appended to
+// `cut` (when given): they outline the cap a convex polyhedron gets there.
+void clip_loop(const std::vector<V3>& in, const Plane& p, std::vector<V3>& out, std::vector<V3>* cut) {
+  out.clear();
+  const std::size_t n = in.size();
+  if (n == 0) return;
+  double prev_s = dot(p.n, in[n - 1]) - p.c;
+  for (std::size_t i = 0; i < n; ++i) {
+    const V3& a = in[(i + n - 1) % n];
+    const V3& b = in[i];
+    const double s = dot(p.n, b) - p.c;
+    if ((prev_s < 0 && s > 0) || (prev_s > 0 && s < 0)) {
+      const double t = prev_s / (prev_s - s);
+      const V3 x = add(a, scale(sub(b, a), t));
+      out.push_back(x);
+      if (cut) cut->push_back(x);
+    }
+    if (s <= 0) {
+      out.push_back(b);
+      if (s == 0 && cut) cut->push_back(b);
+    }
+    prev_s = s;
+  }
+  if (out.size() < 3) out.clear();
+}
+
+// A convex polyhedron as its faces' loops, counter-clockwise seen from outside.
+struct Polyhedron {
+  std::vector<std::vector<V3>> faces;
+};
+
+void clip_polyhedron(Polyhedron& poly, const Plane& p, std::vector<V3>& tmp, std::vector<V3>& cut) {
+  cut.clear();
+  std::size_t kept = 0;
+  for (std::size_t f = 0; f < poly.faces.size(); ++f) {
+    clip_loop(poly.faces[f], p, tmp, &cut);
+    if (tmp.size() >= 3) std::swap(poly.faces[kept++], tmp);
+  }
+  poly.faces.resize(kept);
+  if (cut.size() < 3) return;
+  // The cap: the cut points ordered around their mean, counter-clockwise about n.
+  V3 mean{0, 0, 0};
+  for (const V3& x : cut) mean = add(mean, x);
+  mean = scale(mean, 1.0 / static_cast<double>(cut.size()));
+  const V3 n = scale(p.n, 1 / std::sqrt(dot(p.n, p.n)));  // planes' normals are not unit
+  V3 u = std::abs(n[0]) < 0.9 ? cross(n, V3{1, 0, 0}) : cross(n, V3{0, 1, 0});
+  const V3 v = cross(n, u);
+  std::vector<std::pair<double, V3>> around;
+  around.reserve(cut.size());
+  for (const V3& x : cut) {
+    const V3 r = sub(x, mean);
+    around.emplace_back(std::atan2(dot(r, v), dot(r, u)), x);
+  }
+  std::sort(around.begin(), around.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<V3> cap;
+  for (const auto& [angle, x] : around) {
+    if (!cap.empty() && cap.back() == x) continue;
+    cap.push_back(x);
+  }
+  if (cap.size() >= 2 && cap.front() == cap.back()) cap.pop_back();
+  if (cap.size() >= 3) poly.faces.push_back(std::move(cap));
+}
+
+// Volume and first moment (about the origin) of a closed polyhedron: tetrahedra from
+// the origin over each face's fan.
+void measure_polyhedron(const Polyhedron& poly, double& volume, V3& moment) {
+  volume = 0;
+  moment = {0, 0, 0};
+  for (const auto& loop : poly.faces) {
+    for (std::size_t i = 1; i + 1 < loop.size(); ++i) {
+      const double v = dot(loop[0], cross(loop[i], loop[i + 1])) / 6;
+      volume += v;
+      moment = add(moment, scale(add(add(loop[0], loop[i]), loop[i + 1]), v / 4));
+    }
+  }
+}
+
+// Area of a planar loop (3-d), along unit normal n.
+double loop_area(const std::vector<V3>& loop, const V3& n) {
+  V3 a{0, 0, 0};
+  for (std::size_t i = 1; i + 1 < loop.size(); ++i) a = add(a, cross(sub(loop[i], loop[0]), sub(loop[i + 1], loop[0])));
+  return std::abs(dot(a, n)) / 2;
+}
+
+// 2-d: area and moment of a counter-clockwise polygon (shoelace, about the origin).
+void measure_polygon(const std::vector<V3>& poly, double& area, V3& moment) {
+  area = 0;
+  moment = {0, 0, 0};
+  const std::size_t n = poly.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const V3& a = poly[i];
+    const V3& b = poly[(i + 1) % n];
+    const double cr = a[0] * b[1] - a[1] * b[0];
+    area += cr / 2;
+    moment[0] += (a[0] + b[0]) * cr / 6;
+    moment[1] += (a[1] + b[1]) * cr / 6;
+  }
+}
+
+// 2-d: length of the part of segment ab on the kept side of every plane.
+double segment_length(const V3& a, const V3& b, const Plane* planes, std::size_t count) {
+  double t0 = 0, t1 = 1;
+  for (std::size_t k = 0; k < count && t0 <= t1; ++k) {
+    const double sa = dot(planes[k].n, a) - planes[k].c, sb = dot(planes[k].n, b) - planes[k].c;
+    if (sa > 0 && sb > 0) return 0;
+    if (sa <= 0 && sb <= 0) continue;
+    const double t = sa / (sa - sb);
+    if (sa > 0) t0 = std::max(t0, t);
+    else t1 = std::min(t1, t);
+  }
+  if (t1 <= t0) return 0;
+  return std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
+}
+
+}  // namespace
+
+struct ShapeClipper::Scratch {
+  std::vector<std::uint32_t> stamp;
+  std::uint32_t epoch = 0;
+  std::vector<std::uint32_t> candidates;
+  Polyhedron cell, work;
+  std::vector<V3> polygon, tmp, tmp2, cut;
+  std::vector<Plane> planes;           // the cell's facets' planes
+  std::vector<std::vector<V3>> facet;  // each facet's loop (3-d) or segment (2-d)
+  std::vector<double> facet_area;      // of the facet inside the domain
+  std::vector<double> facet_full;      // of the whole facet
+  struct Wall {
+    std::uint32_t face;
+    double area;
+  };
+  std::vector<Wall> walls;
+};
+
+ShapeClipper::ShapeClipper(const PointSet& points, const ShapeDomain& shape)
+    : points_(points), shape_(shape), scratch_(std::make_unique<Scratch>()) {
+  scratch_->stamp.assign(shape.face_count(), 0);
+}
+
+ShapeClipper::~ShapeClipper() = default;
+
+Result<Domain> ShapeClipper::box(const PointSet& points, const ShapeDomain& shape) {
+  const int d = shape.dimension();
+  if (points.dimension() != d) {
+    return invalid_argument("the domain is " + std::to_string(d) + "-d (" + shape.describe() + "); the points are " +
+                            std::to_string(points.dimension()) + "-d");
+  }
+  std::vector<double> lo = shape.lower(), hi = shape.upper();
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    for (int c = 0; c < d; ++c) {
+      lo[c] = std::min(lo[c], points.point(i)[c]);
+      hi[c] = std::max(hi[c], points.point(i)[c]);
+    }
+  }
+  double extent = 0;
+  for (int c = 0; c < d; ++c) extent = std::max(extent, hi[c] - lo[c]);
+  for (int c = 0; c < d; ++c) {
+    lo[c] -= extent / 8;
+    hi[c] += extent / 8;
+  }
+  return Domain::box(lo, hi);
+}
+
+void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
+  const double* p = points_.point(seed);
+  // Faces whose boxes meet the cell's box.
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  const std::size_t nv = cell.vertex_count();
+  for (std::size_t v = 0; v < nv; ++v) {
+    for (int c = 0; c < d; ++c) {
+      lo[c] = std::min(lo[c], cell.vertices[v * d + c]);
+      hi[c] = std::max(hi[c], cell.vertices[v * d + c]);
+    }
+  }
+  if (++s.epoch == 0) {
+    std::fill(s.stamp.begin(), s.stamp.end(), 0);
+    s.epoch = 1;
+  }
+  s.candidates.clear();
+  int from[3], to[3];
+  ix.cell_range(lo, hi, from, to);
+  int winding_hint = -2;  // the winding number all grid cells met agree on, if they do
+  bool any_face = false;
+  int at[3];
+  for (at[2] = from[2]; at[2] <= to[2]; ++at[2]) {
+    for (at[1] = from[1]; at[1] <= to[1]; ++at[1]) {
+      for (at[0] = from[0]; at[0] <= to[0]; ++at[0]) {
+        const std::size_t id = ix.cell_id(at);
+        if (ix.cell_start[id] == ix.cell_start[id + 1]) {
+          const int w = ix.cell_winding[id];
+          winding_hint = winding_hint == -2 ? w : (winding_hint == w ? w : -3);
+          continue;
+        }
+        any_face = true;
+        for (std::uint32_t k = ix.cell_start[id]; k < ix.cell_start[id + 1]; ++k) {
+          const std::uint32_t f = ix.cell_faces[k];
+          if (s.stamp[f] == s.epoch) continue;
+          s.stamp[f] = s.epoch;
+          s.candidates.push_back(f);
+        }
+      }
+    }
+  }
+  auto finish_empty = [&]() {
+    cell.volume = 0;
+    cell.centroid.clear();
+    cell.facets.clear();
+    keep_measures_only(cell);
+  };
+  cell.clipped = true;
+  cell.bounded = true;
+  bool overlap = true;
+  for (int c = 0; c < d; ++c) overlap = overlap && hi[c] >= ix.lo[c] && lo[c] <= ix.hi[c];
+  if (!overlap) {  // beyond the domain's box: nothing of the domain in the cell
+    finish_empty();
+    return;
+  }
+  if (!any_face && (winding_hint == 0 || winding_hint == 1)) {
+    // No face near: the cell lies wholly outside (0) or inside (1) the domain.
+    if (winding_hint == 0) {
+      finish_empty();
+    } else {
+      keep_measures_only(cell);
+    }
+    return;
+  }
+  // The origin o: the seed, or (when the seed lies on the boundary) a point nudged
+  // from it towards the cell's vertex mean, which stays inside the convex cell.
+  double o[3] = {p[0], p[1], d > 2 ? p[2] : 0};
+  int w = ix.winding(o, s.stamp, s.epoch);
+  if (w == 2) {
+    double mean[3] = {0, 0, 0};
+    for (std::size_t v = 0; v < nv; ++v)
+      for (int c = 0; c < d; ++c) mean[c] += cell.vertices[v * d + c] / static_cast<double>(nv);
+    for (int k = 10; w == 2 && k < 60; k += 10) {
+      for (int c = 0; c < d; ++c) o[c] = p[c] + std::ldexp(mean[c] - p[c], -k);
+      w = ix.winding(o, s.stamp, s.epoch);
+    }
+  }
+  // Relative coordinates (to o): the cell, its facets and planes.
+  const V3 origin{o[0], o[1], o[2]};
+  auto rel = [&](const double* x) { return V3{x[0] - o[0], x[1] - o[1], d > 2 ? x[2] - o[2] : 0.0}; };
+  const std::size_t nfacets = cell.facets.size();
+  s.planes.resize(nfacets);
+  s.facet.resize(nfacets);
+  s.facet_area.assign(nfacets, 0.0);
+  s.facet_full.assign(nfacets, 0.0);
+  s.cell.faces.clear();
+  for (std::size_t k = 0; k < nfacets; ++k) {
+    const VoronoiFacet& f = cell.facets[k];
+    auto& loop = s.facet[k];
+    loop.clear();
+    for (std::uint32_t v : f.vertices) loop.push_back(rel(&cell.vertices[static_cast<std::size_t>(v) * d]));
+    V3 n{f.normal[0], f.normal[1], d > 2 ? f.normal[2] : 0.0};
+    V3 mean{0, 0, 0};
+    for (const V3& x : loop) mean = add(mean, x);
+    if (!loop.empty()) mean = scale(mean, 1.0 / static_cast<double>(loop.size()));
+    if (f.neighbor >= 0) {
+      // The bisector itself: (q - p) . x <= |q - p|^2 / 2 relative to p, moved to o.
+      const double* q = points_.point(static_cast<std::size_t>(f.neighbor));
+      V3 qp{q[0] - p[0], q[1] - p[1], d > 2 ? q[2] - p[2] : 0.0};
+      const V3 po{p[0] - o[0], p[1] - o[1], d > 2 ? p[2] - o[2] : 0.0};
+      s.planes[k].n = qp;
+      s.planes[k].c = dot(qp, qp) / 2 + dot(qp, po);
+    } else {
+      s.planes[k].n = n;
+      s.planes[k].c = dot(n, mean);
+    }
+    if (d == 3) {
+      s.facet_full[k] = loop.size() >= 3 ? loop_area(loop, n) : 0;
+      if (loop.size() >= 3) s.cell.faces.push_back(loop);
+    } else {
+      s.facet_full[k] = loop.size() == 2 ? std::hypot(loop[1][0] - loop[0][0], loop[1][1] - loop[0][1]) : 0;
+    }
+  }
+  std::vector<V3>& polygon = s.polygon;
+  if (d == 2) {
+    polygon.clear();
+    for (std::size_t v = 0; v < nv; ++v) polygon.push_back(rel(&cell.vertices[v * 2]));
+  }
+  double volume = 0;
+  V3 moment{0, 0, 0};
+  if (d == 3) {
+    measure_polyhedron(s.cell, volume, moment);
+  } else {
+    measure_polygon(polygon, volume, moment);
+  }
+  volume *= w;
+  moment = scale(moment, w);
+  for (std::size_t k = 0; k < nfacets; ++k) s.facet_area[k] = w * s.facet_full[k];
+  s.walls.clear();
+  bool cut = false;
+  for (std::uint32_t f : s.candidates) {
+    const std::uint32_t* fv = ix.face(f);
+    const double* a = ix.vertex(fv[0]);
+    const double* b = ix.vertex(fv[1]);
+    const double* c = d == 3 ? ix.vertex(fv[2]) : nullptr;
+    // The face inside the cell.
+    double wall_area = 0;
+    if (d == 3) {
+      s.tmp = {rel(a), rel(b), rel(c)};
+      for (std::size_t k = 0; k < nfacets && !s.tmp.empty(); ++k) {
+        clip_loop(s.tmp, s.planes[k], s.tmp2, nullptr);
+        std::swap(s.tmp, s.tmp2);
+      }
+      if (s.tmp.size() < 3) continue;
+      const V3 n{ix.normals[3 * f], ix.normals[3 * f + 1], ix.normals[3 * f + 2]};
+      wall_area = loop_area(s.tmp, n);
+    } else {
+      wall_area = segment_length(rel(a), rel(b), s.planes.data(), nfacets);
+      if (!(wall_area > 0)) {
+        // Touching at a point at most; nothing to add.
+        continue;
+      }
+    }
+    // On a neighbour facet's bisector (every vertex equidistant, exactly)? Then the
+    // face is a wall of this cell only when the domain lies on the cell's side.
+    std::size_t on_facet = nfacets;
+    for (std::size_t k = 0; k < nfacets && on_facet == nfacets; ++k) {
+      const std::int64_t nb = cell.facets[k].neighbor;
+      if (nb < 0) continue;
+      const double* q = points_.point(static_cast<std::size_t>(nb));
+      bool all = distance_compare_exact(a, p, q, d) == 0 && distance_compare_exact(b, p, q, d) == 0 &&
+                 (c == nullptr || distance_compare_exact(c, p, q, d) == 0);
+      if (all) on_facet = k;
+    }
+    cut = true;
+    const double* nt = &ix.normals[static_cast<std::size_t>(f) * d];
+    if (on_facet != nfacets) {
+      const double* nf = cell.facets[on_facet].normal.data();
+      double agree = 0;
+      for (int k = 0; k < d; ++k) agree += nt[k] * nf[k];
+      if (agree > 0) {
+        s.walls.push_back({f, wall_area});
+        s.facet_area[on_facet] -= wall_area;  // that part of the facet is wall, not shared
+      }
+      continue;
+    }
+    s.walls.push_back({f, wall_area});
+    // The shadow of the face from o, and its sign.
+    const int side = d == 3 ? orient3d_exact(a, b, c, o) : -orient2d_exact(a, b, o);
+    if (side == 0) continue;  // o on the face's line or plane: the shadow is flat
+    const double sign = side < 0 ? -1.0 : 1.0;
+    Plane shadow[4];
+    int planes = 0;
+    const V3 ra = rel(a), rb = rel(b);
+    const double sigma = -side;
+    if (d == 3) {
+      const V3 rc = rel(c);
+      shadow[planes++] = {scale(cross(ra, rb), -sigma), 0};
+      shadow[planes++] = {scale(cross(rb, rc), -sigma), 0};
+      shadow[planes++] = {scale(cross(rc, ra), -sigma), 0};
+      const V3 N = cross(sub(rb, ra), sub(rc, ra));
+      shadow[planes++] = {scale(N, side), side * dot(N, ra)};
+    } else {
+      shadow[planes++] = {V3{ra[1] * sigma, -ra[0] * sigma, 0}, 0};   // sigma cross(a, x) >= 0
+      shadow[planes++] = {V3{-rb[1] * sigma, rb[0] * sigma, 0}, 0};   // sigma cross(x, b) >= 0
+      const V3 N{rb[1] - ra[1], ra[0] - rb[0], 0};
+      shadow[planes++] = {scale(N, side), side * dot(N, ra)};
+    }
+    double sv = 0;
+    V3 sm{0, 0, 0};
+    if (d == 3) {
+      s.work = s.cell;
+      for (int k = 0; k < planes && !s.work.faces.empty(); ++k) clip_polyhedron(s.work, shadow[k], s.tmp, s.cut);
+      if (!s.work.faces.empty()) measure_polyhedron(s.work, sv, sm);
+    } else {
+      s.tmp = polygon;
+      for (int k = 0; k < planes && !s.tmp.empty(); ++k) {
+        clip_loop(s.tmp, shadow[k], s.tmp2, nullptr);
+        std::swap(s.tmp, s.tmp2);
+      }
+      if (s.tmp.size() >= 3) measure_polygon(s.tmp, sv, sm);
+    }
+    volume += sign * sv;
+    moment = add(moment, scale(sm, sign));
+    for (std::size_t k = 0; k < nfacets; ++k) {
+      if (s.facet_full[k] == 0) continue;
+      double part = 0;
+      if (d == 3) {
+        s.tmp = s.facet[k];
+        for (int m = 0; m < planes && !s.tmp.empty(); ++m) {
+          clip_loop(s.tmp, shadow[m], s.tmp2, nullptr);
+          std::swap(s.tmp, s.tmp2);
+        }
+        if (s.tmp.size() >= 3) part = loop_area(s.tmp, V3{cell.facets[k].normal[0], cell.facets[k].normal[1], cell.facets[k].normal[2]});
+      } else if (s.facet[k].size() == 2) {
+        part = segment_length(s.facet[k][0], s.facet[k][1], shadow, static_cast<std::size_t>(planes));
+      }
+      s.facet_area[k] += sign * part;
+    }
+  }
+  if (cut) ++cut_cells_;
+  // Assemble: neighbour facets with area inside the domain, then the walls by face.
+  std::vector<VoronoiFacet> facets;
+  for (std::size_t k = 0; k < nfacets; ++k) {
+    VoronoiFacet& f = cell.facets[k];
+    if (f.neighbor < 0) continue;  // the box's walls lie outside the domain
+    const double area = s.facet_area[k];
+    if (cut || w != 1) {
+      if (!(area > 1e-12 * s.facet_full[k])) continue;
+    }
+    VoronoiFacet out;
+    out.neighbor = f.neighbor;
+    out.area = cut || w != 1 ? area : s.facet_full[k];
+    if (!cut && w == 1) out.area = f.area;
+    out.normal = f.normal;
+    facets.push_back(std::move(out));
+  }
+  std::sort(s.walls.begin(), s.walls.end(), [](const auto& x, const auto& y) { return x.face < y.face; });
+  for (const auto& wall : s.walls) {
+    if (!(wall.area > 1e-12 * ix.measures[wall.face])) continue;
+    VoronoiFacet out;
+    out.neighbor = -1 - static_cast<std::int64_t>(wall.face);
+    out.area = wall.area;
+    out.normal.assign(&ix.normals[static_cast<std::size_t>(wall.face) * d], &ix.normals[static_cast<std::size_t>(wall.face) * d] + d);
+    facets.push_back(std::move(out));
+  }
+  cell.facets = std::move(facets);
+  if (!cut && w == 1) {
+    // Inside, meeting no face: the convex cell's own measures.
+    cell.vertices.clear();
+    cell.vertex_simplices.clear();
+    for (VoronoiFacet& f : cell.facets) f.vertices.clear();
+    return;
+  }
+  cell.vertices.clear();
+  cell.vertex_simplices.clear();
+  if (volume > 0) {
+    cell.volume = volume;
+    cell.centroid.assign(d, 0);
+    for (int c = 0; c < d; ++c) cell.centroid[c] = origin[c] + moment[c] / volume;
+  } else {
+    cell.volume = 0;
+    cell.centroid.clear();
+    cell.facets.clear();
+  }
+}
+
+}  // namespace spokemesh
