@@ -42,10 +42,12 @@ struct Mesh {
         }
         for (int i = 0; i < n; ++i) {
           for (int j = 0; j < n; ++j) {
-            const std::uint32_t a = id[i * (n + 1) + j], b = id[(i + 1) * (n + 1) + j], c = id[(i + 1) * (n + 1) + j + 1],
-                                d = id[i * (n + 1) + j + 1];
-            if (side) quad(a, b, c, d);  // u x v = axis direction: outward on the high side
-            else quad(a, d, c, b);
+            const std::uint32_t a = id[i * (n + 1) + j], b = id[(i + 1) * (n + 1) + j],
+                                c = id[(i + 1) * (n + 1) + j + 1], d = id[i * (n + 1) + j + 1];
+            if (side)
+              quad(a, b, c, d);  // u x v = axis direction: outward on the high side
+            else
+              quad(a, d, c, b);
           }
         }
       }

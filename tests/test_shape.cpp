@@ -195,9 +195,9 @@ std::string refusal(const std::string& text, const std::string& name) {
 TEST(ShapeDomains, BadDomainsAreRefusedAndNamed) {
   const std::string tet = "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n";
   EXPECT_EQ(refusal(tet, "tet.off"), "accepted");
-  EXPECT_NE(refusal("OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n", "open.off")
-                .find("open boundary"),
-            std::string::npos);
+  EXPECT_NE(
+      refusal("OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n", "open.off").find("open boundary"),
+      std::string::npos);
   EXPECT_NE(refusal("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 3\n3 1 2 3\n3 0 3 2\n", "flip.off")
                 .find("inconsistent orientation"),
             std::string::npos);
@@ -205,8 +205,9 @@ TEST(ShapeDomains, BadDomainsAreRefusedAndNamed) {
                 .find("zero area"),
             std::string::npos);
   // Two tetrahedra passing through each other.
-  const std::string two = "OFF\n8 8 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0.2 0.2 0.2\n1.2 0.2 0.2\n0.2 1.2 0.2\n0.2 0.2 1.2\n"
-                          "3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n3 4 6 5\n3 4 5 7\n3 5 6 7\n3 4 7 6\n";
+  const std::string two =
+      "OFF\n8 8 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0.2 0.2 0.2\n1.2 0.2 0.2\n0.2 1.2 0.2\n0.2 0.2 1.2\n"
+      "3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n3 4 6 5\n3 4 5 7\n3 5 6 7\n3 4 7 6\n";
   EXPECT_NE(refusal(two, "two.off").find("self-intersection"), std::string::npos);
   EXPECT_NE(refusal("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 9\n3 0 3 2\n", "idx.off")
                 .find("vertex index"),
@@ -232,11 +233,13 @@ TEST(ShapeDomains, FormatsAgree) {
   const double v[4][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
   const int f[4][3] = {{0, 2, 1}, {0, 1, 3}, {1, 2, 3}, {0, 3, 2}};
   std::string obj, ascii = "solid t\n", binary(80, ' ');
-  for (const auto& p : v) obj += "v " + std::to_string(p[0]) + " " + std::to_string(p[1]) + " " + std::to_string(p[2]) + "\n";
+  for (const auto& p : v)
+    obj += "v " + std::to_string(p[0]) + " " + std::to_string(p[1]) + " " + std::to_string(p[2]) + "\n";
   const std::uint32_t count = 4;
   binary.append(reinterpret_cast<const char*>(&count), 4);
   for (const auto& t : f) {
-    obj += "f " + std::to_string(t[0] + 1) + "/1 " + std::to_string(t[1] + 1) + "//2 " + std::to_string(t[2] + 1) + "\n";
+    obj +=
+        "f " + std::to_string(t[0] + 1) + "/1 " + std::to_string(t[1] + 1) + "//2 " + std::to_string(t[2] + 1) + "\n";
     ascii += "facet normal 0 0 0\nouter loop\n";
     float rec[12] = {0, 0, 0};
     for (int k = 0; k < 3; ++k) {
@@ -249,8 +252,8 @@ TEST(ShapeDomains, FormatsAgree) {
     binary.append(2, '\0');
   }
   ascii += "endsolid t\n";
-  for (const auto& [text, name] : std::vector<std::pair<std::string, std::string>>{
-           {obj, "t.obj"}, {ascii, "t.stl"}, {binary, "b.stl"}}) {
+  for (const auto& [text, name] :
+       std::vector<std::pair<std::string, std::string>>{{obj, "t.obj"}, {ascii, "t.stl"}, {binary, "b.stl"}}) {
     auto s = parse_shape_domain(text, name);
     ASSERT_TRUE(s.is_ok()) << name << ": " << s.status().message();
     EXPECT_NEAR(s->volume(), 1.0 / 6, 1e-15) << name;

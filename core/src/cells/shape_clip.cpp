@@ -135,8 +135,10 @@ double segment_length(const V3& a, const V3& b, const Plane* planes, std::size_t
     if (sa > 0 && sb > 0) return 0;
     if (sa <= 0 && sb <= 0) continue;
     const double t = sa / (sa - sb);
-    if (sa > 0) t0 = std::max(t0, t);
-    else t1 = std::min(t1, t);
+    if (sa > 0)
+      t0 = std::max(t0, t);
+    else
+      t1 = std::min(t1, t);
   }
   if (t1 <= t0) return 0;
   return std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
@@ -385,8 +387,8 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
       const V3 N = cross(sub(rb, ra), sub(rc, ra));
       shadow[planes++] = {scale(N, side), side * dot(N, ra)};
     } else {
-      shadow[planes++] = {V3{ra[1] * sigma, -ra[0] * sigma, 0}, 0};   // sigma cross(a, x) >= 0
-      shadow[planes++] = {V3{-rb[1] * sigma, rb[0] * sigma, 0}, 0};   // sigma cross(x, b) >= 0
+      shadow[planes++] = {V3{ra[1] * sigma, -ra[0] * sigma, 0}, 0};  // sigma cross(a, x) >= 0
+      shadow[planes++] = {V3{-rb[1] * sigma, rb[0] * sigma, 0}, 0};  // sigma cross(x, b) >= 0
       const V3 N{rb[1] - ra[1], ra[0] - rb[0], 0};
       shadow[planes++] = {scale(N, side), side * dot(N, ra)};
     }
@@ -415,7 +417,8 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
           clip_loop(s.tmp, shadow[m], s.tmp2, nullptr);
           std::swap(s.tmp, s.tmp2);
         }
-        if (s.tmp.size() >= 3) part = loop_area(s.tmp, V3{cell.facets[k].normal[0], cell.facets[k].normal[1], cell.facets[k].normal[2]});
+        if (s.tmp.size() >= 3)
+          part = loop_area(s.tmp, V3{cell.facets[k].normal[0], cell.facets[k].normal[1], cell.facets[k].normal[2]});
       } else if (s.facet[k].size() == 2) {
         part = segment_length(s.facet[k][0], s.facet[k][1], shadow, static_cast<std::size_t>(planes));
       }
@@ -445,7 +448,8 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
     VoronoiFacet out;
     out.neighbor = -1 - static_cast<std::int64_t>(wall.face);
     out.area = wall.area;
-    out.normal.assign(&ix.normals[static_cast<std::size_t>(wall.face) * d], &ix.normals[static_cast<std::size_t>(wall.face) * d] + d);
+    out.normal.assign(&ix.normals[static_cast<std::size_t>(wall.face) * d],
+                      &ix.normals[static_cast<std::size_t>(wall.face) * d] + d);
     facets.push_back(std::move(out));
   }
   cell.facets = std::move(facets);

@@ -43,7 +43,8 @@ int orient2d_exact(const double* a, const double* b, const double* c) {
   const double bound = kOrient2dBound * (std::abs(l) + std::abs(r));
   if (det > bound) return 1;
   if (det < -bound) return -1;
-  const mpq_class e = (mpq_class(b[0]) - a[0]) * (mpq_class(c[1]) - a[1]) - (mpq_class(b[1]) - a[1]) * (mpq_class(c[0]) - a[0]);
+  const mpq_class e =
+      (mpq_class(b[0]) - a[0]) * (mpq_class(c[1]) - a[1]) - (mpq_class(b[1]) - a[1]) * (mpq_class(c[0]) - a[0]);
   return sign_of(e);
 }
 
@@ -383,8 +384,8 @@ const ShapeDomain::Index& ShapeDomain::index() const { return *index_; }
 std::string ShapeDomain::describe() const {
   std::ostringstream s;
   if (index_->d == 2) {
-    s << "polygon of " << index_->components << (index_->components == 1 ? " ring" : " rings") << " ("
-      << face_count() << " edges)";
+    s << "polygon of " << index_->components << (index_->components == 1 ? " ring" : " rings") << " (" << face_count()
+      << " edges)";
   } else {
     s << "solid of " << face_count() << " triangles (" << index_->components
       << (index_->components == 1 ? " component" : " components") << ")";
@@ -577,8 +578,9 @@ Result<ShapeDomain> ShapeDomain::polygon(std::vector<std::vector<double>> rings,
         }
         if (segments_meet(a, b, c, d)) {
           const bool same = ix.component_of_face[f] == ix.component_of_face[g];
-          return invalid_argument(where + ": " + edge_name(f) + " and " + edge_name(g) +
-                                  (same ? " intersect (the ring crosses itself)" : " intersect (rings must not cross or touch)"));
+          return invalid_argument(
+              where + ": " + edge_name(f) + " and " + edge_name(g) +
+              (same ? " intersect (the ring crosses itself)" : " intersect (rings must not cross or touch)"));
         }
       }
     }
@@ -594,7 +596,8 @@ Result<ShapeDomain> ShapeDomain::solid(std::vector<double> vertices, std::vector
   if (vertices.size() % 3 != 0) return invalid_argument(where + ": vertex coordinates are not a multiple of 3");
   if (triangles.empty() || triangles.size() % 3 != 0) return invalid_argument(where + ": no triangle");
   const std::size_t nv = vertices.size() / 3, nf = triangles.size() / 3;
-  if (nf > kMaxShapeFaces) return invalid_argument(where + ": more than " + std::to_string(kMaxShapeFaces) + " triangles");
+  if (nf > kMaxShapeFaces)
+    return invalid_argument(where + ": more than " + std::to_string(kMaxShapeFaces) + " triangles");
   for (std::size_t i = 0; i < vertices.size(); ++i) {
     if (!std::isfinite(vertices[i])) {
       return invalid_argument(where + ": vertex " + std::to_string(i / 3) + ": a coordinate is not finite");
@@ -604,13 +607,16 @@ Result<ShapeDomain> ShapeDomain::solid(std::vector<double> vertices, std::vector
   std::vector<std::uint32_t> order(nv);
   std::iota(order.begin(), order.end(), 0u);
   std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return std::lexicographical_compare(&vertices[3 * a], &vertices[3 * a + 3], &vertices[3 * b], &vertices[3 * b + 3]) ||
+    return std::lexicographical_compare(&vertices[3 * a], &vertices[3 * a + 3], &vertices[3 * b],
+                                        &vertices[3 * b + 3]) ||
            (std::equal(&vertices[3 * a], &vertices[3 * a + 3], &vertices[3 * b]) && a < b);
   });
   std::vector<std::uint32_t> weld(nv);
   for (std::size_t i = 0; i < nv; ++i) {
     const std::uint32_t v = order[i];
-    weld[v] = (i > 0 && std::equal(&vertices[3 * v], &vertices[3 * v + 3], &vertices[3 * order[i - 1]])) ? weld[order[i - 1]] : v;
+    weld[v] = (i > 0 && std::equal(&vertices[3 * v], &vertices[3 * v + 3], &vertices[3 * order[i - 1]]))
+                  ? weld[order[i - 1]]
+                  : v;
   }
   for (std::size_t f = 0; f < nf; ++f) {
     for (int k = 0; k < 3; ++k) {
@@ -668,8 +674,8 @@ Result<ShapeDomain> ShapeDomain::solid(std::vector<double> vertices, std::vector
   for (std::size_t i = 0; i < edges.size();) {
     std::size_t j = i;
     while (j < edges.size() && edges[j].lo == edges[i].lo && edges[j].hi == edges[i].hi) ++j;
-    const std::string edge = "the edge from " + vertex_text(ix.vertex(edges[i].lo), 3) + " to " +
-                             vertex_text(ix.vertex(edges[i].hi), 3);
+    const std::string edge =
+        "the edge from " + vertex_text(ix.vertex(edges[i].lo), 3) + " to " + vertex_text(ix.vertex(edges[i].hi), 3);
     if (j - i == 1) {
       return invalid_argument(where + ": open boundary: " + edge + " belongs to " + face_name(edges[i].face) +
                               " only (the mesh must be closed)");

@@ -22,14 +22,14 @@ int distance_compare_exact(const double* x, const double* p, const double* q, in
 struct ShapeDomain::Index {
   int d = 0;
   std::string source;
-  std::vector<double> vertices;       // d per vertex
-  std::vector<std::uint32_t> faces;   // d per face, oriented outward
-  std::vector<double> normals;        // d per face: unit, outward
-  std::vector<double> measures;       // per face: area (3-d) or length (2-d)
+  std::vector<double> vertices;      // d per vertex
+  std::vector<std::uint32_t> faces;  // d per face, oriented outward
+  std::vector<double> normals;       // d per face: unit, outward
+  std::vector<double> measures;      // per face: area (3-d) or length (2-d)
   std::vector<std::uint32_t> component_of_face;
   std::size_t components = 0;
   double volume = 0, boundary = 0;
-  std::vector<double> lo, hi;         // bounding box of the vertices
+  std::vector<double> lo, hi;  // bounding box of the vertices
 
   // The grid: cells per axis, cell size, origin (lo). Face lists per cell (CSR);
   // winding number of each cell no face touches (-1 where a face does).
@@ -46,8 +46,8 @@ struct ShapeDomain::Index {
   void cell_range(const double* box_lo, const double* box_hi, int* from, int* to) const;
   std::size_t cell_id(const int* at) const {
     return static_cast<std::size_t>(at[0]) +
-           static_cast<std::size_t>(cells[0]) * (static_cast<std::size_t>(at[1]) +
-                                                 static_cast<std::size_t>(cells[1]) * static_cast<std::size_t>(at[2]));
+           static_cast<std::size_t>(cells[0]) *
+               (static_cast<std::size_t>(at[1]) + static_cast<std::size_t>(cells[1]) * static_cast<std::size_t>(at[2]));
   }
   // Builds the grid, the normals and measures (faces already oriented).
   void build();

@@ -171,7 +171,8 @@ Result<ShapeDomain> parse_obj(const std::string& text, const std::string& name) 
         const long long v = std::strtoll(head.c_str(), &end, 10);
         const long long id = v < 0 ? nv + v : v - 1;  // 1-based, or relative when negative
         if (end == head.c_str() || *end != '\0' || v == 0 || id < 0 || id >= nv) {
-          return invalid_argument(at + ": '" + item + "' is not a vertex defined above (1-based, or negative: relative)");
+          return invalid_argument(at + ": '" + item +
+                                  "' is not a vertex defined above (1-based, or negative: relative)");
         }
         ids.push_back(static_cast<std::uint32_t>(id));
       }
@@ -222,7 +223,8 @@ Result<ShapeDomain> parse_stl(const std::string& bytes, const std::string& name)
       }
       ++in_facet;
     } else if (tag == "endloop") {
-      if (in_facet != 3) return invalid_argument(at + ": a facet has " + std::to_string(in_facet) + " vertices; STL's have 3");
+      if (in_facet != 3)
+        return invalid_argument(at + ": a facet has " + std::to_string(in_facet) + " vertices; STL's have 3");
       const std::uint32_t base = static_cast<std::uint32_t>(vertices.size() / 3 - 3);
       triangles.insert(triangles.end(), {base, base + 1, base + 2});
       in_facet = 0;
