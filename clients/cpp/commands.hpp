@@ -16,6 +16,7 @@
 
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
+#include "spokemesh/shape_domain.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/status.hpp"
@@ -66,12 +67,20 @@ void add_periodic_flag(CLI::App* cmd, Common& common);
 // `default_box`) the points' bounding box; none for an unclipped `cell`.
 struct DomainFlags {
   std::string box, halfspaces;
+  std::string shape;  // --domain FILE: a domain of any shape (shape_domain.hpp)
 };
 void add_domain_flags(CLI::App* cmd, DomainFlags& flags, const char* when_absent);
 // The domain for `points` (the box of every point: give the global box when the
 // points are a part of the set).
 Result<std::optional<Domain>> domain_for(const DomainFlags& flags, int dimension,
                                          const std::optional<Domain>& bounding_box);
+
+// A domain of any shape from a file: GeoJSON (.geojson, .json: a Polygon, a
+// MultiPolygon, a Feature or a FeatureCollection of them; every ring of every polygon),
+// else by extension as read_shape_domain. Errors name the file and, in GeoJSON, the
+// member (features[0].geometry.coordinates[1][3]).
+Result<ShapeDomain> read_domain(const std::string& path);
+Result<ShapeDomain> parse_geojson_domain(const std::string& text, const std::string& name);
 
 // An output that is the input file itself (same path, a link, another spelling) would
 // destroy the input when the result is renamed into place: refused up front.

@@ -301,12 +301,38 @@ int with_star(const Common& common, const std::string& input, std::int64_t seed,
   return use(loaded, star);  // internal indices; printers map them with to_original()
 }
 
+// The --domain file for these points: read, validated, and of their dimension.
+Result<ShapeDomain> shape_for(const std::string& path, const Loaded& loaded) {
+  if (!loaded.weights.empty()) {
+    return invalid_argument("--domain: cells of weighted points in a domain of any shape are not supported yet");
+  }
+  auto shape = read_domain(path);
+  if (!shape.is_ok()) return shape.status();
+  if (shape->dimension() != loaded.points.dimension()) {
+    return invalid_argument("--domain " + path + " is " + std::to_string(shape->dimension()) +
+                            "-d; the points are " + std::to_string(loaded.points.dimension()) + "-d");
+  }
+  return shape;
+}
+
 int run_cell(const Common& common, const std::string& input, std::int64_t seed, bool json, const DomainFlags& flags) {
   return with_star(common, input, seed, [&](const Loaded& loaded, Star& star) {
     auto domain = domain_for(flags, loaded.points.dimension(), std::nullopt);
     if (!domain.is_ok()) return report(domain.status());
     VoronoiCell cell;
-    if (domain.value().has_value()) {
+    if (!flags.shape.empty()) {
+      // A domain of any shape: the convex cell in its box, then intersected with it.
+      auto shape = shape_for(flags.shape, loaded);
+      if (!shape.is_ok()) return report(shape.status());
+      auto box = ShapeClipper::box(loaded.points, shape.value());
+      if (!box.is_ok()) return report(box.status());
+      StarOptions options;
+      options.random_seed = common.random_seed;
+      ClippedCellBuilder builder(*loaded.tree, box.value(), options);
+      if (Status s = builder.cell(star.seed, cell); !s.is_ok()) return report(s);
+      ShapeClipper clipper(loaded.points, shape.value());
+      clipper.clip(star.seed, cell);
+    } else if (domain.value().has_value()) {
       // The builder `cells` uses, so that both print the same cell.
       StarOptions options;
       options.random_seed = common.random_seed;
@@ -331,8 +357,8 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
 // cell with each facet's offset.
 int run_periodic_seed(const Common& common, const std::string& input, std::int64_t seed, const char* what, bool json,
                       const DomainFlags& flags) {
-  if (!flags.box.empty() || !flags.halfspaces.empty()) {
-    return report(invalid_argument("--periodic cells fill the torus: --box and --halfspaces do not apply"));
+  if (!flags.box.empty() || !flags.halfspaces.empty() || !flags.shape.empty()) {
+    return report(invalid_argument("--periodic cells fill the torus: --box, --halfspaces and --domain do not apply"));
   }
   auto in = load_periodic(common, input);
   if (!in.is_ok()) return report(in.status());
@@ -391,8 +417,8 @@ Status write_tallied(std::span<const VoronoiCell> cells, std::uint64_t done, Cel
 // cells --periodic: the torus's cells, facet offsets in .npz (periodic.hpp).
 int run_periodic_cells(const Common& common, const std::string& input, const std::string& output,
                        const DomainFlags& flags) {
-  if (!flags.box.empty() || !flags.halfspaces.empty()) {
-    return report(invalid_argument("--periodic cells fill the torus: --box and --halfspaces do not apply"));
+  if (!flags.box.empty() || !flags.halfspaces.empty() || !flags.shape.empty()) {
+    return report(invalid_argument("--periodic cells fill the torus: --box, --halfspaces and --domain do not apply"));
   }
   auto in = load_periodic(common, input);
   if (!in.is_ok()) return report(in.status());
@@ -449,14 +475,27 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   const Loaded& loaded = *loaded_or.value();
   auto domain = domain_for(flags, loaded.points.dimension(), Domain::bounding_box(loaded.points));
   if (!domain.is_ok()) return report(domain.status());
+  std::optional<ShapeDomain> shape;
+  if (!flags.shape.empty()) {
+    auto read = shape_for(flags.shape, loaded);
+    if (!read.is_ok()) return report(read.status());
+    shape.emplace(std::move(read).value());
+    auto box = ShapeClipper::box(loaded.points, *shape);
+    if (!box.is_ok()) return report(box.status());
+    domain.value() = std::move(box).value();
+  }
   auto writer = CellWriter::open(output, loaded.points.dimension());
   if (!writer.is_ok()) return report(writer.status());
+  if (shape && writer.value()->needs_vertices()) {
+    return report(invalid_argument("-o " + output + ": cells in a domain of any shape are written as measures: use .npz"));
+  }
   CellsOptions options;
   options.threads = common.threads;
   options.star.random_seed = common.random_seed;
   options.star.weights = loaded.weights;
   options.measures_only = !writer.value()->needs_vertices();
   options.facet_cache_bytes = common.cache_mb << 20;
+  if (shape) options.shape = &*shape;
   Progress progress(common.quiet, loaded.points.size(), "cells");
   std::uint64_t facets = 0;
   double volume = 0;
@@ -468,7 +507,8 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   if (status.is_ok()) status = writer.value()->commit();
   if (!status.is_ok()) return report(status);
   if (!common.quiet) {
-    print_cells_summary(loaded.points.size(), domain.value()->describe(), facets, volume, progress.seconds(), output);
+    print_cells_summary(loaded.points.size(), shape ? shape->describe() : domain.value()->describe(), facets, volume,
+                        progress.seconds(), output);
   }
   return kExitOk;
 }
