@@ -1,5 +1,6 @@
 #include "engine.hpp"
 
+#include "geojson_domain.hpp"
 #include "spokemesh/cells.hpp"
 #include "spokemesh/certify.hpp"
 #include "spokemesh/pieces.hpp"
@@ -554,10 +555,80 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
   return answer;
 }
 
-Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box) {
+namespace {
+std::string shape_needs_whole(const std::string& id) {
+  return "domain.shape: point set " + id + " is kept as pieces (sharded); a domain of any shape needs it held whole";
+}
+}  // namespace
+
+Result<std::shared_ptr<const ShapeDomain>> Engine::shape_for(const StoredSet& set, const DomainSpec& spec) {
+  if (spec.shape_format.empty()) return std::shared_ptr<const ShapeDomain>();
+  static const char* const kFormats[] = {"off", "obj", "stl", "rings", "geojson"};
+  if (std::find_if(std::begin(kFormats), std::end(kFormats), [&](const char* f) { return spec.shape_format == f; }) ==
+      std::end(kFormats)) {
+    return invalid_argument("domain.shape.format: '" + spec.shape_format.substr(0, 40) +
+                            "' is not one of off, obj, stl, rings, geojson");
+  }
+  if (set.periodic) return failed_precondition("domain.shape: point set " + set.info.id + " is periodic (no walls)");
+  if (!set.weights.empty()) {
+    return failed_precondition("domain.shape: cells of weighted points in a domain of any shape are not supported yet");
+  }
+  if (set.piece) return failed_precondition(shape_needs_whole(set.info.id));
+  std::string key;
+  {
+    Sha256 hash;
+    hash.update(spec.shape_format.data(), spec.shape_format.size() + 1);  // with its NUL
+    hash.update(spec.shape_data.data(), spec.shape_data.size());
+    key = hash.hex_digest();
+  }
+  {
+    std::lock_guard<std::mutex> lock(shapes_mutex_);
+    for (std::size_t i = 0; i < shapes_.size(); ++i) {
+      if (shapes_[i].key != key) continue;
+      std::rotate(shapes_.begin() + static_cast<std::ptrdiff_t>(i),
+                  shapes_.begin() + static_cast<std::ptrdiff_t>(i) + 1, shapes_.end());
+      auto shape = shapes_.back().shape;
+      if (shape->dimension() != set.points.dimension()) break;
+      return shape;
+    }
+  }
+  auto parsed = parse_domain_bytes(spec.shape_data, "domain." + spec.shape_format);
+  if (!parsed.is_ok()) return parsed.status();
+  if (parsed->dimension() != set.points.dimension()) {
+    return invalid_argument("domain.shape: a " + std::to_string(parsed->dimension()) + "-d domain (" +
+                            parsed->describe() + "); point set " + set.info.id + " is " +
+                            std::to_string(set.points.dimension()) + "-d");
+  }
+  auto shape = std::make_shared<const ShapeDomain>(std::move(parsed).value());
+  const std::size_t bytes = shape->memory_bytes();
+  auto charge = store_->budget().try_charge(bytes);
+  if (!charge) return store_->budget().over_budget("a domain of any shape", bytes);
+  std::lock_guard<std::mutex> lock(shapes_mutex_);
+  shapes_.push_back({std::move(key), shape, std::move(*charge)});
+  if (shapes_.size() > defaults::kKeptShapes) shapes_.erase(shapes_.begin());
+  return std::shared_ptr<const ShapeDomain>(shape);
+}
+
+Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box,
+                                                     const ShapeDomain* shape) {
   const int d = set.points.dimension();
-  const int given = (spec.box.empty() ? 0 : 1) + (spec.halfspaces.empty() ? 0 : 1) + (spec.bounding_box ? 1 : 0);
-  if (given > 1) return invalid_argument("domain: give one of box, halfspaces and bounding_box");
+  const int given = (spec.box.empty() ? 0 : 1) + (spec.halfspaces.empty() ? 0 : 1) + (spec.bounding_box ? 1 : 0) +
+                    (spec.shape_format.empty() ? 0 : 1);
+  if (given > 1) return invalid_argument("domain: give one of box, halfspaces, bounding_box and shape");
+  if (shape != nullptr) {
+    // The box the convex cells are clipped to before the shape: from the set's box.
+    std::vector<double> lo(static_cast<std::size_t>(d)), hi(static_cast<std::size_t>(d));
+    if (!set.bounds.empty()) {
+      lo.assign(set.bounds.begin(), set.bounds.begin() + d);
+      hi.assign(set.bounds.begin() + d, set.bounds.end());
+      auto box = ShapeClipper::box(std::move(lo), std::move(hi), *shape);
+      if (!box.is_ok()) return box.status();
+      return std::optional<Domain>(std::move(box).value());
+    }
+    auto box = ShapeClipper::box(set.points, *shape);
+    if (!box.is_ok()) return box.status();
+    return std::optional<Domain>(std::move(box).value());
+  }
   if (!spec.box.empty()) {
     if (spec.box.size() != 2 * static_cast<std::size_t>(d)) {
       return invalid_argument("domain.box: " + std::to_string(spec.box.size()) + " values; a box around " +
@@ -603,13 +674,15 @@ Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, cons
   const StoredSet& set = *target.value().first;
   if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
   if (Status s = check_query(set, &spec, nullptr); !s.is_ok()) return s;
-  auto domain = resolve_domain(set, spec, false);
+  auto shape = shape_for(set, spec);
+  if (!shape.is_ok()) return shape.status();
+  auto domain = resolve_domain(set, spec, false, shape.value().get());
   if (!domain.is_ok()) return domain.status();
-  return cell_of(set, target.value().second, domain.value() ? &*domain.value() : nullptr, control);
+  return cell_of(set, target.value().second, domain.value() ? &*domain.value() : nullptr, control, shape.value().get());
 }
 
 Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
-                                    const CallControl& control) {
+                                    const CallControl& control, const ShapeDomain* shape) {
   if (set.periodic) {
     VoronoiCell cell;
     auto star = periodic_star_of(set, seed, control, &cell, false);
@@ -633,6 +706,10 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   auto cell = builder.cell(seed);
   if (cell.status().code() == Code::kCancelled)
     return control.stopped_status("the cell of seed " + std::to_string(seed));
+  if (cell.is_ok() && shape != nullptr) {
+    ShapeClipper clipper(set.points, *shape);
+    clipper.clip(seed, cell.value());
+  }
   if (cell.is_ok() && set.piece) {
     // A piece's cell is the whole set's when the points within the reach that decided
     // it are all held (as spokemesh-mpi certifies its cells); otherwise completed.
@@ -894,6 +971,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     auto layout = store_->layout(id);
     if (!layout.is_ok()) return layout.status();
     if (layout.value()) {
+      if (!spec.shape_format.empty()) return failed_precondition(shape_needs_whole(id));
       return batch_from_pieces(id, layout.value()->manifest().count, seeds, kind, query, spec, control, emit);
     }
   }
@@ -902,9 +980,14 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   const std::shared_ptr<const StoredSet> set = set_or.value();
   if (Status s = check_batch_seeds(seeds, set->info.count); !s.is_ok()) return s;
   std::optional<Domain> domain;
+  std::shared_ptr<const ShapeDomain> shape;
   if (kind == BatchKind::kCells) {
     if (Status s = exact_allowed(*set, "a batch of cells"); !s.is_ok()) return s;
-    auto d = resolve_domain(*set, spec, false);
+    if (Status s = check_query(*set, &spec, nullptr); !s.is_ok()) return s;
+    auto sh = shape_for(*set, spec);
+    if (!sh.is_ok()) return sh.status();
+    shape = std::move(sh).value();
+    auto d = resolve_domain(*set, spec, false, shape.get());
     if (!d.is_ok()) return d.status();
     domain = std::move(d).value();
   }
@@ -933,8 +1016,12 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   }
   // Clipped cells come from one ClippedCellBuilder per thread, as in StreamCells.
   std::vector<std::unique_ptr<ClippedCellBuilder>> builders(threads);
+  std::vector<std::unique_ptr<ShapeClipper>> clippers(threads);
   if (kind == BatchKind::kCells && domain) {
     for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
+    if (shape) {
+      for (auto& c : clippers) c = std::make_unique<ShapeClipper>(set->points, *shape);
+    }
   }
   // Exact stars of many seeds of a 2-d or 3-d set: computed together first, as a whole
   // mesh restricted to them computes them (local triangulations of the regions holding
@@ -1009,6 +1096,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
       auto r = builders[t]->cell(seed);
       if (!r.is_ok()) return r.status();
       a.cell = std::move(r).value();
+      if (clippers[t]) clippers[t]->clip(seed, a.cell);
       return Status::ok();
     }
     // The exact answers from one walker per thread, kept across the batch (the star is
@@ -1231,6 +1319,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
     auto layout = store_->layout(id);
     if (!layout.is_ok()) return layout.status();
     if (layout.value()) {
+      if (!spec.shape_format.empty()) return failed_precondition(shape_needs_whole(id));
       const ShardRange range = shard_range(layout.value()->manifest().count, shard_index, shard_count);
       if (range_out != nullptr) *range_out = range;
       return stream_cells_from_pieces(id, range, batch_size, spec, measures_only, control, emit);
@@ -1244,7 +1333,9 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
   if (s.periodic) return stream_periodic_cells(s, range, batch_size, measures_only, control, emit);
-  auto domain = resolve_domain(s, spec, true);
+  auto shape = shape_for(s, spec);
+  if (!shape.is_ok()) return shape.status();
+  auto domain = resolve_domain(s, spec, true, shape.value().get());
   if (!domain.is_ok()) return domain.status();
   // Memory: one round of cells (threads x block) and a batch, within the stream window,
   // and the facet cache as for simplices.
@@ -1262,6 +1353,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   options.measures_only = measures_only;
   options.star.cancel = control.stop_flag();
   options.star.weights = s.weights;
+  options.shape = shape.value().get();
   CellBatcher batches(batch_size, emit);
   std::uint64_t done = 0;
   auto sink = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {

@@ -28,6 +28,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
+#include "spokemesh/shape_domain.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "store.hpp"
@@ -161,7 +162,11 @@ struct DomainSpec {
   std::vector<double> box;         // LO_1..LO_d, HI_1..HI_d
   std::vector<double> halfspaces;  // d + 1 values per wall: a_1 .. a_d b (a . x <= b)
   bool bounding_box = false;
-  bool empty() const { return box.empty() && halfspaces.empty() && !bounding_box; }
+  // A domain of any shape (shape_domain.hpp): a file's bytes and its format, one of
+  // off, obj, stl, rings, geojson (docs/cells.md, "Domains of any shape").
+  std::string shape_format;
+  std::string shape_data;
+  bool empty() const { return box.empty() && halfspaces.empty() && !bounding_box && shape_format.empty(); }
 };
 
 enum class BatchKind { kStars, kNeighbors, kCells };
@@ -335,9 +340,16 @@ class Engine {
   // approximate mode on a weighted one.
   static Status check_query(const StoredSet& set, const DomainSpec* domain, const NeighborQuery* query);
   Result<VoronoiCell> cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,
-                              const CallControl& control);
-  // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT.
-  static Result<std::optional<Domain>> resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box);
+                              const CallControl& control, const ShapeDomain* shape = nullptr);
+  // The Domain a spec names for this set (nullopt: none), or INVALID_ARGUMENT. With a
+  // domain of any shape (`shape`, from shape_for), the box its cells are first clipped to.
+  static Result<std::optional<Domain>> resolve_domain(const StoredSet& set, const DomainSpec& spec, bool default_box,
+                                                      const ShapeDomain* shape = nullptr);
+  // The spec's domain of any shape (nullptr: none), parsed and validated, for this set
+  // (2-d or 3-d, unweighted, not periodic, held whole): INVALID_ARGUMENT naming the
+  // fault, FAILED_PRECONDITION for a set it does not apply to. The last few parsed are
+  // kept (by the SHA-256 of format and bytes), charged to the budget.
+  Result<std::shared_ptr<const ShapeDomain>> shape_for(const StoredSet& set, const DomainSpec& spec);
   // The facet cache a stream may have within the budget: its cap (0: none) and charge.
   std::size_t charge_stream_cache(int dimension, std::uint32_t n, MemoryBudget::Charge& charge);
   // The same for a whole-mesh stream's sweep: charges its memo (the front's mail and
@@ -353,6 +365,13 @@ class Engine {
   std::unique_ptr<PointSetStore> store_;
   Limits limits_;
   ShardSettings shards_;
+  struct KeptShape {
+    std::string key;  // SHA-256 of format, NUL, bytes
+    std::shared_ptr<const ShapeDomain> shape;
+    MemoryBudget::Charge charge;
+  };
+  std::mutex shapes_mutex_;
+  std::vector<KeptShape> shapes_;  // most recently used last
 };
 
 }  // namespace spokemesh::service

@@ -347,6 +347,11 @@ DomainSpec domain_spec(const pb::Domain& domain) {
   spec.box.assign(domain.box().begin(), domain.box().end());
   spec.halfspaces.assign(domain.halfspaces().begin(), domain.halfspaces().end());
   spec.bounding_box = domain.bounding_box();
+  if (domain.has_shape()) {
+    spec.shape_format = domain.shape().format();
+    spec.shape_data = domain.shape().data();
+    if (spec.shape_format.empty()) spec.shape_format = "(none)";  // refused by name
+  }
   return spec;
 }
 

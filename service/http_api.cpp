@@ -374,7 +374,8 @@ HttpResponse HttpApi::route(Context& c) {
     return batch(c, id, p[3].substr(0, p[3].find(':')));
   }
   if (p.size() == 4 && p[3] == "cells") {
-    if (method != http::verb::get) return wrong_method();
+    // POST: the body is a domain of any shape (?domain=FORMAT); GET otherwise.
+    if (method != http::verb::get && method != http::verb::post) return wrong_method();
     c.record.method = "StreamCells";
     return cells(c, id);
   }
@@ -389,7 +390,7 @@ HttpResponse HttpApi::route(Context& c) {
     return simplices(c, id);
   }
   if (p.size() == 6 && p[3] == "seeds" && (p[5] == "star" || p[5] == "neighbors" || p[5] == "cell")) {
-    if (method != http::verb::get) return wrong_method();
+    if (method != http::verb::get && !(method == http::verb::post && p[5] == "cell")) return wrong_method();
     return seed_route(c, id, p[4], p[5]);
   }
   return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
@@ -602,6 +603,15 @@ Result<DomainSpec> HttpApi::domain_from_query(Context& c) {
   auto bounding_box = bool_param(c, "bounding_box");
   if (!bounding_box.is_ok()) return bounding_box.status();
   spec.bounding_box = bounding_box.value();
+  // A domain of any shape: POST with the file as the body and ?domain=FORMAT.
+  const bool post = c.request.method() == http::verb::post;
+  if (auto format = c.param("domain")) {
+    if (!post) return invalid_argument("domain=" + format->substr(0, 40) + ": send the domain file as a POST body");
+    spec.shape_format = *format;
+    spec.shape_data = c.request.body();
+  } else if (post) {
+    return invalid_argument("POST: give ?domain=FORMAT (off, obj, stl, rings, geojson) for the domain in the body");
+  }
   return spec;
 }
 
@@ -818,6 +828,17 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
   }
   spec.bounding_box =
       body.contains("bounding_box") && body["bounding_box"].is_boolean() && body["bounding_box"].get<bool>();
+  if (body.contains("domain")) {
+    const json& shape = body["domain"];
+    if (!shape.is_object() || !shape.contains("format") || !shape["format"].is_string() || !shape.contains("data") ||
+        !shape["data"].is_string()) {
+      return c.fail(invalid_argument(
+          "domain: expected {\"format\": \"off|obj|stl|rings|geojson\", \"data\": \"the file's text\"}"));
+    }
+    spec.shape_format = shape["format"].get<std::string>();
+    spec.shape_data = shape["data"].get<std::string>();
+    if (spec.shape_format.empty()) spec.shape_format = "(none)";
+  }
   const BatchKind kind = what == "stars"       ? BatchKind::kStars
                          : what == "neighbors" ? BatchKind::kNeighbors
                                                : BatchKind::kCells;

@@ -26,6 +26,8 @@ inline constexpr std::uint32_t kPageSize = 100, kMaxPageSize = 1000;
 // Simplices per message of the whole-mesh streams; cells per message of the cell stream.
 inline constexpr std::uint32_t kBatchSize = 4096, kMaxBatchSize = 65536;
 inline constexpr std::uint32_t kCellBatchSize = 256, kMaxCellBatchSize = 4096;
+// Domains of any shape kept parsed between requests (Engine::shape_for).
+inline constexpr std::size_t kKeptShapes = 4;
 // Seeds in one batch call (BatchSeeds, REST .../stars:batch and friends).
 inline constexpr std::size_t kMaxBatchSeeds = 100000;
 // A batch of exact stars (and what comes from them) of a 2-d or 3-d set with at least

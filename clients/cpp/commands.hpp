@@ -16,9 +16,9 @@
 
 #include "spokemesh/approx.hpp"
 #include "spokemesh/domain.hpp"
-#include "spokemesh/shape_domain.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/point_set.hpp"
+#include "spokemesh/shape_domain.hpp"
 #include "spokemesh/status.hpp"
 
 namespace spokemesh::cli {
@@ -80,7 +80,6 @@ Result<std::optional<Domain>> domain_for(const DomainFlags& flags, int dimension
 // else by extension as read_shape_domain. Errors name the file and, in GeoJSON, the
 // member (features[0].geometry.coordinates[1][3]).
 Result<ShapeDomain> read_domain(const std::string& path);
-Result<ShapeDomain> parse_geojson_domain(const std::string& text, const std::string& name);
 
 // An output that is the input file itself (same path, a link, another spelling) would
 // destroy the input when the result is renamed into place: refused up front.

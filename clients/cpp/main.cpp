@@ -309,8 +309,8 @@ Result<ShapeDomain> shape_for(const std::string& path, const Loaded& loaded) {
   auto shape = read_domain(path);
   if (!shape.is_ok()) return shape.status();
   if (shape->dimension() != loaded.points.dimension()) {
-    return invalid_argument("--domain " + path + " is " + std::to_string(shape->dimension()) +
-                            "-d; the points are " + std::to_string(loaded.points.dimension()) + "-d");
+    return invalid_argument("--domain " + path + " is " + std::to_string(shape->dimension()) + "-d; the points are " +
+                            std::to_string(loaded.points.dimension()) + "-d");
   }
   return shape;
 }
@@ -487,7 +487,8 @@ int run_cells(const Common& common, const std::string& input, const std::string&
   auto writer = CellWriter::open(output, loaded.points.dimension());
   if (!writer.is_ok()) return report(writer.status());
   if (shape && writer.value()->needs_vertices()) {
-    return report(invalid_argument("-o " + output + ": cells in a domain of any shape are written as measures: use .npz"));
+    return report(
+        invalid_argument("-o " + output + ": cells in a domain of any shape are written as measures: use .npz"));
   }
   CellsOptions options;
   options.threads = common.threads;
@@ -774,7 +775,7 @@ int main(int argc, char** argv) {
       const std::string mode = neighbor_mode_name(approx_flags.neighbor_mode());
       return remote::batch(o, input, batch_kind, seed_list, mode, approx_flags.enabled ? approx_flags.misses : 0,
                            approx_flags.enabled ? approx_flags.max_vertices : 0, domain_flags.box,
-                           domain_flags.halfspaces);
+                           domain_flags.halfspaces, domain_flags.shape);
     }
     if (*health) return remote::health(o);
     if (*list) return remote::list(o);
@@ -785,8 +786,8 @@ int main(int argc, char** argv) {
       return remote::neighbors(o, input, s, mode, approx_flags.enabled ? approx_flags.misses : 0,
                                approx_flags.enabled ? approx_flags.max_vertices : 0);
     }
-    if (*cell) return remote::cell(o, input, s, json, domain_flags.box, domain_flags.halfspaces);
-    if (*cells) return remote::cells(o, input, output, domain_flags.box, domain_flags.halfspaces);
+    if (*cell) return remote::cell(o, input, s, json, domain_flags.box, domain_flags.halfspaces, domain_flags.shape);
+    if (*cells) return remote::cells(o, input, output, domain_flags.box, domain_flags.halfspaces, domain_flags.shape);
     if (*mesh) {
       if (!whole.seeds.empty())
         return report(invalid_argument("--seeds is local only; remote meshes are split with --shards"));

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "cell_print.hpp"
+#include "commands.hpp"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/domain.hpp"
@@ -292,9 +293,31 @@ VoronoiCell from_proto(const pb::VoronoiCell& c) {
 }
 
 // The proto Domain for --box / --halfspaces (the file is read here, checked against d).
-Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfspaces, int d) {
+Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfspaces, int d,
+                                const std::string& shape) {
   pb::Domain domain;
-  if (!box.empty() && !halfspaces.empty()) return invalid_argument("--box and --halfspaces exclude each other");
+  if (!box.empty() + !halfspaces.empty() + !shape.empty() > 1) {
+    return invalid_argument("--box, --halfspaces and --domain exclude each other");
+  }
+  if (!shape.empty()) {
+    // Checked here first, so that a fault names the user's file; then sent as bytes.
+    auto checked = cli::read_domain(shape);
+    if (!checked.is_ok()) return checked.status();
+    if (checked->dimension() != d) {
+      return invalid_argument("--domain " + shape + " is " + std::to_string(checked->dimension()) +
+                              "-d; the point set is " + std::to_string(d) + "-d");
+    }
+    std::ifstream in(shape, std::ios::binary);
+    std::ostringstream bytes;
+    bytes << in.rdbuf();
+    std::string ext = shape.substr(shape.find_last_of('.') + 1);
+    for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+    const std::string format = ext == "json"                                                        ? "geojson"
+                               : (ext == "off" || ext == "obj" || ext == "stl" || ext == "geojson") ? ext
+                                                                                                    : "rings";
+    domain.mutable_shape()->set_format(format);
+    domain.mutable_shape()->set_data(bytes.str());
+  }
   if (!box.empty()) {
     auto b = Domain::parse_box(box);
     if (!b.is_ok()) return b.status();
@@ -327,11 +350,11 @@ Result<pb::PointSet> info_of(const RemoteOptions& o, pb::Mesher::Stub& stub, con
 
 // Fills `out` from --box / --halfspaces for the set's dimension; an exit code.
 int set_domain(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string& id, const std::string& box,
-               const std::string& halfspaces, pb::Domain& out) {
+               const std::string& halfspaces, pb::Domain& out, const std::string& shape = "") {
   grpc::Status status;
   auto info = info_of(o, stub, id, status);
   if (!info.is_ok()) return report(o, status);
-  auto domain = domain_proto(box, halfspaces, static_cast<int>(info->dimension()));
+  auto domain = domain_proto(box, halfspaces, static_cast<int>(info->dimension()), shape);
   if (!domain.is_ok()) return report(domain.status());
   out = domain.value();
   return kExitOk;
@@ -340,13 +363,14 @@ int set_domain(const RemoteOptions& o, pb::Mesher::Stub& stub, const std::string
 }  // namespace
 
 int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json, const std::string& box,
-         const std::string& halfspaces) {
+         const std::string& halfspaces, const std::string& shape) {
   pb::GetVoronoiCellRequest request;
   request.set_point_set_id(id);
   request.set_seed(seed);
-  if (!box.empty() || !halfspaces.empty()) {
+  if (!box.empty() || !halfspaces.empty() || !shape.empty()) {
     auto stub = pb::Mesher::NewStub(channel(o));
-    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *request.mutable_domain()); rc != kExitOk) return rc;
+    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *request.mutable_domain(), shape); rc != kExitOk)
+      return rc;
   }
   pb::VoronoiCell c;
   const int rc = unary(
@@ -359,16 +383,20 @@ int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool
 }
 
 int cells(const RemoteOptions& o, const std::string& id, const std::string& output, const std::string& box,
-          const std::string& halfspaces) {
+          const std::string& halfspaces, const std::string& shape) {
   auto stub = pb::Mesher::NewStub(channel(o));
   grpc::Status status;
   auto info = info_of(o, *stub, id, status);
   if (!info.is_ok()) return report(o, status);
   const int d = static_cast<int>(info->dimension());
-  auto domain = domain_proto(box, halfspaces, d);
+  auto domain = domain_proto(box, halfspaces, d, shape);
   if (!domain.is_ok()) return report(domain.status());
   auto writer = CellWriter::open(output, d, info->periodic_box_size() > 0);
   if (!writer.is_ok()) return report(writer.status());
+  if (!shape.empty() && writer.value()->needs_vertices()) {
+    return report(
+        invalid_argument("-o " + output + ": cells in a domain of any shape are written as measures: use .npz"));
+  }
   grpc::ClientContext ctx;
   prepare(o, ctx);
   pb::StreamCellsRequest r;
@@ -402,7 +430,7 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
 
 int batch(const RemoteOptions& o, const std::string& id, const std::string& kind,
           const std::vector<std::uint64_t>& seeds, const std::string& mode, std::uint32_t misses,
-          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces) {
+          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces, const std::string& shape) {
   auto stub = pb::Mesher::NewStub(channel(o));
   pb::BatchSeedsRequest r;
   r.set_point_set_id(id);
@@ -415,8 +443,8 @@ int batch(const RemoteOptions& o, const std::string& id, const std::string& kind
                                    : pb::NEIGHBOR_MODE_EXACT);
   r.set_max_consecutive_misses(misses);
   r.set_max_vertices(max_vertices);
-  if (!box.empty() || !halfspaces.empty()) {
-    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *r.mutable_domain()); rc != kExitOk) return rc;
+  if (!box.empty() || !halfspaces.empty() || !shape.empty()) {
+    if (const int rc = set_domain(o, *stub, id, box, halfspaces, *r.mutable_domain(), shape); rc != kExitOk) return rc;
   }
   grpc::ClientContext ctx;
   prepare(o, ctx);

@@ -38,11 +38,12 @@ int star(const RemoteOptions& o, const std::string& id, std::uint64_t seed);
 int neighbors(const RemoteOptions& o, const std::string& id, std::uint64_t seed, const std::string& mode = "exact",
               std::uint32_t misses = 0, std::uint32_t max_vertices = 0);
 // box: "LO1,...,HId" or ""; halfspaces: a local file of walls or "" (neither: unclipped).
+// shape: a local domain file of any shape (--domain) or "", checked here, then sent.
 int cell(const RemoteOptions& o, const std::string& id, std::uint64_t seed, bool json, const std::string& box,
-         const std::string& halfspaces);
+         const std::string& halfspaces, const std::string& shape = "");
 // All cells (StreamCells; default domain: the set's bounding box) into .npz or .vtu.
 int cells(const RemoteOptions& o, const std::string& id, const std::string& output, const std::string& box,
-          const std::string& halfspaces);
+          const std::string& halfspaces, const std::string& shape = "");
 // Fetches all shards in parallel (one stream each) and writes OUTPUT in any format
 // of the local `mesh` command.
 int mesh(const RemoteOptions& o, const std::string& id, const std::string& output, unsigned shards);
@@ -50,7 +51,8 @@ int mesh(const RemoteOptions& o, const std::string& id, const std::string& outpu
 // REST .../{stars,neighbors,cells}:batch routes answer. kind: stars, neighbors, cells.
 int batch(const RemoteOptions& o, const std::string& id, const std::string& kind,
           const std::vector<std::uint64_t>& seeds, const std::string& mode, std::uint32_t misses,
-          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces);
+          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces,
+          const std::string& shape = "");
 int health(const RemoteOptions& o);
 int list(const RemoteOptions& o);
 int remove(const RemoteOptions& o, const std::string& id);

@@ -468,6 +468,28 @@ class CellsJob final : public Job {
                       : Result<std::optional<Domain>>(whole.status());
     if (Status s = comm.agree(chosen.status()); !s.is_ok()) return s;
     domain_ = std::move(chosen).value();
+    if (!w_.domain.shape.empty()) {
+      // A domain of any shape, read by every rank: cells are clipped to its box (from
+      // the whole set's box, as the CLI's) and intersected with it, measures only.
+      Status st = Status::ok();
+      auto shape = cli::read_domain(w_.domain.shape);
+      if (!shape.is_ok()) {
+        st = shape.status();
+      } else if (shape->dimension() != d) {
+        st = invalid_argument("--domain " + w_.domain.shape + " is " + std::to_string(shape->dimension()) +
+                              "-d; the points are " + std::to_string(d) + "-d");
+      } else if (geometry()) {
+        st = invalid_argument("-o " + w_.output + ": cells in a domain of any shape are written as measures: use .npz");
+      } else if (!w_.common.weights.empty() || !w_.common.radii.empty()) {
+        st = invalid_argument("--domain: cells of weighted points in a domain of any shape are not supported yet");
+      }
+      if (Status s = comm.agree(st); !s.is_ok()) return s;
+      shape_.emplace(std::move(shape).value());
+      auto shape_box = ShapeClipper::box(std::vector<double>(box.begin(), box.begin() + d),
+                                         std::vector<double>(box.begin() + d, box.end()), *shape_);
+      if (Status s = comm.agree(shape_box.status()); !s.is_ok()) return s;
+      domain_ = std::move(shape_box).value();
+    }
     spool_ = std::make_unique<CellSpool>(d, geometry(), facts.n, comm.size);
     return Status::ok();
   }
@@ -527,7 +549,8 @@ class CellsJob final : public Job {
 
   void print_summary(double seconds, std::uint64_t /*halo_points*/, std::uint64_t /*rounds*/,
                      int /*ranks*/) const override {
-    cli::print_cells_summary(facts_.n, domain_->describe(), written_.facets, written_.volume, seconds, w_.output);
+    cli::print_cells_summary(facts_.n, shape_ ? shape_->describe() : domain_->describe(), written_.facets,
+                             written_.volume, seconds, w_.output);
   }
 
  private:
@@ -541,13 +564,17 @@ class CellsJob final : public Job {
           round_(round),
           builder_(tree, *job.domain_, job.star_options()),
           found_(job.facts_.d, job.geometry()) {
-      builder_.set_measures_only(!job.geometry());
+      builder_.set_measures_only(!job.geometry() && !job.shape_);
+      if (job.shape_) shape_.emplace(tree.points(), *job.shape_);
     }
     Status seed(std::uint32_t k, StarCertificate& c) override {
       const std::uint32_t seed = round_.local.local_of_own[k];
       Status s = builder_.cell(seed, cell_);
       if (!s.is_ok()) return s;
       c = round_.certify.cell(k, seed, builder_);
+      // The intersection with a shape depends on the convex cell and its neighbours'
+      // points only, which the certificate holds: the CLI's bytes.
+      if (c.certified && shape_) shape_->clip(seed, cell_);
       if (c.certified)
         found_.add(cell_, round_.local.global[seed], [&](std::uint32_t v) { return round_.local.global[v]; });
       return Status::ok();
@@ -560,12 +587,14 @@ class CellsJob final : public Job {
     CellsJob& job_;
     const Round& round_;
     ClippedCellBuilder builder_;
+    std::optional<ShapeClipper> shape_;
     VoronoiCell cell_;
     CellRecords found_;
   };
 
   CellWriter::Format format_ = CellWriter::Format::kNpz;
   std::optional<Domain> domain_;
+  std::optional<ShapeDomain> shape_;  // --domain FILE
   std::unique_ptr<CellSpool> spool_;  // the certified cells, on disk
   CellsWritten written_;
   std::mutex mu_;

@@ -47,8 +47,10 @@ class ParallelBuildExt(build_ext):
 
 core = Extension(
     "spokemesh._core",
-    sources=[rel(os.path.join(HERE, "src", "core_module.cpp"))] + sorted(rel(p) for p in glob.glob(f"{ROOT}/core/src/**/*.cpp", recursive=True)),
-    include_dirs=[f"{ROOT}/core/include", f"{ROOT}/core/src", "/usr/include/eigen3", pybind11.get_include()],
+    sources=[rel(os.path.join(HERE, "src", "core_module.cpp")), rel(f"{ROOT}/clients/cpp/geojson_domain.cpp")]
+    + sorted(rel(p) for p in glob.glob(f"{ROOT}/core/src/**/*.cpp", recursive=True)),
+    include_dirs=[f"{ROOT}/core/include", f"{ROOT}/core/src", f"{ROOT}/clients/cpp", "/usr/include/eigen3",
+                  pybind11.get_include()],
     libraries=["gmpxx", "gmp", "z"],
     extra_compile_args=["-std=c++20", "-O2", "-ffp-contract=off", "-fno-fast-math", "-DNDEBUG", "-fvisibility=hidden"],
     language="c++",

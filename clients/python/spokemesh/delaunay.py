@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import warnings
 from typing import Dict, Optional, Sequence, Tuple
 
@@ -429,28 +430,56 @@ class Delaunay:
         return out if self._first is None else self._kept[out].astype(np.uint32)
 
     def cell(self, i: int, box: Optional[Sequence[float]] = None,
-             halfspaces: Optional[np.ndarray] = None) -> Cell:
-        """The Voronoi cell of vertex i, clipped to box (lo_1..lo_d, hi_1..hi_d) or to
-        halfspaces ((m, ndim + 1) rows a, b with a.x <= b) when given, with its measures
-        (docs/cells.md). Unbounded: volume inf, centroid None. A seed outside the domain
-        raises ValueError."""
+             halfspaces: Optional[np.ndarray] = None, domain=None) -> Cell:
+        """The Voronoi cell of vertex i, clipped to box (lo_1..lo_d, hi_1..hi_d), to
+        halfspaces ((m, ndim + 1) rows a, b with a.x <= b) or to a domain of any shape
+        (a path to a .off/.obj/.stl mesh or a .geojson/.rings polygon, or a (format,
+        bytes) pair) when given, with its measures (docs/cells.md). Unbounded: volume
+        inf, centroid None. A seed outside a convex domain raises ValueError; in a
+        domain of any shape its cell is the part of its Voronoi cell inside the domain
+        (often empty). Cells in a domain of any shape carry measures only: their facets
+        list neighbours, then walls (`wall` = the domain's face index)."""
         self._nearest_site_only("cell")
         self._no_merged_points("cell")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
-        return _cell(self._tri.cell(int(i), b, h))
+        f, data = domain_bytes(domain)
+        return _cell(self._tri.cell(int(i), b, h, f, data))
 
     def cells(self, box: Optional[Sequence[float]] = None,
-              halfspaces: Optional[np.ndarray] = None) -> Dict[str, np.ndarray]:
+              halfspaces: Optional[np.ndarray] = None, domain=None) -> Dict[str, np.ndarray]:
         """Every cell's measures, as `spokemesh cells` writes them to .npz: volume (n,),
         centroid (n, d), bounded (n,), facet_ptr (n + 1,), facet_neighbor (m,) (the
         neighbour, or -1 - k for wall k), facet_area (m,), facet_normal (m, d). Clipped
-        to box or halfspaces, by default to the points' bounding box."""
+        to box, halfspaces or a domain of any shape (as cell(); wall k is its face k),
+        by default to the points' bounding box."""
         self._nearest_site_only("cells")
         self._no_merged_points("cells")
         b = None if box is None else [float(v) for v in np.asarray(box, dtype=np.float64).ravel()]
         h = None if halfspaces is None else np.ascontiguousarray(halfspaces, dtype=np.float64)
-        return self._tri.cells(b, h, True)
+        f, data = domain_bytes(domain)
+        return self._tri.cells(b, h, True, f, data)
+
+
+_DOMAIN_FORMATS = {".off": "off", ".obj": "obj", ".stl": "stl", ".rings": "rings", ".geojson": "geojson",
+                   ".json": "geojson"}
+
+
+def domain_bytes(domain):
+    """(format, bytes) of a domain of any shape: a path (its extension names the format:
+    .off .obj .stl .rings .geojson/.json, anything else rings), a (format, bytes or str)
+    pair, or None for none."""
+    if domain is None:
+        return None, None
+    if isinstance(domain, tuple):
+        if len(domain) != 2 or domain[0] not in set(_DOMAIN_FORMATS.values()):
+            raise ValueError("domain: a path, or (format, data) with format one of off, obj, stl, rings, geojson")
+        data = domain[1].encode() if isinstance(domain[1], str) else bytes(domain[1])
+        return domain[0], data
+    path = os.fspath(domain)
+    suffix = os.path.splitext(path)[1].lower()
+    with open(path, "rb") as f:
+        return _DOMAIN_FORMATS.get(suffix, "rings"), f.read()
 
 
 def _rebuild_periodic(points, threads, periodic, weights=None):

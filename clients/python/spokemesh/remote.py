@@ -72,12 +72,17 @@ class Neighbors:
 
 
 def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],
-            bounding_box: bool) -> Optional[pb.Domain]:
+            bounding_box: bool, domain=None) -> Optional[pb.Domain]:
     """The proto Domain: box = (lo_1..lo_d, hi_1..hi_d) or [[lo...], [hi...]];
-    halfspaces = (m, d + 1) rows a_1..a_d b for a.x <= b."""
-    given = (box is not None) + (halfspaces is not None) + bool(bounding_box)
+    halfspaces = (m, d + 1) rows a_1..a_d b for a.x <= b; domain = a domain of any shape
+    (a path, or a (format, bytes) pair: see Delaunay.cell)."""
+    given = (box is not None) + (halfspaces is not None) + bool(bounding_box) + (domain is not None)
     if given > 1:
-        raise ValueError("give one of box, halfspaces and bounding_box")
+        raise ValueError("give one of box, halfspaces, bounding_box and domain")
+    if domain is not None:
+        from .delaunay import domain_bytes
+        fmt, data = domain_bytes(domain)
+        return pb.Domain(shape=pb.ShapeDomain(format=fmt, data=data))
     if box is not None:
         return pb.Domain(box=np.asarray(box, dtype=np.float64).ravel().tolist())
     if halfspaces is not None:
@@ -323,11 +328,11 @@ class Client:
 
     def batch_cells(self, point_set_id: str, seeds: Sequence[int], box: Optional[Sequence[float]] = None,
                     halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
-                    timeout: Optional[float] = None) -> List[Cell]:
+                    timeout: Optional[float] = None, domain=None) -> List[Cell]:
         """cell() for many seeds (at most 100,000) in one streamed call, in order."""
         request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
                                        kind=pb.BATCH_KIND_CELLS)
-        domain = _domain(box, halfspaces, bounding_box)
+        domain = _domain(box, halfspaces, bounding_box, domain)
         if domain is not None:
             request.domain.CopyFrom(domain)
         return [_cell(r) for batch in self._batch(request, timeout) for r in batch.cells]
@@ -352,13 +357,14 @@ class Client:
 
     def cell(self, point_set_id: str, seed: int, box: Optional[Sequence[float]] = None,
              halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
-             timeout: Optional[float] = None) -> Cell:
+             timeout: Optional[float] = None, domain=None) -> Cell:
         """The Voronoi cell of `seed` with its measures, clipped to a box
-        (lo_1..lo_d, hi_1..hi_d), to halfspaces ((m, d + 1) rows a, b with a.x <= b) or
-        to the point set's bounding box; unclipped when none is given. Unbounded cells
-        have volume inf and centroid None (docs/cells.md)."""
+        (lo_1..lo_d, hi_1..hi_d), to halfspaces ((m, d + 1) rows a, b with a.x <= b), to
+        the point set's bounding box or to a domain of any shape (`domain`: a path or a
+        (format, bytes) pair, as Delaunay.cell); unclipped when none is given. Unbounded
+        cells have volume inf and centroid None (docs/cells.md)."""
         request = pb.GetVoronoiCellRequest(point_set_id=point_set_id, seed=seed)
-        domain = _domain(box, halfspaces, bounding_box)
+        domain = _domain(box, halfspaces, bounding_box, domain)
         if domain is not None:
             request.domain.CopyFrom(domain)
         return _cell(self._call(self._stub.GetVoronoiCell, request, timeout))
@@ -366,14 +372,15 @@ class Client:
     def cells(self, point_set_id: str, box: Optional[Sequence[float]] = None,
               halfspaces: Optional[np.ndarray] = None, shard_index: int = 0, shard_count: int = 1,
               measures_only: bool = False, batch_size: int = 0,
-              timeout: Optional[float] = None) -> Iterator[Cell]:
+              timeout: Optional[float] = None, domain=None) -> Iterator[Cell]:
         """Yields the cells of one shard's seeds in seed order (StreamCells), clipped to
-        `box` or `halfspaces`, by default to the point set's bounding box. With
-        measures_only, cells carry no vertices (much less to transfer)."""
+        `box`, `halfspaces` or a domain of any shape (`domain`, as cell()), by default to
+        the point set's bounding box. With measures_only, cells carry no vertices (much
+        less to transfer)."""
         request = pb.StreamCellsRequest(point_set_id=point_set_id, shard_index=shard_index,
                                         shard_count=shard_count, batch_size=batch_size,
                                         measures_only=measures_only)
-        domain = _domain(box, halfspaces, False)
+        domain = _domain(box, halfspaces, False, domain)
         if domain is not None:
             request.domain.CopyFrom(domain)
         try:

@@ -23,6 +23,7 @@
 #include <thread>
 #include <vector>
 
+#include "geojson_domain.hpp"
 #include "spokemesh/approx.hpp"
 #include "spokemesh/cells.hpp"
 #include "spokemesh/domain.hpp"
@@ -557,8 +558,51 @@ class Triangulation {
     return owned(std::move(n), {size});
   }
 
+  // A domain of any shape from a file's bytes and its format (off, obj, stl, rings,
+  // geojson); the last one is kept, so that cell() over many seeds parses it once.
+  std::shared_ptr<const ShapeDomain> shape_from(const std::optional<std::string>& format,
+                                                const std::optional<py::bytes>& data) const {
+    if (!format) return nullptr;
+    if (!weights_.empty())
+      raise(invalid_argument("domain: cells of weighted points in a domain of any shape are not supported yet"));
+    std::string bytes = data ? std::string(*data) : std::string();
+    std::lock_guard<std::mutex> lock(shape_mutex_);
+    if (shape_ && shape_format_ == *format && shape_bytes_ == bytes) return shape_;
+    Result<ShapeDomain> parsed = invalid_argument("");
+    {
+      py::gil_scoped_release release;
+      parsed = parse_domain_bytes(bytes, "domain." + *format);
+    }
+    if (!parsed.is_ok()) raise(parsed.status());
+    if (parsed->dimension() != d_) {
+      raise(invalid_argument("domain: a " + std::to_string(parsed->dimension()) + "-d domain (" + parsed->describe() +
+                             "); the points are " + std::to_string(d_) + "-d"));
+    }
+    shape_ = std::make_shared<const ShapeDomain>(std::move(parsed).value());
+    shape_format_ = *format;
+    shape_bytes_ = std::move(bytes);
+    return shape_;
+  }
+
   py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
-                const std::optional<Points>& halfspaces) const {
+                const std::optional<Points>& halfspaces, const std::optional<std::string>& domain_format,
+                const std::optional<py::bytes>& domain_data) const {
+    if (domain_format) {
+      if (box || halfspaces) raise(invalid_argument("give one of box, halfspaces and domain"));
+      check_seed(seed, points_.size());
+      const std::shared_ptr<const ShapeDomain> shape = shape_from(domain_format, domain_data);
+      VoronoiCell c;
+      Status st;
+      {
+        py::gil_scoped_release release;
+        auto box_domain = ShapeClipper::box(points_, *shape);
+        ClippedCellBuilder builder(*tree_, box_domain.value());
+        st = builder.cell(seed, c);
+        if (st.is_ok()) ShapeClipper(points_, *shape).clip(seed, c);
+      }
+      if (!st.is_ok()) raise(st);
+      return cell_dict(c);
+    }
     const std::optional<Domain> domain = domain_from(d_, box, halfspaces);
     if (!domain) return cell_dict(voronoi_cell(points_, star_of(seed), weights_));
     check_seed(seed, points_.size());
@@ -577,8 +621,12 @@ class Triangulation {
 
   // All cells' measures as the .npz of `spokemesh cells` holds them.
   py::dict cells(const std::optional<std::vector<double>>& box, const std::optional<Points>& halfspaces,
-                 bool bounding_box) const {
+                 bool bounding_box, const std::optional<std::string>& domain_format,
+                 const std::optional<py::bytes>& domain_data) const {
+    if (domain_format && (box || halfspaces)) raise(invalid_argument("give one of box, halfspaces and domain"));
+    const std::shared_ptr<const ShapeDomain> shape = shape_from(domain_format, domain_data);
     std::optional<Domain> domain = domain_from(d_, box, halfspaces);
+    if (shape) domain = ShapeClipper::box(points_, *shape).value();
     if (!domain && bounding_box) domain = Domain::bounding_box(points_);
     CellColumns columns(d_, false);
     Status status;
@@ -588,6 +636,7 @@ class Triangulation {
       options.threads = threads_;
       options.measures_only = true;
       options.star.weights = weights_;
+      options.shape = shape.get();
       status = compute_cells(*tree_, domain ? &*domain : nullptr, options,
                              [&](std::span<const VoronoiCell> cells, std::uint64_t) {
                                for (const VoronoiCell& c : cells) columns.add(c);
@@ -679,6 +728,10 @@ class Triangulation {
   int d_;
   unsigned threads_;
   std::vector<double> weights_;  // power weights (empty: the Delaunay triangulation)
+  // The last domain of any shape cell()/cells() parsed (shape_from).
+  mutable std::mutex shape_mutex_;
+  mutable std::shared_ptr<const ShapeDomain> shape_;
+  mutable std::string shape_format_, shape_bytes_;
   std::unique_ptr<KdTree> tree_;
   Rows simplices_;
   std::uint64_t stars_computed_ = 0;  // by the insertion that made it (0 when built at once)
@@ -842,9 +895,10 @@ PYBIND11_MODULE(_core, m) {
       .def("star", &Triangulation::star, py::arg("seed"))
       .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))
       .def("cell", &Triangulation::cell, py::arg("seed"), py::arg("box") = py::none(),
-           py::arg("halfspaces") = py::none())
+           py::arg("halfspaces") = py::none(), py::arg("domain_format") = py::none(),
+           py::arg("domain_data") = py::none())
       .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
-           py::arg("bounding_box") = true);
+           py::arg("bounding_box") = true, py::arg("domain_format") = py::none(), py::arg("domain_data") = py::none());
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")
       .def(py::init<const Points&, const std::vector<double>&, const std::vector<double>&, std::optional<unsigned>,
                     const std::optional<Points>&>(),

@@ -82,6 +82,8 @@ class ShapeDomain {
   // "polygon of 4 rings (40 edges) from part.txt" / "solid of 960 triangles (2 components) from part.off".
   std::string describe() const;
   const std::string& source() const;
+  // Bytes held (vertices, faces, normals, the grid), for callers that budget memory.
+  std::size_t memory_bytes() const;
 
   // Where x lies: +1 strictly inside, 0 on the boundary, -1 strictly outside (exact).
   int locate(const double* x) const;
@@ -128,6 +130,9 @@ class ShapeClipper {
 
   // The convex box every cell is first clipped to (see above).
   static Result<Domain> box(const PointSet& points, const ShapeDomain& shape);
+  // The same from the points' bounding box (d values each), for a caller holding part
+  // of the points (spokemesh-mpi: the whole set's box).
+  static Result<Domain> box(std::vector<double> points_lo, std::vector<double> points_hi, const ShapeDomain& shape);
   // `convex`: the seed's cell clipped to box() (with vertices and facet loops); replaced
   // by its intersection with the shape.
   void clip(std::uint32_t seed, VoronoiCell& convex);

@@ -171,20 +171,31 @@ ShapeClipper::ShapeClipper(const PointSet& points, const ShapeDomain& shape)
 ShapeClipper::~ShapeClipper() = default;
 
 Result<Domain> ShapeClipper::box(const PointSet& points, const ShapeDomain& shape) {
-  const int d = shape.dimension();
-  if (points.dimension() != d) {
-    return invalid_argument("the domain is " + std::to_string(d) + "-d (" + shape.describe() + "); the points are " +
-                            std::to_string(points.dimension()) + "-d");
-  }
-  std::vector<double> lo = shape.lower(), hi = shape.upper();
+  const int d = points.dimension();
+  std::vector<double> lo(d, INFINITY), hi(d, -INFINITY);
   for (std::size_t i = 0; i < points.size(); ++i) {
     for (int c = 0; c < d; ++c) {
       lo[c] = std::min(lo[c], points.point(i)[c]);
       hi[c] = std::max(hi[c], points.point(i)[c]);
     }
   }
+  return box(std::move(lo), std::move(hi), shape);
+}
+
+Result<Domain> ShapeClipper::box(std::vector<double> lo, std::vector<double> hi, const ShapeDomain& shape) {
+  const int d = shape.dimension();
+  if (static_cast<int>(lo.size()) != d || static_cast<int>(hi.size()) != d) {
+    return invalid_argument("the domain is " + std::to_string(d) + "-d (" + shape.describe() + "); the points are " +
+                            std::to_string(lo.size()) + "-d");
+  }
+  // The union of both boxes, grown by an eighth of its largest extent on every side:
+  // no wall of the box touches the domain.
   double extent = 0;
-  for (int c = 0; c < d; ++c) extent = std::max(extent, hi[c] - lo[c]);
+  for (int c = 0; c < d; ++c) {
+    lo[c] = std::min(lo[c], shape.lower()[c]);
+    hi[c] = std::max(hi[c], shape.upper()[c]);
+    extent = std::max(extent, hi[c] - lo[c]);
+  }
   for (int c = 0; c < d; ++c) {
     lo[c] -= extent / 8;
     hi[c] += extent / 8;

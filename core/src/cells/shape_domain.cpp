@@ -379,6 +379,13 @@ double ShapeDomain::boundary_measure() const { return index_->boundary; }
 const std::vector<double>& ShapeDomain::lower() const { return index_->lo; }
 const std::vector<double>& ShapeDomain::upper() const { return index_->hi; }
 const std::string& ShapeDomain::source() const { return index_->source; }
+std::size_t ShapeDomain::memory_bytes() const {
+  const Index& ix = *index_;
+  return sizeof(Index) + ix.vertices.capacity() * sizeof(double) + ix.faces.capacity() * sizeof(std::uint32_t) +
+         ix.normals.capacity() * sizeof(double) + ix.measures.capacity() * sizeof(double) +
+         ix.component_of_face.capacity() * sizeof(std::uint32_t) + ix.cell_start.capacity() * sizeof(std::uint32_t) +
+         ix.cell_faces.capacity() * sizeof(std::uint32_t) + ix.cell_winding.capacity();
+}
 const ShapeDomain::Index& ShapeDomain::index() const { return *index_; }
 
 std::string ShapeDomain::describe() const {
