@@ -259,6 +259,48 @@ def test_cells_in_a_box_and_in_halfspaces_are_byte_identical(reference, work):
     assert not (work / "c.svg").exists()
 
 
+@pytest.fixture(scope="module")
+def shape_domains(work):
+    """Domains of any shape (tests/python/domain_files.py) and seeds in and around them."""
+    import domain_files as df
+    out = {}
+    tv, tf = df.torus(48, 16)
+    df.write_off(work / "torus.off", tv, tf)
+    rng = np.random.default_rng(21)
+    torus_points = np.concatenate([df.inside_torus(20_000, 22), rng.uniform(-1.4, 1.4, (2_000, 3))])
+    np.save(work / "torus-seeds.npy", torus_points)
+    out["torus"] = (work / "torus-seeds.npy", work / "torus.off")
+    rings, _, _ = df.three_holes()
+    df.write_geojson(work / "holes.geojson", rings, "FeatureCollection")
+    np.save(work / "holes-seeds.npy", rng.random((20_000, 2)) * 10)
+    out["holes"] = (work / "holes-seeds.npy", work / "holes.geojson")
+    v, f = df.l_part()
+    df.write_stl(work / "l.stl", v, f, binary=True)
+    grid = np.stack(np.meshgrid(*[np.arange(0.0625, 2, 0.125)] * 2, np.arange(0.0625, 1, 0.125), indexing="ij"), -1)
+    np.save(work / "l-grid.npy", grid.reshape(-1, 3))
+    out["l-grid"] = (work / "l-grid.npy", work / "l.stl")
+    return out
+
+
+@pytest.mark.parametrize("name", ["torus", "holes", "l-grid"])
+def test_cells_in_a_domain_of_any_shape_are_byte_identical(shape_domains, work, name):
+    # The convex cell is certified as any clipped cell is; its intersection with the
+    # domain depends on it and its neighbours' points only: the CLI's bytes at any P.
+    points, domain = shape_domains[name]
+    one = work / f"shape-{name}-cli.npz"
+    run_cli("cells", str(points), "--domain", str(domain), "-o", str(one), "-q")
+    for ranks in (1, 3, 7):
+        many = work / f"shape-{name}-{ranks}.npz"
+        run_mpi(ranks, "cells", str(points), "--domain", str(domain), "-o", str(many), "-q")
+        assert many.read_bytes() == one.read_bytes(), (name, ranks)
+    # A bad domain: the CLI's words, once, nothing written.
+    bad = work / "open.off"
+    bad.write_text("OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n")
+    done = run_mpi(3, "cells", str(points), "--domain", str(bad), "-o", str(work / "bad.npz"), check=False)
+    assert done.returncode == 2 and done.stderr.count("open boundary") == 1, done.stderr
+    assert not (work / "bad.npz").exists()
+
+
 DRAWN_CELL_SETS = {
     "3d-uniform-8k": lambda: uniform(8_000, 3, 4),
     "3d-linspace-grid-20": lambda: linspace_grid(20),
