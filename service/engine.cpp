@@ -563,42 +563,46 @@ std::string shape_needs_whole(const std::string& id) {
 
 Result<std::shared_ptr<const ShapeDomain>> Engine::shape_for(const StoredSet& set, const DomainSpec& spec) {
   if (spec.shape_format.empty()) return std::shared_ptr<const ShapeDomain>();
-  static const char* const kFormats[] = {"off", "obj", "stl", "rings", "geojson"};
-  if (std::find_if(std::begin(kFormats), std::end(kFormats), [&](const char* f) { return spec.shape_format == f; }) ==
-      std::end(kFormats)) {
-    return invalid_argument("domain.shape.format: '" + spec.shape_format.substr(0, 40) +
-                            "' is not one of off, obj, stl, rings, geojson");
-  }
   if (set.periodic) return failed_precondition("domain.shape: point set " + set.info.id + " is periodic (no walls)");
   if (!set.weights.empty()) {
     return failed_precondition("domain.shape: cells of weighted points in a domain of any shape are not supported yet");
   }
   if (set.piece) return failed_precondition(shape_needs_whole(set.info.id));
+  auto shape = parse_shape(spec.shape_format, spec.shape_data);
+  if (!shape.is_ok()) return shape.status();
+  if (shape.value()->dimension() != set.points.dimension()) {
+    return invalid_argument("domain.shape: a " + std::to_string(shape.value()->dimension()) + "-d domain (" +
+                            shape.value()->describe() + "); point set " + set.info.id + " is " +
+                            std::to_string(set.points.dimension()) + "-d");
+  }
+  return shape;
+}
+
+Result<std::shared_ptr<const ShapeDomain>> Engine::parse_shape(const std::string& format, const std::string& data) {
+  static const char* const kFormats[] = {"off", "obj", "stl", "rings", "geojson"};
+  if (std::find_if(std::begin(kFormats), std::end(kFormats), [&](const char* f) { return format == f; }) ==
+      std::end(kFormats)) {
+    return invalid_argument("domain.shape.format: '" + format.substr(0, 40) +
+                            "' is not one of off, obj, stl, rings, geojson");
+  }
   std::string key;
   {
     Sha256 hash;
-    hash.update(spec.shape_format.data(), spec.shape_format.size() + 1);  // with its NUL
-    hash.update(spec.shape_data.data(), spec.shape_data.size());
+    hash.update(format.data(), format.size() + 1);  // with its NUL
+    hash.update(data.data(), data.size());
     key = hash.hex_digest();
   }
   {
     std::lock_guard<std::mutex> lock(shapes_mutex_);
     for (std::size_t i = 0; i < shapes_.size(); ++i) {
       if (shapes_[i].key != key) continue;
-      std::rotate(shapes_.begin() + static_cast<std::ptrdiff_t>(i),
-                  shapes_.begin() + static_cast<std::ptrdiff_t>(i) + 1, shapes_.end());
-      auto shape = shapes_.back().shape;
-      if (shape->dimension() != set.points.dimension()) break;
-      return shape;
+      std::rotate(shapes_.begin() + static_cast<std::ptrdiff_t>(i), shapes_.begin() + static_cast<std::ptrdiff_t>(i) + 1,
+                  shapes_.end());
+      return shapes_.back().shape;
     }
   }
-  auto parsed = parse_domain_bytes(spec.shape_data, "domain." + spec.shape_format);
+  auto parsed = parse_domain_bytes(data, "domain." + format);
   if (!parsed.is_ok()) return parsed.status();
-  if (parsed->dimension() != set.points.dimension()) {
-    return invalid_argument("domain.shape: a " + std::to_string(parsed->dimension()) + "-d domain (" +
-                            parsed->describe() + "); point set " + set.info.id + " is " +
-                            std::to_string(set.points.dimension()) + "-d");
-  }
   auto shape = std::make_shared<const ShapeDomain>(std::move(parsed).value());
   const std::size_t bytes = shape->memory_bytes();
   auto charge = store_->budget().try_charge(bytes);
@@ -708,6 +712,7 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
     return control.stopped_status("the cell of seed " + std::to_string(seed));
   if (cell.is_ok() && shape != nullptr) {
     ShapeClipper clipper(set.points, *shape);
+    clipper.set_geometry(true);  // what the page draws
     clipper.clip(seed, cell.value());
   }
   if (cell.is_ok() && set.piece) {
@@ -1020,7 +1025,10 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   if (kind == BatchKind::kCells && domain) {
     for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
     if (shape) {
-      for (auto& c : clippers) c = std::make_unique<ShapeClipper>(set->points, *shape);
+      for (auto& c : clippers) {
+        c = std::make_unique<ShapeClipper>(set->points, *shape);
+        c->set_geometry(true);
+      }
     }
   }
   // Exact stars of many seeds of a 2-d or 3-d set: computed together first, as a whole

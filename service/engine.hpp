@@ -261,6 +261,9 @@ class Engine {
                                    const CallControl& control);
   // The cell, clipped when `domain` is not empty. INVALID_ARGUMENT for a malformed
   // domain (naming the field) or a seed outside it.
+  // A domain of any shape from a file's bytes (format: off, obj, stl, rings, geojson),
+  // parsed and validated (INVALID_ARGUMENT naming the fault), kept among the last few.
+  Result<std::shared_ptr<const ShapeDomain>> parse_shape(const std::string& format, const std::string& data);
   Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const DomainSpec& domain,
                            const CallControl& control);
 

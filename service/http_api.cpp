@@ -316,6 +316,13 @@ HttpResponse HttpApi::route(Context& c) {
     r.body = telemetry_.render_metrics();
     return r;
   }
+  if (p.size() == 2 && p[0] == "v1" && p[1] == "domains:check") {
+    if (method != http::verb::post) {
+      return c.fail({Code::kUnimplemented, std::string(req.method_string()) + " is not supported on /v1/domains:check"});
+    }
+    c.record.method = "CheckDomain";
+    return check_domain(c);
+  }
   if (p.size() < 2 || p[0] != "v1" || p[1] != "pointsets") {
     return c.fail({Code::kNotFound, "no route for " + std::string(target.substr(0, 200))});
   }
@@ -636,6 +643,33 @@ Result<std::array<std::uint64_t, 3>> HttpApi::shard_params(Context& c) {
     }
   }
   return values;
+}
+
+// POST /v1/domains:check?domain=FORMAT with a domain file as the body: the domain as
+// validated (its fault named, 400) and oriented, for a client to draw its walls.
+HttpResponse HttpApi::check_domain(Context& c) {
+  const auto format = c.param("domain");
+  if (!format) return c.fail(invalid_argument("give ?domain=FORMAT (off, obj, stl, rings, geojson)"));
+  auto shape = engine_.parse_shape(*format, c.request.body());
+  if (!shape.is_ok()) return c.fail(shape.status());
+  const ShapeDomain& s = *shape.value();
+  const int d = s.dimension();
+  json vertices = json::array(), faces = json::array();
+  for (std::size_t v = 0; v < s.vertex_count(); ++v) {
+    vertices.push_back(json(std::vector<double>(s.vertices().begin() + static_cast<std::ptrdiff_t>(v * d),
+                                                s.vertices().begin() + static_cast<std::ptrdiff_t>((v + 1) * d))));
+  }
+  for (std::size_t f = 0; f < s.face_count(); ++f) {
+    faces.push_back(json(std::vector<std::uint32_t>(s.faces().begin() + static_cast<std::ptrdiff_t>(f * d),
+                                                    s.faces().begin() + static_cast<std::ptrdiff_t>((f + 1) * d))));
+  }
+  return c.ok({{"dimension", d},
+               {"description", s.describe()},
+               {"components", s.component_count()},
+               {"volume", s.volume()},
+               {"boundary_measure", s.boundary_measure()},
+               {"vertices", std::move(vertices)},
+               {"faces", std::move(faces)}});
 }
 
 HttpResponse HttpApi::cells(Context& c, const std::string& id) {

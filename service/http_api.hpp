@@ -99,6 +99,7 @@ class HttpApi {
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse points(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);
+  HttpResponse check_domain(Context& c);
   HttpResponse batch(Context& c, const std::string& id, const std::string& what);
   static Result<DomainSpec> domain_from_query(Context& c);
   static Result<bool> bool_param(Context& c, const char* name);

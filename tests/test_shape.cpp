@@ -163,6 +163,61 @@ TEST(ShapeCells, SameCellsWhateverTheThreads) {
   }
 }
 
+// With geometry (for drawing): each wall facet's loop (ends in 2-d) measures its area,
+// and in 2-d a neighbour facet's segments sum to its length.
+TEST(ShapeCells, GeometryMatchesTheMeasures) {
+  for (int d : {2, 3}) {
+    SCOPED_TRACE(d);
+    Mesh m;
+    m.l_part(1.0);
+    const ShapeDomain shape = d == 2 ? three_holes() : m.solid("l-part");
+    const PointSet ps = seeds_inside(shape, 200, 6, 20);
+    const KdTree tree(ps);
+    auto box = ShapeClipper::box(ps, shape);
+    ASSERT_TRUE(box.is_ok());
+    ClippedCellBuilder builder(tree, box.value());
+    ShapeClipper drawn(ps, shape), plain(ps, shape);
+    drawn.set_geometry(true);
+    for (std::uint32_t s = 0; s < ps.size(); ++s) {
+      VoronoiCell a, b;
+      ASSERT_TRUE(builder.cell(s, a).is_ok());
+      b = a;
+      drawn.clip(s, a);
+      plain.clip(s, b);
+      ASSERT_EQ(a.volume, b.volume);
+      ASSERT_EQ(a.facets.size(), b.facets.size());
+      for (std::size_t k = 0; k < a.facets.size(); ++k) {
+        const VoronoiFacet& f = a.facets[k];
+        EXPECT_EQ(f.area, b.facets[k].area);
+        auto at = [&](std::uint32_t v) { return &a.vertices[static_cast<std::size_t>(v) * d]; };
+        double measured = 0;
+        if (d == 2) {
+          for (std::size_t i = 0; i + 1 < f.vertices.size(); i += 2) {
+            measured += std::hypot(at(f.vertices[i + 1])[0] - at(f.vertices[i])[0],
+                                   at(f.vertices[i + 1])[1] - at(f.vertices[i])[1]);
+          }
+        } else if (f.is_wall()) {
+          double n[3] = {0, 0, 0};
+          const double* o = at(f.vertices[0]);
+          for (std::size_t i = 1; i + 1 < f.vertices.size(); ++i) {
+            const double* p = at(f.vertices[i]);
+            const double* q = at(f.vertices[i + 1]);
+            const double u[3] = {p[0] - o[0], p[1] - o[1], p[2] - o[2]}, v[3] = {q[0] - o[0], q[1] - o[1], q[2] - o[2]};
+            n[0] += u[1] * v[2] - u[2] * v[1];
+            n[1] += u[2] * v[0] - u[0] * v[2];
+            n[2] += u[0] * v[1] - u[1] * v[0];
+          }
+          measured = (n[0] * f.normal[0] + n[1] * f.normal[1] + n[2] * f.normal[2]) / 2;  // positive: outward loop
+        } else {
+          continue;  // a 3-d neighbour facet's outline is drawn, not measured
+        }
+        if (a.vertices.empty()) continue;  // a whole convex cell: its own geometry
+        EXPECT_NEAR(measured, f.area, 1e-9 * std::max(1.0, f.area)) << "seed " << s << " facet " << k;
+      }
+    }
+  }
+}
+
 TEST(ShapeDomains, Locate) {
   const ShapeDomain shape = three_holes();
   const double inside[2] = {5, 4.5}, hole[2] = {2, 2}, wall[2] = {0, 5}, corner[2] = {10, 10}, far[2] = {20, 2};

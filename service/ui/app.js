@@ -25,6 +25,7 @@
     seed: null,
     loadToken: 0,        // increases on each set change, so late answers are dropped
     timing: {},          // performance.now() marks of the first view (bench/ui.py reads them)
+    domain: null,        // a domain of any shape: { format, bytes, info (POST /v1/domains:check) }
   };
 
   // ---- the REST API -----------------------------------------------------------
@@ -228,7 +229,7 @@
 
   const view = { ready: false };
   const COLORS = { points: 0x4a5560, faded: 0xc5cbd1, seed: 0xd62728, neighbor: 0xff7f0e, star: 0x1f6feb, centre: 0x2ca02c,
-    cell: 0x9467bd, box: 0x999999, mesh: 0x1f6feb };
+    cell: 0x9467bd, box: 0x999999, mesh: 0x1f6feb, wall: 0x555555 };
 
   function setupRenderer() {
     if (view.ready) return true;
@@ -371,10 +372,88 @@
     g.setAttribute('position', new THREE.BufferAttribute(positions, 3));
     return new THREE.Points(g, new THREE.PointsMaterial({ color, size, sizeAttenuation: false }));
   }
-  function segmentsObject(positions, color, opacity) {
+  function segmentsObject(positions, color, opacity, colors) {
     const g = new THREE.BufferGeometry();
     g.setAttribute('position', new THREE.BufferAttribute(positions, 3));
-    return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ color, transparent: opacity < 1, opacity }));
+    if (colors) g.setAttribute('color', new THREE.BufferAttribute(colors, 3));
+    return new THREE.LineSegments(g, new THREE.LineBasicMaterial({ color: colors ? 0xffffff : color,
+      vertexColors: !!colors, transparent: opacity < 1, opacity }));
+  }
+
+  // ---- a domain of any shape --------------------------------------------------------
+
+  // The domain's walls (its faces, as checked by the server): 2-d ring edges as lines,
+  // 3-d triangles as a faint surface with its edges.
+  function domainWalls(layer) {
+    const info = state.domain && state.domain.info;
+    if (!info || info.dimension !== state.set.dimension) return;
+    const w = info.vertices.map((p) => { const q = [0, 0, 0]; toWorld(p, q, 0); return q; });
+    const edges = [], tri = [];
+    for (const f of info.faces) {
+      if (f.length === 2) { edges.push(...w[f[0]], ...w[f[1]]); continue; }
+      tri.push(...w[f[0]], ...w[f[1]], ...w[f[2]]);
+      edges.push(...w[f[0]], ...w[f[1]], ...w[f[1]], ...w[f[2]], ...w[f[2]], ...w[f[0]]);
+    }
+    if (tri.length) layer.add(meshObject(new Float32Array(tri), null, COLORS.wall, 0.12));
+    layer.add(segmentsObject(new Float32Array(edges), COLORS.wall, tri.length ? 0.25 : 1));
+  }
+
+  // The segments and wall pieces of a cell in a domain of any shape: in 2-d every facet
+  // is segments (vertex pairs); in 3-d a wall facet is a loop on the wall (filled), and a
+  // neighbour facet of a cell the walls cut is its outline as segments (of a cell inside,
+  // its convex loop).
+  function shapeCellGeometry(cell, tri, edges, interior = true) {
+    const verts = cell.vertices.map((p) => { const w = [0, 0, 0]; toWorld(p, w, 0); return w; });
+    if (!verts.length) return;
+    const cut = cell.facets.some((f) => f.wall !== undefined);
+    for (const f of cell.facets) {
+      const v = f.vertices;
+      if (state.set.dimension === 2 || (cut && f.wall === undefined)) {
+        if (state.set.dimension === 3 && !interior) continue;
+        for (let i = 0; i + 1 < v.length; i += 2) edges.push(...verts[v[i]], ...verts[v[i + 1]]);
+        continue;
+      }
+      if (f.wall === undefined && !interior) continue;
+      for (let i = 0; i < v.length; ++i) edges.push(...verts[v[i]], ...verts[v[(i + 1) % v.length]]);
+      if (f.wall !== undefined) for (let i = 1; i + 1 < v.length; ++i) tri.push(...verts[v[0]], ...verts[v[i]], ...verts[v[i + 1]]);
+    }
+  }
+
+  // A cell request: GET with the clip box, or POST with the domain file.
+  function cellRequest(path, query) {
+    if (state.domain) {
+      return api(path + '?' + (query ? query + '&' : '') + 'domain=' + state.domain.format,
+        { method: 'POST', body: state.domain.bytes, headers: { 'Content-Type': 'application/octet-stream' } });
+    }
+    const box = clipBox();
+    const q = [query, box ? 'box=' + box.join(',') : ''].filter(Boolean).join('&');
+    return api(path + (q ? '?' + q : ''));
+  }
+
+  const DOMAIN_FORMATS = { off: 'off', obj: 'obj', stl: 'stl', rings: 'rings', geojson: 'geojson', json: 'geojson' };
+  async function chooseDomain(file) {
+    const ext = (file.name.split('.').pop() || '').toLowerCase();
+    const format = DOMAIN_FORMATS[ext] || 'rings';
+    $('domain-info').className = 'muted';
+    $('domain-info').textContent = 'checking ' + file.name + '…';
+    try {
+      const bytes = await file.arrayBuffer();
+      const info = await apiJson('/v1/domains:check?domain=' + format,
+        { method: 'POST', body: bytes, headers: { 'Content-Type': 'application/octet-stream' } });
+      state.domain = { format, bytes, info, name: file.name };
+      $('domain-info').textContent = info.description.replace(/ from .*$/, '') + ', volume ' + num(info.volume);
+      $('domain-info').title = file.name;
+      $('box').disabled = true;
+    } catch (e) {
+      state.domain = null;
+      $('domain-info').className = 'error';
+      $('domain-info').textContent = file.name + ': ' + e.message;
+      if (state.set) $('box').disabled = !!state.set.periodic_box;
+    }
+    if (state.set && state.coords) {
+      redraw();
+      if (state.seed !== null) selectSeed(state.seed);
+    }
   }
 
   function drawPoints() {
@@ -555,7 +634,7 @@
     setupProjection();
     computeFrame();
     $('box').value = info.periodic_box ? info.periodic_box.join(',') : defaultBox().map(boxText).join(',');
-    $('box').disabled = !!info.periodic_box;
+    $('box').disabled = !!info.periodic_box || !!state.domain;
     $('box').title = info.periodic_box ? 'a periodic set\'s cells live on its torus' : 'lo_1..lo_d, hi_1..hi_d';
     if (!setupRenderer()) return;
     setupCamera();
@@ -657,16 +736,12 @@
         info.count + '. Pick a seed to see its cell.', true);
       return;
     }
-    let query = '/cells?shard=0&shards=1';
-    try {
-      const box = clipBox();
-      if (box) query += '&box=' + box.join(',');
-    } catch (e) { status('view-status', e.message, true); return; }
+    try { if (!state.domain) clipBox(); } catch (e) { status('view-status', e.message, true); return; }
     status('view-status', 'streaming the cells…');
     progress('view-progress', 0);
     const cells = [];
     try {
-      const response = await api(setPath(info.id) + query);
+      const response = await cellRequest(setPath(info.id) + '/cells', 'shard=0&shards=1');
       await readLines(response, (cell) => {
         cells.push(cell);
         if (cells.length % 500 === 0 && token === state.loadToken) progress('view-progress', cells.length / info.count);
@@ -682,18 +757,29 @@
     if (token !== state.loadToken || state.mode !== 'cells') return;
     const volumes = cells.map((c) => c.volume).filter((v) => v !== null && Number.isFinite(v));
     const lo = Math.min(...volumes), hi = Math.max(...volumes);
-    const tri = [], colors = [], edges = [];
+    const tri = [], colors = [], edges = [], edgeColors = [];
     for (const cell of cells) {
       if (cell.volume === null || !cell.vertices.length) continue;
-      const before = tri.length;
-      cellGeometry(cell, d === 3 ? 0.6 : 1, tri, edges);  // 3-d: pulled apart, so one sees between
+      const before = tri.length, edgesBefore = edges.length;
+      // In a domain, 3-d: the cells' pieces of the walls (what one sees from outside).
+      if (state.domain) shapeCellGeometry(cell, tri, edges, false);
+      else cellGeometry(cell, d === 3 ? 0.6 : 1, tri, edges);  // 3-d: pulled apart, so one sees between
       const rgb = ramp(hi > lo ? (cell.volume - lo) / (hi - lo) : 0.5);
       for (let i = before; i < tri.length; i += 3) colors.push(...rgb);
+      for (let i = edgesBefore; i < edges.length; i += 3) edgeColors.push(...rgb);
     }
     view.layers.overlay.add(meshObject(new Float32Array(tri), new Float32Array(colors), 0, d === 3 ? 0.9 : 0.85));
-    view.layers.overlay.add(segmentsObject(new Float32Array(edges), 0x333333, d === 3 ? 0.2 : 0.5));
+    if (state.domain) {
+      // Cells in a domain: outlines coloured as their cells (2-d), dark on the walls (3-d).
+      view.layers.overlay.add(d === 2 ? segmentsObject(new Float32Array(edges), 0, 1, new Float32Array(edgeColors))
+        : segmentsObject(new Float32Array(edges), 0x333333, 0.25));
+      if (d === 2) domainWalls(view.layers.overlay);
+    } else {
+      view.layers.overlay.add(segmentsObject(new Float32Array(edges), 0x333333, d === 3 ? 0.2 : 0.5));
+    }
     $('overlay').replaceChildren(el('div', { text: 'cell volume ' + num(lo) + ' … ' + num(hi) }), el('div', { class: 'legend' }));
-    status('view-status', cells.length + ' cells, coloured by volume (sum ' + num(volumes.reduce((s, v) => s + v, 0)) + ').');
+    status('view-status', cells.length + ' cells' + (state.domain ? ' in the domain ' + state.domain.name : '') +
+      ', coloured by volume (sum ' + num(volumes.reduce((s, v) => s + v, 0)) + ').');
     render();
   }
 
@@ -713,16 +799,13 @@
     $('seed-details').className = 'muted';
     $('seed-details').textContent = 'computing seed ' + seed + '…';
     const base = setPath(info.id) + '/seeds/' + seed;
-    let cellQuery = '';
     const answer = { seed };
-    try {
-      const box = clipBox();
-      if (box) cellQuery = '?box=' + box.join(',');
-    } catch (e) { answer.cellError = e.message; }
+    try { if (!state.domain) clipBox(); } catch (e) { answer.cellError = e.message; }
     const settle = (p) => p.then((v) => ({ v }), (e) => ({ e }));
     const [star, neighbors, cell] = await Promise.all([
       settle(apiJson(base + '/star')), settle(apiJson(base + '/neighbors')),
-      answer.cellError ? Promise.resolve({ e: new Error(answer.cellError) }) : settle(apiJson(base + '/cell' + cellQuery))]);
+      answer.cellError ? Promise.resolve({ e: new Error(answer.cellError) })
+        : settle(cellRequest(base + '/cell').then((r) => r.json()))]);
     if (token !== state.loadToken || state.seed !== seed) return;
     answer.star = star.v; answer.starError = star.e && star.e.message;
     answer.neighbors = neighbors.v; answer.neighborsError = neighbors.e && neighbors.e.message;
@@ -764,9 +847,11 @@
       layer.add(pointsObject(positions, COLORS.neighbor, 6));
     }
     const d = state.set.dimension;
+    if (state.domain && d <= 3) domainWalls(layer);
     if (answer.cell && answer.cell.vertices.length && d <= 3) {
       const tri = [], edges = [];
-      cellGeometry(answer.cell, 1, tri, edges);
+      if (state.domain) shapeCellGeometry(answer.cell, tri, edges);
+      else cellGeometry(answer.cell, 1, tri, edges);
       layer.add(meshObject(new Float32Array(tri), null, COLORS.cell, 0.25));
       layer.add(segmentsObject(new Float32Array(edges), COLORS.cell, 1));
       if (state.mode === 'points') {
@@ -779,7 +864,7 @@
       layer.add(pointsObject(positions, COLORS.cell, 5));
       $('overlay').textContent = 'A ' + d + '-d cell is shown by its vertices, projected; its facets are listed.';
     }
-    if (!state.set.periodic_box) {
+    if (!state.set.periodic_box && !state.domain) {
       try { const o = boxOutline(clipBox(), COLORS.box); if (o) layer.add(o); } catch (e) { /* no box */ }
     }
     layer.add(pointsObject(seedWorld, COLORS.seed, 9));
@@ -881,6 +966,19 @@
   });
   $('box').addEventListener('change', () => {
     if (state.mode === 'cells') redraw();
+    if (state.seed !== null) selectSeed(state.seed);
+  });
+  $('domain-file').addEventListener('change', () => {
+    const file = $('domain-file').files[0];
+    if (file) chooseDomain(file);
+  });
+  $('domain-clear').addEventListener('click', () => {
+    state.domain = null;
+    $('domain-file').value = '';
+    $('domain-info').textContent = '';
+    if (!state.set || !state.coords) return;
+    $('box').disabled = !!state.set.periodic_box;
+    redraw();
     if (state.seed !== null) selectSeed(state.seed);
   });
 

@@ -282,6 +282,59 @@ def test_upload_click_a_seed_and_compare_with_rest(server, browser, tmp_path, d)
     assert not console_errors(browser), console_errors(browser)
 
 
+@pytest.mark.parametrize("d", [2, 3])
+def test_cells_in_a_domain_of_any_shape(server, browser, tmp_path, d):
+    # A domain file chosen on the page: its walls drawn, every cell clipped to it (the
+    # areas sum to the domain's), one seed's cell equal to REST's, a bad file named.
+    import domain_files as df
+    if d == 2:
+        rings, area, _ = df.three_holes()
+        domain = tmp_path / "holes.geojson"
+        df.write_geojson(domain, rings, "Polygon")
+        pts = np.random.default_rng(81).random((400, 2)) * 10
+        fmt = "geojson"
+    else:
+        v, f = df.torus(32, 12)
+        domain = tmp_path / "torus.off"
+        df.write_off(domain, v, f)
+        area = df.mesh_volume(v, f)
+        pts = df.inside_torus(600, 82)
+        fmt = "off"
+    status, ps = http_json("POST", f"{server.http}/v1/pointsets", {"points": pts.tolist(), "display_name": "shape"})
+    pid = ps["id"]
+    open_page(browser, f"{server.http}/#set={pid}")
+    first_frame(browser)
+    browser.find_element(By.ID, "domain-file").send_keys(str(domain))
+    wait_for(browser, lambda b: "volume" in text(b, "domain-info"), "the domain's description")
+    assert ("polygon of 4 rings" if d == 2 else "solid of") in text(browser, "domain-info")
+    assert not browser.find_element(By.ID, "box").is_enabled()
+    browser.find_element(By.ID, "mode-cells").click()
+    wait_for(browser, lambda b: "in the domain" in text(b, "view-status"), "the cells in the domain")
+    m = re.search(r"(\d+) cells in the domain \S+, coloured by volume \(sum ([^)]+)\)", text(browser, "view-status"))
+    assert int(m.group(1)) == len(pts)
+    assert abs(float(m.group(2)) - area) < 1e-5 * area
+    shot(browser, f"domain-cells-{d}d")
+    seed = 7
+    body = domain.read_bytes()
+    status, cell = http_json("POST", f"{server.http}/v1/pointsets/{pid}/seeds/{seed}/cell?domain={fmt}", body)
+    assert status == 200
+    browser.find_element(By.ID, "seed").clear()
+    browser.find_element(By.ID, "seed").send_keys(f"{seed}\n")
+    seed_volume(browser, seed, cell["volume"])
+    walls = [f for f in cell["facets"] if "wall" in f]
+    rows = browser.find_elements(By.CSS_SELECTOR, "#facet-table tbody tr")
+    assert len(rows) == len(cell["facets"]) and sum("wall" in r.text for r in rows) == len(walls)
+    shot(browser, f"domain-seed-{d}d")
+    assert not console_errors(browser), console_errors(browser)
+    # A domain with a fault: named beside the input; the clip box is back in use.
+    bad = tmp_path / "open.off"
+    bad.write_text("OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n")
+    browser.find_element(By.ID, "domain-file").send_keys(str(bad))
+    wait_for(browser, lambda b: "open boundary" in text(b, "domain-info"), "the domain's fault")
+    assert browser.find_element(By.ID, "box").is_enabled()
+    browser.find_element(By.ID, "domain-clear").click()
+
+
 def test_projection_of_a_5d_set(server, browser):
     pts = uniform(300, 5, 55)
     status, ps = http_json("POST", f"{server.http}/v1/pointsets", {"points": pts.tolist(), "display_name": "five"})

@@ -598,7 +598,11 @@ class Triangulation {
         auto box_domain = ShapeClipper::box(points_, *shape);
         ClippedCellBuilder builder(*tree_, box_domain.value());
         st = builder.cell(seed, c);
-        if (st.is_ok()) ShapeClipper(points_, *shape).clip(seed, c);
+        if (st.is_ok()) {
+          ShapeClipper clipper(points_, *shape);
+          clipper.set_geometry(true);
+          clipper.clip(seed, c);
+        }
       }
       if (!st.is_ok()) raise(st);
       return cell_dict(c);

@@ -129,7 +129,8 @@ struct CellsOptions {
   StarOptions star;  // star.cancel also stops the run
   // A domain of any shape (shape_domain.hpp): each cell is first clipped to `domain`,
   // which must then be ShapeClipper::box(points, *shape), and intersected with the
-  // shape (measures only). Unweighted points only. nullptr: none.
+  // shape (with ShapeClipper's geometry unless measures_only). Unweighted points only.
+  // nullptr: none.
   const ShapeDomain* shape = nullptr;
 };
 

@@ -24,6 +24,7 @@
 // Thread safety: immutable after construction; share freely between threads.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -118,7 +119,8 @@ class ShapeDomain {
 // centroid when the volume is 0), facets: neighbours ascending (area of the bisector
 // facet inside the domain, positive; or any facet of a cell that meets no face, zero
 // areas kept as today), then walls ascending (neighbor = -1 - face, the area of the face
-// inside the cell, its outward unit normal). No vertices (measures only).
+// inside the cell, its outward unit normal). No vertices (measures only) unless
+// set_geometry(true).
 //
 // Ownership: borrows the tree and the domain. Thread safety: one clipper per thread.
 class ShapeClipper {
@@ -139,13 +141,21 @@ class ShapeClipper {
 
   // Cells that met at least one face (for benchmarks and tests).
   std::uint64_t cut_cells() const { return cut_cells_; }
+  // With geometry (for drawing; off by default), a cell the domain cuts comes with
+  // vertices: each wall facet's piece of its face (3-d: a loop, counter-clockwise from
+  // outside; 2-d: its two ends) and each neighbour facet's outline inside the domain
+  // as segments (vertex pairs), in double precision; a cell inside keeps its convex
+  // geometry. Measures do not depend on it.
+  void set_geometry(bool geometry) { geometry_ = geometry; }
 
  private:
+  std::vector<std::pair<std::array<double, 3>, std::array<double, 3>>> neighbour_outline(std::size_t facet, int w);
   struct Scratch;
   const PointSet& points_;
   const ShapeDomain& shape_;
   std::unique_ptr<Scratch> scratch_;
   std::uint64_t cut_cells_ = 0;
+  bool geometry_ = false;
 };
 
 }  // namespace spokemesh

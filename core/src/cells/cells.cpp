@@ -306,7 +306,10 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
     } else {
       w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
       w.builder->set_measures_only(options.measures_only && options.shape == nullptr);
-      if (options.shape != nullptr) w.shape = std::make_unique<ShapeClipper>(points, *options.shape);
+      if (options.shape != nullptr) {
+        w.shape = std::make_unique<ShapeClipper>(points, *options.shape);
+        w.shape->set_geometry(!options.measures_only);
+      }
     }
   }
   auto stops = [](const Status& st) { return st.code() == Code::kCancelled || st.code() == Code::kDeadlineExceeded; };

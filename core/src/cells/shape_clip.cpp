@@ -127,12 +127,16 @@ void measure_polygon(const std::vector<V3>& poly, double& area, V3& moment) {
   }
 }
 
-// 2-d: length of the part of segment ab on the kept side of every plane.
-double segment_length(const V3& a, const V3& b, const Plane* planes, std::size_t count) {
-  double t0 = 0, t1 = 1;
+// The parameters [t0, t1] of the part of segment ab on the kept side of every plane
+// (skipping plane `skip`); false when none.
+bool segment_range(const V3& a, const V3& b, const Plane* planes, std::size_t count, double& t0, double& t1,
+                   std::size_t skip = SIZE_MAX) {
+  t0 = 0;
+  t1 = 1;
   for (std::size_t k = 0; k < count && t0 <= t1; ++k) {
+    if (k == skip) continue;
     const double sa = dot(planes[k].n, a) - planes[k].c, sb = dot(planes[k].n, b) - planes[k].c;
-    if (sa > 0 && sb > 0) return 0;
+    if (sa > 0 && sb > 0) return false;
     if (sa <= 0 && sb <= 0) continue;
     const double t = sa / (sa - sb);
     if (sa > 0)
@@ -140,9 +144,17 @@ double segment_length(const V3& a, const V3& b, const Plane* planes, std::size_t
     else
       t1 = std::min(t1, t);
   }
-  if (t1 <= t0) return 0;
+  return t1 > t0;
+}
+
+// 2-d: length of the part of segment ab on the kept side of every plane.
+double segment_length(const V3& a, const V3& b, const Plane* planes, std::size_t count) {
+  double t0, t1;
+  if (!segment_range(a, b, planes, count, t0, t1)) return 0;
   return std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
 }
+
+V3 lerp(const V3& a, const V3& b, double t) { return add(a, scale(sub(b, a), t)); }
 
 }  // namespace
 
@@ -159,8 +171,11 @@ struct ShapeClipper::Scratch {
   struct Wall {
     std::uint32_t face;
     double area;
+    std::vector<V3> outline;  // with geometry: its loop (3-d) or its two ends (2-d)
   };
   std::vector<Wall> walls;
+  std::vector<std::pair<double, int>> crossings;
+  double origin[3] = {0, 0, 0};  // o, for neighbour_outline
 };
 
 ShapeClipper::ShapeClipper(const PointSet& points, const ShapeDomain& shape)
@@ -251,6 +266,7 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
     cell.centroid.clear();
     cell.facets.clear();
     keep_measures_only(cell);
+    cell.vertices.clear();
   };
   cell.clipped = true;
   cell.bounded = true;
@@ -264,7 +280,7 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
     // No face near: the cell lies wholly outside (0) or inside (1) the domain.
     if (winding_hint == 0) {
       finish_empty();
-    } else {
+    } else if (!geometry_) {
       keep_measures_only(cell);
     }
     return;
@@ -284,6 +300,7 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   }
   // Relative coordinates (to o): the cell, its facets and planes.
   const V3 origin{o[0], o[1], o[2]};
+  std::copy(o, o + 3, s.origin);
   auto rel = [&](const double* x) { return V3{x[0] - o[0], x[1] - o[1], d > 2 ? x[2] - o[2] : 0.0}; };
   const std::size_t nfacets = cell.facets.size();
   s.planes.resize(nfacets);
@@ -351,12 +368,13 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
       if (s.tmp.size() < 3) continue;
       const V3 n{ix.normals[3 * f], ix.normals[3 * f + 1], ix.normals[3 * f + 2]};
       wall_area = loop_area(s.tmp, n);
+      if (geometry_) s.cut = s.tmp;
     } else {
-      wall_area = segment_length(rel(a), rel(b), s.planes.data(), nfacets);
-      if (!(wall_area > 0)) {
-        // Touching at a point at most; nothing to add.
-        continue;
-      }
+      double t0, t1;
+      if (!segment_range(rel(a), rel(b), s.planes.data(), nfacets, t0, t1)) continue;  // a point at most
+      wall_area = std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
+      if (!(wall_area > 0)) continue;
+      if (geometry_) s.cut = {lerp(rel(a), rel(b), t0), lerp(rel(a), rel(b), t1)};
     }
     // On a neighbour facet's bisector (every vertex equidistant, exactly)? Then the
     // face is a wall of this cell only when the domain lies on the cell's side.
@@ -376,12 +394,12 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
       double agree = 0;
       for (int k = 0; k < d; ++k) agree += nt[k] * nf[k];
       if (agree > 0) {
-        s.walls.push_back({f, wall_area});
+        s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
         s.facet_area[on_facet] -= wall_area;  // that part of the facet is wall, not shared
       }
       continue;
     }
-    s.walls.push_back({f, wall_area});
+    s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
     // The shadow of the face from o, and its sign.
     const int side = d == 3 ? orient3d_exact(a, b, c, o) : -orient2d_exact(a, b, o);
     if (side == 0) continue;  // o on the face's line or plane: the shadow is flat
@@ -438,19 +456,37 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   }
   if (cut) ++cut_cells_;
   // Assemble: neighbour facets with area inside the domain, then the walls by face.
+  if (!cut && w == 1) {
+    // Inside, meeting no face: the convex cell itself (its geometry too, when asked).
+    std::vector<VoronoiFacet> kept;
+    for (VoronoiFacet& f : cell.facets) {
+      if (f.neighbor >= 0) kept.push_back(std::move(f));
+    }
+    cell.facets = std::move(kept);
+    if (!geometry_) keep_measures_only(cell);
+    return;
+  }
+  std::vector<double> vertices;
+  auto add_vertex = [&](const V3& x) {
+    for (int c = 0; c < d; ++c) vertices.push_back(origin[c] + x[c]);
+    return static_cast<std::uint32_t>(vertices.size() / d - 1);
+  };
   std::vector<VoronoiFacet> facets;
   for (std::size_t k = 0; k < nfacets; ++k) {
     VoronoiFacet& f = cell.facets[k];
     if (f.neighbor < 0) continue;  // the box's walls lie outside the domain
     const double area = s.facet_area[k];
-    if (cut || w != 1) {
-      if (!(area > 1e-12 * s.facet_full[k])) continue;
-    }
+    if (!(area > 1e-12 * s.facet_full[k])) continue;
     VoronoiFacet out;
     out.neighbor = f.neighbor;
-    out.area = cut || w != 1 ? area : s.facet_full[k];
-    if (!cut && w == 1) out.area = f.area;
+    out.area = area;
     out.normal = f.normal;
+    if (geometry_) {
+      for (const auto& [from, to] : neighbour_outline(k, w)) {
+        out.vertices.push_back(add_vertex(from));
+        out.vertices.push_back(add_vertex(to));
+      }
+    }
     facets.push_back(std::move(out));
   }
   std::sort(s.walls.begin(), s.walls.end(), [](const auto& x, const auto& y) { return x.face < y.face; });
@@ -461,18 +497,12 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
     out.area = wall.area;
     out.normal.assign(&ix.normals[static_cast<std::size_t>(wall.face) * d],
                       &ix.normals[static_cast<std::size_t>(wall.face) * d] + d);
+    for (const V3& x : wall.outline) out.vertices.push_back(add_vertex(x));
     facets.push_back(std::move(out));
   }
   cell.facets = std::move(facets);
-  if (!cut && w == 1) {
-    // Inside, meeting no face: the convex cell's own measures.
-    cell.vertices.clear();
-    cell.vertex_simplices.clear();
-    for (VoronoiFacet& f : cell.facets) f.vertices.clear();
-    return;
-  }
-  cell.vertices.clear();
   cell.vertex_simplices.clear();
+  cell.vertices = std::move(vertices);
   if (volume > 0) {
     cell.volume = volume;
     cell.centroid.assign(d, 0);
@@ -481,7 +511,89 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
     cell.volume = 0;
     cell.centroid.clear();
     cell.facets.clear();
+    cell.vertices.clear();
   }
+}
+
+std::vector<std::pair<std::array<double, 3>, std::array<double, 3>>> ShapeClipper::neighbour_outline(std::size_t k, int w) {
+  // For drawing only (double precision): the pieces of facet k inside the domain's
+  // closure, as segments: its edges' parts inside, and the faces' traces across it.
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
+  const double* o = s.origin;
+  auto rel = [&](const double* x) { return V3{x[0] - o[0], x[1] - o[1], d > 2 ? x[2] - o[2] : 0.0}; };
+  std::vector<std::pair<V3, V3>> out;
+  // Signed crossings of segment p -> q with the faces that meet the cell: (t, change
+  // of the winding number).
+  auto crossings = [&](const V3& p, const V3& q) {
+    s.crossings.clear();
+    for (std::uint32_t f : s.candidates) {
+      const std::uint32_t* fv = ix.face(f);
+      const V3 A = rel(ix.vertex(fv[0])), B = rel(ix.vertex(fv[1]));
+      const double* nn = &ix.normals[static_cast<std::size_t>(f) * d];
+      const V3 N{nn[0], nn[1], d > 2 ? nn[2] : 0.0};
+      const double dp = dot(N, sub(p, A)), dq = dot(N, sub(q, A));
+      if ((dp <= 0 && dq <= 0) || (dp >= 0 && dq >= 0)) continue;
+      const double t = dp / (dp - dq);
+      const V3 x = lerp(p, q, t);
+      bool inside;
+      if (d == 2) {
+        const V3 e = sub(B, A);
+        const double u = dot(sub(x, A), e) / dot(e, e);
+        inside = u >= 0 && u <= 1;
+      } else {
+        const V3 C = rel(ix.vertex(fv[2]));
+        const double s1 = dot(N, cross(sub(B, A), sub(x, A))), s2 = dot(N, cross(sub(C, B), sub(x, B))),
+                     s3 = dot(N, cross(sub(A, C), sub(x, C)));
+        inside = s1 >= 0 && s2 >= 0 && s3 >= 0;
+      }
+      if (inside) s.crossings.emplace_back(t, dp < 0 ? -1 : 1);  // out through it: -1
+    }
+    std::sort(s.crossings.begin(), s.crossings.end());
+  };
+  auto winding_at = [&](const V3& x) {
+    crossings(V3{0, 0, 0}, x);
+    int wx = w;
+    for (const auto& c : s.crossings) wx += c.second;
+    return wx;
+  };
+  auto inside_parts = [&](const V3& p, const V3& q) {
+    int wx = winding_at(p);
+    crossings(p, q);
+    double from = 0;
+    for (const auto& [t, change] : s.crossings) {
+      if (wx > 0 && t > from) out.emplace_back(lerp(p, q, from), lerp(p, q, t));
+      wx += change;
+      from = t;
+    }
+    if (wx > 0 && from < 1) out.emplace_back(lerp(p, q, from), q);
+  };
+  const std::vector<V3>& loop = s.facet[k];
+  if (d == 2) {
+    if (loop.size() == 2) inside_parts(loop[0], loop[1]);
+    return out;
+  }
+  for (std::size_t i = 0; i < loop.size(); ++i) inside_parts(loop[i], loop[(i + 1) % loop.size()]);
+  // Faces' traces on the facet's plane, within the facet.
+  const Plane& plane = s.planes[k];
+  for (std::uint32_t f : s.candidates) {
+    const std::uint32_t* fv = ix.face(f);
+    const V3 t[3] = {rel(ix.vertex(fv[0])), rel(ix.vertex(fv[1])), rel(ix.vertex(fv[2]))};
+    double h[3];
+    for (int j = 0; j < 3; ++j) h[j] = dot(plane.n, t[j]) - plane.c;
+    std::vector<V3> ends;
+    for (int j = 0; j < 3; ++j) {
+      const int m = (j + 1) % 3;
+      if (h[j] == 0) ends.push_back(t[j]);
+      if ((h[j] < 0 && h[m] > 0) || (h[j] > 0 && h[m] < 0)) ends.push_back(lerp(t[j], t[m], h[j] / (h[j] - h[m])));
+    }
+    if (ends.size() != 2) continue;  // misses the plane, touches it at a point, or lies in it
+    double t0, t1;
+    if (!segment_range(ends[0], ends[1], s.planes.data(), s.planes.size(), t0, t1, k)) continue;
+    out.emplace_back(lerp(ends[0], ends[1], t0), lerp(ends[0], ends[1], t1));
+  }
+  return out;
 }
 
 }  // namespace spokemesh
