@@ -596,8 +596,8 @@ Result<std::shared_ptr<const ShapeDomain>> Engine::parse_shape(const std::string
     std::lock_guard<std::mutex> lock(shapes_mutex_);
     for (std::size_t i = 0; i < shapes_.size(); ++i) {
       if (shapes_[i].key != key) continue;
-      std::rotate(shapes_.begin() + static_cast<std::ptrdiff_t>(i), shapes_.begin() + static_cast<std::ptrdiff_t>(i) + 1,
-                  shapes_.end());
+      std::rotate(shapes_.begin() + static_cast<std::ptrdiff_t>(i),
+                  shapes_.begin() + static_cast<std::ptrdiff_t>(i) + 1, shapes_.end());
       return shapes_.back().shape;
     }
   }

@@ -318,7 +318,8 @@ HttpResponse HttpApi::route(Context& c) {
   }
   if (p.size() == 2 && p[0] == "v1" && p[1] == "domains:check") {
     if (method != http::verb::post) {
-      return c.fail({Code::kUnimplemented, std::string(req.method_string()) + " is not supported on /v1/domains:check"});
+      return c.fail(
+          {Code::kUnimplemented, std::string(req.method_string()) + " is not supported on /v1/domains:check"});
     }
     c.record.method = "CheckDomain";
     return check_domain(c);

@@ -331,6 +331,7 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
       ClippedCellBuilder builder(*loaded.tree, box.value(), options);
       if (Status s = builder.cell(star.seed, cell); !s.is_ok()) return report(s);
       ShapeClipper clipper(loaded.points, shape.value());
+      clipper.set_geometry(true);  // wall pieces and outlines, as the service's cells carry
       clipper.clip(star.seed, cell);
     } else if (domain.value().has_value()) {
       // The builder `cells` uses, so that both print the same cell.

@@ -224,7 +224,7 @@ def test_cell_domain_errors_over_both_transports(server):
         (pb.Domain(box=[0, 0, 0.5, 0.5]), "lies outside the domain"),
         (pb.Domain(halfspaces=[1, 0]), "domain.halfspaces"),
         (pb.Domain(halfspaces=[0, 0, 1]), "zero normal"),
-        (pb.Domain(box=[0, 0, 1, 1], bounding_box=True), "one of box, halfspaces and bounding_box"),
+        (pb.Domain(box=[0, 0, 1, 1], bounding_box=True), "one of box, halfspaces, bounding_box and shape"),
     ]
     seed = int(np.argmax(points.max(axis=1)))  # beyond [0, 0.5]^2
     for domain, message in bad:

@@ -314,6 +314,8 @@ def test_cells_in_a_domain_of_any_shape(server, browser, tmp_path, d):
     assert int(m.group(1)) == len(pts)
     assert abs(float(m.group(2)) - area) < 1e-5 * area
     shot(browser, f"domain-cells-{d}d")
+    # The drawing alone (docs/images/domain-cells-*d.png are these).
+    browser.find_element(By.ID, "canvas-holder").screenshot(str(OUT / f"domain-cells-{d}d-view.png"))
     seed = 7
     body = domain.read_bytes()
     status, cell = http_json("POST", f"{server.http}/v1/pointsets/{pid}/seeds/{seed}/cell?domain={fmt}", body)

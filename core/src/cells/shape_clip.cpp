@@ -515,7 +515,8 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   }
 }
 
-std::vector<std::pair<std::array<double, 3>, std::array<double, 3>>> ShapeClipper::neighbour_outline(std::size_t k, int w) {
+std::vector<std::pair<std::array<double, 3>, std::array<double, 3>>> ShapeClipper::neighbour_outline(std::size_t k,
+                                                                                                     int w) {
   // For drawing only (double precision): the pieces of facet k inside the domain's
   // closure, as segments: its edges' parts inside, and the faces' traces across it.
   Scratch& s = *scratch_;
