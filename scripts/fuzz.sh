@@ -8,7 +8,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-30}"
-targets=(fuzz_points_text fuzz_points_npy fuzz_upload_json fuzz_grpc_requests)
+targets=(fuzz_points_text fuzz_points_npy fuzz_upload_json fuzz_domains fuzz_grpc_requests)
 sanitize="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined -fno-omit-frame-pointer"
 cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
   -DCMAKE_CXX_FLAGS="$sanitize" -DSPOKEMESH_BUILD_SERVICE=ON -DSPOKEMESH_BUILD_CLIENTS=OFF \

@@ -78,13 +78,16 @@ Status geojson_rings(const nlohmann::json& geometry, const std::string& at, std:
 
 Result<ShapeDomain> parse_geojson_domain(const std::string& text, const std::string& name) {
   nlohmann::json doc;
+  std::vector<std::vector<double>> rings;
   try {
     doc = nlohmann::json::parse(text);
+    if (Status s = geojson_rings(doc, name, rings); !s.is_ok()) return s;
   } catch (const nlohmann::json::parse_error& e) {
     return invalid_argument(name + ": not JSON (byte " + std::to_string(e.byte) + ")");
+  } catch (const nlohmann::json::exception& e) {
+    // A number beyond double's range, and the like (found by tests/fuzz/fuzz_domains).
+    return invalid_argument(name + ": " + std::string(e.what()).substr(0, 200));
   }
-  std::vector<std::vector<double>> rings;
-  if (Status s = geojson_rings(doc, name, rings); !s.is_ok()) return s;
   return ShapeDomain::polygon(std::move(rings), name);
 }
 

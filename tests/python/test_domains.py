@@ -213,3 +213,10 @@ def test_service_refuses_bad_domains_by_name(server, files):
     assert status == 400 and "2-d" in body["error"]["message"]
     status, body = http_json("GET", f"{server.http}/v1/pointsets/{ps.id}/seeds/0/cell?domain=off")
     assert status == 400 and "POST" in body["error"]["message"]
+    # A number beyond double's range in GeoJSON (once a crash, found by fuzz_domains).
+    status, body = http_json("POST", f"{server.http}/v1/domains:check?domain=geojson",
+                             b'{"type": "Polygon", "coordinates": [[[0, 0], [609E609, 0], [0, 1]]]}')
+    assert status == 400 and "number overflow" in body["error"]["message"]
+    status, checked = http_json("POST", f"{server.http}/v1/domains:check?domain=rings", holes)
+    assert status == 200 and checked["components"] == 4 and checked["dimension"] == 2
+    assert abs(checked["volume"] - df.three_holes()[1]) < 1e-12 * checked["volume"]

@@ -485,6 +485,24 @@ void orient_by_nesting(ShapeDomain::Index& index, const std::vector<std::uint32_
   if (flipped) index.build();
 }
 
+// Bounded work: the pairs of faces sharing a grid cell that validation would test.
+// Faces crowded into a small part of the domain's box (a tiny detailed part inside a
+// large coarse one, or one stray far vertex) put many faces in one cell; beyond the
+// budget the domain is refused rather than validated for minutes.
+Status check_pair_budget(const ShapeDomain::Index& ix, const std::string& where) {
+  const std::size_t cells = ix.cell_start.size() - 1;
+  std::uint64_t pairs = 0;
+  for (std::size_t id = 0; id < cells; ++id) {
+    const std::uint64_t k = ix.cell_start[id + 1] - ix.cell_start[id];
+    pairs += k * (k - 1) / 2;
+  }
+  const std::uint64_t budget = 256 * static_cast<std::uint64_t>(ix.face_count()) + 50'000'000;
+  if (pairs <= budget) return Status::ok();
+  return invalid_argument(where + ": its faces crowd into a small part of its bounding box (" + std::to_string(pairs) +
+                          " pairs of nearby faces to check, more than " + std::to_string(budget) +
+                          "); a stray far vertex, or a small detailed part in a large coarse one, does this");
+}
+
 }  // namespace
 
 Result<ShapeDomain> ShapeDomain::polygon(std::vector<std::vector<double>> rings, const std::string& source) {
@@ -535,6 +553,7 @@ Result<ShapeDomain> ShapeDomain::polygon(std::vector<std::vector<double>> rings,
   }
   ix.components = rings.size();
   ix.build();
+  if (Status st = check_pair_budget(ix, where); !st.is_ok()) return st;
   // Edges that meet other than at their shared vertex: crossings, touching rings, spikes.
   std::vector<std::size_t> ring_start(rings.size() + 1, 0);
   for (std::size_t f = 0; f < ix.face_count(); ++f) ring_start[ix.component_of_face[f] + 1]++;
@@ -712,6 +731,7 @@ Result<ShapeDomain> ShapeDomain::solid(std::vector<double> vertices, std::vector
   }
   ix.components = first_vertex.size();
   ix.build();
+  if (Status st = check_pair_budget(ix, where); !st.is_ok()) return st;
   // Faces that meet other than along their shared edge or at their shared vertex.
   const std::size_t cells = static_cast<std::size_t>(ix.cells[0]) * ix.cells[1] * ix.cells[2];
   for (std::size_t id = 0; id < cells; ++id) {
