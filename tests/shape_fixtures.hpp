@@ -108,6 +108,19 @@ struct Mesh {
       quad(bottom[i], bottom[j], top[j], top[i]);
     }
   }
+  // A cube [lo, hi] (n x n squares a side) with a spherical cavity, the cavity given
+  // outward too: nesting turns it inward.
+  static Mesh cube_with_cavity(const double lo[3], const double hi[3], int n, const double centre[3], double r,
+                               int rings, int segments) {
+    Mesh m;
+    m.box(lo, hi, n);
+    Mesh cavity;
+    cavity.sphere(centre, r, rings, segments);
+    const std::uint32_t base = static_cast<std::uint32_t>(m.vertices.size() / 3);
+    m.vertices.insert(m.vertices.end(), cavity.vertices.begin(), cavity.vertices.end());
+    for (std::uint32_t v : cavity.triangles) m.triangles.push_back(base + v);
+    return m;
+  }
   ShapeDomain solid(const std::string& name = "mesh") const {
     auto s = ShapeDomain::solid(vertices, triangles, name);
     if (!s.is_ok()) throw std::runtime_error(s.status().message());

@@ -87,16 +87,8 @@ void check_tiling(const PointSet& ps, const ShapeDomain& shape, const std::vecto
 }
 
 TEST(ShapeCells, CubeWithSphericalCavity) {
-  Mesh m;
   const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1}, centre[3] = {0.5, 0.5, 0.5};
-  m.box(lo, hi, 2);
-  Mesh cavity;
-  cavity.sphere(centre, 0.3, 12, 24);
-  // The cavity, given outward too: nesting turns it inward.
-  const std::uint32_t base = static_cast<std::uint32_t>(m.vertices.size() / 3);
-  m.vertices.insert(m.vertices.end(), cavity.vertices.begin(), cavity.vertices.end());
-  for (std::uint32_t v : cavity.triangles) m.triangles.push_back(base + v);
-  const ShapeDomain shape = m.solid("cube-cavity");
+  const ShapeDomain shape = Mesh::cube_with_cavity(lo, hi, 2, centre, 0.3, 12, 24).solid("cube-cavity");
   EXPECT_EQ(shape.component_count(), 2u);
   EXPECT_LT(shape.volume(), 1.0);
   EXPECT_GT(shape.volume(), 1.0 - 4.0 / 3.0 * M_PI * 0.027);

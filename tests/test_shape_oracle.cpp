@@ -222,15 +222,8 @@ void against_cgal(const PointSet& ps, const ShapeDomain& shape, const PolygonWit
 }
 
 TEST(ShapeOracle, CubeWithCavityAgainstCorefinement) {
-  Mesh m;
   const double lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1}, centre[3] = {0.45, 0.5, 0.55};
-  m.box(lo, hi, 2);
-  Mesh cavity;
-  cavity.sphere(centre, 0.3, 8, 12);
-  const std::uint32_t base = static_cast<std::uint32_t>(m.vertices.size() / 3);
-  m.vertices.insert(m.vertices.end(), cavity.vertices.begin(), cavity.vertices.end());
-  for (std::uint32_t v : cavity.triangles) m.triangles.push_back(base + v);
-  const ShapeDomain shape = m.solid("cube-cavity");
+  const ShapeDomain shape = Mesh::cube_with_cavity(lo, hi, 2, centre, 0.3, 8, 12).solid("cube-cavity");
   against_cgal(seeds_inside(shape, 40, 11, 4), shape);
 }
 

@@ -169,6 +169,34 @@ bool segments_meet(const double* a, const double* b, const double* c, const doub
   return false;
 }
 
+// The ray from x along +x, its start perturbed to x + (0, e, e^2) for an infinitesimal
+// e (Simulation of Simplicity): it then meets no edge or vertex of triangle abc. 0 when
+// it misses the triangle (or runs parallel to it), else the sign of the triangle's
+// normal's x component (+1: the ray leaves through it). x must not lie on the triangle.
+int ray_crossing_3d(const double* a, const double* b, const double* c, const double* x) {
+  const int sp = orient_proj(a, b, c, 1, 2);
+  if (sp == 0) return 0;  // parallel to the ray
+  const double* tri[3] = {a, b, c};
+  for (int e = 0; e < 3; ++e) {
+    const double* u = tri[e];
+    const double* v = tri[(e + 1) % 3];
+    int s = orient_proj(u, v, x, 1, 2);
+    // On the edge's line in projection: the perturbation's e term, then its e^2 term.
+    if (s == 0) s = u[2] != v[2] ? (u[2] > v[2] ? 1 : -1) : (v[1] > u[1] ? 1 : (v[1] < u[1] ? -1 : 0));
+    if (s != sp) return 0;
+  }
+  // Ahead of x when x lies on the side opposite to the normal's x component.
+  return orient3d_exact(a, b, c, x) == -sp ? sp : 0;
+}
+
+// The same in 2-d for edge ab, the start perturbed to x + (0, e): 0 when the ray
+// misses it, else the sign of the edge's rise (+1: the ray leaves through it).
+int ray_crossing_2d(const double* a, const double* b, const double* x) {
+  if ((a[1] > x[1]) == (b[1] > x[1])) return 0;
+  const int up = b[1] > a[1] ? 1 : -1;
+  return orient2d_exact(a, b, x) == up ? up : 0;  // the crossing lies to the right of x
+}
+
 }  // namespace
 
 void ShapeDomain::Index::cell_range(const double* box_lo, const double* box_hi, int* from, int* to) const {
@@ -323,33 +351,15 @@ int ShapeDomain::Index::winding(const double* x, std::vector<std::uint32_t>& sta
           if (d == 2) {
             const double* a = vertex(fv[0]);
             const double* b = vertex(fv[1]);
-            const int o = orient2d_exact(a, b, x);
-            if (o == 0 && within_segment_box(a, b, x, 2)) return 2;
-            if ((a[1] > x[1]) == (b[1] > x[1])) continue;
-            const int up = b[1] > a[1] ? 1 : -1;
-            if (o == up) w += up;  // the crossing lies to the right of x
+            if (orient2d_exact(a, b, x) == 0 && within_segment_box(a, b, x, 2)) return 2;
+            w += ray_crossing_2d(a, b, x);
             continue;
           }
           const double* a = vertex(fv[0]);
           const double* b = vertex(fv[1]);
           const double* c = vertex(fv[2]);
-          const int side = orient3d_exact(a, b, c, x);
-          if (side == 0 && in_closed_triangle(a, b, c, x)) return 2;
-          const int sp = orient_proj(a, b, c, 1, 2);
-          if (sp == 0) continue;  // parallel to the ray
-          bool inside = true;
-          const double* tri[3] = {a, b, c};
-          for (int e = 0; e < 3 && inside; ++e) {
-            const double* u = tri[e];
-            const double* v = tri[(e + 1) % 3];
-            int s = orient_proj(u, v, x, 1, 2);
-            if (s == 0) s = u[2] != v[2] ? (u[2] > v[2] ? 1 : -1) : (v[1] > u[1] ? 1 : (v[1] < u[1] ? -1 : 0));
-            inside = s == sp;
-          }
-          if (!inside) continue;
-          // side != 0 here (else x would be in the triangle): the crossing is ahead of
-          // x when x lies on the side opposite to the normal's x component.
-          if (side == -sp) w += sp;
+          if (orient3d_exact(a, b, c, x) == 0 && in_closed_triangle(a, b, c, x)) return 2;
+          w += ray_crossing_3d(a, b, c, x);
         }
       }
     }
@@ -424,29 +434,10 @@ std::vector<int> nesting_depths(const ShapeDomain::Index& index, const std::vect
       const std::uint32_t other = index.component_of_face[f];
       if (other == comp) continue;
       const std::uint32_t* fv = index.face(f);
-      if (index.d == 2) {
-        const double* a = index.vertex(fv[0]);
-        const double* b = index.vertex(fv[1]);
-        if ((a[1] > x[1]) == (b[1] > x[1])) continue;
-        const int up = b[1] > a[1] ? 1 : -1;
-        if (orient2d_exact(a, b, x) == up) crossings[other] += 1;
-        continue;
-      }
-      const double* a = index.vertex(fv[0]);
-      const double* b = index.vertex(fv[1]);
-      const double* c = index.vertex(fv[2]);
-      const int sp = orient_proj(a, b, c, 1, 2);
-      if (sp == 0) continue;
-      bool inside = true;
-      const double* tri[3] = {a, b, c};
-      for (int e = 0; e < 3 && inside; ++e) {
-        const double* u = tri[e];
-        const double* v = tri[(e + 1) % 3];
-        int s = orient_proj(u, v, x, 1, 2);
-        if (s == 0) s = u[2] != v[2] ? (u[2] > v[2] ? 1 : -1) : (v[1] > u[1] ? 1 : (v[1] < u[1] ? -1 : 0));
-        inside = s == sp;
-      }
-      if (inside && orient3d_exact(a, b, c, x) == -sp) crossings[other] += 1;
+      const int crossing = index.d == 2
+                               ? ray_crossing_2d(index.vertex(fv[0]), index.vertex(fv[1]), x)
+                               : ray_crossing_3d(index.vertex(fv[0]), index.vertex(fv[1]), index.vertex(fv[2]), x);
+      if (crossing != 0) crossings[other] += 1;
     }
     for (std::size_t other = 0; other < k; ++other) depth[comp] += crossings[other] % 2;
   }
@@ -501,6 +492,43 @@ Status check_pair_budget(const ShapeDomain::Index& ix, const std::string& where)
   return invalid_argument(where + ": its faces crowd into a small part of its bounding box (" + std::to_string(pairs) +
                           " pairs of nearby faces to check, more than " + std::to_string(budget) +
                           "); a stray far vertex, or a small detailed part in a large coarse one, does this");
+}
+
+// Calls visit(f, g), f < g, once for each pair of faces whose boxes meet: in the grid
+// cell holding the low corner of their boxes' overlap. Stops at the first error.
+template <class Visit>
+Status for_each_nearby_pair(const ShapeDomain::Index& ix, Visit&& visit) {
+  const int d = ix.d;
+  const std::size_t cells = ix.cell_start.size() - 1;
+  for (std::size_t id = 0; id < cells; ++id) {
+    const int at[3] = {static_cast<int>(id % ix.cells[0]), static_cast<int>((id / ix.cells[0]) % ix.cells[1]),
+                       static_cast<int>(id / (static_cast<std::size_t>(ix.cells[0]) * ix.cells[1]))};
+    for (std::uint32_t p = ix.cell_start[id]; p < ix.cell_start[id + 1]; ++p) {
+      for (std::uint32_t q = p + 1; q < ix.cell_start[id + 1]; ++q) {
+        const std::uint32_t f = std::min(ix.cell_faces[p], ix.cell_faces[q]);
+        const std::uint32_t g = std::max(ix.cell_faces[p], ix.cell_faces[q]);
+        double olo[3] = {0, 0, 0};
+        bool apart = false;
+        for (int c = 0; c < d; ++c) {
+          double flo = INFINITY, fhi = -INFINITY, glo = INFINITY, ghi = -INFINITY;
+          for (int k = 0; k < d; ++k) {
+            flo = std::min(flo, ix.vertex(ix.face(f)[k])[c]);
+            fhi = std::max(fhi, ix.vertex(ix.face(f)[k])[c]);
+            glo = std::min(glo, ix.vertex(ix.face(g)[k])[c]);
+            ghi = std::max(ghi, ix.vertex(ix.face(g)[k])[c]);
+          }
+          olo[c] = std::max(flo, glo);
+          apart = apart || olo[c] > std::min(fhi, ghi);
+        }
+        if (apart) continue;
+        int from[3], to[3];
+        ix.cell_range(olo, olo, from, to);
+        if (from[0] != at[0] || from[1] != at[1] || from[2] != at[2]) continue;  // another cell's pair
+        if (Status st = visit(f, g); !st.is_ok()) return st;
+      }
+    }
+  }
+  return Status::ok();
 }
 
 }  // namespace
@@ -562,55 +590,38 @@ Result<ShapeDomain> ShapeDomain::polygon(std::vector<std::vector<double>> rings,
     const std::size_t r = ix.component_of_face[f];
     return "ring " + std::to_string(r + 1) + " edge " + std::to_string(f - ring_start[r] + 1);
   };
-  const std::size_t cells = static_cast<std::size_t>(ix.cells[0]) * ix.cells[1];
-  for (std::size_t id = 0; id < cells; ++id) {
-    const int at[3] = {static_cast<int>(id % ix.cells[0]), static_cast<int>(id / ix.cells[0]), 0};
-    for (std::uint32_t p = ix.cell_start[id]; p < ix.cell_start[id + 1]; ++p) {
-      for (std::uint32_t q = p + 1; q < ix.cell_start[id + 1]; ++q) {
-        std::uint32_t f = ix.cell_faces[p], g = ix.cell_faces[q];
-        if (f > g) std::swap(f, g);
-        const std::uint32_t* fv = ix.face(f);
-        const std::uint32_t* gv = ix.face(g);
-        // Test each pair once: in the cell of the low corner of their boxes' overlap.
-        double olo[2];
-        for (int c = 0; c < 2; ++c) {
-          olo[c] = std::max(std::min(ix.vertex(fv[0])[c], ix.vertex(fv[1])[c]),
-                            std::min(ix.vertex(gv[0])[c], ix.vertex(gv[1])[c]));
-        }
-        int from[3], to[3];
-        ix.cell_range(olo, olo, from, to);
-        if (from[0] != at[0] || from[1] != at[1]) continue;
-        const double* a = ix.vertex(fv[0]);
-        const double* b = ix.vertex(fv[1]);
-        const double* c = ix.vertex(gv[0]);
-        const double* d = ix.vertex(gv[1]);
-        const bool next = fv[1] == gv[0], prev = gv[1] == fv[0];
-        if (next || prev) {
-          // Consecutive edges meet at their shared vertex; more only when they fold back.
-          const double* far = next ? d : c;
-          const double* shared = next ? b : a;
-          const double* other = next ? a : b;
-          if (orient2d_exact(other, shared, far) == 0) {
-            // Collinear: they overlap when both run from the shared vertex the same way.
-            auto cmp = [](double x, double y) { return (x > y) - (x < y); };
-            const bool back = cmp(far[0], shared[0]) == cmp(other[0], shared[0]) &&
-                              cmp(far[1], shared[1]) == cmp(other[1], shared[1]);
-            if (back) {
-              return invalid_argument(where + ": " + edge_name(f) + " and " + edge_name(g) +
-                                      " overlap (the ring folds back at " + vertex_text(shared, 2) + ")");
-            }
-          }
-          continue;
-        }
-        if (segments_meet(a, b, c, d)) {
-          const bool same = ix.component_of_face[f] == ix.component_of_face[g];
-          return invalid_argument(
-              where + ": " + edge_name(f) + " and " + edge_name(g) +
-              (same ? " intersect (the ring crosses itself)" : " intersect (rings must not cross or touch)"));
+  Status met = for_each_nearby_pair(ix, [&](std::uint32_t f, std::uint32_t g) -> Status {
+    const std::uint32_t* fv = ix.face(f);
+    const std::uint32_t* gv = ix.face(g);
+    const double* a = ix.vertex(fv[0]);
+    const double* b = ix.vertex(fv[1]);
+    const double* c = ix.vertex(gv[0]);
+    const double* d = ix.vertex(gv[1]);
+    const bool next = fv[1] == gv[0], prev = gv[1] == fv[0];
+    if (next || prev) {
+      // Consecutive edges meet at their shared vertex; more only when they fold back.
+      const double* far = next ? d : c;
+      const double* shared = next ? b : a;
+      const double* other = next ? a : b;
+      if (orient2d_exact(other, shared, far) == 0) {
+        // Collinear: they overlap when both run from the shared vertex the same way.
+        auto cmp = [](double x, double y) { return (x > y) - (x < y); };
+        const bool back =
+            cmp(far[0], shared[0]) == cmp(other[0], shared[0]) && cmp(far[1], shared[1]) == cmp(other[1], shared[1]);
+        if (back) {
+          return invalid_argument(where + ": " + edge_name(f) + " and " + edge_name(g) +
+                                  " overlap (the ring folds back at " + vertex_text(shared, 2) + ")");
         }
       }
+      return Status::ok();
     }
-  }
+    if (!segments_meet(a, b, c, d)) return Status::ok();
+    const bool same = ix.component_of_face[f] == ix.component_of_face[g];
+    return invalid_argument(
+        where + ": " + edge_name(f) + " and " + edge_name(g) +
+        (same ? " intersect (the ring crosses itself)" : " intersect (rings must not cross or touch)"));
+  });
+  if (!met.is_ok()) return met;
   orient_by_nesting(ix, first_vertex);
   if (!(ix.volume > 0)) return invalid_argument(where + ": zero area");
   return out;
@@ -733,84 +744,59 @@ Result<ShapeDomain> ShapeDomain::solid(std::vector<double> vertices, std::vector
   ix.build();
   if (Status st = check_pair_budget(ix, where); !st.is_ok()) return st;
   // Faces that meet other than along their shared edge or at their shared vertex.
-  const std::size_t cells = static_cast<std::size_t>(ix.cells[0]) * ix.cells[1] * ix.cells[2];
-  for (std::size_t id = 0; id < cells; ++id) {
-    const int at[3] = {static_cast<int>(id % ix.cells[0]), static_cast<int>((id / ix.cells[0]) % ix.cells[1]),
-                       static_cast<int>(id / (static_cast<std::size_t>(ix.cells[0]) * ix.cells[1]))};
-    for (std::uint32_t p = ix.cell_start[id]; p < ix.cell_start[id + 1]; ++p) {
-      for (std::uint32_t q = p + 1; q < ix.cell_start[id + 1]; ++q) {
-        std::uint32_t f = ix.cell_faces[p], g = ix.cell_faces[q];
-        if (f > g) std::swap(f, g);
-        const std::uint32_t* fv = ix.face(f);
-        const std::uint32_t* gv = ix.face(g);
-        double olo[3], ohi[3];
-        bool apart = false;
-        for (int c = 0; c < 3; ++c) {
-          const double flo = std::min({ix.vertex(fv[0])[c], ix.vertex(fv[1])[c], ix.vertex(fv[2])[c]});
-          const double fhi = std::max({ix.vertex(fv[0])[c], ix.vertex(fv[1])[c], ix.vertex(fv[2])[c]});
-          const double glo = std::min({ix.vertex(gv[0])[c], ix.vertex(gv[1])[c], ix.vertex(gv[2])[c]});
-          const double ghi = std::max({ix.vertex(gv[0])[c], ix.vertex(gv[1])[c], ix.vertex(gv[2])[c]});
-          olo[c] = std::max(flo, glo);
-          ohi[c] = std::min(fhi, ghi);
-          apart = apart || olo[c] > ohi[c];
-        }
-        if (apart) continue;
-        int from[3], to[3];
-        ix.cell_range(olo, olo, from, to);
-        if (from[0] != at[0] || from[1] != at[1] || from[2] != at[2]) continue;  // tested in another cell
-        int shared = 0, f_only = -1, g_only = -1;
-        for (int a = 0; a < 3; ++a) {
-          bool in_g = false, in_f = false;
-          for (int b = 0; b < 3; ++b) {
-            in_g = in_g || fv[a] == gv[b];
-            in_f = in_f || gv[a] == fv[b];
-          }
-          shared += in_g;
-          if (!in_g) f_only = a;
-          if (!in_f) g_only = a;
-        }
-        const double* t[3] = {ix.vertex(fv[0]), ix.vertex(fv[1]), ix.vertex(fv[2])};
-        const double* u[3] = {ix.vertex(gv[0]), ix.vertex(gv[1]), ix.vertex(gv[2])};
-        bool meet = false;
-        if (shared == 0) {
-          meet = triangles_meet(t, u);
-        } else if (shared == 1) {
-          // Sharing vertex v: they meet elsewhere when the edge of either opposite v meets the other.
-          int fv_at = 0, gv_at = 0;
-          for (int a = 0; a < 3; ++a) {
-            for (int b = 0; b < 3; ++b) {
-              if (fv[a] == gv[b]) {
-                fv_at = a;
-                gv_at = b;
-              }
-            }
-          }
-          meet = segment_meets_triangle(t[(fv_at + 1) % 3], t[(fv_at + 2) % 3], u[0], u[1], u[2]) ||
-                 segment_meets_triangle(u[(gv_at + 1) % 3], u[(gv_at + 2) % 3], t[0], t[1], t[2]);
-        } else if (shared == 2) {
-          // Sharing an edge: they overlap only when folded flat onto each other.
-          const double* far_g = u[g_only];
-          if (orient3d_exact(t[0], t[1], t[2], far_g) == 0) {
-            // Coplanar: folded onto each other when both far vertices lie on one side of
-            // the shared edge (in a projection where f keeps its area).
-            const double* e0 = t[(f_only + 1) % 3];
-            const double* e1 = t[(f_only + 2) % 3];
-            static constexpr int kPairs[3][2] = {{1, 2}, {0, 2}, {0, 1}};
-            for (const auto& pr : kPairs) {
-              const int sf = orient_proj(e0, e1, t[f_only], pr[0], pr[1]);
-              if (sf == 0) continue;
-              meet = orient_proj(e0, e1, far_g, pr[0], pr[1]) == sf;
-              break;
-            }
+  Status met = for_each_nearby_pair(ix, [&](std::uint32_t f, std::uint32_t g) -> Status {
+    const std::uint32_t* fv = ix.face(f);
+    const std::uint32_t* gv = ix.face(g);
+    int shared = 0, f_only = -1, g_only = -1;
+    for (int a = 0; a < 3; ++a) {
+      bool in_g = false, in_f = false;
+      for (int b = 0; b < 3; ++b) {
+        in_g = in_g || fv[a] == gv[b];
+        in_f = in_f || gv[a] == fv[b];
+      }
+      shared += in_g;
+      if (!in_g) f_only = a;
+      if (!in_f) g_only = a;
+    }
+    const double* t[3] = {ix.vertex(fv[0]), ix.vertex(fv[1]), ix.vertex(fv[2])};
+    const double* u[3] = {ix.vertex(gv[0]), ix.vertex(gv[1]), ix.vertex(gv[2])};
+    bool meet = false;
+    if (shared == 0) {
+      meet = triangles_meet(t, u);
+    } else if (shared == 1) {
+      // Sharing vertex v: they meet elsewhere when the edge of either opposite v meets the other.
+      int fv_at = 0, gv_at = 0;
+      for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) {
+          if (fv[a] == gv[b]) {
+            fv_at = a;
+            gv_at = b;
           }
         }
-        if (meet) {
-          return invalid_argument(where + ": self-intersection: " + face_name(f) + " and " + face_name(g) +
-                                  " intersect");
+      }
+      meet = segment_meets_triangle(t[(fv_at + 1) % 3], t[(fv_at + 2) % 3], u[0], u[1], u[2]) ||
+             segment_meets_triangle(u[(gv_at + 1) % 3], u[(gv_at + 2) % 3], t[0], t[1], t[2]);
+    } else if (shared == 2) {
+      // Sharing an edge: they overlap only when folded flat onto each other.
+      const double* far_g = u[g_only];
+      if (orient3d_exact(t[0], t[1], t[2], far_g) == 0) {
+        // Coplanar: folded onto each other when both far vertices lie on one side of
+        // the shared edge (in a projection where f keeps its area).
+        const double* e0 = t[(f_only + 1) % 3];
+        const double* e1 = t[(f_only + 2) % 3];
+        static constexpr int kPairs[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+        for (const auto& pr : kPairs) {
+          const int sf = orient_proj(e0, e1, t[f_only], pr[0], pr[1]);
+          if (sf == 0) continue;
+          meet = orient_proj(e0, e1, far_g, pr[0], pr[1]) == sf;
+          break;
         }
       }
     }
-  }
+    if (!meet) return Status::ok();
+    return invalid_argument(where + ": self-intersection: " + face_name(f) + " and " + face_name(g) + " intersect");
+  });
+  if (!met.is_ok()) return met;
   orient_by_nesting(ix, first_vertex);
   if (!(ix.volume > 0)) return invalid_argument(where + ": zero volume");
   return out;
