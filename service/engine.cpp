@@ -563,7 +563,7 @@ std::string shape_needs_whole(const std::string& id) {
 
 Result<std::shared_ptr<const ShapeDomain>> Engine::shape_for(const StoredSet& set, const DomainSpec& spec) {
   if (spec.shape_format.empty()) return std::shared_ptr<const ShapeDomain>();
-  if (set.periodic) return failed_precondition("domain.shape: point set " + set.info.id + " is periodic (no walls)");
+  // (Periodic sets never get here: every caller's check_query refuses any domain on them.)
   if (!set.weights.empty()) {
     return failed_precondition("domain.shape: cells of weighted points in a domain of any shape are not supported yet");
   }
@@ -706,15 +706,19 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   StarOptions options;
   options.cancel = control.stop_flag();
   options.weights = set.weights;
+  if (shape != nullptr) {
+    // A domain of any shape (sets held whole only: shape_for).
+    VoronoiCell cell;
+    if (Status s = shape_cell(*set.tree, *shape, *domain, seed, cell, options); !s.is_ok()) {
+      if (s.code() == Code::kCancelled) return control.stopped_status("the cell of seed " + std::to_string(seed));
+      return s;
+    }
+    return cell;
+  }
   ClippedCellBuilder builder(*set.tree, *domain, options);
   auto cell = builder.cell(seed);
   if (cell.status().code() == Code::kCancelled)
     return control.stopped_status("the cell of seed " + std::to_string(seed));
-  if (cell.is_ok() && shape != nullptr) {
-    ShapeClipper clipper(set.points, *shape);
-    clipper.set_geometry(true);  // what the page draws
-    clipper.clip(seed, cell.value());
-  }
   if (cell.is_ok() && set.piece) {
     // A piece's cell is the whole set's when the points within the reach that decided
     // it are all held (as spokemesh-mpi certifies its cells); otherwise completed.

@@ -20,25 +20,17 @@ Status geojson_rings(const nlohmann::json& geometry, const std::string& at, std:
     if (!geometry.contains("geometry")) return invalid_argument(at + ": a Feature without \"geometry\"");
     return geojson_rings(geometry["geometry"], at + ".geometry", rings);
   }
-  if (type == "FeatureCollection") {
-    if (!geometry.contains("features") || !geometry["features"].is_array()) {
-      return invalid_argument(at + ": a FeatureCollection without a \"features\" array");
+  // A collection: every member's rings.
+  const char* members = type == "FeatureCollection"    ? "features"
+                        : type == "GeometryCollection" ? "geometries"
+                                                       : nullptr;
+  if (members != nullptr) {
+    if (!geometry.contains(members) || !geometry[members].is_array()) {
+      return invalid_argument(at + ": a " + type + " without a \"" + members + "\" array");
     }
-    for (std::size_t i = 0; i < geometry["features"].size(); ++i) {
-      if (Status s = geojson_rings(geometry["features"][i], at + ".features[" + std::to_string(i) + "]", rings);
-          !s.is_ok())
-        return s;
-    }
-    return Status::ok();
-  }
-  if (type == "GeometryCollection") {
-    if (!geometry.contains("geometries") || !geometry["geometries"].is_array()) {
-      return invalid_argument(at + ": a GeometryCollection without a \"geometries\" array");
-    }
-    for (std::size_t i = 0; i < geometry["geometries"].size(); ++i) {
-      if (Status s = geojson_rings(geometry["geometries"][i], at + ".geometries[" + std::to_string(i) + "]", rings);
-          !s.is_ok())
-        return s;
+    for (std::size_t i = 0; i < geometry[members].size(); ++i) {
+      const std::string member = at + "." + members + "[" + std::to_string(i) + "]";
+      if (Status s = geojson_rings(geometry[members][i], member, rings); !s.is_ok()) return s;
     }
     return Status::ok();
   }

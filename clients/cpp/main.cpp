@@ -328,11 +328,8 @@ int run_cell(const Common& common, const std::string& input, std::int64_t seed, 
       if (!box.is_ok()) return report(box.status());
       StarOptions options;
       options.random_seed = common.random_seed;
-      ClippedCellBuilder builder(*loaded.tree, box.value(), options);
-      if (Status s = builder.cell(star.seed, cell); !s.is_ok()) return report(s);
-      ShapeClipper clipper(loaded.points, shape.value());
-      clipper.set_geometry(true);  // wall pieces and outlines, as the service's cells carry
-      clipper.clip(star.seed, cell);
+      if (Status s = shape_cell(*loaded.tree, shape.value(), box.value(), star.seed, cell, options); !s.is_ok())
+        return report(s);
     } else if (domain.value().has_value()) {
       // The builder `cells` uses, so that both print the same cell.
       StarOptions options;

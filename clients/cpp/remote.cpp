@@ -21,6 +21,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/periodic_box.hpp"
+#include "spokemesh/shape_io.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 
 namespace spokemesh::remote {
@@ -310,12 +311,7 @@ Result<pb::Domain> domain_proto(const std::string& box, const std::string& halfs
     std::ifstream in(shape, std::ios::binary);
     std::ostringstream bytes;
     bytes << in.rdbuf();
-    std::string ext = shape.substr(shape.find_last_of('.') + 1);
-    for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
-    const std::string format = ext == "json"                                                        ? "geojson"
-                               : (ext == "off" || ext == "obj" || ext == "stl" || ext == "geojson") ? ext
-                                                                                                    : "rings";
-    domain.mutable_shape()->set_format(format);
+    domain.mutable_shape()->set_format(shape_domain_format(shape));
     domain.mutable_shape()->set_data(bytes.str());
   }
   if (!box.empty()) {

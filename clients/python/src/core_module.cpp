@@ -579,9 +579,16 @@ class Triangulation {
                              "); the points are " + std::to_string(d_) + "-d"));
     }
     shape_ = std::make_shared<const ShapeDomain>(std::move(parsed).value());
+    shape_box_ = ShapeClipper::box(points_, *shape_).value();  // once, not per cell: it scans every point
     shape_format_ = *format;
     shape_bytes_ = std::move(bytes);
     return shape_;
+  }
+
+  // The box of the domain shape_from() returned last (ShapeClipper::box).
+  Domain shape_box() const {
+    std::lock_guard<std::mutex> lock(shape_mutex_);
+    return shape_box_;
   }
 
   py::dict cell(std::uint32_t seed, const std::optional<std::vector<double>>& box,
@@ -591,18 +598,12 @@ class Triangulation {
       if (box || halfspaces) raise(invalid_argument("give one of box, halfspaces and domain"));
       check_seed(seed, points_.size());
       const std::shared_ptr<const ShapeDomain> shape = shape_from(domain_format, domain_data);
+      const Domain box = shape_box();
       VoronoiCell c;
       Status st;
       {
         py::gil_scoped_release release;
-        auto box_domain = ShapeClipper::box(points_, *shape);
-        ClippedCellBuilder builder(*tree_, box_domain.value());
-        st = builder.cell(seed, c);
-        if (st.is_ok()) {
-          ShapeClipper clipper(points_, *shape);
-          clipper.set_geometry(true);
-          clipper.clip(seed, c);
-        }
+        st = shape_cell(*tree_, *shape, box, seed, c);
       }
       if (!st.is_ok()) raise(st);
       return cell_dict(c);
@@ -630,7 +631,7 @@ class Triangulation {
     if (domain_format && (box || halfspaces)) raise(invalid_argument("give one of box, halfspaces and domain"));
     const std::shared_ptr<const ShapeDomain> shape = shape_from(domain_format, domain_data);
     std::optional<Domain> domain = domain_from(d_, box, halfspaces);
-    if (shape) domain = ShapeClipper::box(points_, *shape).value();
+    if (shape) domain = shape_box();
     if (!domain && bounding_box) domain = Domain::bounding_box(points_);
     CellColumns columns(d_, false);
     Status status;
@@ -732,9 +733,10 @@ class Triangulation {
   int d_;
   unsigned threads_;
   std::vector<double> weights_;  // power weights (empty: the Delaunay triangulation)
-  // The last domain of any shape cell()/cells() parsed (shape_from).
+  // The last domain of any shape cell()/cells() parsed (shape_from), and its box.
   mutable std::mutex shape_mutex_;
   mutable std::shared_ptr<const ShapeDomain> shape_;
+  mutable Domain shape_box_;
   mutable std::string shape_format_, shape_bytes_;
   std::unique_ptr<KdTree> tree_;
   Rows simplices_;

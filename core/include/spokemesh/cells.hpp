@@ -138,6 +138,14 @@ struct CellsOptions {
 // non-OK status stops the run and is returned.
 using CellSink = std::function<Status(std::span<const VoronoiCell> cells, std::uint64_t seeds_done)>;
 
+// One seed's cell in a domain of any shape, as compute_cells builds it: the convex cell
+// clipped to `box` (ShapeClipper::box of the points and the shape; computed once by the
+// caller, it scans every point), then intersected with the shape, with drawing geometry
+// (ShapeClipper::set_geometry). Unweighted points. Errors: the builder's (CANCELLED
+// from star.cancel, OUT_OF_RANGE).
+Status shape_cell(const KdTree& tree, const ShapeDomain& shape, const Domain& box, std::uint32_t seed, VoronoiCell& out,
+                  StarOptions star = {});
+
 // `domain`: nullptr for unclipped cells. Errors: the first seed outside the domain
 // (INVALID_ARGUMENT, naming it), CANCELLED, or the sink's status.
 Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOptions& options, const CellSink& sink);

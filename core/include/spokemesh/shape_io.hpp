@@ -19,9 +19,9 @@
 
 namespace spokemesh {
 
-// Whether `path` names a domain of any shape by its extension (.off .obj .stl .rings
-// .geojson .json, any case): what `--domain` takes.
-bool is_shape_domain_path(const std::string& path);
+// The format a domain file's extension names (any case): off, obj, stl, geojson (.geojson
+// or .json), else rings. The service's requests name their domain by it.
+std::string shape_domain_format(const std::string& path);
 // Whether it is GeoJSON (.geojson or .json).
 bool is_geojson_path(const std::string& path);
 

@@ -244,6 +244,16 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
   return Clipped::kDone;
 }
 
+Status shape_cell(const KdTree& tree, const ShapeDomain& shape, const Domain& box, std::uint32_t seed, VoronoiCell& out,
+                  StarOptions star) {
+  ClippedCellBuilder builder(tree, box, std::move(star));
+  if (Status s = builder.cell(seed, out); !s.is_ok()) return s;
+  ShapeClipper clipper(tree.points(), shape);
+  clipper.set_geometry(true);
+  clipper.clip(seed, out);
+  return Status::ok();
+}
+
 Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOptions& options, const CellSink& sink) {
   const PointSet& points = tree.points();
   const std::uint64_t n = points.size();

@@ -43,6 +43,22 @@ bool parse_number(const std::string& item, double& v) {
   return end != item.c_str() && *end == '\0';
 }
 
+// The three coordinates after a "v" or "vertex" tag, appended to `vertices`.
+Status read_xyz(std::istringstream& fields, const std::string& at, std::vector<double>& vertices) {
+  for (int c = 0; c < 3; ++c) {
+    std::string item;
+    double x;
+    if (!(fields >> item) || !parse_number(item, x)) return invalid_argument(at + ": a vertex needs 3 coordinates");
+    vertices.push_back(x);
+  }
+  return Status::ok();
+}
+
+// A polygon of the file as triangles, a fan from its first corner, numbered in place.
+void add_fan(const std::vector<std::uint32_t>& ids, std::vector<std::uint32_t>& triangles) {
+  for (std::size_t j = 1; j + 1 < ids.size(); ++j) triangles.insert(triangles.end(), {ids[0], ids[j], ids[j + 1]});
+}
+
 Result<ShapeDomain> parse_rings(const std::string& text, const std::string& name) {
   std::vector<std::vector<double>> rings;
   bool in_ring = false;
@@ -140,7 +156,7 @@ Result<ShapeDomain> parse_off(const std::string& text, const std::string& name) 
       }
       ids.push_back(static_cast<std::uint32_t>(id));
     }
-    for (std::size_t j = 1; j + 1 < ids.size(); ++j) triangles.insert(triangles.end(), {ids[0], ids[j], ids[j + 1]});
+    add_fan(ids, triangles);
   }
   return ShapeDomain::solid(std::move(vertices), std::move(triangles), name);
 }
@@ -155,12 +171,7 @@ Result<ShapeDomain> parse_obj(const std::string& text, const std::string& name) 
     if (!(fields >> tag)) continue;
     const std::string at = name + ":" + std::to_string(i + 1);
     if (tag == "v") {
-      for (int c = 0; c < 3; ++c) {
-        std::string item;
-        double x;
-        if (!(fields >> item) || !parse_number(item, x)) return invalid_argument(at + ": a vertex needs 3 coordinates");
-        vertices.push_back(x);
-      }
+      if (Status st = read_xyz(fields, at, vertices); !st.is_ok()) return st;
     } else if (tag == "f") {
       std::vector<std::uint32_t> ids;
       std::string item;
@@ -177,7 +188,7 @@ Result<ShapeDomain> parse_obj(const std::string& text, const std::string& name) 
         ids.push_back(static_cast<std::uint32_t>(id));
       }
       if (ids.size() < 3) return invalid_argument(at + ": a face needs at least 3 vertices");
-      for (std::size_t j = 1; j + 1 < ids.size(); ++j) triangles.insert(triangles.end(), {ids[0], ids[j], ids[j + 1]});
+      add_fan(ids, triangles);
     }
   }
   return ShapeDomain::solid(std::move(vertices), std::move(triangles), name);
@@ -215,12 +226,7 @@ Result<ShapeDomain> parse_stl(const std::string& bytes, const std::string& name)
     if (!(fields >> tag)) continue;
     const std::string at = name + ":" + std::to_string(i + 1);
     if (tag == "vertex") {
-      for (int c = 0; c < 3; ++c) {
-        std::string item;
-        double x;
-        if (!(fields >> item) || !parse_number(item, x)) return invalid_argument(at + ": a vertex needs 3 coordinates");
-        vertices.push_back(x);
-      }
+      if (Status st = read_xyz(fields, at, vertices); !st.is_ok()) return st;
       ++in_facet;
     } else if (tag == "endloop") {
       if (in_facet != 3)
@@ -235,22 +241,21 @@ Result<ShapeDomain> parse_stl(const std::string& bytes, const std::string& name)
 
 }  // namespace
 
-bool is_geojson_path(const std::string& path) {
+std::string shape_domain_format(const std::string& path) {
   const std::string ext = lower_extension(path);
-  return ext == ".geojson" || ext == ".json";
+  if (ext == ".off" || ext == ".obj" || ext == ".stl" || ext == ".geojson") return ext.substr(1);
+  if (ext == ".json") return "geojson";
+  return "rings";
 }
 
-bool is_shape_domain_path(const std::string& path) {
-  const std::string ext = lower_extension(path);
-  return ext == ".off" || ext == ".obj" || ext == ".stl" || ext == ".rings" || is_geojson_path(path);
-}
+bool is_geojson_path(const std::string& path) { return shape_domain_format(path) == "geojson"; }
 
 Result<ShapeDomain> parse_shape_domain(const std::string& bytes, const std::string& name) {
-  const std::string ext = lower_extension(name);
-  if (ext == ".off") return parse_off(bytes, name);
-  if (ext == ".obj") return parse_obj(bytes, name);
-  if (ext == ".stl") return parse_stl(bytes, name);
-  if (is_geojson_path(name)) return invalid_argument(name + ": GeoJSON is read by the clients, not here");
+  const std::string format = shape_domain_format(name);
+  if (format == "off") return parse_off(bytes, name);
+  if (format == "obj") return parse_obj(bytes, name);
+  if (format == "stl") return parse_stl(bytes, name);
+  if (format == "geojson") return invalid_argument(name + ": GeoJSON is read by the clients, not here");
   return parse_rings(bytes, name);
 }
 
