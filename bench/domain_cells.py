@@ -10,6 +10,8 @@ Shapes (about 100k faces each, seeds inside):
              triangles), 1M seeds in clusters (Gaussian blobs) and uniform
   surface    the same torus, 1M seeds 1% to 3% of its minor radius inside its surface
              (cells that nearly all meet a wall: the worst case)
+  grid       the cube with the cavity, seeds on a 100^3 numpy linspace grid over the
+             cube (ties everywhere; those in the cavity get empty cells)
   holes      a 2-d disc (20,000 edges) with 50 round holes (1,600 edges each), 1M
              uniform seeds
 
@@ -146,7 +148,7 @@ def run(name, seeds, domain_path, volume, boundary, exe, work):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=1_000_000)
-    ap.add_argument("--only", default="torus,cavity,surface,holes")
+    ap.add_argument("--only", default="torus,cavity,surface,grid,holes")
     ap.add_argument("--spokemesh", default=str(REPO / "build" / "bin" / "spokemesh"))
     a = ap.parse_args()
     rng = np.random.default_rng(44)
@@ -163,11 +165,17 @@ def main():
                 run("torus", torus_seeds(a.n, rng), work / "torus.off", vol, area, a.spokemesh, work)
             if "surface" in only:
                 run("surface", torus_seeds(a.n, rng, True), work / "torus.off", vol, area, a.spokemesh, work)
-        if "cavity" in only:
+        if "cavity" in only or "grid" in only:
             v, f = cavity_mesh()
             df.write_off(work / "cavity.off", v, f)
-            run("cavity", cavity_seeds(a.n, rng), work / "cavity.off", df.mesh_volume(v, f), df.mesh_area(v, f),
-                a.spokemesh, work)
+            if "cavity" in only:
+                run("cavity", cavity_seeds(a.n, rng), work / "cavity.off", df.mesh_volume(v, f), df.mesh_area(v, f),
+                    a.spokemesh, work)
+            if "grid" in only:
+                side = round(a.n ** (1 / 3))
+                axis = np.linspace(-0.995, 0.995, side)
+                grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+                run("grid", grid, work / "cavity.off", df.mesh_volume(v, f), df.mesh_area(v, f), a.spokemesh, work)
         if "holes" in only:
             rings, centres = holes_rings(rng)
             df.write_rings(work / "holes.rings", rings)

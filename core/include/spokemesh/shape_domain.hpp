@@ -99,7 +99,7 @@ class ShapeDomain {
 // Intersects seeds' convex cells with a shape domain, one seed at a time.
 //
 // The convex cell comes from ClippedCellBuilder over `box()`: the domain's and the
-// points' bounding box grown by an eighth of its extent on every side, so that no
+// points' bounding box grown by 2^-10 of its extent on every side, so that no
 // wall of the box touches the domain. Then, with o the seed, w(o) its winding number
 // (1 inside, 0 outside) and, for each face t that meets the cell C, shadow(o, t) the
 // part of the cone from o over t that lies beyond t:

@@ -203,8 +203,9 @@ Result<Domain> ShapeClipper::box(std::vector<double> lo, std::vector<double> hi,
     return invalid_argument("the domain is " + std::to_string(d) + "-d (" + shape.describe() + "); the points are " +
                             std::to_string(lo.size()) + "-d");
   }
-  // The union of both boxes, grown by an eighth of its largest extent on every side:
-  // no wall of the box touches the domain.
+  // The union of both boxes, grown by 2^-10 of its largest extent on every side: no
+  // wall of the box touches the domain, and the cells of seeds at the set's edge stay
+  // small (grown by an eighth, a 1M grid's cells took 2.4x as long: bench/README.md).
   double extent = 0;
   for (int c = 0; c < d; ++c) {
     lo[c] = std::min(lo[c], shape.lower()[c]);
@@ -212,8 +213,8 @@ Result<Domain> ShapeClipper::box(std::vector<double> lo, std::vector<double> hi,
     extent = std::max(extent, hi[c] - lo[c]);
   }
   for (int c = 0; c < d; ++c) {
-    lo[c] -= extent / 8;
-    hi[c] += extent / 8;
+    lo[c] -= std::ldexp(extent, -10);
+    hi[c] += std::ldexp(extent, -10);
   }
   return Domain::box(lo, hi);
 }
