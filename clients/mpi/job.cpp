@@ -114,7 +114,7 @@ class StarJob : public Job {
  public:
   using Job::Job;
 
-  Status compute(Round& round) override { return round.number == 1 ? sweep(round) : walk(round); }
+  Status compute(Round& round) override { return sweep(round); }
   void defer_first_round(const Round& round) override { sweep_positions(round); }
 
  protected:
@@ -130,6 +130,18 @@ class StarJob : public Job {
     return Status::ok();
   }
   virtual void keep_accepted(std::vector<std::uint32_t>& /*rows*/) {}
+  // A later round's rows from the sink (mesh): each seed's kept at its position (a
+  // row's first vertex is its owner, the seed).
+  void keep_late(const LocalSet& local, const SpaceSplit& sweep, std::span<const std::uint32_t> block) {
+    const std::size_t w1 = width();
+    for (std::size_t i = 0; i < block.size(); i += w1) {
+      if (!keeps_seed(local.global[block[i]])) continue;
+      if (i == 0 || block[i] != block[i - w1]) done_.push_back({sweep.position_of(block[i]), {}});
+      for (std::size_t j = 0; j < w1; ++j)
+        done_.back().rows.push_back(static_cast<std::uint32_t>(local.global[block[i + j]]));
+    }
+  }
+  virtual bool keeps_seed(std::uint64_t /*global*/) const { return true; }
 
   // Writes text or .npy rows: sized in a first pass over the rows, written in a second,
   // a few MB at a time (the CLI's bytes). Collective.
@@ -182,88 +194,89 @@ class StarJob : public Job {
 
  private:
   // The sweep of the rank's pieces, as one process sweeps them; positions recorded.
-  SpaceSplit local_sweep(const Round& round) {
+  // Built once; when the held points change (their local ids with them) the same
+  // split is carried over to the new ids (SpaceSplit::remapped), not built again.
+  const SpaceSplit& local_sweep(const Round& round) {
     const std::size_t owned = round.split.owned.size();
-    std::vector<std::uint32_t> members(owned);
-    for (std::size_t k = 0; k < owned; ++k) members[k] = round.local.local_of_own[k];
-    SpaceSplit sweep(round.local.points, members, round.split.piece_ends,
+    if (sweep_ && swept_ids_ == round.local.local_of_own && sweep_->size() == round.local.points.size()) return *sweep_;
+    if (sweep_) {
+      std::vector<std::uint32_t> id_of(sweep_->size(), 0);
+      for (std::size_t k = 0; k < owned; ++k) id_of[swept_ids_[k]] = round.local.local_of_own[k];
+      sweep_ = sweep_->remapped(round.local.points, id_of);
+    } else {
+      std::vector<std::uint32_t> members(owned);
+      for (std::size_t k = 0; k < owned; ++k) members[k] = round.local.local_of_own[k];
+      sweep_.emplace(round.local.points, members, round.split.sweep_ends,
                      SpaceSplit::default_block_points(facts_.d, facts_.n));
-    position_of_own_.resize(owned);
-    for (std::size_t k = 0; k < owned; ++k) position_of_own_[k] = sweep.position_of(round.local.local_of_own[k]);
-    return sweep;
+      position_of_own_.resize(owned);
+      for (std::size_t k = 0; k < owned; ++k) position_of_own_[k] = sweep_->position_of(round.local.local_of_own[k]);
+    }
+    swept_ids_ = round.local.local_of_own;
+    return *sweep_;
   }
   void sweep_positions(const Round& round) { local_sweep(round); }
+  std::optional<SpaceSplit> sweep_;       // the rank's sweep over the held points
+  std::optional<MeshEngine> engine_;      // the engine the rounds take
+  std::vector<std::uint32_t> swept_ids_;  // the owned points' local ids it was made for
 
-  // Round 1: the single-process sweep over the rank's pieces. The stars share their
-  // wraps (the sweep's memo): a wrap a refused star found is still one of the held
-  // points' Delaunay triangulation, which every star here is computed in.
+  // Every round: the single-process sweep over the rank's pieces (round 1: every seed;
+  // later rounds: the seeds refused so far), each star certified against what the rank
+  // lacks (round.held: MeshOptions::held), cell by cell where local triangulations
+  // compute it. A star that is not certified is deferred to round.refused with the
+  // balls and hull facets to fetch. The stars share their wraps (the sweep's memo): a
+  // wrap a refused star found is still one of the held points' Delaunay
+  // triangulation, which every star here is computed in.
   Status sweep(Round& round) {
-    const SpaceSplit sweep = local_sweep(round);
-    round.tree = std::make_unique<KdTree>(round.local.points);
+    // (A later round with nothing pending here: an empty `seeds` would mean all of them.)
+    if (round.number > 1 && round.pending.empty()) return Status::ok();
+    const SpaceSplit& sweep = local_sweep(round);
+    if (!round.tree) round.tree = std::make_unique<KdTree>(round.local.points);
+    const bool first = round.number == 1;
     MeshOptions options;
     options.threads = w_.common.threads;
     options.split = &sweep;
     options.sweep_end = sweep.swept();
     options.star.random_seed = w_.common.random_seed;
     options.facet_cache_bytes = w_.common.cache_mb << 20;
+    // The engine is decided once (kAuto's probe of ties), on the first round's points.
     options.engine = facts_.engine;
-    options.accept = [&](const Star& star) {
-      StarCertificate c = round.certify.star(star);
-      if (c.certified && rows_from_sink()) return true;
-      std::vector<std::uint32_t> out;
-      if (c.certified) rows_of(round.local, star, out);
+    if (!engine_) engine_ = engine_for(round.local.points, sweep, options);
+    options.engine = *engine_;
+    options.held = &round.held;
+    options.defer = [&](std::uint32_t seed, StarCertificate c) {
       std::lock_guard lock(mu_);
-      if (!c.certified) {
-        round.refused.emplace_back(round.own_of_local[star.seed], std::move(c));
-        return false;
-      }
-      keep_accepted(out);
-      return true;
+      round.refused.emplace_back(round.own_of_local[seed], std::move(c));
     };
+    std::vector<std::uint32_t> seeds;
+    if (!first) {
+      for (const std::uint32_t k : round.pending) seeds.push_back(round.local.local_of_own[k]);
+      std::sort(seeds.begin(), seeds.end());
+      options.seeds = seeds;
+    }
+    // A mesh takes its rows from the sink (in sweep order; later rounds' rows are kept
+    // seed by seed with their positions); graphs and stores from each star.
+    if (!rows_from_sink()) {
+      options.accept = [&](const Star& star) {
+        std::vector<std::uint32_t> out;
+        rows_of(round.local, star, out);
+        std::lock_guard lock(mu_);
+        if (first) {
+          keep_accepted(out);
+        } else {
+          done_.push_back({position_of_own_[round.own_of_local[star.seed]], std::move(out)});
+        }
+        return true;
+      };
+    }
     auto result = mesh_seeds(*round.tree, options, [&](std::span<const std::uint32_t> block, std::uint64_t seeds_done) {
-      round.progress.update(seeds_done, swept_rows_);
-      return keep_swept(round.local, sweep, block);
+      if (first) round.progress.update(seeds_done, swept_rows_);
+      if (!rows_from_sink()) return Status::ok();
+      if (first) return keep_swept(round.local, sweep, block);
+      keep_late(round.local, sweep, block);
+      return Status::ok();
     });
     return result.status();
   }
-
-  // Later rounds: the refused seeds, each star on its own.
-  Status walk(Round& round) {
-    const KdTree& tree = *round.tree;
-    return walk_pending(
-        round, w_.common.threads, mu_,
-        [&]() -> std::unique_ptr<SeedWorker> { return std::make_unique<StarWorker>(*this, round, tree); }, nullptr);
-  }
-
-  class StarWorker : public SeedWorker {
-   public:
-    StarWorker(StarJob& job, const Round& round, const KdTree& tree)
-        : job_(job), round_(round), walker_(tree, job.star_options()) {}
-    Status seed(std::uint32_t k, StarCertificate& c) override {
-      const std::uint32_t seed = round_.local.local_of_own[k];
-      Status s = walker_.compute(seed, star_, StarPart::kAll);
-      if (!s.is_ok()) return s;
-      c = round_.certify.star(star_);
-      if (c.certified) {
-        out_.clear();
-        job_.rows_of(round_.local, star_, out_);
-        kept_.push_back({job_.position_of_own_[k], out_});
-      }
-      return Status::ok();
-    }
-    void flush(bool /*last*/) override {
-      for (auto& r : kept_) job_.done_.push_back(std::move(r));
-      kept_.clear();
-    }
-
-   private:
-    StarJob& job_;
-    const Round& round_;
-    StarWalker walker_;
-    Star star_;
-    std::vector<std::uint32_t> out_;
-    std::vector<KeptRows> kept_;
-  };
 
  protected:
   std::uint64_t swept_rows_ = 0;  // rows the sweep has kept (mesh), for the progress line
@@ -339,6 +352,7 @@ class MeshJob final : public StarJob {
  protected:
   std::size_t width() const override { return static_cast<std::size_t>(facts_.d) + 1; }
   bool in_range(std::uint64_t g) const { return g >= seed_range_.first && g < seed_range_.second; }
+  bool keeps_seed(std::uint64_t g) const override { return in_range(g); }
   // The star's owned simplices, when its seed is in --seeds' range.
   void rows_of(const LocalSet& local, const Star& star, std::vector<std::uint32_t>& out) const override {
     if (!in_range(local.global[star.seed])) return;

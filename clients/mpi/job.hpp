@@ -65,6 +65,7 @@ struct Round {
   const std::vector<std::uint32_t>& own_of_local;  // local index -> owned k (Halo::kNone: a ghost)
   const TopSplit& split;
   const RoundCertifier& certify;
+  const HeldRegion& held;               // what the rank lacks of the whole set (MeshOptions::held)
   std::unique_ptr<KdTree>& tree;        // the held points' tree, kept between rounds (a job may build it)
   std::vector<std::uint32_t>& pending;  // owned k to compute (round 1 of cells: the job fills it)
   std::vector<std::pair<std::uint32_t, StarCertificate>>& refused;  // out: owned k, and what it needs

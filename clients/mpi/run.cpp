@@ -64,6 +64,9 @@ struct Reach {
   // round; once it holds the whole set's box, the facet is known (a true hull facet's
   // outer side is empty, so the answers stay empty and cheap).
   std::map<FacetKey, std::vector<double>> hull_region;
+  // A seed's balls reached across the whole set (MeshOptions::defer): every point of
+  // it was fetched, as one process takes the whole set.
+  bool everything = false;
 };
 
 // This round's requests of the others: boxes, hull facets with their regions, balls;
@@ -186,6 +189,7 @@ class DistributedRun {
     if (Status s = check_usage(); !s.is_ok()) return fail(s);
     note_peak(comm_, "start");
     if (Status s = read_input(); !s.is_ok()) return fail(s);
+    note_peak(comm_, "read");
     if (Status s = split(); !s.is_ok()) return fail(s);
     if (Status s = rounds(); !s.is_ok()) return fail(s);
     note_peak(comm_, "rounds done");
@@ -268,12 +272,15 @@ class DistributedRun {
     auto split = split_across_ranks(comm_, std::move(slice_.points), n, target, w_.input);
     if (!split.is_ok()) return split.status();
     split_.emplace(std::move(split).value());
+    split_->sweep_ends = sweep_piece_ends(*split_, comm_.rank);
+    note_peak(comm_, "split across ranks");
     note_peak(comm_, "split");
     owned_ = split_->owned.size();
     if (Status s = job_->check_seeds(comm_, *split_); !s.is_ok()) return s;
     halo_ = std::make_unique<Halo>(comm_, *split_, facts_.global_box, options_.first_halo);
     std::vector<std::size_t> all_pieces(split_->owned_nodes.size());
     std::iota(all_pieces.begin(), all_pieces.end(), std::size_t{0});
+    note_peak(comm_, "halo made");
     halo_->fetch(halo_->requests_of(all_pieces), {}, {});
     progress_ = std::make_unique<cli::Progress>(w_.common.quiet || comm_.rank != 0, owned_, job_->progress_label());
     return Status::ok();
@@ -322,7 +329,8 @@ class DistributedRun {
   Status compute(int round, std::vector<std::pair<std::uint32_t, StarCertificate>>& refused) {
     if (owned_ == 0) return Status::ok();
     const HeldCertifier certifier(*held_, own_of_local_, *halo_, split_->owned_nodes.size(), reach_, facts_);
-    Round r{round, *held_, own_of_local_, *split_, certifier, held_tree_, pending_, refused, *progress_};
+    const HeldRegion held = held_region();
+    Round r{round, *held_, own_of_local_, *split_, certifier, held, held_tree_, pending_, refused, *progress_};
     if (spans_) return job_->compute(r);
     // Too few held points to span the space: every seed waits for more, asking for
     // the points around it.
@@ -341,6 +349,35 @@ class DistributedRun {
     return Status::ok();
   }
 
+  // What the rank lacks of the whole set, as the core's runs read it: the other ranks'
+  // nodes are unheld, less the pieces' held boxes and what the rounds fetched (boxes,
+  // balls; the whole set once a seed asked for it); hull facets whose outer side was
+  // fetched whole are known.
+  HeldRegion held_region() const {
+    HeldRegion h(facts_.d, facts_.global_box, facts_.n);
+    if (held_->points.size() == facts_.n || reach_.everything) {
+      h.add_held_box(facts_.global_box);
+    } else {
+      for (const TopNode& node : split_->nodes) {
+        if (node.owner != comm_.rank) h.add_unheld_box(node.box, node.count);
+      }
+      for (std::size_t p = 0; p < split_->owned_nodes.size(); ++p) h.add_held_box(halo_->held_box(p));
+      for (const auto& [k, box] : reach_.boxes) h.add_held_box(box);
+      const auto d = static_cast<std::size_t>(facts_.d);
+      for (const auto& [k, balls] : reach_.balls) {
+        for (std::size_t b = 0; b + d + 1 <= balls.size(); b += d + 1)
+          h.add_held_ball(std::span<const double>(balls).subspan(b, d + 1));
+      }
+      h.set_known_hull([this](std::span<const std::uint32_t> facet) {
+        FacetKey key(facet.size());
+        for (std::size_t i = 0; i < facet.size(); ++i) key[i] = held_->global[facet[i]];
+        return reach_.known_hull.count(key) != 0;
+      });
+    }
+    h.freeze();
+    return h;
+  }
+
   // The refused seeds are next round's pending ones; their certificates say what to
   // fetch: a box around the balls that failed (grown when refused again), the balls,
   // and the outer sides of hull facets in growing regions. Returns the seeds left on
@@ -351,9 +388,17 @@ class DistributedRun {
     const int d = facts_.d;
     const PointSet& points = held_->points;
     pending_.clear();
+    bool everything = false;  // one request for the whole set serves every seed that needs it
     for (auto& [k, c] : refused) {
       pending_.push_back(k);
       const double* x = split_->owned.point(k);
+      if (!c.reach.empty() && covers(c.reach, facts_.global_box)) {
+        if (!everything && !reach_.everything) {
+          out.boxes.insert(out.boxes.end(), facts_.global_box.begin(), facts_.global_box.end());
+        }
+        everything = true;
+        continue;
+      }
       if (!c.balls.empty()) {
         std::vector<double>& mine = reach_.balls[k];
         mine.insert(mine.end(), c.balls.begin(), c.balls.end());
@@ -423,13 +468,22 @@ class DistributedRun {
     }
     std::sort(pending_.begin(), pending_.end());
     pending_.erase(std::unique(pending_.begin(), pending_.end()), pending_.end());
+    // The whole set asked for: nothing else needs fetching.
+    if (everything) {
+      out.balls.clear();
+      out.facets.clear();
+      out.asked.clear();
+      out.boxes.assign(facts_.global_box.begin(), facts_.global_box.end());
+      reach_.everything = true;
+    }
     const std::uint64_t left = comm_.allreduce<std::uint64_t>(pending_.size(), MPI_SUM);
     if (std::getenv("SPOKEMESH_MPI_DEBUG") != nullptr) {
       std::fprintf(stderr,
                    "rank %d round %d: %zu owned, %zu held, %zu refused (all ranks: %llu), %zu boxes, %zu balls, %zu "
-                   "facets asked\n",
+                   "facets asked, %.2f s\n",
                    comm_.rank, round, owned_, points.size(), pending_.size(), static_cast<unsigned long long>(left),
-                   out.boxes.size() / (2 * dd), out.balls.size() / (dd + 1), out.facets.size() / ((dd + 3) * dd));
+                   out.boxes.size() / (2 * dd), out.balls.size() / (dd + 1), out.facets.size() / ((dd + 3) * dd),
+                   std::chrono::duration<double>(Clock::now() - start_).count());
     }
     return left;
   }

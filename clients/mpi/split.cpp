@@ -1,7 +1,9 @@
 #include "split.hpp"
 
 #include <algorithm>
+#include <functional>
 #include <limits>
+#include <map>
 #include <numeric>
 
 #include "spokemesh/count_select.hpp"
@@ -274,6 +276,44 @@ Result<TopSplit> split_across_ranks(Comm& comm, Points mine, std::uint64_t n, st
   }
   if (Status s = comm.agree(failure); !s.is_ok()) return s;
   return out;
+}
+
+std::vector<std::uint32_t> sweep_piece_ends(const TopSplit& split, int rank) {
+  if (split.nodes.empty()) return {};
+  // The top nodes by their first position; the recursion halves [b, e) by counts
+  // ([b, b + (e - b) / 2) left), exactly as the joint levels cut it, down to them.
+  std::map<std::uint64_t, const TopNode*> by_start;
+  std::uint64_t n = 0;
+  for (const TopNode& node : split.nodes) {
+    by_start[node.start] = &node;
+    n = std::max(n, node.start + node.count);
+  }
+  std::vector<std::uint64_t> counts;  // the merged pieces' point counts, in order
+  // Returns the rank owning all of [b, e), or -1; appends the maximal nodes wholly this
+  // rank's below a node that is not.
+  std::function<int(std::uint64_t, std::uint64_t, std::vector<std::uint64_t>&)> visit =
+      [&](std::uint64_t b, std::uint64_t e, std::vector<std::uint64_t>& mine) -> int {
+    if (const auto it = by_start.find(b); it != by_start.end() && it->second->start + it->second->count == e) {
+      return it->second->owner;
+    }
+    if (e - b <= 1) return -1;  // not a node of the split (cannot happen)
+    const std::uint64_t mid = b + (e - b) / 2;
+    std::vector<std::uint64_t> left, right;
+    const int l = visit(b, mid, left), r = visit(mid, e, right);
+    if (l >= 0 && l == r) return l;
+    if (l == rank) left = {mid - b};
+    if (r == rank) right = {e - mid};
+    mine.insert(mine.end(), left.begin(), left.end());
+    mine.insert(mine.end(), right.begin(), right.end());
+    return -1;
+  };
+  if (visit(0, n, counts) == rank) counts = {n};
+  std::vector<std::uint32_t> ends;
+  std::uint64_t at = 0;
+  for (const std::uint64_t c : counts) ends.push_back(static_cast<std::uint32_t>(at += c));
+  // (Should the recursion not meet the top nodes, the top nodes themselves.)
+  if (ends.empty() || ends.back() != split.owned.size()) return split.piece_ends;
+  return ends;
 }
 
 }  // namespace spokemesh::mpi

@@ -39,8 +39,18 @@ struct TopSplit {
   Points owned;
   std::vector<std::uint32_t> owned_nodes;  // node index of each piece
   std::vector<std::uint32_t> piece_ends;
+  // The pieces merged into the largest nodes the rank owns whole (sweep_piece_ends):
+  // the pieces its sweep takes, so that its regions are as large as one process's.
+  std::vector<std::uint32_t> sweep_ends;
   int joint_levels = 0, select_rounds = 0;
 };
+
+// The rank's pieces merged into the largest nodes of the whole set's split that it
+// owns entirely (a node whose every top node is this rank's), as ends into
+// split.owned: a SpaceSplit over them gives the same positions as over the top nodes
+// (each merged node is split as the whole set's recursion splits it), while its
+// regions (nodes_of_at_most) may now span what were several pieces.
+std::vector<std::uint32_t> sweep_piece_ends(const TopSplit& split, int rank);
 
 // Cuts the set (every rank's `mine`) into nodes of at most `target` points, checks that
 // no two points are equal (INVALID_ARGUMENT naming both, agreed by every rank), and

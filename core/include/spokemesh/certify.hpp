@@ -55,6 +55,81 @@ struct StarCertificate {
   std::vector<std::uint32_t> hull_facets;
 };
 
+// HeldRegion: what one process holds of a larger point set (a rank of spokemesh-mpi),
+// for runs whose every answer must hold against the points it lacks
+// (MeshOptions::held). Every point of the whole set lies in whole_box(); every point
+// the process lacks lies in one of the unheld boxes (the other ranks' nodes), less
+// what it fetched: the held boxes and balls, inside each of which it holds every
+// point of the whole set. The unheld boxes are cut by the held boxes once, when the
+// region is frozen, into residual boxes (closed: a point on a held box's face counts
+// as possibly lacking), so that every test below is a pass over the residuals:
+//   box_held    the box misses every residual;
+//   ball_held   the ball misses every residual, or lies in a held ball;
+//   beyond_held a hull facet's outer side (and its plane) misses every residual, or
+//               the facet is known to be one of the whole set's hull (known_hull).
+// Each is conservative (false when undecided). Dimensions 2 and 3; in any other
+// nothing is held unless no box is unheld.
+//
+// Ownership: a value. Thread safety: build it on one thread, freeze() it, then its
+// const calls are safe concurrently.
+class HeldRegion {
+ public:
+  // whole_box: d lows, then d highs; whole_points: the whole set's size.
+  HeldRegion(int d, std::vector<double> whole_box, std::uint64_t whole_points);
+
+  // Every point of the whole set inside the closed box (2 d doubles) is held.
+  void add_held_box(std::span<const double> box);
+  // Every point within the closed ball (d centre coordinates, then the radius) is held.
+  void add_held_ball(std::span<const double> ball);
+  // Points not held may lie in this box (2 d doubles), at most `points` of them (a
+  // count for estimates of work only).
+  void add_unheld_box(std::span<const double> box, std::uint64_t points);
+  // Hull facets (d ascending indices of the run's PointSet) known to be the whole set's.
+  void set_known_hull(std::function<bool(std::span<const std::uint32_t>)> known) { known_hull_ = std::move(known); }
+  // Cuts the unheld boxes by the held ones (call after the last add_*: the tests
+  // below read the residuals).
+  void freeze();
+
+  int dimension() const { return d_; }
+  const std::vector<double>& whole_box() const { return whole_; }
+  std::uint64_t whole_points() const { return whole_points_; }
+  // Whether the process holds every point (no residual).
+  bool holds_all() const { return residual_.empty(); }
+  bool box_held(const double* box) const { return residual_meeting(box) == nullptr; }
+  // A residual box (2 d doubles) that the closed box meets, or null when it is held.
+  const double* residual_meeting(const double* box) const;
+  // The closed ball whose centre lies in [centre_lo, centre_hi] (per axis) with squared
+  // radius at most radius2_up.
+  bool ball_held(const double* centre_lo, const double* centre_hi, double radius2_up) const;
+  // f: the facet's d points; inner: a point on its inner side; ids: the facet's indices.
+  bool beyond_held(const double* const* f, const double* inner, std::span<const std::uint32_t> ids) const;
+  // A star of the run's PointSet (`points`, whose indices known_hull reads): certified
+  // when every simplex's ball and every hull facet's outer side is held; otherwise the
+  // balls and hull facets to fetch (as StarCertifier::certify gives them).
+  StarCertificate certify(const PointSet& points, const Star& star) const;
+  // About how many points the process lacks inside the box: each residual's share of
+  // its unheld box's count, by volume (for decisions of work only, never of answers).
+  double lacking_in(const double* box) const;
+
+ private:
+  int d_;
+  std::vector<double> whole_;
+  std::uint64_t whole_points_;
+  std::vector<double> held_boxes_, held_balls_;
+  struct Unheld {
+    std::vector<double> box;
+    std::uint64_t points;
+  };
+  std::vector<Unheld> unheld_;
+  struct Residual {
+    std::vector<double> box;
+    double points;  // the unheld box's count times this part's share of its volume
+  };
+  std::vector<Residual> residual_;
+  std::vector<double> residual_boxes_;  // the residuals' boxes, one after another
+  std::function<bool(std::span<const std::uint32_t>)> known_hull_;
+};
+
 class StarCertifier {
  public:
   // held: the points held; whole_box: the whole set's bounding box (d lows, d highs),

@@ -2,9 +2,9 @@
 // order along an axis that SpaceSplit uses, found by rounds of one gather and one sum:
 // SpaceSplit's median step when no part holds the whole set (docs/distributed.md).
 //
-// Each part sorts its own points once; its candidates are then always one run of that
-// order. A round: every part proposes the middle of its candidates with their count
-// (propose); every part computes the same pivot from all proposals, the median of the
+// Each part keeps its candidates unsorted: a round selects its middle candidate and
+// partitions the rest about the pivot, in time linear in the candidates. A round: every part proposes the middle of its
+// candidates with their count (propose); every part computes the same pivot from all proposals, the median of the
 // medians weighted by their counts (pivot_of); every part counts its candidates below
 // and at the pivot (count); the sums say whether the pivot is the k-th point or on
 // which side it lies (decide), and every part keeps that side (narrow). The pivot has
@@ -47,7 +47,7 @@ class CountSelect {
   // then the index (SpaceSplit's).
   static bool before(const Key& a, const Key& b, int axis);
 
-  Proposal propose() const;
+  Proposal propose();  // (reorders the candidates)
   static Key pivot_of(std::span<const Proposal> proposals, int axis);
   Counts count(const Key& pivot) const;
   // With the counts summed over the parts: where the k-th candidate lies; k is made
@@ -58,11 +58,13 @@ class CountSelect {
 
  private:
   Key key_at(std::size_t i) const;
+  bool less(std::uint32_t a, std::uint32_t b) const;  // two of this part's points, in the total order
+  bool less_than(std::uint32_t a, const Key& pivot) const;
   int d_, axis_;
   std::vector<double> coords_;
   std::vector<std::uint64_t> ids_;
-  std::vector<std::uint32_t> sorted_;  // this part's points in the total order
-  std::size_t lo_ = 0, hi_ = 0;        // the candidates: sorted_[lo_, hi_)
+  std::vector<std::uint32_t> sorted_;  // this part's points; the candidates are sorted_[lo_, hi_)
+  std::size_t lo_ = 0, hi_ = 0;
 };
 
 }  // namespace spokemesh

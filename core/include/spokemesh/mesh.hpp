@@ -33,6 +33,7 @@
 #include <utility>
 #include <vector>
 
+#include "spokemesh/certify.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/star.hpp"
@@ -100,6 +101,18 @@ struct MeshOptions {
   // suffix; the others as sorted vertex lists) or kAll (every simplex canonical, as
   // StarWalker::compute gives a star on its own).
   StarPart accept_part = StarPart::kWhole;
+  // A run over the points this process holds of a larger set (spokemesh-mpi's ranks;
+  // borrowed, frozen, its known_hull over this run's point indices; null, or one that
+  // holds_all(): the points are the whole set). Every star must then also hold against
+  // the points the process lacks: the local triangulations certify each cell's ball
+  // and hull facet against it too (a ball a query finds empty of held points must
+  // also be held), star walks each star (HeldRegion::certify). A seed whose star
+  // cannot be certified so emits nothing (and is not offered to `accept`): `defer` is
+  // given it with what would certify it, the balls and hull facets to fetch, or, when
+  // the balls reach across most of the whole set (a closed surface: one process would
+  // take the whole set), a reach of the whole box. Called concurrently from the workers.
+  const HeldRegion* held = nullptr;
+  std::function<void(std::uint32_t seed, StarCertificate certificate)> defer;
   // Only these seeds (ascending, no repeats; not owned, must outlive the run), among
   // those the ranges above admit; empty: every seed. A batch of seeds computes its
   // stars as a whole mesh restricted to them would (through `accept`).
@@ -126,6 +139,7 @@ struct TriangulationStats {
 
 struct MeshStats {
   std::uint64_t seeds = 0;
+  std::uint64_t deferred = 0;  // seeds handed to MeshOptions::defer (a run over held points)
   std::uint64_t simplices = 0;
   TriangulationStats triangulation;
   // The most the front's mailboxes held at once (d >= 3): grows with the surface

@@ -66,11 +66,18 @@ class SpaceSplit {
   // piece_ends[p]) (from 0 for p = 0). Each piece is split on exactly as the whole
   // set's recursion splits that node, so positions follow the whole set's order
   // restricted to the pieces. Points in no piece (another process's, held to complete
-  // stars) come after them, in index order, as one trailing block no sweep takes.
+  // stars) come after them, split as one node of their own (in space order: the order a
+  // triangulation of the held points inserts them in), as one trailing block no sweep takes.
   // Preconditions: the pieces are disjoint; each is a node of the whole set's split
   // with the same leaf size.
   SpaceSplit(const PointSet& points, std::span<const std::uint32_t> members, std::span<const std::uint32_t> piece_ends,
              std::uint32_t block, std::uint32_t leaf = kLeafPoints);
+
+  // This split over another PointSet that holds the same pieces' points (a process's
+  // held points, grown): id_of maps each point id of this split to its id in `points`.
+  // The pieces' positions and blocks are kept; the points of `points` in no piece trail
+  // as the constructor places them. O(n), plus the split of the trailing points.
+  SpaceSplit remapped(const PointSet& points, std::span<const std::uint32_t> id_of) const;
 
   int dimension() const { return d_; }
   // Positions [0, swept()) are the pieces' points (all of them for a whole set).
@@ -105,6 +112,10 @@ class SpaceSplit {
  private:
   void build(const PointSet& points, std::span<const std::uint32_t> members, std::span<const std::uint32_t> piece_ends,
              std::uint32_t block, std::uint32_t leaf);
+  // The points in no piece (position_ unset), split as one node, as one trailing block.
+  void append_trailing(const PointSet& points);
+  struct Empty {};
+  SpaceSplit(Empty, int d) : d_(d) {}  // an empty split, for remapped()
 
   int d_;
   std::uint32_t swept_ = 0;

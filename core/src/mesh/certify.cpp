@@ -98,12 +98,13 @@ StarCertificate certify(const PointSet& ps, const double* global, const Star& st
       for (std::size_t b = 0; b + box_words <= held_boxes.size() && !held; b += box_words) {
         held = inside<D>(extent, held_boxes.data() + b);
       }
-      for (std::size_t b = 0; b + D + 1 <= held_balls.size() && !held; b += D + 1) {
-        held = inside_ball<D>(centre, radius2, held_balls.data() + b);
-      }
     }
     for (std::size_t b = 0; b < boxes && ok && !held; ++b)
       ok = misses<D>(centre, radius2, unheld.data() + b * box_words);
+    // (The held balls, often many, last: most balls miss every unheld box.)
+    for (std::size_t b = 0; b + D + 1 <= held_balls.size() && !ok; b += D + 1) {
+      ok = inside_ball<D>(centre, radius2, held_balls.data() + b);
+    }
     if (!ok) {
       // Ask for the ball itself: a ball query returns only what lies inside (near the
       // hull a ball's part of the set's box is a wide thin cap, a box around it many
@@ -224,6 +225,154 @@ bool StarCertifier::ball_is_held(std::uint32_t seed, double radius2, std::span<c
     constexpr int D = decltype(dim)::value;
     return spokemesh::ball_is_held<D>(s, radius2, global_.data(), held_boxes, held_balls, unheld);
   });
+}
+
+HeldRegion::HeldRegion(int d, std::vector<double> whole_box, std::uint64_t whole_points)
+    : d_(d), whole_(std::move(whole_box)), whole_points_(whole_points) {}
+
+void HeldRegion::add_held_box(std::span<const double> box) {
+  held_boxes_.insert(held_boxes_.end(), box.begin(), box.end());
+}
+
+void HeldRegion::add_held_ball(std::span<const double> ball) {
+  held_balls_.insert(held_balls_.end(), ball.begin(), ball.end());
+}
+
+void HeldRegion::add_unheld_box(std::span<const double> box, std::uint64_t points) {
+  unheld_.push_back({std::vector<double>(box.begin(), box.end()), points});
+}
+
+namespace {
+
+// The volume of a box (2 d doubles); 0 for a flat one.
+double box_volume(int d, const double* b) {
+  double v = 1;
+  for (int c = 0; c < d; ++c) v *= std::max(0.0, b[d + c] - b[c]);
+  return v;
+}
+
+// Box `rest` less box q, as closed boxes appended to `out` (a face shared with q is
+// kept in both: conservative).
+void subtract_box(int d, std::vector<double> rest, const double* q, std::vector<std::vector<double>>& out) {
+  const auto dd = static_cast<std::size_t>(d);
+  for (std::size_t c = 0; c < dd; ++c) {
+    if (q[dd + c] < rest[c] || q[c] > rest[dd + c]) {  // q misses what is left
+      out.push_back(std::move(rest));
+      return;
+    }
+  }
+  for (std::size_t c = 0; c < dd; ++c) {
+    if (rest[c] < q[c]) {  // the part below q along c
+      std::vector<double> part = rest;
+      part[dd + c] = q[c];
+      out.push_back(std::move(part));
+    }
+    if (rest[dd + c] > q[dd + c]) {
+      std::vector<double> part = rest;
+      part[c] = q[dd + c];
+      out.push_back(std::move(part));
+    }
+    rest[c] = std::max(rest[c], q[c]);
+    rest[dd + c] = std::min(rest[dd + c], q[dd + c]);
+  }
+}
+
+}  // namespace
+
+void HeldRegion::freeze() {
+  residual_boxes_.clear();
+  // Each unheld box less every held box, piece by piece; a box that would break into
+  // more than kMostPieces stays as far as it got (more residual: only more fetching).
+  constexpr std::size_t kMostPieces = 256;
+  const auto w = static_cast<std::size_t>(2 * d_);
+  residual_.clear();
+  for (const Unheld& u : unheld_) {
+    std::vector<std::vector<double>> parts{u.box}, next;
+    for (std::size_t h = 0; h + w <= held_boxes_.size() && !parts.empty(); h += w) {
+      next.clear();
+      for (std::vector<double>& part : parts) subtract_box(d_, std::move(part), &held_boxes_[h], next);
+      if (next.size() > kMostPieces) {
+        parts = {u.box};  // too fragmented: kept whole (conservative)
+        break;
+      }
+      parts.swap(next);
+    }
+    const double volume = box_volume(d_, u.box.data());
+    for (std::vector<double>& part : parts) {
+      const double share = volume > 0 ? box_volume(d_, part.data()) / volume : 1.0;
+      residual_boxes_.insert(residual_boxes_.end(), part.begin(), part.end());
+      residual_.push_back({std::move(part), share * static_cast<double>(u.points)});
+    }
+  }
+}
+
+StarCertificate HeldRegion::certify(const PointSet& points, const Star& star) const {
+  if (residual_.empty()) {
+    StarCertificate all_held;
+    all_held.certified = true;
+    return all_held;
+  }
+  const auto known = [&](std::span<const std::uint32_t> facet) { return known_hull_ && known_hull_(facet); };
+  return detail::dispatch_2d_3d(d_, StarCertificate{}, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    return spokemesh::certify<D>(points, whole_.data(), star, {}, held_balls_, residual_boxes_, known);
+  });
+}
+
+const double* HeldRegion::residual_meeting(const double* box) const {
+  const auto dd = static_cast<std::size_t>(d_);
+  for (const Residual& r : residual_) {
+    bool meets = true;
+    for (std::size_t c = 0; c < dd && meets; ++c) meets = !(box[dd + c] < r.box[c] || box[c] > r.box[dd + c]);
+    if (meets) return r.box.data();
+  }
+  return nullptr;
+}
+
+bool HeldRegion::ball_held(const double* centre_lo, const double* centre_hi, double radius2_up) const {
+  if (residual_.empty()) return true;
+  return detail::dispatch_2d_3d(d_, false, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    std::array<Interval, D> centre{};
+    for (int k = 0; k < D; ++k) centre[static_cast<std::size_t>(k)] = {centre_lo[k], centre_hi[k]};
+    bool misses_all = true;
+    for (const Residual& r : residual_) {
+      if (!misses<D>(centre, radius2_up, r.box.data())) {
+        misses_all = false;
+        break;
+      }
+    }
+    if (misses_all) return true;
+    for (std::size_t b = 0; b + D + 1 <= held_balls_.size(); b += D + 1) {
+      if (inside_ball<D>(centre, radius2_up, held_balls_.data() + b)) return true;
+    }
+    return false;
+  });
+}
+
+bool HeldRegion::beyond_held(const double* const* f, const double* inner, std::span<const std::uint32_t> ids) const {
+  if (residual_.empty()) return true;
+  if (d_ != 2 && d_ != 3) return false;
+  for (const Residual& r : residual_) {
+    if (StarCertifier::may_be_beyond(d_, f, inner, r.box.data())) return known_hull_ && known_hull_(ids);
+  }
+  return true;
+}
+
+double HeldRegion::lacking_in(const double* box) const {
+  const auto dd = static_cast<std::size_t>(d_);
+  double total = 0;
+  for (const Residual& r : residual_) {
+    double share = 1;
+    const double volume = box_volume(d_, r.box.data());
+    for (std::size_t c = 0; c < dd && share > 0; ++c) {
+      const double lo = std::max(box[c], r.box[c]), hi = std::min(box[dd + c], r.box[dd + c]);
+      if (hi < lo) share = 0;
+      if (volume > 0) share *= (hi - lo) / (r.box[dd + c] - r.box[c]);
+    }
+    total += share * r.points;
+  }
+  return total;
 }
 
 bool StarCertifier::may_be_beyond(int d, const double* const* f, const double* inner, const double* box) {

@@ -148,7 +148,12 @@ struct Run {
   const MeshOptions& options;
   std::shared_ptr<const Predicates> shared_pred;  // shared with the whole set's triangulation
   const Predicates& pred;
-  Box<D> bounds;  // the set's bounding box (exact)
+  // What this process lacks of a larger set (MeshOptions::held), or null when its
+  // points are the whole set; the whole set's size.
+  const HeldRegion* held;
+  std::uint64_t whole_points;
+  Box<D> bounds;  // the (whole) set's bounding box (exact)
+  std::atomic<std::uint64_t> deferred{0};
   std::uint32_t seed_begin, seed_end;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> regions;  // sweep positions [first, second)
 
@@ -172,7 +177,9 @@ struct Run {
         split(s),
         options(o),
         shared_pred(std::make_shared<const Predicates>(points)),
-        pred(*shared_pred) {
+        pred(*shared_pred),
+        held(o.held != nullptr && !o.held->holds_all() ? o.held : nullptr),
+        whole_points(held != nullptr ? held->whole_points() : points.size()) {
     // A triangulation of every point kept from an earlier run on these points: every
     // region reads it, nothing is built.
     if (auto kept = std::dynamic_pointer_cast<const Whole<D>>(o.whole); kept != nullptr && kept->points == &points) {
@@ -192,6 +199,27 @@ struct Run {
 
   bool cancelled() const {
     return options.star.cancel != nullptr && options.star.cancel->load(std::memory_order_relaxed);
+  }
+
+  // A seed whose star this process cannot certify from the points it holds.
+  void defer(std::uint32_t seed, StarCertificate certificate) {
+    deferred.fetch_add(1, std::memory_order_relaxed);
+    if (options.defer) options.defer(seed, std::move(certificate));
+  }
+  // ...because the balls reach across the whole set: it should hold all of it.
+  void defer_to_whole_set(std::uint32_t seed) {
+    StarCertificate c;
+    c.reach.assign(held->whole_box().begin(), held->whole_box().end());
+    defer(seed, std::move(c));
+  }
+  // A walked star of a run over held points: true when certified against what the
+  // process lacks, else deferred.
+  bool certified_walk(const Star& star) {
+    if (held == nullptr) return true;
+    StarCertificate c = held->certify(ps, star);
+    if (c.certified) return true;
+    defer(star.seed, std::move(c));
+    return false;
   }
 
   // Whether a triangulation that holds `now` bytes, of which `mine` are reserved, may
@@ -298,6 +326,10 @@ struct RegionRows {
 // ball or hull facet certified, failed this round, or failed and to be asked of the
 // k-d tree.
 constexpr std::uint32_t kUnknown = 0, kCertified = 1, kFailed = 2, kAskTree = 3;
+// A run over held points (MeshOptions::held): the cell holds no held point in its ball
+// (or beyond its hull facet), but the process lacks points that could be there. Its
+// seeds are deferred.
+constexpr std::uint32_t kRemote = 4;
 // A region point: not a seed of the run, a seed whose star is not yet certified, done.
 constexpr std::uint8_t kNotSeed = 0, kPendingSeed = 1, kDoneSeed = 2;
 
@@ -322,6 +354,7 @@ class RegionMesher {
     out.seeds = wanted_.size();
     if (wanted_.empty()) return Status::ok();
     if (run_.cancelled()) return cancelled("mesh cancelled");
+    if (run_.held != nullptr && run_.whole_wanted.load()) return defer_to_whole_set();
     if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) {
       // Few seeds wanted: walk their stars while that costs less than triangulating the
       // region would; when walking proves dearer (stars reaching far: a sphere's
@@ -339,6 +372,7 @@ class RegionMesher {
       stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
       if (local.value() == Outcome::kOverBudget) return walk(out).status();
       if (local.value() == Outcome::kDone) {
+        if (run_.held != nullptr) defer_pending(first);
         if (run_.options.accept) {  // whole stars, one at a time
           for (const std::uint32_t r : wanted_) {
             cells_.clear();
@@ -351,6 +385,8 @@ class RegionMesher {
         return Status::ok();
       }
     }
+    // Over held points, the whole set is what this process should hold: deferred.
+    if (run_.held != nullptr) return defer_to_whole_set();
     if (run_.whole_refused.load()) return walk(out).status();
     if (const Status& s = run_.ensure_whole(&tri_, &reserved_); !s.is_ok()) return s;
     if (run_.whole == nullptr) return walk(out).status();  // refused just now
@@ -509,6 +545,16 @@ class RegionMesher {
     }
     return tri_.coords(v[0]);  // unreachable
   }
+  // The same vertex's local id.
+  std::uint32_t apex_local_across(std::uint32_t c, int inf) const {
+    const std::uint32_t nb = tri_.cell(c).n[static_cast<std::size_t>(inf)];
+    const auto& v = tri_.cell(nb).v;
+    const auto& mine = tri_.cell(c).v;
+    for (const std::uint32_t x : v) {
+      if (std::find(mine.begin(), mine.end(), x) == mine.end()) return x;
+    }
+    return v[0];  // unreachable
+  }
 
   // A point of the set not inserted that conflicts with cell c (inside its ball, or
   // beyond its hull facet), appended to `out`; none when no point does (then c is
@@ -599,6 +645,127 @@ class RegionMesher {
     }
   }
 
+  // A run over held points whose balls reach across the whole set: every wanted seed
+  // of the region is deferred (the process should hold the whole set).
+  Status defer_to_whole_set() {
+    for (const std::uint32_t r : wanted_) run_.defer_to_whole_set(run_.split.point_at(r));
+    wanted_.clear();
+    return Status::ok();
+  }
+
+  // A run over held points, once the region's rounds are over: each wanted seed still
+  // pending (blocked by cells tagged kRemote only) is deferred with those cells' balls
+  // and hull facets, and wanted_ keeps the seeds done.
+  void defer_pending(std::uint32_t first) {
+    if (pending_.empty()) return;
+    for (const std::uint32_t x : pending_) {
+      StarCertificate c;
+      cells_.clear();
+      tri_.incident_cells(x, cells_, seen_);
+      for (const std::uint32_t cell : cells_) {
+        if (tri_.tag(cell) != kRemote) continue;
+        const int inf = tri_.infinite_index(cell);
+        if (inf < 0) {
+          // The ball, as StarCertifier asks for it: the middle of the centre's interval,
+          // the radius grown by the interval's spread.
+          const Check check = certify(cell);
+          double spread2 = 0;
+          for (int k = 0; k < D; ++k) {
+            const auto& ck = check.centre[static_cast<std::size_t>(k)];
+            const double mid = ck.lo / 2 + ck.hi / 2;
+            c.balls.push_back(mid);
+            const double half = std::max(ball_bounds::up(ck.hi - mid), ball_bounds::up(mid - ck.lo));
+            spread2 += half * half;
+          }
+          c.balls.push_back(ball_bounds::up(ball_bounds::up(ball_bounds::up(std::sqrt(check.radius2)) +
+                                                            ball_bounds::up(std::sqrt(ball_bounds::up(spread2))))) *
+                            (1 + 1e-12));
+        } else {
+          const auto ids = hull_facet_ids(cell, inf);
+          c.hull_facets.insert(c.hull_facets.end(), ids.begin(), ids.end());
+          c.hull_facets.push_back(tri_.global(apex_local_across(cell, inf)));
+        }
+      }
+      run_.defer(tri_.global(x), std::move(c));
+    }
+    wanted_.erase(std::remove_if(wanted_.begin(), wanted_.end(),
+                                 [&](std::uint32_t r) { return state_[local_[r - first]] != kDoneSeed; }),
+                  wanted_.end());
+  }
+
+  // The point ids of infinite cell c's hull facet (inf: its infinite vertex's index),
+  // ascending.
+  std::array<std::uint32_t, D> hull_facet_ids(std::uint32_t c, int inf) const {
+    std::array<std::uint32_t, D> ids{};
+    for (int k = 0, j = 0; k <= D; ++k) {
+      if (k != inf) ids[static_cast<std::size_t>(j++)] = tri_.global(tri_.cell(c).v[static_cast<std::size_t>(k)]);
+    }
+    std::sort(ids.begin(), ids.end());
+    return ids;
+  }
+
+  // Whether every point of the whole set that could conflict with cell c is held: its
+  // ball (check: certify(c)) or its hull facet's outer side (a run over held points).
+  bool held_by_process(std::uint32_t c, const Check& check) const {
+    const int inf = tri_.infinite_index(c);
+    if (inf < 0) {
+      std::array<double, D> lo{}, hi{};
+      for (int k = 0; k < D; ++k) {
+        lo[static_cast<std::size_t>(k)] = check.centre[static_cast<std::size_t>(k)].lo;
+        hi[static_cast<std::size_t>(k)] = check.centre[static_cast<std::size_t>(k)].hi;
+      }
+      return run_.held->ball_held(lo.data(), hi.data(), check.radius2);
+    }
+    std::array<const double*, D> f{};
+    for (int k = 0, j = 0; k <= D; ++k) {
+      if (k != inf) f[static_cast<std::size_t>(j++)] = tri_.coords(tri_.cell(c).v[static_cast<std::size_t>(k)]);
+    }
+    const auto ids = hull_facet_ids(c, inf);
+    return run_.held->beyond_held(f.data(), apex_across(c, inf), ids);
+  }
+
+  // A run over held points: box e cut back until every point of the whole set inside
+  // it is held (then E's bound certificates hold in the whole set). Each cut leaves out
+  // one residual box that e meets, along the axis and side that keep most of e.
+  void shrink_to_held(Box<D>& e) const {
+    if (run_.held == nullptr) return;
+    for (;;) {
+      const double* r = run_.held->residual_meeting(e.data());
+      if (r == nullptr) return;
+      double best = -1;
+      int best_k = 0;
+      bool best_low = false;
+      for (int k = 0; k < D; ++k) {
+        const double lo = e[static_cast<std::size_t>(k)], hi = e[static_cast<std::size_t>(D + k)];
+        const double width = hi - lo;
+        // Below r (e's highs cut to just under r's low), or above it.
+        const double below = width > 0 ? (r[k] - lo) / width : 0, above = width > 0 ? (hi - r[D + k]) / width : 0;
+        if (r[k] > lo && below > best) {
+          best = below;
+          best_k = k;
+          best_low = true;
+        }
+        if (r[D + k] < hi && above > best) {
+          best = above;
+          best_k = k;
+          best_low = false;
+        }
+      }
+      if (best < 0) {  // r holds all of e: nothing of it is held for sure
+        for (int k = 0; k < D; ++k) {
+          e[static_cast<std::size_t>(k)] = HUGE_VAL;
+          e[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
+        }
+        return;
+      }
+      if (best_low) {
+        e[static_cast<std::size_t>(D + best_k)] = std::nextafter(r[best_k], -HUGE_VAL);
+      } else {
+        e[static_cast<std::size_t>(best_k)] = std::nextafter(r[D + best_k], HUGE_VAL);
+      }
+    }
+  }
+
   // What became of a region: every wanted seed's star certified; the balls reach across
   // the set (the run then takes the triangulation of every point); or its memory was
   // refused (its seeds' stars are then walked).
@@ -682,9 +849,13 @@ class RegionMesher {
     // Whether the balls reach across the set, judged early: the sample's reach as it is
     // (on a surface, reach follows the shape, not the density) would put most of the
     // set in E. Then the region stops here and the run takes the whole set.
-    const std::size_t most = 3 * run_.ps.size() / 4;
-    if (region_points < run_.ps.size() &&
-        (region_points > most || !collect_box(margin_box(region, margin(sample)), found_, most - region_points))) {
+    // (Over held points, the points the process lacks in the box count too, by estimate.)
+    const std::size_t most = 3 * run_.whole_points / 4;
+    const Box<D> reach = margin_box(region, margin(sample));
+    const std::size_t lacking =
+        run_.held != nullptr ? static_cast<std::size_t>(run_.held->lacking_in(reach.data())) : 0;
+    if (region_points < run_.whole_points &&
+        (region_points + lacking > most || !collect_box(reach, found_, most - region_points - lacking))) {
       run_.whole_wanted.store(true);
       return Outcome::kWhole;
     }
@@ -695,7 +866,9 @@ class RegionMesher {
     if (run_.whole_wanted.load()) return Outcome::kWhole;  // another region found balls across the set
     // E: the margin at the region's own density.
     const double margin = this->margin(region_points);
-    const Box<D> e = margin_box(region, margin);
+    Box<D> e = margin_box(region, margin);
+    shrink_to_held(e);
+    uncapped_ = false;
     collect_box(e, found_, static_cast<std::size_t>(-1));
     e_ = e;
     if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
@@ -750,6 +923,9 @@ class RegionMesher {
       }
       pending_.resize(still);
       if (pending_.empty()) return Outcome::kDone;
+      // Over held points, seeds blocked only by cells whose balls reach past what the
+      // process holds (kRemote): deferred (defer_pending).
+      if (run_.held != nullptr && fails_.empty()) return Outcome::kDone;
       if (round == kMaxRounds || run_.whole_wanted.load()) return Outcome::kWhole;
       // Each failing ball and hull facet is asked of the tree (a query tests the few
       // points around a small ball). When the queries of a round test more than
@@ -762,14 +938,17 @@ class RegionMesher {
       bool over = false;
       empty_work_ = empty_queries_ = 0;
       for (const auto& f : fails_) {
-        if (over || query_work_ > kQueryWork * region_points) {
+        if (over || (!uncapped_ && query_work_ > kQueryWork * region_points)) {
           over = true;
           tri_.set_tag(f.first, kUnknown);  // looked at again next round
           continue;
         }
         const std::size_t before = found_.size();
         query(f.first, f.second, found_);
-        tri_.set_tag(f.first, found_.size() == before ? kCertified : kUnknown);  // nothing inside: certified
+        // Nothing inside: certified (over held points, if the process lacks nothing there).
+        std::uint32_t tag = found_.size() == before ? kCertified : kUnknown;
+        if (tag == kCertified && run_.held != nullptr && !held_by_process(f.first, f.second)) tag = kRemote;
+        tri_.set_tag(f.first, tag);
       }
       std::sort(found_.begin(), found_.end());
       found_.erase(std::unique(found_.begin(), found_.end()), found_.end());
@@ -788,13 +967,20 @@ class RegionMesher {
         run_.whole_wanted.store(true);
         return Outcome::kWhole;
       }
-      const Box<D> g = margin_box(e_, grown);
+      Box<D> g = margin_box(e_, grown);
       grown *= 2;
+      const double lacking_in_g = run_.held != nullptr ? run_.held->lacking_in(g.data()) : 0;
+      shrink_to_held(g);
+      if (run_.held != nullptr && !contains<D>(g, e_)) g = e_;  // cut back below E: E stays
       if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points)) ||
-          4 * (tri_.vertex_count() + found_.size()) > 3 * run_.ps.size()) {
+          4 * (static_cast<double>(tri_.vertex_count() + found_.size()) + lacking_in_g) >
+              3 * static_cast<double>(run_.whole_points)) {
         run_.whole_wanted.store(true);
         return Outcome::kWhole;
       }
+      // Over held points E may not grow past what the process holds: the queries then
+      // go on uncapped (each round still inserts what they find, or tags kRemote).
+      if (run_.held != nullptr && g == e_) uncapped_ = true;
       e_ = g;
       e_covers_all_ = contains<D>(e_, run_.bounds);
       if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
@@ -954,10 +1140,12 @@ class RegionMesher {
       }
       const std::uint32_t s = run_.split.point_at(wanted_[k]);
       ++stats_.walked_seeds;
-      if (Status st = walker_->compute(s, star_, run_.options.accept ? run_.options.accept_part : StarPart::kOwned);
-          !st.is_ok()) {
-        return st;
-      }
+      // (Over held points the whole star is certified first.)
+      const StarPart part = run_.options.accept    ? run_.options.accept_part
+                            : run_.held != nullptr ? StarPart::kWhole
+                                                   : StarPart::kOwned;
+      if (Status st = walker_->compute(s, star_, part); !st.is_ok()) return st;
+      if (!run_.certified_walk(star_)) continue;
       if (run_.options.accept && !run_.options.accept(star_)) continue;
       const auto owned = owned_simplices(star_);
       out.simplices.insert(out.simplices.end(), owned.begin(), owned.end());
@@ -976,6 +1164,7 @@ class RegionMesher {
   std::uint32_t first_ = 0, last_ = 0;
   Box<D> e_{};
   bool e_covers_all_ = false;
+  bool uncapped_ = false;  // over held points, E could not grow: the queries are not capped
   std::vector<std::uint32_t> extras_;
   std::size_t query_work_ = 0;                           // points the queries of a round tested
   std::size_t empty_work_ = 0, empty_queries_ = 0;       // of those, the queries that found nothing
@@ -1008,7 +1197,10 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
     run.bounds[static_cast<std::size_t>(k)] = HUGE_VAL;
     run.bounds[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
   }
-  for (std::uint32_t b = 0; b < split.block_count(); ++b) {
+  // Over held points the whole set's box: E and the balls are cut to it, and hull
+  // facets are certified against its slabs.
+  if (run.held != nullptr) std::copy(run.held->whole_box().begin(), run.held->whole_box().end(), run.bounds.begin());
+  for (std::uint32_t b = 0; b < split.block_count() && run.held == nullptr; ++b) {
     const auto box = split.box(b);
     for (int k = 0; k < D; ++k) {
       run.bounds[static_cast<std::size_t>(k)] =
@@ -1036,6 +1228,7 @@ Result<MeshStats> sweep(const Index& index, const KdTree* tree, const PointSet& 
       });
   if (!status.is_ok()) return status;
   total.seeds = seeds_done;
+  total.deferred = run.deferred.load();
   if (run.whole) {
     total.triangulation.peak_bytes += run.whole->bytes();
     total.triangulation.inserted += run.whole_inserted;

@@ -3,6 +3,7 @@
 #include "base/dimension.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -121,6 +122,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
 
   MeshStats total;
   std::size_t worker_bytes = 0;  // the workers' tables, each at its largest
+  const HeldRegion* held = options.held != nullptr && !options.held->holds_all() ? options.held : nullptr;
+  std::atomic<std::uint64_t> deferred{0};
   // A worker: one StarWalker, and with a front its block table.
   struct Worker {
     const SpaceSplit& blocks;
@@ -133,6 +136,9 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     std::optional<StarWalker> walker;
     Star star;
     std::size_t front_bytes = 0;
+    const HeldRegion* held;  // MeshOptions::held when it lacks points, else null
+    const PointSet& tree_points;
+    std::atomic<std::uint64_t>& deferred;
 
     Status operator()(std::uint64_t b, MeshedBlock& out) {
       const auto block = static_cast<std::uint32_t>(first_block + b);
@@ -150,8 +156,20 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
         if (s < run.begin || s >= run.end) continue;
         if (!options.seeds.empty() && !std::binary_search(options.seeds.begin(), options.seeds.end(), s)) continue;
         ++out.seeds;
-        status = walker->compute(s, star, options.accept ? options.accept_part : StarPart::kOwned);
+        // Over held points (MeshOptions::held) the whole star is certified first.
+        const StarPart part = options.accept    ? options.accept_part
+                              : held != nullptr ? StarPart::kWhole
+                                                : StarPart::kOwned;
+        status = walker->compute(s, star, part);
         if (!status.is_ok()) break;
+        if (held != nullptr) {
+          StarCertificate c = held->certify(tree_points, star);
+          if (!c.certified) {
+            deferred.fetch_add(1, std::memory_order_relaxed);
+            if (options.defer) options.defer(s, std::move(c));
+            continue;
+          }
+        }
         if (options.accept && !options.accept(star)) continue;
         const auto owned = owned_simplices(star);
         out.simplices.insert(out.simplices.end(), owned.begin(), owned.end());
@@ -168,7 +186,8 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
     }
   };
   auto make_worker = [&] {
-    auto w = std::unique_ptr<Worker>(new Worker{blocks, options, run, first_block, total, worker_bytes, {}, {}, {}, 0});
+    auto w = std::unique_ptr<Worker>(new Worker{
+        blocks, options, run, first_block, total, worker_bytes, {}, {}, {}, 0, held, tree.points(), deferred});
     if (mail) w->front.emplace(d, blocks, *mail, run);
     StarOptions star_options = options.star;
     star_options.facets = w->front ? &*w->front : nullptr;
@@ -190,6 +209,7 @@ Result<MeshStats> mesh_seeds(const KdTree& tree, const MeshOptions& options, con
       });
   if (!failure.is_ok()) return failure;
   total.seeds = seeds_done;
+  total.deferred = deferred.load();
   total.front_peak_bytes = mail ? mail->peak_bytes() : 0;
   total.facet_cache_bytes = edges ? edges->resident_peak_bytes() : total.front_peak_bytes + worker_bytes;
   return total;

@@ -9,13 +9,21 @@ namespace spokemesh {
 
 CountSelect::CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids)
     : d_(d), axis_(axis), coords_(coords.begin(), coords.end()), ids_(ids.begin(), ids.end()) {
+  // The candidates are kept unsorted: each round selects and partitions in time linear
+  // in them (they shrink by a quarter a round), where a sort of every point per level
+  // was most of the distributed split's time.
   sorted_.resize(ids_.size());
   std::iota(sorted_.begin(), sorted_.end(), 0u);
-  const auto d_size = static_cast<std::size_t>(d_);
-  std::sort(sorted_.begin(), sorted_.end(), [&](std::uint32_t a, std::uint32_t b) {
-    return before_along(axis_, d_, &coords_[a * d_size], ids_[a], &coords_[b * d_size], ids_[b]);
-  });
   hi_ = sorted_.size();
+}
+
+bool CountSelect::less(std::uint32_t a, std::uint32_t b) const {
+  const auto d_size = static_cast<std::size_t>(d_);
+  return before_along(axis_, d_, &coords_[a * d_size], ids_[a], &coords_[b * d_size], ids_[b]);
+}
+
+bool CountSelect::less_than(std::uint32_t a, const Key& pivot) const {
+  return before_along(axis_, d_, &coords_[a * static_cast<std::size_t>(d_)], ids_[a], pivot.coords.data(), pivot.id);
 }
 
 bool CountSelect::before(const Key& a, const Key& b, int axis) {
@@ -28,9 +36,14 @@ CountSelect::Key CountSelect::key_at(std::size_t i) const {
   return {std::vector<double>(c, c + d_), ids_[p]};
 }
 
-CountSelect::Proposal CountSelect::propose() const {
+CountSelect::Proposal CountSelect::propose() {
   if (lo_ == hi_) return {};
-  return {key_at(lo_ + (hi_ - lo_) / 2), hi_ - lo_};
+  // The middle candidate in the total order (the one a sorted run would give).
+  const auto first = sorted_.begin() + static_cast<std::ptrdiff_t>(lo_);
+  const auto middle = first + static_cast<std::ptrdiff_t>((hi_ - lo_) / 2);
+  std::nth_element(first, middle, sorted_.begin() + static_cast<std::ptrdiff_t>(hi_),
+                   [&](std::uint32_t a, std::uint32_t b) { return less(a, b); });
+  return {key_at(static_cast<std::size_t>(middle - sorted_.begin())), hi_ - lo_};
 }
 
 CountSelect::Key CountSelect::pivot_of(std::span<const Proposal> proposals, int axis) {
@@ -56,22 +69,15 @@ CountSelect::Key CountSelect::pivot_of(std::span<const Proposal> proposals, int 
 }
 
 CountSelect::Counts CountSelect::count(const Key& pivot) const {
-  // Candidates are a run of the sorted order: the pivot's place by binary search.
-  auto below = [&](std::size_t i) { return before(key_at(i), pivot, axis_); };
-  std::size_t a = lo_, b = hi_;
-  while (a < b) {
-    const std::size_t mid = a + (b - a) / 2;
-    if (below(mid)) {
-      a = mid + 1;
-    } else {
-      b = mid;
-    }
-  }
   Counts out;
-  out.below = a - lo_;
-  if (a < hi_) {
-    const Key k = key_at(a);
-    out.at = (!before(pivot, k, axis_) && !before(k, pivot, axis_)) ? 1 : 0;
+  for (std::size_t i = lo_; i < hi_; ++i) {
+    const std::uint32_t p = sorted_[i];
+    if (less_than(p, pivot)) {
+      ++out.below;
+    } else if (ids_[p] == pivot.id && std::equal(pivot.coords.begin(), pivot.coords.end(),
+                                                 coords_.begin() + static_cast<std::ptrdiff_t>(p) * d_)) {
+      out.at = 1;
+    }
   }
   return out;
 }
@@ -84,13 +90,20 @@ CountSelect::Side CountSelect::decide(std::uint64_t& k, const Counts& total) {
 }
 
 void CountSelect::narrow(const Key& pivot, Side side) {
-  const Counts c = count(pivot);
+  // The candidates before the pivot to the front, then the pivot itself (if here).
+  const auto first = sorted_.begin() + static_cast<std::ptrdiff_t>(lo_);
+  const auto last = sorted_.begin() + static_cast<std::ptrdiff_t>(hi_);
+  const auto mid = std::partition(first, last, [&](std::uint32_t p) { return less_than(p, pivot); });
+  const auto at =
+      std::partition(mid, last, [&](std::uint32_t p) { return !less_than(p, pivot) && ids_[p] == pivot.id; });
+  const auto below = static_cast<std::size_t>(mid - sorted_.begin());
+  const auto after = static_cast<std::size_t>(at - sorted_.begin());
   if (side == Side::kBelow) {
-    hi_ = lo_ + c.below;
+    hi_ = below;
   } else if (side == Side::kAbove) {
-    lo_ = lo_ + c.below + c.at;
+    lo_ = after;
   } else {
-    lo_ = hi_ = lo_ + c.below;  // found: nothing left to choose
+    lo_ = hi_ = below;  // found: nothing left to choose
   }
 }
 

@@ -206,24 +206,62 @@ void SpaceSplit::build(const PointSet& points, std::span<const std::uint32_t> me
   boxes_ = std::move(blocks.boxes);
   position_.assign(n, 0xFFFFFFFFu);
   for (std::uint32_t i = 0; i < swept_; ++i) position_[order_[i]] = i;
-  if (swept_ < n) {  // the points of no piece: one trailing block, in index order
-    std::vector<double> lo(points.point(0), points.point(0) + d_), hi = lo;
-    bool first = true;
-    for (std::uint32_t i = 0; i < n; ++i) {
-      if (position_[i] != 0xFFFFFFFFu) continue;
-      position_[i] = static_cast<std::uint32_t>(order_.size());
-      order_.push_back(i);
-      for (int c = 0; c < d_; ++c) {
-        const auto k = static_cast<std::size_t>(c);
-        lo[k] = first ? points.point(i)[c] : std::min(lo[k], points.point(i)[c]);
-        hi[k] = first ? points.point(i)[c] : std::max(hi[k], points.point(i)[c]);
-      }
-      first = false;
-    }
-    first_.push_back(n);
-    boxes_.insert(boxes_.end(), lo.begin(), lo.end());
-    boxes_.insert(boxes_.end(), hi.begin(), hi.end());
+  append_trailing(points);
+}
+
+void SpaceSplit::append_trailing(const PointSet& points) {
+  const auto n = static_cast<std::uint32_t>(points.size());
+  if (swept_ >= n) return;
+  // The points of no piece: one trailing block, split as a node of its own so that
+  // consecutive positions are near in space (the order a triangulation of the held
+  // points inserts them in; with index order each insertion's walk crossed the set).
+  std::vector<std::uint32_t> rest;
+  rest.reserve(n - swept_);
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (position_[i] == 0xFFFFFFFFu) rest.push_back(i);
   }
+  detail::dispatch_dimension(d_, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    const Splitter<D> splitter(points, leaf_, leaf_);
+    std::vector<typename Splitter<D>::Record> recs;
+    splitter.fill(recs, rest);
+    Blocks unused;
+    splitter.split(recs, 0, static_cast<std::uint32_t>(recs.size()), true, unused);
+    for (std::size_t k = 0; k < recs.size(); ++k) rest[k] = recs[k].id;
+  });
+  std::vector<double> lo(points.point(rest[0]), points.point(rest[0]) + d_), hi = lo;
+  for (const std::uint32_t i : rest) {
+    position_[i] = static_cast<std::uint32_t>(order_.size());
+    order_.push_back(i);
+    for (int c = 0; c < d_; ++c) {
+      const auto k = static_cast<std::size_t>(c);
+      lo[k] = std::min(lo[k], points.point(i)[c]);
+      hi[k] = std::max(hi[k], points.point(i)[c]);
+    }
+  }
+  first_.push_back(n);
+  boxes_.insert(boxes_.end(), lo.begin(), lo.end());
+  boxes_.insert(boxes_.end(), hi.begin(), hi.end());
+}
+
+SpaceSplit SpaceSplit::remapped(const PointSet& points, std::span<const std::uint32_t> id_of) const {
+  SpaceSplit out(Empty{}, points.dimension());
+  out.swept_ = swept_;
+  out.leaf_ = leaf_;
+  out.piece_ends_ = piece_ends_;
+  out.order_.reserve(points.size());
+  out.position_.assign(points.size(), 0xFFFFFFFFu);
+  for (std::uint32_t i = 0; i < swept_; ++i) {
+    const std::uint32_t id = id_of[order_[i]];
+    out.order_.push_back(id);
+    out.position_[id] = i;
+  }
+  // The pieces' blocks (those before the trailing one).
+  const std::uint32_t blocks = swept_ < size() ? block_count() - 1 : block_count();
+  out.first_.assign(first_.begin(), first_.begin() + blocks + 1);
+  out.boxes_.assign(boxes_.begin(), boxes_.begin() + static_cast<std::ptrdiff_t>(blocks) * 2 * d_);
+  out.append_trailing(points);
+  return out;
 }
 
 std::uint32_t SpaceSplit::default_block_points(int d, std::uint64_t n) {
