@@ -275,8 +275,16 @@ class StarJob : public Job {
       keep_late(round.local, sweep, block);
       return Status::ok();
     });
-    return result.status();
+    if (!result.is_ok()) return result.status();
+    sphere_queries_ += result->star.sphere_queries + result->triangulation.ball_queries;
+    return Status::ok();
   }
+
+ public:
+  std::uint64_t sphere_queries() const override { return sphere_queries_; }
+
+ private:
+  std::uint64_t sphere_queries_ = 0;
 
  protected:
   std::uint64_t swept_rows_ = 0;  // rows the sweep has kept (mesh), for the progress line

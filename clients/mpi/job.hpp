@@ -110,6 +110,9 @@ class Job {
                        std::span<const double> slice_coords) = 0;
   // Rank 0's summary line on stderr.
   virtual void print_summary(double seconds, std::uint64_t halo_points, std::uint64_t rounds, int ranks) const = 0;
+  // The sphere (ball) queries the rank's stars made of its own k-d trees: the star
+  // walks' certifying queries and the local triangulations' ball queries (--stats).
+  virtual std::uint64_t sphere_queries() const { return 0; }
 
  protected:
   explicit Job(const cli::WholeCommands& commands) : w_(commands) {}

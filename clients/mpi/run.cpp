@@ -177,6 +177,7 @@ class HeldCertifier final : public RoundCertifier {
 
 struct RankStats {
   std::uint64_t owned = 0, ghosts = 0, rounds = 0, bytes_sent = 0, bytes_received = 0, peak_rss = 0;
+  std::uint64_t balls_asked = 0;  // balls asked of the other ranks
   double seconds = 0;
 };
 
@@ -299,6 +300,7 @@ class DistributedRun {
       Requests requests;
       const std::uint64_t left = grow_requests(round, refused, requests);
       if (left == 0) break;
+      stats_.balls_asked += requests.balls.size() / (static_cast<std::size_t>(facts_.d) + 1);
       halo_->fetch(requests.boxes, requests.facets, requests.balls, held_tree_.get(), &own_of_local_);
       // Every point beyond or on an asked facet's plane is held now: if the facet is
       // still on the hull of the held points, it is on the whole set's.
@@ -501,7 +503,8 @@ class DistributedRun {
                              static_cast<double>(stats_.bytes_sent),
                              static_cast<double>(stats_.bytes_received),
                              static_cast<double>(stats_.peak_rss),
-                             stats_.seconds};
+                             stats_.seconds,
+                             static_cast<double>(job_->sphere_queries() + stats_.balls_asked)};
     std::vector<double> every(comm_.rank == 0 ? mine.size() * static_cast<std::size_t>(comm_.size) : 0);
     MPI_Gather(mine.data(), static_cast<int>(mine.size()), MPI_DOUBLE, every.data(), static_cast<int>(mine.size()),
                MPI_DOUBLE, 0, comm_.comm);
@@ -520,7 +523,8 @@ class DistributedRun {
                          {"bytes_sent", static_cast<std::uint64_t>(v[3])},
                          {"bytes_received", static_cast<std::uint64_t>(v[4])},
                          {"peak_rss_bytes", static_cast<std::uint64_t>(v[5])},
-                         {"seconds", v[6]}});
+                         {"seconds", v[6]},
+                         {"sphere_queries", static_cast<std::uint64_t>(v[7])}});
       }
       if (!options_.stats_path.empty()) {
         std::ofstream out(options_.stats_path);

@@ -123,7 +123,7 @@ def test_mesh_is_byte_identical(reference, work, name, ranks):
     assert [r["rank"] for r in rows] == list(range(ranks))
     for r in rows:
         assert set(r) == {"rank", "owned", "ghosts", "rounds", "bytes_sent", "bytes_received", "peak_rss_bytes",
-                          "seconds"}
+                          "seconds", "sphere_queries"}
     owned = [r["owned"] for r in rows]
     assert sum(owned) == n
     # Balance by counts, whatever the distribution (clumps included).
@@ -155,6 +155,69 @@ def test_scans_and_contours_are_byte_identical(work, name, ranks):
     # their balls placed exactly instead of their boxes doubled).
     rounds = [r["rounds"] for r in json.loads(stats.read_text())["ranks"]]
     assert max(rounds) <= 8, f"{name}: halo rounds {rounds}"
+
+
+# Closed surfaces, whose Delaunay balls span their inside, and the scans and contours
+# above: mesh, graph and store at P = 1, 2, 3, each the single process's bytes. (A rank
+# whose balls reach across the set fetches all of it, as one process then triangulates
+# every point: docs/distributed.md.)
+SURFACES = {
+    "3d-torus-20k": lambda: shapes.torus(20_000, seed=3),
+    "3d-sphere-12k": lambda: shapes.sphere(12_000, seed=4),
+    **SHAPES,
+}
+
+
+@pytest.fixture(scope="module")
+def surfaces(work):
+    """Each family's file and the single process's mesh and graph of it."""
+    out = {}
+    for name, make in SURFACES.items():
+        path = work / f"surface-{name}.npy"
+        np.save(path, make())
+        mesh, graph = work / f"surface-{name}.simplices", work / f"surface-{name}.edges"
+        run_cli("mesh", str(path), "-o", str(mesh), "-q", "--threads", "2")
+        run_cli("graph", str(path), "-o", str(graph), "-q", "--threads", "2")
+        out[name] = (path, mesh.read_bytes(), graph.read_bytes())
+    return out
+
+
+@pytest.mark.parametrize("name", list(SURFACES))
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_surfaces_scans_and_contours_mesh_graph_and_store_alike(surfaces, work, name, ranks):
+    path, mesh, graph = surfaces[name]
+    out = work / f"surface-{name}-{ranks}.simplices"
+    stats = work / f"surface-{name}-{ranks}.json"
+    run_mpi(ranks, "mesh", str(path), "-o", str(out), "-q", "--stats", str(stats))
+    assert out.read_bytes() == mesh, f"{name}: {ranks} ranks meshed other bytes than one process"
+    rounds = [r["rounds"] for r in json.loads(stats.read_text())["ranks"]]
+    assert max(rounds) <= 8, f"{name}: halo rounds {rounds}"
+    edges = work / f"surface-{name}-{ranks}.edges"
+    run_mpi(ranks, "graph", str(path), "-o", str(edges), "-q")
+    assert edges.read_bytes() == graph, f"{name}: {ranks} ranks wrote another graph"
+    store = work / f"surface-store-{name}-{ranks}"
+    store.mkdir()
+    run_mpi(ranks, "store", str(path), "--data-dir", str(store), "--piece-points", STORE_PIECE_POINTS, "-q")
+    if ranks == 1:
+        return
+    one = read_tree(work / f"surface-store-{name}-1")
+    assert read_tree(store) == one, f"{name}: {ranks} ranks stored other pieces than one"
+
+
+def test_sphere_queries_per_point_do_not_grow_with_n_on_a_sphere(work):
+    # On a sphere's surface every Delaunay ball spans the inside: per-seed sphere
+    # queries each skimmed the whole set (quadratic). Now a rank whose balls reach across
+    # the set takes all of it and certifies nothing by queries: per point, the count
+    # must stay flat as n grows eightfold.
+    per_point = []
+    for n in (3_000, 24_000):
+        path = work / f"sphere-{n}.npy"
+        np.save(path, shapes.sphere(n, seed=6))
+        stats = work / f"sphere-{n}.json"
+        run_mpi(2, "mesh", str(path), "-o", str(work / f"sphere-{n}.simplices"), "-q", "--stats", str(stats))
+        ranks = json.loads(stats.read_text())["ranks"]
+        per_point.append(max(r["sphere_queries"] / r["owned"] for r in ranks))
+    assert per_point[1] <= 1.5 * per_point[0] + 0.05, f"sphere queries per point {per_point}"
 
 
 @pytest.mark.parametrize("name,suffix", [("3d-uniform-50k", ".vtu"), ("3d-linspace-grid-37", ".msh"),
