@@ -149,8 +149,96 @@ ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t
           static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
 }
 
+// The background builds of the sets' triangulations of every point (keep_triangulation):
+// a queue of sets (weakly held: a set evicted before its turn is skipped) and one
+// thread, which a stop flag cancels mid-build.
+class Engine::TriangulationKeeper {
+ public:
+  explicit TriangulationKeeper(MemoryBudget& budget) : budget_(budget), thread_([this] { run(); }) {}
+  ~TriangulationKeeper() {
+    {
+      std::lock_guard lock(mu_);
+      stop_.store(true);
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  void ask(std::weak_ptr<const StoredSet> set) {
+    {
+      std::lock_guard lock(mu_);
+      queue_.push_back(std::move(set));
+    }
+    cv_.notify_one();
+  }
+
+ private:
+  void run() {
+    for (;;) {
+      std::weak_ptr<const StoredSet> next;
+      {
+        std::unique_lock lock(mu_);
+        cv_.wait(lock, [&] { return stop_.load() || !queue_.empty(); });
+        if (stop_.load()) return;
+        next = std::move(queue_.front());
+        queue_.erase(queue_.begin());
+      }
+      if (const std::shared_ptr<const StoredSet> set = next.lock()) build(*set);
+    }
+  }
+
+  // One set's triangulation, its memory charged as it grows (refused: none is kept),
+  // and how its cells in a box should take their stars.
+  void build(const StoredSet& set) {
+    MemoryBudget::Charge charge = budget_.empty_charge();
+    WholeOptions options;
+    options.split = set.split.get();
+    options.cancel = &stop_;
+    options.reserve_bytes = [&](std::size_t bytes) { return charge.grow(bytes); };
+    auto built = triangulate_whole(set.points, options);
+    if (!built.is_ok()) return;  // refused, cancelled, or flat: the stars are walked
+    CellStarPlan plan;
+    if (set.tree && set.bounds.size() == 2 * static_cast<std::size_t>(set.info.dimension)) {
+      const int d = set.info.dimension;
+      auto box = Domain::box(std::vector<double>(set.bounds.begin(), set.bounds.begin() + d),
+                             std::vector<double>(set.bounds.begin() + d, set.bounds.end()));
+      if (box.is_ok()) {
+        std::vector<std::uint32_t> sample;
+        const std::size_t n = set.points.size(), step = std::max<std::size_t>(1, n / 64);
+        for (std::size_t k = 0; k < n && sample.size() < 64; k += step) sample.push_back(static_cast<std::uint32_t>(k));
+        CellsOptions cells;
+        cells.stars = MeshEngine::kTriangulations;
+        plan = plan_cell_stars(*set.tree, &box.value(), cells, sample, n);
+      }
+    }
+    std::lock_guard lock(set.whole_mu);
+    if (set.whole != nullptr) return;  // a batch or stream kept one first
+    set.whole = std::move(built).value();
+    set.whole_charge = std::move(charge);
+    set.whole_skip_doomed = plan.skip_doomed;
+  }
+
+  MemoryBudget& budget_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::vector<std::weak_ptr<const StoredSet>> queue_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;  // last: started once the rest is made
+};
+
 Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSettings shards)
-    : store_(std::move(store)), limits_(limits), shards_(shards) {}
+    : store_(std::move(store)),
+      limits_(limits),
+      shards_(shards),
+      keeper_(new TriangulationKeeper(store_->budget()), [](TriangulationKeeper* k) { delete k; }) {}
+
+void Engine::keep_triangulation(const std::shared_ptr<const StoredSet>& set) {
+  const int d = set->info.dimension;
+  if (!limits_.keep_triangulations || (d != 2 && d != 3) || set->box || !set->weights.empty() ||
+      set->whole_asked.exchange(true)) {
+    return;
+  }
+  keeper_->ask(set);
+}
 
 namespace {
 
@@ -415,6 +503,7 @@ Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_
       if (local == kNotHeld)
         return internal_error("point set " + id + ": piece " + std::to_string(piece.value()) +
                               " does not hold its point " + std::to_string(seed));
+      keep_triangulation(set.value());
       return std::make_pair(std::move(set).value(), local);
     }
   }
@@ -425,6 +514,7 @@ Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_
     return out_of_range("seed: " + std::to_string(seed) + " is out of range; point set " + id + " has " +
                         std::to_string(n) + " points (seeds 0.." + std::to_string(n - 1) + ")");
   }
+  keep_triangulation(set.value());
   return std::make_pair(std::move(set).value(), static_cast<std::uint32_t>(seed));
 }
 
@@ -438,11 +528,17 @@ Status Engine::exact_allowed(const StoredSet& set, const char* what) {
 
 Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control) {
   if (Status s = exact_allowed(set, "this request"); !s.is_ok()) return s;
+  Star star;
+  // Read from the kept triangulation when there is one: the walk's star, byte for byte.
+  if (const auto whole = set.kept_whole()) {
+    WholeStarReader reader(*whole);
+    if (Status s = reader.star(seed, star); !s.is_ok()) return s;
+    return star;
+  }
   StarOptions options;
   options.cancel = control.stop_flag();
   options.weights = set.weights;
   StarWalker walker(*set.tree, options);
-  Star star;
   Status s = walker.compute(seed, star);
   if (s.code() == Code::kCancelled) return control.stopped_status("the star of seed " + std::to_string(seed));
   if (!s.is_ok()) return s;
@@ -709,14 +805,18 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
   if (shape != nullptr) {
     // A domain of any shape (sets held whole only: shape_for).
     VoronoiCell cell;
-    if (Status s = shape_cell(*set.tree, *shape, *domain, seed, cell, options); !s.is_ok()) {
+    const auto whole = set.kept_whole();
+    std::optional<WholeStarReader> reader;
+    if (whole) reader.emplace(*whole);
+    if (Status s = shape_cell(*set.tree, *shape, *domain, seed, cell, options, reader ? &*reader : nullptr);
+        !s.is_ok()) {
       if (s.code() == Code::kCancelled) return control.stopped_status("the cell of seed " + std::to_string(seed));
       return s;
     }
     return cell;
   }
   ClippedCellBuilder builder(*set.tree, *domain, options);
-  auto cell = builder.cell(seed);
+  auto cell = clipped_cell(set, seed, *domain, options, builder);
   if (cell.status().code() == Code::kCancelled)
     return control.stopped_status("the cell of seed " + std::to_string(seed));
   if (cell.is_ok() && set.piece) {
@@ -730,6 +830,26 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
     }
     to_global(cell.value(), set.piece->ids);
   }
+  return cell;
+}
+
+Result<VoronoiCell> Engine::clipped_cell(const StoredSet& set, std::uint32_t seed, const Domain& /*domain*/,
+                                         const StarOptions& /*options*/, ClippedCellBuilder& builder) {
+  const auto whole = set.kept_whole();
+  std::optional<WholeStarReader> reader;
+  if (whole) {
+    reader.emplace(*whole);
+    bool skip_doomed = false;
+    {
+      std::lock_guard lock(set.whole_mu);
+      skip_doomed = set.whole_skip_doomed;
+    }
+    builder.set_stars(&*reader, skip_doomed);
+  }
+  VoronoiCell cell;
+  Status s = builder.cell(seed, cell);
+  builder.set_stars(nullptr);
+  if (!s.is_ok()) return s;
   return cell;
 }
 
@@ -988,6 +1108,9 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   if (!set_or.is_ok()) return set_or.status();
   const std::shared_ptr<const StoredSet> set = set_or.value();
   if (Status s = check_batch_seeds(seeds, set->info.count); !s.is_ok()) return s;
+  keep_triangulation(set);
+  // The set's kept triangulation, when there is one: every star is read from it.
+  const std::shared_ptr<const WholeTriangulation> kept = set->kept_whole();
   std::optional<Domain> domain;
   std::shared_ptr<const ShapeDomain> shape;
   if (kind == BatchKind::kCells) {
@@ -1019,15 +1142,26 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   star_options.cancel = control.stop_flag();
   star_options.weights = set->weights;
   std::vector<std::unique_ptr<StarWalker>> walkers;
+  std::vector<std::unique_ptr<WholeStarReader>> readers;
   std::vector<Star> scratch(threads);
-  if (set->tree) {
+  if (kept) {
+    for (unsigned t = 0; t < threads; ++t) readers.push_back(std::make_unique<WholeStarReader>(*kept));
+  } else if (set->tree) {
     for (unsigned t = 0; t < threads; ++t) walkers.push_back(std::make_unique<StarWalker>(*set->tree, star_options));
   }
   // Clipped cells come from one ClippedCellBuilder per thread, as in StreamCells.
   std::vector<std::unique_ptr<ClippedCellBuilder>> builders(threads);
   std::vector<std::unique_ptr<ShapeClipper>> clippers(threads);
   if (kind == BatchKind::kCells && domain) {
-    for (auto& b : builders) b = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
+    bool skip_doomed = false;
+    if (kept) {
+      std::lock_guard lock(set->whole_mu);
+      skip_doomed = set->whole_skip_doomed;
+    }
+    for (unsigned t = 0; t < threads; ++t) {
+      builders[t] = std::make_unique<ClippedCellBuilder>(*set->tree, *domain, star_options);
+      if (kept) builders[t]->set_stars(readers[t].get(), skip_doomed);
+    }
     if (shape) {
       for (auto& c : clippers) {
         c = std::make_unique<ShapeClipper>(set->points, *shape);
@@ -1044,7 +1178,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
   MemoryBudget::Charge batched_charge = store_->budget().empty_charge();
   const bool from_stars =
       kind == BatchKind::kStars || (kind == BatchKind::kNeighbors && exact) || (kind == BatchKind::kCells && !domain);
-  if (from_stars && !set->periodic && set->tree && set->split && seeds.size() >= defaults::kBatchTogetherAtLeast) {
+  if (from_stars && !kept && !set->periodic && set->tree && set->split &&
+      seeds.size() >= defaults::kBatchTogetherAtLeast) {
     std::vector<std::uint32_t> wanted(seeds.begin(), seeds.end());
     std::sort(wanted.begin(), wanted.end());
     wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
@@ -1113,7 +1248,8 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     }
     // The exact answers from one walker per thread, kept across the batch (the star is
     // the same from any walker; reuse saves its set-up per seed).
-    if (Status s = walkers[t]->compute(seed, scratch[t]); !s.is_ok()) return s;
+    if (Status s = kept ? readers[t]->star(seed, scratch[t]) : walkers[t]->compute(seed, scratch[t]); !s.is_ok())
+      return s;
     if (kind == BatchKind::kStars) {
       a.star = star_answer(*set, scratch[t]);
     } else if (kind == BatchKind::kNeighbors) {
@@ -1366,6 +1502,20 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   options.star.cancel = control.stop_flag();
   options.star.weights = s.weights;
   options.shape = shape.value().get();
+  // Stars from the set's kept triangulation, or one this run builds and keeps (charged
+  // to the budget while the set lives; a stream's triangulation within --stream-cache).
+  keep_triangulation(set.value());
+  options.whole = s.kept_whole();
+  MemoryBudget::Charge tri_charge = budget.empty_charge();
+  options.reserve_bytes = [&tri_charge, cap = limits_.stream_cache_bytes](std::size_t bytes) {
+    return tri_charge.bytes() + bytes <= cap && tri_charge.grow(bytes);
+  };
+  options.keep_whole = [&s, &tri_charge](std::shared_ptr<const WholeTriangulation> whole) {
+    std::lock_guard lock(s.whole_mu);
+    if (s.whole != nullptr) return;
+    s.whole = std::move(whole);
+    s.whole_charge = std::move(tri_charge);
+  };
   CellBatcher batches(batch_size, emit);
   std::uint64_t done = 0;
   auto sink = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {

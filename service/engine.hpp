@@ -25,6 +25,7 @@
 #include "auth.hpp"
 #include "limits.hpp"
 #include "spokemesh/approx.hpp"
+#include "spokemesh/cells.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
@@ -50,6 +51,10 @@ struct Limits {
   std::size_t stream_cache_bytes =
       defaults::kStreamCacheBytes;  // per streamed shard: its local triangulations, or the front's mail (0: none)
   std::size_t max_display_name = defaults::kMaxDisplayName;
+  // Build and keep each 2-d or 3-d set's triangulation of every point in the background
+  // on its first request, within the budget (Engine::keep_triangulation); off: stars
+  // are walked unless a batch or stream kept one.
+  bool keep_triangulations = true;
 };
 
 // Stops one request's computation: at `deadline`, or once `client_gone()` says the
@@ -364,6 +369,15 @@ class Engine {
   void share_whole_triangulation(const StoredSet& set, MeshOptions& options);
   // RESOURCE_EXHAUSTED for exact work on a set above the exact dimension limit.
   static Status exact_allowed(const StoredSet& set, const char* what);
+  // Asks, once per set, for its triangulation of every point to be built in the
+  // background and kept with it (2-d and 3-d, unweighted, not periodic; held whole or a
+  // piece), charged to the budget while the set lives; refused: its stars are walked,
+  // the same bytes. Per-seed requests, batches and streams read it once it is there
+  // (StoredSet::kept_whole).
+  void keep_triangulation(const std::shared_ptr<const StoredSet>& set);
+  // The cell of `seed` in a box, by a builder that reads the kept triangulation's stars.
+  static Result<VoronoiCell> clipped_cell(const StoredSet& set, std::uint32_t seed, const Domain& domain,
+                                          const StarOptions& options, ClippedCellBuilder& builder);
 
   std::unique_ptr<PointSetStore> store_;
   Limits limits_;
@@ -375,6 +389,10 @@ class Engine {
   };
   std::mutex shapes_mutex_;
   std::vector<KeptShape> shapes_;  // most recently used last
+  // Builds the sets' triangulations of every point, one at a time, on its own thread
+  // (stopped and joined first when the engine goes).
+  class TriangulationKeeper;
+  std::unique_ptr<TriangulationKeeper, void (*)(TriangulationKeeper*)> keeper_;
 };
 
 }  // namespace spokemesh::service

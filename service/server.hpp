@@ -49,6 +49,7 @@ struct ServerFlags {
   int max_concurrent = defaults::kMaxConcurrentRpcs;
   std::string max_memory = "auto";
   std::string stream_cache = defaults::bytes_text(defaults::kStreamCacheBytes);
+  bool keep_triangulations = true;
   std::string default_deadline = defaults::duration_text(defaults::kDefaultDeadline);
   std::string grace = defaults::duration_text(defaults::kGracePeriod);
   std::string drain = defaults::duration_text(defaults::kDrainDelay);

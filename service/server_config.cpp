@@ -78,6 +78,11 @@ void add_server_flags(CLI::App& app, ServerFlags& f) {
                  "Memory per streamed shard for the work its seeds share: local triangulations (2-d, 3-d "
                  "meshes), or facets shared between stars (0 = none: same simplices, slower)")
       ->capture_default_str();
+  app.add_option("--keep-triangulations", f.keep_triangulations,
+                 "Build each 2-d or 3-d set's triangulation of every point in the background on its first request "
+                 "and keep it with the set, within --max-memory: single star, neighbour and cell requests then read "
+                 "it (the same bytes as walked stars, which answer until it is built, and when it does not fit)")
+      ->capture_default_str();
   app.add_option("--default-deadline", f.default_deadline, "Deadline of requests that carry none (500ms, 30s, 2m)")
       ->capture_default_str();
   app.add_option("--upload-idle-timeout", f.upload_idle,
@@ -177,6 +182,7 @@ Result<ServerConfig> make_config(const ServerFlags& f) {
   }
   c.limits.max_memory = memory.value();
   c.limits.stream_cache_bytes = static_cast<std::size_t>(cache.value());
+  c.limits.keep_triangulations = f.keep_triangulations;
   c.limits.default_deadline = deadline.value();
   c.limits.upload_idle_timeout = idle_ms.value();
   c.drain = drain_ms.value();

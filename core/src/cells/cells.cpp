@@ -3,8 +3,12 @@
 #include "base/dimension.hpp"
 #include "cells/box_cell_3d.hpp"
 #include "cells/cell_polytope.hpp"
+#include "mesh/ball_bounds.hpp"
+#include "mesh/delaunay_sweep.hpp"
+#include "spokemesh/space_split.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -74,17 +78,93 @@ Status ClippedCellBuilder::cell(std::uint32_t seed, VoronoiCell& out) {
   }
   last_from_star_ = false;
   last_reach2_ = 0;
+  bool have_star = false;
   if (seed < points.size()) {
     if (Status st = check_seed_in_domain(points, seed, domain_); !st.is_ok()) return st;
-    if (direct_ok_ && direct(seed, out)) return Status::ok();
+    if (direct_ok_) {
+      have_star = stars_ != nullptr && skip_doomed_;
+      if (!(have_star && direct_gives_up(seed)) && direct(seed, out)) return Status::ok();
+    }
   }
   ++star_fallbacks_;
   last_from_star_ = true;
-  if (Status st = walker().compute(seed, star_); !st.is_ok()) return st;
+  if (!have_star) {
+    const Status st = stars_ != nullptr ? stars_->star(seed, star_) : walker().compute(seed, star_);
+    if (!st.is_ok()) return st;
+  }
   auto cell = voronoi_cell(points, star_, domain_, star_options_.weights);
   if (!cell.is_ok()) return cell.status();
   out = std::move(cell).value();
   return Status::ok();
+}
+
+bool ClippedCellBuilder::builds_directly(std::uint32_t seed) {
+  if (!direct_ok_ || seed >= tree_.points().size()) return false;
+  if (!check_seed_in_domain(tree_.points(), seed, domain_).is_ok()) return false;
+  VoronoiCell scratch;
+  return direct(seed, scratch);
+}
+
+bool ClippedCellBuilder::direct_gives_up(std::uint32_t seed) {
+  const PointSet& points = tree_.points();
+  const int d = points.dimension();
+  if (!stars_->star(seed, star_).is_ok() || (d != 2 && d != 3)) return false;
+  // The rounds' list sizes: the last one's is what the route lists before it gives up.
+  const std::size_t n = points.size();
+  std::size_t k = std::min<std::size_t>(n, detail::policy(d).cell_candidates);
+  while (k < kMaxDirectCandidates && k < n) k = std::min<std::size_t>(2 * k, n);
+  if (k >= n) return false;
+  // The farthest Voronoi vertex inside the box, by a lower bound on its distance: the
+  // circumcentres' certified intervals (ball_bounds), each wholly inside the box.
+  const std::vector<double> lo = domain_.lower(), hi = domain_.upper();
+  const double* s = points.point(seed);
+  double reach2 = 0;  // a lower bound on the cell's farthest vertex's squared distance
+  detail::dispatch_2d_3d(d, 0, [&](auto dim) {
+    constexpr int D = decltype(dim)::value;
+    using namespace ball_bounds;
+    for (std::size_t t = 0; t < star_.size(); ++t) {
+      const std::uint32_t* simplex = star_.simplex(t);
+      std::array<const double*, D> v{};
+      for (int j = 0, at = 0; j <= D; ++j) {
+        if (simplex[j] == seed) continue;
+        v[static_cast<std::size_t>(at++)] = points.point(simplex[j]);
+      }
+      std::array<Interval, D> centre{};
+      double radius2_up = 0;
+      if (!circumball<D>(s, v, centre, radius2_up)) continue;  // nearly flat: not counted
+      double gap2 = 0;
+      bool inside = true;
+      for (int c = 0; c < D && inside; ++c) {
+        const auto k2 = static_cast<std::size_t>(c);
+        inside = centre[k2].lo >= lo[k2] && centre[k2].hi <= hi[k2];
+        const double g = std::max({0.0, down(centre[k2].lo - s[c]), down(s[c] - centre[k2].hi)});
+        gap2 += g * g;
+      }
+      if (inside) reach2 = std::max(reach2, down(gap2));
+    }
+    return 0;
+  });
+  if (!(reach2 > 0)) return false;
+  // Points within twice that (with room for the tree's rounding of distances): k of
+  // them, the seed included, and no list of the route can reach past them.
+  const double limit2 = 4 * reach2 * (1 - 1e-9);
+  std::size_t within = 0;
+  tree_.find_first(
+      [&](const float* blo, const float* bhi) {
+        double gap2 = 0;
+        for (int c = 0; c < d; ++c) {
+          const double g = std::max({0.0, static_cast<double>(blo[c]) - s[c], s[c] - static_cast<double>(bhi[c])});
+          gap2 += g * g;
+        }
+        return gap2 <= limit2;
+      },
+      [&](std::uint32_t, const double* p) {
+        double d2 = 0;
+        for (int c = 0; c < d; ++c) d2 += (p[c] - s[c]) * (p[c] - s[c]);
+        if (d2 <= limit2) ++within;
+        return within >= k;
+      });
+  return within >= k;
 }
 
 bool ClippedCellBuilder::direct(std::uint32_t seed, VoronoiCell& out) {
@@ -245,14 +325,114 @@ ClippedCellBuilder::Clipped ClippedCellBuilder::clip_by_neighbours(std::uint32_t
 }
 
 Status shape_cell(const KdTree& tree, const ShapeDomain& shape, const Domain& box, std::uint32_t seed, VoronoiCell& out,
-                  StarOptions star) {
+                  StarOptions star, StarSource* stars, bool skip_doomed) {
   ClippedCellBuilder builder(tree, box, std::move(star));
+  builder.set_stars(stars, skip_doomed);
   if (Status s = builder.cell(seed, out); !s.is_ok()) return s;
   ShapeClipper clipper(tree.points(), shape);
   clipper.set_geometry(true);
   clipper.clip(seed, out);
   return Status::ok();
 }
+
+namespace {
+
+// How many seeds of a sample the direct route is tried on. The seeds it gives up on are
+// walked, timed: the triangulation of every point serves the run's stars when walking
+// the share of the run's seeds the route would give up on would take longer than
+// triangulating every point (about kTriangulationSeconds[d] a point, one thread).
+// Where the route gives up on most seeds (kDoomedShare: surfaces), each seed's star is
+// read first and the seeds the route would certainly give up on go straight to it.
+constexpr std::uint32_t kRouteProbeSeeds = 64;
+constexpr double kTriangulationSeconds[4] = {0, 0, 1e-6, 4e-6};
+constexpr double kDoomedShare = 0.5;
+
+}  // namespace
+
+CellStarPlan plan_cell_stars(const KdTree& tree, const Domain* domain, const CellsOptions& options,
+                             std::span<const std::uint32_t> sample, std::uint64_t seeds) {
+  const PointSet& points = tree.points();
+  const int d = points.dimension();
+  CellStarPlan plan;
+  if (options.stars == MeshEngine::kStars || (d != 2 && d != 3) || !options.star.weights.empty() ||
+      options.star.cover != nullptr || seeds == 0) {
+    return plan;
+  }
+  const bool direct = domain != nullptr && ClippedCellBuilder::takes_direct_route(d, *domain, CellRoute::kAuto);
+  double gave_up_share = 1;
+  if (direct) {
+    // Where cells are built directly, only the seeds the route gives up on need stars:
+    // the sample says how many, and what a walk of one costs.
+    ClippedCellBuilder probe(tree, *domain, options.star);
+    StarWalker walker(tree, options.star);
+    Star star;
+    std::uint32_t gave_up = 0;
+    double walk_seconds = 0;
+    for (const std::uint32_t seed : sample) {
+      if (probe.builds_directly(seed)) continue;
+      ++gave_up;
+      const auto t0 = std::chrono::steady_clock::now();
+      if (!walker.compute(seed, star).is_ok()) break;  // (the run reports it)
+      walk_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    }
+    gave_up_share = sample.empty() ? 0 : static_cast<double>(gave_up) / static_cast<double>(sample.size());
+    const double walks = gave_up == 0 ? 0
+                                      : gave_up_share * static_cast<double>(seeds) * walk_seconds / gave_up /
+                                            std::max(1u, options.threads);
+    if (options.stars == MeshEngine::kAuto && walks < kTriangulationSeconds[d] * static_cast<double>(points.size())) {
+      return plan;
+    }
+  }
+  plan.triangulate = true;
+  plan.skip_doomed = direct && gave_up_share >= kDoomedShare;
+  return plan;
+}
+
+namespace {
+
+// Where the stars of compute_cells come from (CellsOptions::stars): a plan on a sample
+// of the seeds, evenly spread, then the triangulation (kept, or built here).
+struct CellStars {
+  std::shared_ptr<const WholeTriangulation> whole;  // null: star walks
+  bool skip_doomed = false;
+};
+
+Result<CellStars> stars_from_triangulation(const KdTree& tree, const Domain* domain, const CellsOptions& options,
+                                           std::uint64_t begin, std::uint64_t end) {
+  const PointSet& points = tree.points();
+  const int d = points.dimension();
+  std::vector<std::uint32_t> sample;
+  const std::uint64_t count = end > begin ? end - begin : 0,
+                      step = std::max<std::uint64_t>(1, count / kRouteProbeSeeds);
+  for (std::uint64_t seed = begin; seed < end && sample.size() < kRouteProbeSeeds; seed += step) {
+    sample.push_back(static_cast<std::uint32_t>(seed));
+  }
+  const CellStarPlan plan = plan_cell_stars(tree, domain, options, sample, count);
+  CellStars out;
+  if (!plan.triangulate) return out;
+  out.skip_doomed = plan.skip_doomed;
+  if (options.whole && &options.whole->point_set() == &points) {
+    out.whole = options.whole;
+    return out;
+  }
+  const SpaceSplit split(points, SpaceSplit::default_block_points(d, points.size()));
+  if (options.stars == MeshEngine::kAuto && detail::ties_dominate(points, split)) return CellStars{};
+  WholeOptions whole;
+  whole.split = &split;
+  whole.cancel = options.star.cancel;
+  whole.reserve_bytes = options.reserve_bytes;
+  whole.owner_index = false;
+  auto built = triangulate_whole(points, whole);
+  if (!built.is_ok()) {
+    if (built.status().code() == Code::kCancelled) return built.status();
+    return CellStars{};  // refused (or a flat set): walks, the same cells
+  }
+  if (options.keep_whole) options.keep_whole(built.value());
+  out.whole = std::move(built).value();
+  return out;
+}
+
+}  // namespace
 
 Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOptions& options, const CellSink& sink) {
   const PointSet& points = tree.points();
@@ -268,7 +448,8 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
                             " does not match the points' " + std::to_string(points.dimension()));
   }
   struct Worker {
-    std::unique_ptr<StarWalker> walker;           // unclipped cells
+    std::unique_ptr<WholeStarReader> stars;       // stars from the triangulation of every point, if any
+    std::unique_ptr<StarWalker> walker;           // unclipped cells (without it)
     std::unique_ptr<ClippedCellBuilder> builder;  // clipped cells
     std::unique_ptr<ShapeClipper> shape;          // cells in a domain of any shape
     Star star;
@@ -301,9 +482,12 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   // Power cells built directly go to stars only for ties and cells the domain cuts
   // away, scattered over the run: the cache then holds pages all over and saves
   // nothing but its memory (bench/README.md, "Tuning history").
+  auto stars = stars_from_triangulation(tree, domain, options, begin, end);
+  if (!stars.is_ok()) return stars.status();
+  const std::shared_ptr<const WholeTriangulation> whole = stars->whole;
   std::optional<RunCache> cache;
   StarOptions star_options = options.star;
-  if (options.facet_cache_bytes != 0 && !weighted_direct) {
+  if (options.facet_cache_bytes != 0 && !weighted_direct && !whole) {
     cache.emplace(points.dimension(), static_cast<std::uint32_t>(n), static_cast<std::uint32_t>(begin),
                   static_cast<std::uint32_t>(end), options.facet_cache_bytes, static_cast<std::uint32_t>(round_size));
     star_options.facets = cache->facets();
@@ -311,10 +495,12 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
   }
   std::vector<Worker> workers(threads);
   for (Worker& w : workers) {
+    if (whole) w.stars = std::make_unique<WholeStarReader>(*whole);
     if (domain == nullptr) {
-      w.walker = std::make_unique<StarWalker>(tree, star_options);
+      if (!whole) w.walker = std::make_unique<StarWalker>(tree, star_options);
     } else {
       w.builder = std::make_unique<ClippedCellBuilder>(tree, *domain, star_options);
+      w.builder->set_stars(w.stars.get(), stars->skip_doomed);
       w.builder->set_measures_only(options.measures_only && options.shape == nullptr);
       if (options.shape != nullptr) {
         w.shape = std::make_unique<ShapeClipper>(points, *options.shape);
@@ -332,7 +518,7 @@ Status compute_cells(const KdTree& tree, const Domain* domain, const CellsOption
       VoronoiCell& c = cells[s - at];
       Status st = Status::ok();
       if (domain == nullptr) {
-        st = w.walker->compute(s, w.star);
+        st = w.stars ? w.stars->star(s, w.star) : w.walker->compute(s, w.star);
         if (st.is_ok()) c = voronoi_cell(points, w.star, options.star.weights);
       } else {
         st = w.builder->cell(s, c);

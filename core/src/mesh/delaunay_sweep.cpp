@@ -18,6 +18,7 @@
 #include "mesh/insertion_order.hpp"
 #include "mesh/ordered_run.hpp"
 #include "mesh/triangulation.hpp"
+#include "mesh/whole.hpp"
 #include "search/split_index.hpp"
 #include "spokemesh/certify.hpp"
 
@@ -106,36 +107,6 @@ bool contains(const Box<D>& outer, const Box<D>& inner) {
   }
   return true;
 }
-
-// A finite cell's owner, its smallest point id (the seed whose rows hold it); kNoOwner
-// for an infinite cell.
-constexpr std::uint32_t kNoOwner = 0xFFFFFFFFu;
-template <int D>
-std::uint32_t owner_of(const Triangulation<D>& t, std::uint32_t c) {
-  std::uint32_t owner = kNoOwner;
-  for (const std::uint32_t v : t.cell(c).v) {
-    if (v == Triangulation<D>::kInfinite) return kNoOwner;
-    owner = std::min(owner, t.global(v));
-  }
-  return owner;
-}
-
-// The triangulation of every point with what reads it: each point's local id, and
-// the finite cells by owner (their smallest point id): owner p's are
-// owned[owned_start[p] .. owned_start[p + 1]), built unless the run that built it
-// offered whole stars (MeshOptions::accept), which read the cells around each seed
-// instead. It owns (shares) the Predicates its triangulation borrows, so a caller may
-// keep it past the run (MeshOptions::keep_whole).
-template <int D>
-struct Whole final : WholeTriangulation {
-  std::shared_ptr<const Predicates> pred;
-  const PointSet* points = nullptr;
-  std::unique_ptr<Triangulation<D>> tri;
-  std::vector<std::uint32_t> local, owned_start, owned;
-  std::size_t bytes() const override {
-    return tri->bytes() + (local.capacity() + owned_start.capacity() + owned.capacity()) * sizeof(std::uint32_t);
-  }
-};
 
 // What a run shares: the set, its order, the options, and the triangulation of every
 // point once a region's balls have reached across the set (or kept from an earlier run).
@@ -273,17 +244,12 @@ struct Run {
         whole_refused.store(true);
         return false;
       };
-      for (std::size_t k = 0; k < order.size(); ++k) {
-        if ((k + 1) % kCancelEvery == 0) {
-          if (cancelled()) {
-            whole_status = spokemesh::cancelled("mesh cancelled");
-            return;
-          }
-          if (!granted()) return;
-        }
-        w->local[order[k]] = t.insert_next(order, k);
+      auto inserted = insert_into<D>(*w, order, kCancelEvery, granted, [&] { return cancelled(); });
+      if (!inserted.is_ok()) {
+        whole_status = spokemesh::cancelled("mesh cancelled");
+        return;
       }
-      if (!granted()) return;
+      if (!inserted.value()) return;
       if (!options.accept) {
         index_owners(*w);
         if (!granted()) return;
@@ -293,26 +259,6 @@ struct Run {
       if (options.keep_whole) options.keep_whole(std::move(w));
     });
     return whole_status;
-  }
-
-  // w's owner index: a counting sort of the finite cells by owner. A seed's rows then
-  // cost its own cells, not a search around it (on a torus's surface a point has 76
-  // cells around it and owns 19).
-  static void index_owners(Whole<D>& w) {
-    const Triangulation<D>& t = *w.tri;
-    const std::size_t n = w.points->size();
-    w.owned_start.assign(n + 1, 0);
-    for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
-      if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner_of(t, c); o != kNoOwner) ++w.owned_start[o + 1];
-    }
-    for (std::size_t p = 0; p < n; ++p) w.owned_start[p + 1] += w.owned_start[p];
-    w.owned.resize(w.owned_start[n]);
-    std::vector<std::uint32_t> next(w.owned_start.begin(), w.owned_start.end() - 1);
-    for (std::uint32_t c = 0; c < t.cell_slots(); ++c) {
-      if (!t.is_live(c)) continue;
-      if (const std::uint32_t o = owner_of(t, c); o != kNoOwner) w.owned[next[o]++] = c;
-    }
   }
 };
 
@@ -1022,15 +968,18 @@ class RegionMesher {
     Row* out = reinterpret_cast<Row*>(rows.data() + at);
     for (std::uint32_t c = 0; c < tri_.cell_slots(); ++c) {
       if (!tri_.is_live(c) || tri_.tag(c) == 0) continue;
-      out[bucket_[tri_.tag(c) - 1]++] = row_of(tri_, c);
+      out[bucket_[tri_.tag(c) - 1]++] = row_of<D>(tri_, c);
     }
     std::size_t begin = 0;
     for (std::size_t k = 0; k < wanted_.size(); ++k) {
       const std::size_t end = bucket_[k];
-      sort_rows(out + begin, out + end);
+      sort_rows<D>(out + begin, out + end);
       begin = end;
     }
   }
+
+  using Row = std::array<std::uint32_t, D + 1>;
+  static_assert(sizeof(Row) == (D + 1) * sizeof(std::uint32_t));
 
   // Seed `id`'s rows from the whole set's triangulation and its owner index.
   void emit_whole_owned(const Whole<D>& whole, std::uint32_t id, std::vector<std::uint32_t>& rows) {
@@ -1039,91 +988,22 @@ class RegionMesher {
     const std::size_t at = rows.size();
     rows.resize(at + static_cast<std::size_t>(end - begin) * (D + 1));
     Row* out = reinterpret_cast<Row*>(rows.data() + at);
-    for (std::uint32_t k = begin; k < end; ++k) out[k - begin] = row_of(t, whole.owned[k]);
-    sort_rows(out, out + (end - begin));
-  }
-
-  using Row = std::array<std::uint32_t, D + 1>;
-  static_assert(sizeof(Row) == (D + 1) * sizeof(std::uint32_t));
-  // A finite cell's row: its point ids ascending but for the last two, swapped when
-  // ascending order is negatively oriented (the cell is positive).
-  static Row row_of(const Triangulation<D>& t, std::uint32_t c) {
-    const auto& v = t.cell(c).v;
-    Row g{};
-    for (std::size_t k = 0; k <= D; ++k) g[k] = t.global(v[k]);
-    if (sort_with_parity(g)) std::swap(g[D - 1], g[D]);
-    return g;
-  }
-  // One owner's rows in order: lexicographic by their sorted vertex lists (compare the
-  // last two sorted).
-  static void sort_rows(Row* begin, Row* end) {
-    auto key = [](const Row& a) {
-      Row s = a;
-      if (s[D - 1] > s[D]) std::swap(s[D - 1], s[D]);
-      return s;
-    };
-    std::sort(begin, end, [&](const Row& a, const Row& b) { return key(a) < key(b); });
-  }
-
-  // Sorts a cell's point ids ascending; true when that took an odd permutation (the
-  // sorted cell is then negatively oriented, its cells being positive).
-  static bool sort_with_parity(std::array<std::uint32_t, D + 1>& g) {
-    bool odd = false;
-    for (std::size_t i = 1; i < g.size(); ++i) {
-      for (std::size_t j = i; j > 0 && g[j - 1] > g[j]; --j) {
-        std::swap(g[j - 1], g[j]);
-        odd = !odd;
-      }
-    }
-    return odd;
+    for (std::uint32_t k = begin; k < end; ++k) out[k - begin] = row_of<D>(t, whole.owned[k]);
+    sort_rows<D>(out, out + (end - begin));
   }
 
   // The seed's rows (owned simplices, canonical) appended to `rows`, from its cells in
   // `t`; with an accept callback, its whole star is offered first.
   void emit(const Triangulation<D>& t, std::span<const std::uint32_t> cells, std::uint32_t seed,
             std::vector<std::uint32_t>& rows) {
-    constexpr std::size_t w = D + 1;
     const bool accept = static_cast<bool>(run_.options.accept);
-    const bool all = accept && run_.options.accept_part == StarPart::kAll;  // every simplex canonical
-    sorted_.clear();
-    others_.clear();
-    std::size_t hull = 0;
-    for (const std::uint32_t c : cells) {
-      const auto& v = t.cell(c).v;
-      std::array<std::uint32_t, w> g{};
-      bool infinite = false;
-      for (std::size_t k = 0; k < w; ++k) {
-        infinite = infinite || v[k] == Triangulation<D>::kInfinite;
-        g[k] = t.global(v[k]);
-      }
-      if (infinite) {
-        ++hull;
-        continue;
-      }
-      const bool odd = sort_with_parity(g);
-      if (g[0] == seed || all) {
-        sorted_.emplace_back(g, odd);
-      } else if (accept) {
-        others_.insert(others_.end(), g.begin(), g.end());  // kWhole: as they come
-      }
-    }
-    // Lexicographic by sorted vertex lists, then positive: the last two swapped where
-    // the sort was odd. The seed's own simplices (smallest vertex the seed) come last.
-    std::sort(sorted_.begin(), sorted_.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-    star_.simplices = others_;
-    const std::size_t at = rows.size();
-    for (auto [g, odd] : sorted_) {
-      if (odd) std::swap(g[w - 2], g[w - 1]);
-      if (accept) star_.simplices.insert(star_.simplices.end(), g.begin(), g.end());
-      if (g[0] == seed) rows.insert(rows.end(), g.begin(), g.end());
-    }
-    if (accept) {
-      star_.seed = seed;
-      star_.dimension = D;
-      star_.hull_facets = hull;
-      star_.hidden = false;
-      if (!run_.options.accept(star_)) rows.resize(at);
-    }
+    const StarPart part = !accept                                      ? StarPart::kOwned
+                          : run_.options.accept_part == StarPart::kAll ? StarPart::kAll
+                                                                       : StarPart::kWhole;
+    star_of<D>(t, cells, seed, part, star_, star_scratch_);
+    if (accept && !run_.options.accept(star_)) return;
+    const auto owned = owned_simplices(star_);
+    rows.insert(rows.end(), owned.begin(), owned.end());
   }
 
   // Few seeds of the region wanted: their stars walked, as the star walk's sweep does.
@@ -1179,7 +1059,7 @@ class RegionMesher {
   // emit_owned's scratch.
   std::vector<std::uint32_t> index_of_, bucket_;
   std::vector<std::pair<std::uint32_t, Check>> fails_;
-  std::vector<std::pair<std::array<std::uint32_t, D + 1>, bool>> sorted_;  // emit's rows and their parities
+  StarScratch<D> star_scratch_;  // emit's
 };
 
 template <int D, class Index>
