@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "inputs.hpp"  // bench/: the shape families
 #include "spokemesh/certify.hpp"
 #include "spokemesh/front_cache.hpp"
 #include "spokemesh/mesh.hpp"
@@ -298,6 +299,11 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       {"3-d uniform, seed 62", 3, uniform_points(3, 3000, 62), {1000, 1010, 3000}},
       {"3-d integer grid 12^3", 3, grid_points(3, 12), {500, 1700, 1710, 1728}},
       {"4-d uniform, seed 64", 4, uniform_points(4, 600, 64), {300, 301, 600}},
+      // The shapes the local triangulations serve (their new stars come from them):
+      // a closed surface, a scan and contour lines, points added in file order.
+      {"sphere surface", 3, bench::sphere_surface(4000, 65), {3000, 3030, 3500, 4000}},
+      {"scanner rings", 3, bench::scanner_rings(8, 500, 0, 66), {3000, 3040, 4000}},
+      {"contour lines", 2, bench::contours(10, 0.5, 67), {1500, 1530, 2000}},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);

@@ -123,7 +123,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   std::vector<std::vector<std::uint32_t>> gained_of(n - n_old);  // rows with an old owner, from seeds[i]'s star
   std::unique_ptr<std::atomic<std::uint8_t>[]> changed(new std::atomic<std::uint8_t>[n_old]);
   for (std::uint32_t v = 0; v < n_old; ++v) changed[v].store(0, std::memory_order_relaxed);
-  Status s = for_each_star(tree, options, seeds, StarPart::kAll, [&](std::size_t i, const Star& star) {
+  auto use_star = [&](std::size_t i, const Star& star) {
     const auto owned = owned_simplices(star);
     rows_of[i].assign(owned.begin(), owned.end());
     const std::uint32_t q = seeds[i];
@@ -140,7 +140,27 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       // Each new simplex with an old owner once: from its smallest new vertex's star.
       if (row[0] < n_old && smallest_new == q) gained_of[i].insert(gained_of[i].end(), row, row + w);
     }
-  });
+  };
+  // By the whole mesh's engine restricted to the new points (mesh_seeds with `seeds`:
+  // in 2-d and 3-d the regions holding many of them triangulated and certified, the
+  // others' stars walked while that is cheaper), whose stars reach the caller whole;
+  // elsewhere (weighted sets are refused above) star walks.
+  Status s;
+  if ((d == 2 || d == 3) && options.star.cover == nullptr) {
+    MeshOptions run;
+    run.threads = options.threads;
+    run.star = options.star;
+    run.split = &split_when_needed();
+    run.seeds = seeds;
+    run.accept_part = StarPart::kAll;
+    run.accept = [&](const Star& star) {
+      use_star(star.seed - n_old, star);
+      return false;  // (the rows are put together below)
+    };
+    s = mesh_seeds(tree, run, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); }).status();
+  } else {
+    s = for_each_star(tree, options, seeds, StarPart::kAll, use_star);
+  }
   if (!s.is_ok()) return s;
   std::vector<std::uint32_t> old_seeds;
   std::vector<std::uint32_t> redone(n_old, ~0u);  // index into old_seeds
