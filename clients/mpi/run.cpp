@@ -364,7 +364,9 @@ class DistributedRun {
         if (node.owner != comm_.rank) h.add_unheld_box(node.box, node.count);
       }
       for (std::size_t p = 0; p < split_->owned_nodes.size(); ++p) h.add_held_box(halo_->held_box(p));
-      for (const auto& [k, box] : reach_.boxes) h.add_held_box(box);
+      std::set<std::vector<double>> boxes;  // (a region's seeds share theirs)
+      for (const auto& [k, box] : reach_.boxes) boxes.insert(box);
+      for (const std::vector<double>& box : boxes) h.add_held_box(box);
       const auto d = static_cast<std::size_t>(facts_.d);
       for (const auto& [k, balls] : reach_.balls) {
         for (std::size_t b = 0; b + d + 1 <= balls.size(); b += d + 1)
@@ -391,6 +393,7 @@ class DistributedRun {
     const PointSet& points = held_->points;
     pending_.clear();
     bool everything = false;  // one request for the whole set serves every seed that needs it
+    std::set<std::vector<double>> asked_boxes;
     for (auto& [k, c] : refused) {
       pending_.push_back(k);
       const double* x = split_->owned.point(k);
@@ -407,19 +410,26 @@ class DistributedRun {
         out.balls.insert(out.balls.end(), c.balls.begin(), c.balls.end());
       }
       if (!c.reach.empty()) {
-        // The new box holds the balls that failed and, refused again, twice the last
-        // box around the seed: the boxes grow until every ball fits (or the whole set
-        // is held).
+        // A box to hold (a region's E, or the points around a seed whose held points do
+        // not span the space yet): a little beyond it the first time, so that a ball
+        // grown by a new point of it is often still inside; asked again, the union
+        // with the last box, and when that asks for nothing more, twice the last box
+        // around the seed: the boxes grow until every ball fits (or the whole set is
+        // held). A region's seeds ask for one box: each box once a round.
         std::vector<double>& box = reach_.boxes[k];
         if (!box.empty()) {
+          bool grows = false;
           for (std::size_t c2 = 0; c2 < dd; ++c2) {
+            grows = grows || c.reach[c2] < box[c2] || c.reach[dd + c2] > box[dd + c2];
+            c.reach[c2] = std::min(c.reach[c2], box[c2]);
+            c.reach[dd + c2] = std::max(c.reach[dd + c2], box[dd + c2]);
+          }
+          for (std::size_t c2 = 0; c2 < dd && !grows; ++c2) {
             const double half = std::max(x[c2] - box[c2], box[dd + c2] - x[c2]);
             c.reach[c2] = std::min(c.reach[c2], x[c2] - 2 * half);
             c.reach[dd + c2] = std::max(c.reach[dd + c2], x[c2] + 2 * half);
           }
         } else {
-          // A first box a little beyond the balls, so that a ball grown by a new point
-          // of it is often still inside.
           for (std::size_t c2 = 0; c2 < dd; ++c2) {
             const double pad = (c.reach[dd + c2] - c.reach[c2]) * 0.25;
             c.reach[c2] -= pad;
@@ -427,7 +437,7 @@ class DistributedRun {
           }
         }
         box = c.reach;
-        out.boxes.insert(out.boxes.end(), box.begin(), box.end());
+        if (asked_boxes.insert(box).second) out.boxes.insert(out.boxes.end(), box.begin(), box.end());
       }
       for (std::size_t f = 0; f + dd + 1 <= c.hull_facets.size(); f += dd + 1) {
         FacetKey key(dd);

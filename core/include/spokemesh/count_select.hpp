@@ -13,7 +13,7 @@
 // an MPI_Allreduce of the counts; all parts decide alike, so the result is the same
 // point for every P, the one SpaceSplit picks on one process.
 //
-// Ownership: copies the part's coordinates and indices. Thread safety: none needed
+// Ownership: borrows the part's coordinates and indices. Thread safety: none needed
 // (one per part and round; pivot_of and decide are pure).
 #pragma once
 
@@ -40,8 +40,12 @@ class CountSelect {
   enum class Side { kFound, kBelow, kAbove };
 
   // This part's points: d coordinates each (row-major) with their indices in the
-  // whole set; the order along `axis` (0 <= axis < d).
+  // whole set; the order along `axis` (0 <= axis < d). Borrowed: they must outlive it.
   CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids);
+  // Among them only `members` (indices into coords / ids): a node of a split, without
+  // copying its points out.
+  CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids,
+              std::vector<std::uint32_t> members);
 
   // The total order along the axis: that coordinate, then every coordinate in turn,
   // then the index (SpaceSplit's).
@@ -61,8 +65,8 @@ class CountSelect {
   bool less(std::uint32_t a, std::uint32_t b) const;  // two of this part's points, in the total order
   bool less_than(std::uint32_t a, const Key& pivot) const;
   int d_, axis_;
-  std::vector<double> coords_;
-  std::vector<std::uint64_t> ids_;
+  std::span<const double> coords_;
+  std::span<const std::uint64_t> ids_;
   std::vector<std::uint32_t> sorted_;  // this part's points; the candidates are sorted_[lo_, hi_)
   std::size_t lo_ = 0, hi_ = 0;
 };

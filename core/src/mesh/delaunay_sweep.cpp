@@ -317,6 +317,14 @@ class RegionMesher {
       if (!local.is_ok()) return local.status();
       stats_.peak_bytes = std::max(stats_.peak_bytes, tri_.bytes());
       if (local.value() == Outcome::kOverBudget) return walk(out).status();
+      if (local.value() == Outcome::kFetch) {  // (over held points only)
+        for (const std::uint32_t r : wanted_) {
+          StarCertificate c;
+          c.reach.assign(fetch_box_.begin(), fetch_box_.end());
+          run_.defer(run_.split.point_at(r), std::move(c));
+        }
+        return Status::ok();
+      }
       if (local.value() == Outcome::kDone) {
         if (run_.held != nullptr) defer_pending(first);
         if (run_.options.accept) {  // whole stars, one at a time
@@ -670,52 +678,13 @@ class RegionMesher {
     return run_.held->beyond_held(f.data(), apex_across(c, inf), ids);
   }
 
-  // A run over held points: box e cut back until every point of the whole set inside
-  // it is held (then E's bound certificates hold in the whole set). Each cut leaves out
-  // one residual box that e meets, along the axis and side that keep most of e.
-  void shrink_to_held(Box<D>& e) const {
-    if (run_.held == nullptr) return;
-    for (;;) {
-      const double* r = run_.held->residual_meeting(e.data());
-      if (r == nullptr) return;
-      double best = -1;
-      int best_k = 0;
-      bool best_low = false;
-      for (int k = 0; k < D; ++k) {
-        const double lo = e[static_cast<std::size_t>(k)], hi = e[static_cast<std::size_t>(D + k)];
-        const double width = hi - lo;
-        // Below r (e's highs cut to just under r's low), or above it.
-        const double below = width > 0 ? (r[k] - lo) / width : 0, above = width > 0 ? (hi - r[D + k]) / width : 0;
-        if (r[k] > lo && below > best) {
-          best = below;
-          best_k = k;
-          best_low = true;
-        }
-        if (r[D + k] < hi && above > best) {
-          best = above;
-          best_k = k;
-          best_low = false;
-        }
-      }
-      if (best < 0) {  // r holds all of e: nothing of it is held for sure
-        for (int k = 0; k < D; ++k) {
-          e[static_cast<std::size_t>(k)] = HUGE_VAL;
-          e[static_cast<std::size_t>(D + k)] = -HUGE_VAL;
-        }
-        return;
-      }
-      if (best_low) {
-        e[static_cast<std::size_t>(D + best_k)] = std::nextafter(r[best_k], -HUGE_VAL);
-      } else {
-        e[static_cast<std::size_t>(best_k)] = std::nextafter(r[D + best_k], HUGE_VAL);
-      }
-    }
-  }
-
   // What became of a region: every wanted seed's star certified; the balls reach across
   // the set (the run then takes the triangulation of every point); or its memory was
   // refused (its seeds' stars are then walked).
-  enum class Outcome { kDone, kWhole, kOverBudget };
+  // Over held points (MeshOptions::held) a fourth: E would reach past what the process
+  // holds (fetch_box_): the region's seeds are deferred with that box to fetch, as one
+  // process's E would take in those points, rather than ball by ball.
+  enum class Outcome { kDone, kWhole, kOverBudget, kFetch };
 
   // Inserts the points, in insertion_order, as long as the memory reserved allows.
   Result<bool> insert_points(std::vector<std::uint32_t>& ids) {
@@ -813,8 +782,10 @@ class RegionMesher {
     // E: the margin at the region's own density.
     const double margin = this->margin(region_points);
     Box<D> e = margin_box(region, margin);
-    shrink_to_held(e);
-    uncapped_ = false;
+    if (run_.held != nullptr && !run_.held->box_held(e.data())) {
+      fetch_box_ = e;
+      return Outcome::kFetch;
+    }
     collect_box(e, found_, static_cast<std::size_t>(-1));
     e_ = e;
     if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
@@ -884,7 +855,7 @@ class RegionMesher {
       bool over = false;
       empty_work_ = empty_queries_ = 0;
       for (const auto& f : fails_) {
-        if (over || (!uncapped_ && query_work_ > kQueryWork * region_points)) {
+        if (over || query_work_ > kQueryWork * region_points) {
           over = true;
           tri_.set_tag(f.first, kUnknown);  // looked at again next round
           continue;
@@ -913,20 +884,20 @@ class RegionMesher {
         run_.whole_wanted.store(true);
         return Outcome::kWhole;
       }
-      Box<D> g = margin_box(e_, grown);
+      const Box<D> g = margin_box(e_, grown);
       grown *= 2;
       const double lacking_in_g = run_.held != nullptr ? run_.held->lacking_in(g.data()) : 0;
-      shrink_to_held(g);
-      if (run_.held != nullptr && !contains<D>(g, e_)) g = e_;  // cut back below E: E stays
       if (!collect_box(g, found_, std::max(kGrowAtLeast, kGrowFactor * region_points)) ||
           4 * (static_cast<double>(tri_.vertex_count() + found_.size()) + lacking_in_g) >
               3 * static_cast<double>(run_.whole_points)) {
         run_.whole_wanted.store(true);
         return Outcome::kWhole;
       }
-      // Over held points E may not grow past what the process holds: the queries then
-      // go on uncapped (each round still inserts what they find, or tags kRemote).
-      if (run_.held != nullptr && g == e_) uncapped_ = true;
+      // Over held points, a wider E the process does not hold is fetched first.
+      if (run_.held != nullptr && !run_.held->box_held(g.data())) {
+        fetch_box_ = g;
+        return Outcome::kFetch;
+      }
       e_ = g;
       e_covers_all_ = contains<D>(e_, run_.bounds);
       if (auto in = insert_points(found_); !in.is_ok() || !in.value()) {
@@ -1044,7 +1015,7 @@ class RegionMesher {
   std::uint32_t first_ = 0, last_ = 0;
   Box<D> e_{};
   bool e_covers_all_ = false;
-  bool uncapped_ = false;  // over held points, E could not grow: the queries are not capped
+  Box<D> fetch_box_{};  // Outcome::kFetch's box
   std::vector<std::uint32_t> extras_;
   std::size_t query_work_ = 0;                           // points the queries of a round tested
   std::size_t empty_work_ = 0, empty_queries_ = 0;       // of those, the queries that found nothing

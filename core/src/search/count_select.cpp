@@ -7,15 +7,21 @@
 
 namespace spokemesh {
 
-CountSelect::CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids)
-    : d_(d), axis_(axis), coords_(coords.begin(), coords.end()), ids_(ids.begin(), ids.end()) {
+CountSelect::CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids,
+                         std::vector<std::uint32_t> members)
+    : d_(d), axis_(axis), coords_(coords), ids_(ids), sorted_(std::move(members)) {
   // The candidates are kept unsorted: each round selects and partitions in time linear
   // in them (they shrink by a quarter a round), where a sort of every point per level
   // was most of the distributed split's time.
-  sorted_.resize(ids_.size());
-  std::iota(sorted_.begin(), sorted_.end(), 0u);
   hi_ = sorted_.size();
 }
+
+CountSelect::CountSelect(int d, int axis, std::span<const double> coords, std::span<const std::uint64_t> ids)
+    : CountSelect(d, axis, coords, ids, [&] {
+        std::vector<std::uint32_t> all(ids.size());
+        std::iota(all.begin(), all.end(), 0u);
+        return all;
+      }()) {}
 
 bool CountSelect::less(std::uint32_t a, std::uint32_t b) const {
   const auto d_size = static_cast<std::size_t>(d_);

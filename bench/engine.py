@@ -1,0 +1,168 @@
+#!/usr/bin/python3
+"""One engine everywhere (issue 51): each path that computes stars, timed on the shape
+families of bench/shapes.py against what it is measured by, whole processes on the same
+text files, with peak RSS.
+
+  mpi      `mpirun -np P spokemesh-mpi mesh` and `store` (P = 1, 2) against `spokemesh
+           mesh` (--threads 2) on the same file; the bytes are compared.
+  cells    `spokemesh cells` (the bounding box, --threads 2) against Voro++ (`voro++ -c
+           "%i %v %n %f"`, one thread: it computes volumes, neighbours and areas) on the
+           same points and box.
+  insert   in-process add_points of the last 1% of a 3-d set against building it again
+           (bench/incremental.py's measure at other shapes).
+
+    /usr/bin/python3 bench/engine.py [--sections mpi,cells,insert] [--families a,b] [--n N]
+
+Each row is one run (the machine's noise is a few percent; --runs takes the least of
+several). Files go to a temporary directory (--work to keep them).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+import shapes  # noqa: E402
+from timing import process  # noqa: E402
+
+ROOT = os.path.normpath(os.path.join(os.path.dirname(__file__), ".."))
+BIN = os.environ.get("SPOKEMESH_BIN_DIR", os.path.join(ROOT, "build", "bin"))
+CLI = os.path.join(BIN, "spokemesh")
+MPI = os.path.join(BIN, "spokemesh-mpi")
+
+# The families of issue 51's targets: shapes.py's at their default sizes (100k-1M).
+DEFAULT_FAMILIES = ["contours", "terrain", "rings", "rings_buildings", "sphere", "torus", "isosurface",
+                    "contrast", "uniform3", "uniform2", "clustered3", "grid3"]
+
+
+def least(runs: int, cmd: list[str]) -> tuple[float, float]:
+    """The least wall time of `runs` runs of cmd, and the peak RSS (MB) of that run."""
+    best = None
+    for _ in range(runs):
+        wall, rss, _ = process(cmd)
+        if best is None or wall < best[0]:
+            best = (wall, rss)
+    return best
+
+
+def mpirun(ranks: int) -> list[str]:
+    return ["mpirun", "--allow-run-as-root", "-np", str(ranks)]
+
+
+def section_mpi(files: dict, work: str, runs: int) -> None:
+    print("\n### spokemesh-mpi mesh and store against spokemesh mesh (2 threads)\n")
+    print("| family | n | CLI mesh s | MB | P=1 mesh s | MB | P=2 mesh s | ratio | largest rank MB | "
+          "P=2 store s | ratio |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    os.environ.setdefault("OMPI_ALLOW_RUN_AS_ROOT", "1")
+    os.environ.setdefault("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+    for name, (path, n) in files.items():
+        ref = os.path.join(work, f"{name}.cli.simplices")
+        cli_t, cli_m = least(runs, [CLI, "mesh", path, "-o", ref, "-q", "--threads", "2"])
+        cells = []
+        for p in (1, 2):
+            out = os.path.join(work, f"{name}.mpi{p}.simplices")
+            t, m = least(runs, [*mpirun(p), MPI, "mesh", path, "-o", out, "-q"])
+            same = open(out, "rb").read() == open(ref, "rb").read()
+            os.remove(out)
+            if not same:
+                sys.exit(f"{name}: spokemesh-mpi at P = {p} wrote other bytes")
+            cells.append((t, m))
+        data = os.path.join(work, f"store-{name}")
+        shutil.rmtree(data, ignore_errors=True)
+        os.makedirs(data)
+        store_t, _ = least(1, [*mpirun(2), MPI, "store", path, "--data-dir", data, "-q"])
+        shutil.rmtree(data, ignore_errors=True)
+        os.remove(ref)
+        # (GNU time's RSS of mpirun is the largest of its children's.)
+        print(f"| {name} | {n:,} | {cli_t:.2f} | {cli_m:.0f} | {cells[0][0]:.2f} | {cells[0][1]:.0f} | "
+              f"{cells[1][0]:.2f} | {cells[1][0] / cli_t:.2f}x | {cells[1][1]:.0f} | {store_t:.2f} | "
+              f"{store_t / cli_t:.2f}x |", flush=True)
+
+
+def section_cells(files: dict, work: str, runs: int) -> None:
+    print("\n### spokemesh cells against Voro++ (the points' bounding box)\n")
+    print("| family | n | spokemesh s | MB | Voro++ s | MB | ratio |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name, (path, n) in files.items():
+        pts = np.loadtxt(path)
+        if pts.shape[1] != 3:
+            continue
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        voro_in = os.path.join(work, f"{name}.voro")
+        with open(voro_in, "w") as f:
+            for i, p in enumerate(pts):
+                f.write(f"{i} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g}\n")
+        box = [f"{v:.17g}" for c in range(3) for v in (lo[c], hi[c])]
+        out = os.path.join(work, f"{name}.npz")
+        ours_t, ours_m = least(runs, [CLI, "cells", path, "-o", out, "-q", "--threads", "2"])
+        voro_t, voro_m = least(runs, ["voro++", "-c", "%i %v %n %f", *box, voro_in])
+        for f in (voro_in, voro_in + ".vol", out):
+            if os.path.exists(f):
+                os.remove(f)
+        print(f"| {name} | {n:,} | {ours_t:.2f} | {ours_m:.0f} | {voro_t:.2f} | {voro_m:.0f} | "
+              f"{ours_t / voro_t:.2f}x |", flush=True)
+
+
+def section_insert(families: list[str], n: int | None) -> None:
+    import time
+
+    import spokemesh
+
+    print("\n### add_points of the last 1% against building again (in process, 2 threads)\n")
+    print("| family | n | add s | stars | build again s | ratio |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for name in families:
+        pts = shapes.make(name, n)
+        k = int(len(pts) * 0.99)
+        tri = spokemesh.Delaunay(pts[:k], incremental=True, threads=2)
+        t0 = time.perf_counter()
+        tri.add_points(pts[k:])
+        add = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        whole = spokemesh.Delaunay(pts, threads=2)
+        again = time.perf_counter() - t0
+        if not np.array_equal(tri.simplices, whole.simplices):
+            sys.exit(f"{name}: insertion differs from the rebuild")
+        print(f"| {name} | {len(pts):,} | {add:.3f} | {tri._tri.stars_computed:,} | {again:.2f} | "
+              f"{add / again:.3f}x |", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sections", default="mpi,cells,insert")
+    ap.add_argument("--families", default=",".join(DEFAULT_FAMILIES))
+    ap.add_argument("--n", type=int, default=None, help="points per family (default: each family's own)")
+    ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--work", default=None, help="keep the files here")
+    a = ap.parse_args()
+    families = a.families.split(",")
+    sections = a.sections.split(",")
+    work = a.work or tempfile.mkdtemp(prefix="spokemesh-engine-")
+    os.makedirs(work, exist_ok=True)
+    files = {}
+    if "mpi" in sections or "cells" in sections:
+        for name in families:
+            pts = shapes.make(name, a.n)
+            path = os.path.join(work, f"{name}.txt")
+            np.savetxt(path, pts, fmt="%.17g")
+            files[name] = (path, len(pts))
+    try:
+        if "mpi" in sections:
+            section_mpi(files, work, a.runs)
+        if "cells" in sections:
+            section_cells(files, work, a.runs)
+        if "insert" in sections:
+            section_insert(families, a.n)
+    finally:
+        if a.work is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
