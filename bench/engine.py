@@ -8,10 +8,13 @@ text files, with peak RSS.
   cells    `spokemesh cells` (the bounding box, --threads 2) against Voro++ (`voro++ -c
            "%i %v %n %f"`, one thread: it computes volumes, neighbours and areas) on the
            same points and box.
+  serve    single star requests (REST, median) and a batch of random seeds (gRPC) on
+           each family against uniform points of the same n, the set's triangulation kept.
   insert   in-process add_points of the last 1% of a 3-d set against building it again
            (bench/incremental.py's measure at other shapes).
 
-    /usr/bin/python3 bench/engine.py [--sections mpi,cells,insert] [--families a,b] [--n N]
+    PYTHONPATH=build/python /usr/bin/python3 bench/engine.py [--sections mpi,cells,serve,insert]
+        [--families a,b] [--n N]
 
 Each row is one run (the machine's noise is a few percent; --runs takes the least of
 several). Files go to a temporary directory (--work to keep them).
@@ -109,6 +112,62 @@ def section_cells(files: dict, work: str, runs: int) -> None:
               f"{ours_t / voro_t:.2f}x |", flush=True)
 
 
+def section_serve(families: list[str], n: int | None, seeds_count: int) -> None:
+    """Single star requests (REST, one keep-alive connection, the median of random seeds)
+    and a batch of random seeds (gRPC BatchSeeds), on each family and on uniform points
+    of the same n and d, once the set's kept triangulation is built."""
+    import http.client
+    import time
+
+    import spokemesh
+    from local_server import local_server
+
+    def measure(client, http_target: str, points: np.ndarray) -> tuple[float, float]:
+        ps = client.upload(points)
+        client.star(ps.id, 0)  # loads the set; its triangulation is built in the background
+        host, port = http_target.split(":")
+        conn = http.client.HTTPConnection(host, int(port))
+        rng = np.random.default_rng(4)
+        seeds = [int(s) for s in rng.integers(0, len(points), seeds_count)]
+
+        def one(seed: int) -> float:
+            t = time.perf_counter()
+            conn.request("GET", f"/v1/pointsets/{ps.id}/seeds/{seed}/star")
+            r = conn.getresponse()
+            r.read()
+            assert r.status == 200, r.status
+            return time.perf_counter() - t
+
+        # Warm: until the medians of two samples agree (the triangulation is in).
+        last = None
+        for _ in range(60):
+            med = float(np.median([one(s) for s in seeds[:200]]))
+            if last is not None and abs(med - last) < 0.1 * last:
+                break
+            last = med
+            time.sleep(0.5)
+        single = float(np.median([one(s) for s in seeds]))
+        t = time.perf_counter()
+        client.batch_stars(ps.id, seeds)
+        batch = (time.perf_counter() - t) / len(seeds)
+        conn.close()
+        client.delete(ps.id)
+        return single * 1e6, batch * 1e6
+
+    print(f"\n### Per-seed requests once the set's triangulation is kept (median of {seeds_count:,} random "
+          f"single stars over REST, one keep-alive connection; a gRPC batch of them)\n")
+    print("| family | n | single us | uniform us | ratio | batch us a seed | uniform | ratio |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    with local_server("--max-points", "10000000") as (grpc_target, http_target):
+        client = spokemesh.Client(grpc_target)
+        for name in families:
+            pts = shapes.make(name, n)
+            single, batch = measure(client, http_target, pts)
+            u_single, u_batch = measure(client, http_target, np.random.default_rng(3).random(pts.shape))
+            print(f"| {name} | {len(pts):,} | {single:.0f} | {u_single:.0f} | {single / u_single:.2f}x | "
+                  f"{batch:.1f} | {u_batch:.1f} | {batch / u_batch:.2f}x |", flush=True)
+
+
 def section_insert(families: list[str], n: int | None) -> None:
     import time
 
@@ -135,10 +194,11 @@ def section_insert(families: list[str], n: int | None) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", default="mpi,cells,insert")
+    ap.add_argument("--sections", default="mpi,cells,serve,insert")
     ap.add_argument("--families", default=",".join(DEFAULT_FAMILIES))
     ap.add_argument("--n", type=int, default=None, help="points per family (default: each family's own)")
     ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=2000, help="serve: random seeds asked")
     ap.add_argument("--work", default=None, help="keep the files here")
     a = ap.parse_args()
     families = a.families.split(",")
@@ -157,6 +217,8 @@ def main() -> None:
             section_mpi(files, work, a.runs)
         if "cells" in sections:
             section_cells(files, work, a.runs)
+        if "serve" in sections:
+            section_serve(families, a.n, a.seeds)
         if "insert" in sections:
             section_insert(families, a.n)
     finally:
