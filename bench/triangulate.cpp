@@ -6,13 +6,19 @@
 // timed. Prints, per insertion: microseconds, the walk's steps, cells destroyed, exact
 // evaluations.
 //
-//   build/bin/spokemesh_triangulate FILE [--no-cgal]
+// With --append F: the service's append instead. The triangulation of every point of
+// the file's first (1 - F) of the points (triangulate_whole), then the whole file's from
+// it (extend_whole: copied, the rest inserted) against building the whole file's again;
+// both timed, with the cells compared (the triangulation is unique).
+//
+//   build/bin/spokemesh_triangulate FILE [--no-cgal | --append F]
 #include <CGAL/Delaunay_triangulation_2.h>
 #include <CGAL/Delaunay_triangulation_3.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <vector>
 
@@ -20,6 +26,7 @@
 #include "mesh/insertion_order.hpp"
 #include "mesh/triangulation.hpp"
 #include "spokemesh/io.hpp"
+#include "spokemesh/mesh.hpp"
 #include "spokemesh/space_split.hpp"
 
 namespace {
@@ -68,11 +75,54 @@ void run(const spokemesh::PointSet& ps, const std::vector<std::uint32_t>& order,
   }
 }
 
+// --append F (above).
+int run_append(const spokemesh::PointSet& ps, double fraction) {
+  const int d = ps.dimension();
+  const auto n0 = static_cast<std::size_t>((1.0 - fraction) * static_cast<double>(ps.size()));
+  spokemesh::PointSet first(d, std::vector<double>(ps.point(0), ps.point(0) + n0 * static_cast<std::size_t>(d)));
+  if (const auto valid = first.validate("the first points"); !valid.is_ok()) {
+    std::fprintf(stderr, "%s\n", valid.message().c_str());
+    return 1;
+  }
+  const auto base = spokemesh::triangulate_whole(first);
+  if (!base.is_ok()) {
+    std::fprintf(stderr, "%s\n", base.status().message().c_str());
+    return 1;
+  }
+  // Both with the sweep's split of every point given (the service holds the set's).
+  const spokemesh::SpaceSplit split(ps, spokemesh::SpaceSplit::default_block_points(d, ps.size()));
+  spokemesh::WholeOptions options;
+  options.split = &split;
+  auto start = Clock::now();
+  const auto extended = spokemesh::extend_whole(*base.value(), ps, options);
+  const double extend_s = seconds_since(start);
+  start = Clock::now();
+  const auto again = spokemesh::triangulate_whole(ps, options);
+  const double again_s = seconds_since(start);
+  if (!extended.is_ok() || !again.is_ok()) {
+    std::fprintf(stderr, "failed\n");
+    return 1;
+  }
+  spokemesh::WholeStarReader a(*extended.value()), b(*again.value());
+  spokemesh::Star x, y;
+  for (std::uint32_t s = 0; s < ps.size(); s += 97) {
+    if (!a.star(s, x).is_ok() || !b.star(s, y).is_ok() || x.simplices != y.simplices) {
+      std::fprintf(stderr, "seed %u: the stars differ\n", s);
+      return 1;
+    }
+  }
+  std::printf("append %zu points to %zu: extend_whole %.3f s, triangulate_whole again %.3f s (%.3fx), %.0f MB\n",
+              ps.size() - n0, n0, extend_s, again_s, extend_s / again_s,
+              static_cast<double>(extended.value()->bytes()) / 1e6);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2 || (argc == 3 && std::strcmp(argv[2], "--no-cgal") != 0) || argc > 3) {
-    std::fprintf(stderr, "usage: spokemesh_triangulate FILE [--no-cgal]\n");
+  const bool append = argc == 4 && std::strcmp(argv[2], "--append") == 0;
+  if (argc < 2 || (argc == 3 && std::strcmp(argv[2], "--no-cgal") != 0) || (argc > 3 && !append)) {
+    std::fprintf(stderr, "usage: spokemesh_triangulate FILE [--no-cgal | --append FRACTION]\n");
     return 2;
   }
   auto read = spokemesh::read_points(argv[1]);
@@ -90,6 +140,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "2-d and 3-d sets only\n");
     return 2;
   }
+  if (append) return run_append(ps, std::atof(argv[3]));
   const spokemesh::SpaceSplit split(ps, spokemesh::SpaceSplit::default_block_points(d, ps.size()));
   std::vector<std::uint32_t> order(ps.size()), scratch;
   for (std::uint32_t r = 0; r < order.size(); ++r) order[r] = split.point_at(r);

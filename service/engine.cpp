@@ -163,10 +163,13 @@ class Engine::TriangulationKeeper {
     cv_.notify_all();
     thread_.join();
   }
-  void ask(std::weak_ptr<const StoredSet> set) {
+  // `parent`: the set `set` was appended to, whose kept triangulation it extends.
+  // Triangulations built from a parent's so far.
+  std::uint64_t extended() const { return extended_.load(std::memory_order_relaxed); }
+  void ask(std::weak_ptr<const StoredSet> set, std::weak_ptr<const StoredSet> parent = {}) {
     {
       std::lock_guard lock(mu_);
-      queue_.push_back(std::move(set));
+      queue_.push_back({std::move(set), std::move(parent)});
     }
     cv_.notify_one();
   }
@@ -174,7 +177,7 @@ class Engine::TriangulationKeeper {
  private:
   void run() {
     for (;;) {
-      std::weak_ptr<const StoredSet> next;
+      Asked next;
       {
         std::unique_lock lock(mu_);
         cv_.wait(lock, [&] { return stop_.load() || !queue_.empty(); });
@@ -182,19 +185,28 @@ class Engine::TriangulationKeeper {
         next = std::move(queue_.front());
         queue_.erase(queue_.begin());
       }
-      if (const std::shared_ptr<const StoredSet> set = next.lock()) build(*set);
+      if (const std::shared_ptr<const StoredSet> set = next.set.lock()) build(*set, next.parent.lock());
     }
   }
 
   // One set's triangulation, its memory charged as it grows (refused: none is kept),
-  // and how its cells in a box should take their stars.
-  void build(const StoredSet& set) {
+  // and how its cells in a box should take their stars. From its parent's when it was
+  // appended to a set that still holds one (the same triangulation: it is unique).
+  void build(const StoredSet& set, const std::shared_ptr<const StoredSet>& parent) {
     MemoryBudget::Charge charge = budget_.empty_charge();
     WholeOptions options;
     options.split = set.split.get();
     options.cancel = &stop_;
     options.reserve_bytes = [&](std::size_t bytes) { return charge.grow(bytes); };
-    auto built = triangulate_whole(set.points, options);
+    const std::shared_ptr<const WholeTriangulation> base = parent ? parent->kept_whole() : nullptr;
+    auto built = base != nullptr && base->point_set().size() < set.points.size()
+                     ? extend_whole(*base, set.points, options)
+                     : triangulate_whole(set.points, options);
+    if (base != nullptr && !built.is_ok() && built.status().code() == Code::kInvalidArgument) {
+      built = triangulate_whole(set.points, options);  // not its parent's points first after all
+    } else if (base != nullptr && built.is_ok()) {
+      extended_.fetch_add(1, std::memory_order_relaxed);
+    }
     if (!built.is_ok()) return;  // refused, cancelled, or flat: the stars are walked
     CellStarPlan plan;
     if (set.tree && set.bounds.size() == 2 * static_cast<std::size_t>(set.info.dimension)) {
@@ -217,10 +229,14 @@ class Engine::TriangulationKeeper {
     set.whole_skip_doomed = plan.skip_doomed;
   }
 
+  struct Asked {
+    std::weak_ptr<const StoredSet> set, parent;
+  };
   MemoryBudget& budget_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::vector<std::weak_ptr<const StoredSet>> queue_;
+  std::vector<Asked> queue_;
+  std::atomic<std::uint64_t> extended_{0};
   std::atomic<bool> stop_{false};
   std::thread thread_;  // last: started once the rest is made
 };
@@ -231,13 +247,25 @@ Engine::Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSetting
       shards_(shards),
       keeper_(new TriangulationKeeper(store_->budget()), [](TriangulationKeeper* k) { delete k; }) {}
 
+std::uint64_t Engine::triangulations_extended() const { return keeper_->extended(); }
+
 void Engine::keep_triangulation(const std::shared_ptr<const StoredSet>& set) {
   const int d = set->info.dimension;
   if (!limits_.keep_triangulations || (d != 2 && d != 3) || set->box || !set->weights.empty() ||
       set->whole_asked.exchange(true)) {
     return;
   }
-  keeper_->ask(set);
+  std::weak_ptr<const StoredSet> parent;
+  if (!set->piece) {
+    std::lock_guard lock(appended_mu_);
+    const auto it = std::find_if(appended_from_.begin(), appended_from_.end(),
+                                 [&](const auto& e) { return e.first == set->info.id; });
+    if (it != appended_from_.end()) {
+      parent = it->second;
+      appended_from_.erase(it);
+    }
+  }
+  keeper_->ask(set, std::move(parent));
 }
 
 namespace {
@@ -383,6 +411,7 @@ Result<std::unique_ptr<UploadSession>> Engine::begin_append(const std::string& p
       !st.is_ok()) {
     return st;
   }
+  s.parent_id_ = parent_id;
   return session;
 }
 
@@ -445,6 +474,14 @@ Result<PointSetInfo> Engine::finish_upload(UploadSession& s, const Principal& wh
   // A large set is also cut into pieces before it is acknowledged (sharded serving).
   if (stored.is_ok()) {
     if (Status st = ensure_pieces(info, &points); !st.is_ok()) return st;
+  }
+  // An append to a set that holds its triangulation: the new set's will extend it.
+  if (stored.is_ok() && !s.parent_id_.empty() && limits_.keep_triangulations) {
+    if (auto parent = store_->loaded(s.parent_id_); parent != nullptr && parent->kept_whole() != nullptr) {
+      std::lock_guard lock(appended_mu_);
+      if (appended_from_.size() >= kAppendsRemembered) appended_from_.erase(appended_from_.begin());
+      appended_from_.emplace_back(info.id, parent);
+    }
   }
   return stored;
 }

@@ -145,6 +145,7 @@ class UploadSession {
   std::uint64_t weight_bytes_ = 0;  // received
   const MemoryBudget* budget_ = nullptr;
   std::unique_ptr<Sha256> sha_;
+  std::string parent_id_;  // an append's: the set whose points come first
 };
 
 struct NeighborQuery {
@@ -229,6 +230,8 @@ class Engine {
 
   const Limits& limits() const { return limits_; }
   PointSetStore& store() { return *store_; }
+  // Kept triangulations built from an append's parent's (extend_whole) so far.
+  std::uint64_t triangulations_extended() const;
 
   // Uploads: begin() checks the header against the limits; finish() checks the byte
   // count, validates the points (NaN/Inf, range, duplicates, affine span) and stores
@@ -393,6 +396,13 @@ class Engine {
   // (stopped and joined first when the engine goes).
   class TriangulationKeeper;
   std::unique_ptr<TriangulationKeeper, void (*)(TriangulationKeeper*)> keeper_;
+  // Sets made by an append whose parent held its triangulation then: the child's is
+  // built from the parent's (extend_whole: copied, the new points inserted) if the
+  // parent still holds it when the child's is asked for. Weakly held, at most
+  // kAppendsRemembered (the oldest forgotten first).
+  static constexpr std::size_t kAppendsRemembered = 64;
+  std::mutex appended_mu_;
+  std::vector<std::pair<std::string, std::weak_ptr<const StoredSet>>> appended_from_;
 };
 
 }  // namespace spokemesh::service

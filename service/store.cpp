@@ -628,6 +628,12 @@ void PointSetStore::quarantine(const std::string& id, const std::string& why) {
   }
 }
 
+std::shared_ptr<const StoredSet> PointSetStore::loaded(const std::string& id) const {
+  std::lock_guard lock(mutex_);
+  const auto it = index_.find(id);
+  return it == index_.end() ? nullptr : *it->second;
+}
+
 std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const StoredSet> set) {
   std::lock_guard lock(mutex_);
   const std::string key = set->cache_key();

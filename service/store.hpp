@@ -179,6 +179,10 @@ class PointSetStore {
   // INVALID_ARGUMENT for a malformed id.
   Result<std::shared_ptr<const StoredSet>> get(const std::string& id);
 
+  // The set if it is loaded in memory now (whole, not a piece), else null: nothing is
+  // read (an append asks whether its parent's triangulation is at hand).
+  std::shared_ptr<const StoredSet> loaded(const std::string& id) const;
+
   // Pieces (pieces.hpp): the layout of a set kept as pieces, cached (null when the set
   // has none); one piece loaded with its tree, cached and charged like a set (least
   // recently used first out); and writing a set's pieces (the set must be stored).

@@ -514,6 +514,47 @@ TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
 // request and kept with it (charged; gone with the set): single star, neighbour and
 // cell requests (unclipped, in a box, in halfspaces) and batches then read it, and
 // answer exactly what walked stars answer, on a closed surface, a scan, and a grid.
+// A set made by an append to a set that holds its triangulation gets its own from the
+// parent's (copied, the new points inserted: not built again), and its per-seed answers
+// are the walked ones, the new points' included.
+TEST(Engine, AnAppendedSetExtendsItsParentsTriangulation) {
+  TempDir dir;
+  auto engine = make_engine(dir.path());
+  const auto control = no_deadline();
+  const std::vector<double> parent_coords = bench::sphere_surface(5000, 21), added = bench::sphere_surface(60, 22);
+  const std::string parent_id = upload(*engine, 3, parent_coords).value().id;
+  auto wait_for_whole = [](const std::shared_ptr<const StoredSet>& set) {
+    for (int wait = 0; wait < 600 && set->kept_whole() == nullptr; ++wait) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return set->kept_whole() != nullptr;
+  };
+  ASSERT_TRUE(engine->star(parent_id, 0, control).is_ok());
+  auto parent = engine->point_set(parent_id).value();
+  ASSERT_TRUE(wait_for_whole(parent)) << "the parent's triangulation was not built";
+  auto session = engine->begin_append(parent_id, header_of(3, 60, ""));
+  ASSERT_TRUE(session.is_ok()) << session.status().message();
+  ASSERT_TRUE(session.value()->append(added.data(), added.size() * 8).is_ok());
+  const auto child = engine->finish_upload(*session.value());
+  ASSERT_TRUE(child.is_ok()) << child.status().message();
+  ASSERT_TRUE(engine->star(child->id, 0, control).is_ok());
+  auto set = engine->point_set(child->id).value();
+  ASSERT_TRUE(wait_for_whole(set)) << "the appended set's triangulation was not built";
+  EXPECT_EQ(engine->triangulations_extended(), 1U) << "built from its parent's";
+  std::vector<double> all = parent_coords;
+  all.insert(all.end(), added.begin(), added.end());
+  const PointSet points = testing::make_points(3, all);
+  const KdTree tree(points);
+  StarWalker walker(tree);
+  Star star;
+  for (std::uint32_t seed = 0; seed < points.size(); seed += seed < 5000 ? 97 : 1) {
+    ASSERT_TRUE(walker.compute(seed, star).is_ok());
+    const auto answer = engine->star(child->id, seed, control);
+    ASSERT_TRUE(answer.is_ok());
+    EXPECT_EQ(answer->star.simplices, star.simplices) << "seed " << seed;
+  }
+}
+
 TEST(Engine, PerSeedAnswersFromTheKeptTriangulationAreTheWalkedOnes) {
   struct Case {
     std::string name;

@@ -9,6 +9,7 @@
 #include <map>
 #include <mutex>
 #include <numeric>
+#include <optional>
 #include <random>
 #include <set>
 #include <string>
@@ -194,6 +195,70 @@ TEST(WholeTriangulation, StarsAreTheStarWalks) {
   WholeOptions refuse;
   refuse.reserve_bytes = [](std::size_t) { return false; };
   EXPECT_EQ(triangulate_whole(big, refuse).status().code(), Code::kResourceExhausted);
+}
+
+// A set with points appended (extend_whole): the first set's triangulation copied and
+// the rest inserted gives every star the triangulation of all the points gives (the
+// service's :append keeps its parent's triangulation this way), on every degenerate
+// case and shape family, with 1% to half of the points new; a set that does not begin
+// with the first's points is refused by name.
+TEST(WholeTriangulation, ExtendingItIsBuildingItAgain) {
+  std::vector<Case> all = cases();
+  for (auto& shape : bench::shape_families(1200, 44)) all.push_back({shape.name, shape.d, std::move(shape.coords)});
+  for (const Case& c : all) {
+    const PointSet ps = make_points(c.d, c.coords);
+    const auto whole = triangulate_whole(ps);
+    ASSERT_TRUE(whole.is_ok()) << c.name;
+    WholeStarReader expected(*whole.value());
+    for (const double kept : {0.5, 0.99}) {
+      SCOPED_TRACE(c.name + ", the first " + std::to_string(kept) + " of it kept");
+      auto n0 = static_cast<std::size_t>(kept * static_cast<double>(ps.size()));
+      // The first set must be full-dimensional on its own (as a stored set is).
+      std::shared_ptr<const WholeTriangulation> base;
+      std::optional<PointSet> first;
+      for (; n0 <= ps.size() && base == nullptr; ++n0) {
+        first.emplace(c.d, std::vector<double>(c.coords.begin(), c.coords.begin() + n0 * c.d));
+        if (!first->validate("first").is_ok()) continue;  // flat
+        if (auto b = triangulate_whole(*first); b.is_ok()) base = std::move(b).value();
+      }
+      ASSERT_NE(base, nullptr);
+      std::size_t charged = 0;
+      WholeOptions count;
+      count.reserve_bytes = [&](std::size_t bytes) {
+        charged += bytes;
+        return true;
+      };
+      auto extended = extend_whole(*base, ps, count);
+      ASSERT_TRUE(extended.is_ok()) << extended.status().message();
+      EXPECT_GE(charged, extended.value()->bytes()) << "what it holds is charged";
+      WholeStarReader reader(*extended.value());
+      Star a, b;
+      for (std::uint32_t seed = 0; seed < ps.size(); ++seed) {
+        ASSERT_TRUE(expected.star(seed, a).is_ok());
+        ASSERT_TRUE(reader.star(seed, b).is_ok());
+        ASSERT_EQ(a.simplices, b.simplices) << "seed " << seed;
+        ASSERT_EQ(a.hull_facets, b.hull_facets) << "seed " << seed;
+        ASSERT_TRUE(reader.star(seed, b, StarPart::kOwned).is_ok());
+        ASSERT_TRUE(expected.star(seed, a, StarPart::kOwned).is_ok());
+        ASSERT_EQ(a.simplices, b.simplices) << "seed " << seed << " (owned)";
+      }
+      // The base is untouched: its own stars are still its set's.
+      WholeStarReader before(*base);
+      ASSERT_TRUE(before.star(0, b).is_ok());
+    }
+  }
+  const PointSet a = make_points(3, uniform_points(3, 400, 5)), b = make_points(3, uniform_points(3, 800, 6));
+  const auto base = triangulate_whole(a).value();
+  EXPECT_EQ(extend_whole(*base, b).status().code(), Code::kInvalidArgument) << "not its points first";
+  const PointSet smaller = make_points(3, uniform_points(3, 200, 5));
+  EXPECT_EQ(extend_whole(*base, smaller).status().code(), Code::kInvalidArgument);
+  WholeOptions refuse;
+  refuse.reserve_bytes = [](std::size_t) { return false; };
+  std::vector<double> more = uniform_points(3, 400, 5), extra = uniform_points(3, 100, 7);
+  more.insert(more.end(), extra.begin(), extra.end());
+  const PointSet grown = make_points(3, more);
+  EXPECT_EQ(extend_whole(*base, grown, refuse).status().code(), Code::kResourceExhausted);
+  EXPECT_TRUE(extend_whole(*base, grown).is_ok());
 }
 
 // --- The whole mesh by local triangulations (delaunay_sweep.cpp) --------------------

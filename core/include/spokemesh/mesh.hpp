@@ -91,6 +91,17 @@ struct WholeOptions {
 Result<std::shared_ptr<const WholeTriangulation>> triangulate_whole(const PointSet& points,
                                                                     const WholeOptions& options = {});
 
+// The triangulation of `points` from `base`'s, whose set is `points`' first points
+// (the same coordinates, the same ids: a set with points appended): base's cells
+// copied and the others inserted, in the sweep's order (options.split over `points`,
+// or one built for the call). The same triangulation triangulate_whole(points) builds
+// (it is unique), at the cost of a copy (a few tenths of a second for a 3-d million)
+// and of the new points. base is only read, and may be shared meanwhile. Errors:
+// INVALID_ARGUMENT when `points` does not begin with base's set (compared byte for
+// byte); those of triangulate_whole.
+Result<std::shared_ptr<const WholeTriangulation>> extend_whole(const WholeTriangulation& base, const PointSet& points,
+                                                               const WholeOptions& options = {});
+
 // Reads stars out of a WholeTriangulation: for kAll and kOwned the Star that
 // StarWalker::compute gives, simplex for simplex (kWhole: the owned suffix the same,
 // the others in another order).

@@ -155,6 +155,29 @@ Triangulation<D>::Triangulation(const PointSet& points, const Predicates& predic
 }
 
 template <int D>
+Triangulation<D>::Triangulation(const Triangulation& from, const PointSet& points, const Predicates& predicates)
+    : ps_(points),
+      pred_(predicates),
+      full_(from.full_),
+      pending_(from.pending_),
+      basis_(from.basis_),
+      basis_size_(from.basis_size_),
+      free_(from.free_),
+      gen_(from.gen_),
+      hint_(from.hint_),
+      stats_(from.stats_) {
+  SPOKEMESH_INVARIANT(points.dimension() == D && points.size() >= from.ps_.size(),
+                      "a copy over a set that extends the original");
+  // Room for every point of the new set first: the arrays are then written once (a
+  // copy and a reallocation after it each cost as much: first touches of the pages).
+  reserve(points.size());
+  global_.assign(from.global_.begin(), from.global_.end());
+  coords_.assign(from.coords_.begin(), from.coords_.end());
+  cells_.assign(from.cells_.begin(), from.cells_.end());
+  vcell_.assign(from.vcell_.begin(), from.vcell_.end());
+}
+
+template <int D>
 void Triangulation<D>::clear() {
   full_ = false;
   global_.assign(1, 0xFFFFFFFFu);

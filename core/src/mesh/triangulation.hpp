@@ -61,6 +61,10 @@ class Triangulation {
   };
 
   Triangulation(const PointSet& points, const Predicates& predicates);
+  // A copy of `from` over `points`, whose first points are those of from's set (the
+  // same ids, the same coordinates): insertion goes on with the others (a set with
+  // points appended, extend_whole). The cells and local ids are from's.
+  Triangulation(const Triangulation& from, const PointSet& points, const Predicates& predicates);
 
   // Forgets every point and cell (keeps the memory).
   void clear();
@@ -83,6 +87,13 @@ class Triangulation {
   std::uint32_t insert_next(std::span<const std::uint32_t> ids, std::size_t k) {
     if (k + kPrefetchAhead < ids.size()) prefetch(ids[k + kPrefetchAhead]);
     return insert(ids[k]);
+  }
+
+  // Starts the next insertion's point location at a cell incident to local vertex v
+  // (a point inserted before, near the next one) instead of where the last one ended:
+  // points added to a built triangulation (extend_whole), each far from the last.
+  void walk_from(std::uint32_t v) {
+    if (full_ && v < vcell_.size() && vcell_[v] != kNone) hint_ = vcell_[v];
   }
 
   // Whether a full-dimensional simplex exists (else no cell does, and every point

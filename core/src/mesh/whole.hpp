@@ -84,16 +84,18 @@ void index_owners(Whole<D>& w) {
 // Inserts points `order` (ids, in insertion order) into w's triangulation, recording
 // their local ids, and asks granted() now and then (every `every` insertions, and at
 // the end) whether the memory may grow: false when it refuses. stop() is asked as often:
-// CANCELLED when it says so.
+// CANCELLED when it says so. With `near` (one point id per point of `order`, inserted
+// before it, or kNoOwner), each point's location is walked from its near point's cells.
 template <int D, class Granted, class Stop>
 Result<bool> insert_into(Whole<D>& w, std::span<const std::uint32_t> order, std::uint32_t every, Granted&& granted,
-                         Stop&& stop) {
+                         Stop&& stop, std::span<const std::uint32_t> near = {}) {
   Triangulation<D>& t = *w.tri;
   for (std::size_t k = 0; k < order.size(); ++k) {
     if ((k + 1) % every == 0) {
       if (stop()) return cancelled("triangulation cancelled");
       if (!granted()) return false;
     }
+    if (!near.empty() && near[k] != kNoOwner) t.walk_from(w.local[near[k]]);
     w.local[order[k]] = t.insert_next(order, k);
   }
   return granted();
