@@ -43,11 +43,12 @@ DEFAULT_FAMILIES = ["contours", "terrain", "rings", "rings_buildings", "sphere",
                     "contrast", "uniform3", "uniform2", "clustered3", "grid3"]
 
 
-def least(runs: int, cmd: list[str]) -> tuple[float, float]:
-    """The least wall time of `runs` runs of cmd, and the peak RSS (MB) of that run."""
+def least(runs: int, cmd: list[str], timeout: float | None = None) -> tuple[float, float]:
+    """The least wall time of `runs` runs of cmd, and the peak RSS (MB) of that run (inf
+    when stopped after `timeout` seconds)."""
     best = None
     for _ in range(runs):
-        wall, rss, _ = process(cmd)
+        wall, rss, _ = process(cmd, timeout=timeout)
         if best is None or wall < best[0]:
             best = (wall, rss)
     return best
@@ -88,7 +89,7 @@ def section_mpi(files: dict, work: str, runs: int) -> None:
               f"{store_t / cli_t:.2f}x |", flush=True)
 
 
-def section_cells(files: dict, work: str, runs: int) -> None:
+def section_cells(files: dict, work: str, runs: int, voro_timeout: float) -> None:
     print("\n### spokemesh cells against Voro++ (the points' bounding box)\n")
     print("| family | n | spokemesh s | MB | Voro++ s | MB | ratio |")
     print("|---|---:|---:|---:|---:|---:|---:|")
@@ -104,10 +105,14 @@ def section_cells(files: dict, work: str, runs: int) -> None:
         box = [f"{v:.17g}" for c in range(3) for v in (lo[c], hi[c])]
         out = os.path.join(work, f"{name}.npz")
         ours_t, ours_m = least(runs, [CLI, "cells", path, "-o", out, "-q", "--threads", "2"])
-        voro_t, voro_m = least(runs, ["voro++", "-c", "%i %v %n %f", *box, voro_in])
+        voro_t, voro_m = least(runs, ["voro++", "-c", "%i %v %n %f", *box, voro_in], timeout=voro_timeout)
         for f in (voro_in, voro_in + ".vol", out):
             if os.path.exists(f):
                 os.remove(f)
+        if voro_t == float("inf"):  # Voro++ stopped
+            print(f"| {name} | {n:,} | {ours_t:.2f} | {ours_m:.0f} | stopped after {voro_timeout:.0f} | | "
+                  f"< {ours_t / voro_timeout:.2f}x |", flush=True)
+            continue
         print(f"| {name} | {n:,} | {ours_t:.2f} | {ours_m:.0f} | {voro_t:.2f} | {voro_m:.0f} | "
               f"{ours_t / voro_t:.2f}x |", flush=True)
 
@@ -199,6 +204,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=None, help="points per family (default: each family's own)")
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--seeds", type=int, default=2000, help="serve: random seeds asked")
+    ap.add_argument("--voro-timeout", type=float, default=600, help="cells: Voro++ stopped after this many seconds")
     ap.add_argument("--work", default=None, help="keep the files here")
     a = ap.parse_args()
     families = a.families.split(",")
@@ -216,7 +222,7 @@ def main() -> None:
         if "mpi" in sections:
             section_mpi(files, work, a.runs)
         if "cells" in sections:
-            section_cells(files, work, a.runs)
+            section_cells(files, work, a.runs, a.voro_timeout)
         if "serve" in sections:
             section_serve(families, a.n, a.seeds)
         if "insert" in sections:

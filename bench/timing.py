@@ -30,12 +30,23 @@ def best(fn: Callable[[], T], repeat: int) -> tuple[float, T]:
     return min(times), out
 
 
-def process(cmd: list[str], cwd: Optional[str] = None, stdin: Optional[Path] = None) -> tuple[float, float, str]:
+def process(cmd: list[str], cwd: Optional[str] = None, stdin: Optional[Path] = None,
+            timeout: Optional[float] = None) -> tuple[float, float, str]:
     """(wall seconds, peak RSS MB, stdout) of a process, from GNU time; exits with its
-    stderr when it fails."""
+    stderr when it fails. With `timeout`: a process still running after that many
+    seconds is stopped (with its children) and reported as (inf, nan, "")."""
     start = time.perf_counter()
     with open(stdin, "rb") if stdin else open(os.devnull, "rb") as inp:
-        r = subprocess.run(["/usr/bin/time", "-v", *cmd], cwd=cwd, stdin=inp, capture_output=True, text=True)
+        # Its own process group, so that a stop reaches the measured process under time.
+        child = subprocess.Popen(["/usr/bin/time", "-v", *cmd], cwd=cwd, stdin=inp, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
+        try:
+            out, err = child.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(child.pid, 9)
+            child.communicate()
+            return float("inf"), float("nan"), ""
+        r = subprocess.CompletedProcess(child.args, child.returncode, out, err)
     wall = time.perf_counter() - start
     if r.returncode != 0:
         sys.exit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")

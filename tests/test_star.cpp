@@ -193,6 +193,29 @@ TEST(Star, HonoursCancellation) {
   EXPECT_EQ(walker.compute(0, star).code(), Code::kCancelled);
 }
 
+// A deadline that has passed stops a walk with DEADLINE_EXCEEDED (the walker stays
+// usable: the next compute without it gives the star); a deadline far off changes
+// nothing; the 2-d ring walk honours it too.
+TEST(Star, HonoursItsDeadline) {
+  for (const int d : {2, 3}) {
+    SCOPED_TRACE(d);
+    const PointSet ps = make_points(d, uniform_points(d, 300, 4));
+    const KdTree tree(ps);
+    StarWalker plain(tree);
+    Star expected, star;
+    ASSERT_TRUE(plain.compute(7, expected).is_ok());
+    StarWalker walker(tree, StarOptions{.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1)});
+    EXPECT_EQ(walker.compute(7, star).code(), Code::kDeadlineExceeded);
+    walker.set_deadline(std::chrono::steady_clock::now() + std::chrono::hours(1));
+    ASSERT_TRUE(walker.compute(7, star).is_ok());
+    EXPECT_EQ(star.simplices, expected.simplices);
+    std::atomic<bool> cancel{true};
+    StarWalker both(
+        tree, StarOptions{.cancel = &cancel, .deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1)});
+    EXPECT_EQ(both.compute(7, star).code(), Code::kCancelled) << "cancellation first";
+  }
+}
+
 // Shuffles the points with `seed`, meshes both orders (the shuffled one with
 // `threads` threads and the seed as the spoke seed) and asserts the same simplices
 // once mapped back through the shuffle.

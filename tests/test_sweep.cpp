@@ -305,6 +305,7 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       {"scanner rings", 3, bench::scanner_rings(8, 500, 0, 66), {3000, 3040, 4000}},
       {"contour lines", 2, bench::contours(10, 0.5, 67), {1500, 1530, 2000}},
   };
+  std::set<std::pair<bool, bool>> routes;  // (new stars swept, old stars again) seen
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
     const auto w = static_cast<std::size_t>(c.d + 1);
@@ -346,13 +347,20 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
         EXPECT_GT(stats.value().rows_kept, out.size() / w / 2);
       }
       EXPECT_EQ(out.size() % w, 0u);
-      // The stars computed are the new points' only (rows of old points are filtered).
+      // The stars computed are the new points' (and, where filtering would test many
+      // new points a row, the changed old points' again).
       if (!stats.value().whole) {
         EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
+        routes.insert({stats.value().swept, stats.value().old_stars > 0});
       }
       rows.assign(out.begin(), out.end());
     }
   }
+  // Walks where they are cheap (uniform), the sweep on surfaces and scans; old rows
+  // filtered, and on the sphere's surface the old stars computed again.
+  EXPECT_TRUE(routes.count({false, false}) == 1) << "walked new stars, filtered rows";
+  EXPECT_TRUE(routes.count({true, false}) == 1) << "swept new stars, filtered rows";
+  EXPECT_TRUE(routes.count({true, true}) == 1) << "swept new stars, old stars again";
 }
 
 // validate_appended: the state validate() gives (ranks that key the perturbation, the

@@ -33,6 +33,7 @@
 
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -54,6 +55,11 @@ struct StarOptions {
   std::size_t initial_candidates = 0;
   // Checked between wraps; a set flag makes compute() return CANCELLED.
   const std::atomic<bool>* cancel = nullptr;
+  // Checked between wraps too (when set): once it has passed, compute() returns
+  // DEADLINE_EXCEEDED. For callers with another way to the same star that would rather
+  // take it than wait (the sweep's walks of few seeds in a region: on a sphere's
+  // surface one walk can take seconds where the region's triangulation takes ms).
+  std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
   // What other stars of the same run found (not owned; see FacetMemo, used for
   // d >= 3, and EdgeCache, for d = 2). Only saves work: every star is the same with or
   // without them.
@@ -151,8 +157,11 @@ class StarWalker {
 
   // Computes the star of `seed` into `out` (its buffers are reused); with kOwned,
   // out.simplices keeps only the owned simplices (hull_facets still counts the star's).
-  // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set.
+  // Errors: OUT_OF_RANGE for a seed >= n; CANCELLED when options.cancel is set;
+  // DEADLINE_EXCEEDED past options.deadline.
   Status compute(std::uint32_t seed, Star& out, StarPart part = StarPart::kAll);
+  // The deadline of the next computes (StarOptions::deadline).
+  void set_deadline(std::chrono::steady_clock::time_point deadline) { options_.deadline = deadline; }
   // With weights: whether `seed` is hidden (its power cell is empty), decided as
   // compute() decides it (power_start) without walking the star. Without weights: false.
   Result<bool> hidden(std::uint32_t seed);
@@ -247,6 +256,8 @@ class StarWalker {
   // The first simplex by recursive spokes (d ids, without x) and its plane; with
   // weights, sets `hidden` (and finds nothing) when x's power cell is empty.
   Status first_simplex(std::uint32_t* out, BoundedDouble* plane, bool& hidden);
+  // Why a wrap stopped: DEADLINE_EXCEEDED past options_.deadline, else CANCELLED.
+  Status stopped() const;
   // With weights (power_start.cpp): the plane h = slope . q that the spokes start
   // from, through lifted x with every other lifted point strictly above it (slope 0,
   // the tangent plane, when x lies in its own power cell), or `hidden`.

@@ -61,6 +61,7 @@ inline Status out_of_range(std::string m) { return {Code::kOutOfRange, std::move
 inline Status resource_exhausted(std::string m) { return {Code::kResourceExhausted, std::move(m)}; }
 inline Status internal_error(std::string m) { return {Code::kInternal, std::move(m)}; }
 inline Status cancelled(std::string m) { return {Code::kCancelled, std::move(m)}; }
+inline Status deadline_exceeded(std::string m) { return {Code::kDeadlineExceeded, std::move(m)}; }
 
 // A value or the Status explaining why there is none.
 template <class T>

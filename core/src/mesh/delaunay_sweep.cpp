@@ -59,10 +59,10 @@ constexpr int kMaxRounds = 64;
 // that cuts it, a batch of seeds) has its seeds' stars walked instead, as long as that
 // takes less time than triangulating the region would: about kSecondsPerPoint[d] a
 // point of the region (measured: one thread, margins included). The time is read every
-// kWalkProbe seeds. (The rows are the same either way: only the time is measured.)
+// walk. (The rows are the same either way: only the time is measured.)
 constexpr std::size_t kWalkShare = 16;
 constexpr double kSecondsPerPoint[4] = {0, 0, 1.5e-6, 5e-6};
-constexpr std::size_t kWalkProbe = 16;
+constexpr std::size_t kWalksKnown = 4;  // walks of the run before their mean decides (Run::walks_dearer)
 // Cancellation and the memory reserved are looked at every this many insertions.
 constexpr std::uint32_t kCancelEvery = 4096;
 // MeshEngine::kAuto takes the star walk when a probe of this many points of the sweep
@@ -137,6 +137,22 @@ struct Run {
   std::size_t whole_reserved = 0;
   std::size_t whole_inserted = 0;  // the points ensure_whole inserted (a donor held the rest)
   std::mutex reserve_mu;
+  // The walks of the run so far (RegionMesher::walk): how many, and their time. A region
+  // with few seeds wanted walks them only while the run's mean walk says that costs less
+  // than triangulating it (each region learning it anew walked 16 seeds a region:
+  // on a sphere's surface, where a walk takes 20 ms, that was every seed of a batch).
+  // A walk stopped at its region's deadline (one star dearer than the region) sets
+  // walks_stopped: the run's regions are triangulated from then on.
+  std::atomic<std::uint64_t> walks{0}, walk_nanos{0};
+  std::atomic<bool> walks_stopped{false};
+  bool walks_dearer(std::size_t seeds, double region_seconds) const {
+    if (walks_stopped.load(std::memory_order_relaxed)) return true;
+    const std::uint64_t count = walks.load(std::memory_order_relaxed);
+    if (count < kWalksKnown) return false;
+    const double mean =
+        1e-9 * static_cast<double>(walk_nanos.load(std::memory_order_relaxed)) / static_cast<double>(count);
+    return mean * static_cast<double>(seeds) > region_seconds;
+  }
 
   std::once_flag tree_once;
   std::unique_ptr<KdTree> own_tree;
@@ -301,15 +317,19 @@ class RegionMesher {
     if (wanted_.empty()) return Status::ok();
     if (run_.cancelled()) return cancelled("mesh cancelled");
     if (run_.held != nullptr && run_.whole_wanted.load()) return defer_to_whole_set();
-    if (!run_.use_whole.load() && wanted_.size() * kWalkShare < last - first) {
+    // (Not once balls were found to reach across the set: the triangulation of every
+    // point is being built, and answers every seed.)
+    if (!run_.use_whole.load() && !run_.whole_wanted.load() && wanted_.size() * kWalkShare < last - first) {
       // Few seeds wanted: walk their stars while that costs less than triangulating the
       // region would; when walking proves dearer (stars reaching far: a sphere's
       // surface, contour lines), the rest of the region is triangulated.
       const double region_seconds = kSecondsPerPoint[D] * (last - first);
-      auto walked = walk(out, region_seconds);
-      if (!walked.is_ok()) return walked.status();
-      if (walked.value() == wanted_.size()) return Status::ok();
-      wanted_.erase(wanted_.begin(), wanted_.begin() + static_cast<std::ptrdiff_t>(walked.value()));
+      if (!run_.walks_dearer(wanted_.size(), region_seconds)) {
+        auto walked = walk(out, region_seconds);
+        if (!walked.is_ok()) return walked.status();
+        if (walked.value() == wanted_.size()) return Status::ok();
+        wanted_.erase(wanted_.begin(), wanted_.begin() + static_cast<std::ptrdiff_t>(walked.value()));
+      }
     }
     if (!run_.use_whole.load() && !run_.whole_wanted.load()) {
       ++stats_.regions;
@@ -979,14 +999,18 @@ class RegionMesher {
 
   // Few seeds of the region wanted: their stars walked, as the star walk's sweep does.
   // Walks the wanted seeds' stars in order, rows to `out`; stops once more than
-  // `seconds` have passed (after at least a few seeds, so that one slow star does not
-  // decide). Returns how many were walked.
+  // `seconds` have passed (read after each star: on a sphere's surface one star can
+  // cost more than triangulating the region). Returns how many were walked.
   Result<std::size_t> walk(RegionRows& out, double seconds = HUGE_VAL) {
     if (!walker_) walker_.emplace(run_.walk_tree(), run_.options.star);
     const auto start = std::chrono::steady_clock::now();
+    // A walk is stopped once it alone has cost what the region's triangulation would.
+    const bool bounded = seconds != HUGE_VAL;
+    walker_->set_deadline(bounded ? start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                std::chrono::duration<double>(seconds))
+                                  : std::chrono::steady_clock::time_point::max());
     for (std::size_t k = 0; k < wanted_.size(); ++k) {
-      if (k >= kWalkProbe && k % kWalkProbe == 0 &&
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() > seconds) {
+      if (k > 0 && std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() > seconds) {
         return k;
       }
       const std::uint32_t s = run_.split.point_at(wanted_[k]);
@@ -995,7 +1019,19 @@ class RegionMesher {
       const StarPart part = run_.options.accept    ? run_.options.accept_part
                             : run_.held != nullptr ? StarPart::kWhole
                                                    : StarPart::kOwned;
-      if (Status st = walker_->compute(s, star_, part); !st.is_ok()) return st;
+      const auto began = std::chrono::steady_clock::now();
+      if (Status st = walker_->compute(s, star_, part); !st.is_ok()) {
+        if (bounded && st.code() == Code::kDeadlineExceeded) {
+          run_.walks_stopped.store(true, std::memory_order_relaxed);
+          return k;  // this seed and the rest: the region's triangulation
+        }
+        return st;
+      }
+      run_.walks.fetch_add(1, std::memory_order_relaxed);
+      run_.walk_nanos.fetch_add(
+          static_cast<std::uint64_t>(
+              std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - began).count()),
+          std::memory_order_relaxed);
       if (!run_.certified_walk(star_)) continue;
       if (run_.options.accept && !run_.options.accept(star_)) continue;
       const auto owned = owned_simplices(star_);

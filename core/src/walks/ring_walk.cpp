@@ -114,7 +114,7 @@ Status StarWalker::RingWalk::compute(Star& out, StarPart part) {
       w_.prepare_wrap();
       pivot[0] = Row::of_point(ring_[u].id);
       const WrapResult hit = w_.wrap(pivot.data(), Side{.away_from = from}, plane.data(), hit_plane.data());
-      if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
+      if (hit.kind == WrapResult::Kind::kCancelled) return w_.stopped();
       if (!hit.is_hit()) {
         if (!set_side(u, kHull)) return inconsistent();
         break;

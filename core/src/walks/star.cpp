@@ -807,12 +807,27 @@ StarWalker::WrapResult StarWalker::wrap_kernel(const Row* pivot, Side side, cons
   wrap.pivot_minors();
   wrap.orient(side);
   if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return WrapResult::cancelled();
+  if (options_.deadline != std::chrono::steady_clock::time_point::max() &&
+      std::chrono::steady_clock::now() > options_.deadline) {
+    return WrapResult::cancelled();
+  }
   wrap.pencil_scan(reference);
   if (!wrap.certified_scan()) {
     if (!wrap.has_best() && !wrap.hull_query()) return WrapResult::unbounded();
     wrap.sphere_queries();
   }
   return wrap.result(hit_plane);
+}
+
+Status StarWalker::stopped() const {
+  if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) {
+    return cancelled("star computation cancelled");
+  }
+  if (options_.deadline != std::chrono::steady_clock::time_point::max() &&
+      std::chrono::steady_clock::now() > options_.deadline) {
+    return deadline_exceeded("star computation past its deadline");
+  }
+  return cancelled("star computation cancelled");
 }
 
 Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, bool& hidden) {
@@ -853,7 +868,7 @@ Status StarWalker::first_simplex(std::uint32_t* found, BoundedDouble* plane, boo
     if (hit.kind == WrapResult::Kind::kUnbounded) {
       hit = wrap(rows.data(), Side{.toward = spoke, .reverse = true}, reference.data(), plane);
     }
-    if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
+    if (hit.kind == WrapResult::Kind::kCancelled) return stopped();
     if (!hit.is_hit()) return internal_error("no lifted point on either side of a spoke pivot (degenerate input?)");
     found[k] = hit.point;
     std::copy(plane, plane + d + 1, reference.begin());
@@ -1129,7 +1144,7 @@ class StarWalker::StarWalk {
     for (int j = 0; j < d - 1; ++j) pivot[j] = Row::of_point(others[j]);
     std::array<BoundedDouble, kMaxCols> plane;
     const WrapResult hit = w.wrap(pivot.data(), Side{.away_from = apex}, reference, plane.data());
-    if (hit.kind == WrapResult::Kind::kCancelled) return cancelled("star computation cancelled");
+    if (hit.kind == WrapResult::Kind::kCancelled) return w.stopped();
     if (memo != nullptr) record(others.data(), w.work_hashes_[at], apex, hit.is_hit() ? hit.point : FacetMemo::kHull);
     if (!hit.is_hit()) {
       ++hull;
