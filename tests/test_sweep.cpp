@@ -305,7 +305,6 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       {"scanner rings", 3, bench::scanner_rings(8, 500, 0, 66), {3000, 3040, 4000}},
       {"contour lines", 2, bench::contours(10, 0.5, 67), {1500, 1530, 2000}},
   };
-  std::set<std::pair<bool, bool>> routes;  // (new stars swept, old stars again) seen
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
     const auto w = static_cast<std::size_t>(c.d + 1);
@@ -330,37 +329,44 @@ TEST(InsertPoints, EqualsTheWholeSetMeshedAtOnce) {
       MeshOptions options;
       options.threads = 2;
       options.star.random_seed = 0x5eed;
+      const KdTree built_whole(*points);
+      const Simplices whole = mesh_all(built_whole, 2);
+      // Every route gives the same rows: walks forced, the whole sweep forced, and the
+      // probe's choice (checked below).
+      for (const MeshEngine forced : {MeshEngine::kStars, MeshEngine::kTriangulations}) {
+        options.engine = forced;
+        Rows by;
+        auto forced_stats = insert_points(*tree, split, c.sizes[k - 1], rows, options, by);
+        ASSERT_TRUE(forced_stats.is_ok()) << forced_stats.status().message();
+        EXPECT_TRUE(std::equal(by.begin(), by.end(), whole.begin(), whole.end())) << "engine " << int(forced);
+        const bool few = c.sizes[k] - c.sizes[k - 1] <= c.sizes[k - 1] / 50;
+        if (forced == MeshEngine::kStars && few) EXPECT_FALSE(forced_stats.value().whole);
+        if (forced == MeshEngine::kTriangulations && c.d <= 3) EXPECT_TRUE(forced_stats.value().whole);
+      }
+      options.engine = MeshEngine::kAuto;
       Rows out;
       auto stats = insert_points(*tree, split, c.sizes[k - 1], rows, options, out);
       ASSERT_TRUE(stats.is_ok()) << stats.status().message();
-      const KdTree built_whole(*points);
-      const Simplices whole = mesh_all(built_whole, 2);
       ASSERT_EQ(out.size(), whole.size());
       EXPECT_TRUE(std::equal(out.begin(), out.end(), whole.begin())) << "the rows differ from the whole set's";
       EXPECT_EQ(mesh_all(*tree, 2), whole) << "the extended tree's whole mesh differs";
       // Only the stars that change were computed: the new points' and some of the old
       // (a small chunk leaves most stars alone; a large one may touch every old point).
       EXPECT_LE(stats.value().stars, points->size());
-      if (c.sizes[k] - c.sizes[k - 1] <= c.sizes[k - 1] / 50) {
-        EXPECT_FALSE(stats.value().whole);
+      if (c.sizes[k] - c.sizes[k - 1] <= c.sizes[k - 1] / 50 && !stats.value().whole) {
         EXPECT_LT(stats.value().stars, points->size() / 2);
         EXPECT_GT(stats.value().rows_kept, out.size() / w / 2);
       }
       EXPECT_EQ(out.size() % w, 0u);
-      // The stars computed are the new points' (and, where filtering would test many
-      // new points a row, the changed old points' again).
+      // The stars computed are the new points' only (rows of old points are filtered),
+      // or with walks dear (surfaces, scans, contours) the whole set's.
       if (!stats.value().whole) {
         EXPECT_EQ(stats.value().stars, c.sizes[k] - c.sizes[k - 1]);
-        routes.insert({stats.value().swept, stats.value().old_stars > 0});
       }
+
       rows.assign(out.begin(), out.end());
     }
   }
-  // Walks where they are cheap (uniform), the sweep on surfaces and scans; old rows
-  // filtered, and on the sphere's surface the old stars computed again.
-  EXPECT_TRUE(routes.count({false, false}) == 1) << "walked new stars, filtered rows";
-  EXPECT_TRUE(routes.count({true, false}) == 1) << "swept new stars, filtered rows";
-  EXPECT_TRUE(routes.count({true, true}) == 1) << "swept new stars, old stars again";
 }
 
 // validate_appended: the state validate() gives (ranks that key the perturbation, the

@@ -268,33 +268,26 @@ using Rows = std::vector<std::uint32_t, UninitializedAllocator<std::uint32_t>>;
 // the old, and cover a neighbourhood of the point as its old star does), and so its
 // owned rows. A changed old point's rows are its old ones less those a new point's
 // circumsphere test removes (an old simplex is Delaunay in the new set unless a new
-// point lies in its circumsphere, decided exactly), with the new ones it owns; where a
-// sample of those rows says each would test many new points (a sphere's surface, whose
-// every circumsphere is nearly the sphere), the changed old points' stars are computed
-// again instead. The new stars are walked where a probe of a few says walks are cheap,
-// else (2-d and 3-d) computed by the sweep restricted to them (MeshOptions::seeds),
-// which also computes the old stars again. The rows
+// point lies in its circumsphere, decided exactly), with the new ones it owns. The rows
 // come out in the sweep order of `split` (the SpaceSplit of all n points), so `out` is
 // byte for byte what mesh_seeds writes for the whole set. When more than a fifth of
 // the points (3-d; an eighth otherwise) are new, the whole set is swept instead
-// (mesh_seeds: its stars share their wraps), which is then faster.
+// (mesh_seeds: its stars share their wraps), which is then faster; so it is in 2-d and
+// 3-d when a probe of a few new stars, walked against a deadline, says walking them all
+// would cost more than a quarter of that (surfaces, scans, contour lines).
 //
 // old_rows: mesh_seeds' output for the first n_old points (any sweep order: rows are
 // regrouped by owner, and an owner's rows are consecutive and lexicographic in every
-// sweep). options: threads and star options (seed and sweep ranges, split, accept and
-// the facet cache are not used). Errors: INVALID_ARGUMENT when n_old is not below n or
+// sweep). options: threads, star options and the engine (kStars: the new stars walked
+// and the rows filtered, always; kTriangulations: in 2-d and 3-d the whole set swept;
+// kAuto: the probe decides; seed and sweep ranges, split, accept and the facet cache are
+// not used). Errors: INVALID_ARGUMENT when n_old is not below n or
 // the rows name a point >= n_old; CANCELLED.
 struct InsertStats {
   std::uint64_t stars = 0;        // stars computed (the new points'; all n when swept whole)
   std::uint64_t rows_redone = 0;  // old points whose owned rows were brought up to date
   std::uint64_t rows_kept = 0;    // rows taken from old_rows
-  bool whole = false;             // so many points were new that the whole set was swept
-  // The new points' stars came from the sweep restricted to them (walks were dear: a
-  // probe of a few said so), not from walks.
-  bool swept = false;
-  // Changed old points whose stars were computed again (their rows' circumspheres held
-  // many new points each: surfaces), instead of their old rows being filtered.
-  std::uint64_t old_stars = 0;
+  bool whole = false;             // the whole set was swept (many new points, or walks dear)
 };
 Result<InsertStats> insert_points(const KdTree& tree, const SpaceSplit& split, std::uint32_t n_old,
                                   std::span<const std::uint32_t> old_rows, const MeshOptions& options, Rows& out);

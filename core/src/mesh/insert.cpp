@@ -26,11 +26,6 @@ constexpr std::size_t kProbeSeeds = 16;
 constexpr double kProbeShare = 0.02;
 constexpr double kMeshSecondsPerPoint[4] = {0, 0, 1.5e-6, 5e-6};
 constexpr double kWalksShareAtMost = 0.25;
-// insert_points samples the rows of about this many changed old points, and computes
-// their stars again where a row would test more than kTestsPerRowAtMost new points
-// (a star of the sweep costs about as much as that many exact circumsphere tests).
-constexpr std::size_t kSampledSeeds = 64;
-constexpr double kTestsPerRowAtMost = 32;
 
 // Runs work(t, threads) on `threads` threads (t = 0 on the calling one) and joins them.
 template <class Work>
@@ -113,7 +108,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   // eighth (2-d, and above 3-d, where one-by-one stars lose more to shared wraps).
   const std::uint64_t n_new = n - n_old;
   const int d = points.dimension();
-  if (n_new > n / (d == 3 ? 5 : 8)) {
+  auto sweep_whole = [&]() -> Result<InsertStats> {
     MeshOptions whole;
     whole.threads = options.threads;
     whole.star = options.star;
@@ -128,6 +123,10 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     stats.stars = n;
     stats.whole = true;
     return stats;
+  };
+  const bool triangulations = (d == 2 || d == 3) && options.star.cover == nullptr;
+  if (n_new > n / (d == 3 ? 5 : 8) || (triangulations && options.engine == MeshEngine::kTriangulations)) {
+    return sweep_whole();
   }
   // The new points' stars: every simplex that is new (a new simplex has a new vertex),
   // and their vertices are the old points whose stars change.
@@ -155,20 +154,18 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       if (row[0] < n_old && smallest_new == q) gained_of[i].insert(gained_of[i].end(), row, row + w);
     }
   };
-  // Walked, where walking every new point's star costs little against meshing the
-  // whole set (uniform points: about 100 us a star; the sweep's split, built meanwhile
-  // on another thread, is waited for only when the rows are put in order); a probe of
+  // The new points' stars are walked where that costs little against meshing the
+  // whole set (uniform points: about 100 us a star; the sweep's split, built meanwhile on
+  // another thread, is waited for only when the rows are put in order); a probe of
   // kProbeSeeds new points, spread over them and stopped at a deadline, says so.
-  // Elsewhere (surfaces, scans, contour lines: walks of many ms, one on a sphere's
-  // surface can take seconds) by the whole mesh's engine restricted to the rest
-  // (mesh_seeds with `seeds`: in 2-d and 3-d the regions holding new points triangulated
-  // and certified, or the triangulation of every point where balls reach across the
-  // set), whose stars reach the caller whole. Weighted sets are refused above; periodic
-  // covers walk.
-  Status s;
+  // Elsewhere (2-d and 3-d surfaces, scans, contour lines: a walk of many ms, on a
+  // sphere's surface seconds) the whole set is meshed again by the local triangulations,
+  // which was measured faster there than any part of it (the new stars by the sweep
+  // restricted to them, then the changed old ones: 1.1x-2x a rebuild, as their regions
+  // or the triangulation of every point are built anyway). Weighted sets are refused
+  // above; periodic covers and 4-d and up walk.
   std::vector<std::uint32_t> rest;
-  bool sweep = false;
-  if ((d == 2 || d == 3) && options.star.cover == nullptr) {
+  if (triangulations && options.engine == MeshEngine::kAuto) {
     const double whole_seconds = kMeshSecondsPerPoint[d] * static_cast<double>(n);
     const auto start = std::chrono::steady_clock::now();
     StarOptions probe_options = options.star;
@@ -181,10 +178,7 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     std::size_t walked = 0;
     for (std::size_t i = 0; i < seeds.size() && walked < kProbeSeeds; i += step) {
       const Status st = walker.compute(seeds[i], star, StarPart::kAll);
-      if (st.code() == Code::kDeadlineExceeded) {
-        sweep = true;
-        break;
-      }
+      if (st.code() == Code::kDeadlineExceeded) return sweep_whole();
       if (!st.is_ok()) return st;
       use_star(i, star);
       probed[i] = 1;
@@ -192,37 +186,18 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     }
     const double mean =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() / static_cast<double>(walked);
-    sweep = sweep || mean * static_cast<double>(seeds.size()) > kWalksShareAtMost * whole_seconds;
+    if (mean * static_cast<double>(seeds.size()) > kWalksShareAtMost * whole_seconds) return sweep_whole();
     for (std::size_t i = 0; i < seeds.size(); ++i) {
       if (probed[i] == 0) rest.push_back(seeds[i]);
     }
   } else {
     rest = seeds;
   }
-  // (A triangulation of every point that the first run builds serves the second.)
-  std::shared_ptr<const WholeTriangulation> kept_whole;
-  auto restricted = [&](std::span<const std::uint32_t> to_mesh, const std::function<void(const Star&)>& use) {
-    MeshOptions run;
-    run.threads = options.threads;
-    run.star = options.star;
-    run.split = &split_when_needed();
-    run.seeds = to_mesh;
-    run.whole = kept_whole;
-    run.keep_whole = [&](std::shared_ptr<const WholeTriangulation> whole) { kept_whole = std::move(whole); };
-    run.accept_part = StarPart::kAll;
-    run.accept = [&](const Star& star) {
-      use(star);
-      return false;  // (the rows are put together below)
-    };
-    return mesh_seeds(tree, run, [](std::span<const std::uint32_t>, std::uint64_t) { return Status::ok(); }).status();
-  };
-  if (sweep) {
-    s = restricted(rest, [&](const Star& star) { use_star(star.seed - n_old, star); });
-  } else {
-    s = for_each_star(tree, options, rest, StarPart::kAll,
-                      [&](std::size_t i, const Star& star) { use_star(rest[i] - n_old, star); });
+  if (Status s = for_each_star(tree, options, rest, StarPart::kAll,
+                               [&](std::size_t i, const Star& star) { use_star(rest[i] - n_old, star); });
+      !s.is_ok()) {
+    return s;
   }
-  if (!s.is_ok()) return s;
   std::vector<std::uint32_t> old_seeds;
   std::vector<std::uint32_t> redone(n_old, ~0u);  // index into old_seeds
   for (std::uint32_t v = 0; v < n_old; ++v) {
@@ -231,61 +206,6 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
     old_seeds.push_back(v);
   }
   std::vector<std::vector<std::uint32_t>> old_rows_of(old_seeds.size());
-  // The changed old points' rows: their old rows filtered by the new points in their
-  // circumspheres (below), or, where that would test many new points a row, their stars
-  // again by the same engine and their owned rows as they are. On a sphere's surface
-  // every circumsphere is nearly the sphere itself and holds every new point, each test
-  // exact: a sample of the rows to test says which.
-  const Predicates predicates(points);
-  // The new points alone, for the circumsphere queries (a small tree: ids - n_old).
-  const PointSet new_points(d,
-                            std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old) * d,
-                                                points.coordinates().end()));
-  const KdTree new_tree(new_points);
-  auto all_changed = [&](const std::uint32_t* row) {
-    for (std::size_t j = 0; j < w; ++j) {
-      if (changed[row[j]].load(std::memory_order_relaxed) == 0) return false;
-    }
-    return true;
-  };
-  // The new points within row's circumsphere, grown by a margin far above the
-  // circumcentre's error (voronoi.hpp: 1e-12 of the radius).
-  auto near_new = [&](const std::uint32_t* row, std::vector<std::pair<std::uint32_t, double>>& near) {
-    const std::vector<double> c = circumcentre(points, row, static_cast<int>(w));
-    double r2 = 0;
-    for (int k = 0; k < d; ++k) {
-      const double dx = points.point(row[0])[k] - c[static_cast<std::size_t>(k)];
-      r2 += dx * dx;
-    }
-    const double reach = std::sqrt(r2) * (1 + 1e-9) + 1e-300;
-    near.clear();
-    new_tree.within(c.data(), reach * reach, near);
-  };
-  bool again = false;
-  if (sweep && !old_seeds.empty()) {
-    std::vector<std::pair<std::uint32_t, double>> near;
-    std::uint64_t sampled = 0, met = 0;
-    const std::size_t step = std::max<std::size_t>(1, old_seeds.size() / kSampledSeeds);
-    for (std::size_t i = 0; i < old_seeds.size(); i += step) {
-      const std::uint32_t v = old_seeds[i];
-      for (std::uint32_t r = 0; r < row_count[v]; ++r) {
-        const std::uint32_t* row = &old_rows[(first_row[v] + r) * w];
-        if (!all_changed(row)) continue;
-        near_new(row, near);
-        ++sampled;
-        met += near.size();
-      }
-    }
-    again = sampled > 0 && static_cast<double>(met) / static_cast<double>(sampled) > kTestsPerRowAtMost;
-  }
-  if (again) {
-    s = restricted(old_seeds, [&](const Star& star) {
-      const auto owned = owned_simplices(star);
-      old_rows_of[redone[star.seed]].assign(owned.begin(), owned.end());
-    });
-    if (!s.is_ok()) return s;
-    gained_of = {};
-  }
   for (const std::vector<std::uint32_t>& g : gained_of) {
     for (std::size_t r = 0; r < g.size(); r += w) {
       std::vector<std::uint32_t>& to = old_rows_of[redone[g[r]]];
@@ -301,6 +221,12 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
   // points within the circumsphere grown by a margin far above the circumcentre's error
   // (voronoi.hpp: 1e-12 of the radius), each decided by the exact perturbed test. Rows
   // then in the star's order: lexicographic by their sorted indices.
+  const Predicates predicates(points);
+  // The new points alone, for the circumsphere queries (a small tree: ids - n_old).
+  const PointSet new_points(d,
+                            std::vector<double>(points.coordinates().begin() + static_cast<std::ptrdiff_t>(n_old) * d,
+                                                points.coordinates().end()));
+  const KdTree new_tree(new_points);
   std::atomic<std::size_t> next{0};
   std::vector<std::uint8_t> same_rows(old_seeds.size(), 0);  // written by one worker each
   auto work = [&](unsigned, unsigned) {
@@ -317,9 +243,20 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       std::size_t kept_rows = 0;
       for (std::uint32_t r = 0; r < row_count[v]; ++r) {
         const std::uint32_t* row = &old_rows[(first_row[v] + r) * w];
+        bool all_changed = true;
+        for (std::size_t j = 0; j < w && all_changed; ++j)
+          all_changed = changed[row[j]].load(std::memory_order_relaxed) != 0;
         bool killed = false;
-        if (all_changed(row)) {
-          near_new(row, near);
+        if (all_changed) {
+          const std::vector<double> c = circumcentre(points, row, static_cast<int>(w));
+          double r2 = 0;
+          for (int k = 0; k < d; ++k) {
+            const double dx = points.point(row[0])[k] - c[static_cast<std::size_t>(k)];
+            r2 += dx * dx;
+          }
+          const double reach = std::sqrt(r2) * (1 + 1e-9) + 1e-300;
+          near.clear();
+          new_tree.within(c.data(), reach * reach, near);
           for (const auto& [q, dist2] : near) {
             if (predicates.side_of_sphere(std::span<const std::uint32_t>(row, w), n_old + q) < 0) {
               killed = true;
@@ -359,14 +296,12 @@ Result<InsertStats> insert_points(const KdTree& tree, const std::function<const 
       rows.swap(kept);
     }
   };
-  if (!again) on_threads(std::min<unsigned>(options.threads, static_cast<unsigned>(old_seeds.size())), work);
+  on_threads(std::min<unsigned>(options.threads, static_cast<unsigned>(old_seeds.size())), work);
 
   // The rows in the whole set's sweep order.
   InsertStats stats;
   stats.stars = seeds.size();
   stats.rows_redone = old_seeds.size();
-  stats.swept = sweep;
-  stats.old_stars = again ? old_seeds.size() : 0;
   // Each seed's place in the output, then the copies in parallel (the output is about
   // the mesh's size: a single thread's copying and page faults would show).
   for (std::size_t i = 0; i < old_seeds.size(); ++i) {
