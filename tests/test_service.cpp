@@ -91,6 +91,20 @@ Result<PointSetInfo> upload(Engine& engine, int d, const std::vector<double>& co
 
 CallControl no_deadline() { return CallControl(Clock::now() + std::chrono::hours(1)); }
 
+// One batch of stars' answers, in order (a failed batch fails the test).
+std::vector<BatchAnswer> batch_stars(Engine& engine, const std::string& id, const std::vector<std::uint64_t>& seeds,
+                                     const CallControl& control) {
+  std::vector<BatchAnswer> answers;
+  EXPECT_TRUE(engine
+                  .batch(id, seeds, BatchKind::kStars, {}, {}, control,
+                         [&](std::span<const BatchAnswer> got, std::size_t) {
+                           answers.insert(answers.end(), got.begin(), got.end());
+                           return Status::ok();
+                         })
+                  .is_ok());
+  return answers;
+}
+
 TEST(Store, Sha256MatchesOpenSslOneShot) {
   Sha256 sha;
   sha.update("ab", 2);
@@ -244,6 +258,8 @@ TEST(Store, MemoryBudgetDropsLeastRecentlyUsedButKeepsThemOnDisk) {
   TempDir dir;
   Limits limits;
   limits.max_memory = estimated_memory(1000, 2) * 2 + 10;  // room for two sets
+  // (Their triangulations would take room too, as they are built in the background.)
+  limits.keep_triangulations = false;
   auto engine = make_engine(dir.path(), limits);
   std::vector<std::string> ids;
   for (int k = 0; k < 4; ++k) ids.push_back(upload(*engine, 2, uniform_points(2, 1000, 10 + k)).value().id);
@@ -464,17 +480,7 @@ TEST(Engine, BatchesKeepTheTriangulationOfAClosedSurface) {
   ASSERT_TRUE(engine->star(id, 0, control).is_ok());  // loaded, tree built
   const MemoryBudget& budget = engine->store().budget();
   const std::uint64_t loaded = budget.used();
-  auto batch = [&] {
-    std::vector<BatchAnswer> answers;
-    EXPECT_TRUE(engine
-                    ->batch(id, seeds, BatchKind::kStars, {}, {}, control,
-                            [&](std::span<const BatchAnswer> got, std::size_t) {
-                              answers.insert(answers.end(), got.begin(), got.end());
-                              return Status::ok();
-                            })
-                    .is_ok());
-    return answers;
-  };
+  auto batch = [&] { return batch_stars(*engine, id, seeds, control); };
   const std::vector<BatchAnswer> first = batch();
   const std::uint64_t kept = budget.used() - loaded;
   EXPECT_GT(kept, n * 40) << "the triangulation of every point is kept with the set, charged";
@@ -619,14 +625,7 @@ TEST(Engine, PerSeedAnswersFromTheKeptTriangulationAreTheWalkedOnes) {
     // A batch of stars reads it too.
     std::vector<std::uint64_t> seeds;
     for (std::uint64_t s = 1; s < points.size(); s += 53) seeds.push_back(s);
-    std::vector<BatchAnswer> answers;
-    ASSERT_TRUE(engine
-                    ->batch(id, seeds, BatchKind::kStars, {}, {}, control,
-                            [&](std::span<const BatchAnswer> got, std::size_t) {
-                              answers.insert(answers.end(), got.begin(), got.end());
-                              return Status::ok();
-                            })
-                    .is_ok());
+    const std::vector<BatchAnswer> answers = batch_stars(*engine, id, seeds, control);
     ASSERT_EQ(answers.size(), seeds.size());
     for (std::size_t i = 0; i < seeds.size(); ++i) {
       ASSERT_TRUE(walker.compute(static_cast<std::uint32_t>(seeds[i]), star).is_ok());
