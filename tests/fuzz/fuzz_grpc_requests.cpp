@@ -66,6 +66,10 @@ struct Harness {
     limits.max_dimension = 12;
     limits.max_memory = 32u << 20;
     limits.stream_cache_bytes = 1u << 20;
+    // No background triangulations: each call's end is checked to leave only the stored
+    // sets charged (a kept triangulation stays charged with its set; test_service checks
+    // that charge and its release).
+    limits.keep_triangulations = false;
     auto store = PointSetStore::open(dir, limits.max_memory, nullptr);
     if (!store.is_ok()) std::abort();
     engine = std::make_unique<Engine>(std::move(store).value(), limits);
