@@ -163,9 +163,9 @@ class Engine::TriangulationKeeper {
     cv_.notify_all();
     thread_.join();
   }
-  // `parent`: the set `set` was appended to, whose kept triangulation it extends.
   // Triangulations built from a parent's so far.
   std::uint64_t extended() const { return extended_.load(std::memory_order_relaxed); }
+  // `parent`: the set `set` was appended to, whose kept triangulation it extends.
   void ask(std::weak_ptr<const StoredSet> set, std::weak_ptr<const StoredSet> parent = {}) {
     {
       std::lock_guard lock(mu_);
