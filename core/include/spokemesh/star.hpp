@@ -258,6 +258,11 @@ class StarWalker {
   Status first_simplex(std::uint32_t* out, BoundedDouble* plane, bool& hidden);
   // Why a wrap stopped: DEADLINE_EXCEEDED past options_.deadline, else CANCELLED.
   Status stopped() const;
+  // Whether options_.deadline is set and has passed (read between wraps).
+  bool past_deadline() const {
+    return options_.deadline != std::chrono::steady_clock::time_point::max() &&
+           std::chrono::steady_clock::now() > options_.deadline;
+  }
   // With weights (power_start.cpp): the plane h = slope . q that the spokes start
   // from, through lifted x with every other lifted point strictly above it (slope 0,
   // the tangent plane, when x lies in its own power cell), or `hidden`.

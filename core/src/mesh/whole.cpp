@@ -17,6 +17,15 @@ namespace {
 constexpr std::size_t kReserveStep = std::size_t{16} << 20;
 constexpr std::uint32_t kCheckEvery = 4096;
 
+Status memory_refused() { return resource_exhausted("the triangulation of every point: its memory was refused"); }
+
+// The points' sweep: options.split when it is over them, else one built into `own`.
+const SpaceSplit& sweep_of(const PointSet& points, const WholeOptions& options, std::optional<SpaceSplit>& own) {
+  if (options.split != nullptr && options.split->size() == points.size()) return *options.split;
+  own.emplace(points, SpaceSplit::default_block_points(points.dimension(), points.size()));
+  return *own;
+}
+
 // Inserts `order` (ids not yet in w's triangulation) into it, its memory asked for as
 // it grows (counting what w holds beyond `reserved`, granted already), then indexes
 // the cells by owner. Without `near`: in biased randomized rounds over that (spatial)
@@ -44,15 +53,14 @@ Result<std::shared_ptr<const WholeTriangulation>> insert_rest(std::shared_ptr<de
     reserved += ask;
     return true;
   };
-  auto refused = [] { return resource_exhausted("the triangulation of every point: its memory was refused"); };
   auto stop = [&] { return options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed); };
   auto inserted = detail::insert_into<D>(*w, order, kCheckEvery, granted, stop, near);
   if (!inserted.is_ok()) return inserted.status();
-  if (!inserted.value()) return refused();
+  if (!inserted.value()) return memory_refused();
   if (!w->tri->full()) return invalid_argument("the points lie in a hyperplane: no triangulation");
   if (options.owner_index) {
     detail::index_owners(*w);
-    if (!granted()) return refused();
+    if (!granted()) return memory_refused();
   }
   return std::shared_ptr<const WholeTriangulation>(std::move(w));
 }
@@ -77,9 +85,7 @@ Result<std::shared_ptr<const WholeTriangulation>> extend(const detail::Whole<D>&
   const auto n0 = static_cast<std::uint32_t>(base.points->size());
   // The copy is asked for before it is made.
   const std::size_t copied = base.bytes();
-  if (options.reserve_bytes && !options.reserve_bytes(copied)) {
-    return resource_exhausted("the triangulation of every point: its memory was refused");
-  }
+  if (options.reserve_bytes && !options.reserve_bytes(copied)) return memory_refused();
   auto w = std::make_shared<detail::Whole<D>>();
   w->pred = std::make_shared<const Predicates>(points);
   w->points = &points;
@@ -111,13 +117,9 @@ Result<std::shared_ptr<const WholeTriangulation>> triangulate_whole(const PointS
   const int d = points.dimension();
   if (d != 2 && d != 3) return invalid_argument("a triangulation of every point is built in 2-d and 3-d only");
   std::optional<SpaceSplit> own;
-  const SpaceSplit* split = options.split;
-  if (split == nullptr || split->size() != points.size()) {
-    own.emplace(points, SpaceSplit::default_block_points(d, points.size()));
-    split = &*own;
-  }
+  const SpaceSplit& split = sweep_of(points, options, own);
   return detail::dispatch_2d_3d(d, Result<std::shared_ptr<const WholeTriangulation>>(invalid_argument("")),
-                                [&](auto dim) { return build<decltype(dim)::value>(points, *split, options); });
+                                [&](auto dim) { return build<decltype(dim)::value>(points, split, options); });
 }
 
 Result<std::shared_ptr<const WholeTriangulation>> extend_whole(const WholeTriangulation& base, const PointSet& points,
@@ -136,13 +138,12 @@ Result<std::shared_ptr<const WholeTriangulation>> extend_whole(const WholeTriang
                             " points are not the triangulation's");
   }
   std::optional<SpaceSplit> own;
-  const SpaceSplit* split = options.split;
-  if (split == nullptr || split->size() != points.size()) {
-    own.emplace(points, SpaceSplit::default_block_points(d, points.size()));
-    split = &*own;
-  }
-  if (d == 2) return extend<2>(static_cast<const detail::Whole<2>&>(base), points, *split, options);
-  return extend<3>(static_cast<const detail::Whole<3>&>(base), points, *split, options);
+  const SpaceSplit& split = sweep_of(points, options, own);
+  return detail::dispatch_2d_3d(d, Result<std::shared_ptr<const WholeTriangulation>>(invalid_argument("")),
+                                [&](auto dim) {
+                                  constexpr int D = decltype(dim)::value;
+                                  return extend<D>(static_cast<const detail::Whole<D>&>(base), points, split, options);
+                                });
 }
 
 struct WholeStarReader::Impl {

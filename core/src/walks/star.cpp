@@ -807,10 +807,7 @@ StarWalker::WrapResult StarWalker::wrap_kernel(const Row* pivot, Side side, cons
   wrap.pivot_minors();
   wrap.orient(side);
   if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) return WrapResult::cancelled();
-  if (options_.deadline != std::chrono::steady_clock::time_point::max() &&
-      std::chrono::steady_clock::now() > options_.deadline) {
-    return WrapResult::cancelled();
-  }
+  if (past_deadline()) return WrapResult::cancelled();
   wrap.pencil_scan(reference);
   if (!wrap.certified_scan()) {
     if (!wrap.has_best() && !wrap.hull_query()) return WrapResult::unbounded();
@@ -823,8 +820,7 @@ Status StarWalker::stopped() const {
   if (options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed)) {
     return cancelled("star computation cancelled");
   }
-  if (options_.deadline != std::chrono::steady_clock::time_point::max() &&
-      std::chrono::steady_clock::now() > options_.deadline) {
+  if (past_deadline()) {
     return deadline_exceeded("star computation past its deadline");
   }
   return cancelled("star computation cancelled");
