@@ -599,7 +599,8 @@ int main(int argc, char** argv) {
   ::mallopt(M_MMAP_THRESHOLD, 4 << 20);
   CLI::App app{
       "spokemesh: exact Delaunay meshes and Voronoi cells by Recursive Spoke Darts.\n"
-      "Points are text (one point per line) or .npy (float64/float32, shape (n, d)); indices are 0-based."};
+      "Points are text (one point per line) or .npy (shape (n, d), C order, little-endian float64, float32,\n"
+      "int64, int32 or int16); indices are 0-based."};
   app.require_subcommand(1);
   app.fallthrough();  // global options (--server, --deadline, ...) may follow the command
   app.set_version_flag("--version", "spokemesh 0.1.0");

@@ -6,6 +6,8 @@
 #include <limits>
 #include <sstream>
 
+#include "spokemesh/predicates.hpp"
+
 namespace spokemesh {
 
 int plane_side(const double* a, double b, const double* x, int d) {
@@ -17,7 +19,7 @@ int plane_side(const double* a, double b, const double* x, int d) {
     f += a[c] * x[c];
     magnitude += std::abs(a[c] * x[c]);
   }
-  constexpr double u = std::numeric_limits<double>::epsilon() / 2;
+  constexpr double u = filter::kUnitRoundoff;
   const double bound = 2 * (d + 2) * u * magnitude;
   if (f > bound) return 1;
   if (f < -bound) return -1;

@@ -11,12 +11,13 @@
 #include <unordered_map>
 
 #include "cells/shape_index.hpp"
+#include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
 
 namespace {
 
-constexpr double kEps = std::numeric_limits<double>::epsilon() / 2;  // unit roundoff
+constexpr double kEps = filter::kUnitRoundoff;
 // Shewchuk's static bounds (predicates.c, ccwerrboundA and o3derrboundA): the computed
 // determinant is within bound x permanent of the exact one, differences included.
 constexpr double kOrient2dBound = (3.0 + 16.0 * kEps) * kEps;

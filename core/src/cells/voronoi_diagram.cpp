@@ -90,7 +90,7 @@ class Incidence {
 // permanent), which cover the subtractions too. Magnitudes where products could
 // underflow are left to the exact test.
 bool surely_off_sphere(const PointSet& points, const std::uint32_t* v, std::uint32_t apex, int d) {
-  constexpr double eps = 0x1p-53;
+  constexpr double eps = filter::kUnitRoundoff;
   const double* e = points.point(apex);
   if (d == 2) {
     const double* a = points.point(v[0]);
