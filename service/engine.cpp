@@ -577,7 +577,9 @@ Result<Star> Engine::compute_star(const StoredSet& set, std::uint32_t seed, cons
   options.weights = set.weights;
   StarWalker walker(*set.tree, options);
   Status s = walker.compute(seed, star);
-  if (s.code() == Code::kCancelled) return control.stopped_status("the star of seed " + std::to_string(seed));
+  if (s.code() == Code::kCancelled) {
+    return control.stopped_status("the star of seed " + std::to_string(global_seed(set, seed)));
+  }
   if (!s.is_ok()) return s;
   return star;
 }
@@ -852,10 +854,14 @@ Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, co
     }
     return cell;
   }
+  // A piece's seed outside the domain is named as the whole set names it.
+  if (set.piece) {
+    if (Status s = check_seed_in_domain(set.points.point(seed), global_seed(set, seed), *domain); !s.is_ok()) return s;
+  }
   ClippedCellBuilder builder(*set.tree, *domain, options);
   auto cell = clipped_cell(set, seed, *domain, options, builder);
   if (cell.status().code() == Code::kCancelled)
-    return control.stopped_status("the cell of seed " + std::to_string(seed));
+    return control.stopped_status("the cell of seed " + std::to_string(global_seed(set, seed)));
   if (cell.is_ok() && set.piece) {
     // A piece's cell is the whole set's when the points within the reach that decided
     // it are all held (as spokemesh-mpi certifies its cells); otherwise completed.

@@ -335,6 +335,11 @@ class Engine {
   Result<VoronoiCell> complete_cell(const StoredSet& piece, std::uint32_t seed, double reach2, const Domain& domain,
                                     const CallControl& control);
   Result<Star> compute_star(const StoredSet& set, std::uint32_t seed, const CallControl& control);
+  // A seed of `set` by its index in the whole point set, as answers and errors name it
+  // (a piece's seeds are its own indices inside).
+  static std::uint64_t global_seed(const StoredSet& set, std::uint32_t seed) {
+    return set.piece ? set.piece->ids[seed] : seed;
+  }
   // A periodic set's star (and cell, when asked) of one seed.
   static Result<PeriodicStar> periodic_star_of(const StoredSet& set, std::uint32_t seed, const CallControl& control,
                                                VoronoiCell* cell, bool centres);

@@ -538,7 +538,7 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
 
 namespace {
 
-// The status an error body ({"error": {"status", "message"}}) names.
+// The status an error body ({"error": {"status", "message"[, "reason"]}}) names.
 Status status_of_error_body(const std::string& body) {
   const json error = json::parse(body, nullptr, false);
   Status s{Code::kInternal, "a shard answered: " + body.substr(0, 200)};
@@ -548,6 +548,11 @@ Status status_of_error_body(const std::string& body) {
                    Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
                    Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
       if (name == code_name(k)) s = Status{k, error["error"].value("message", "")};
+    }
+    // The reason too (OVER_BUDGET, STORAGE_FULL, SHARD_UNAVAILABLE): it picks the HTTP
+    // status (status_map.hpp) and is part of the answer.
+    if (const std::string reason = error["error"].value("reason", ""); !reason.empty() && !s.is_ok()) {
+      s = std::move(s).with_reason(reason);
     }
   }
   return s;

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <thread>
 
 #include "engine.hpp"
@@ -1281,6 +1282,128 @@ TEST(Rest, BearerTokenGuardsEverythingButProbes) {
   expect_error(call("/v1/pointsets", ""), 401, "UNAUTHENTICATED", "bearer token");
   expect_error(call("/metrics", "Bearer wrong!"), 401, "UNAUTHENTICATED", "bearer token");
   EXPECT_EQ(call("/v1/pointsets", "Bearer s3cret").status, 200u);
+}
+
+// ---- sharded engines on one data directory ------------------------------------------
+
+// A sharded deployment in one process: a whole engine and `shards` sharded ones (shard
+// k of `shards`, sets of 1,000 points and more kept as pieces of at most 500) over one
+// data directory, each behind its REST handler. No peers: each engine answers every
+// seed from the piece holding it, as a replica answers a relayed request.
+struct ShardedDeployment {
+  ShardedDeployment(const std::string& dir, std::uint32_t shards) {
+    engines.push_back(make_engine(dir));
+    for (std::uint32_t k = 0; k < shards; ++k) {
+      ShardSettings settings;
+      settings.index = k;
+      settings.count = shards;
+      settings.pieces_above = 1000;
+      settings.piece_points = 500;
+      auto store = PointSetStore::open(dir, Limits{}.max_memory, {});
+      EXPECT_TRUE(store.is_ok());
+      engines.push_back(std::make_unique<Engine>(std::move(store).value(), Limits{}, settings));
+    }
+    for (auto& engine : engines) {
+      apis.push_back(std::make_unique<HttpApi>(*engine, telemetry, token_auth(""), [] { return true; }));
+    }
+  }
+  // Status, body, and a stream's output with its final status, as one text.
+  std::string call(std::size_t k, http::verb verb, const std::string& target, const std::string& body = "") {
+    http::request<http::string_body> req{verb, target, 11};
+    if (!body.empty()) {
+      req.set(http::field::content_type, "application/json");
+      req.body() = body;
+      req.prepare_payload();
+    }
+    HttpResponse r = apis[k]->handle_request(req);
+    std::string out = std::to_string(r.status) + " " + r.body;
+    if (r.stream) {
+      const Status s = r.stream([&](std::string_view chunk) {
+        out += chunk;
+        return true;
+      });
+      out += "\nend: " + std::string(code_name(s.code())) + " " + s.message();
+    }
+    return out;
+  }
+  std::vector<std::unique_ptr<Engine>> engines;  // [0] whole, then shard 0, 1, ...
+  Telemetry telemetry;
+  std::vector<std::unique_ptr<HttpApi>> apis;
+};
+
+// Every answer of every sharded engine, errors included, is the whole engine's byte for
+// byte: stars, neighbours, cells bare, in the bounding box, in a box and halfspaces that
+// leave seeds outside (whose errors name the seed by its index in the whole set), out of
+// range seeds, and batches of all of these.
+TEST(ShardedEngines, EveryAnswerAndErrorIsTheWholeEngines) {
+  for (const std::uint32_t shards : {2u, 3u}) {
+    for (const int d : {2, 3}) {
+      SCOPED_TRACE("shards " + std::to_string(shards) + ", " + std::to_string(d) + "-d");
+      TempDir dir;
+      ShardedDeployment deployment(dir.path(), shards);
+      const std::size_t n = 3000;
+      const auto coords = uniform_points(d, n, 40 + d);
+      // Uploaded through shard 0, which cuts the set into pieces for all.
+      auto info = upload(*deployment.engines[1], d, coords);
+      ASSERT_TRUE(info.is_ok()) << info.status().message();
+      const std::string id = info->id;
+      auto layout = deployment.engines[1]->store().layout(id);
+      ASSERT_TRUE(layout.is_ok() && layout.value());
+      ASSERT_GE(layout.value()->pieces(), 4u);
+      const std::string box = d == 2 ? "0,0,0.5,1" : "0,0,0,0.5,1,1";
+      const std::string halfspaces = d == 2 ? "1,1,1.2" : "1,1,1,1.2";
+      const std::string base = "/v1/pointsets/" + id;
+      std::vector<std::string> targets;
+      std::vector<std::uint64_t> seeds;
+      for (std::uint64_t seed = 0; seed < n; seed += 11) seeds.push_back(seed);
+      for (std::uint64_t seed : seeds) {
+        const std::string at = base + "/seeds/" + std::to_string(seed);
+        for (const std::string& route : std::vector<std::string>{"/star", "/neighbors", "/neighbors?mode=approximate",
+                                                                 "/cell", "/cell?bounding_box=true", "/cell?box=" + box,
+                                                                 "/cell?halfspaces=" + halfspaces}) {
+          targets.push_back(at + route);
+        }
+      }
+      for (const std::uint64_t seed : {n, n + 7}) targets.push_back(base + "/seeds/" + std::to_string(seed) + "/star");
+      for (const std::string& target : targets) {
+        const std::string expected = deployment.call(0, http::verb::get, target);
+        for (std::size_t k = 1; k < deployment.apis.size(); ++k) {
+          ASSERT_EQ(deployment.call(k, http::verb::get, target), expected)
+              << "engine of shard " << k - 1 << ": " << target;
+        }
+      }
+      int errors = 0;
+      for (const std::string& target : targets) errors += deployment.call(0, http::verb::get, target)[0] != '2';
+      EXPECT_GT(errors, 100);  // the box and the halfspaces leave many seeds outside
+      // Batches, answered and refused.
+      json some = json::array();
+      for (std::uint64_t seed = 1; seed < n; seed += 5) some.push_back(seed);
+      json inside = json::array();  // seeds of the box
+      for (const auto& s : some) {
+        if (coords[s.get<std::uint64_t>() * d] <= 0.5) inside.push_back(s);
+      }
+      json box_values = json::array();
+      {
+        std::stringstream text(box);
+        for (std::string x; std::getline(text, x, ',');) box_values.push_back(std::stod(x));
+      }
+      const std::vector<std::pair<std::string, json>> batches = {
+          {"/stars:batch", {{"seeds", some}}},
+          {"/neighbors:batch", {{"seeds", some}}},
+          {"/cells:batch", {{"seeds", some}, {"bounding_box", true}}},
+          {"/cells:batch", {{"seeds", inside}, {"box", box_values}}},
+          {"/cells:batch", {{"seeds", some}, {"box", box_values}}},  // stops at the first seed outside
+          {"/stars:batch", {{"seeds", {1, 2, n + 3}}}},
+      };
+      for (const auto& [route, body] : batches) {
+        const std::string expected = deployment.call(0, http::verb::post, base + route, body.dump());
+        for (std::size_t k = 1; k < deployment.apis.size(); ++k) {
+          ASSERT_EQ(deployment.call(k, http::verb::post, base + route, body.dump()), expected)
+              << "engine of shard " << k - 1 << ": " << route << " " << body.dump().substr(0, 200);
+        }
+      }
+    }
+  }
 }
 
 // ---- gRPC on a real in-process server -----------------------------------------------
