@@ -12,8 +12,9 @@ packages=(
   libboost-dev libssl-dev openssl prometheus-cpp-dev
   # the Python client and its tests (Debian's interpreter: /usr/bin/python3)
   python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
-  # the replica test puts Debian's nginx in front of three servers
-  nginx
+  # the replica test puts Debian's nginx in front of three servers; bench/serving.py
+  # measures us beside nginx with Apache's ab
+  nginx apache2-utils
   # tests and benchmarks: GoogleTest, rapidcheck, and the oracles CGAL and Qhull
   libgtest-dev librapidcheck-dev libcgal-dev libmpfr-dev qhull-bin
   # clipped Voronoi cells: .npz output (zlib for the CRC-32s), and the oracles scipy and Voro++

@@ -521,8 +521,7 @@ Status Engine::delete_point_set(const std::string& id, const Principal& who) {
   return store_->release(id, who.tenant);
 }
 
-Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_of(const std::string& id,
-                                                                                   std::uint64_t seed, bool pieces) {
+Result<Holding> Engine::hold(const std::string& id, std::uint64_t seed, bool pieces) {
   if (pieces && shards_.sharded()) {
     auto layout = store_->layout(id);
     if (!layout.is_ok()) return layout.status();
@@ -541,7 +540,7 @@ Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_
         return internal_error("point set " + id + ": piece " + std::to_string(piece.value()) +
                               " does not hold its point " + std::to_string(seed));
       keep_triangulation(set.value());
-      return std::make_pair(std::move(set).value(), local);
+      return Holding{std::move(set).value(), local};
     }
   }
   auto set = store_->get(id);
@@ -552,7 +551,34 @@ Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> Engine::seed_
                         std::to_string(n) + " points (seeds 0.." + std::to_string(n - 1) + ")");
   }
   keep_triangulation(set.value());
-  return std::make_pair(std::move(set).value(), static_cast<std::uint32_t>(seed));
+  return Holding{std::move(set).value(), static_cast<std::uint32_t>(seed)};
+}
+
+std::optional<Holding> Engine::hold_at_hand(const std::string& id, std::uint64_t seed) {
+  if (!is_valid_id(id)) return std::nullopt;
+  std::shared_ptr<const StoredSet> set;
+  std::uint32_t index = 0;
+  if (shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return std::nullopt;
+    if (layout.value()) {
+      if (seed >= layout.value()->manifest().count) return std::nullopt;
+      auto piece = layout.value()->piece_of(seed);
+      // Another shard's seed is relayed, which waits on a peer: not at hand.
+      if (!piece.is_ok() || !is_own_piece(piece.value(), layout.value()->pieces())) return std::nullopt;
+      set = store_->get_piece_in_memory(id, piece.value());
+      if (!set) return std::nullopt;
+      index = local_index(set->piece->ids, seed);
+      if (index == kNotHeld) return std::nullopt;
+    }
+  }
+  if (!set) {
+    set = store_->get_in_memory(id);
+    if (!set || seed >= set->info.count) return std::nullopt;
+    index = static_cast<std::uint32_t>(seed);
+  }
+  if (!set->kept_whole()) return std::nullopt;
+  return Holding{std::move(set), index};
 }
 
 Status Engine::exact_allowed(const StoredSet& set, const char* what) {
@@ -626,9 +652,14 @@ Status Engine::check_query(const StoredSet& set, const DomainSpec* domain, const
 }
 
 Result<StarAnswer> Engine::star(const std::string& id, std::uint64_t seed, const CallControl& control) {
-  auto target = seed_of(id, seed, true);
-  if (!target.is_ok()) return target.status();
-  const auto& [set, s] = target.value();
+  auto held = hold(id, seed);
+  if (!held.is_ok()) return held.status();
+  return star(held.value(), control);
+}
+
+Result<StarAnswer> Engine::star(const Holding& held, const CallControl& control) {
+  const auto& set = held.set;
+  const std::uint32_t s = held.index;
   if (set->periodic) {
     auto star = periodic_star_of(*set, s, control, nullptr, true);
     if (!star.is_ok()) return star.status();
@@ -658,19 +689,27 @@ StarAnswer Engine::star_answer(const StoredSet& set, Star star) {
 Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
                                          const CallControl& control) {
   // Approximate walks are answered from the whole set: their answer depends on it.
-  auto target = seed_of(id, seed, query.mode == NeighborQuery::Mode::kExact);
-  if (!target.is_ok()) return target.status();
-  const StoredSet& set = *target.value().first;
+  auto held = hold(id, seed, query.mode == NeighborQuery::Mode::kExact);
+  if (!held.is_ok()) return held.status();
+  return neighbors(held.value(), query, control);
+}
+
+Result<NeighborAnswer> Engine::neighbors(const Holding& held, const NeighborQuery& query, const CallControl& control) {
+  const StoredSet& set = *held.set;
+  if (set.piece && query.mode != NeighborQuery::Mode::kExact) {
+    return internal_error("approximate neighbours are walked over the whole set, not a piece");
+  }
+  const std::uint64_t seed = global_seed(set, held.index);
   if (Status s = check_query(set, nullptr, &query); !s.is_ok()) return s;
   NeighborAnswer answer;
   if (set.periodic) {
-    auto star = periodic_star_of(set, target.value().second, control, nullptr, false);
+    auto star = periodic_star_of(set, held.index, control, nullptr, false);
     if (!star.is_ok()) return star.status();
     return periodic_neighbor_answer(set, star.value());
   }
   if (query.mode == NeighborQuery::Mode::kExact) {
     if (Status s = exact_allowed(set, "GetNeighbors with mode EXACT"); !s.is_ok()) return s;
-    auto star = compute_star(set, target.value().second, control);
+    auto star = compute_star(set, held.index, control);
     if (!star.is_ok()) return star.status();
     if (set.piece) to_global(star.value(), set.piece->ids);
     answer.neighbors = star_neighbors(star.value());
@@ -682,7 +721,7 @@ Result<NeighborAnswer> Engine::neighbors(const std::string& id, std::uint64_t se
   options.max_vertices = query.max_vertices == 0 ? kDefaultMaxVertices : query.max_vertices;
   options.cancel = control.stop_flag();
   ApproxWalker walker(*set.tree, options);
-  Status s = walker.compute(target.value().second, answer.walk);
+  Status s = walker.compute(held.index, answer.walk);
   if (s.code() == Code::kCancelled) return control.stopped_status("the neighbour walk of seed " + std::to_string(seed));
   if (!s.is_ok()) return s;
   answer.exact = false;
@@ -808,16 +847,20 @@ Result<std::optional<Domain>> Engine::resolve_domain(const StoredSet& set, const
 
 Result<VoronoiCell> Engine::cell(const std::string& id, std::uint64_t seed, const DomainSpec& spec,
                                  const CallControl& control) {
-  auto target = seed_of(id, seed, true);
-  if (!target.is_ok()) return target.status();
-  const StoredSet& set = *target.value().first;
+  auto held = hold(id, seed);
+  if (!held.is_ok()) return held.status();
+  return cell(held.value(), spec, control);
+}
+
+Result<VoronoiCell> Engine::cell(const Holding& held, const DomainSpec& spec, const CallControl& control) {
+  const StoredSet& set = *held.set;
   if (Status s = exact_allowed(set, "GetVoronoiCell"); !s.is_ok()) return s;
   if (Status s = check_query(set, &spec, nullptr); !s.is_ok()) return s;
   auto shape = shape_for(set, spec);
   if (!shape.is_ok()) return shape.status();
   auto domain = resolve_domain(set, spec, false, shape.value().get());
   if (!domain.is_ok()) return domain.status();
-  return cell_of(set, target.value().second, domain.value() ? &*domain.value() : nullptr, control, shape.value().get());
+  return cell_of(set, held.index, domain.value() ? &*domain.value() : nullptr, control, shape.value().get());
 }
 
 Result<VoronoiCell> Engine::cell_of(const StoredSet& set, std::uint32_t seed, const Domain* domain,

@@ -208,6 +208,14 @@ struct ShardSettings {
   bool sharded() const { return count > 0; }
 };
 
+// What one seed's request is answered from: the set held whole, or on a sharded replica
+// the piece holding the seed, and the seed's index in it. Held, the set stays in memory
+// while the request runs.
+struct Holding {
+  std::shared_ptr<const StoredSet> set;
+  std::uint32_t index = 0;
+};
+
 // Where a seed's request is answered: here, or by a replica of `shard`.
 struct SeedRoute {
   bool here = true;
@@ -264,9 +272,23 @@ class Engine {
   Status delete_point_set(const std::string& id, const Principal& who = kOpenPrincipal);
   Result<std::shared_ptr<const StoredSet>> point_set(const std::string& id) { return store_->get(id); }
 
+  // The holding that answers `seed` of set `id` (with `pieces`, on a sharded replica the
+  // piece holding it), read from disk if it is not in memory: NOT_FOUND, OUT_OF_RANGE
+  // naming the seed and the set's size, or the store's errors.
+  Result<Holding> hold(const std::string& id, std::uint64_t seed, bool pieces = true);
+  // The holding when an answer from it cannot block: the set (on a sharded replica the
+  // seed's piece, of this replica's shard) is in memory with its kept triangulation.
+  // nullopt otherwise, errors included (hold() names them). Reads no file but the
+  // owner map's entry of the seed (a pread of the page cache).
+  std::optional<Holding> hold_at_hand(const std::string& id, std::uint64_t seed);
+
+  // One seed's answers, by id (hold() first) or from a holding.
   Result<StarAnswer> star(const std::string& id, std::uint64_t seed, const CallControl& control);
+  Result<StarAnswer> star(const Holding& held, const CallControl& control);
   Result<NeighborAnswer> neighbors(const std::string& id, std::uint64_t seed, const NeighborQuery& query,
                                    const CallControl& control);
+  // From a holding: approximate modes need the whole set's (hold(id, seed, false)).
+  Result<NeighborAnswer> neighbors(const Holding& held, const NeighborQuery& query, const CallControl& control);
   // The cell, clipped when `domain` is not empty. INVALID_ARGUMENT for a malformed
   // domain (naming the field) or a seed outside it.
   // A domain of any shape from a file's bytes (format: off, obj, stl, rings, geojson),
@@ -274,6 +296,7 @@ class Engine {
   Result<std::shared_ptr<const ShapeDomain>> parse_shape(const std::string& format, const std::string& data);
   Result<VoronoiCell> cell(const std::string& id, std::uint64_t seed, const DomainSpec& domain,
                            const CallControl& control);
+  Result<VoronoiCell> cell(const Holding& held, const DomainSpec& domain, const CallControl& control);
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
   // shard's seeds, in sweep order, on the calling thread. Shard k of S holds the seeds
@@ -308,10 +331,6 @@ class Engine {
                       const CallControl& control, const CellBatchSink& emit, ShardRange* range = nullptr);
 
  private:
-  // The set holding a seed and the seed's index in it: the whole set, or on a sharded
-  // replica (with `pieces`) the piece holding it (StoredSet::piece; map answers back).
-  Result<std::pair<std::shared_ptr<const StoredSet>, std::uint32_t>> seed_of(const std::string& id, std::uint64_t seed,
-                                                                             bool pieces = false);
   // Whether this replica's shard serves the piece (every piece when not sharded).
   bool is_own_piece(std::uint32_t piece, std::uint32_t pieces) const;
   // Streams of a set kept as pieces: simplices piece by piece in sweep order (each

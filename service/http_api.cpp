@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 
+#include "json_text.hpp"
 #include "openapi_json.hpp"
 #include "status_map.hpp"
 #include "upload_json.hpp"
@@ -74,17 +75,6 @@ json point_set_json(const PointSetInfo& info, bool upload = false) {
   return out;
 }
 
-// Rows of `width` values as nested arrays.
-template <class T>
-json rows(const std::vector<T>& flat, std::size_t width) {
-  json out = json::array();
-  for (std::size_t i = 0; i + width <= flat.size(); i += width) {
-    out.push_back(std::vector<T>(flat.begin() + static_cast<std::ptrdiff_t>(i),
-                                 flat.begin() + static_cast<std::ptrdiff_t>(i + width)));
-  }
-  return out;
-}
-
 // The media type of a Content-Type value: type/subtype without parameters, lowercased
 // (RFC 9110 8.3.1: type, subtype and parameter names are case-insensitive).
 std::string media_type_of(std::string_view content_type) {
@@ -97,40 +87,58 @@ std::string media_type_of(std::string_view content_type) {
   return out;
 }
 
-json star_json(const StarAnswer& answer, const std::string& id, std::uint64_t seed) {
+// The answers' JSON, written straight into text (json_text.hpp), keys in the order
+// they have always had.
+// {"circumcenters", "dimension", "hidden", "hull_facets"[, "offsets"], "point_set_id",
+//  "seed", "simplices"}
+std::string star_text(const StarAnswer& answer, const std::string& id, std::uint64_t seed) {
   const Star& star = answer.star;
-  json out = {{"point_set_id", id},
-              {"seed", seed},
-              {"dimension", star.dimension},
-              {"simplices", rows(star.simplices, static_cast<std::size_t>(star.dimension) + 1)},
-              {"circumcenters", rows(answer.circumcentres, static_cast<std::size_t>(star.dimension))},
-              {"hull_facets", star.hull_facets},
-              {"hidden", star.hidden}};
+  const auto d = static_cast<std::size_t>(star.dimension);
+  std::string out;
+  out.reserve(64 + 48 * answer.circumcentres.size() + 12 * star.simplices.size());
+  JsonText j(out);
+  j.open_object();
+  j.key("circumcenters").rows(answer.circumcentres, d);
+  j.key("dimension").integer(star.dimension);
+  j.key("hidden").boolean(star.hidden);
+  j.key("hull_facets").integer(star.hull_facets);
   if (!answer.offsets.empty()) {
     // Per simplex, its vertices' offsets: [[o_1..o_d] x (d + 1)].
-    const auto d = static_cast<std::size_t>(star.dimension);
-    json offsets = json::array();
-    const json flat = rows(answer.offsets, d);
-    for (std::size_t i = 0; i < flat.size(); i += d + 1) {
-      offsets.push_back(json(std::vector<json>(flat.begin() + static_cast<std::ptrdiff_t>(i),
-                                               flat.begin() + static_cast<std::ptrdiff_t>(i + d + 1))));
+    const std::size_t per = (d + 1) * d;
+    const std::span<const std::int32_t> offsets(answer.offsets);
+    j.key("offsets").raw("[");
+    for (std::size_t i = 0; i + per <= offsets.size(); i += per) {
+      if (i != 0) j.raw(",");
+      j.rows(offsets.subspan(i, per), d);
     }
-    out["offsets"] = std::move(offsets);
+    j.raw("]");
   }
+  j.key("point_set_id").string(id);
+  j.key("seed").integer(seed);
+  j.key("simplices").rows(star.simplices, d + 1);
+  j.close_object();
   return out;
 }
 
-json neighbors_json(const NeighborAnswer& answer, const std::string& id, std::uint64_t seed, const std::string& mode) {
-  json body = {
-      {"point_set_id", id}, {"seed", seed}, {"neighbors", answer.neighbors}, {"exact", answer.exact}, {"mode", mode}};
-  if (!answer.offsets.empty()) body["offsets"] = rows(answer.offsets, answer.offsets.size() / answer.neighbors.size());
+std::string neighbors_text(const NeighborAnswer& answer, const std::string& id, std::uint64_t seed,
+                           const std::string& mode) {
+  std::string out;
+  JsonText j(out);
+  j.open_object();
+  if (!answer.exact) j.key("consecutive_misses").integer(answer.walk.misses);
+  j.key("exact").boolean(answer.exact);
+  j.key("mode").string(mode);
+  j.key("neighbors").array(answer.neighbors);
+  if (!answer.offsets.empty()) j.key("offsets").rows(answer.offsets, answer.offsets.size() / answer.neighbors.size());
+  j.key("point_set_id").string(id);
+  if (!answer.exact) j.key("rays").integer(answer.walk.rays);
+  j.key("seed").integer(seed);
   if (!answer.exact) {
-    body["vertices_visited"] = answer.walk.vertices;
-    body["consecutive_misses"] = answer.walk.misses;
-    body["rays"] = answer.walk.rays;
-    body["walk_exhausted"] = answer.walk.exhausted;
+    j.key("vertices_visited").integer(answer.walk.vertices);
+    j.key("walk_exhausted").boolean(answer.walk.exhausted);
   }
-  return body;
+  j.close_object();
+  return out;
 }
 
 Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t misses, std::uint64_t max_vertices) {
@@ -148,34 +156,51 @@ Result<NeighborQuery> neighbor_query_of(const std::string& mode, std::uint64_t m
 }
 
 // The cell as REST answers it: unbounded volumes, centroids and areas are null beside
-// "bounded": false (docs/service.md, "Unbounded cells"); walls are {"wall": k}.
-json cell_json(const VoronoiCell& cell) {
+// "bounded": false (docs/service.md, "Unbounded cells"); walls are {"wall": k}; with `id`,
+// "point_set_id" too.
+std::string cell_text(const VoronoiCell& cell, const std::string* id = nullptr) {
   const auto d = static_cast<std::size_t>(cell.dimension);
-  json facets = json::array();
-  for (const VoronoiFacet& f : cell.facets) {
-    json facet = f.is_wall() ? json{{"wall", f.wall()}} : json{{"neighbor", f.neighbor}};
-    facet["vertices"] = f.vertices;
-    facet["area"] = std::isfinite(f.area) ? json(f.area) : json(nullptr);
-    facet["normal"] = f.normal;
-    facets.push_back(std::move(facet));
+  std::string out;
+  out.reserve(256 + 40 * cell.vertices.size() + 96 * cell.facets.size());
+  JsonText j(out);
+  j.open_object();
+  j.key("bounded").boolean(cell.bounded);
+  j.key("centroid");
+  if (cell.bounded) {
+    j.array(cell.centroid);
+  } else {
+    j.raw("null");
   }
-  json out = {{"seed", cell.seed},
-              {"dimension", cell.dimension},
-              {"vertices", rows(cell.vertices, d)},
-              {"facets", std::move(facets)},
-              {"bounded", cell.bounded},
-              {"clipped", cell.clipped},
-              {"volume", cell.bounded ? json(cell.volume) : json(nullptr)},
-              {"centroid", cell.bounded ? json(cell.centroid) : json(nullptr)}};
-  if (!cell.vertex_simplices.empty()) out["vertex_simplices"] = rows(cell.vertex_simplices, d + 1);
-  if (cell.hidden) out["hidden"] = true;
-  if (!cell.facet_offsets.empty()) {
-    for (std::size_t k = 0; k < cell.facets.size(); ++k) {
-      out["facets"][k]["offset"] =
-          std::vector<std::int32_t>(cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>(k * d),
-                                    cell.facet_offsets.begin() + static_cast<std::ptrdiff_t>((k + 1) * d));
+  j.key("clipped").boolean(cell.clipped);
+  j.key("dimension").integer(cell.dimension);
+  j.key("facets").raw("[");
+  for (std::size_t k = 0; k < cell.facets.size(); ++k) {
+    const VoronoiFacet& f = cell.facets[k];
+    if (k != 0) j.raw(",");
+    j.open_object();
+    j.key("area").number(f.area);  // null when unbounded
+    if (!f.is_wall()) j.key("neighbor").integer(f.neighbor);
+    j.key("normal").array(f.normal);
+    if (!cell.facet_offsets.empty()) {
+      j.key("offset").array(std::span<const std::int32_t>(cell.facet_offsets).subspan(k * d, d));
     }
+    j.key("vertices").array(f.vertices);
+    if (f.is_wall()) j.key("wall").integer(f.wall());
+    j.close_object();
   }
+  j.raw("]");
+  if (cell.hidden) j.key("hidden").boolean(true);
+  if (id != nullptr) j.key("point_set_id").string(*id);
+  j.key("seed").integer(cell.seed);
+  if (!cell.vertex_simplices.empty()) j.key("vertex_simplices").rows(cell.vertex_simplices, d + 1);
+  j.key("vertices").rows(cell.vertices, d);
+  j.key("volume");
+  if (cell.bounded) {
+    j.number(cell.volume);
+  } else {
+    j.raw("null");
+  }
+  j.close_object();
   return out;
 }
 
@@ -196,6 +221,14 @@ struct HttpApi::Context {
   Telemetry::Request record;
   RequestTimer timer;
   Principal principal;  // set once authenticated
+  // Answering on the connection's I/O thread (answer_at_once): only what cannot block;
+  // anything else returns later() and is asked again on a thread of its own.
+  bool at_once = false;
+  static HttpResponse later() {
+    HttpResponse r;
+    r.status = 0;
+    return r;
+  }
 
   HttpResponse fail(const Status& s) {
     record.code = s.code();
@@ -209,6 +242,11 @@ struct HttpApi::Context {
     HttpResponse r;
     r.status = status;
     r.body = dump(body);
+    return r;
+  }
+  HttpResponse ok_text(std::string body) {
+    HttpResponse r;
+    r.body = std::move(body);
     return r;
   }
   std::optional<std::string> param(const std::string& key) const {
@@ -229,7 +267,19 @@ HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Aut
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
+  return respond(request, std::move(client_gone), false);
+}
+
+std::optional<HttpResponse> HttpApi::answer_at_once(const http::request<http::string_body>& request) {
+  HttpResponse r = respond(request, {}, true);
+  if (r.status == 0) return std::nullopt;
+  return r;
+}
+
+HttpResponse HttpApi::respond(const http::request<http::string_body>& request, std::function<bool()> client_gone,
+                              bool at_once) {
   Context c{request, {}, std::move(client_gone), Clock::now() + engine_.limits().default_deadline, {}, {}, {}};
+  c.at_once = at_once;
   c.record.transport = "http";
   const std::string_view target(request.target().data(), request.target().size());
   const std::size_t q = target.find('?');
@@ -254,6 +304,7 @@ HttpResponse HttpApi::handle_request(const http::request<http::string_body>& req
     c.deadline = Clock::now() + std::chrono::milliseconds(std::min<std::uint64_t>(ms.value(), 1ull << 40));
   }
   HttpResponse response = route(c);
+  if (response.status == 0) return response;  // not at once: nothing happened yet
   if (!response.stream) {
     c.record.seconds = c.timer.seconds();
     telemetry_.record(c.record);
@@ -305,6 +356,8 @@ HttpResponse HttpApi::route(Context& c) {
     if (!principal.is_ok()) return c.fail(principal.status());
     c.principal = std::move(principal).value();
   }
+  // At once: a seed's GET only (below); the rest may read files or take long.
+  if (c.at_once && !(p.size() == 6 && p[3] == "seeds" && method == http::verb::get)) return Context::later();
   if (p.size() == 1 && p[0] == "metrics" && method == http::verb::get) {
     c.record.method = "Metrics";
     auto& store = engine_.store();
@@ -497,21 +550,38 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   auto seed = parse_uint(seed_text, "seed");
   if (!seed.is_ok()) return c.fail(seed.status());
   c.record.seed = seed.value();
-  // A seed of another shard's piece is answered there (once: a relayed request is not
-  // relayed again, it is answered here from the piece).
-  if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
-    const SeedRoute route = engine_.route_seed(id, seed.value());
-    if (!route.here) return forward(c, route.shard);
+  const std::string mode = c.param("mode").value_or("exact");
+  const bool approximate = what == "neighbors" && mode != "exact";
+  std::optional<Holding> held;
+  if (c.at_once) {
+    // From a kept triangulation in memory; a relay, an approximate walk, a domain of a
+    // piece (whose cell may need other pieces' points) and every error take a thread.
+    if (approximate) return Context::later();
+    held = engine_.hold_at_hand(id, seed.value());
+    if (!held) return Context::later();
+    if (what == "cell" && held->set->piece &&
+        (c.param("box") || c.param("halfspaces") || c.param("bounding_box") || c.param("domain"))) {
+      return Context::later();
+    }
+  } else {
+    // A seed of another shard's piece is answered there (once: a relayed request is
+    // not relayed again, it is answered here from the piece).
+    if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
+      const SeedRoute route = engine_.route_seed(id, seed.value());
+      if (!route.here) return forward(c, route.shard);
+    }
+    auto holding = engine_.hold(id, seed.value(), !approximate);
+    if (!holding.is_ok()) return c.fail(holding.status());
+    held = std::move(holding).value();
   }
   CallControl control(c.deadline, c.client_gone);
   if (what == "star") {
-    auto answer = engine_.star(id, seed.value(), control);
+    auto answer = engine_.star(*held, control);
     if (!answer.is_ok()) return c.fail(answer.status());
     telemetry_.add_simplices_served(answer->star.size());
-    return c.ok(star_json(answer.value(), id, seed.value()));
+    return c.ok_text(star_text(answer.value(), id, seed.value()));
   }
   if (what == "neighbors") {
-    const std::string mode = c.param("mode").value_or("exact");
     std::uint64_t limits[2] = {0, 0};
     const char* names[2] = {"max_consecutive_misses", "max_vertices"};
     for (int i = 0; i < 2; ++i) {
@@ -523,17 +593,15 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     }
     auto query = neighbor_query_of(mode, limits[0], limits[1]);
     if (!query.is_ok()) return c.fail(query.status());
-    auto answer = engine_.neighbors(id, seed.value(), query.value(), control);
+    auto answer = engine_.neighbors(*held, query.value(), control);
     if (!answer.is_ok()) return c.fail(answer.status());
-    return c.ok(neighbors_json(answer.value(), id, seed.value(), mode));
+    return c.ok_text(neighbors_text(answer.value(), id, seed.value(), mode));
   }
   auto spec = domain_from_query(c);
   if (!spec.is_ok()) return c.fail(spec.status());
-  auto cell = engine_.cell(id, seed.value(), spec.value(), control);
+  auto cell = engine_.cell(*held, spec.value(), control);
   if (!cell.is_ok()) return c.fail(cell.status());
-  json body = cell_json(cell.value());
-  body["point_set_id"] = id;
-  return c.ok(body);
+  return c.ok_text(cell_text(cell.value(), &id));
 }
 
 namespace {
@@ -698,7 +766,7 @@ HttpResponse HttpApi::cells(Context& c, const std::string& id) {
     auto emit = [&](std::span<const VoronoiCell> batch, std::uint64_t) -> Status {
       text.clear();
       for (const VoronoiCell& cell : batch) {
-        text += dump(cell_json(cell));
+        text += cell_text(cell);
         text += '\n';
       }
       if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
@@ -900,11 +968,9 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
               timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
     CallControl control(deadline, gone);
     auto line_of = [&](const BatchAnswer& a) {
-      if (kind == BatchKind::kStars) return dump(star_json(a.star, id, a.seed));
-      if (kind == BatchKind::kNeighbors) return dump(neighbors_json(a.neighbors, id, a.seed, mode));
-      json cell = cell_json(a.cell);
-      cell["point_set_id"] = id;
-      return dump(cell);
+      if (kind == BatchKind::kStars) return star_text(a.star, id, a.seed);
+      if (kind == BatchKind::kNeighbors) return neighbors_text(a.neighbors, id, a.seed, mode);
+      return cell_text(a.cell, &id);
     };
     if (!routes.empty()) {
       Status s = relay_batch(request, body, id, seeds, routes, kind, query, spec, control, line_of, write_chunk);

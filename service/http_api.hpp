@@ -30,6 +30,7 @@
 
 #include <array>
 #include <functional>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -73,9 +74,17 @@ class HttpApi {
 
   // client_gone: polled during long computations to stop work for a closed connection.
   HttpResponse handle_request(const http::request<http::string_body>& request, std::function<bool()> client_gone = {});
+  // The response when it is cheap and cannot block, for the connection's I/O thread to
+  // send without handing the request to a thread of its own: health, readiness, the
+  // OpenAPI description and the page's files, and a seed's star, neighbours (exact) or
+  // cell read from a kept triangulation in memory (Engine::hold_at_hand). nullopt:
+  // nothing was done; handle_request() answers it, errors included.
+  std::optional<HttpResponse> answer_at_once(const http::request<http::string_body>& request);
 
  private:
   struct Context;
+  HttpResponse respond(const http::request<http::string_body>& request, std::function<bool()> client_gone,
+                       bool at_once);
   HttpResponse route(Context& c);
   // An upload, or with `parent` an append to that set (POST /v1/pointsets/{id}:append).
   HttpResponse upload(Context& c, const std::string* parent = nullptr);

@@ -202,10 +202,22 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     });
   }
 
-  // A whole request has arrived: it gets a thread of its own (computations block),
+  // A whole request has arrived: answered here on the I/O thread when that cannot block
+  // (HttpApi::answer_at_once), else it gets a thread of its own (computations block),
   // unless too many are in flight.
   void on_request() {
     lowest().expires_never();
+    std::optional<HttpResponse> at_once;
+    try {
+      at_once = server_.api_.answer_at_once(parser_->get());
+    } catch (const std::exception& e) {  // as handle(): one failed request
+      at_once = failure(e);
+    }
+    if (at_once) {
+      ++requests_;
+      request_ = parser_->release();
+      return write_at_once(std::move(*at_once));
+    }
     if (!server_.begin_request()) {
       return write_one_off(one_off_response(http::status::service_unavailable,
                                             Status{Code::kUnavailable, "too many requests in flight; retry later"},
@@ -218,6 +230,43 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       write_one_off(one_off_response(http::status::service_unavailable,
                                      Status{Code::kUnavailable, "the server is out of threads; retry later"}, true));
     }
+  }
+
+  HttpResponse failure(const std::exception& e) {
+    HttpResponse response;
+    response.status = 500;
+    response.body = error_json(internal_error(std::string("internal error: ") + e.what()));
+    server_.telemetry_.log("error", std::string("request failed with an exception: ") + e.what());
+    return response;
+  }
+
+  // The whole response of a request, headers and body.
+  std::shared_ptr<http::response<http::string_body>> whole_response(HttpResponse&& response, bool keep_alive) {
+    auto res = std::make_shared<http::response<http::string_body>>();
+    res->version(request_.version());
+    res->result(response.status);
+    res->set(http::field::server, "spokemesh");
+    res->set(http::field::content_type, response.content_type);
+    for (const auto& [name, value] : response.headers) res->set(name, value);
+    res->keep_alive(keep_alive);
+    if (response.status == 503) res->set(http::field::retry_after, "1");
+    res->body() = std::move(response.body);
+    res->prepare_payload();
+    return res;
+  }
+
+  // On the strand: an answer made at once, written without a thread; then the next
+  // request (keep-alive), as handle() ends.
+  void write_at_once(HttpResponse response) {
+    const bool keep_alive = request_.keep_alive() && !server_.stopping_.load();
+    auto res = whole_response(std::move(response), keep_alive);
+    request_ = {};
+    lowest().expires_after(options_.write_timeout);
+    http::async_write(stream_, *res, [self = shared(), res, keep_alive](boost::system::error_code ec, std::size_t) {
+      self->body_charge_.reset();
+      if (ec || !keep_alive) return self->do_close();
+      self->read_request();
+    });
   }
 
   // Runs an asynchronous write on the session's strand and waits for it (from the
@@ -250,10 +299,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     try {
       response = server_.api_.handle_request(request_, client_gone);
     } catch (const std::exception& e) {  // e.g. bad_alloc: one failed request, not a dead server
-      response = HttpResponse{};
-      response.status = 500;
-      response.body = error_json(internal_error(std::string("internal error: ") + e.what()));
-      server_.telemetry_.log("error", std::string("request failed with an exception: ") + e.what());
+      response = failure(e);
     }
     const bool keep_alive = request_.keep_alive() && !server_.stopping_.load();
     bool ok = true;
@@ -295,17 +341,8 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       }
     }
     if (!response.stream) {
-      http::response<http::string_body> res;
-      res.version(request_.version());
-      res.result(response.status);
-      res.set(http::field::server, "spokemesh");
-      res.set(http::field::content_type, response.content_type);
-      for (const auto& [name, value] : response.headers) res.set(name, value);
-      res.keep_alive(keep_alive);
-      if (response.status == 503) res.set(http::field::retry_after, "1");
-      res.body() = std::move(response.body);
-      res.prepare_payload();
-      ok = !write_and_wait([&](auto done) { http::async_write(stream_, res, std::move(done)); });
+      auto res = whole_response(std::move(response), keep_alive);
+      ok = !write_and_wait([&](auto done) { http::async_write(stream_, *res, std::move(done)); });
     }
     request_ = {};
     body_charge_.reset();

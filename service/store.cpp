@@ -634,6 +634,24 @@ std::shared_ptr<const StoredSet> PointSetStore::loaded(const std::string& id) co
   return it == index_.end() ? nullptr : *it->second;
 }
 
+std::shared_ptr<const StoredSet> PointSetStore::get_in_memory(const std::string& id) {
+  if (!is_valid_id(id) || !file_exists(data_path(id))) return nullptr;  // deleted: get() says so
+  std::lock_guard lock(mutex_);
+  const auto it = index_.find(id);
+  if (it == index_.end()) return nullptr;
+  lru_.splice(lru_.begin(), lru_, it->second);
+  return *it->second;
+}
+
+std::shared_ptr<const StoredSet> PointSetStore::get_piece_in_memory(const std::string& id, std::uint32_t piece) {
+  if (!is_valid_id(id) || !file_exists(data_path(id))) return nullptr;
+  std::lock_guard lock(mutex_);
+  const auto it = index_.find(id + "/" + std::to_string(piece));
+  if (it == index_.end()) return nullptr;
+  lru_.splice(lru_.begin(), lru_, it->second);
+  return *it->second;
+}
+
 std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const StoredSet> set) {
   std::lock_guard lock(mutex_);
   const std::string key = set->cache_key();

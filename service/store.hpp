@@ -188,6 +188,10 @@ class PointSetStore {
   // recently used first out); and writing a set's pieces (the set must be stored).
   Result<std::shared_ptr<const PieceLayout>> layout(const std::string& id);
   Result<std::shared_ptr<const StoredSet>> get_piece(const std::string& id, std::uint32_t piece);
+  // get() and get_piece() when the set or piece is in memory and still stored, else null
+  // (never read from disk: for answers given without a thread of their own).
+  std::shared_ptr<const StoredSet> get_in_memory(const std::string& id);
+  std::shared_ptr<const StoredSet> get_piece_in_memory(const std::string& id, std::uint32_t piece);
   // The pieces of set `id` held in memory now, and dropping one from memory (requests
   // holding it keep it until they end): a sharded replica's streams read other shards'
   // pieces and give them back when done.

@@ -4,6 +4,8 @@
 
 #include <malloc.h>
 
+#include <unistd.h>
+#include <charconv>
 #include <chrono>
 #include <cstdio>
 #include <ctime>
@@ -24,7 +26,74 @@ std::string utc_now() {
   return buf;
 }
 
+// `text` as a JSON string: as it is when it is plain printable ASCII (ids, method names),
+// else escaped by nlohmann (invalid UTF-8 replaced).
+void append_json_string(std::string& out, const std::string& text) {
+  for (const char ch : text) {
+    if (ch < 0x20 || ch > 0x7e || ch == '"' || ch == '\\') {
+      out += nlohmann::json(text).dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+      return;
+    }
+  }
+  out += '"';
+  out += text;
+  out += '"';
+}
+
 }  // namespace
+
+Telemetry::~Telemetry() {
+  {
+    std::lock_guard lock(log_mutex_);
+    stopping_ = true;
+  }
+  log_cv_.notify_all();
+  if (flusher_.joinable()) flusher_.join();
+  std::lock_guard lock(log_mutex_);
+  flush_locked();
+}
+
+void Telemetry::flush_locked() {
+  std::size_t at = 0;
+  while (at < log_buffer_.size()) {
+    const ssize_t wrote = ::write(STDERR_FILENO, log_buffer_.data() + at, log_buffer_.size() - at);
+    if (wrote <= 0) break;  // stderr closed or full: the lines are dropped, the server goes on
+    at += static_cast<std::size_t>(wrote);
+  }
+  log_buffer_.clear();
+}
+
+void Telemetry::append_log(const std::string& line, bool write_now) {
+  std::lock_guard lock(log_mutex_);
+  log_buffer_ += line;
+  if (write_now || log_buffer_.size() > (64u << 10)) {
+    flush_locked();
+  } else if (!flusher_.joinable()) {
+    flusher_ = std::thread([this] {
+      std::unique_lock guard(log_mutex_);
+      while (!stopping_) {
+        log_cv_.wait_for(guard, kLogFlushEvery);
+        flush_locked();
+      }
+    });
+  }
+}
+
+Telemetry::Series Telemetry::series(const std::string& transport, const std::string& method, const char* status) {
+  std::string key = transport;
+  key += '\0';
+  key += method;
+  key += '\0';
+  key += status;
+  std::lock_guard lock(series_mutex_);
+  if (const auto it = series_.find(key); it != series_.end()) return it->second;
+  static const prometheus::Histogram::BucketBoundaries buckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1,
+                                                               0.25,   0.5,   1,      2.5,   5,    10,    30};
+  const prometheus::Labels labels{{"transport", transport}, {"method", method}, {"status", status}};
+  const Series made{&requests_->Add(labels), &latency_->Add(labels, buckets)};
+  series_.emplace(std::move(key), made);
+  return made;
+}
 
 Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
   requests_ = &prometheus::BuildCounter()
@@ -84,34 +153,47 @@ void Telemetry::add_forwarded(std::uint32_t shard, Code code) {
 
 void Telemetry::log(const std::string& level, const std::string& message) {
   nlohmann::json line = {{"time", utc_now()}, {"level", level}, {"message", message}};
-  const std::string text = line.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
-  std::lock_guard lock(log_mutex_);
-  std::fwrite(text.data(), 1, text.size(), stderr);
-  std::fflush(stderr);
+  append_log(line.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n", true);
 }
 
 void Telemetry::record(const Request& r) {
-  const std::string status = code_name(r.code);
-  nlohmann::json line = {{"time", utc_now()},
-                         {"level", r.code == Code::kOk ? "info" : (r.code == Code::kInternal ? "error" : "warning")},
-                         {"transport", r.transport},
-                         {"method", r.method},
-                         {"status", status},
-                         {"duration_ms", r.seconds * 1e3}};
-  if (!r.point_set.empty()) line["point_set"] = r.point_set;
-  if (r.seed) line["seed"] = *r.seed;
-  if (!r.message.empty()) line["message"] = r.message;
-  const std::string text = line.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
-  {
-    std::lock_guard lock(log_mutex_);
-    std::fwrite(text.data(), 1, text.size(), stderr);
-    std::fflush(stderr);
+  const char* status = code_name(r.code);
+  const char* level = r.code == Code::kOk ? "info" : (r.code == Code::kInternal ? "error" : "warning");
+  // The line by hand, keys in order as the other lines' (a request's cost is a few
+  // microseconds; building a JSON document for its log line was one of the larger).
+  std::string line;
+  line.reserve(256);
+  char number[32];
+  line += "{\"duration_ms\":";
+  line.append(number, std::to_chars(number, number + sizeof number, r.seconds * 1e3).ptr);
+  line += ",\"level\":\"";
+  line += level;
+  line += '"';
+  if (!r.message.empty()) {
+    line += ",\"message\":";
+    append_json_string(line, r.message);
   }
-  const prometheus::Labels labels{{"transport", r.transport}, {"method", r.method}, {"status", status}};
-  requests_->Add(labels).Increment();
-  static const prometheus::Histogram::BucketBoundaries buckets{0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1,
-                                                               0.25,   0.5,   1,      2.5,   5,    10,    30};
-  latency_->Add(labels, buckets).Observe(r.seconds);
+  line += ",\"method\":";
+  append_json_string(line, r.method);
+  if (!r.point_set.empty()) {
+    line += ",\"point_set\":";
+    append_json_string(line, r.point_set);
+  }
+  if (r.seed) {
+    line += ",\"seed\":";
+    line.append(number, std::to_chars(number, number + sizeof number, *r.seed).ptr);
+  }
+  line += ",\"status\":\"";
+  line += status;
+  line += "\",\"time\":\"";
+  line += utc_now();
+  line += "\",\"transport\":";
+  append_json_string(line, r.transport);
+  line += "}\n";
+  append_log(line, r.code != Code::kOk);
+  const Series s = series(r.transport, r.method, status);
+  s.count->Increment();
+  s.latency->Observe(r.seconds);
 }
 
 std::string Telemetry::render_metrics() const {

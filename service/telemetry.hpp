@@ -1,6 +1,10 @@
 // Telemetry: structured logs (one JSON object per line on stderr) and Prometheus
 // metrics (prometheus-cpp core; rendered by our HTTP server at /metrics).
 //
+// A finished request's line is written within kLogFlushEvery by a flusher thread (one
+// write for many requests, off the request's path); warnings, errors and log() lines
+// are written at once, after the lines before them.
+//
 // Thread safety: all member functions are safe to call concurrently.
 #pragma once
 
@@ -11,11 +15,14 @@
 #include <prometheus/registry.h>
 
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
+#include <unordered_map>
 
 #include "spokemesh/status.hpp"
 
@@ -24,6 +31,10 @@ namespace spokemesh::service {
 class Telemetry {
  public:
   Telemetry();
+  ~Telemetry();  // writes what is still buffered
+  Telemetry(const Telemetry&) = delete;
+  Telemetry& operator=(const Telemetry&) = delete;
+  static constexpr std::chrono::milliseconds kLogFlushEvery{100};
 
   // {"time":..., "level":..., "message":..., extra fields...} on one line.
   void log(const std::string& level, const std::string& message);
@@ -79,7 +90,22 @@ class Telemetry {
   prometheus::Gauge* piece_bytes_;
   prometheus::Family<prometheus::Counter>* forwarded_;
   prometheus::Family<prometheus::Gauge>* shard_;
+  // One request series' metrics, found once per (transport, method, status).
+  struct Series {
+    prometheus::Counter* count;
+    prometheus::Histogram* latency;
+  };
+  Series series(const std::string& transport, const std::string& method, const char* status);
+  std::mutex series_mutex_;
+  std::unordered_map<std::string, Series> series_;
+  // Buffered log lines, written by the flusher (or at once: write_now).
+  void append_log(const std::string& line, bool write_now);
+  void flush_locked();
   std::mutex log_mutex_;
+  std::condition_variable log_cv_;
+  std::string log_buffer_;
+  bool stopping_ = false;
+  std::thread flusher_;
 };
 
 // Measures a request from construction; record() logs it once.

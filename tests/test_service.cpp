@@ -1284,6 +1284,63 @@ TEST(Rest, BearerTokenGuardsEverythingButProbes) {
   EXPECT_EQ(call("/v1/pointsets", "Bearer s3cret").status, 200u);
 }
 
+// Answers given on the connection's I/O thread (HttpApi::answer_at_once) are the ones
+// a request's own thread gives, byte for byte; what could block is left to the thread:
+// a set not in memory or without its kept triangulation, approximate walks, the errors
+// of seeds and sets that must be looked up (out of range, unknown), anything but a
+// seed's GET.
+TEST(Rest, AnswersAtOnceAreTheThreadsAnswers) {
+  Rest rest;
+  const auto coords = uniform_points(3, 3000, 61);
+  const std::string id = upload(*rest.engine, 3, coords).value().id;
+  const std::string base = "/v1/pointsets/" + id;
+  auto request = [](http::verb verb, const std::string& target) {
+    return http::request<http::string_body>{verb, target, 11};
+  };
+  // Before its triangulation is kept, no seed is answered at once.
+  EXPECT_FALSE(rest.api.answer_at_once(request(http::verb::get, base + "/seeds/5/star")));
+  EXPECT_EQ(rest.call(http::verb::get, base + "/seeds/5/star").status, 200u);  // asks for it
+  auto set = rest.engine->point_set(id).value();
+  for (int wait = 0; wait < 600 && set->kept_whole() == nullptr; ++wait) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_NE(set->kept_whole(), nullptr);
+  int answered = 0;
+  for (std::uint64_t seed = 0; seed < 3000; seed += 37) {
+    const std::string at = base + "/seeds/" + std::to_string(seed);
+    for (const std::string route : {"/star", "/neighbors", "/cell", "/cell?bounding_box=true",
+                                    "/cell?box=0.2,0.2,0.2,0.8,0.8,0.8", "/neighbors?mode=exact"}) {
+      const auto req = request(http::verb::get, at + route);
+      const auto quick = rest.api.answer_at_once(req);
+      const HttpResponse slow = rest.api.handle_request(req);
+      ASSERT_TRUE(quick.has_value()) << at + route;
+      EXPECT_EQ(quick->status, slow.status) << at + route;
+      EXPECT_EQ(quick->body, slow.body) << at + route;
+      ++answered;
+    }
+  }
+  EXPECT_GT(answered, 400);
+  EXPECT_EQ(rest.api.answer_at_once(request(http::verb::get, "/healthz"))->body, R"({"status":"SERVING"})");
+  for (const std::string& target :
+       std::vector<std::string>{base + "/seeds/5/neighbors?mode=approximate", base + "/seeds/3000/star",
+                                "/v1/pointsets/" + std::string(64, 'a') + "/seeds/1/star", base, base + "/points",
+                                "/metrics", base + "/simplices?shard=0&shards=1"}) {
+    EXPECT_FALSE(rest.api.answer_at_once(request(http::verb::get, target))) << target;
+  }
+  // A malformed seed's error needs nothing held: said at once, as a thread says it.
+  const auto malformed = request(http::verb::get, base + "/seeds/x/star");
+  EXPECT_EQ(rest.api.answer_at_once(malformed)->body, rest.api.handle_request(malformed).body);
+  EXPECT_FALSE(rest.api.answer_at_once(request(http::verb::post, base + "/stars:batch")));
+  EXPECT_FALSE(rest.api.answer_at_once(request(http::verb::delete_, base)));
+  // A set not in memory (another replica's engine on the same directory) is read from
+  // disk by a thread, not at once.
+  auto other = make_engine(rest.dir.path());
+  HttpApi other_api{*other, rest.telemetry, token_auth(""), [] { return true; }};
+  EXPECT_FALSE(other_api.answer_at_once(request(http::verb::get, base + "/seeds/5/star")));
+  EXPECT_EQ(other_api.handle_request(request(http::verb::get, base + "/seeds/5/star")).body,
+            rest.api.handle_request(request(http::verb::get, base + "/seeds/5/star")).body);
+}
+
 // ---- sharded engines on one data directory ------------------------------------------
 
 // A sharded deployment in one process: a whole engine and `shards` sharded ones (shard
@@ -1326,6 +1383,12 @@ struct ShardedDeployment {
     }
     return out;
   }
+  // The GET's answer given at once (HttpApi::answer_at_once), as call() writes it.
+  std::optional<std::string> at_once(std::size_t k, const std::string& target) {
+    auto r = apis[k]->answer_at_once(http::request<http::string_body>{http::verb::get, target, 11});
+    if (!r) return std::nullopt;
+    return std::to_string(r->status) + " " + r->body;
+  }
   std::vector<std::unique_ptr<Engine>> engines;  // [0] whole, then shard 0, 1, ...
   Telemetry telemetry;
   std::vector<std::unique_ptr<HttpApi>> apis;
@@ -1365,13 +1428,24 @@ TEST(ShardedEngines, EveryAnswerAndErrorIsTheWholeEngines) {
         }
       }
       for (const std::uint64_t seed : {n, n + 7}) targets.push_back(base + "/seeds/" + std::to_string(seed) + "/star");
+      std::size_t at_once = 0;
       for (const std::string& target : targets) {
         const std::string expected = deployment.call(0, http::verb::get, target);
         for (std::size_t k = 1; k < deployment.apis.size(); ++k) {
           ASSERT_EQ(deployment.call(k, http::verb::get, target), expected)
               << "engine of shard " << k - 1 << ": " << target;
+          // At once only from a kept triangulation of this shard's own piece.
+          if (const auto quick = deployment.at_once(k, target)) {
+            ASSERT_EQ(*quick, expected) << "at once, engine of shard " << k - 1 << ": " << target;
+            const std::size_t seeds_at = target.find("/seeds/") + 7;
+            const SeedRoute route = deployment.engines[k]->route_seed(
+                id, std::stoull(target.substr(seeds_at, target.find('/', seeds_at) - seeds_at)));
+            EXPECT_EQ(route.shard, k - 1) << target;
+            ++at_once;
+          }
         }
       }
+      EXPECT_GT(at_once, targets.size() / 4);
       int errors = 0;
       for (const std::string& target : targets) errors += deployment.call(0, http::verb::get, target)[0] != '2';
       EXPECT_GT(errors, 100);  // the box and the halfspaces leave many seeds outside

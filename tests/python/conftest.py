@@ -86,6 +86,9 @@ class Server:
         raise RuntimeError("spokemesh-server did not start within 30 s:\n" + self.log())
 
     def log(self) -> str:
+        # A finished request's line is written within 100 ms (Telemetry::kLogFlushEvery).
+        if self.proc is not None and self.proc.poll() is None:
+            time.sleep(0.25)
         return self.log_path.read_text(errors="replace")
 
     def log_records(self) -> list:
