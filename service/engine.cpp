@@ -3,6 +3,7 @@
 #include "geojson_domain.hpp"
 #include "spokemesh/cells.hpp"
 #include "spokemesh/certify.hpp"
+#include "spokemesh/data_dir.hpp"
 #include "spokemesh/pieces.hpp"
 
 #include <algorithm>
@@ -986,8 +987,7 @@ Result<VoronoiCell> Engine::complete_cell(const StoredSet& piece, std::uint32_t 
         }
         continue;
       }
-      auto other =
-          read_piece(pieces_dir(store_->directory(), piece.info.id) + "/" + std::to_string(p) + ".piece", m, p);
+      auto other = read_piece(data_dir::piece_file(data_dir::pieces_dir(store_->directory(), piece.info.id), p), m, p);
       if (!other.is_ok()) {
         return Status{Code::kUnavailable, "point set " + piece.info.id + ": piece " + std::to_string(p) +
                                               " cannot be read: " + other.status().message()};

@@ -3,6 +3,7 @@
 #include "limits.hpp"
 
 #include "spokemesh/approx.hpp"
+#include "spokemesh/data_dir.hpp"
 #include "spokemesh/io.hpp"
 
 #include <dirent.h>
@@ -18,7 +19,6 @@
 #include <cstring>
 #include <ctime>
 #include <filesystem>
-#include <random>
 
 namespace spokemesh::service {
 namespace {
@@ -29,20 +29,6 @@ static_assert(std::endian::native == std::endian::little,
 constexpr std::size_t kHeaderBytes = 12;
 
 std::string errno_text() { return std::strerror(errno); }
-
-// Writes all of `data` to fd; false on error.
-bool write_all(int fd, const char* data, std::size_t size) {
-  while (size > 0) {
-    const ssize_t w = ::write(fd, data, size);
-    if (w < 0) {
-      if (errno == EINTR) continue;
-      return false;
-    }
-    data += w;
-    size -= static_cast<std::size_t>(w);
-  }
-  return true;
-}
 
 // Reads exactly `size` bytes (false on error or early end of file).
 bool read_all(int fd, char* out, std::size_t size) {
@@ -69,22 +55,8 @@ bool read_file(const std::string& path, std::string& out) {
   return ok;
 }
 
-bool fsync_dir(const std::string& dir) {
-  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) return false;
-  const bool ok = ::fsync(fd) == 0;
-  ::close(fd);
-  return ok;
-}
-
-std::string temp_name(const std::string& dir) {
-  static std::atomic<std::uint64_t> counter{0};
-  thread_local std::mt19937_64 rng{std::random_device{}()};
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "/.tmp-%d-%llu-%016llx", static_cast<int>(::getpid()),
-                static_cast<unsigned long long>(counter.fetch_add(1)), static_cast<unsigned long long>(rng()));
-  return dir + buf;
-}
+// The data directory's fsync (data_dir.hpp), as a yes or no.
+bool fsync_dir(const std::string& dir) { return data_dir::sync(dir) == 0; }
 
 // A failed write as clients see it: the operation and the system's reason, never the
 // server's paths; a full volume is RESOURCE_EXHAUSTED with reason STORAGE_FULL.
@@ -96,40 +68,27 @@ Status storage_error(const char* what, int error) {
   return internal_error(std::string("storage error: ") + what + ": " + std::strerror(error));
 }
 
-// Writes `parts` to `path` durably: temporary file, fsync, rename, fsync directory.
+// Writes `parts` to `path` by the data directory's commit rule (data_dir.hpp).
 // exclusive: `path` must not exist yet; if it does (a concurrent identical upload, on
 // this or another replica, won), nothing is written and the status is ALREADY_EXISTS.
-// The temporary file is linked, not renamed, into place: link() fails on an existing
-// name, atomically, where rename() would replace it.
 Status write_durably(const std::string& dir, const std::string& path,
                      std::initializer_list<std::pair<const char*, std::size_t>> parts, bool exclusive = false) {
-  const std::string temp = temp_name(dir);
+  const std::string temp = data_dir::temp_name(dir);
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd < 0) return storage_error("cannot create a file", errno);
-  bool ok = true;
-  for (const auto& [data, size] : parts) ok = ok && write_all(fd, data, size);
-  ok = ok && ::fsync(fd) == 0;
-  int error = ok ? 0 : errno;
-  ok = (::close(fd) == 0) && ok;
-  if (!ok && error == 0) error = errno;
-  if (ok && exclusive) {
-    const bool linked = ::link(temp.c_str(), path.c_str()) == 0;
-    const int link_error = errno;
-    ::unlink(temp.c_str());
-    if (!linked && link_error == EEXIST) return Status{Code::kAlreadyExists, "exists"};
-    if (!linked) {
-      ok = false;
-      error = link_error;
-    }
-  } else if (ok && ::rename(temp.c_str(), path.c_str()) != 0) {
-    ok = false;
-    error = errno;
+  int error = 0;
+  for (const auto& [data, size] : parts) {
+    if (error == 0) error = data_dir::write_all(fd, data, size);
   }
-  if (!ok) {
+  if (error == 0 && ::fsync(fd) != 0) error = errno;
+  if (::close(fd) != 0 && error == 0) error = errno;
+  if (error != 0) {
     ::unlink(temp.c_str());
     return storage_error("cannot store the point set", error);
   }
-  if (!fsync_dir(dir)) return storage_error("cannot sync the data directory", errno);
+  error = data_dir::commit_file(temp, path, exclusive ? data_dir::Move::kExclusive : data_dir::Move::kReplace);
+  if (error == EEXIST && exclusive) return Status{Code::kAlreadyExists, "exists"};
+  if (error != 0) return storage_error("cannot store the point set", error);
   return Status::ok();
 }
 
@@ -232,10 +191,7 @@ Status check_extras(const PointSet& points, std::span<const double> weights, std
   return Status::ok();
 }
 
-bool is_valid_id(const std::string& id) {
-  return id.size() == 64 &&
-         std::all_of(id.begin(), id.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
-}
+bool is_valid_id(const std::string& id) { return data_dir::is_set_id(id); }
 
 std::uint64_t estimated_memory(std::uint64_t n, int d, bool weighted, bool periodic) {
   const auto dd = static_cast<std::uint64_t>(d);
@@ -287,31 +243,15 @@ Result<std::unique_ptr<PointSetStore>> PointSetStore::open(const std::string& da
   auto store = std::unique_ptr<PointSetStore>(new PointSetStore(data_dir, memory_budget, std::move(log)));
   // Temporary files of uploads that never finished (a crash). With a shared data dir
   // another server may be writing one right now, so only old ones are removed.
-  if (DIR* dir = ::opendir(data_dir.c_str())) {
-    const std::time_t now = std::time(nullptr);
-    while (const dirent* e = ::readdir(dir)) {
-      if (std::strncmp(e->d_name, ".tmp-", 5) != 0) continue;
-      const std::string path = data_dir + "/" + e->d_name;
-      struct stat st {};
-      if (::stat(path.c_str(), &st) == 0 && now - st.st_mtime > 600) ::unlink(path.c_str());
-    }
-    ::closedir(dir);
-  }
+  spokemesh::data_dir::remove_stale_temporaries(data_dir, 600);
   return store;
 }
 
-std::string PointSetStore::data_path(const std::string& id) const { return dir_ + "/" + id + ".points"; }
-std::string PointSetStore::name_path(const std::string& id) const { return dir_ + "/" + id + ".name"; }
+std::string PointSetStore::data_path(const std::string& id) const { return data_dir::set_file(dir_, id); }
+std::string PointSetStore::name_path(const std::string& id) const { return data_dir::name_file(dir_, id); }
 
 std::string PointSetStore::owner_path(const std::string& id, const std::string& tenant) const {
-  // The tenant in hex: any name is a safe file name.
-  static constexpr char kHex[] = "0123456789abcdef";
-  std::string path = dir_ + "/" + id + ".owner-";
-  for (const unsigned char ch : tenant) {
-    path += kHex[ch >> 4];
-    path += kHex[ch & 15];
-  }
-  return path;
+  return data_dir::owner_file(dir_, id, tenant);
 }
 
 Status PointSetStore::add_owner(const std::string& id, const std::string& tenant) {
@@ -712,7 +652,7 @@ Result<std::shared_ptr<const PieceLayout>> PointSetStore::layout(const std::stri
   auto manifest = read_manifest(dir_, id);
   if (manifest.status().code() == Code::kNotFound) return std::shared_ptr<const PieceLayout>();
   if (!manifest.is_ok()) return manifest.status();
-  const std::string owners = pieces_dir(dir_, id) + "/owners";
+  const std::string owners = data_dir::owners_file(data_dir::pieces_dir(dir_, id));
   const int fd = ::open(owners.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return internal_error(owners + ": cannot open: " + errno_text());
   struct stat st {};
@@ -749,7 +689,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::str
   const std::uint64_t bytes = estimated_memory(entry.held, m.dimension) + 10 * entry.held;
   auto charge = budget_.try_charge(bytes);
   if (!charge) return budget_.over_budget("loading piece " + std::to_string(piece) + " of point set " + id, bytes);
-  auto read = read_piece(pieces_dir(dir_, id) + "/" + std::to_string(piece) + ".piece", m, piece);
+  auto read = read_piece(data_dir::piece_file(data_dir::pieces_dir(dir_, id), piece), m, piece);
   if (!read.is_ok()) {
     log_("error", read.status().message());
     return Status{Code::kUnavailable, "point set " + id + ": piece " + std::to_string(piece) +
@@ -818,10 +758,8 @@ std::vector<PointSetInfo> PointSetStore::list(const std::string& after, std::siz
   std::vector<std::string> ids;
   if (DIR* dir = ::opendir(dir_.c_str())) {
     while (const dirent* e = ::readdir(dir)) {
-      const std::string name = e->d_name;
-      if (name.size() != 64 + 7 || name.compare(64, 7, ".points") != 0) continue;
-      std::string id = name.substr(0, 64);
-      if (is_valid_id(id) && id > after && (!visible || visible(id))) ids.push_back(std::move(id));
+      std::string id = data_dir::set_id_of_file_name(e->d_name);
+      if (!id.empty() && id > after && (!visible || visible(id))) ids.push_back(std::move(id));
     }
     ::closedir(dir);
   }
@@ -847,7 +785,7 @@ Status PointSetStore::remove(const std::string& id) {
   }
   ::unlink(name_path(id).c_str());
   std::error_code ignored;
-  std::filesystem::remove_all(pieces_dir(dir_, id), ignored);
+  std::filesystem::remove_all(data_dir::pieces_dir(dir_, id), ignored);
   remove_owner_markers(id);
   fsync_dir(dir_);
   return Status::ok();

@@ -1,7 +1,9 @@
 #include "job.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <numeric>
@@ -13,6 +15,7 @@
 #include "mesh_output.hpp"
 #include "output.hpp"
 #include "spokemesh/cell_io.hpp"
+#include "spokemesh/data_dir.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/pieces.hpp"
 #include "spokemesh/space_split.hpp"
@@ -798,22 +801,23 @@ class StoreJob final : public StarJob {
     auto file = write_set_file(comm, dir, facts_.d, facts_.n, slice_coords);
     if (!file.is_ok()) return file.status();
     id_ = file->first;
-    const std::string set_file = dir + "/" + id_ + ".points";
+    const std::string set_file = data_dir::set_file(dir, id_);
     // Already kept as pieces (the same points stored before): nothing more to write.
-    int exists = comm.rank == 0 && fs::exists(pieces_dir(dir, id_) + "/manifest") ? 1 : 0;
+    int exists = comm.rank == 0 && fs::exists(data_dir::manifest_file(data_dir::pieces_dir(dir, id_))) ? 1 : 0;
     MPI_Bcast(&exists, 1, MPI_INT, 0, comm.comm);
     if (exists != 0) {
       already_ = true;
-      if (comm.rank == 0) finish_set_file(file->second, set_file);
-      return Status::ok();
+      Status finished;
+      if (comm.rank == 0) finished = finish_set_file(file->second, set_file);
+      return comm.agree(finished);
     }
     // The pieces' directory, under a temporary name until complete.
     std::string tmp_dir;
     Status made;
     if (comm.rank == 0) {
-      std::random_device entropy;
-      tmp_dir = dir + "/pieces/.tmp-" + id_ + "-mpi-" + std::to_string(entropy());
       std::error_code ec;
+      fs::create_directories(dir + "/pieces", ec);
+      tmp_dir = data_dir::temp_name(dir + "/pieces", "mpi");
       fs::create_directories(tmp_dir, ec);
       if (ec) made = internal_error(tmp_dir + ": cannot create: " + ec.message());
     }
@@ -894,7 +898,7 @@ class StoreJob final : public StarJob {
       const std::string bytes = piece_bytes(piece, total);
       std::uint32_t crc = 0;
       std::memcpy(&crc, bytes.data() + bytes.size() - 4, 4);
-      status = write_file_durably(tmp_dir + "/" + std::to_string(node_index) + ".piece", bytes);
+      status = write_file_durably(data_dir::piece_file(tmp_dir, node_index), bytes);
       put<std::uint32_t>(entries, node_index);
       for (std::uint64_t v : {node.start, node.count, static_cast<std::uint64_t>(piece.ids.size()),
                               static_cast<std::uint64_t>(bytes.size())}) {
@@ -907,7 +911,7 @@ class StoreJob final : public StarJob {
     }
     if (Status s = comm.agree(status); !s.is_ok()) return cleanup(comm, tmp_dir, file->second, s);
     held.reset();
-    if (Status s = write_owner_map(comm, tmp_dir + "/owners", facts_.n, owners); !s.is_ok()) {
+    if (Status s = write_owner_map(comm, data_dir::owners_file(tmp_dir), facts_.n, owners); !s.is_ok()) {
       return cleanup(comm, tmp_dir, file->second, s);
     }
     owners = {};
@@ -937,14 +941,20 @@ class StoreJob final : public StarJob {
         for (double& v : e.box) v = get<double>(at);
         for (double& v : e.held_box) v = get<double>(at);
       }
-      done = write_file_durably(tmp_dir + "/manifest", manifest_text(m));
-      if (done.is_ok() && std::rename(tmp_dir.c_str(), pieces_dir(dir, id_).c_str()) != 0) {
-        // Another run stored the same set meanwhile: the same bytes.
-        std::error_code ignored;
-        fs::remove_all(tmp_dir, ignored);
-        already_ = true;
+      done = write_file_durably(data_dir::manifest_file(tmp_dir), manifest_text(m));
+      if (done.is_ok()) {
+        // The data directory's commit rule (data_dir.hpp), as the server's.
+        const int error = data_dir::commit_directory(tmp_dir, data_dir::pieces_dir(dir, id_));
+        if (error == EEXIST) {
+          // Another run stored the same set meanwhile: the same bytes.
+          std::error_code ignored;
+          fs::remove_all(tmp_dir, ignored);
+          already_ = true;
+        } else if (error != 0) {
+          done = internal_error(data_dir::pieces_dir(dir, id_) + ": cannot commit: " + std::strerror(error));
+        }
       }
-      if (done.is_ok()) finish_set_file(file->second, set_file);
+      if (done.is_ok()) done = finish_set_file(file->second, set_file);
     }
     if (Status s = comm.agree(done); !s.is_ok()) return cleanup(comm, tmp_dir, file->second, s);
     return Status::ok();
@@ -974,14 +984,13 @@ class StoreJob final : public StarJob {
   void keep_accepted(std::vector<std::uint32_t>& rows) override { rows_.insert(rows_.end(), rows.begin(), rows.end()); }
 
  private:
-  // The set's file in place (rank 0): renamed from the temporary one, or dropped when a
-  // server already has it (the same bytes).
-  static void finish_set_file(const std::string& tmp, const std::string& set_file) {
-    if (std::filesystem::exists(set_file)) {
-      ::unlink(tmp.c_str());
-    } else {
-      std::rename(tmp.c_str(), set_file.c_str());
-    }
+  // The set's file in place (rank 0), by the data directory's commit rule: linked from
+  // the temporary one, which goes; a server or run that has it already wrote the same
+  // bytes.
+  static Status finish_set_file(const std::string& tmp, const std::string& set_file) {
+    const int error = data_dir::commit_file(tmp, set_file, data_dir::Move::kExclusive);
+    if (error == 0 || error == EEXIST) return Status::ok();
+    return internal_error(set_file + ": cannot commit: " + std::strerror(error));
   }
   // Nothing half-written is left: the temporary directory and file go (collective).
   static Status cleanup(Comm& comm, const std::string& tmp_dir, const std::string& tmp_file, const Status& s) {

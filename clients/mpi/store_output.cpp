@@ -7,26 +7,14 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
-#include <random>
+
+#include "spokemesh/data_dir.hpp"
 
 namespace spokemesh::mpi {
 namespace {
 
 // Slices travel to rank 0 in messages of at most this many bytes (MPI counts are int).
 constexpr std::size_t kMessageBytes = std::size_t{64} << 20;
-
-bool write_all(int fd, const char* data, std::size_t size) {
-  while (size > 0) {
-    const ssize_t w = ::write(fd, data, size);
-    if (w < 0) {
-      if (errno == EINTR) continue;
-      return false;
-    }
-    data += w;
-    size -= static_cast<std::size_t>(w);
-  }
-  return true;
-}
 
 }  // namespace
 
@@ -48,8 +36,7 @@ Result<std::pair<std::string, std::string>> write_set_file(Comm& comm, const std
     }
     MPI_Send(bytes, 0, MPI_CHAR, 0, 8, comm.comm);
   } else {
-    std::random_device entropy;
-    tmp = dir + "/.tmp-mpi-" + std::to_string(::getpid()) + "-" + std::to_string(entropy()) + ".points";
+    tmp = data_dir::temp_name(dir, "mpi");
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     EVP_MD_CTX* sha = EVP_MD_CTX_new();
     EVP_DigestInit_ex(sha, EVP_sha256(), nullptr);
@@ -60,7 +47,7 @@ Result<std::pair<std::string, std::string>> write_set_file(Comm& comm, const std
     std::memcpy(header.data() + 4, &n, 8);
     auto take = [&](const char* data, std::size_t count) {
       EVP_DigestUpdate(sha, data, count);
-      ok = ok && write_all(fd, data, count);
+      ok = ok && data_dir::write_all(fd, data, count) == 0;
     };
     take(header.data(), header.size());
     take(bytes, size);

@@ -16,6 +16,7 @@
 #include <random>
 #include <sstream>
 
+#include "spokemesh/data_dir.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/space_split.hpp"
 
@@ -62,15 +63,6 @@ void append_numbers(std::string& out, const std::vector<double>& values) {
     out += ' ';
     out += number_text(v);
   }
-}
-
-Status fsync_path(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY);
-  if (fd < 0) return internal_error(path + ": cannot open to sync: " + std::strerror(errno));
-  const int r = ::fsync(fd);
-  ::close(fd);
-  if (r != 0) return internal_error(path + ": fsync failed: " + std::strerror(errno));
-  return Status::ok();
 }
 
 Result<std::string> read_whole(const std::string& path) {
@@ -281,28 +273,8 @@ Result<Piece> read_piece(const std::string& path, const PieceManifest& manifest,
 }
 
 Status write_file_durably(const std::string& path, const std::string& bytes) {
-  const std::string tmp = path + ".tmp";
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return internal_error(tmp + ": cannot create: " + std::strerror(errno));
-  std::size_t done = 0;
-  while (done < bytes.size()) {
-    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (w < 0) {
-      if (errno == EINTR) continue;
-      const std::string why = std::strerror(errno);
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      return internal_error(tmp + ": write failed: " + why);
-    }
-    done += static_cast<std::size_t>(w);
-  }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
-    ::unlink(tmp.c_str());
-    return internal_error(tmp + ": fsync failed");
-  }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    ::unlink(tmp.c_str());
-    return internal_error(path + ": rename failed: " + std::strerror(errno));
+  if (const int error = data_dir::write_file(path, bytes); error != 0) {
+    return internal_error(path + ": cannot write: " + std::strerror(error));
   }
   return Status::ok();
 }
@@ -332,10 +304,10 @@ void to_global(VoronoiCell& cell, std::span<const std::uint64_t> ids) {
   }
 }
 
-std::string pieces_dir(const std::string& dir, const std::string& set_id) { return dir + "/pieces/" + set_id; }
+std::string pieces_dir(const std::string& dir, const std::string& set_id) { return data_dir::pieces_dir(dir, set_id); }
 
 Result<PieceManifest> read_manifest(const std::string& dir, const std::string& set_id) {
-  const std::string path = pieces_dir(dir, set_id) + "/manifest";
+  const std::string path = data_dir::manifest_file(pieces_dir(dir, set_id));
   auto text = read_whole(path);
   if (!text.is_ok()) return text.status();
   auto m = parse_manifest(text.value(), path);
@@ -426,9 +398,7 @@ Result<PieceManifest> store_pieces(const PointSet& points, const std::string& se
   }
 
   const std::string final_dir = pieces_dir(dir, set_id);
-  std::random_device entropy;
-  const std::string tmp_dir =
-      dir + "/pieces/.tmp-" + set_id + "-" + std::to_string(::getpid()) + "-" + std::to_string(entropy());
+  const std::string tmp_dir = data_dir::temp_name(dir + "/pieces", "pieces");
   std::error_code ec;
   fs::create_directories(tmp_dir, ec);
   if (ec) return internal_error(tmp_dir + ": cannot create: " + ec.message());
@@ -465,22 +435,20 @@ Result<PieceManifest> store_pieces(const PointSet& points, const std::string& se
     manifest.pieces[p].held = piece.ids.size();
     manifest.pieces[p].bytes = bytes.size();
     std::memcpy(&manifest.pieces[p].crc, bytes.data() + bytes.size() - 4, 4);
-    if (Status s = write_file_durably(tmp_dir + "/" + std::to_string(p) + ".piece", bytes); !s.is_ok()) {
+    if (Status s = write_file_durably(data_dir::piece_file(tmp_dir, p), bytes); !s.is_ok()) {
       return cleanup(s);
     }
   }
   const std::string owner_bytes(reinterpret_cast<const char*>(owners.data()), owners.size() * 4);
-  if (Status s = write_file_durably(tmp_dir + "/owners", owner_bytes); !s.is_ok()) return cleanup(s);
-  if (Status s = write_file_durably(tmp_dir + "/manifest", manifest_text(manifest)); !s.is_ok()) return cleanup(s);
-  if (Status s = fsync_path(tmp_dir); !s.is_ok()) return cleanup(s);
-  if (::rename(tmp_dir.c_str(), final_dir.c_str()) != 0) {
-    const int err = errno;
+  if (Status s = write_file_durably(data_dir::owners_file(tmp_dir), owner_bytes); !s.is_ok()) return cleanup(s);
+  if (Status s = write_file_durably(data_dir::manifest_file(tmp_dir), manifest_text(manifest)); !s.is_ok())
+    return cleanup(s);
+  if (const int error = data_dir::commit_directory(tmp_dir, final_dir); error != 0) {
     (void)cleanup(Status::ok());
     // Another writer put the same layout in place first: it is the same bytes.
-    if (err == EEXIST || err == ENOTEMPTY) return read_manifest(dir, set_id);
-    return internal_error(final_dir + ": rename failed: " + std::strerror(err));
+    if (error == EEXIST) return read_manifest(dir, set_id);
+    return internal_error(final_dir + ": cannot commit: " + std::strerror(error));
   }
-  if (Status s = fsync_path(dir + "/pieces"); !s.is_ok()) return s;
   return manifest;
 }
 
