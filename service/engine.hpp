@@ -216,6 +216,17 @@ struct Holding {
   std::uint32_t index = 0;
 };
 
+// Which shard answers each seed of a set kept as pieces (docs/service.md, "Clients
+// that route themselves"). version: the first 16 hex digits of the SHA-256 of the
+// manifest and the shard count (every replica computes the same).
+struct ShardMap {
+  bool sharded = false;  // false: a set held whole, or a replica that is not sharded
+  std::string version;
+  std::uint32_t shard_count = 0;
+  std::uint64_t count = 0;
+  std::vector<std::uint16_t> seed_shards;  // per seed (empty when not sharded)
+};
+
 // Where a seed's request is answered: here, or by a replica of `shard`.
 struct SeedRoute {
   bool here = true;
@@ -235,6 +246,9 @@ class Engine {
   // The shard whose replicas answer `seed` of set `id` (here for a set held whole, for
   // a replica that is not sharded, and for any error, which the local call reports).
   SeedRoute route_seed(const std::string& id, std::uint64_t seed);
+  // The set's shard map (read from its owner map; charged to the budget while it is
+  // made): NOT_FOUND for an unknown set.
+  Result<ShardMap> shard_map(const std::string& id);
 
   const Limits& limits() const { return limits_; }
   PointSetStore& store() { return *store_; }

@@ -89,7 +89,7 @@ class MesherService::Call {
 
 MesherService::MesherService(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
                              ShardPeers* peers)
-    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), peers_(peers) {}
+    : engine_(engine), telemetry_(telemetry), auth_(std::move(auth)), peers_(peers), router_(engine, peers) {}
 
 template <class Request, class Open>
 grpc::Status MesherService::receive_points(Call& call, grpc::ServerContext* ctx, grpc::ServerReader<Request>* reader,
@@ -224,10 +224,9 @@ grpc::Status MesherService::DownloadPointSet(grpc::ServerContext* ctx, const pb:
 template <class Request, class Response, class Method>
 std::optional<grpc::Status> MesherService::relay(Call& call, grpc::ServerContext* ctx, const Request& request,
                                                  Response* response, Method method) {
-  if (peers_ == nullptr) return std::nullopt;
   const auto& md = ctx->client_metadata();
-  if (md.find(kForwardedHeader) != md.end()) return std::nullopt;  // relayed once: answered here
-  const SeedRoute route = engine_.route_seed(request.point_set_id(), request.seed());
+  // Router: a seed of another shard's piece is answered there, relayed once.
+  const SeedRoute route = router_.route(request.point_set_id(), request.seed(), md.find(kForwardedHeader) != md.end());
   if (route.here) return std::nullopt;
   auto stub = pb::Mesher::NewStub(peers_->grpc_channel(route.shard));
   grpc::ClientContext client;
@@ -240,6 +239,8 @@ std::optional<grpc::Status> MesherService::relay(Call& call, grpc::ServerContext
   }
   grpc::Status status = ((*stub).*method)(&client, request, response);
   telemetry_.add_forwarded(route.shard, static_cast<Code>(status.error_code()));
+  // Which shard answered: a client routing by an older shard map fetches it again.
+  ctx->AddInitialMetadata("x-spokemesh-shard", std::to_string(route.shard));
   if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
     response->Clear();
     return call.finish(peers_->unavailable(route.shard, peers_->grpc_address(route.shard), status.error_message()));
@@ -440,13 +441,11 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
   if (!query.is_ok()) return call.finish(query.status());
   const std::vector<std::uint64_t> seeds(request->seeds().begin(), request->seeds().end());
   // On a sharded replica, the seeds of other shards' pieces go to those shards.
-  if (peers_ != nullptr && ctx->client_metadata().find(kForwardedHeader) == ctx->client_metadata().end()) {
-    auto routes = engine_.batch_routes(request->point_set_id(), seeds);
-    if (!routes.is_ok()) return call.finish(routes.status());
-    const std::uint32_t here = peers_->shards().index;
-    if (!std::all_of(routes->begin(), routes->end(), [&](std::uint32_t s) { return s == here; })) {
-      return call.finish(relay_batch(call, ctx, *request, seeds, routes.value(), kind, query.value(), writer));
-    }
+  auto routes = router_.batch_routes(request->point_set_id(), seeds,
+                                     ctx->client_metadata().find(kForwardedHeader) != ctx->client_metadata().end());
+  if (!routes.is_ok()) return call.finish(routes.status());
+  if (!routes->empty()) {
+    return call.finish(relay_batch(call, ctx, *request, seeds, routes.value(), kind, query.value(), writer));
   }
   pb::BatchSeedsResponse response;
   auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t done) -> Status {
@@ -488,126 +487,110 @@ std::size_t MesherService::add_answer(const BatchAnswer& a, BatchKind kind, pb::
   return out->ByteSizeLong();
 }
 
+grpc::Status MesherService::GetShardMap(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                                        grpc::ServerWriter<pb::ShardMapChunk>* writer) {
+  Call call(*this, ctx, "GetShardMap", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  auto map = router_.shard_map(request->point_set_id());
+  if (!map.is_ok()) return call.finish(map.status());
+  const ShardMap& m = map->map;
+  pb::ShardMapChunk head;
+  head.set_point_set_id(request->point_set_id());
+  head.set_sharded(m.sharded);
+  head.set_version(m.version);
+  head.set_shard_count(m.shard_count);
+  head.set_count(m.count);
+  for (const std::string& a : map->grpc_addresses) head.add_grpc_addresses(a);
+  for (const std::string& a : map->http_addresses) head.add_http_addresses(a);
+  if (!writer->Write(head)) return call.finish(cancelled("the client went away"));
+  const char* bytes = reinterpret_cast<const char*>(m.seed_shards.data());
+  const std::size_t size = m.seed_shards.size() * 2;
+  pb::ShardMapChunk chunk;
+  for (std::size_t at = 0; at < size; at += defaults::kDownloadChunkBytes) {
+    chunk.set_seed_shards(bytes + at, std::min(defaults::kDownloadChunkBytes, size - at));
+    if (!writer->Write(chunk)) return call.finish(cancelled("the client went away"));
+  }
+  return call.finish(Status::ok());
+}
+
+namespace {
+
+// A batch's answers one by one: each item holds one answer of the batch's kind.
+void split_answers(pb::BatchSeedsResponse& all, std::vector<pb::BatchSeedsResponse>& out) {
+  for (auto& star : *all.mutable_stars()) out.emplace_back().add_stars()->Swap(&star);
+  for (auto& neighbors : *all.mutable_neighbors()) out.emplace_back().add_neighbors()->Swap(&neighbors);
+  for (auto& cell : *all.mutable_cells()) out.emplace_back().add_cells()->Swap(&cell);
+}
+
+}  // namespace
+
 Status MesherService::relay_batch(Call& call, grpc::ServerContext* ctx, const pb::BatchSeedsRequest& request,
                                   const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes,
                                   BatchKind kind, const NeighborQuery& query,
                                   grpc::ServerWriter<pb::BatchSeedsResponse>* writer) {
-  const std::uint32_t here = peers_->shards().index;
+  const std::uint32_t here = router_.here();
   const auto& md = ctx->client_metadata();
   std::string authorization;
   if (const auto it = md.find("authorization"); it != md.end()) {
     authorization.assign(it->second.data(), it->second.size());
   }
-  // One shard's answers to its seeds of a part of the request (retried on the shard's
-  // other replicas while nothing has arrived).
-  auto ask = [&](std::uint32_t shard, pb::BatchSeedsRequest part) -> Result<pb::BatchSeedsResponse> {
+  pb::BatchSeedsRequest base = request;  // the request without its seeds, copied once
+  base.clear_seeds();
+  // Another shard's answers to its seeds (Router::scatter_gather asks again on UNAVAILABLE).
+  using Items = std::vector<pb::BatchSeedsResponse>;
+  auto ask = [&](std::uint32_t shard, const std::vector<std::uint64_t>& part) -> Result<Items> {
+    pb::BatchSeedsRequest asked = base;
+    for (const std::uint64_t seed : part) asked.add_seeds(seed);
     auto stub = pb::Mesher::NewStub(peers_->grpc_channel(shard));
-    grpc::Status status;
-    for (int attempt = 0; attempt < 3; ++attempt) {
-      grpc::ClientContext client;
-      client.set_deadline(
-          std::chrono::system_clock::now() +
-          std::chrono::duration_cast<std::chrono::system_clock::duration>(call.control().deadline() - Clock::now()));
-      client.AddMetadata(kForwardedHeader, std::to_string(here));
-      if (!authorization.empty()) client.AddMetadata("authorization", authorization);
-      auto reader = stub->BatchSeeds(&client, part);
-      pb::BatchSeedsResponse all, message;
-      bool any = false;
-      while (reader->Read(&message)) {
-        any = true;
-        all.MergeFrom(message);
-      }
-      status = reader->Finish();
-      telemetry_.add_forwarded(shard, static_cast<Code>(status.error_code()));
-      if (status.ok()) return all;
-      if (status.error_code() != grpc::StatusCode::UNAVAILABLE || any || call.control().stopped()) break;
-    }
+    grpc::ClientContext client;
+    client.set_deadline(
+        std::chrono::system_clock::now() +
+        std::chrono::duration_cast<std::chrono::system_clock::duration>(call.control().deadline() - Clock::now()));
+    client.AddMetadata(kForwardedHeader, std::to_string(here));
+    if (!authorization.empty()) client.AddMetadata("authorization", authorization);
+    auto reader = stub->BatchSeeds(&client, asked);
+    pb::BatchSeedsResponse all, message;
+    while (reader->Read(&message)) all.MergeFrom(message);
+    const grpc::Status status = reader->Finish();
+    telemetry_.add_forwarded(shard, static_cast<Code>(status.error_code()));
     if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
       return peers_->unavailable(shard, peers_->grpc_address(shard), status.error_message());
     }
-    return Status{static_cast<Code>(status.error_code()), status.error_message()};
+    if (!status.ok()) return Status{static_cast<Code>(status.error_code()), status.error_message()};
+    Items items;
+    split_answers(all, items);
+    return items;
   };
-  // A bounded part of the request at a time: each shard's seeds of it asked at once
-  // (the other shards' concurrently), the answers written in the request's order.
-  constexpr std::size_t kPart = 1024;
   const DomainSpec spec = domain_spec(request.domain());
-  pb::BatchSeedsRequest base = request;  // the request without its seeds, copied once
-  base.clear_seeds();
-  for (std::size_t at = 0; at < seeds.size(); at += kPart) {
-    const std::size_t end = std::min(seeds.size(), at + kPart);
-    std::map<std::uint32_t, std::vector<std::size_t>> by_shard;
-    for (std::size_t i = at; i < end; ++i) by_shard[routes[i]].push_back(i);
-    std::vector<std::pair<std::uint32_t, std::future<Result<pb::BatchSeedsResponse>>>> asked;
-    for (const auto& [shard, positions] : by_shard) {
-      if (shard == here) continue;
-      pb::BatchSeedsRequest part = base;
-      for (const std::size_t i : positions) part.add_seeds(seeds[i]);
-      asked.emplace_back(shard, std::async(std::launch::async, ask, shard, std::move(part)));
-    }
-    // Each answer's place: (the response holding it, its index there).
-    std::vector<std::pair<const pb::BatchSeedsResponse*, int>> place(end - at);
-    pb::BatchSeedsResponse local;
-    Status failed;
-    if (auto mine = by_shard.find(here); mine != by_shard.end()) {
-      std::vector<std::uint64_t> part;
-      for (const std::size_t i : mine->second) part.push_back(seeds[i]);
-      int k = 0;
-      failed = engine_.batch(request.point_set_id(), part, kind, query, spec, call.control(),
+  auto local = [&](const std::vector<std::uint64_t>& part) -> Result<Items> {
+    pb::BatchSeedsResponse all;
+    Status s = engine_.batch(request.point_set_id(), part, kind, query, spec, call.control(),
                              [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
-                               for (const BatchAnswer& a : answers) {
-                                 add_answer(a, kind, request.mode(), local);
-                                 place[mine->second[static_cast<std::size_t>(k)] - at] = {&local, k};
-                                 ++k;
-                               }
+                               for (const BatchAnswer& a : answers) add_answer(a, kind, request.mode(), all);
                                return Status::ok();
                              });
-    }
-    std::vector<pb::BatchSeedsResponse> remote(asked.size());
-    for (std::size_t r = 0; r < asked.size(); ++r) {
-      auto answer = asked[r].second.get();
-      if (!failed.is_ok()) continue;
-      if (!answer.is_ok()) {
-        failed = answer.status();
-        continue;
-      }
-      remote[r] = std::move(answer).value();
-      const std::vector<std::size_t>& positions = by_shard[asked[r].first];
-      const int got = kind == BatchKind::kStars       ? remote[r].stars_size()
-                      : kind == BatchKind::kNeighbors ? remote[r].neighbors_size()
-                                                      : remote[r].cells_size();
-      if (static_cast<std::size_t>(got) != positions.size()) {
-        failed =
-            Status{Code::kUnavailable, "shard " + std::to_string(asked[r].first) + " answered " + std::to_string(got) +
-                                           " of " + std::to_string(positions.size()) + " seeds"};
-        continue;
-      }
-      for (std::size_t k = 0; k < positions.size(); ++k) place[positions[k] - at] = {&remote[r], static_cast<int>(k)};
-    }
-    if (!failed.is_ok()) return failed;
-    // Written as the whole set's batch writes them: messages of about 2 MiB at most.
+    if (!s.is_ok()) return s;
+    Items items;
+    split_answers(all, items);
+    return items;
+  };
+  // Written as the whole set's batch writes them: messages of about 2 MiB at most.
+  auto emit = [&](Items& items, std::uint64_t done) -> Status {
     pb::BatchSeedsResponse response;
     std::size_t bytes = 0;
-    for (std::size_t i = 0; i < place.size(); ++i) {
-      const auto& [from, k] = place[i];
-      if (kind == BatchKind::kStars) {
-        *response.add_stars() = from->stars(k);
-        bytes += from->stars(k).ByteSizeLong();
-      } else if (kind == BatchKind::kNeighbors) {
-        *response.add_neighbors() = from->neighbors(k);
-        bytes += from->neighbors(k).ByteSizeLong();
-      } else {
-        *response.add_cells() = from->cells(k);
-        bytes += from->cells(k).ByteSizeLong();
-      }
-      if (bytes > defaults::kMessagePayloadBytes || i + 1 == place.size()) {
-        response.set_done(at + i + 1);
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      bytes += items[i].ByteSizeLong();
+      response.MergeFrom(items[i]);
+      if (bytes > defaults::kMessagePayloadBytes || i + 1 == items.size()) {
+        response.set_done(done - (items.size() - 1 - i));
         if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
         response.Clear();
         bytes = 0;
       }
     }
-  }
-  return Status::ok();
+    return Status::ok();
+  };
+  return router_.scatter_gather<pb::BatchSeedsResponse>(seeds, routes, call.control(), ask, local, emit);
 }
 
 }  // namespace spokemesh::service

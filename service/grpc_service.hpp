@@ -12,6 +12,7 @@
 
 #include "auth.hpp"
 #include "engine.hpp"
+#include "router.hpp"
 #include "shard_peers.hpp"
 #include "spokemesh/v1/mesher.grpc.pb.h"
 #include "telemetry.hpp"
@@ -52,6 +53,8 @@ class MesherService final : public pb::Mesher::Service {
                            grpc::ServerWriter<pb::CellBatch>* writer) override;
   grpc::Status BatchSeeds(grpc::ServerContext* ctx, const pb::BatchSeedsRequest* request,
                           grpc::ServerWriter<pb::BatchSeedsResponse>* writer) override;
+  grpc::Status GetShardMap(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
+                           grpc::ServerWriter<pb::ShardMapChunk>* writer) override;
 
  private:
   class Call;
@@ -76,6 +79,7 @@ class MesherService final : public pb::Mesher::Service {
   Telemetry& telemetry_;
   std::shared_ptr<const Authenticator> auth_;
   ShardPeers* peers_;
+  Router router_;
 };
 
 void fill_point_set(const PointSetInfo& info, pb::PointSet* out);

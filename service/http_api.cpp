@@ -256,6 +256,35 @@ struct HttpApi::Context {
   }
 };
 
+namespace {
+
+// Whether the request came from another shard's replica (Router: relayed once).
+bool forwarded(const http::request<http::string_body>& request) {
+  return request.find(kForwardedHeader) != request.end();
+}
+
+// The status an error body ({"error": {"status", "message"[, "reason"]}}) names.
+Status status_of_error_body(const std::string& body) {
+  const json error = json::parse(body, nullptr, false);
+  Status s{Code::kInternal, "a shard answered: " + body.substr(0, 200)};
+  if (error.is_object() && error.contains("error") && error["error"].is_object()) {
+    const std::string name = error["error"].value("status", "");
+    for (Code k : {Code::kCancelled, Code::kInvalidArgument, Code::kDeadlineExceeded, Code::kNotFound,
+                   Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
+                   Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
+      if (name == code_name(k)) s = Status{k, error["error"].value("message", "")};
+    }
+    // The reason too (OVER_BUDGET, STORAGE_FULL, SHARD_UNAVAILABLE): it picks the HTTP
+    // status (status_map.hpp) and is part of the answer.
+    if (const std::string reason = error["error"].value("reason", ""); !reason.empty() && !s.is_ok()) {
+      s = std::move(s).with_reason(reason);
+    }
+  }
+  return s;
+}
+
+}  // namespace
+
 HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Authenticator> auth,
                  std::function<bool()> ready, std::shared_ptr<const UiAssets> ui, ShardPeers* peers)
     : engine_(engine),
@@ -263,7 +292,8 @@ HttpApi::HttpApi(Engine& engine, Telemetry& telemetry, std::shared_ptr<const Aut
       auth_(std::move(auth)),
       ready_(std::move(ready)),
       ui_(std::move(ui)),
-      peers_(peers) {}
+      peers_(peers),
+      router_(engine, peers) {}
 
 HttpResponse HttpApi::handle_request(const http::request<http::string_body>& request,
                                      std::function<bool()> client_gone) {
@@ -445,6 +475,11 @@ HttpResponse HttpApi::route(Context& c) {
     c.record.method = "DownloadPointSet";
     return points(c, id);
   }
+  if ((p.size() == 4 && p[3] == "shards") || (p.size() == 5 && p[3] == "shards" && p[4] == "seeds")) {
+    if (method != http::verb::get) return wrong_method();
+    c.record.method = "GetShardMap";
+    return shard_map(c, id, p.size() == 5);
+  }
   if (p.size() == 4 && p[3] == "simplices") {
     if (method != http::verb::get) return wrong_method();
     c.record.method = "StreamSimplices";
@@ -564,12 +599,9 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
       return Context::later();
     }
   } else {
-    // A seed of another shard's piece is answered there (once: a relayed request is
-    // not relayed again, it is answered here from the piece).
-    if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
-      const SeedRoute route = engine_.route_seed(id, seed.value());
-      if (!route.here) return forward(c, route.shard);
-    }
+    // A seed of another shard's piece is answered there (Router: relayed once).
+    const SeedRoute route = router_.route(id, seed.value(), forwarded(c.request));
+    if (!route.here) return forward(c, route.shard);
     auto holding = engine_.hold(id, seed.value(), !approximate);
     if (!holding.is_ok()) return c.fail(holding.status());
     held = std::move(holding).value();
@@ -603,30 +635,6 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   if (!cell.is_ok()) return c.fail(cell.status());
   return c.ok_text(cell_text(cell.value(), &id));
 }
-
-namespace {
-
-// The status an error body ({"error": {"status", "message"[, "reason"]}}) names.
-Status status_of_error_body(const std::string& body) {
-  const json error = json::parse(body, nullptr, false);
-  Status s{Code::kInternal, "a shard answered: " + body.substr(0, 200)};
-  if (error.is_object() && error.contains("error") && error["error"].is_object()) {
-    const std::string name = error["error"].value("status", "");
-    for (Code k : {Code::kCancelled, Code::kInvalidArgument, Code::kDeadlineExceeded, Code::kNotFound,
-                   Code::kAlreadyExists, Code::kResourceExhausted, Code::kFailedPrecondition, Code::kOutOfRange,
-                   Code::kUnimplemented, Code::kInternal, Code::kUnavailable, Code::kUnauthenticated}) {
-      if (name == code_name(k)) s = Status{k, error["error"].value("message", "")};
-    }
-    // The reason too (OVER_BUDGET, STORAGE_FULL, SHARD_UNAVAILABLE): it picks the HTTP
-    // status (status_map.hpp) and is part of the answer.
-    if (const std::string reason = error["error"].value("reason", ""); !reason.empty() && !s.is_ok()) {
-      s = std::move(s).with_reason(reason);
-    }
-  }
-  return s;
-}
-
-}  // namespace
 
 HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
   ShardPeers::HttpRequest request = c.request;
@@ -885,6 +893,42 @@ HttpResponse HttpApi::points(Context& c, const std::string& id) {
   return r;
 }
 
+// GET .../shards: the shard map's description (JSON); .../shards/seeds: the shard of
+// every seed as a .npy uint16 array (n,). Every answer carries its version.
+HttpResponse HttpApi::shard_map(Context& c, const std::string& id, bool seeds) {
+  auto map = router_.shard_map(id);
+  if (!map.is_ok()) return c.fail(map.status());
+  const ShardMap& m = map->map;
+  HttpResponse r;
+  if (!seeds) {
+    r = c.ok({{"point_set_id", id},
+              {"sharded", m.sharded},
+              {"version", m.version},
+              {"shard_count", m.shard_count},
+              {"count", m.count},
+              {"grpc_addresses", map->grpc_addresses},
+              {"http_addresses", map->http_addresses}});
+  } else {
+    if (!m.sharded) {
+      return c.fail(failed_precondition("point set " + id +
+                                        " is answered by every replica (not kept as pieces on a sharded deployment): "
+                                        "it has no per-seed shards"));
+    }
+    std::string header = "{'descr': '<u2', 'fortran_order': False, 'shape': (" + std::to_string(m.count) + ",), }";
+    const std::size_t unpadded = 10 + header.size() + 1;
+    header.append((64 - unpadded % 64) % 64, ' ');
+    header += '\n';
+    r.content_type = "application/octet-stream";
+    r.body = std::string("\x93NUMPY\x01\x00", 8);
+    r.body += static_cast<char>(header.size() & 0xff);
+    r.body += static_cast<char>(header.size() >> 8);
+    r.body += header;
+    r.body.append(reinterpret_cast<const char*>(m.seed_shards.data()), m.seed_shards.size() * 2);
+  }
+  r.headers.emplace_back("X-Spokemesh-Shard-Map", m.version);
+  return r;
+}
+
 // POST .../{stars,neighbors,cells}:batch with {"seeds": [...], ...}: NDJSON, one line
 // per seed in request order, each the single route's body.
 HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string& what) {
@@ -951,14 +995,9 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
                          : what == "neighbors" ? BatchKind::kNeighbors
                                                : BatchKind::kCells;
   // On a sharded replica, the seeds of other shards' pieces go to those shards.
-  std::vector<std::uint32_t> routes;
-  if (peers_ != nullptr && c.request.find(kForwardedHeader) == c.request.end()) {
-    auto r = engine_.batch_routes(id, seeds);
-    if (!r.is_ok()) return c.fail(r.status());
-    routes = std::move(r).value();
-    const std::uint32_t here = peers_->shards().index;
-    if (std::all_of(routes.begin(), routes.end(), [&](std::uint32_t s) { return s == here; })) routes.clear();
-  }
+  auto routed = router_.batch_routes(id, seeds, forwarded(c.request));
+  if (!routed.is_ok()) return c.fail(routed.status());
+  std::vector<std::uint32_t> routes = std::move(routed).value();
   const bool relays = !routes.empty();
   HttpResponse r;
   r.content_type = "application/x-ndjson";
@@ -997,81 +1036,51 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
                             BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
                             const CallControl& control, const std::function<std::string(const BatchAnswer&)>& line_of,
                             const std::function<bool(std::string_view)>& write_chunk) {
-  const std::uint32_t here = peers_->shards().index;
-  // A bounded part of the request at a time: each shard's seeds of it asked at once
-  // (the other shards' concurrently), the answers written in the request's order.
-  constexpr std::size_t kPart = 1024;
   json base = body;  // the request without its seeds, copied once
   base.erase("seeds");
-  for (std::size_t at = 0; at < seeds.size(); at += kPart) {
-    const std::size_t end = std::min(seeds.size(), at + kPart);
-    std::vector<std::string> lines(end - at);
-    std::map<std::uint32_t, std::vector<std::size_t>> by_shard;
-    for (std::size_t i = at; i < end; ++i) by_shard[routes[i]].push_back(i);
-    std::vector<std::pair<std::uint32_t, std::future<Result<ShardPeers::HttpResponse>>>> asked;
-    for (const auto& [shard, positions] : by_shard) {
-      if (shard == here) continue;
-      json part = base;
-      part["seeds"] = json::array();
-      for (const std::size_t i : positions) part["seeds"].push_back(seeds[i]);
-      ShardPeers::HttpRequest relayed = request;
-      relayed.body() = dump(part);
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(control.deadline() - Clock::now());
-      relayed.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
-      asked.emplace_back(shard, std::async(std::launch::async, [this, to = shard, relayed = std::move(relayed),
-                                                                deadline = control.deadline()]() mutable {
-                           return peers_->forward_http(to, std::move(relayed), deadline);
-                         }));
+  // Another shard's lines for its seeds: the request relayed with only them.
+  auto ask = [&](std::uint32_t shard, const std::vector<std::uint64_t>& part) -> Result<std::vector<std::string>> {
+    json asked = base;
+    asked["seeds"] = part;
+    ShardPeers::HttpRequest relayed = request;
+    relayed.body() = dump(asked);
+    relayed.prepare_payload();
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(control.deadline() - Clock::now());
+    relayed.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
+    auto answer = peers_->forward_http(shard, std::move(relayed), control.deadline());
+    telemetry_.add_forwarded(shard, answer.status().code());
+    if (!answer.is_ok()) return answer.status();
+    if (answer->result_int() != 200) return status_of_error_body(answer->body());
+    std::vector<std::string> lines;
+    std::string_view text = answer->body();
+    while (!text.empty()) {
+      const std::size_t newline = text.find('\n');
+      lines.emplace_back(text.substr(0, newline));
+      text = newline == std::string_view::npos ? std::string_view() : text.substr(newline + 1);
     }
-    if (auto mine = by_shard.find(here); mine != by_shard.end()) {
-      std::vector<std::uint64_t> part;
-      for (const std::size_t i : mine->second) part.push_back(seeds[i]);
-      std::size_t k = 0;
-      Status s = engine_.batch(id, part, kind, query, spec, control,
-                               [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
-                                 for (const BatchAnswer& a : answers) lines[mine->second[k++] - at] = line_of(a);
-                                 return Status::ok();
-                               });
-      if (!s.is_ok()) {
-        for (auto& [shard, answer] : asked) answer.wait();
-        return s;
-      }
-    }
-    Status failed;
-    for (auto& [shard, future] : asked) {
-      Result<ShardPeers::HttpResponse> answer = future.get();
-      telemetry_.add_forwarded(shard, answer.status().code());
-      if (!failed.is_ok()) continue;
-      if (!answer.is_ok()) {
-        failed = answer.status();
-        continue;
-      }
-      if (answer->result_int() != 200) {
-        failed = status_of_error_body(answer->body());
-        continue;
-      }
-      const std::vector<std::size_t>& positions = by_shard[shard];
-      std::string_view text = answer->body();
-      std::size_t k = 0;
-      while (!text.empty() && k < positions.size()) {
-        const std::size_t newline = text.find('\n');
-        lines[positions[k++] - at] = std::string(text.substr(0, newline));
-        text = newline == std::string_view::npos ? std::string_view() : text.substr(newline + 1);
-      }
-      if (k != positions.size()) {
-        failed = Status{Code::kUnavailable, "shard " + std::to_string(shard) + " answered " + std::to_string(k) +
-                                                " of " + std::to_string(positions.size()) + " seeds"};
-      }
-    }
-    if (!failed.is_ok()) return failed;
+    return lines;
+  };
+  auto local = [&](const std::vector<std::uint64_t>& part) -> Result<std::vector<std::string>> {
+    std::vector<std::string> lines;
+    lines.reserve(part.size());
+    Status s = engine_.batch(id, part, kind, query, spec, control,
+                             [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
+                               for (const BatchAnswer& a : answers) lines.push_back(line_of(a));
+                               return Status::ok();
+                             });
+    if (!s.is_ok()) return s;
+    return lines;
+  };
+  auto emit = [&](std::vector<std::string>& lines, std::uint64_t) -> Status {
     std::string text;
     for (const std::string& line : lines) {
       text += line;
       text += '\n';
     }
     if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
-  }
-  return Status::ok();
+    return Status::ok();
+  };
+  return router_.scatter_gather<std::string>(seeds, routes, control, ask, local, emit);
 }
 
 }  // namespace spokemesh::service

@@ -14,6 +14,8 @@
 //                                              (on a sharded replica, relayed to the seed's shard)
 //   GET    /v1/pointsets/{id}/simplices?shard=k&shards=n[&batch_size=b]
 //                                              NDJSON, one simplex per line, chunked
+//   GET    /v1/pointsets/{id}/shards          the shard map (JSON); .../shards/seeds: each
+//                                              seed's shard as a .npy uint16 array
 //   GET    /v1/pointsets/{id}/points[?dtype=float64|float32]
 //                                              the coordinates as a .npy file (n, d), chunked
 //   GET    /healthz  /readyz  /metrics
@@ -39,6 +41,7 @@
 
 #include "auth.hpp"
 #include "engine.hpp"
+#include "router.hpp"
 #include "shard_peers.hpp"
 #include "telemetry.hpp"
 #include "ui.hpp"
@@ -96,8 +99,9 @@ class HttpApi {
   HttpResponse store_upload(Context& c, const UploadHeader& header, UploadData data, const std::string* parent,
                             std::span<const char> weights = {});
   HttpResponse seed_route(Context& c, const std::string& id, const std::string& seed, const std::string& what);
-  // A batch whose seeds lie in several shards' pieces: each shard's seeds answered
-  // there (this one's here), the lines written in the request's order.
+  // A batch whose seeds lie in several shards' pieces (Router::scatter_gather): each
+  // shard's seeds answered there over REST (this one's here), the lines written in the
+  // request's order.
   Status relay_batch(const http::request<http::string_body>& request, const nlohmann::json& body, const std::string& id,
                      const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes, BatchKind kind,
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
@@ -105,6 +109,7 @@ class HttpApi {
                      const std::function<bool(std::string_view)>& write_chunk);
   // The request relayed to a replica of `shard`, its response returned as it came.
   HttpResponse forward(Context& c, std::uint32_t shard);
+  HttpResponse shard_map(Context& c, const std::string& id, bool seeds);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse points(Context& c, const std::string& id);
   HttpResponse cells(Context& c, const std::string& id);
@@ -121,6 +126,7 @@ class HttpApi {
   std::function<bool()> ready_;
   std::shared_ptr<const UiAssets> ui_;
   ShardPeers* peers_;
+  Router router_;
 };
 
 }  // namespace spokemesh::service

@@ -313,3 +313,69 @@ def test_the_python_client_and_the_cli_work_unchanged(stored, start_server, tmp_
     got = cli("--server", cluster[0][0].grpc, "batch", set_id, "stars", "--seeds", ",".join(map(str, seeds))).stdout
     want = cli("--server", whole.grpc, "batch", set_id, "stars", "--seeds", ",".join(map(str, seeds))).stdout
     assert got == want
+
+
+def test_clients_route_themselves(stored, start_server):
+    """The shard map (GetShardMap, REST .../shards and .../shards/seeds) says which shard
+    answers each seed and where its replicas are; the Python Client sends each seed
+    there (no replica relays anything) and splits batches by shard, with the whole-set
+    replica's answers, errors included; without routing, the front replica relays."""
+    import spokemesh
+    data, whole, ids = stored
+    cluster = start_shards(start_server, data, 2, 1, name="routed")
+    replicas = [row[0] for row in cluster]
+    set_id, points = ids["uniform 3-d"]
+    n = points.shape[0]
+    # The map, by REST and gRPC, the same from every replica.
+    status, headers, body = http_request("GET", f"{replicas[1].http}/v1/pointsets/{set_id}/shards")
+    assert status == 200
+    description = json.loads(body)
+    assert description["sharded"] and description["shard_count"] == 2 and description["count"] == n
+    assert description["grpc_addresses"] == [r.grpc for r in replicas]
+    assert headers["X-Spokemesh-Shard-Map"] == description["version"] and len(description["version"]) == 16
+    status, _, npy = http_request("GET", f"{replicas[0].http}/v1/pointsets/{set_id}/shards/seeds")
+    assert status == 200
+    seed_shards = np.load(__import__("io").BytesIO(npy))
+    assert seed_shards.dtype == np.uint16 and seed_shards.shape == (n,) and set(seed_shards.tolist()) == {0, 1}
+    chunks = list(pb_grpc.MesherStub(grpc.insecure_channel(replicas[0].grpc)).GetShardMap(
+        pb.GetPointSetRequest(point_set_id=set_id)))
+    assert chunks[0].version == description["version"]
+    assert np.array_equal(np.frombuffer(b"".join(c.seed_shards for c in chunks[1:]), "<u2"), seed_shards)
+    # Whole sets are answered anywhere.
+    status, _, body = http_request("GET", f"{whole.http}/v1/pointsets/{set_id}/shards")
+    assert status == 200 and not json.loads(body)["sharded"]
+    # A routing client pointed at shard 1's replica: nothing is relayed.
+    routed, plain, reference = (spokemesh.Client(replicas[1].grpc), spokemesh.Client(replicas[1].grpc, route=False),
+                                spokemesh.Client(whole.grpc))
+    before = sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas)
+    seeds = list(range(0, n, 29))
+    for seed in seeds[:30]:
+        a, b = routed.star(set_id, seed), reference.star(set_id, seed)
+        assert np.array_equal(a.simplices, b.simplices) and np.array_equal(a.circumcenters, b.circumcenters)
+        assert list(routed.neighbors(set_id, seed)) == list(reference.neighbors(set_id, seed))
+        assert routed.cell(set_id, seed, bounding_box=True).volume == reference.cell(set_id, seed,
+                                                                                     bounding_box=True).volume
+    assert [s.simplices.tolist() for s in routed.batch_stars(set_id, seeds)] == \
+        [s.simplices.tolist() for s in reference.batch_stars(set_id, seeds)]
+    assert sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas) == before
+    # Without routing, shard 1's replica relays shard 0's seeds.
+    shard0 = [s for s in seeds if seed_shards[s] == 0][:5]
+    for seed in shard0:
+        assert np.array_equal(plain.star(set_id, seed).simplices, reference.star(set_id, seed).simplices)
+    assert sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas) >= before + len(shard0)
+    # A batch's error is one replica's: the first seed outside the box, in order.
+    box = [0.0, 0.0, 0.0, 0.5, 1.0, 1.0]
+    with pytest.raises(spokemesh.Error) as got:
+        routed.batch_cells(set_id, seeds, box=box)
+    with pytest.raises(spokemesh.Error) as want:
+        reference.batch_cells(set_id, seeds, box=box)
+    assert got.value.details == want.value.details and "lies outside the domain" in want.value.details
+    # And through the front replica's scatter-gather (no routing) too.
+    with pytest.raises(spokemesh.Error) as relayed:
+        plain.batch_cells(set_id, seeds, box=box)
+    assert relayed.value.details == want.value.details
+    status, _, body = http_request("POST", f"{replicas[1].http}/v1/pointsets/{set_id}/cells:batch",
+                                   {"seeds": seeds, "box": box})
+    _, _, whole_body = http_request("POST", f"{whole.http}/v1/pointsets/{set_id}/cells:batch",
+                                    {"seeds": seeds, "box": box})
+    assert body == whole_body

@@ -7,11 +7,12 @@ import dataclasses
 import io
 import json
 import ssl
+import threading
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
-from typing import Any, Iterator, List, Optional, Sequence
+from typing import Any, Dict, Iterator, List, Optional, Sequence
 
 import grpc
 import numpy as np
@@ -124,6 +125,14 @@ RETRY_SERVICE_CONFIG = json.dumps({"methodConfig": [{
 }]})
 
 
+@dataclasses.dataclass
+class _ShardRoute:
+    """A set's shard map as a Client holds it: each seed's shard and a stub per shard."""
+    shards: np.ndarray  # uint16 per seed
+    stubs: list
+    version: str
+
+
 class Client:
     """A connection to one spokemesh-server (or a load balancer in front of several).
 
@@ -133,21 +142,33 @@ class Client:
     rest: the same server's REST base URL ("http://host:8080"), if download() should
     fetch coordinates as one .npy file from GET /v1/pointsets/{id}/points (what the
     browser page uses; TLS is verified against root_certificates).
+    route: on a sharded deployment (docs/service.md, "Clients that route themselves"),
+    send each seed's request straight to a replica of its shard, and a batch's seeds
+    to their shards at once, rather than through `target`, which would relay them:
+    the set's shard map is fetched once (GetShardMap) and again when an answer says it
+    was relayed. A shard that cannot be reached falls back to `target`. Sets held whole
+    and servers that are not sharded are asked through `target` as always.
     Calls failing with UNAVAILABLE are retried (RETRY_SERVICE_CONFIG).
     Thread safety: a Client may be shared by threads (gRPC channels are thread-safe).
     """
 
     def __init__(self, target: str, *, timeout: float = 60.0, token: Optional[str] = None,
                  root_certificates: Optional[bytes] = None, private_key: Optional[bytes] = None,
-                 certificate_chain: Optional[bytes] = None, rest: Optional[str] = None):
+                 certificate_chain: Optional[bytes] = None, rest: Optional[str] = None, route: bool = True):
         options = [("grpc.max_receive_message_length", 64 << 20), ("grpc.enable_retries", 1),
                    ("grpc.service_config", RETRY_SERVICE_CONFIG)]
+        self._credentials = None
         if root_certificates is not None:
-            creds = grpc.ssl_channel_credentials(root_certificates, private_key, certificate_chain)
-            self._channel = grpc.secure_channel(target, creds, options=options)
+            self._credentials = grpc.ssl_channel_credentials(root_certificates, private_key, certificate_chain)
+            self._channel = grpc.secure_channel(target, self._credentials, options=options)
         else:
             self._channel = grpc.insecure_channel(target, options=options)
+        self._options = options
         self._stub = pb_grpc.MesherStub(self._channel)
+        self._route = route
+        self._routes: Dict[str, Optional[_ShardRoute]] = {}  # set id -> its map (None: ask `target`)
+        self._shard_channels: Dict[str, grpc.Channel] = {}  # address -> channel
+        self._routes_lock = threading.Lock()
         self._timeout = timeout
         self._metadata = [("authorization", f"Bearer {token}")] if token else []
         self._token = token
@@ -155,8 +176,76 @@ class Client:
         self._rest_tls = ssl.create_default_context(cadata=root_certificates.decode()) if root_certificates else None
 
     def close(self) -> None:
-        """Closes the channel (also on leaving a `with` block)."""
+        """Closes the channels (also on leaving a `with` block)."""
         self._channel.close()
+        for channel in self._shard_channels.values():
+            channel.close()
+
+    # ---- routing on sharded deployments ------------------------------------------
+
+    def _shard_channel(self, address: str) -> grpc.Channel:
+        """A channel to one shard's replicas (several, comma-separated IPv4 addresses: spread
+        over them as the server's own relay does)."""
+        with self._routes_lock:
+            channel = self._shard_channels.get(address)
+            if channel is None:
+                target = address
+                options = list(self._options)
+                if "," in address:
+                    target = "ipv4:" + address
+                    options.append(("grpc.lb_policy_name", "round_robin"))
+                if self._credentials is not None:
+                    channel = grpc.secure_channel(target, self._credentials, options=options)
+                else:
+                    channel = grpc.insecure_channel(target, options=options)
+                self._shard_channels[address] = channel
+            return channel
+
+    def _shard_route(self, point_set_id: str) -> Optional["_ShardRoute"]:
+        """The set's shard map, fetched once (None: every seed through `target`)."""
+        if not self._route:
+            return None
+        with self._routes_lock:
+            if point_set_id in self._routes:
+                return self._routes[point_set_id]
+        route = None
+        try:
+            chunks = self._stub.GetShardMap(pb.GetPointSetRequest(point_set_id=point_set_id), timeout=self._timeout,
+                                            metadata=self._metadata)
+            head = next(chunks)
+            data = b"".join(c.seed_shards for c in chunks)
+            if head.sharded and len(head.grpc_addresses) == head.shard_count and len(data) == 2 * head.count:
+                shards = np.frombuffer(data, dtype="<u2")
+                stubs = [pb_grpc.MesherStub(self._shard_channel(a)) for a in head.grpc_addresses]
+                route = _ShardRoute(shards, stubs, head.version)
+        except grpc.RpcError as e:
+            if e.code() not in (grpc.StatusCode.UNIMPLEMENTED, grpc.StatusCode.FAILED_PRECONDITION):
+                return None  # not remembered: the call itself names a real error, or a later one fetches it
+        except StopIteration:
+            pass
+        with self._routes_lock:
+            self._routes[point_set_id] = route
+        return route
+
+    def _forget_route(self, point_set_id: str) -> None:
+        with self._routes_lock:
+            self._routes.pop(point_set_id, None)
+
+    def _seed_call(self, point_set_id: str, seed: int, name: str, request, timeout: Optional[float]):
+        """One seed's unary call, sent to its shard's replicas when the map says where."""
+        route = self._shard_route(point_set_id)
+        if route is not None and 0 <= seed < len(route.shards):
+            method = getattr(route.stubs[int(route.shards[seed])], name)
+            try:
+                response, call = method.with_call(request, timeout=timeout or self._timeout, metadata=self._metadata)
+                if any(key == "x-spokemesh-shard" for key, _ in call.initial_metadata() or ()):
+                    self._forget_route(point_set_id)  # relayed: the map changed
+                return response
+            except grpc.RpcError as e:
+                if e.code() != grpc.StatusCode.UNAVAILABLE:
+                    raise Error(e.code(), e.details()) from None
+                self._forget_route(point_set_id)  # that shard is out of reach: `target` relays
+        return self._call(getattr(self._stub, name), request, timeout)
 
     def __enter__(self) -> "Client":
         return self
@@ -299,14 +388,45 @@ class Client:
 
     def star(self, point_set_id: str, seed: int, timeout: Optional[float] = None) -> Star:
         """The Delaunay simplices incident to `seed` and their circumcentres."""
-        return _star(self._call(self._stub.GetStar, pb.SeedRequest(point_set_id=point_set_id, seed=seed), timeout))
+        return _star(self._seed_call(point_set_id, seed, "GetStar", pb.SeedRequest(point_set_id=point_set_id, seed=seed),
+                                     timeout))
 
     # ---- many seeds in one call --------------------------------------------------
 
-    def _batch(self, request: pb.BatchSeedsRequest, timeout: Optional[float]):
+    def _batch(self, request: pb.BatchSeedsRequest, field: str, timeout: Optional[float]) -> list:
+        """A batch's answers (`field` of each response) in the request's order. On a sharded
+        deployment each shard's seeds go to its replicas at once; any failure there is
+        asked again of `target`, whose answer (its error included) is one replica's."""
+        route = self._shard_route(request.point_set_id)
+        seeds = np.asarray(request.seeds, dtype=np.int64)
+        if route is not None and len(seeds) and seeds.min() >= 0 and seeds.max() < len(route.shards):
+            shards = route.shards[seeds]
+            groups = {int(k): np.nonzero(shards == k)[0] for k in np.unique(shards)}
+
+            def ask(shard: int, positions: np.ndarray) -> list:
+                part = pb.BatchSeedsRequest()
+                part.CopyFrom(request)
+                del part.seeds[:]
+                part.seeds.extend(seeds[positions].tolist())
+                return [a for r in route.stubs[shard].BatchSeeds(part, timeout=timeout or self._timeout,
+                                                                  metadata=self._metadata) for a in getattr(r, field)]
+            try:
+                with concurrent.futures.ThreadPoolExecutor(len(groups)) as pool:
+                    futures = {k: pool.submit(ask, k, positions) for k, positions in groups.items()}
+                    answers: list = [None] * len(seeds)
+                    for k, positions in groups.items():
+                        got = futures[k].result()
+                        if len(got) != len(positions):
+                            raise grpc.RpcError()
+                        for i, a in zip(positions.tolist(), got):
+                            answers[i] = a
+                return answers
+            except grpc.RpcError as e:
+                if not hasattr(e, "code") or e.code() == grpc.StatusCode.UNAVAILABLE:
+                    self._forget_route(request.point_set_id)
         try:
-            for r in self._stub.BatchSeeds(request, timeout=timeout or self._timeout, metadata=self._metadata):
-                yield r
+            return [a for r in self._stub.BatchSeeds(request, timeout=timeout or self._timeout, metadata=self._metadata)
+                    for a in getattr(r, field)]
         except grpc.RpcError as e:
             raise Error(e.code(), e.details()) from None
 
@@ -315,7 +435,7 @@ class Client:
         each equals star()'s answer."""
         request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
                                        kind=pb.BATCH_KIND_STARS)
-        return [_star(r) for batch in self._batch(request, timeout) for r in batch.stars]
+        return [_star(r) for r in self._batch(request, "stars", timeout)]
 
     def batch_neighbors(self, point_set_id: str, seeds: Sequence[int], timeout: Optional[float] = None, *,
                         mode: str = "exact", max_consecutive_misses: int = 0,
@@ -324,7 +444,7 @@ class Client:
         request = pb.BatchSeedsRequest(point_set_id=point_set_id, seeds=[int(s) for s in seeds],
                                        kind=pb.BATCH_KIND_NEIGHBORS, mode=_mode(mode),
                                        max_consecutive_misses=max_consecutive_misses, max_vertices=max_vertices)
-        return [_neighbors(r, mode) for batch in self._batch(request, timeout) for r in batch.neighbors]
+        return [_neighbors(r, mode) for r in self._batch(request, "neighbors", timeout)]
 
     def batch_cells(self, point_set_id: str, seeds: Sequence[int], box: Optional[Sequence[float]] = None,
                     halfspaces: Optional[np.ndarray] = None, bounding_box: bool = False,
@@ -335,7 +455,7 @@ class Client:
         domain = _domain(box, halfspaces, bounding_box, domain)
         if domain is not None:
             request.domain.CopyFrom(domain)
-        return [_cell(r) for batch in self._batch(request, timeout) for r in batch.cells]
+        return [_cell(r) for r in self._batch(request, "cells", timeout)]
 
     def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
                   max_consecutive_misses: int = 0, max_vertices: int = 0) -> np.ndarray:
@@ -349,8 +469,8 @@ class Client:
     def neighbor_walk(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
                       max_consecutive_misses: int = 0, max_vertices: int = 0) -> Neighbors:
         """The neighbours with the walk's statistics (approximate modes) and walk_exhausted."""
-        r = self._call(self._stub.GetNeighbors,
-                       pb.GetNeighborsRequest(point_set_id=point_set_id, seed=seed, mode=_mode(mode),
+        r = self._seed_call(point_set_id, seed, "GetNeighbors",
+                            pb.GetNeighborsRequest(point_set_id=point_set_id, seed=seed, mode=_mode(mode),
                                               max_consecutive_misses=max_consecutive_misses,
                                               max_vertices=max_vertices), timeout)
         return _neighbors(r, mode)
@@ -367,7 +487,7 @@ class Client:
         domain = _domain(box, halfspaces, bounding_box, domain)
         if domain is not None:
             request.domain.CopyFrom(domain)
-        return _cell(self._call(self._stub.GetVoronoiCell, request, timeout))
+        return _cell(self._seed_call(point_set_id, seed, "GetVoronoiCell", request, timeout))
 
     def cells(self, point_set_id: str, box: Optional[Sequence[float]] = None,
               halfspaces: Optional[np.ndarray] = None, shard_index: int = 0, shard_count: int = 1,
