@@ -25,6 +25,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -149,6 +150,17 @@ class ShapeClipper {
   void set_geometry(bool geometry) { geometry_ = geometry; }
 
  private:
+  // clip()'s steps (shape_clip.cpp).
+  struct FaceScan {
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};  // the cell's box
+    bool any_face = false;  // a face's grid cell meets the cell's box
+    int winding_hint = -2;  // the winding number every empty grid cell met agrees on (-3: they differ)
+  };
+  FaceScan scan_faces(const VoronoiCell& cell);
+  int place_origin(std::uint32_t seed, const VoronoiCell& cell);
+  void load_cell(std::uint32_t seed, const VoronoiCell& cell, int w);
+  bool cut_by_face(std::uint32_t seed, const VoronoiCell& cell, std::uint32_t face);  // false: it misses the cell
+  void assemble(VoronoiCell& cell, int w);
   std::vector<std::pair<std::array<double, 3>, std::array<double, 3>>> neighbour_outline(std::size_t facet, int w);
   struct Scratch;
   const PointSet& points_;

@@ -175,7 +175,9 @@ struct ShapeClipper::Scratch {
   };
   std::vector<Wall> walls;
   std::vector<std::pair<double, int>> crossings;
-  double origin[3] = {0, 0, 0};  // o, for neighbour_outline
+  double origin[3] = {0, 0, 0};  // o: the cell's coordinates are relative to it
+  double volume = 0;             // the clipped cell's, and its first moment about o
+  V3 moment{0, 0, 0};
 };
 
 ShapeClipper::ShapeClipper(const PointSet& points, const ShapeDomain& shape)
@@ -219,18 +221,62 @@ Result<Domain> ShapeClipper::box(std::vector<double> lo, std::vector<double> hi,
   return Domain::box(lo, hi);
 }
 
+// clip() in steps: the faces near the cell (scan_faces), the cell's origin and its
+// winding number (place_origin), the cell as loops and planes relative to it
+// (load_cell), each face's wall and shadow (cut_by_face), then the facets and measures
+// (assemble). The steps share Scratch.
 void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   Scratch& s = *scratch_;
   const ShapeDomain::Index& ix = shape_.index();
   const int d = ix.d;
-  const double* p = points_.point(seed);
+  const FaceScan scan = scan_faces(cell);
+  cell.clipped = true;
+  cell.bounded = true;
+  bool overlap = true;
+  for (int c = 0; c < d; ++c) overlap = overlap && scan.hi[c] >= ix.lo[c] && scan.lo[c] <= ix.hi[c];
+  if (!overlap || (!scan.any_face && scan.winding_hint == 0)) {
+    // Beyond the domain's box, or no face near and outside: nothing of the domain.
+    cell.volume = 0;
+    cell.centroid.clear();
+    cell.facets.clear();
+    keep_measures_only(cell);
+    cell.vertices.clear();
+    return;
+  }
+  if (!scan.any_face && scan.winding_hint == 1) {
+    // No face near and inside: the cell is wholly in the domain.
+    if (!geometry_) keep_measures_only(cell);
+    return;
+  }
+  const int w = place_origin(seed, cell);
+  load_cell(seed, cell, w);
+  bool cut = false;
+  for (const std::uint32_t f : s.candidates) cut = cut_by_face(seed, cell, f) || cut;
+  if (cut) ++cut_cells_;
+  if (!cut && w == 1) {
+    // Inside, meeting no face: the convex cell itself (its geometry too, when asked).
+    std::vector<VoronoiFacet> kept;
+    for (VoronoiFacet& f : cell.facets) {
+      if (f.neighbor >= 0) kept.push_back(std::move(f));
+    }
+    cell.facets = std::move(kept);
+    if (!geometry_) keep_measures_only(cell);
+    return;
+  }
+  assemble(cell, w);
+}
+
+ShapeClipper::FaceScan ShapeClipper::scan_faces(const VoronoiCell& cell) {
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
   // Faces whose boxes meet the cell's box.
-  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  FaceScan scan;
   const std::size_t nv = cell.vertex_count();
   for (std::size_t v = 0; v < nv; ++v) {
     for (int c = 0; c < d; ++c) {
-      lo[c] = std::min(lo[c], cell.vertices[v * d + c]);
-      hi[c] = std::max(hi[c], cell.vertices[v * d + c]);
+      scan.lo[c] = std::min(scan.lo[c], cell.vertices[v * d + c]);
+      scan.hi[c] = std::max(scan.hi[c], cell.vertices[v * d + c]);
     }
   }
   if (++s.epoch == 0) {
@@ -239,9 +285,7 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   }
   s.candidates.clear();
   int from[3], to[3];
-  ix.cell_range(lo, hi, from, to);
-  int winding_hint = -2;  // the winding number all grid cells met agree on, if they do
-  bool any_face = false;
+  ix.cell_range(scan.lo, scan.hi, from, to);
   int at[3];
   for (at[2] = from[2]; at[2] <= to[2]; ++at[2]) {
     for (at[1] = from[1]; at[1] <= to[1]; ++at[1]) {
@@ -249,10 +293,10 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
         const std::size_t id = ix.cell_id(at);
         if (ix.cell_start[id] == ix.cell_start[id + 1]) {
           const int w = ix.cell_winding[id];
-          winding_hint = winding_hint == -2 ? w : (winding_hint == w ? w : -3);
+          scan.winding_hint = scan.winding_hint == -2 ? w : (scan.winding_hint == w ? w : -3);
           continue;
         }
-        any_face = true;
+        scan.any_face = true;
         for (std::uint32_t k = ix.cell_start[id]; k < ix.cell_start[id + 1]; ++k) {
           const std::uint32_t f = ix.cell_faces[k];
           if (s.stamp[f] == s.epoch) continue;
@@ -262,33 +306,21 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
       }
     }
   }
-  auto finish_empty = [&]() {
-    cell.volume = 0;
-    cell.centroid.clear();
-    cell.facets.clear();
-    keep_measures_only(cell);
-    cell.vertices.clear();
-  };
-  cell.clipped = true;
-  cell.bounded = true;
-  bool overlap = true;
-  for (int c = 0; c < d; ++c) overlap = overlap && hi[c] >= ix.lo[c] && lo[c] <= ix.hi[c];
-  if (!overlap) {  // beyond the domain's box: nothing of the domain in the cell
-    finish_empty();
-    return;
-  }
-  if (!any_face && (winding_hint == 0 || winding_hint == 1)) {
-    // No face near: the cell lies wholly outside (0) or inside (1) the domain.
-    if (winding_hint == 0) {
-      finish_empty();
-    } else if (!geometry_) {
-      keep_measures_only(cell);
-    }
-    return;
-  }
+  return scan;
+}
+
+int ShapeClipper::place_origin(std::uint32_t seed, const VoronoiCell& cell) {
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
+  const double* p = points_.point(seed);
+  const std::size_t nv = cell.vertex_count();
   // The origin o: the seed, or (when the seed lies on the boundary) a point nudged
   // from it towards the cell's vertex mean, which stays inside the convex cell.
-  double o[3] = {p[0], p[1], d > 2 ? p[2] : 0};
+  double* o = s.origin;
+  o[0] = p[0];
+  o[1] = p[1];
+  o[2] = d > 2 ? p[2] : 0;
   int w = ix.winding(o, s.stamp, s.epoch);
   if (w == 2) {
     double mean[3] = {0, 0, 0};
@@ -299,9 +331,15 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
       w = ix.winding(o, s.stamp, s.epoch);
     }
   }
+  return w;
+}
+
+void ShapeClipper::load_cell(std::uint32_t seed, const VoronoiCell& cell, int w) {
+  Scratch& s = *scratch_;
+  const int d = shape_.index().d;
+  const double* p = points_.point(seed);
+  const double* o = s.origin;
   // Relative coordinates (to o): the cell, its facets and planes.
-  const V3 origin{o[0], o[1], o[2]};
-  std::copy(o, o + 3, s.origin);
   auto rel = [&](const double* x) { return V3{x[0] - o[0], x[1] - o[1], d > 2 ? x[2] - o[2] : 0.0}; };
   const std::size_t nfacets = cell.facets.size();
   s.planes.resize(nfacets);
@@ -339,141 +377,146 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   std::vector<V3>& polygon = s.polygon;
   if (d == 2) {
     polygon.clear();
-    for (std::size_t v = 0; v < nv; ++v) polygon.push_back(rel(&cell.vertices[v * 2]));
+    for (std::size_t v = 0; v < cell.vertex_count(); ++v) polygon.push_back(rel(&cell.vertices[v * 2]));
   }
-  double volume = 0;
-  V3 moment{0, 0, 0};
+  // The measures of the cell counted w times (its origin's winding number); each face's
+  // shadow then adds or takes away its part.
+  s.volume = 0;
+  s.moment = V3{0, 0, 0};
   if (d == 3) {
-    measure_polyhedron(s.cell, volume, moment);
+    measure_polyhedron(s.cell, s.volume, s.moment);
   } else {
-    measure_polygon(polygon, volume, moment);
+    measure_polygon(polygon, s.volume, s.moment);
   }
-  volume *= w;
-  moment = scale(moment, w);
+  s.volume *= w;
+  s.moment = scale(s.moment, w);
   for (std::size_t k = 0; k < nfacets; ++k) s.facet_area[k] = w * s.facet_full[k];
   s.walls.clear();
-  bool cut = false;
-  for (std::uint32_t f : s.candidates) {
-    const std::uint32_t* fv = ix.face(f);
-    const double* a = ix.vertex(fv[0]);
-    const double* b = ix.vertex(fv[1]);
-    const double* c = d == 3 ? ix.vertex(fv[2]) : nullptr;
-    // The face inside the cell.
-    double wall_area = 0;
+}
+
+bool ShapeClipper::cut_by_face(std::uint32_t seed, const VoronoiCell& cell, std::uint32_t f) {
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
+  const double* p = points_.point(seed);
+  const double* o = s.origin;
+  auto rel = [&](const double* x) { return V3{x[0] - o[0], x[1] - o[1], d > 2 ? x[2] - o[2] : 0.0}; };
+  const std::size_t nfacets = cell.facets.size();
+  const std::uint32_t* fv = ix.face(f);
+  const double* a = ix.vertex(fv[0]);
+  const double* b = ix.vertex(fv[1]);
+  const double* c = d == 3 ? ix.vertex(fv[2]) : nullptr;
+  // The face inside the cell.
+  double wall_area = 0;
+  if (d == 3) {
+    s.tmp = {rel(a), rel(b), rel(c)};
+    for (std::size_t k = 0; k < nfacets && !s.tmp.empty(); ++k) {
+      clip_loop(s.tmp, s.planes[k], s.tmp2, nullptr);
+      std::swap(s.tmp, s.tmp2);
+    }
+    if (s.tmp.size() < 3) return false;
+    const V3 n{ix.normals[3 * f], ix.normals[3 * f + 1], ix.normals[3 * f + 2]};
+    wall_area = loop_area(s.tmp, n);
+    if (geometry_) s.cut = s.tmp;
+  } else {
+    double t0, t1;
+    if (!segment_range(rel(a), rel(b), s.planes.data(), nfacets, t0, t1)) return false;  // a point at most
+    wall_area = std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
+    if (!(wall_area > 0)) return false;
+    if (geometry_) s.cut = {lerp(rel(a), rel(b), t0), lerp(rel(a), rel(b), t1)};
+  }
+  // On a neighbour facet's bisector (every vertex equidistant, exactly)? Then the
+  // face is a wall of this cell only when the domain lies on the cell's side.
+  std::size_t on_facet = nfacets;
+  for (std::size_t k = 0; k < nfacets && on_facet == nfacets; ++k) {
+    const std::int64_t nb = cell.facets[k].neighbor;
+    if (nb < 0) continue;
+    const double* q = points_.point(static_cast<std::size_t>(nb));
+    bool all = distance_compare_exact(a, p, q, d) == 0 && distance_compare_exact(b, p, q, d) == 0 &&
+               (c == nullptr || distance_compare_exact(c, p, q, d) == 0);
+    if (all) on_facet = k;
+  }
+  const double* nt = &ix.normals[static_cast<std::size_t>(f) * d];
+  if (on_facet != nfacets) {
+    const double* nf = cell.facets[on_facet].normal.data();
+    double agree = 0;
+    for (int k = 0; k < d; ++k) agree += nt[k] * nf[k];
+    if (agree > 0) {
+      s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
+      s.facet_area[on_facet] -= wall_area;  // that part of the facet is wall, not shared
+    }
+    return true;
+  }
+  s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
+  // The shadow of the face from o, and its sign.
+  const int side = d == 3 ? orient3d_exact(a, b, c, o) : -orient2d_exact(a, b, o);
+  if (side == 0) return true;  // o on the face's line or plane: the shadow is flat
+  const double sign = side < 0 ? -1.0 : 1.0;
+  Plane shadow[4];
+  int planes = 0;
+  const V3 ra = rel(a), rb = rel(b);
+  const double sigma = -side;
+  if (d == 3) {
+    const V3 rc = rel(c);
+    shadow[planes++] = {scale(cross(ra, rb), -sigma), 0};
+    shadow[planes++] = {scale(cross(rb, rc), -sigma), 0};
+    shadow[planes++] = {scale(cross(rc, ra), -sigma), 0};
+    const V3 N = cross(sub(rb, ra), sub(rc, ra));
+    shadow[planes++] = {scale(N, side), side * dot(N, ra)};
+  } else {
+    shadow[planes++] = {V3{ra[1] * sigma, -ra[0] * sigma, 0}, 0};  // sigma cross(a, x) >= 0
+    shadow[planes++] = {V3{-rb[1] * sigma, rb[0] * sigma, 0}, 0};  // sigma cross(x, b) >= 0
+    const V3 N{rb[1] - ra[1], ra[0] - rb[0], 0};
+    shadow[planes++] = {scale(N, side), side * dot(N, ra)};
+  }
+  double sv = 0;
+  V3 sm{0, 0, 0};
+  if (d == 3) {
+    s.work = s.cell;
+    for (int k = 0; k < planes && !s.work.faces.empty(); ++k) clip_polyhedron(s.work, shadow[k], s.tmp, s.cut);
+    if (!s.work.faces.empty()) measure_polyhedron(s.work, sv, sm);
+  } else {
+    s.tmp = s.polygon;
+    for (int k = 0; k < planes && !s.tmp.empty(); ++k) {
+      clip_loop(s.tmp, shadow[k], s.tmp2, nullptr);
+      std::swap(s.tmp, s.tmp2);
+    }
+    if (s.tmp.size() >= 3) measure_polygon(s.tmp, sv, sm);
+  }
+  s.volume += sign * sv;
+  s.moment = add(s.moment, scale(sm, sign));
+  for (std::size_t k = 0; k < nfacets; ++k) {
+    if (s.facet_full[k] == 0) continue;
+    double part = 0;
     if (d == 3) {
-      s.tmp = {rel(a), rel(b), rel(c)};
-      for (std::size_t k = 0; k < nfacets && !s.tmp.empty(); ++k) {
-        clip_loop(s.tmp, s.planes[k], s.tmp2, nullptr);
+      s.tmp = s.facet[k];
+      for (int m = 0; m < planes && !s.tmp.empty(); ++m) {
+        clip_loop(s.tmp, shadow[m], s.tmp2, nullptr);
         std::swap(s.tmp, s.tmp2);
       }
-      if (s.tmp.size() < 3) continue;
-      const V3 n{ix.normals[3 * f], ix.normals[3 * f + 1], ix.normals[3 * f + 2]};
-      wall_area = loop_area(s.tmp, n);
-      if (geometry_) s.cut = s.tmp;
-    } else {
-      double t0, t1;
-      if (!segment_range(rel(a), rel(b), s.planes.data(), nfacets, t0, t1)) continue;  // a point at most
-      wall_area = std::hypot(b[0] - a[0], b[1] - a[1]) * (t1 - t0);
-      if (!(wall_area > 0)) continue;
-      if (geometry_) s.cut = {lerp(rel(a), rel(b), t0), lerp(rel(a), rel(b), t1)};
+      if (s.tmp.size() >= 3)
+        part = loop_area(s.tmp, V3{cell.facets[k].normal[0], cell.facets[k].normal[1], cell.facets[k].normal[2]});
+    } else if (s.facet[k].size() == 2) {
+      part = segment_length(s.facet[k][0], s.facet[k][1], shadow, static_cast<std::size_t>(planes));
     }
-    // On a neighbour facet's bisector (every vertex equidistant, exactly)? Then the
-    // face is a wall of this cell only when the domain lies on the cell's side.
-    std::size_t on_facet = nfacets;
-    for (std::size_t k = 0; k < nfacets && on_facet == nfacets; ++k) {
-      const std::int64_t nb = cell.facets[k].neighbor;
-      if (nb < 0) continue;
-      const double* q = points_.point(static_cast<std::size_t>(nb));
-      bool all = distance_compare_exact(a, p, q, d) == 0 && distance_compare_exact(b, p, q, d) == 0 &&
-                 (c == nullptr || distance_compare_exact(c, p, q, d) == 0);
-      if (all) on_facet = k;
-    }
-    cut = true;
-    const double* nt = &ix.normals[static_cast<std::size_t>(f) * d];
-    if (on_facet != nfacets) {
-      const double* nf = cell.facets[on_facet].normal.data();
-      double agree = 0;
-      for (int k = 0; k < d; ++k) agree += nt[k] * nf[k];
-      if (agree > 0) {
-        s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
-        s.facet_area[on_facet] -= wall_area;  // that part of the facet is wall, not shared
-      }
-      continue;
-    }
-    s.walls.push_back({f, wall_area, geometry_ ? s.cut : std::vector<V3>()});
-    // The shadow of the face from o, and its sign.
-    const int side = d == 3 ? orient3d_exact(a, b, c, o) : -orient2d_exact(a, b, o);
-    if (side == 0) continue;  // o on the face's line or plane: the shadow is flat
-    const double sign = side < 0 ? -1.0 : 1.0;
-    Plane shadow[4];
-    int planes = 0;
-    const V3 ra = rel(a), rb = rel(b);
-    const double sigma = -side;
-    if (d == 3) {
-      const V3 rc = rel(c);
-      shadow[planes++] = {scale(cross(ra, rb), -sigma), 0};
-      shadow[planes++] = {scale(cross(rb, rc), -sigma), 0};
-      shadow[planes++] = {scale(cross(rc, ra), -sigma), 0};
-      const V3 N = cross(sub(rb, ra), sub(rc, ra));
-      shadow[planes++] = {scale(N, side), side * dot(N, ra)};
-    } else {
-      shadow[planes++] = {V3{ra[1] * sigma, -ra[0] * sigma, 0}, 0};  // sigma cross(a, x) >= 0
-      shadow[planes++] = {V3{-rb[1] * sigma, rb[0] * sigma, 0}, 0};  // sigma cross(x, b) >= 0
-      const V3 N{rb[1] - ra[1], ra[0] - rb[0], 0};
-      shadow[planes++] = {scale(N, side), side * dot(N, ra)};
-    }
-    double sv = 0;
-    V3 sm{0, 0, 0};
-    if (d == 3) {
-      s.work = s.cell;
-      for (int k = 0; k < planes && !s.work.faces.empty(); ++k) clip_polyhedron(s.work, shadow[k], s.tmp, s.cut);
-      if (!s.work.faces.empty()) measure_polyhedron(s.work, sv, sm);
-    } else {
-      s.tmp = polygon;
-      for (int k = 0; k < planes && !s.tmp.empty(); ++k) {
-        clip_loop(s.tmp, shadow[k], s.tmp2, nullptr);
-        std::swap(s.tmp, s.tmp2);
-      }
-      if (s.tmp.size() >= 3) measure_polygon(s.tmp, sv, sm);
-    }
-    volume += sign * sv;
-    moment = add(moment, scale(sm, sign));
-    for (std::size_t k = 0; k < nfacets; ++k) {
-      if (s.facet_full[k] == 0) continue;
-      double part = 0;
-      if (d == 3) {
-        s.tmp = s.facet[k];
-        for (int m = 0; m < planes && !s.tmp.empty(); ++m) {
-          clip_loop(s.tmp, shadow[m], s.tmp2, nullptr);
-          std::swap(s.tmp, s.tmp2);
-        }
-        if (s.tmp.size() >= 3)
-          part = loop_area(s.tmp, V3{cell.facets[k].normal[0], cell.facets[k].normal[1], cell.facets[k].normal[2]});
-      } else if (s.facet[k].size() == 2) {
-        part = segment_length(s.facet[k][0], s.facet[k][1], shadow, static_cast<std::size_t>(planes));
-      }
-      s.facet_area[k] += sign * part;
-    }
+    s.facet_area[k] += sign * part;
   }
-  if (cut) ++cut_cells_;
-  // Assemble: neighbour facets with area inside the domain, then the walls by face.
-  if (!cut && w == 1) {
-    // Inside, meeting no face: the convex cell itself (its geometry too, when asked).
-    std::vector<VoronoiFacet> kept;
-    for (VoronoiFacet& f : cell.facets) {
-      if (f.neighbor >= 0) kept.push_back(std::move(f));
-    }
-    cell.facets = std::move(kept);
-    if (!geometry_) keep_measures_only(cell);
-    return;
-  }
+  return true;
+}
+
+void ShapeClipper::assemble(VoronoiCell& cell, int w) {
+  Scratch& s = *scratch_;
+  const ShapeDomain::Index& ix = shape_.index();
+  const int d = ix.d;
+  const V3 origin{s.origin[0], s.origin[1], s.origin[2]};
+  // Neighbour facets with area inside the domain, then the walls by face.
   std::vector<double> vertices;
   auto add_vertex = [&](const V3& x) {
     for (int c = 0; c < d; ++c) vertices.push_back(origin[c] + x[c]);
     return static_cast<std::uint32_t>(vertices.size() / d - 1);
   };
   std::vector<VoronoiFacet> facets;
-  for (std::size_t k = 0; k < nfacets; ++k) {
+  for (std::size_t k = 0; k < cell.facets.size(); ++k) {
     VoronoiFacet& f = cell.facets[k];
     if (f.neighbor < 0) continue;  // the box's walls lie outside the domain
     const double area = s.facet_area[k];
@@ -504,10 +547,10 @@ void ShapeClipper::clip(std::uint32_t seed, VoronoiCell& cell) {
   cell.facets = std::move(facets);
   cell.vertex_simplices.clear();
   cell.vertices = std::move(vertices);
-  if (volume > 0) {
-    cell.volume = volume;
+  if (s.volume > 0) {
+    cell.volume = s.volume;
     cell.centroid.assign(d, 0);
-    for (int c = 0; c < d; ++c) cell.centroid[c] = origin[c] + moment[c] / volume;
+    for (int c = 0; c < d; ++c) cell.centroid[c] = origin[c] + s.moment[c] / s.volume;
   } else {
     cell.volume = 0;
     cell.centroid.clear();
