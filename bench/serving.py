@@ -259,6 +259,12 @@ def main():
                 ratio = f"{single / per:.1f}x" if single else "-"
                 rows.append([f"REST `stars:batch`, {size:,} seeds (JSON)", f"{per:.1f}",
                              f"{b['bytes'] / b['requests'] / size:,.0f}", ratio])
+                p = client("http", server.http, target, "--post", str(body), "--requests", "5", "--accept",
+                           "application/x-protobuf")
+                pper = p["p50_us"] / size
+                rows.append([f"REST `stars:batch`, {size:,} seeds (compact: Accept application/x-protobuf)",
+                             f"{pper:.1f}", f"{p['bytes'] / p['requests'] / size:,.0f}",
+                             f"{single / pper:.1f}x" if single else "-"])
                 g = client("grpc-batch", server.grpc, set_id, "--seeds", str(n), "--batch", str(size), "--requests",
                            "5")
                 gper = g["p50_us"] / size

@@ -2,9 +2,9 @@
 // at microsecond resolution, and gRPC from C++. One connection (HTTP keep-alive, or one
 // gRPC channel), requests one after another; prints one JSON line.
 //
-//   spokemesh_serving_client http HOST:PORT TARGETS_FILE [--requests N] [--post BODY_FILE]
+//   spokemesh_serving_client http HOST:PORT TARGETS_FILE [--requests N] [--post BODY_FILE] [--accept TYPE]
 //       GET each target of the file (one per line, cycled) N times, or POST the body to
-//       the first target; reads every response whole. {"requests", "seconds",
+//       the first target (with Accept: TYPE); reads every response whole. {"requests", "seconds",
 //       "p50_us", "p99_us", "mean_us", "bytes"}
 //   spokemesh_serving_client grpc HOST:PORT SET_ID --seeds N [--requests N] [--seed S]
 //       GetStar of random seeds below N, one at a time.
@@ -78,6 +78,7 @@ int run_http(const std::string& address, const std::string& targets_file, int ar
   const std::size_t requests = std::stoull(option(argc, argv, "--requests", "10000"));
   const std::string post_file = option(argc, argv, "--post", "");
   const std::string body = post_file.empty() ? "" : read_file(post_file);
+  const std::string accept = option(argc, argv, "--accept", "");
   const std::size_t colon = address.rfind(':');
   net::io_context io;
   net::ip::tcp::resolver resolver(io);
@@ -94,6 +95,7 @@ int run_http(const std::string& address, const std::string& targets_file, int ar
                                          targets[i % targets.size()], 11};
     req.set(http::field::host, address);
     req.keep_alive(true);
+    if (!accept.empty()) req.set(http::field::accept, accept);
     if (!post_file.empty()) {
       req.set(http::field::content_type, "application/json");
       req.body() = body;

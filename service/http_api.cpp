@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 
+#include "grpc_service.hpp"
 #include "json_text.hpp"
 #include "openapi_json.hpp"
 #include "status_map.hpp"
@@ -257,6 +258,87 @@ struct HttpApi::Context {
 };
 
 namespace {
+
+// The compact form of batches (docs/service.md, "Compact batches"): the gRPC
+// BatchSeedsResponse messages, each preceded by its length as a base-128 varint
+// (protobuf's delimited framing). An item is one answer as its message's field entry
+// (tag, length, bytes), so a part's message is its items' concatenation.
+constexpr const char* kCompactType = "application/x-protobuf";
+
+void append_varint(std::string& out, std::uint64_t v) {
+  while (v >= 0x80) {
+    out += static_cast<char>((v & 0x7f) | 0x80);
+    v >>= 7;
+  }
+  out += static_cast<char>(v);
+}
+
+bool read_varint(std::string_view& in, std::uint64_t& v) {
+  v = 0;
+  for (int shift = 0; shift < 64 && !in.empty(); shift += 7) {
+    const auto byte = static_cast<unsigned char>(in.front());
+    in.remove_prefix(1);
+    v |= static_cast<std::uint64_t>(byte & 0x7f) << shift;
+    if ((byte & 0x80) == 0) return true;
+  }
+  return false;
+}
+
+// One answer's field entry: field 1 (stars), 2 (neighbors) or 3 (cells), length-delimited.
+std::string compact_entry(BatchKind kind, const google::protobuf::MessageLite& answer) {
+  std::string out;
+  out += static_cast<char>(((kind == BatchKind::kStars ? 1 : kind == BatchKind::kNeighbors ? 2 : 3) << 3) | 2);
+  const std::string bytes = answer.SerializeAsString();
+  append_varint(out, bytes.size());
+  out += bytes;
+  return out;
+}
+
+std::string compact_item(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode) {
+  if (kind == BatchKind::kStars) {
+    pb::Star star;
+    star.set_seed(a.seed);
+    fill_star(a.star, &star);
+    return compact_entry(kind, star);
+  }
+  if (kind == BatchKind::kNeighbors) {
+    pb::Neighbors neighbors;
+    neighbors.set_seed(a.seed);
+    fill_neighbors(a.neighbors, mode, &neighbors);
+    return compact_entry(kind, neighbors);
+  }
+  pb::VoronoiCell cell;
+  cell.set_seed(a.seed);
+  fill_cell(a.cell, &cell);
+  return compact_entry(kind, cell);
+}
+
+// A part's answers as one framed message: the entries, then `done` (field 4).
+std::string compact_frame(const std::vector<std::string>& items, std::size_t from, std::size_t to, std::uint64_t done) {
+  std::string message;
+  for (std::size_t i = from; i < to; ++i) message += items[i];
+  message += static_cast<char>((4 << 3) | 0);
+  append_varint(message, done);
+  std::string frame;
+  append_varint(frame, message.size());
+  return frame + message;
+}
+
+// Another shard's compact answer, back into items (nullopt: malformed).
+std::optional<std::vector<std::string>> compact_items(std::string_view body, BatchKind kind) {
+  std::vector<std::string> items;
+  while (!body.empty()) {
+    std::uint64_t size = 0;
+    if (!read_varint(body, size) || size > body.size()) return std::nullopt;
+    pb::BatchSeedsResponse message;
+    if (!message.ParseFromArray(body.data(), static_cast<int>(size))) return std::nullopt;
+    body.remove_prefix(size);
+    for (const auto& star : message.stars()) items.push_back(compact_entry(kind, star));
+    for (const auto& neighbors : message.neighbors()) items.push_back(compact_entry(kind, neighbors));
+    for (const auto& cell : message.cells()) items.push_back(compact_entry(kind, cell));
+  }
+  return items;
+}
 
 // Whether the request came from another shard's replica (Router: relayed once).
 bool forwarded(const http::request<http::string_body>& request) {
@@ -999,31 +1081,64 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
   if (!routed.is_ok()) return c.fail(routed.status());
   std::vector<std::uint32_t> routes = std::move(routed).value();
   const bool relays = !routes.empty();
+  // The compact form when the client asks for it (Accept: application/x-protobuf).
+  const auto accept = c.request.find(http::field::accept);
+  const bool compact =
+      accept != c.request.end() &&
+      std::string_view(accept->value().data(), accept->value().size()).find(kCompactType) != std::string_view::npos;
+  const pb::NeighborMode pb_mode = query->mode == NeighborQuery::Mode::kExact         ? pb::NEIGHBOR_MODE_EXACT
+                                   : query->mode == NeighborQuery::Mode::kApproximate ? pb::NEIGHBOR_MODE_APPROXIMATE
+                                                                                      : pb::NEIGHBOR_MODE_SPOKES;
   HttpResponse r;
-  r.content_type = "application/x-ndjson";
+  r.content_type = compact ? std::string(kCompactType) + "; delimited=true" : "application/x-ndjson";
   r.stream = [this, id, seeds = std::move(seeds), routes = std::move(routes), body = std::move(body),
               request = relays ? c.request : http::request<http::string_body>(), kind, mode, query = query.value(),
-              spec, deadline = c.deadline, gone = c.client_gone, record = c.record,
-              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+              spec, deadline = c.deadline, gone = c.client_gone, record = c.record, timer = c.timer, compact,
+              pb_mode](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
     CallControl control(deadline, gone);
-    auto line_of = [&](const BatchAnswer& a) {
+    // One answer as written: a JSON line's text, or the compact form's field entry.
+    auto item_of = [&](const BatchAnswer& a) {
+      if (compact) return compact_item(a, kind, pb_mode);
       if (kind == BatchKind::kStars) return star_text(a.star, id, a.seed);
       if (kind == BatchKind::kNeighbors) return neighbors_text(a.neighbors, id, a.seed, mode);
       return cell_text(a.cell, &id);
     };
-    if (!routes.empty()) {
-      Status s = relay_batch(request, body, id, seeds, routes, kind, query, spec, control, line_of, write_chunk);
-      return finish_stream(record, timer, std::move(s));
-    }
+    // Consecutive items as written: lines, or framed messages of about 2 MiB at most.
+    // One buffer for every chunk (each write is waited for): large blocks are fresh
+    // pages from the system each time (--max-memory's mmap threshold), which cost more
+    // to fault in than to fill.
     std::string text;
-    auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
+    auto write_items = [&](const std::vector<std::string>& items, std::uint64_t done) -> Status {
       text.clear();
-      for (const BatchAnswer& a : answers) {
-        text += line_of(a);
-        text += '\n';
+      if (!compact) {
+        for (const std::string& item : items) {
+          text += item;
+          text += '\n';
+        }
+      } else {
+        std::size_t from = 0, bytes = 0;
+        for (std::size_t i = 0; i < items.size(); ++i) {
+          bytes += items[i].size();
+          if (bytes > defaults::kMessagePayloadBytes || i + 1 == items.size()) {
+            text += compact_frame(items, from, i + 1, done - (items.size() - 1 - i));
+            from = i + 1;
+            bytes = 0;
+          }
+        }
       }
       if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
       return Status::ok();
+    };
+    if (!routes.empty()) {
+      Status s =
+          relay_batch(request, body, id, seeds, routes, kind, query, spec, control, item_of, write_items, compact);
+      return finish_stream(record, timer, std::move(s));
+    }
+    std::vector<std::string> items;
+    auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t done) -> Status {
+      items.clear();
+      for (const BatchAnswer& a : answers) items.push_back(item_of(a));
+      return write_items(items, done);
     };
     Status s = engine_.batch(id, seeds, kind, query, spec, control, emit);
     return finish_stream(record, timer, std::move(s));
@@ -1034,11 +1149,13 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
 Status HttpApi::relay_batch(const http::request<http::string_body>& request, const json& body, const std::string& id,
                             const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes,
                             BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
-                            const CallControl& control, const std::function<std::string(const BatchAnswer&)>& line_of,
-                            const std::function<bool(std::string_view)>& write_chunk) {
+                            const CallControl& control, const std::function<std::string(const BatchAnswer&)>& item_of,
+                            const std::function<Status(const std::vector<std::string>&, std::uint64_t)>& write_items,
+                            bool compact) {
   json base = body;  // the request without its seeds, copied once
   base.erase("seeds");
-  // Another shard's lines for its seeds: the request relayed with only them.
+  // Another shard's items for its seeds: the request relayed with only them (in the
+  // same form: the client's Accept goes along).
   auto ask = [&](std::uint32_t shard, const std::vector<std::uint64_t>& part) -> Result<std::vector<std::string>> {
     json asked = base;
     asked["seeds"] = part;
@@ -1051,6 +1168,11 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
     telemetry_.add_forwarded(shard, answer.status().code());
     if (!answer.is_ok()) return answer.status();
     if (answer->result_int() != 200) return status_of_error_body(answer->body());
+    if (compact) {
+      auto items = compact_items(answer->body(), kind);
+      if (!items) return Status{Code::kUnavailable, "shard " + std::to_string(shard) + " answered a malformed batch"};
+      return std::move(*items);
+    }
     std::vector<std::string> lines;
     std::string_view text = answer->body();
     while (!text.empty()) {
@@ -1061,25 +1183,17 @@ Status HttpApi::relay_batch(const http::request<http::string_body>& request, con
     return lines;
   };
   auto local = [&](const std::vector<std::uint64_t>& part) -> Result<std::vector<std::string>> {
-    std::vector<std::string> lines;
-    lines.reserve(part.size());
+    std::vector<std::string> items;
+    items.reserve(part.size());
     Status s = engine_.batch(id, part, kind, query, spec, control,
                              [&](std::span<const BatchAnswer> answers, std::uint64_t) -> Status {
-                               for (const BatchAnswer& a : answers) lines.push_back(line_of(a));
+                               for (const BatchAnswer& a : answers) items.push_back(item_of(a));
                                return Status::ok();
                              });
     if (!s.is_ok()) return s;
-    return lines;
+    return items;
   };
-  auto emit = [&](std::vector<std::string>& lines, std::uint64_t) -> Status {
-    std::string text;
-    for (const std::string& line : lines) {
-      text += line;
-      text += '\n';
-    }
-    if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
-    return Status::ok();
-  };
+  auto emit = [&](std::vector<std::string>& items, std::uint64_t done) { return write_items(items, done); };
   return router_.scatter_gather<std::string>(seeds, routes, control, ask, local, emit);
 }
 

@@ -105,8 +105,9 @@ class HttpApi {
   Status relay_batch(const http::request<http::string_body>& request, const nlohmann::json& body, const std::string& id,
                      const std::vector<std::uint64_t>& seeds, const std::vector<std::uint32_t>& routes, BatchKind kind,
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
-                     const std::function<std::string(const BatchAnswer&)>& line_of,
-                     const std::function<bool(std::string_view)>& write_chunk);
+                     const std::function<std::string(const BatchAnswer&)>& item_of,
+                     const std::function<Status(const std::vector<std::string>&, std::uint64_t)>& write_items,
+                     bool compact);
   // The request relayed to a replica of `shard`, its response returned as it came.
   HttpResponse forward(Context& c, std::uint32_t shard);
   HttpResponse shard_map(Context& c, const std::string& id, bool seeds);

@@ -104,3 +104,31 @@ def test_batch_errors_name_the_seed_and_the_limit(server):
     assert status == 501  # as every route answers a method it does not support
     r = cli("--server", server.grpc, "batch", ps.id, "stars", "--seeds", "1,x", check=False)
     assert r.returncode == 2 and "'x'" in r.stderr
+
+
+def test_compact_batches_are_the_grpc_answers(server):
+    """REST batches in the compact form (Accept: application/x-protobuf): gRPC's
+    BatchSeedsResponse messages, varint-delimited, with the gRPC answers' bytes; their
+    done counts close at the request's length; a refusal is the JSON error as ever."""
+    points = uniform(2000, 3, seed=23)
+    client = spokemesh.Client(server.grpc)
+    ps = client.upload(points)
+    seeds = [int(s) for s in np.random.default_rng(3).integers(0, 2000, 700)]
+    stub = pb_grpc.MesherStub(grpc.insecure_channel(server.grpc))
+    for kind, field, extra in (("stars", "stars", {}), ("neighbors", "neighbors", {}),
+                               ("cells", "cells", {"bounding_box": True})):
+        status, headers, body = http("POST", f"{server.http}/v1/pointsets/{ps.id}/{kind}:batch",
+                                     {"seeds": seeds, **extra}, headers={"Accept": "application/x-protobuf"})
+        assert status == 200 and headers["Content-Type"].startswith("application/x-protobuf"), body[:300]
+        messages = spokemesh.read_compact_batches(body)
+        assert messages[-1].done == len(seeds)
+        got = [a.SerializeToString() for m in messages for a in getattr(m, field)]
+        request = pb.BatchSeedsRequest(point_set_id=ps.id, seeds=seeds, kind={
+            "stars": pb.BATCH_KIND_STARS, "neighbors": pb.BATCH_KIND_NEIGHBORS, "cells": pb.BATCH_KIND_CELLS}[kind])
+        if extra:
+            request.domain.bounding_box = True
+        want = [a.SerializeToString() for m in stub.BatchSeeds(request) for a in getattr(m, field)]
+        assert got == want, kind
+    status, headers, body = http("POST", f"{server.http}/v1/pointsets/{ps.id}/stars:batch", {"seeds": [1, 99999]},
+                                 headers={"Accept": "application/x-protobuf"})
+    assert status == 400 and json.loads(body)["error"]["status"] == "OUT_OF_RANGE"

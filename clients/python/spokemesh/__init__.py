@@ -26,9 +26,9 @@ from typing import Any
 from .types import Cell, Facet
 
 __all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
-           "Client", "Error", "PointSet", "Star", "Neighbors"]
+           "Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"]
 
-_REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors"}
+_REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"}
 _LOCAL = {"Delaunay", "PeriodicDelaunay", "ApproximateGraph", "approximate_graph"}
 
 

@@ -125,6 +125,28 @@ RETRY_SERVICE_CONFIG = json.dumps({"methodConfig": [{
 }]})
 
 
+def read_compact_batches(data: bytes) -> List["pb.BatchSeedsResponse"]:
+    """The messages of a REST batch answered in the compact form (POST
+    .../{stars,neighbors,cells}:batch with ``Accept: application/x-protobuf``): gRPC's
+    BatchSeedsResponse messages, each preceded by its length as a base-128 varint. Their
+    answers are the gRPC BatchSeeds answers, byte for byte."""
+    messages, at = [], 0
+    while at < len(data):
+        size, shift = 0, 0
+        while True:
+            byte = data[at]
+            at += 1
+            size |= (byte & 0x7F) << shift
+            shift += 7
+            if byte < 0x80:
+                break
+        if at + size > len(data):
+            raise ValueError(f"compact batch: a message of {size} bytes at byte {at} runs past the end ({len(data)})")
+        messages.append(pb.BatchSeedsResponse.FromString(data[at:at + size]))
+        at += size
+    return messages
+
+
 @dataclasses.dataclass
 class _ShardRoute:
     """A set's shard map as a Client holds it: each seed's shard and a stub per shard."""
