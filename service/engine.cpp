@@ -149,9 +149,9 @@ Status UploadSession::append_weights(const void* data, std::size_t size) {
   return Status::ok();
 }
 
-ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count) {
-  return {static_cast<std::uint32_t>(n * shard_index / shard_count),
-          static_cast<std::uint32_t>(n * (shard_index + 1ull) / shard_count)};
+StreamPart stream_part(std::uint64_t n, std::uint32_t part_index, std::uint32_t part_count) {
+  return {static_cast<std::uint32_t>(n * part_index / part_count),
+          static_cast<std::uint32_t>(n * (part_index + 1ull) / part_count)};
 }
 
 // The background builds of the sets' triangulations of every point (keep_triangulation):
@@ -1424,7 +1424,7 @@ Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, con
   return in_rounds<BatchAnswer>(seeds.size(), threads, 128 * threads, control, "a batch of seeds", answer, emit);
 }
 
-Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceManifest& m, ShardRange range,
+Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceManifest& m, StreamPart range,
                                             std::uint32_t batch_size, const CallControl& control,
                                             const BatchSink& emit) {
   const std::size_t width = static_cast<std::size_t>(m.dimension) + 1;
@@ -1508,7 +1508,7 @@ Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceMa
   return Status::ok();
 }
 
-Status Engine::stream_cells_from_pieces(const std::string& id, ShardRange range, std::uint32_t batch_size,
+Status Engine::stream_cells_from_pieces(const std::string& id, StreamPart range, std::uint32_t batch_size,
                                         const DomainSpec& spec, bool measures_only, const CallControl& control,
                                         const CellBatchSink& emit) {
   auto window = store_->budget().try_charge(kStreamWindowBytes);
@@ -1582,7 +1582,7 @@ std::size_t Engine::charge_sweep_memo(int dimension, std::uint32_t n, unsigned t
 
 Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                             std::uint32_t batch_size, const DomainSpec& spec, bool measures_only,
-                            const CallControl& control, const CellBatchSink& emit, ShardRange* range_out) {
+                            const CallControl& control, const CellBatchSink& emit, StreamPart* range_out) {
   if (shard_count == 0) shard_count = 1;
   if (shard_index >= shard_count) {
     return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
@@ -1598,7 +1598,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
     if (!layout.is_ok()) return layout.status();
     if (layout.value()) {
       if (!spec.shape_format.empty()) return failed_precondition(shape_needs_whole(id));
-      const ShardRange range = shard_range(layout.value()->manifest().count, shard_index, shard_count);
+      const StreamPart range = stream_part(layout.value()->manifest().count, shard_index, shard_count);
       if (range_out != nullptr) *range_out = range;
       return stream_cells_from_pieces(id, range, batch_size, spec, measures_only, control, emit);
     }
@@ -1608,7 +1608,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
   const StoredSet& s = *set.value();
   if (Status allowed = exact_allowed(s, "StreamCells"); !allowed.is_ok()) return allowed;
   if (Status st = check_query(s, &spec, nullptr); !st.is_ok()) return st;
-  const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
+  const StreamPart range = stream_part(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
   if (s.periodic) return stream_periodic_cells(s, range, batch_size, measures_only, control, emit);
   auto shape = shape_for(s, spec);
@@ -1665,7 +1665,7 @@ Status Engine::stream_cells(const std::string& id, std::uint32_t shard_index, st
 
 Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                                 std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
-                                ShardRange* range_out, int* dimension_out) {
+                                StreamPart* range_out, int* dimension_out) {
   if (shard_count == 0) shard_count = 1;
   if (shard_index >= shard_count) {
     return invalid_argument("shard_index: " + std::to_string(shard_index) + " must be below shard_count " +
@@ -1681,7 +1681,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
     if (!layout.is_ok()) return layout.status();
     if (layout.value()) {
       const PieceManifest& m = layout.value()->manifest();
-      const ShardRange range = shard_range(m.count, shard_index, shard_count);
+      const StreamPart range = stream_part(m.count, shard_index, shard_count);
       if (range_out != nullptr) *range_out = range;
       if (dimension_out != nullptr) *dimension_out = m.dimension;
       return stream_simplices_from_pieces(id, m, range, batch_size, control, emit);
@@ -1691,7 +1691,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   if (!set.is_ok()) return set.status();
   const StoredSet& s = *set.value();
   if (Status allowed = exact_allowed(s, "StreamSimplices"); !allowed.is_ok()) return allowed;
-  const ShardRange range = shard_range(s.info.count, shard_index, shard_count);
+  const StreamPart range = stream_part(s.info.count, shard_index, shard_count);
   if (range_out != nullptr) *range_out = range;
   if (dimension_out != nullptr) *dimension_out = s.info.dimension;
   if (s.periodic) return stream_periodic_simplices(s, range, batch_size, control, emit);
@@ -1763,7 +1763,7 @@ Status Engine::stream_simplices(const std::string& id, std::uint32_t shard_index
   return Status::ok();
 }
 
-Status Engine::stream_periodic_simplices(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+Status Engine::stream_periodic_simplices(const StoredSet& set, StreamPart range, std::uint32_t batch_size,
                                          const CallControl& control, const BatchSink& emit) {
   // Seed by seed (each star whole, from the set's cover), in index order: a periodic
   // set has no sweep; the rows of a seed are the same whoever asks (PeriodicStars).
@@ -1811,7 +1811,7 @@ Status Engine::stream_periodic_simplices(const StoredSet& set, ShardRange range,
   return Status::ok();
 }
 
-Status Engine::stream_periodic_cells(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+Status Engine::stream_periodic_cells(const StoredSet& set, StreamPart range, std::uint32_t batch_size,
                                      bool measures_only, const CallControl& control, const CellBatchSink& emit) {
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a streamed shard of cells", kStreamWindowBytes);

@@ -191,11 +191,16 @@ struct BatchAnswer {
   VoronoiCell cell;
 };
 
-// Shard k of n owns seeds [floor(k N / n), floor((k + 1) N / n)).
-struct ShardRange {
+// Two meanings, two words (docs/service.md, "Words"): a *shard* is a deployment's
+// (replicas serving some of the pieces of every set kept as pieces: ShardSettings); a
+// *part* is one of the n pieces of work a whole-mesh or cell stream is cut into by the
+// client (the API's shard_index/shard_count and ?shard=&shards=, named so before the
+// deployment's shards existed, and kept for compatibility). Part k of n owns the
+// positions [floor(k N / n), floor((k + 1) N / n)).
+struct StreamPart {
   std::uint32_t begin = 0, end = 0;
 };
-ShardRange shard_range(std::uint64_t n, std::uint32_t shard_index, std::uint32_t shard_count);
+StreamPart stream_part(std::uint64_t n, std::uint32_t part_index, std::uint32_t part_count);
 
 // Sharded serving (docs/service.md, "Sharded serving"): sets of at least
 // `pieces_above` points are also stored as pieces (pieces.hpp), and a replica of shard
@@ -314,7 +319,7 @@ class Engine {
 
   // Calls `emit` with consecutive batches of at most batch_size simplices owned by the
   // shard's seeds, in sweep order, on the calling thread. Shard k of S holds the seeds
-  // at sweep positions (SpaceSplit order) shard_range(n, k, S), so the shards in
+  // at sweep positions (SpaceSplit order) stream_part(n, k, S), so the shards in
   // order concatenate to the whole mesh as mesh_seeds writes it. A non-OK status from emit stops the
   // run (and is returned). Only a bounded window is computed ahead of emit.
   //
@@ -326,7 +331,7 @@ class Engine {
                                          std::span<const std::int32_t> offsets, std::uint64_t seeds_done)>;
   Status stream_simplices(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                           std::uint32_t batch_size, const CallControl& control, const BatchSink& emit,
-                          ShardRange* range = nullptr, int* dimension = nullptr);
+                          StreamPart* range = nullptr, int* dimension = nullptr);
 
   // The cells of the shard's seeds in order, in batches of at most batch_size (0 =
   // defaults::kCellBatchSize), clipped to `domain` (empty: the set's bounding box); with
@@ -342,16 +347,16 @@ class Engine {
                const AnswerSink& emit);
   Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                       std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
-                      const CallControl& control, const CellBatchSink& emit, ShardRange* range = nullptr);
+                      const CallControl& control, const CellBatchSink& emit, StreamPart* range = nullptr);
 
  private:
   // Whether this replica's shard serves the piece (every piece when not sharded).
   bool is_own_piece(std::uint32_t piece, std::uint32_t pieces) const;
   // Streams of a set kept as pieces: simplices piece by piece in sweep order (each
   // piece swept over its own points), cells seed by seed as their single calls.
-  Status stream_simplices_from_pieces(const std::string& id, const PieceManifest& manifest, ShardRange range,
+  Status stream_simplices_from_pieces(const std::string& id, const PieceManifest& manifest, StreamPart range,
                                       std::uint32_t batch_size, const CallControl& control, const BatchSink& emit);
-  Status stream_cells_from_pieces(const std::string& id, ShardRange range, std::uint32_t batch_size,
+  Status stream_cells_from_pieces(const std::string& id, StreamPart range, std::uint32_t batch_size,
                                   const DomainSpec& spec, bool measures_only, const CallControl& control,
                                   const CellBatchSink& emit);
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
@@ -381,9 +386,9 @@ class Engine {
   // A star with its circumcentres, as GetStar answers it (single and batched).
   static StarAnswer star_answer(const StoredSet& set, Star star);
   // A periodic set's whole-mesh and cell streams: seed by seed (see BatchSink).
-  Status stream_periodic_simplices(const StoredSet& set, ShardRange range, std::uint32_t batch_size,
+  Status stream_periodic_simplices(const StoredSet& set, StreamPart range, std::uint32_t batch_size,
                                    const CallControl& control, const BatchSink& emit);
-  Status stream_periodic_cells(const StoredSet& set, ShardRange range, std::uint32_t batch_size, bool measures_only,
+  Status stream_periodic_cells(const StoredSet& set, StreamPart range, std::uint32_t batch_size, bool measures_only,
                                const CallControl& control, const CellBatchSink& emit);
   // INVALID_ARGUMENT for a domain or an approximate mode on a periodic set, or an
   // approximate mode on a weighted one.

@@ -374,7 +374,7 @@ grpc::Status MesherService::StreamSimplices(grpc::ServerContext* ctx, const pb::
   Call call(*this, ctx, "StreamSimplices", request->point_set_id());
   if (!call.auth().is_ok()) return call.finish(call.auth());
   pb::SimplexBatch batch;
-  ShardRange range;
+  StreamPart range;
   int dimension = 0;
   // Write() blocks while the client's flow-control window is full, and the engine
   // computes only a bounded window ahead, so a slow reader holds memory bounded.
@@ -400,7 +400,7 @@ grpc::Status MesherService::StreamCells(grpc::ServerContext* ctx, const pb::Stre
   Call call(*this, ctx, "StreamCells", request->point_set_id());
   if (!call.auth().is_ok()) return call.finish(call.auth());
   pb::CellBatch batch;
-  ShardRange range;
+  StreamPart range;
   auto emit = [&](std::span<const VoronoiCell> cells, std::uint64_t seeds_done) -> Status {
     batch.Clear();
     batch.set_seed_begin(range.begin);

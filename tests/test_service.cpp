@@ -327,7 +327,7 @@ TEST(Engine, AnswersEqualTheCoreAndShardsUniteToTheMesh) {
     std::vector<std::uint32_t> united;
     std::uint32_t next_seed = 0;
     for (std::uint32_t k = 0; k < shards; ++k) {
-      ShardRange range;
+      StreamPart range;
       std::size_t batches = 0;
       Status s = engine->stream_simplices(
           id, k, shards, 100, control,
