@@ -1166,6 +1166,16 @@ Status in_rounds(std::size_t count, unsigned threads, std::size_t round_size, co
   return emit(std::span<const Answer>(previous), previous_end);
 }
 
+// A batch's compute step followed, on the same worker, by the transport's encoder.
+template <class Compute>
+auto encoded(Compute& compute, const Engine::AnswerEncoder& encode) {
+  return [&compute, &encode](unsigned t, std::size_t i, BatchAnswer& a) -> Status {
+    Status s = compute(t, i, a);
+    if (s.is_ok() && encode) encode(a);
+    return s;
+  };
+}
+
 }  // namespace
 
 void Engine::share_whole_triangulation(const StoredSet& set, MeshOptions& options) {
@@ -1223,7 +1233,7 @@ Result<std::vector<std::uint32_t>> Engine::batch_routes(const std::string& id,
 
 Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                      const NeighborQuery& query, const DomainSpec& spec, const CallControl& control,
-                     const AnswerSink& emit) {
+                     const AnswerSink& emit, const AnswerEncoder& encode) {
   // None or too many, before the set is loaded; the range once its count is known.
   if (Status s = check_batch_seeds(seeds, ~std::uint64_t{0}); !s.is_ok()) return s;
   if (shards_.sharded()) {
@@ -1231,7 +1241,7 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     if (!layout.is_ok()) return layout.status();
     if (layout.value()) {
       if (!spec.shape_format.empty()) return failed_precondition(shape_needs_whole(id));
-      return batch_from_pieces(id, layout.value()->manifest().count, seeds, kind, query, spec, control, emit);
+      return batch_from_pieces(id, layout.value()->manifest().count, seeds, kind, query, spec, control, emit, encode);
     }
   }
   auto set_or = store_->get(id);
@@ -1394,12 +1404,13 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
     return Status::ok();
   };
   const std::size_t per_thread = dimension <= 3 ? 128 : dimension == 4 ? 32 : 16;
-  return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds", answer, emit);
+  return in_rounds<BatchAnswer>(seeds.size(), threads, per_thread * threads, control, "a batch of seeds",
+                                encoded(answer, encode), emit);
 }
 
 Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                                  BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
-                                 const CallControl& control, const AnswerSink& emit) {
+                                 const CallControl& control, const AnswerSink& emit, const AnswerEncoder& encode) {
   if (Status s = check_batch_seeds(seeds, count); !s.is_ok()) return s;
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("a batch of seeds", kStreamWindowBytes);
@@ -1421,7 +1432,8 @@ Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, con
     if (r.is_ok()) a.cell = std::move(r).value();
     return r.status();
   };
-  return in_rounds<BatchAnswer>(seeds.size(), threads, 128 * threads, control, "a batch of seeds", answer, emit);
+  return in_rounds<BatchAnswer>(seeds.size(), threads, 128 * threads, control, "a batch of seeds",
+                                encoded(answer, encode), emit);
 }
 
 Status Engine::stream_simplices_from_pieces(const std::string& id, const PieceManifest& m, StreamPart range,

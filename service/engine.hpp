@@ -189,6 +189,8 @@ struct BatchAnswer {
   StarAnswer star;
   NeighborAnswer neighbors;
   VoronoiCell cell;
+  // The transport's encoding of it, when the batch was given an encoder (Engine::batch).
+  std::string encoded;
 };
 
 // Two meanings, two words (docs/service.md, "Words"): a *shard* is a deployment's
@@ -341,10 +343,14 @@ class Engine {
   // `query`, cell with `domain`), computed by worker threads and handed to `emit` in
   // request order, a bounded round at a time. INVALID_ARGUMENT for more than
   // defaults::kMaxBatchSeeds seeds or none; OUT_OF_RANGE naming the first seed >= count.
+  // encode (optional): called on the worker that computed each answer, so that the
+  // transport's encoding runs on the workers too (it sets BatchAnswer::encoded, and
+  // may drop what it no longer needs); it must be safe to call concurrently.
   using AnswerSink = std::function<Status(std::span<const BatchAnswer> answers, std::uint64_t done)>;
+  using AnswerEncoder = std::function<void(BatchAnswer& answer)>;
   Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                const NeighborQuery& query, const DomainSpec& domain, const CallControl& control,
-               const AnswerSink& emit);
+               const AnswerSink& emit, const AnswerEncoder& encode = {});
   Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                       std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
                       const CallControl& control, const CellBatchSink& emit, StreamPart* range = nullptr);
@@ -362,7 +368,7 @@ class Engine {
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
   Status batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                            BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
-                           const CallControl& control, const AnswerSink& emit);
+                           const CallControl& control, const AnswerSink& emit, const AnswerEncoder& encode);
   // Cuts a stored set into pieces when its shape and size call for it (ShardSettings)
   // and it has none yet; `points` null: loaded from the store.
   Status ensure_pieces(const PointSetInfo& info, const PointSet* points);
