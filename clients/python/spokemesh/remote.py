@@ -250,8 +250,15 @@ class Client:
         return route
 
     def _forget_route(self, point_set_id: str) -> None:
+        """The map changed (an answer was relayed): fetched again on the next call."""
         with self._routes_lock:
             self._routes.pop(point_set_id, None)
+
+    def _give_up_route(self, point_set_id: str) -> None:
+        """A shard was out of reach (another network, TLS where shards speak plain gRPC):
+        the set's requests go through `target` from now on."""
+        with self._routes_lock:
+            self._routes[point_set_id] = None
 
     def _seed_call(self, point_set_id: str, seed: int, name: str, request, timeout: Optional[float]):
         """One seed's unary call, sent to its shard's replicas when the map says where."""
@@ -266,7 +273,7 @@ class Client:
             except grpc.RpcError as e:
                 if e.code() != grpc.StatusCode.UNAVAILABLE:
                     raise Error(e.code(), e.details()) from None
-                self._forget_route(point_set_id)  # that shard is out of reach: `target` relays
+                self._give_up_route(point_set_id)  # that shard is out of reach: `target` relays
         return self._call(getattr(self._stub, name), request, timeout)
 
     def __enter__(self) -> "Client":
@@ -445,7 +452,7 @@ class Client:
                 return answers
             except grpc.RpcError as e:
                 if not hasattr(e, "code") or e.code() == grpc.StatusCode.UNAVAILABLE:
-                    self._forget_route(request.point_set_id)
+                    self._give_up_route(request.point_set_id)
         try:
             return [a for r in self._stub.BatchSeeds(request, timeout=timeout or self._timeout, metadata=self._metadata)
                     for a in getattr(r, field)]
