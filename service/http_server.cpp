@@ -429,7 +429,12 @@ void HttpServer::Workers::serve(const std::shared_ptr<State>& state) {
 Result<unsigned short> HttpServer::start() {
   auto endpoint = parse_endpoint(options_.listen, "--http-listen");
   if (!endpoint.is_ok()) return endpoint.status();
-  acceptor_ = std::make_unique<tcp::acceptor>(io_);
+  const unsigned loops = std::max(1u, options_.io_threads);
+  for (unsigned i = 0; i < loops; ++i) {
+    io_.push_back(std::make_unique<net::io_context>(1));  // one thread runs it
+    work_.push_back(net::make_work_guard(*io_.back()));
+  }
+  acceptor_ = std::make_unique<tcp::acceptor>(*io_[0]);
   boost::system::error_code ec;
   acceptor_->open(endpoint->protocol(), ec);
   if (!ec) acceptor_->set_option(net::socket_base::reuse_address(true), ec);
@@ -439,18 +444,18 @@ Result<unsigned short> HttpServer::start() {
     return Status{Code::kUnavailable, "--http-listen: cannot listen on " + options_.listen + ": " + ec.message()};
   }
   const unsigned short port = acceptor_->local_endpoint().port();
-  work_.emplace(io_.get_executor());
   do_accept();
-  for (unsigned i = 0; i < std::max(1u, options_.io_threads); ++i) io_threads_.emplace_back([this] { io_.run(); });
+  for (auto& io : io_) io_threads_.emplace_back([loop = io.get()] { loop->run(); });
   return port;
 }
 
 void HttpServer::do_accept() {
-  acceptor_->async_accept(net::make_strand(io_), [this](boost::system::error_code ec, tcp::socket socket) {
+  net::io_context& loop = *io_[next_io_++ % io_.size()];
+  acceptor_->async_accept(net::make_strand(loop), [this](boost::system::error_code ec, tcp::socket socket) {
     if (stopping_.load() || ec == net::error::operation_aborted) return;
     if (ec) {
       // Out of descriptors and the like: back off instead of spinning.
-      auto timer = std::make_shared<net::steady_timer>(io_, std::chrono::milliseconds(10));
+      auto timer = std::make_shared<net::steady_timer>(*io_[0], std::chrono::milliseconds(10));
       timer->async_wait([this, timer](boost::system::error_code) { do_accept(); });
       return;
     }
@@ -533,7 +538,7 @@ std::size_t HttpServer::in_flight() const {
 void HttpServer::stop(std::chrono::milliseconds grace) {
   if (stopping_.exchange(true)) return;
   if (!acceptor_) return;
-  net::post(io_, [this] {
+  net::post(*io_[0], [this] {
     boost::system::error_code ec;
     acceptor_->close(ec);
   });
@@ -560,8 +565,8 @@ void HttpServer::stop(std::chrono::milliseconds grace) {
       telemetry_.log("warning", "HTTP: " + std::to_string(in_flight_) + " requests still running at shutdown");
     }
   }
-  work_.reset();
-  io_.stop();
+  work_.clear();
+  for (auto& io : io_) io->stop();
   for (std::thread& t : io_threads_) t.join();
   io_threads_.clear();
 }

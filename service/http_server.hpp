@@ -1,11 +1,10 @@
 // HttpServer: Boost.Beast over Boost.Asio, serving HttpApi on one port, plain or TLS.
 //
 // In the shape of Beast's advanced server: the connections live on a few I/O threads
-// as asynchronous sessions, each with its own timeouts (TLS handshake, request header,
-// request body, keep-alive idle, response write), so an idle, trickling or never
-// handshaking connection costs a socket and a small buffer, never a thread. Only a
-// request that has fully arrived gets a thread of its own, which runs the transport-
-// neutral HttpApi::handle_request (computations block; a streamed shard writes chunk by
+// (an event loop each, a connection on one loop) as asynchronous sessions, each with its own timeouts (TLS handshake,
+// request header, request body, keep-alive idle, response write), so an idle, trickling or never handshaking connection
+// costs a socket and a small buffer, never a thread. Only a request that has fully arrived gets a thread of its own,
+// which runs the transport- neutral HttpApi::handle_request (computations block; a streamed shard writes chunk by
 // chunk, each write waiting for the client: that wait is the flow control that keeps
 // the shard's memory bounded, and the write timeout ends a client that stopped
 // reading). Connections are capped per client address and in all; requests in flight
@@ -100,8 +99,13 @@ class HttpServer {
   std::size_t open_ = 0;       // open connections
   std::size_t in_flight_ = 0;  // requests being handled
 
-  boost::asio::io_context io_;
-  std::optional<boost::asio::executor_work_guard<boost::asio::io_context::executor_type>> work_;
+  // One event loop per I/O thread, each connection on one of them (given in turn at
+  // accept): a request is read, answered at once and written by one thread, without
+  // waking another (on a single shared loop, every handler could run on either thread,
+  // and the hand-offs between them were futex calls on every request). io_[0] accepts.
+  std::vector<std::unique_ptr<boost::asio::io_context>> io_;
+  std::vector<boost::asio::executor_work_guard<boost::asio::io_context::executor_type>> work_;
+  std::size_t next_io_ = 0;  // the loop the next connection goes to (the acceptor's handler only)
   // Threads for requests, kept a while once their request is done: a request takes an
   // idle one, or a new one (computations block, so each request in flight has its own).
   // Reuse saves a thread's creation per request, which a relayed request pays twice
