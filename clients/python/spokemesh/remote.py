@@ -271,9 +271,11 @@ class Client:
                     self._forget_route(point_set_id)  # relayed: the map changed
                 return response
             except grpc.RpcError as e:
-                if e.code() != grpc.StatusCode.UNAVAILABLE:
+                if e.code() not in (grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.CANCELLED):
                     raise Error(e.code(), e.details()) from None
-                self._give_up_route(point_set_id)  # that shard is out of reach: `target` relays
+                if e.code() == grpc.StatusCode.UNAVAILABLE:
+                    self._give_up_route(point_set_id)  # that shard is out of reach: `target` relays
+                # CANCELLED (cut off in transit): asked again through `target`, as _call does.
         return self._call(getattr(self._stub, name), request, timeout)
 
     def __enter__(self) -> "Client":
