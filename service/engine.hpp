@@ -349,8 +349,8 @@ class Engine {
   using AnswerSink = std::function<Status(std::span<const BatchAnswer> answers, std::uint64_t done)>;
   using AnswerEncoder = std::function<void(BatchAnswer& answer)>;
   Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
-               const NeighborQuery& query, const DomainSpec& domain, const CallControl& control,
-               const AnswerSink& emit, const AnswerEncoder& encode = {});
+               const NeighborQuery& query, const DomainSpec& domain, const CallControl& control, const AnswerSink& emit,
+               const AnswerEncoder& encode = {});
   Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                       std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
                       const CallControl& control, const CellBatchSink& emit, StreamPart* range = nullptr);
