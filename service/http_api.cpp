@@ -677,8 +677,25 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   auto seed = parse_uint(seed_text, "seed");
   if (!seed.is_ok()) return c.fail(seed.status());
   c.record.seed = seed.value();
+  // A neighbours request's query is checked before anything is held (a bad mode must
+  // not load a whole set).
   const std::string mode = c.param("mode").value_or("exact");
-  const bool approximate = what == "neighbors" && mode != "exact";
+  NeighborQuery query;
+  if (what == "neighbors") {
+    std::uint64_t limits[2] = {0, 0};
+    const char* names[2] = {"max_consecutive_misses", "max_vertices"};
+    for (int i = 0; i < 2; ++i) {
+      if (auto text = c.param(names[i])) {
+        auto v = parse_uint(*text, names[i]);
+        if (!v.is_ok()) return c.fail(v.status());
+        limits[i] = v.value();
+      }
+    }
+    auto parsed = neighbor_query_of(mode, limits[0], limits[1]);
+    if (!parsed.is_ok()) return c.fail(parsed.status());
+    query = parsed.value();
+  }
+  const bool approximate = what == "neighbors" && query.mode != NeighborQuery::Mode::kExact;
   std::optional<Holding> held;
   if (c.at_once) {
     // From a kept triangulation in memory; a relay, an approximate walk, a domain of a
@@ -706,18 +723,7 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     return c.ok_text(star_text(answer.value(), id, seed.value()));
   }
   if (what == "neighbors") {
-    std::uint64_t limits[2] = {0, 0};
-    const char* names[2] = {"max_consecutive_misses", "max_vertices"};
-    for (int i = 0; i < 2; ++i) {
-      if (auto text = c.param(names[i])) {
-        auto v = parse_uint(*text, names[i]);
-        if (!v.is_ok()) return c.fail(v.status());
-        limits[i] = v.value();
-      }
-    }
-    auto query = neighbor_query_of(mode, limits[0], limits[1]);
-    if (!query.is_ok()) return c.fail(query.status());
-    auto answer = engine_.neighbors(*held, query.value(), control);
+    auto answer = engine_.neighbors(*held, query, control);
     if (!answer.is_ok()) return c.fail(answer.status());
     return c.ok_text(neighbors_text(answer.value(), id, seed.value(), mode));
   }
