@@ -466,25 +466,42 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
                                    call.control(), emit));
 }
 
-std::size_t MesherService::add_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,
-                                      pb::BatchSeedsResponse& response) {
+const google::protobuf::MessageLite& add_batch_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,
+                                                      pb::BatchSeedsResponse& response) {
   if (kind == BatchKind::kStars) {
     pb::Star* out = response.add_stars();
     out->set_seed(a.seed);
     fill_star(a.star, out);
-    telemetry_.add_simplices_served(a.star.star.size());
-    return out->ByteSizeLong();
+    return *out;
   }
   if (kind == BatchKind::kNeighbors) {
     pb::Neighbors* out = response.add_neighbors();
     out->set_seed(a.seed);
     fill_neighbors(a.neighbors, mode, out);
-    return out->ByteSizeLong();
+    return *out;
   }
   pb::VoronoiCell* out = response.add_cells();
   out->set_seed(a.seed);
   fill_cell(a.cell, out);
-  return out->ByteSizeLong();
+  return *out;
+}
+
+pb::NeighborMode neighbor_mode_proto(NeighborQuery::Mode mode) {
+  switch (mode) {
+    case NeighborQuery::Mode::kExact:
+      return pb::NEIGHBOR_MODE_EXACT;
+    case NeighborQuery::Mode::kApproximate:
+      return pb::NEIGHBOR_MODE_APPROXIMATE;
+    case NeighborQuery::Mode::kSpokes:
+      return pb::NEIGHBOR_MODE_SPOKES;
+  }
+  return pb::NEIGHBOR_MODE_EXACT;
+}
+
+std::size_t MesherService::add_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,
+                                      pb::BatchSeedsResponse& response) {
+  if (kind == BatchKind::kStars) telemetry_.add_simplices_served(a.star.star.size());
+  return add_batch_answer(a, kind, mode, response).ByteSizeLong();
 }
 
 grpc::Status MesherService::GetShardMap(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,

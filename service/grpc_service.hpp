@@ -88,6 +88,10 @@ void fill_cell(const VoronoiCell& cell, pb::VoronoiCell* out);
 void fill_star(const StarAnswer& answer, pb::Star* out);
 void fill_neighbors(const NeighborAnswer& answer, pb::NeighborMode mode, pb::Neighbors* out);
 Result<NeighborQuery> neighbor_query(int mode, std::uint32_t misses, std::uint32_t max_vertices);
+pb::NeighborMode neighbor_mode_proto(NeighborQuery::Mode mode);
+// One batch answer added to `response` as its kind's message (with its seed); returns it.
+const google::protobuf::MessageLite& add_batch_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,
+                                                      pb::BatchSeedsResponse& response);
 DomainSpec domain_spec(const pb::Domain& domain);
 
 }  // namespace spokemesh::service

@@ -295,22 +295,8 @@ std::string compact_entry(BatchKind kind, const google::protobuf::MessageLite& a
 }
 
 std::string compact_item(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode) {
-  if (kind == BatchKind::kStars) {
-    pb::Star star;
-    star.set_seed(a.seed);
-    fill_star(a.star, &star);
-    return compact_entry(kind, star);
-  }
-  if (kind == BatchKind::kNeighbors) {
-    pb::Neighbors neighbors;
-    neighbors.set_seed(a.seed);
-    fill_neighbors(a.neighbors, mode, &neighbors);
-    return compact_entry(kind, neighbors);
-  }
-  pb::VoronoiCell cell;
-  cell.set_seed(a.seed);
-  fill_cell(a.cell, &cell);
-  return compact_entry(kind, cell);
+  pb::BatchSeedsResponse one;
+  return compact_entry(kind, add_batch_answer(a, kind, mode, one));
 }
 
 // A part's answers as one framed message: the entries, then `done` (field 4).
@@ -1102,9 +1088,7 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
   const bool compact =
       accept != c.request.end() &&
       std::string_view(accept->value().data(), accept->value().size()).find(kCompactType) != std::string_view::npos;
-  const pb::NeighborMode pb_mode = query->mode == NeighborQuery::Mode::kExact         ? pb::NEIGHBOR_MODE_EXACT
-                                   : query->mode == NeighborQuery::Mode::kApproximate ? pb::NEIGHBOR_MODE_APPROXIMATE
-                                                                                      : pb::NEIGHBOR_MODE_SPOKES;
+  const pb::NeighborMode pb_mode = neighbor_mode_proto(query->mode);
   HttpResponse r;
   r.content_type = compact ? std::string(kCompactType) + "; delimited=true" : "application/x-ndjson";
   r.stream = [this, id, seeds = std::move(seeds), routes = std::move(routes), body = std::move(body),
