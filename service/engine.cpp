@@ -6,12 +6,8 @@
 #include "spokemesh/data_dir.hpp"
 #include "spokemesh/pieces.hpp"
 
-#include <fcntl.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <atomic>
-#include <cerrno>
 #include <cstring>
 #include <mutex>
 #include <unordered_map>
@@ -348,24 +344,13 @@ Result<ShardMap> Engine::shard_map(const std::string& id) {
   const std::uint32_t pieces = layout.value()->pieces();
   auto charge = store_->budget().try_charge(m.count * 6);
   if (!charge) return store_->budget().over_budget("the shard map of point set " + id, m.count * 6);
-  std::vector<std::uint32_t> owners(m.count);
-  const std::string path = data_dir::owners_file(data_dir::pieces_dir(store_->directory(), id));
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  bool ok = fd >= 0;
-  for (std::size_t done = 0, size = owners.size() * 4; ok && done < size;) {
-    const ssize_t r = ::pread(fd, reinterpret_cast<char*>(owners.data()) + done, size - done, static_cast<off_t>(done));
-    if (r <= 0 && errno != EINTR) ok = false;
-    if (r > 0) done += static_cast<std::size_t>(r);
-  }
-  if (fd >= 0) ::close(fd);
-  if (!ok) return internal_error("point set " + id + ": its owner map cannot be read");
+  auto owners = layout.value()->owners();
+  if (!owners.is_ok()) return owners.status();
   map.sharded = true;
   map.shard_count = shards_.count;
-  map.seed_shards.resize(owners.size());
-  for (std::size_t i = 0; i < owners.size(); ++i) {
-    if (owners[i] >= pieces)
-      return internal_error("point set " + id + ": its owner map names no piece for seed " + std::to_string(i));
-    map.seed_shards[i] = static_cast<std::uint16_t>(shard_of_piece(owners[i], pieces, shards_.count));
+  map.seed_shards.resize(owners->size());
+  for (std::size_t i = 0; i < owners->size(); ++i) {
+    map.seed_shards[i] = static_cast<std::uint16_t>(shard_of_piece(owners.value()[i], pieces, shards_.count));
   }
   Sha256 sha;
   const std::string text = manifest_text(m) + "\nshards " + std::to_string(shards_.count) + "\n";

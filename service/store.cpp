@@ -643,6 +643,24 @@ Result<std::uint32_t> PieceLayout::piece_of(std::uint64_t seed) const {
   return piece;
 }
 
+Result<std::vector<std::uint32_t>> PieceLayout::owners() const {
+  std::vector<std::uint32_t> out(manifest_.count);
+  char* bytes = reinterpret_cast<char*>(out.data());
+  for (std::size_t done = 0, size = out.size() * 4; done < size;) {
+    const ssize_t r = ::pread(owners_fd_, bytes + done, size - done, static_cast<off_t>(done));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return internal_error("point set " + manifest_.set_id + ": its owner map cannot be read");
+    done += static_cast<std::size_t>(r);
+  }
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    if (out[i] >= pieces()) {
+      return internal_error("point set " + manifest_.set_id + ": its owner map has no valid entry for point " +
+                            std::to_string(i));
+    }
+  }
+  return out;
+}
+
 Result<std::shared_ptr<const PieceLayout>> PointSetStore::layout(const std::string& id) {
   if (!is_valid_id(id)) return not_an_id(id);
   {
