@@ -682,6 +682,13 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     query = parsed.value();
   }
   const bool approximate = what == "neighbors" && query.mode != NeighborQuery::Mode::kExact;
+  // A cell's domain, likewise.
+  DomainSpec spec;
+  if (what == "cell") {
+    auto parsed = domain_from_query(c);
+    if (!parsed.is_ok()) return c.fail(parsed.status());
+    spec = std::move(parsed).value();
+  }
   std::optional<Holding> held;
   if (c.at_once) {
     // From a kept triangulation in memory; a relay, an approximate walk, a domain of a
@@ -689,10 +696,7 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     if (approximate) return Context::later();
     held = engine_.hold_at_hand(id, seed.value());
     if (!held) return Context::later();
-    if (what == "cell" && held->set->piece &&
-        (c.param("box") || c.param("halfspaces") || c.param("bounding_box") || c.param("domain"))) {
-      return Context::later();
-    }
+    if (what == "cell" && held->set->piece && !spec.empty()) return Context::later();
   } else {
     // A seed of another shard's piece is answered there (Router: relayed once).
     const SeedRoute route = router_.route(id, seed.value(), forwarded(c.request));
@@ -713,9 +717,7 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
     if (!answer.is_ok()) return c.fail(answer.status());
     return c.ok_text(neighbors_text(answer.value(), id, seed.value(), mode));
   }
-  auto spec = domain_from_query(c);
-  if (!spec.is_ok()) return c.fail(spec.status());
-  auto cell = engine_.cell(*held, spec.value(), control);
+  auto cell = engine_.cell(*held, spec, control);
   if (!cell.is_ok()) return c.fail(cell.status());
   return c.ok_text(cell_text(cell.value(), &id));
 }
