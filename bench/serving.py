@@ -80,14 +80,20 @@ def vm_rss_mb(pid: int) -> float:
 class Server:
     """spokemesh-server of this build on free ports; `extra` flags appended."""
 
-    def __init__(self, data: Path, name: str, *extra: str):
-        self.grpc_port, self.http_port = free_port(), free_port()
+    def __init__(self, data: Path, name: str, *extra: str, ports: tuple[int, int] | None = None,
+                 wait: bool = True):
+        self.grpc_port, self.http_port = ports or (free_port(), free_port())
         self.log = data.parent / f"{name}.log"
         self.proc = subprocess.Popen(
             [str(BIN / "spokemesh-server"), "--data-dir", str(data), "--grpc-listen", f"127.0.0.1:{self.grpc_port}",
              "--http-listen", f"127.0.0.1:{self.http_port}", *extra], stderr=open(self.log, "wb"))
         self.http = f"127.0.0.1:{self.http_port}"
         self.grpc = f"127.0.0.1:{self.grpc_port}"
+        if wait:
+            self.wait()
+
+    def wait(self):
+        """Returns once /healthz answers (raises if the server exits first)."""
         for _ in range(1500):
             try:
                 if request(self.http, "GET", "/healthz")[0] == 200:
@@ -284,25 +290,14 @@ def main():
         grpc_peers = ";".join(f"127.0.0.1:{g}" for g, _ in ports)
         replicas = []
         try:
+            # Every replica started before any is waited for: each names the others.
             for k in range(shards):
-                srv = Server.__new__(Server)
-                srv.grpc_port, srv.http_port = ports[k]
-                srv.log = work / f"shard{k}.log"
-                srv.proc = subprocess.Popen(
-                    [str(BIN / "spokemesh-server"), "--data-dir", str(sdata), "--grpc-listen",
-                     f"127.0.0.1:{ports[k][0]}", "--http-listen", f"127.0.0.1:{ports[k][1]}", "--shard",
-                     f"{k}/{shards}", "--shard-http", http_peers, "--shard-grpc", grpc_peers, "--pieces-above",
-                     str(min(n, 100000)), "--piece-points", str(max(50000, n // (2 * shards)))],
-                    stderr=open(srv.log, "wb"))
-                srv.http, srv.grpc = f"127.0.0.1:{ports[k][1]}", f"127.0.0.1:{ports[k][0]}"
-                replicas.append(srv)
+                replicas.append(Server(sdata, f"shard{k}", "--shard", f"{k}/{shards}", "--shard-http", http_peers,
+                                       "--shard-grpc", grpc_peers, "--pieces-above", str(min(n, 100000)),
+                                       "--piece-points", str(max(50000, n // (2 * shards))), ports=ports[k],
+                                       wait=False))
             for srv in replicas:
-                for _ in range(1500):
-                    try:
-                        if request(srv.http, "GET", "/healthz")[0] == 200:
-                            break
-                    except OSError:
-                        time.sleep(0.02)
+                srv.wait()
             sid = upload(replicas[0].http, points)
             # Seeds of shard 0's pieces: the answers carry X-Spokemesh-Shard when relayed.
             mine = []
