@@ -6,7 +6,8 @@ the same client, real processes on loopback.
      3.4 KB static file; spokemesh `GET /healthz`; `GET .../seeds/S/star` of a 3-d
      uniform set (default 1M points) once its triangulation is kept;
   2. latencies from one keep-alive connection (bench/serving_client.cpp): REST healthz
-     and star, gRPC GetStar: p50 and p99;
+     and star, gRPC GetPointSet and GetStar, beside a bare gRPC server's constant answer
+     (gRPC's floor here, as nginx is REST's): p50 and p99;
   3. batches: `stars:batch` of 1,000 and 10,000 random seeds over REST (JSON, and the
      compact .npy form when the server offers it) and gRPC BatchSeeds: microseconds a
      seed, and the batch's throughput against single requests' on one connection;
@@ -246,6 +247,21 @@ def main():
             s = client("http", server.http, targets_file(work, "stars", star_targets), "--requests", str(args.requests))
             rows.append(["REST `GET .../star` (random seeds)", f"{s['p50_us']:.0f}", f"{s['p99_us']:.0f}",
                          f"{1e6 / s['mean_us']:,.0f}"])
+            # gRPC's floor on this machine: a bare synchronous server answering a constant
+            # (the serving client's grpc-floor-server), as nginx is REST's.
+            floor_port = free_port()
+            floor = subprocess.Popen([str(CLIENT), "grpc-floor-server", f"127.0.0.1:{floor_port}"])
+            try:
+                time.sleep(0.5)
+                f = client("grpc-meta", f"127.0.0.1:{floor_port}", set_id, "--requests", str(args.requests))
+            finally:
+                floor.terminate()
+                floor.wait()
+            rows.append(["gRPC floor: a bare gRPC server's constant `GetPointSet`", f"{f['p50_us']:.0f}",
+                         f"{f['p99_us']:.0f}", f"{1e6 / f['mean_us']:,.0f}"])
+            m = client("grpc-meta", server.grpc, set_id, "--requests", str(args.requests))
+            rows.append(["gRPC `GetPointSet`", f"{m['p50_us']:.0f}", f"{m['p99_us']:.0f}",
+                         f"{1e6 / m['mean_us']:,.0f}"])
             g = client("grpc", server.grpc, set_id, "--seeds", str(n), "--requests", str(args.requests))
             rows.append(["gRPC `GetStar` (random seeds)", f"{g['p50_us']:.0f}", f"{g['p99_us']:.0f}",
                          f"{1e6 / g['mean_us']:,.0f}"])

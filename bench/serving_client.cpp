@@ -10,6 +10,12 @@
 //       GetStar of random seeds below N, one at a time.
 //   spokemesh_serving_client grpc-batch HOST:PORT SET_ID --seeds N --batch B [--requests R]
 //       BatchSeeds (stars) of B random seeds below N, R times.
+//   spokemesh_serving_client grpc-meta HOST:PORT SET_ID [--requests N]
+//       GetPointSet, one at a time: a unary call with no geometry.
+//   spokemesh_serving_client grpc-floor-server HOST:PORT
+//       A bare synchronous gRPC server (gRPC's defaults, no interceptors, no health
+//       service) answering GetPointSet with a constant: the floor of a unary call on this
+//       machine, measured by grpc-meta beside spokemesh-server as nginx is beside REST.
 //
 // Written here (not ab, h2load or ghz): ab reports whole milliseconds for percentiles,
 // and Debian bookworm packages no gRPC load tool.
@@ -119,7 +125,10 @@ int run_http(const std::string& address, const std::string& targets_file, int ar
   return 0;
 }
 
-int run_grpc(const std::string& address, const std::string& set_id, bool batch, int argc, char** argv) {
+enum class GrpcMode { kStar, kBatch, kMeta };
+
+int run_grpc(const std::string& address, const std::string& set_id, GrpcMode mode, int argc, char** argv) {
+  const bool batch = mode == GrpcMode::kBatch;
   const std::uint64_t n = std::stoull(option(argc, argv, "--seeds", "1000000"));
   const std::size_t requests = std::stoull(option(argc, argv, "--requests", batch ? "5" : "10000"));
   const std::size_t batch_size = std::stoull(option(argc, argv, "--batch", "10000"));
@@ -135,7 +144,14 @@ int run_grpc(const std::string& address, const std::string& set_id, bool batch, 
     grpc::ClientContext context;
     context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
     const auto t0 = Clock::now();
-    if (!batch) {
+    if (mode == GrpcMode::kMeta) {
+      spokemesh::v1::GetPointSetRequest req;
+      req.set_point_set_id(set_id);
+      spokemesh::v1::PointSet set;
+      const grpc::Status s = stub->GetPointSet(&context, req, &set);
+      if (!s.ok()) return std::fprintf(stderr, "GetPointSet: %s\n", s.error_message().c_str()), 1;
+      bytes += set.ByteSizeLong();
+    } else if (!batch) {
       spokemesh::v1::SeedRequest req;
       req.set_point_set_id(set_id);
       req.set_seed(rng() % n);
@@ -159,21 +175,48 @@ int run_grpc(const std::string& address, const std::string& set_id, bool batch, 
   return 0;
 }
 
+// GetPointSet answered with a constant, nothing else served.
+class FloorService final : public spokemesh::v1::Mesher::Service {
+  grpc::Status GetPointSet(grpc::ServerContext*, const spokemesh::v1::GetPointSetRequest* request,
+                           spokemesh::v1::PointSet* response) override {
+    response->set_id(request->point_set_id());
+    response->set_dimension(3);
+    response->set_count(1000000);
+    return grpc::Status::OK;
+  }
+};
+
+int run_floor_server(const std::string& address) {
+  FloorService service;
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort(address, grpc::InsecureServerCredentials());
+  builder.RegisterService(&service);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  if (!server) return std::fprintf(stderr, "cannot listen on %s\n", address.c_str()), 1;
+  server->Wait();  // until killed
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+  if (argc == 3 && std::strcmp(argv[1], "grpc-floor-server") == 0) return run_floor_server(argv[2]);
   if (argc < 4) {
     std::fprintf(stderr,
                  "usage: %s http HOST:PORT TARGETS_FILE [--requests N] [--post BODY_FILE]\n"
                  "       %s grpc HOST:PORT SET_ID [--seeds N] [--requests N]\n"
-                 "       %s grpc-batch HOST:PORT SET_ID [--seeds N] [--batch B] [--requests R]\n",
-                 argv[0], argv[0], argv[0]);
+                 "       %s grpc-batch HOST:PORT SET_ID [--seeds N] [--batch B] [--requests R]\n"
+                 "       %s grpc-meta HOST:PORT SET_ID [--requests N]\n"
+                 "       %s grpc-floor-server HOST:PORT\n",
+                 argv[0], argv[0], argv[0], argv[0], argv[0]);
     return 2;
   }
   const std::string mode = argv[1];
   try {
     if (mode == "http") return run_http(argv[2], argv[3], argc, argv);
-    if (mode == "grpc" || mode == "grpc-batch") return run_grpc(argv[2], argv[3], mode == "grpc-batch", argc, argv);
+    if (mode == "grpc") return run_grpc(argv[2], argv[3], GrpcMode::kStar, argc, argv);
+    if (mode == "grpc-batch") return run_grpc(argv[2], argv[3], GrpcMode::kBatch, argc, argv);
+    if (mode == "grpc-meta") return run_grpc(argv[2], argv[3], GrpcMode::kMeta, argc, argv);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "%s\n", e.what());
     return 1;

@@ -2,7 +2,6 @@
 // orderly shutdown (server.hpp).
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
-#include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -13,6 +12,7 @@
 
 #include "auth.hpp"
 #include "grpc_guards.hpp"
+#include "grpc_health.hpp"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "server.hpp"
@@ -131,13 +131,16 @@ int run_server(const ServerConfig& config) {
       engine, telemetry, auth, [&ready] { return ready.load(); }, ui, peers.get());
   HttpServer http_server(api, telemetry, http_options);
 
-  grpc::EnableDefaultHealthCheckService(true);
+  // Our synchronous health service, not gRPC's built-in one (grpc_health.hpp says why).
+  grpc::EnableDefaultHealthCheckService(false);
+  HealthService health;
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   int grpc_port = 0;
   if (auto ep = parse_endpoint(config.grpc_listen, "--grpc-listen"); !ep.is_ok()) return config_error(ep.status());
   builder.AddListeningPort(config.grpc_listen, grpc_credentials, &grpc_port);
   builder.RegisterService(&mesher);
+  builder.RegisterService(&health);
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
   interceptors.push_back(std::make_unique<ReflectionGuardFactory>(auth));
   interceptors.push_back(std::make_unique<DecodeGuardFactory>());
@@ -158,7 +161,7 @@ int run_server(const ServerConfig& config) {
     server->Shutdown();
     return kExitStartFailure;
   }
-  server->GetHealthCheckService()->SetServingStatus(true);
+  health.set_serving(true);
   ready = true;
   const std::string grpc_host = config.grpc_listen.substr(0, config.grpc_listen.rfind(':'));
   const std::string http_host = config.http.listen.substr(0, config.http.listen.rfind(':'));
@@ -187,12 +190,15 @@ int run_server(const ServerConfig& config) {
                             ": health NOT_SERVING; stopping after --drain-delay " + config.drain_text +
                             ", then in-flight requests have up to " + config.grace_text);
   ready = false;
-  server->GetHealthCheckService()->SetServingStatus(false);
+  health.set_serving(false);
   std::this_thread::sleep_for(config.drain);
   const auto until = std::chrono::system_clock::now() + config.grace;
   // With clients still connected, gRPC 1.51's Shutdown takes up to ~5 s even when idle
   // (bounded by the grace period); both fronts stop in parallel.
-  std::thread grpc_stop([&] { server->Shutdown(until); });
+  std::thread grpc_stop([&] {
+    health.stop();
+    server->Shutdown(until);
+  });
   http_server.stop(config.grace);
   grpc_stop.join();
   telemetry.log("info", "stopped");

@@ -17,6 +17,7 @@
 
 #include "engine.hpp"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "grpc_health.hpp"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
 #include "inputs.hpp"  // bench/: the shape families
@@ -1487,21 +1488,27 @@ struct GrpcFixture {
   std::unique_ptr<Engine> engine = make_engine(dir.path());
   Telemetry telemetry;
   MesherService service{*engine, telemetry, token_auth("tok")};
+  HealthService health;
   std::unique_ptr<grpc::Server> server;
   std::unique_ptr<pb::Mesher::Stub> stub;
   std::shared_ptr<grpc::Channel> channel;
 
   GrpcFixture() {
-    grpc::EnableDefaultHealthCheckService(true);
+    grpc::EnableDefaultHealthCheckService(false);
     grpc::ServerBuilder builder;
     int port = 0;
     builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
     builder.RegisterService(&service);
+    builder.RegisterService(&health);
+    health.set_serving(true);
     server = builder.BuildAndStart();
     channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials());
     stub = pb::Mesher::NewStub(channel);
   }
-  ~GrpcFixture() { server->Shutdown(); }
+  ~GrpcFixture() {
+    health.stop();
+    server->Shutdown();
+  }
 
   std::unique_ptr<grpc::ClientContext> ctx(std::chrono::milliseconds deadline = std::chrono::seconds(30)) {
     auto c = std::make_unique<grpc::ClientContext>();
@@ -1649,6 +1656,58 @@ TEST(Grpc, EveryMethodAndItsErrors) {
   pb::DeletePointSetResponse deleted;
   EXPECT_TRUE(f.stub->DeletePointSet(f.ctx().get(), del, &deleted).ok());
   EXPECT_EQ(f.stub->GetPointSet(f.ctx().get(), get, &info).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
+// The health service (ours, synchronous: grpc_health.hpp) answers as gRPC's built-in one:
+// Check of "" and of the Mesher, NOT_FOUND for another name, and Watch streams each change.
+TEST(Grpc, HealthChecksAndWatches) {
+  GrpcFixture f;
+  namespace hv = grpc::health::v1;
+  auto health = hv::Health::NewStub(f.channel);
+  for (const char* name : {"", "spokemesh.v1.Mesher"}) {
+    grpc::ClientContext c;
+    hv::HealthCheckRequest r;
+    r.set_service(name);
+    hv::HealthCheckResponse status;
+    ASSERT_TRUE(health->Check(&c, r, &status).ok()) << name;
+    EXPECT_EQ(status.status(), hv::HealthCheckResponse::SERVING) << name;
+  }
+  {
+    grpc::ClientContext c;
+    hv::HealthCheckRequest r;
+    r.set_service("no.such.Service");
+    hv::HealthCheckResponse status;
+    const grpc::Status s = health->Check(&c, r, &status);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+    EXPECT_NE(s.error_message().find("no.such.Service"), std::string::npos) << s.error_message();
+  }
+  {
+    grpc::ClientContext c;
+    hv::HealthCheckRequest r;
+    r.set_service("no.such.Service");
+    auto reader = health->Watch(&c, r);
+    hv::HealthCheckResponse status;
+    ASSERT_TRUE(reader->Read(&status));
+    EXPECT_EQ(status.status(), hv::HealthCheckResponse::SERVICE_UNKNOWN);
+    c.TryCancel();
+    reader->Finish();
+  }
+  grpc::ClientContext c;
+  c.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  auto reader = health->Watch(&c, hv::HealthCheckRequest{});
+  hv::HealthCheckResponse status;
+  ASSERT_TRUE(reader->Read(&status));
+  EXPECT_EQ(status.status(), hv::HealthCheckResponse::SERVING);
+  f.health.set_serving(false);
+  ASSERT_TRUE(reader->Read(&status));
+  EXPECT_EQ(status.status(), hv::HealthCheckResponse::NOT_SERVING);
+  f.health.set_serving(true);
+  ASSERT_TRUE(reader->Read(&status));
+  EXPECT_EQ(status.status(), hv::HealthCheckResponse::SERVING);
+  // stop() (the server stopping) ends the stream with OK.
+  f.health.stop();
+  EXPECT_FALSE(reader->Read(&status));
+  EXPECT_TRUE(reader->Finish().ok());
 }
 
 TEST(Grpc, WeightedPeriodicSetsCarryOffsets) {
