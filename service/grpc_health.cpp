@@ -31,7 +31,8 @@ void HealthService::stop() {
 grpc::Status HealthService::Check(grpc::ServerContext*, const grpc::health::v1::HealthCheckRequest* request,
                                   HealthCheckResponse* response) {
   if (!is_served(request->service())) {
-    return {grpc::StatusCode::NOT_FOUND, "service '" + request->service() + "' is not served here (\"\" is the server)"};
+    return {grpc::StatusCode::NOT_FOUND,
+            "service '" + request->service() + "' is not served here (\"\" is the server)"};
   }
   std::lock_guard lock(mutex_);
   response->set_status(serving_ ? HealthCheckResponse::SERVING : HealthCheckResponse::NOT_SERVING);

@@ -231,7 +231,8 @@ struct HttpApi::Context {
     return r;
   }
 
-  HttpResponse fail(const Status& s) {
+  HttpResponse fail(const Status& s) { return failure(record, s); }
+  static HttpResponse failure(Telemetry::Request& record, const Status& s) {
     record.code = s.code();
     record.message = s.message();
     HttpResponse r;
@@ -413,6 +414,7 @@ HttpResponse HttpApi::respond(const http::request<http::string_body>& request, s
   }
   HttpResponse response = route(c);
   if (response.status == 0) return response;  // not at once: nothing happened yet
+  if (response.relay) return response;        // recorded once the peer answered
   if (!response.stream) {
     c.record.seconds = c.timer.seconds();
     telemetry_.record(c.record);
@@ -691,8 +693,13 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   }
   std::optional<Holding> held;
   if (c.at_once) {
-    // From a kept triangulation in memory; a relay, an approximate walk, a domain of a
-    // piece (whose cell may need other pieces' points) and every error take a thread.
+    // Another shard's seed: relayed by the server without a thread (relay_at_once).
+    if (peers_ != nullptr) {
+      const SeedRoute route = router_.route(id, seed.value(), forwarded(c.request));
+      if (!route.here) return relay_at_once(c, route.shard);
+    }
+    // From a kept triangulation in memory; an approximate walk, a domain of a piece
+    // (whose cell may need other pieces' points) and every error take a thread.
     if (approximate) return Context::later();
     held = engine_.hold_at_hand(id, seed.value());
     if (!held) return Context::later();
@@ -722,22 +729,47 @@ HttpResponse HttpApi::seed_route(Context& c, const std::string& id, const std::s
   return c.ok_text(cell_text(cell.value(), &id));
 }
 
-HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
+ShardPeers::HttpRequest HttpApi::relayed_request(const Context& c) {
   ShardPeers::HttpRequest request = c.request;
   // The peer's deadline is what is left of this one.
   const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(c.deadline - Clock::now());
   request.set("X-Timeout-Ms", std::to_string(std::max<std::int64_t>(1, left.count())));
-  auto relayed = peers_->forward_http(shard, std::move(request), c.deadline);
+  return request;
+}
+
+HttpResponse HttpApi::forward(Context& c, std::uint32_t shard) {
+  return relayed_response(c.record, shard, peers_->forward_http(shard, relayed_request(c), c.deadline));
+}
+
+HttpResponse HttpApi::relay_at_once(Context& c, std::uint32_t shard) {
+  HttpResponse r;
+  r.relay = std::make_shared<PendingRelay>();
+  r.relay->peers = peers_;
+  r.relay->shard = shard;
+  r.relay->request = relayed_request(c);
+  r.relay->deadline = c.deadline;
+  r.relay->finish = [this, shard, record = c.record,
+                     timer = c.timer](Result<ShardPeers::HttpResponse> relayed) mutable -> HttpResponse {
+    HttpResponse response = relayed_response(record, shard, std::move(relayed));
+    record.seconds = timer.seconds();
+    telemetry_.record(record);
+    return response;
+  };
+  return r;
+}
+
+HttpResponse HttpApi::relayed_response(Telemetry::Request& record, std::uint32_t shard,
+                                       Result<ShardPeers::HttpResponse> relayed) {
   telemetry_.add_forwarded(shard, relayed.status().code());
-  if (!relayed.is_ok()) return c.fail(relayed.status());
+  if (!relayed.is_ok()) return Context::failure(record, relayed.status());
   ShardPeers::HttpResponse& peer = relayed.value();
   HttpResponse r;
   r.status = peer.result_int();
   if (r.status >= 400) {
     // Recorded here as the peer answered it (the gRPC code its error names).
     const Status error = status_of_error_body(peer.body());
-    c.record.code = error.code();
-    c.record.message = error.message();
+    record.code = error.code();
+    record.message = error.message();
   }
   r.content_type = std::string(peer[http::field::content_type]);
   r.body = std::move(peer.body());

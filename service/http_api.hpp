@@ -50,6 +50,8 @@ namespace spokemesh::service {
 
 namespace http = boost::beast::http;
 
+struct PendingRelay;
+
 struct HttpResponse {
   unsigned status = 200;
   std::string content_type = "application/json";
@@ -60,6 +62,21 @@ struct HttpResponse {
   // sends one chunk (false once the client is gone). If it fails before the first
   // chunk, `status`/`body` are replaced by the error it returns.
   std::function<Status(const std::function<bool(std::string_view)>& write_chunk)> stream;
+  // Not an answer yet: the request goes to another shard's replica (answer_at_once only).
+  std::shared_ptr<PendingRelay> relay;
+};
+
+// A seed's request for another shard's replica, relayed by the server without a thread
+// (answer_at_once): it sends `request` with ShardPeers::forward_http_async and answers
+// what `finish` makes of the result (which also records the request). If the relay
+// cannot be made without a thread (the shard's addresses need a lookup), the server
+// calls handle_request() instead, which relays it from a thread.
+struct PendingRelay {
+  ShardPeers* peers = nullptr;
+  std::uint32_t shard = 0;
+  ShardPeers::HttpRequest request;
+  Clock::time_point deadline;
+  std::function<HttpResponse(Result<ShardPeers::HttpResponse>)> finish;
 };
 
 // {"error": {"code", "status", "message"[, "reason"]}}; code is the HTTP status sent
@@ -80,8 +97,9 @@ class HttpApi {
   // The response when it is cheap and cannot block, for the connection's I/O thread to
   // send without handing the request to a thread of its own: health, readiness, the
   // OpenAPI description and the page's files, and a seed's star, neighbours (exact) or
-  // cell read from a kept triangulation in memory (Engine::hold_at_hand). nullopt:
-  // nothing was done; handle_request() answers it, errors included.
+  // cell read from a kept triangulation in memory (Engine::hold_at_hand); on a sharded
+  // replica, a seed's request for another shard is a PendingRelay (response.relay).
+  // nullopt: nothing was done; handle_request() answers it, errors included.
   std::optional<HttpResponse> answer_at_once(const http::request<http::string_body>& request);
 
  private:
@@ -110,6 +128,14 @@ class HttpApi {
                      bool compact);
   // The request relayed to a replica of `shard`, its response returned as it came.
   HttpResponse forward(Context& c, std::uint32_t shard);
+  // The same as a PendingRelay, for the server to send without a thread.
+  HttpResponse relay_at_once(Context& c, std::uint32_t shard);
+  // The request as relayed to `shard` (what is left of the deadline as X-Timeout-Ms).
+  static ShardPeers::HttpRequest relayed_request(const Context& c);
+  // A peer's answer (or the failure to get one) as this replica's response, recorded
+  // in `record` (the peer's error code for an error it answered).
+  HttpResponse relayed_response(Telemetry::Request& record, std::uint32_t shard,
+                                Result<ShardPeers::HttpResponse> relayed);
   HttpResponse shard_map(Context& c, const std::string& id, bool seeds);
   HttpResponse simplices(Context& c, const std::string& id);
   HttpResponse points(Context& c, const std::string& id);

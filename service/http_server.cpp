@@ -86,8 +86,12 @@ class HttpServer::SessionBase : public std::enable_shared_from_this<SessionBase>
 template <class Stream>
 class HttpServer::Session final : public HttpServer::SessionBase {
  public:
-  Session(HttpServer& server, Stream stream, net::ip::address from)
-      : server_(server), options_(server.options_), stream_(std::move(stream)), from_(std::move(from)) {}
+  Session(HttpServer& server, Stream stream, net::ip::address from, ShardPeers::RelayPool& relays)
+      : server_(server),
+        options_(server.options_),
+        stream_(std::move(stream)),
+        from_(std::move(from)),
+        relays_(relays) {}
   ~Session() override { server_.release(from_, this); }
 
   void run() {
@@ -213,7 +217,9 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     } catch (const std::exception& e) {  // as handle(): one failed request
       at_once = failure(e);
     }
-    if (at_once) {
+    if (at_once && at_once->relay) {
+      if (relay_at_once(at_once->relay)) return;
+    } else if (at_once) {
       ++requests_;
       request_ = parser_->release();
       return write_at_once(std::move(*at_once));
@@ -230,6 +236,31 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       write_one_off(one_off_response(http::status::service_unavailable,
                                      Status{Code::kUnavailable, "the server is out of threads; retry later"}, true));
     }
+  }
+
+  // Another shard's seed, relayed on this loop without a thread (counted in flight as
+  // any request). False when that cannot be done without a thread (nothing happened):
+  // the request then takes the thread path, which relays it from there.
+  bool relay_at_once(const std::shared_ptr<PendingRelay>& pending) {
+    if (!server_.begin_request()) return false;  // the thread path answers the 503
+    ShardPeers::ForwardDone done = [self = shared(), pending](Result<ShardPeers::HttpResponse> relayed) {
+      HttpResponse response;
+      try {
+        response = pending->finish(std::move(relayed));
+      } catch (const std::exception& e) {
+        response = self->failure(e);
+      }
+      self->server_.end_request();
+      self->write_at_once(std::move(response));
+    };
+    if (!pending->peers->forward_http_async(relays_, pending->shard, pending->request, pending->deadline, done)) {
+      server_.end_request();
+      return false;
+    }
+    ++server_.relayed_at_once_;
+    ++requests_;
+    request_ = parser_->release();
+    return true;
   }
 
   HttpResponse failure(const std::exception& e) {
@@ -365,6 +396,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   const HttpServerOptions& options_;
   Stream stream_;
   net::ip::address from_;
+  ShardPeers::RelayPool& relays_;  // this connection's loop's (relay_at_once)
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   http::request<http::string_body> request_;
@@ -433,6 +465,7 @@ Result<unsigned short> HttpServer::start() {
   for (unsigned i = 0; i < loops; ++i) {
     io_.push_back(std::make_unique<net::io_context>(1));  // one thread runs it
     work_.push_back(net::make_work_guard(*io_.back()));
+    relay_pools_.push_back(std::make_unique<ShardPeers::RelayPool>(*io_.back()));
   }
   acceptor_ = std::make_unique<tcp::acceptor>(*io_[0]);
   boost::system::error_code ec;
@@ -450,8 +483,10 @@ Result<unsigned short> HttpServer::start() {
 }
 
 void HttpServer::do_accept() {
-  net::io_context& loop = *io_[next_io_++ % io_.size()];
-  acceptor_->async_accept(net::make_strand(loop), [this](boost::system::error_code ec, tcp::socket socket) {
+  const std::size_t turn = next_io_++ % io_.size();
+  net::io_context& loop = *io_[turn];
+  ShardPeers::RelayPool& relays = *relay_pools_[turn];
+  acceptor_->async_accept(net::make_strand(loop), [this, &relays](boost::system::error_code ec, tcp::socket socket) {
     if (stopping_.load() || ec == net::error::operation_aborted) return;
     if (ec) {
       // Out of descriptors and the like: back off instead of spinning.
@@ -477,10 +512,11 @@ void HttpServer::do_accept() {
       socket.close(ep_ec);
     } else if (options_.tls) {
       std::make_shared<Session<beast::ssl_stream<beast::tcp_stream>>>(
-          *this, beast::ssl_stream<beast::tcp_stream>(beast::tcp_stream(std::move(socket)), *options_.tls), from)
+          *this, beast::ssl_stream<beast::tcp_stream>(beast::tcp_stream(std::move(socket)), *options_.tls), from,
+          relays)
           ->run();
     } else {
-      std::make_shared<Session<beast::tcp_stream>>(*this, beast::tcp_stream(std::move(socket)), from)->run();
+      std::make_shared<Session<beast::tcp_stream>>(*this, beast::tcp_stream(std::move(socket)), from, relays)->run();
     }
     do_accept();
   });

@@ -69,6 +69,8 @@ class HttpServer {
   // For tests and metrics: open connections and requests in flight.
   std::size_t connections() const;
   std::size_t in_flight() const;
+  // Requests relayed to another shard's replica on an I/O loop, without a thread.
+  std::size_t relayed_at_once() const { return relayed_at_once_.load(); }
 
  private:
   class SessionBase;
@@ -89,6 +91,7 @@ class HttpServer {
   Telemetry& telemetry_;
   HttpServerOptions options_;
   std::atomic<bool> stopping_{false};
+  std::atomic<std::size_t> relayed_at_once_{0};
 
   // Declared before io_: sessions still held by io_'s handlers reach these as io_ is
   // destroyed (members are destroyed in reverse order).
@@ -105,6 +108,9 @@ class HttpServer {
   // and the hand-offs between them were futex calls on every request). io_[0] accepts.
   std::vector<std::unique_ptr<boost::asio::io_context>> io_;
   std::vector<boost::asio::executor_work_guard<boost::asio::io_context::executor_type>> work_;
+  // Each loop's kept-alive connections to other shards' replicas (relays made at once);
+  // declared after io_, so destroyed before the loops.
+  std::vector<std::unique_ptr<ShardPeers::RelayPool>> relay_pools_;
   std::size_t next_io_ = 0;  // the loop the next connection goes to (the acceptor's handler only)
   // Threads for requests, kept a while once their request is done: a request takes an
   // idle one, or a new one (computations block, so each request in flight has its own).

@@ -138,47 +138,78 @@ void ShardPeers::note_refused(const std::string& endpoint) {
   refused_until_[endpoint] = SteadyClock::now() + kRefusedFor;
 }
 
+void ShardPeers::prepare(std::uint32_t, HttpRequest& request, const std::string& first_replica) const {
+  request.set(kForwardedHeader, std::to_string(shards_.index));
+  request.set(http::field::host, first_replica);
+  request.keep_alive(true);
+  request.prepare_payload();
+}
+
+std::vector<tcp::endpoint> ShardPeers::addresses(std::uint32_t shard, bool may_resolve, std::string& why) {
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = resolved_.find(shard); it != resolved_.end() && SteadyClock::now() < it->second.second) {
+      return it->second.first;
+    }
+  }
+  if (!may_resolve) {
+    why = "its addresses are not resolved";
+    return {};
+  }
+  std::vector<tcp::endpoint> endpoints;
+  for (const std::string& replica : split_commas(http_address(shard))) {
+    const auto [host, port] = host_port(replica);
+    asio::io_context io;
+    tcp::resolver resolver(io);
+    beast::error_code ec;
+    const auto found = resolver.resolve(host, port, ec);
+    if (ec) why = "cannot resolve " + host + ": " + ec.message();
+    if (!ec) {
+      for (const auto& e : found) endpoints.push_back(e.endpoint());
+    }
+  }
+  if (endpoints.empty()) {
+    if (why.empty()) why = "it names no address";
+    return {};
+  }
+  std::lock_guard lock(mutex_);
+  resolved_[shard] = {endpoints, SteadyClock::now() + kResolvedFor};
+  return endpoints;
+}
+
+std::size_t ShardPeers::next_turn(std::size_t count) {
+  std::lock_guard lock(mutex_);
+  return static_cast<std::size_t>(turn_++ % count);
+}
+
+void ShardPeers::forget_addresses(std::uint32_t shard) {
+  std::lock_guard lock(mutex_);
+  resolved_.erase(shard);  // resolved again by the next request
+}
+
+namespace {
+
+// A connection to a replica just made: the socket options every relay connection has.
+void tune_relay_socket(tcp::socket& socket) {
+  const int ms = static_cast<int>(kUnacknowledgedMs), one = 1;
+  ::setsockopt(socket.native_handle(), IPPROTO_TCP, TCP_USER_TIMEOUT, &ms, sizeof ms);
+  ::setsockopt(socket.native_handle(), IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+}
+
+std::string endpoint_name(const tcp::endpoint& e) { return e.address().to_string() + ":" + std::to_string(e.port()); }
+
+}  // namespace
+
 Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, HttpRequest request,
                                                           SteadyClock::time_point deadline) {
   const std::string address = http_address(shard);
   const std::vector<std::string> replicas = split_commas(address);
   if (replicas.empty()) return unavailable(shard, address, "--shard-http names no address for it");
-  request.set(kForwardedHeader, std::to_string(shards_.index));
-  request.set(http::field::host, replicas.front());
-  request.keep_alive(true);
-  request.prepare_payload();
-
-  std::vector<tcp::endpoint> endpoints;
-  {
-    std::lock_guard lock(mutex_);
-    if (auto it = resolved_.find(shard); it != resolved_.end() && SteadyClock::now() < it->second.second) {
-      endpoints = it->second.first;
-    }
-  }
-  if (endpoints.empty()) {
-    std::string resolve_error;
-    for (const std::string& replica : replicas) {
-      const auto [host, port] = host_port(replica);
-      asio::io_context io;
-      tcp::resolver resolver(io);
-      beast::error_code ec;
-      const auto found = resolver.resolve(host, port, ec);
-      if (ec) resolve_error = "cannot resolve " + host + ": " + ec.message();
-      if (!ec) {
-        for (const auto& e : found) endpoints.push_back(e.endpoint());
-      }
-    }
-    if (endpoints.empty()) {
-      return unavailable(shard, address, resolve_error.empty() ? "it names no address" : resolve_error);
-    }
-    std::lock_guard lock(mutex_);
-    resolved_[shard] = {endpoints, SteadyClock::now() + kResolvedFor};
-  }
-  std::size_t start = 0;
-  {
-    std::lock_guard lock(mutex_);
-    start = static_cast<std::size_t>(turn_++ % endpoints.size());
-  }
+  prepare(shard, request, replicas.front());
+  std::string why;
+  const std::vector<tcp::endpoint> endpoints = addresses(shard, true, why);
+  if (endpoints.empty()) return unavailable(shard, address, why);
+  const std::size_t start = next_turn(endpoints.size());
   std::string last_error = "no address tried";
   // Each address in turn: a kept-alive connection first (it may have been closed by
   // the peer: then once more on a new one), skipping addresses that just refused.
@@ -187,7 +218,7 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
   for (int pass = 0; pass < 2; ++pass) {
     for (std::size_t k = 0; k < endpoints.size(); ++k) {
       const tcp::endpoint& e = endpoints[(start + k) % endpoints.size()];
-      std::string name = e.address().to_string() + ":" + std::to_string(e.port());
+      std::string name = endpoint_name(e);
       if (pass == 0 && recently_refused(name)) {
         skipped[k] = true;
         continue;
@@ -204,11 +235,7 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
           beast::error_code ec;
           c->stream.async_connect(e, [&](beast::error_code e2) { ec = e2; });
           c->run(std::min(deadline, SteadyClock::now() + kConnectTimeout));
-          if (!ec) {
-            const int ms = static_cast<int>(kUnacknowledgedMs), one = 1;
-            ::setsockopt(c->stream.socket().native_handle(), IPPROTO_TCP, TCP_USER_TIMEOUT, &ms, sizeof ms);
-            ::setsockopt(c->stream.socket().native_handle(), IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-          }
+          if (!ec) tune_relay_socket(c->stream.socket());
           if (ec) {
             last_error = name + ": " + ec.message();
             note_refused(name);
@@ -242,11 +269,163 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
       }
     }
   }
-  {
-    std::lock_guard lock(mutex_);
-    resolved_.erase(shard);  // resolved again by the next request
-  }
+  forget_addresses(shard);
   return unavailable(shard, address, last_error);
+}
+
+// ---- relays without a thread ----------------------------------------------------------
+
+struct ShardPeers::RelayPool::Connection {
+  explicit Connection(asio::io_context& io) : stream(io) {}
+  beast::tcp_stream stream;
+  beast::flat_buffer buffer;
+  std::string endpoint;
+};
+
+ShardPeers::RelayPool::RelayPool(asio::io_context& io) : io_(io) {}
+ShardPeers::RelayPool::~RelayPool() = default;
+
+// forward_http's loop as a chain of asynchronous steps on the pool's loop: the same
+// order of addresses, the same retry of a stale kept-alive connection, the same errors.
+class ShardPeers::AsyncForward : public std::enable_shared_from_this<AsyncForward> {
+ public:
+  AsyncForward(ShardPeers& peers, RelayPool& pool, std::uint32_t shard, HttpRequest request,
+               SteadyClock::time_point deadline, ForwardDone done)
+      : peers_(peers),
+        pool_(pool),
+        shard_(shard),
+        request_(std::move(request)),
+        deadline_(deadline),
+        done_(std::move(done)) {}
+
+  void start(std::vector<tcp::endpoint> endpoints, std::string address) {
+    endpoints_ = std::move(endpoints);
+    address_ = std::move(address);
+    start_ = peers_.next_turn(endpoints_.size());
+    skipped_.assign(endpoints_.size(), false);
+    next_address();
+  }
+
+ private:
+  // The next address to try (pass 0: those that did not refuse lately; pass 1: those).
+  void next_address() {
+    for (; pass_ < 2; ++pass_, k_ = 0) {
+      while (k_ < endpoints_.size()) {
+        const std::size_t k = k_++;
+        const tcp::endpoint& e = endpoints_[(start_ + k) % endpoints_.size()];
+        name_ = endpoint_name(e);
+        if (pass_ == 0 && peers_.recently_refused(name_)) {
+          skipped_[k] = true;
+          continue;
+        }
+        if (pass_ == 1 && !skipped_[k]) continue;
+        endpoint_ = e;
+        return attempt(0);
+      }
+    }
+    peers_.forget_addresses(shard_);
+    finish(peers_.unavailable(shard_, address_, last_error_));
+  }
+
+  void attempt(int which) {
+    if (SteadyClock::now() >= deadline_) {
+      return finish(Status{Code::kDeadlineExceeded, "deadline exceeded forwarding to shard " + std::to_string(shard_)});
+    }
+    connection_ = which == 0 ? take_idle() : nullptr;
+    fresh_ = connection_ == nullptr;
+    if (!fresh_) return send();
+    connection_ = std::make_unique<RelayPool::Connection>(pool_.io_);
+    connection_->endpoint = name_;
+    connection_->stream.expires_at(std::min(deadline_, SteadyClock::now() + kConnectTimeout));
+    connection_->stream.async_connect(endpoint_, [self = shared_from_this()](beast::error_code ec) {
+      if (ec) {
+        self->last_error_ = self->name_ + ": " + ec.message();
+        self->peers_.note_refused(self->name_);
+        return self->next_address();
+      }
+      tune_relay_socket(self->connection_->stream.socket());
+      self->send();
+    });
+  }
+
+  void send() {
+    connection_->stream.expires_at(deadline_);
+    http::async_write(connection_->stream, request_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
+      if (ec) return self->failed(ec);
+      self->parser_.emplace();
+      self->parser_->body_limit(kMaxForwardedBody);
+      http::async_read(self->connection_->stream, self->connection_->buffer, *self->parser_,
+                       [self](beast::error_code e, std::size_t) {
+                         if (e) return self->failed(e);
+                         HttpResponse response = self->parser_->release();
+                         if (response.keep_alive()) self->give_back();
+                         self->finish(std::move(response));
+                       });
+    });
+  }
+
+  void failed(beast::error_code ec) {
+    last_error_ = name_ + ": " + ec.message();
+    connection_.reset();
+    if (ec == beast::error::timeout) {
+      return finish(Status{Code::kDeadlineExceeded,
+                           "deadline exceeded waiting for shard " + std::to_string(shard_) + " (" + name_ + ")"});
+    }
+    if (fresh_) {
+      peers_.note_refused(name_);
+      return next_address();
+    }
+    attempt(1);  // a stale kept-alive connection: once more on a new one
+  }
+
+  std::unique_ptr<RelayPool::Connection> take_idle() {
+    auto it = pool_.idle_.find({shard_, name_});
+    if (it == pool_.idle_.end() || it->second.empty()) return nullptr;
+    auto c = std::move(it->second.back());
+    it->second.pop_back();
+    return c;
+  }
+
+  void give_back() {
+    auto& idle = pool_.idle_[{shard_, name_}];
+    if (idle.size() < 64) idle.push_back(std::move(connection_));
+  }
+
+  void finish(Result<HttpResponse> result) {
+    ForwardDone done = std::move(done_);
+    done(std::move(result));
+  }
+
+  ShardPeers& peers_;
+  RelayPool& pool_;
+  std::uint32_t shard_;
+  HttpRequest request_;
+  SteadyClock::time_point deadline_;
+  ForwardDone done_;
+  std::vector<tcp::endpoint> endpoints_;
+  std::string address_;
+  std::vector<bool> skipped_;
+  std::size_t start_ = 0, k_ = 0;
+  int pass_ = 0;
+  tcp::endpoint endpoint_;
+  std::string name_, last_error_ = "no address tried";
+  std::unique_ptr<RelayPool::Connection> connection_;
+  bool fresh_ = false;
+  std::optional<http::response_parser<http::string_body>> parser_;
+};
+
+bool ShardPeers::forward_http_async(RelayPool& pool, std::uint32_t shard, HttpRequest& request,
+                                    SteadyClock::time_point deadline, ForwardDone& done) {
+  std::string address = http_address(shard);
+  const std::vector<std::string> replicas = split_commas(address);
+  if (replicas.empty()) return false;
+  std::string why;
+  std::vector<tcp::endpoint> endpoints = addresses(shard, false, why);
+  if (endpoints.empty()) return false;
+  prepare(shard, request, replicas.front());
+  auto forward = std::make_shared<AsyncForward>(*this, pool, shard, std::move(request), deadline, std::move(done));
+  forward->start(std::move(endpoints), std::move(address));
+  return true;
 }
 
 std::shared_ptr<grpc::Channel> ShardPeers::grpc_channel(std::uint32_t shard) {

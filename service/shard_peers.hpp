@@ -18,11 +18,13 @@
 // Thread safety: all member functions are safe to call concurrently.
 #pragma once
 
+#include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/beast/http.hpp>
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -61,6 +63,32 @@ class ShardPeers {
   // UNAVAILABLE naming the shard when none answered before `deadline`.
   Result<HttpResponse> forward_http(std::uint32_t shard, HttpRequest request,
                                     std::chrono::steady_clock::time_point deadline);
+  // The same without a thread (HttpServer's I/O loops, for a request answered at once):
+  // every operation runs on `pool`'s event loop, and `done` is called there, once, with
+  // what forward_http would have returned. False, with `request` and `done` untouched,
+  // when that would need a name lookup (which could block the loop): the shard's
+  // addresses were not resolved by a forward_http in the last 2 s. Then call forward_http.
+  class RelayPool;
+  using ForwardDone = std::function<void(Result<HttpResponse>)>;
+  bool forward_http_async(RelayPool& pool, std::uint32_t shard, HttpRequest& request,
+                          std::chrono::steady_clock::time_point deadline, ForwardDone& done);
+
+  // The kept-alive connections of one event loop for forward_http_async, used on that
+  // loop's thread only. Its owner destroys it before the loop.
+  class RelayPool {
+   public:
+    explicit RelayPool(boost::asio::io_context& io);
+    ~RelayPool();
+    RelayPool(const RelayPool&) = delete;
+    RelayPool& operator=(const RelayPool&) = delete;
+
+   private:
+    friend class ShardPeers;
+    struct Connection;
+    boost::asio::io_context& io_;
+    std::map<std::pair<std::uint32_t, std::string>, std::vector<std::unique_ptr<Connection>>> idle_;
+  };
+
   // The channel to `shard`'s replicas (created on first use).
   std::shared_ptr<grpc::Channel> grpc_channel(std::uint32_t shard);
   // UNAVAILABLE naming the shard and its address.
@@ -68,6 +96,13 @@ class ShardPeers {
 
  private:
   struct Connection;
+  class AsyncForward;
+  // The request as every relay sends it (forwarded mark, host, keep-alive).
+  void prepare(std::uint32_t shard, HttpRequest& request, const std::string& first_replica) const;
+  // The shard's resolved addresses (resolving them if `may_resolve`), or empty with `why`.
+  std::vector<boost::asio::ip::tcp::endpoint> addresses(std::uint32_t shard, bool may_resolve, std::string& why);
+  std::size_t next_turn(std::size_t count);
+  void forget_addresses(std::uint32_t shard);
   std::unique_ptr<Connection> take_idle(std::uint32_t shard, const std::string& endpoint);
   void give_back(std::uint32_t shard, std::unique_ptr<Connection> c);
   bool recently_refused(const std::string& endpoint);

@@ -7,6 +7,7 @@
 #include <openssl/sha.h>
 #include <unistd.h>
 
+#include <boost/beast/core.hpp>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -20,6 +21,7 @@
 #include "grpc_health.hpp"
 #include "grpc_service.hpp"
 #include "http_api.hpp"
+#include "http_server.hpp"
 #include "inputs.hpp"  // bench/: the shape families
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/periodic.hpp"
@@ -1479,6 +1481,101 @@ TEST(ShardedEngines, EveryAnswerAndErrorIsTheWholeEngines) {
       }
     }
   }
+}
+
+// A free loopback port (bound, read, released: another process could take it between,
+// which a test run does not).
+unsigned short free_port() {
+  boost::asio::io_context io;
+  boost::asio::ip::tcp::acceptor a(io, {boost::asio::ip::make_address("127.0.0.1"), 0});
+  return a.local_endpoint().port();
+}
+
+// Two shard replicas' real HTTP servers in-process: a seed of shard 0's piece asked of
+// shard 1's server is relayed, on its I/O loop without a thread once shard 0's address
+// is known (HttpServer::relayed_at_once), and answers the owner's bytes (a whole
+// engine's), naming the shard; with shard 0's server gone, the relay made at once and
+// the one made from a thread both answer 503 naming shard 0.
+TEST(ShardedServers, RelaysOnTheLoopAreTheOwnersAnswers) {
+  TempDir dir;
+  Telemetry telemetry;
+  const std::array<unsigned short, 2> ports{free_port(), free_port()};
+  const std::string peers_list = "127.0.0.1:" + std::to_string(ports[0]) + ";127.0.0.1:" + std::to_string(ports[1]);
+  auto whole = make_engine(dir.path());
+  HttpApi whole_api{*whole, telemetry, token_auth(""), [] { return true; }};
+  std::vector<std::unique_ptr<Engine>> engines;
+  std::vector<std::unique_ptr<ShardPeers>> peers;
+  std::vector<std::unique_ptr<HttpApi>> apis;
+  std::vector<std::unique_ptr<HttpServer>> servers;
+  for (std::uint32_t k = 0; k < 2; ++k) {
+    ShardSettings settings;
+    settings.index = k;
+    settings.count = 2;
+    settings.pieces_above = 1000;
+    settings.piece_points = 500;
+    auto store = PointSetStore::open(dir.path(), Limits{}.max_memory, {});
+    ASSERT_TRUE(store.is_ok());
+    engines.push_back(std::make_unique<Engine>(std::move(store).value(), Limits{}, settings));
+    peers.push_back(std::make_unique<ShardPeers>(settings, peers_list, peers_list));
+    apis.push_back(std::make_unique<HttpApi>(
+        *engines.back(), telemetry, token_auth(""), [] { return true; }, nullptr, peers.back().get()));
+    HttpServerOptions options;
+    options.listen = "127.0.0.1:" + std::to_string(ports[k]);
+    servers.push_back(std::make_unique<HttpServer>(*apis.back(), telemetry, options));
+    ASSERT_TRUE(servers.back()->start().is_ok());
+  }
+  const std::size_t n = 3000;
+  auto info = upload(*engines[0], 3, uniform_points(3, n, 52));
+  ASSERT_TRUE(info.is_ok()) << info.status().message();
+  const std::string base = "/v1/pointsets/" + info->id;
+  std::vector<std::uint64_t> shard0_seeds;
+  for (std::uint64_t seed = 0; seed < n && shard0_seeds.size() < 40; seed += 7) {
+    if (engines[1]->route_seed(info->id, seed).shard == 0) shard0_seeds.push_back(seed);
+  }
+  ASSERT_GE(shard0_seeds.size(), 20u);
+
+  namespace beast = boost::beast;
+  boost::asio::io_context io;
+  beast::tcp_stream stream(io);
+  stream.connect({boost::asio::ip::make_address("127.0.0.1"), ports[1]});
+  beast::flat_buffer buffer;
+  auto get = [&](const std::string& target) {
+    http::request<http::string_body> req{http::verb::get, target, 11};
+    req.set(http::field::host, "127.0.0.1");
+    req.keep_alive(true);
+    http::write(stream, req);
+    http::response<http::string_body> res;
+    http::read(stream, buffer, res);
+    return res;
+  };
+  for (const std::uint64_t seed : shard0_seeds) {
+    for (const std::string route : {"/star", "/neighbors", "/cell", "/cell?box=0,0,0,0.5,1,1"}) {
+      const std::string target = base + "/seeds/" + std::to_string(seed) + route;
+      const HttpResponse expected =
+          whole_api.handle_request(http::request<http::string_body>{http::verb::get, target, 11});
+      const auto relayed = get(target);
+      ASSERT_EQ(relayed.result_int(), expected.status) << target;
+      ASSERT_EQ(relayed.body(), expected.body) << target;
+      EXPECT_EQ(relayed["X-Spokemesh-Shard"], "0") << target;
+    }
+  }
+  // The first relay resolves shard 0's address from a thread; the rest go at once.
+  EXPECT_GE(servers[1]->relayed_at_once(), shard0_seeds.size() * 4 - 2);
+
+  servers[0]->stop(std::chrono::milliseconds(0));
+  const std::size_t before = servers[1]->relayed_at_once();
+  const std::string target = base + "/seeds/" + std::to_string(shard0_seeds[0]) + "/star";
+  const auto at_once = get(target);  // at once: the address is still known
+  EXPECT_EQ(servers[1]->relayed_at_once(), before + 1);
+  const auto threaded = get(target);  // the failure forgot it: from a thread
+  EXPECT_EQ(servers[1]->relayed_at_once(), before + 1);
+  for (const auto* res : {&at_once, &threaded}) {
+    EXPECT_EQ(res->result_int(), 503u);
+    EXPECT_NE(res->body().find("shard 0 of 2"), std::string::npos) << res->body();
+    EXPECT_NE(res->body().find("SHARD_UNAVAILABLE"), std::string::npos) << res->body();
+  }
+  EXPECT_EQ(at_once.body(), threaded.body());
+  servers[1]->stop(std::chrono::milliseconds(0));
 }
 
 // ---- gRPC on a real in-process server -----------------------------------------------
