@@ -13,7 +13,8 @@ the same client, real processes on loopback.
      seed, and the batch's throughput against single requests' on one connection;
   4. sharded (--shards 2 or more; default 2): replicas of each shard over one data
      directory holding the set as pieces; a seed of shard 0 asked of shard 0's replica
-     directly and through shard 1's (the REST relay): p50 and p99;
+     directly, through shard 1's (the REST relay), and through nginx proxying to shard
+     0's replica (the best relay at hand, for comparison): p50 and p99;
   5. resident memory (VmRSS) of each server after its runs.
 
 Usage: PYTHONPATH=build/python bench/serving.py [--points 1000000] [--sections rates,latency,batch,sharded]
@@ -60,7 +61,16 @@ http {{
     listen 127.0.0.1:{port};
     root {dir}/www;
   }}
-}}
+{proxy}}}
+"""
+
+# nginx as a reverse proxy to one replica, kept-alive upstream connections: the relay a
+# sharded replica's REST relay is compared with.
+NGINX_PROXY = """  upstream spokemesh {{ server {upstream}; keepalive 32; }}
+  server {{
+    listen 127.0.0.1:{port};
+    location / {{ proxy_pass http://spokemesh; proxy_http_version 1.1; proxy_set_header Connection ""; }}
+  }}
 """
 
 
@@ -164,20 +174,24 @@ def targets_file(work: Path, name: str, lines: list[str]) -> str:
     return str(path)
 
 
-def start_nginx(work: Path) -> tuple[subprocess.Popen, int]:
-    ndir = work / "nginx"
+def start_nginx(work: Path, proxy_to: str = "") -> tuple[subprocess.Popen, int]:
+    """nginx serving a static file on its port; with proxy_to (HOST:PORT), a second port
+    relaying every request there instead (that port is returned)."""
+    ndir = work / ("nginx-proxy" if proxy_to else "nginx")
     (ndir / "www").mkdir(parents=True, exist_ok=True)
     # A 3.4 KB static file, as the issue's measurement.
     (ndir / "www" / "static.html").write_bytes(b"<!doctype html>" + b"x" * (3400 - 15))
     port = free_port()
+    proxy_port = free_port()
+    proxy = NGINX_PROXY.format(upstream=proxy_to, port=proxy_port) if proxy_to else ""
     (ndir / "nginx.conf").write_text(NGINX_CONF.format(user="user root;" if os.geteuid() == 0 else "", dir=ndir,
-                                                       port=port))
+                                                       port=port, proxy=proxy))
     proc = subprocess.Popen(["nginx", "-p", str(ndir), "-c", str(ndir / "nginx.conf"), "-g", "daemon off;"],
                             stderr=open(ndir / "stderr.log", "wb"))
     for _ in range(200):
         try:
             if request(f"127.0.0.1:{port}", "GET", "/static.html")[0] == 200:
-                return proc, port
+                return proc, proxy_port if proxy_to else port
         except OSError:
             time.sleep(0.05)
     raise RuntimeError("nginx did not start: " + (ndir / "stderr.log").read_text())
@@ -333,9 +347,21 @@ def main():
             targets = targets_file(work, "shard0", [f"/v1/pointsets/{sid}/seeds/{s}/star" for s in mine])
             direct = client("http", replicas[0].http, targets, "--requests", str(args.requests // 2))
             relayed = client("http", replicas[1].http, targets, "--requests", str(args.requests // 2))
+            proxy, proxy_port = start_nginx(work, proxy_to=replicas[0].http)
+            try:
+                proxied = client("http", f"127.0.0.1:{proxy_port}", targets, "--requests", str(args.requests // 2))
+            finally:
+                proxy.terminate()
+                proxy.wait()
+
+            def versus(r):
+                return f"{r['p50_us'] / direct['p50_us']:.2f}x / {r['p99_us'] / direct['p99_us']:.2f}x"
+
             rows = [["straight to shard 0's replica", f"{direct['p50_us']:.0f}", f"{direct['p99_us']:.0f}", "1.00x"],
                     ["through shard 1's replica (REST relay)", f"{relayed['p50_us']:.0f}", f"{relayed['p99_us']:.0f}",
-                     f"{relayed['p50_us'] / direct['p50_us']:.2f}x / {relayed['p99_us'] / direct['p99_us']:.2f}x"]]
+                     versus(relayed)],
+                    ["through nginx proxying to shard 0's replica (kept-alive upstream)", f"{proxied['p50_us']:.0f}",
+                     f"{proxied['p99_us']:.0f}", versus(proxied)]]
             table(f"Sharded: {shards} shard replicas, a seed of shard 0 (single REST stars, one connection)",
                   ["path", "p50 us", "p99 us", "vs direct (p50 / p99)"], rows)
             print("\nresident memory (VmRSS): whole replica %.0f MB; shard replicas %s" %

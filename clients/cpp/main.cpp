@@ -687,6 +687,10 @@ int main(int argc, char** argv) {
   batch->add_option("--seeds-file", seeds_file, "File of seed indices (whitespace or commas)");
   add_domain_flags(batch, domain_flags, "cells only; default: unclipped");
   add_approx_flags(batch, approx_flags);
+  bool batch_no_route = false;
+  batch->add_flag("--no-route", batch_no_route,
+                  "Ask --server for every seed, even on a sharded deployment (by default a batch large enough "
+                  "to be worth the shard map, 2 bytes a point, goes to each seed's shard directly)");
   auto* health = app.add_subcommand("health", "Remote mode: ask the server's gRPC health service (exit 0 if SERVING)");
   auto* list = app.add_subcommand("list", "Remote mode: list the stored point sets");
   auto* del = app.add_subcommand("delete", "Remote mode: delete a stored point set");
@@ -774,7 +778,7 @@ int main(int argc, char** argv) {
       const std::string mode = neighbor_mode_name(approx_flags.neighbor_mode());
       return remote::batch(o, input, batch_kind, seed_list, mode, approx_flags.enabled ? approx_flags.misses : 0,
                            approx_flags.enabled ? approx_flags.max_vertices : 0, domain_flags.box,
-                           domain_flags.halfspaces, domain_flags.shape);
+                           domain_flags.halfspaces, domain_flags.shape, !batch_no_route);
     }
     if (*health) return remote::health(o);
     if (*list) return remote::list(o);

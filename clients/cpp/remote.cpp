@@ -10,6 +10,7 @@
 #include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <thread>
 #include <vector>
@@ -61,7 +62,9 @@ std::string slurp(const std::string& path) {
   return s.str();
 }
 
-std::shared_ptr<grpc::Channel> channel(const RemoteOptions& o) {
+// A channel to `o.server`, or to `address` (one shard's replicas: HOST:PORT, or several
+// comma-separated IPv4 ones, spread over with round_robin as the server's relay does).
+std::shared_ptr<grpc::Channel> channel(const RemoteOptions& o, const std::string& address = "") {
   std::shared_ptr<grpc::ChannelCredentials> creds = grpc::InsecureChannelCredentials();
   if (!o.tls_ca.empty()) {
     grpc::SslCredentialsOptions ssl;
@@ -81,7 +84,11 @@ std::shared_ptr<grpc::Channel> channel(const RemoteOptions& o) {
   args.SetServiceConfigJSON(R"({"methodConfig": [{"name": [{"service": "spokemesh.v1.Mesher"}],
       "retryPolicy": {"maxAttempts": 4, "initialBackoff": "0.1s", "maxBackoff": "1s", "backoffMultiplier": 2,
                       "retryableStatusCodes": ["UNAVAILABLE"]}}]})");
-  return grpc::CreateCustomChannel(o.server, creds, args);
+  if (address.find(',') != std::string::npos) {
+    args.SetLoadBalancingPolicyName("round_robin");
+    return grpc::CreateCustomChannel("ipv4:" + address, creds, args);
+  }
+  return grpc::CreateCustomChannel(address.empty() ? o.server : address, creds, args);
 }
 
 void prepare(const RemoteOptions& o, grpc::ClientContext& ctx) {
@@ -424,9 +431,101 @@ int cells(const RemoteOptions& o, const std::string& id, const std::string& outp
   return kExitOk;
 }
 
+// The answers of a BatchSeeds call, all its messages merged (repeated fields append).
+Result<pb::BatchSeedsResponse> batch_answers(const RemoteOptions& o, pb::Mesher::Stub& stub,
+                                             const pb::BatchSeedsRequest& r) {
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  auto reader = stub.BatchSeeds(&ctx, r);
+  pb::BatchSeedsResponse all, part;
+  while (reader->Read(&part)) all.MergeFrom(part);
+  if (const grpc::Status s = reader->Finish(); !s.ok()) return Status{Code::kUnavailable, s.error_message()};
+  return all;
+}
+
+// About what one answer of a batch weighs (a 3-d star is ~1 KB): the shard map (2 bytes
+// a seed of the set) is fetched only when it weighs no more than the batch's answers.
+constexpr std::uint64_t kAnswerBytes = 1000;
+
+// A batch sent by shard (docs/service.md, "Clients that route themselves"): the set's
+// shard map, then each shard's seeds asked of its replicas at once, the answers put
+// back in request order. nullopt: not routed - the set is not sharded, the map would
+// weigh more than the answers, a seed lies beyond the set, or a shard's call failed -
+// and the caller asks `o.server`, whose answer (errors included) is one replica's.
+std::optional<pb::BatchSeedsResponse> routed_batch(const RemoteOptions& o, pb::Mesher::Stub& stub,
+                                                   const pb::BatchSeedsRequest& r) {
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  pb::GetPointSetRequest q;
+  q.set_point_set_id(r.point_set_id());
+  auto reader = stub.GetShardMap(&ctx, q);
+  pb::ShardMapChunk head;
+  const auto give_up = [&] {
+    ctx.TryCancel();
+    reader->Finish();
+    return std::nullopt;
+  };
+  if (!reader->Read(&head) || !head.sharded() || head.shard_count() == 0 ||
+      head.grpc_addresses_size() != static_cast<int>(head.shard_count()) ||
+      2 * head.count() > kAnswerBytes * static_cast<std::uint64_t>(r.seeds_size())) {
+    return give_up();
+  }
+  for (const std::uint64_t seed : r.seeds()) {
+    if (seed >= head.count()) return give_up();  // its error is the deployment's
+  }
+  std::string seed_shards = head.seed_shards();
+  for (pb::ShardMapChunk chunk; reader->Read(&chunk);) seed_shards += chunk.seed_shards();
+  if (!reader->Finish().ok() || seed_shards.size() != 2 * head.count()) return std::nullopt;
+  const auto shard_of = [&](std::uint64_t seed) {
+    return static_cast<std::uint32_t>(static_cast<unsigned char>(seed_shards[2 * seed])) |
+           static_cast<std::uint32_t>(static_cast<unsigned char>(seed_shards[2 * seed + 1])) << 8;
+  };
+  std::vector<pb::BatchSeedsRequest> parts(head.shard_count());
+  for (const std::uint64_t seed : r.seeds()) {
+    const std::uint32_t shard = shard_of(seed);
+    if (shard >= head.shard_count()) return std::nullopt;
+    parts[shard].add_seeds(seed);
+  }
+  // Each shard's part at once, on a thread each.
+  std::vector<std::optional<Result<pb::BatchSeedsResponse>>> answers(parts.size());
+  std::vector<std::thread> calls;
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    if (parts[k].seeds_size() == 0) continue;
+    pb::BatchSeedsRequest& part = parts[k];
+    const google::protobuf::RepeatedField<std::uint64_t> seeds = part.seeds();
+    part.CopyFrom(r);
+    *part.mutable_seeds() = seeds;
+    calls.emplace_back([&, k] {
+      auto shard_stub = pb::Mesher::NewStub(channel(o, head.grpc_addresses(static_cast<int>(k))));
+      answers[k] = batch_answers(o, *shard_stub, parts[k]);
+    });
+  }
+  for (std::thread& t : calls) t.join();
+  for (std::size_t k = 0; k < parts.size(); ++k) {
+    if (parts[k].seeds_size() == 0) continue;
+    const auto& got = *answers[k];
+    if (!got.is_ok() || got->stars_size() + got->neighbors_size() + got->cells_size() != parts[k].seeds_size()) {
+      return std::nullopt;
+    }
+  }
+  // Back in request order: each shard's answers are in its part's order.
+  pb::BatchSeedsResponse merged;
+  std::vector<int> next(parts.size(), 0);
+  for (const std::uint64_t seed : r.seeds()) {
+    const std::uint32_t k = shard_of(seed);
+    const pb::BatchSeedsResponse& got = answers[k]->value();
+    const int at = next[k]++;
+    if (got.stars_size() > 0) *merged.add_stars() = got.stars(at);
+    if (got.neighbors_size() > 0) *merged.add_neighbors() = got.neighbors(at);
+    if (got.cells_size() > 0) *merged.add_cells() = got.cells(at);
+  }
+  return merged;
+}
+
 int batch(const RemoteOptions& o, const std::string& id, const std::string& kind,
           const std::vector<std::uint64_t>& seeds, const std::string& mode, std::uint32_t misses,
-          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces, const std::string& shape) {
+          std::uint32_t max_vertices, const std::string& box, const std::string& halfspaces, const std::string& shape,
+          bool route) {
   auto stub = pb::Mesher::NewStub(channel(o));
   pb::BatchSeedsRequest r;
   r.set_point_set_id(id);
@@ -442,12 +541,7 @@ int batch(const RemoteOptions& o, const std::string& id, const std::string& kind
   if (!box.empty() || !halfspaces.empty() || !shape.empty()) {
     if (const int rc = set_domain(o, *stub, id, box, halfspaces, *r.mutable_domain(), shape); rc != kExitOk) return rc;
   }
-  grpc::ClientContext ctx;
-  prepare(o, ctx);
-  auto reader = stub->BatchSeeds(&ctx, r);
-  pb::BatchSeedsResponse response;
-  std::string line;
-  while (reader->Read(&response)) {
+  const auto print = [&](const pb::BatchSeedsResponse& response) {
     for (const pb::Star& s : response.stars()) {
       const int d = static_cast<int>(s.dimension());
       nlohmann::json j = {{"seed", s.seed()}, {"dimension", d}, {"hull_facets", s.hull_facets()}};
@@ -479,7 +573,18 @@ int batch(const RemoteOptions& o, const std::string& id, const std::string& kind
     for (const pb::VoronoiCell& c : response.cells()) {
       std::cout << cli::cell_json(from_proto(c), c.seed(), [](std::uint32_t i) { return i; }).dump() << "\n";
     }
+  };
+  // On a sharded deployment, a large enough batch goes to each seed's shard itself.
+  if (const auto routed = route ? routed_batch(o, *stub, r) : std::nullopt) {
+    print(*routed);
+    std::cout.flush();
+    return kExitOk;
   }
+  grpc::ClientContext ctx;
+  prepare(o, ctx);
+  auto reader = stub->BatchSeeds(&ctx, r);
+  pb::BatchSeedsResponse response;
+  while (reader->Read(&response)) print(response);
   std::cout.flush();
   if (grpc::Status s = reader->Finish(); !s.ok()) return report(o, s);
   return kExitOk;

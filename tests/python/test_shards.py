@@ -357,7 +357,26 @@ def test_clients_route_themselves(stored, start_server):
                                                                                      bounding_box=True).volume
     assert [s.simplices.tolist() for s in routed.batch_stars(set_id, seeds)] == \
         [s.simplices.tolist() for s in reference.batch_stars(set_id, seeds)]
+    # The CLI's batches route themselves too (the map weighs less than the answers).
+    from conftest import cli
+    seed_text = ",".join(map(str, seeds))
+    want = cli("--server", whole.grpc, "batch", set_id, "stars", "--seeds", seed_text).stdout
+    assert cli("--server", replicas[1].grpc, "batch", set_id, "stars", "--seeds", seed_text).stdout == want
     assert sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas) == before
+    box_text = "0,0,0,0.5,1,1"
+    routed_error = cli("--server", replicas[1].grpc, "batch", set_id, "cells", "--seeds", seed_text, "--box", box_text,
+                       check=False)
+    whole_error = cli("--server", whole.grpc, "batch", set_id, "cells", "--seeds", seed_text, "--box", box_text,
+                      check=False)
+    assert routed_error.returncode == whole_error.returncode != 0
+    # The same error but for the address each names ("spokemesh: HOST:PORT: ...").
+    assert routed_error.stderr.split(": ", 2)[2] == whole_error.stderr.split(": ", 2)[2]
+    assert "lies outside the domain" in whole_error.stderr
+    # --no-route: the front replica relays (answers unchanged).
+    assert cli("--server", replicas[1].grpc, "batch", set_id, "stars", "--no-route", "--seeds",
+               seed_text).stdout == want
+    assert sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas) > before
+    before = sum(metric(r.http, "spokemesh_forwarded_requests_total") for r in replicas)
     # Without routing, shard 1's replica relays shard 0's seeds.
     shard0 = [s for s in seeds if seed_shards[s] == 0][:5]
     for seed in shard0:
