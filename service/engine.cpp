@@ -708,10 +708,9 @@ StarAnswer Engine::star_answer(const StoredSet& set, Star star) {
   const PointSet& points = set.points;
   const int d = points.dimension();
   const double* weights = set.weights.empty() ? nullptr : set.weights.data();
-  answer.circumcentres.reserve(answer.star.size() * d);
+  answer.circumcentres.resize(answer.star.size() * d);
   for (std::size_t i = 0; i < answer.star.size(); ++i) {
-    const std::vector<double> c = circumcentre(points, answer.star.simplex(i), d + 1, weights);
-    answer.circumcentres.insert(answer.circumcentres.end(), c.begin(), c.end());
+    circumcentre(points, answer.star.simplex(i), d + 1, weights, answer.circumcentres.data() + i * d);
   }
   return answer;
 }

@@ -210,6 +210,7 @@ std::uint64_t estimated_memory(std::uint64_t n, int d, bool weighted, bool perio
 PointSetStore::PointSetStore(std::string dir, std::uint64_t budget, LogFn log)
     : dir_(std::move(dir)), budget_(budget), log_(std::move(log)) {
   budget_.set_reclaimer([this](std::uint64_t bytes) { reclaim(bytes); });
+  dir_fd_ = ::open(dir_.c_str(), O_PATH | O_DIRECTORY | O_CLOEXEC);  // -1: paths are used instead
 }
 
 void PointSetStore::reclaim(std::uint64_t bytes) {
@@ -346,7 +347,7 @@ Result<PointSetInfo> PointSetStore::info(const std::string& id) {
   }
   {
     std::lock_guard lock(mutex_);
-    if (auto it = index_.find(id); it != index_.end() && file_exists(data_path(id))) return (*it->second)->info;
+    if (auto it = index_.find(id); it != index_.end() && set_file_present(id)) return (*it->second)->info;
   }
   const int fd = ::open(data_path(id).c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return Status{Code::kNotFound, "point set " + id + " not found"};
@@ -394,7 +395,7 @@ Status PointSetStore::read_coordinates(const std::string& id, const CoordinateSi
     std::lock_guard lock(mutex_);
     if (auto it = index_.find(id); it != index_.end()) loaded = *it->second;
   }
-  if (loaded != nullptr && file_exists(data_path(id))) {
+  if (loaded != nullptr && set_file_present(id)) {
     const std::span<const double> coords = loaded->points.coordinates();
     const auto* bytes = reinterpret_cast<const char*>(coords.data());
     for (std::size_t at = 0; at < coords.size_bytes(); at += defaults::kDownloadChunkBytes) {
@@ -467,7 +468,7 @@ Result<std::shared_ptr<const StoredSet>> PointSetStore::get(const std::string& i
   if (!is_valid_id(id)) {
     return not_an_id(id);
   }
-  const bool on_disk = file_exists(data_path(id));
+  const bool on_disk = set_file_present(id);
   {
     std::lock_guard lock(mutex_);
     if (auto it = index_.find(id); it != index_.end()) {
@@ -575,7 +576,7 @@ std::shared_ptr<const StoredSet> PointSetStore::loaded(const std::string& id) co
 }
 
 std::shared_ptr<const StoredSet> PointSetStore::get_in_memory(const std::string& id) {
-  if (!is_valid_id(id) || !file_exists(data_path(id))) return nullptr;  // deleted: get() says so
+  if (!is_valid_id(id) || !set_file_present(id)) return nullptr;  // deleted: get() says so
   std::lock_guard lock(mutex_);
   const auto it = index_.find(id);
   if (it == index_.end()) return nullptr;
@@ -584,7 +585,7 @@ std::shared_ptr<const StoredSet> PointSetStore::get_in_memory(const std::string&
 }
 
 std::shared_ptr<const StoredSet> PointSetStore::get_piece_in_memory(const std::string& id, std::uint32_t piece) {
-  if (!is_valid_id(id) || !file_exists(data_path(id))) return nullptr;
+  if (!is_valid_id(id) || !set_file_present(id)) return nullptr;
   std::lock_guard lock(mutex_);
   const auto it = index_.find(id + "/" + std::to_string(piece));
   if (it == index_.end()) return nullptr;
@@ -603,6 +604,17 @@ std::shared_ptr<const StoredSet> PointSetStore::remember(std::shared_ptr<const S
   index_[key] = lru_.begin();
   in_use_ += set->memory_bytes;
   return set;  // the budget, not a count, decides when sets leave memory (reclaim)
+}
+
+bool PointSetStore::set_file_present(const std::string& id) {
+  const std::string name = data_dir::set_file_name(id);
+  struct stat st {};
+  if (dir_fd_ >= 0) return ::fstatat(dir_fd_, name.c_str(), &st, 0) == 0;
+  return file_exists(data_path(id));
+}
+
+PointSetStore::~PointSetStore() {
+  if (dir_fd_ >= 0) ::close(dir_fd_);
 }
 
 void PointSetStore::forget(const std::string& id) {
@@ -684,7 +696,7 @@ Result<std::shared_ptr<const PieceLayout>> PointSetStore::layout(const std::stri
 }
 
 Result<std::shared_ptr<const StoredSet>> PointSetStore::get_piece(const std::string& id, std::uint32_t piece) {
-  if (!file_exists(data_path(id))) {
+  if (!set_file_present(id)) {
     forget(id);  // deleted, possibly through another server sharing the data dir
     return Status{Code::kNotFound, "point set " + id + " not found"};
   }

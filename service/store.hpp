@@ -165,6 +165,7 @@ using LogFn = std::function<void(const std::string& level, const std::string& me
 
 class PointSetStore {
  public:
+  ~PointSetStore();
   // Creates data_dir (and quarantine/) if needed. memory_budget: the server's one
   // budget (--max-memory), owned here (budget()): loaded sets draw from it, and when a
   // charge does not fit the store drops its least recently used sets nobody is using.
@@ -268,6 +269,10 @@ class PointSetStore {
   void quarantine(const std::string& id, const std::string& why);
   std::shared_ptr<const StoredSet> remember(std::shared_ptr<const StoredSet> set);
   void forget(const std::string& id);
+  // Whether the set's file is in the data directory (another server sharing it may
+  // have deleted it). Asked by every request, so looked up relative to a descriptor of
+  // the directory kept open (one name looked up, not every component of the path).
+  bool set_file_present(const std::string& id);
 
   const std::string dir_;
   MemoryBudget budget_;
@@ -279,6 +284,7 @@ class PointSetStore {
   std::unordered_map<std::string, std::list<std::shared_ptr<const StoredSet>>::iterator> index_;
   std::uint64_t in_use_ = 0;
   std::unordered_map<std::string, std::shared_ptr<const PieceLayout>> layouts_;  // guarded by mutex_
+  int dir_fd_ = -1;                                                              // dir_, for set_file_present (O_PATH)
 };
 
 }  // namespace spokemesh::service

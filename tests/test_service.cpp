@@ -237,9 +237,19 @@ TEST(Store, SharedDataDirServesUploadsAndDeletesOfOtherReplicas) {
   ASSERT_TRUE(sa.is_ok() && sb.is_ok());
   EXPECT_EQ(sa->star.simplices, sb->star.simplices);
   EXPECT_EQ(sa->circumcentres, sb->circumcentres);
+  for (int asked = 0; asked < 3; ++asked) ASSERT_TRUE(a->star(id, 7, control).is_ok());  // a's file check kept
   ASSERT_TRUE(b->delete_point_set(id).is_ok());
   EXPECT_EQ(a->star(id, 7, control).status().code(), Code::kNotFound);
   EXPECT_EQ(a->get_point_set(id).status().code(), Code::kNotFound);
+  EXPECT_FALSE(a->hold_at_hand(id, 7));
+  // Uploaded again through b (a new file, the same id): a answers it again, and a
+  // second delete is seen as the first was.
+  ASSERT_EQ(upload(*b, 2, coords).value().id, id);
+  auto again = a->star(id, 7, control);
+  ASSERT_TRUE(again.is_ok()) << again.status().message();
+  EXPECT_EQ(again->star.simplices, sa->star.simplices);
+  ASSERT_TRUE(b->delete_point_set(id).is_ok());
+  EXPECT_EQ(a->star(id, 7, control).status().code(), Code::kNotFound);
 }
 
 TEST(MemoryBudget, HeapTrimmerTrimsAfterChurnOnlyAndStops) {

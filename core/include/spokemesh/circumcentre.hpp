@@ -23,6 +23,9 @@ namespace spokemesh {
 // larger of its distance from the first point and the face's size (plus one ulp).
 std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count,
                                  const double* weights = nullptr);
+// The same written to out[0..d): no heap allocation at all for triangles in 2-d and
+// tetrahedra in 3-d that Cramer's rule decides (nearly all of them: a star's centres).
+void circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights, double* out);
 // The face's size in circumcentre()'s bound for power centres: the largest squared
 // distance from the first of `ids` to the others.
 double face_size2(const PointSet& points, const std::uint32_t* ids, int count);

@@ -30,8 +30,10 @@ namespace spokemesh::data_dir {
 
 // A set's id: 64 lowercase hex digits (the SHA-256 of its file's bytes).
 bool is_set_id(std::string_view id);
-// <dir>/<id>.points; and the set's id when `name` is such a file's name, else "".
+// <dir>/<id>.points (its name in dir: set_file_name); and the set's id when `name` is
+// such a file's name, else "".
 std::string set_file(const std::string& dir, const std::string& id);
+std::string set_file_name(const std::string& id);
 std::string set_id_of_file_name(std::string_view name);
 // <dir>/<id>.name: the display name; <dir>/<id>.owner-<tenant in hex>: a tenant's mark.
 std::string name_file(const std::string& dir, const std::string& id);

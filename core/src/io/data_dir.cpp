@@ -29,7 +29,8 @@ bool is_set_id(std::string_view id) {
   return true;
 }
 
-std::string set_file(const std::string& dir, const std::string& id) { return dir + "/" + id + ".points"; }
+std::string set_file_name(const std::string& id) { return id + ".points"; }
+std::string set_file(const std::string& dir, const std::string& id) { return dir + "/" + set_file_name(id); }
 
 std::string set_id_of_file_name(std::string_view name) {
   constexpr std::string_view kSuffix = ".points";

@@ -84,65 +84,62 @@ double face_size2(const PointSet& points, const std::uint32_t* ids, int count) {
   return size2;
 }
 
-std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights) {
-  // c = p0 + y with y in the span of v_i = p_i - p0 and v_i . y = |v_i|^2 / 2. With the
-  // column-pivoting QR A P = Q R of A = [v_1 ... v_k] (d x k), y = Q_1 z where
-  // R_1^T z = P^T b / 2: the system is solved on the coordinate differences themselves,
-  // so its error grows with cond(A), not with cond(A^T A) as through the normal
-  // equations (which put a jittered grid's vertices 0.57 cells off).
-  //
-  // Error bound: the computed y has relative error about cond(A) u d (Higham, Accuracy
-  // and Stability, 19.5), cond(A) estimated by |R_11| / |R_kk|. Where that could exceed
-  // kRelativeTarget, the centre is computed exactly instead (circumcentre_exact): every
-  // result is then within 1e-12 of the face's size plus one ulp of the coordinate.
+namespace {
+
+// The centre of a triangle in 2-d or a tetrahedron in 3-d (count = d + 1) by Cramer's
+// rule on the coordinate differences, with its forward error bound (cramer.hpp), in
+// double and then (slivers: the flat tetrahedra of scans and surfaces) in x87 extended
+// precision: written to `centre` (holding p0 on entry) and true where the bound meets
+// the target (1e-12 of the radius); false, `centre` untouched, where it does not (the
+// QR and the exact path decide). About 10x cheaper than the QR.
+bool cramer_centre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights, double* centre) {
+  const int d = points.dimension();
+  const double* p0 = points.point(ids[0]);
+  auto excess = [&](int i) { return weights == nullptr ? 0.0 : weights[ids[i + 1]] - weights[ids[0]]; };
+  auto solve = [&](auto zero) -> bool {
+    using T = decltype(zero);
+    T y[3] = {0, 0, 0}, bound = 0;
+    bool solved = false;
+    if (d == 2) {
+      T a[2][2], c[2], y2[2];
+      for (int i = 0; i < 2; ++i) {
+        for (int j = 0; j < 2; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
+        c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] - T(excess(i)));
+      }
+      solved = detail::cramer_solve(a, c, y2, bound);
+      y[0] = y2[0], y[1] = y2[1];
+    } else {
+      T a[3][3], c[3];
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
+        c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2] - T(excess(i)));
+      }
+      solved = detail::cramer_solve(a, c, y, bound);
+    }
+    T radius = 0;
+    for (int j = 0; j < d; ++j) radius += y[j] * y[j];
+    // A power centre's distance from p0 may be far below the face's size (its
+    // right-hand side cancels): the target is 1e-12 of the larger.
+    if (weights != nullptr) radius = std::max(radius, T(face_size2(points, ids, count)));
+    // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
+    if (!solved || !(std::sqrt(T(d)) * bound <= T(1e-12) * std::sqrt(radius))) return false;
+    for (int j = 0; j < d; ++j) centre[j] = static_cast<double>(T(centre[j]) + y[j]);
+    return true;
+  };
+  return solve(0.0) || solve(0.0L);
+}
+
+// The rest of circumcentre() below, past Cramer's rule: the QR, or the exact centre.
+std::vector<double> qr_centre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights) {
   const int d = points.dimension();
   const int k = count - 1;
   const double* p0 = points.point(ids[0]);
   std::vector<double> centre(p0, p0 + d);
-  if (k == 0) return centre;
   if (d > kMaxCols) return circumcentre_exact(points, ids, k, weights);
   // With weights, the right-hand side (|v_i|^2 - (w_i - w_0)) / 2 carries two more
   // roundings; the bounds below are relative to |y| (which may be small: the power
   // centre can sit near p0), and where they miss the target the exact path decides.
   auto excess = [&](int i) { return weights == nullptr ? 0.0 : weights[ids[i + 1]] - weights[ids[0]]; };
-  // Triangles in 2-d and tetrahedra in 3-d (k = d): Cramer's rule on the same
-  // differences, with its forward error bound (cramer.hpp), where that bound meets the
-  // target; about 10x cheaper than the QR below, which takes the rest.
-  if (k == d && (d == 2 || d == 3)) {
-    // In double, then (slivers: the flat tetrahedra of scans and surfaces) in x87
-    // extended precision before the QR and the exact path.
-    auto solve = [&](auto zero) -> bool {
-      using T = decltype(zero);
-      T y[3] = {0, 0, 0}, bound = 0;
-      bool solved = false;
-      if (d == 2) {
-        T a[2][2], c[2], y2[2];
-        for (int i = 0; i < 2; ++i) {
-          for (int j = 0; j < 2; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
-          c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] - T(excess(i)));
-        }
-        solved = detail::cramer_solve(a, c, y2, bound);
-        y[0] = y2[0], y[1] = y2[1];
-      } else {
-        T a[3][3], c[3];
-        for (int i = 0; i < 3; ++i) {
-          for (int j = 0; j < 3; ++j) a[i][j] = T(points.point(ids[i + 1])[j]) - T(p0[j]);
-          c[i] = T(0.5) * (a[i][0] * a[i][0] + a[i][1] * a[i][1] + a[i][2] * a[i][2] - T(excess(i)));
-        }
-        solved = detail::cramer_solve(a, c, y, bound);
-      }
-      T radius = 0;
-      for (int j = 0; j < d; ++j) radius += y[j] * y[j];
-      // A power centre's distance from p0 may be far below the face's size (its
-      // right-hand side cancels): the target is 1e-12 of the larger.
-      if (weights != nullptr) radius = std::max(radius, T(face_size2(points, ids, count)));
-      // Euclidean: sqrt(d) x the infinity-norm bound, against 1e-12 of the radius.
-      if (!solved || !(std::sqrt(T(d)) * bound <= T(1e-12) * std::sqrt(radius))) return false;
-      for (int j = 0; j < d; ++j) centre[j] = static_cast<double>(T(centre[j]) + y[j]);
-      return true;
-    };
-    if (solve(0.0) || solve(0.0L)) return centre;
-  }
   // Dynamic sizes with fixed capacity: no heap allocation per vertex.
   using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxCols, kMaxCols>;
   using Vector = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxCols, 1>;
@@ -166,6 +163,37 @@ std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* id
   padded.head(k) = z;
   const Vector y = qr.householderQ() * padded;
   for (int c = 0; c < d; ++c) centre[c] += y(c);
+  return centre;
+}
+
+}  // namespace
+
+void circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights, double* out) {
+  // c = p0 + y with y in the span of v_i = p_i - p0 and v_i . y = |v_i|^2 / 2. With the
+  // column-pivoting QR A P = Q R of A = [v_1 ... v_k] (d x k), y = Q_1 z where
+  // R_1^T z = P^T b / 2: the system is solved on the coordinate differences themselves,
+  // so its error grows with cond(A), not with cond(A^T A) as through the normal
+  // equations (which put a jittered grid's vertices 0.57 cells off).
+  //
+  // Error bound: the computed y has relative error about cond(A) u d (Higham, Accuracy
+  // and Stability, 19.5), cond(A) estimated by |R_11| / |R_kk|. Where that could exceed
+  // kRelativeTarget, the centre is computed exactly instead (circumcentre_exact): every
+  // result is then within 1e-12 of the face's size plus one ulp of the coordinate.
+  const int d = points.dimension();
+  const int k = count - 1;
+  const double* p0 = points.point(ids[0]);
+  std::copy(p0, p0 + d, out);
+  if (k == 0) return;
+  // Triangles in 2-d and tetrahedra in 3-d (k = d): Cramer's rule where its bound
+  // meets the target; the QR takes the rest.
+  if (k == d && (d == 2 || d == 3) && cramer_centre(points, ids, count, weights, out)) return;
+  const std::vector<double> centre = qr_centre(points, ids, count, weights);
+  std::copy(centre.begin(), centre.end(), out);
+}
+
+std::vector<double> circumcentre(const PointSet& points, const std::uint32_t* ids, int count, const double* weights) {
+  std::vector<double> centre(static_cast<std::size_t>(points.dimension()));
+  circumcentre(points, ids, count, weights, centre.data());
   return centre;
 }
 
