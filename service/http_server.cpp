@@ -4,7 +4,6 @@
 
 #include <boost/asio/post.hpp>
 #include <boost/asio/steady_timer.hpp>
-#include <boost/asio/strand.hpp>
 #include <boost/asio/write.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
@@ -78,7 +77,9 @@ bool quiet_end(const boost::system::error_code& ec) {
 class HttpServer::SessionBase : public std::enable_shared_from_this<SessionBase> {
  public:
   virtual ~SessionBase() = default;
-  // Both post onto the session's strand, so they may be called from any thread.
+  // Both post onto the session's event loop (run by one thread: every handler of a
+  // session runs there, one at a time, with no strand needed), so they may be called
+  // from any thread.
   virtual void close() = 0;
   virtual void close_if_idle() = 0;
 };
@@ -286,7 +287,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     return res;
   }
 
-  // On the strand: an answer made at once, written without a thread; then the next
+  // On the loop: an answer made at once, written without a thread; then the next
   // request (keep-alive), as handle() ends.
   void write_at_once(HttpResponse response) {
     const bool keep_alive = request_.keep_alive() && !server_.stopping_.load();
@@ -300,7 +301,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     });
   }
 
-  // Runs an asynchronous write on the session's strand and waits for it (from the
+  // Runs an asynchronous write on the session's loop and waits for it (from the
   // request's own thread). The write timeout ends a client that stopped reading.
   template <class Start>
   boost::system::error_code write_and_wait(Start&& start) {
@@ -403,7 +404,7 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   MemoryBudget::Charge body_charge_;  // the request body's bytes, until it is handled
   std::array<char, 4096> drain_{};    // discarded bytes of a lingering close
   std::size_t requests_ = 0;
-  bool idle_ = false;  // waiting for a request (on the strand only)
+  bool idle_ = false;  // waiting for a request (on the loop's thread only)
   std::atomic<bool> closed_{false};
 };
 
@@ -486,7 +487,9 @@ void HttpServer::do_accept() {
   const std::size_t turn = next_io_++ % io_.size();
   net::io_context& loop = *io_[turn];
   ShardPeers::RelayPool& relays = *relay_pools_[turn];
-  acceptor_->async_accept(net::make_strand(loop), [this, &relays](boost::system::error_code ec, tcp::socket socket) {
+  // The connection's operations on its loop's own executor: one thread runs each loop,
+  // so its handlers never run concurrently (a strand would only add a queue hop to each).
+  acceptor_->async_accept(loop.get_executor(), [this, &relays](boost::system::error_code ec, tcp::socket socket) {
     if (stopping_.load() || ec == net::error::operation_aborted) return;
     if (ec) {
       // Out of descriptors and the like: back off instead of spinning.

@@ -85,6 +85,7 @@ std::pair<std::string, std::string> host_port(const std::string& address) {
 // One kept-alive connection to one replica, with its own io_context so that a request
 // runs its operations (with their deadline) on the calling thread alone.
 struct ShardPeers::Connection {
+  Connection() { buffer.reserve(16384); }  // as RelayPool::Connection's
   asio::io_context io;
   beast::tcp_stream stream{io};
   beast::flat_buffer buffer;
@@ -276,7 +277,9 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
 // ---- relays without a thread ----------------------------------------------------------
 
 struct ShardPeers::RelayPool::Connection {
-  explicit Connection(asio::io_context& io) : stream(io) {}
+  // 16 KiB read at once: a star's or cell's answer arrives in one read, not in the
+  // growing reads of an empty buffer (each one more system call and loop turn).
+  explicit Connection(asio::io_context& io) : stream(io) { buffer.reserve(16384); }
   beast::tcp_stream stream;
   beast::flat_buffer buffer;
   std::string endpoint;
