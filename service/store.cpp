@@ -9,6 +9,7 @@
 #include <dirent.h>
 #include <fcntl.h>
 #include <openssl/evp.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -641,13 +642,31 @@ void PointSetStore::forget(const std::string& id) {
   }
 }
 
+PieceLayout::PieceLayout(PieceManifest manifest, int owners_fd)
+    : manifest_(std::move(manifest)), owners_fd_(owners_fd) {
+  const std::size_t bytes = manifest_.count * 4;
+  if (owners_fd_ >= 0 && bytes > 0) {
+    void* mapped = ::mmap(nullptr, bytes, PROT_READ, MAP_SHARED, owners_fd_, 0);
+    if (mapped != MAP_FAILED) {
+      owners_ = static_cast<const std::uint32_t*>(mapped);
+      mapped_bytes_ = bytes;
+    }
+  }
+}
+
 PieceLayout::~PieceLayout() {
+  if (owners_ != nullptr) ::munmap(const_cast<std::uint32_t*>(owners_), mapped_bytes_);
   if (owners_fd_ >= 0) ::close(owners_fd_);
 }
 
 Result<std::uint32_t> PieceLayout::piece_of(std::uint64_t seed) const {
   std::uint32_t piece = 0;
-  const ssize_t got = ::pread(owners_fd_, &piece, 4, static_cast<off_t>(seed * 4));
+  ssize_t got = 4;
+  if (owners_ != nullptr && seed < manifest_.count) {
+    piece = owners_[seed];
+  } else {
+    got = ::pread(owners_fd_, &piece, 4, static_cast<off_t>(seed * 4));
+  }
   if (got != 4 || piece >= pieces()) {
     return internal_error("point set " + manifest_.set_id + ": its owner map has no valid entry for point " +
                           std::to_string(seed));

@@ -109,7 +109,12 @@ struct StoredSet {
 // A set kept as pieces (pieces.hpp): its manifest, and its owner map open for lookups.
 class PieceLayout {
  public:
-  PieceLayout(PieceManifest manifest, int owners_fd) : manifest_(std::move(manifest)), owners_fd_(owners_fd) {}
+  // owners_fd: the owner map, manifest.count 4-byte entries (checked by the caller);
+  // owned, and mapped read-only here (every sharded request looks a seed up in it: a
+  // memory read instead of a pread; its pages are the kernel's file cache, reclaimable,
+  // not the server's memory budget). The map's file is never rewritten in place (the
+  // data directory's commit rule), so the mapping stays valid while it is held.
+  PieceLayout(PieceManifest manifest, int owners_fd);
   ~PieceLayout();
   PieceLayout(const PieceLayout&) = delete;
   PieceLayout& operator=(const PieceLayout&) = delete;
@@ -123,6 +128,8 @@ class PieceLayout {
  private:
   PieceManifest manifest_;
   int owners_fd_;
+  const std::uint32_t* owners_ = nullptr;  // the mapping (null: not mapped, pread instead)
+  std::size_t mapped_bytes_ = 0;
 };
 
 // Incremental SHA-256 (OpenSSL EVP).
