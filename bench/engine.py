@@ -127,11 +127,27 @@ def section_serve(families: list[str], n: int | None, seeds_count: int) -> None:
     import spokemesh
     from local_server import local_server
 
+    def budget_used(conn) -> float:
+        conn.request("GET", "/metrics")
+        r = conn.getresponse()
+        for line in r.read().decode().splitlines():
+            if line.startswith("spokemesh_memory_budget_used_bytes"):
+                return float(line.split()[-1])
+        return 0.0
+
     def measure(client, http_target: str, points: np.ndarray) -> tuple[float, float]:
         ps = client.upload(points)
         client.star(ps.id, 0)  # loads the set; its triangulation is built in the background
         host, port = http_target.split(":")
         conn = http.client.HTTPConnection(host, int(port))
+        # Kept once the budget's use stops growing (the triangulation is charged as it
+        # is built): a degenerate set's walked stars can look steady before that.
+        last, steady, until = -1.0, 0, time.time() + 300
+        while steady < 6 and time.time() < until:
+            time.sleep(0.5)
+            used = budget_used(conn)
+            steady = steady + 1 if used == last else 0
+            last = used
         rng = np.random.default_rng(4)
         seeds = [int(s) for s in rng.integers(0, len(points), seeds_count)]
 
