@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <map>
 #include <mutex>
 #include <numeric>
@@ -18,6 +19,7 @@
 #include "cgal_oracle.hpp"
 #include "inputs.hpp"  // bench/: the shape families
 #include "mesh/triangulation.hpp"
+#include "predicates/circumcentre_exact.hpp"
 #include "spokemesh/space_split.hpp"
 #include "support.hpp"
 
@@ -597,6 +599,53 @@ TEST(TriangulationSweep, AcceptSeesWholeStars) {
   EXPECT_EQ(tri_rows, stars_rows);
   EXPECT_TRUE(tri_seen == stars_seen);
   EXPECT_EQ(tri_seen.size(), ps.size());
+}
+
+// The exact circumcentre by integers (Cramer's rule on coordinates scaled to integers)
+// is the rational one (Gaussian elimination in mpq) bit for bit, on what reaches the
+// exact path: slivers (nearly coplanar tetrahedra, nearly collinear triangles), tiny
+// simplices far from the origin, coordinates of wildly different magnitudes, zeros and
+// negative values; and a flat simplex is left to the rational path. Seed printed.
+TEST(CircumcentreExact, IntegersGiveTheRationalsBits) {
+  const std::uint64_t seed = 52;
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  std::uniform_int_distribution<int> exponent(-60, 60);
+  int compared = 0;
+  for (int d = 2; d <= 3; ++d) {
+    for (int trial = 0; trial < 3000; ++trial) {
+      std::vector<double> coords(static_cast<std::size_t>((d + 1) * d));
+      const int kind = trial % 5;
+      for (int i = 0; i <= d; ++i) {
+        for (int c = 0; c < d; ++c) {
+          double x = unit(rng);
+          if (kind == 1 && c == d - 1) x = 1e-9 * x;        // a sliver: the last coordinate nearly 0
+          if (kind == 2) x = 1e6 + 1e-4 * x;                // tiny, far away
+          if (kind == 3) x = std::ldexp(x, exponent(rng));  // magnitudes far apart
+          if (kind == 4 && (i + c) % 3 == 0) x = 0;         // zeros
+          coords[static_cast<std::size_t>(i * d + c)] = x;
+        }
+      }
+      const PointSet ps(d, coords);
+      const std::uint32_t ids[4] = {0, 1, 2, 3};
+      double got[3] = {0, 0, 0};
+      if (!detail::circumcentre_integer(ps, ids, d, got)) continue;  // flat
+      const std::vector<double> want = detail::circumcentre_rational(ps, ids, d, nullptr);
+      ++compared;
+      for (int c = 0; c < d; ++c) {
+        ASSERT_EQ(std::memcmp(&got[c], &want[static_cast<std::size_t>(c)], sizeof(double)), 0)
+            << "seed " << seed << ", d " << d << ", trial " << trial << ", coordinate " << c << ": " << got[c] << " vs "
+            << want[static_cast<std::size_t>(c)];
+      }
+    }
+  }
+  EXPECT_GT(compared, 5900);
+  // Flat: three collinear points in 2-d.
+  const PointSet flat(2, {0, 0, 1, 1, 2, 2});
+  const std::uint32_t ids[3] = {0, 1, 2};
+  double out[2] = {7, 7};
+  EXPECT_FALSE(detail::circumcentre_integer(flat, ids, 2, out));
+  EXPECT_EQ(out[0], 7);
 }
 
 }  // namespace

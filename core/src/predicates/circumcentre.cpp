@@ -5,10 +5,12 @@
 
 #include <algorithm>
 #include <array>
+#include <climits>
 #include <cmath>
 #include <limits>
 
 #include "base/invariant.hpp"
+#include "predicates/circumcentre_exact.hpp"
 #include "predicates/cramer.hpp"
 #include "spokemesh/predicates.hpp"
 
@@ -18,12 +20,27 @@ namespace {
 
 constexpr int kMaxCols = kMaxDimension + 1;
 
-// The circumcentre in rationals, rounded once: the face's points are doubles, so
-// differences, squared norms and the normal equations G l = b / 2 (G = V V^T) are
-// exact in mpq, and the only error is the final rounding (mpq -> double truncates:
-// at most one ulp). Gaussian elimination with the first non-zero pivot: exact
-// arithmetic needs no pivoting for accuracy, and G is positive definite.
+// The exact circumcentre, rounded once: by integers for triangles and tetrahedra
+// without weights, in rationals otherwise (circumcentre_exact.hpp; the same value).
 std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32_t* ids, int k, const double* weights) {
+  // Triangles and tetrahedra (the slivers of scans and surfaces come here): by integers.
+  if (weights == nullptr && k == points.dimension()) {
+    std::vector<double> centre(static_cast<std::size_t>(k));
+    if (detail::circumcentre_integer(points, ids, k, centre.data())) return centre;
+  }
+  return detail::circumcentre_rational(points, ids, k, weights);
+}
+
+}  // namespace
+
+namespace detail {
+
+// The face's points are doubles, so differences, squared norms and the normal
+// equations G l = b / 2 (G = V V^T) are exact in mpq, and the only error is the final
+// rounding. Gaussian elimination with the first non-zero pivot: exact arithmetic needs
+// no pivoting for accuracy, and G is positive definite.
+std::vector<double> circumcentre_rational(const PointSet& points, const std::uint32_t* ids, int k,
+                                          const double* weights) {
   const int d = points.dimension();
   const double* p0 = points.point(ids[0]);
   std::vector<mpq_class> v(static_cast<std::size_t>(k * d));
@@ -70,7 +87,73 @@ std::vector<double> circumcentre_exact(const PointSet& points, const std::uint32
   return centre;
 }
 
-}  // namespace
+bool circumcentre_integer(const PointSet& points, const std::uint32_t* ids, int k, double* out) {
+  const int d = points.dimension();
+  if (k != d || (d != 2 && d != 3)) return false;
+  // Every coordinate is m 2^e with an integer m (|m| < 2^53): with E the least such e,
+  // each is the integer m 2^(e - E) in units of 2^E, exactly.
+  double x[4][3];
+  int least = INT_MAX;
+  for (int i = 0; i <= k; ++i) {
+    for (int c = 0; c < d; ++c) {
+      x[i][c] = points.point(ids[i])[c];
+      if (x[i][c] == 0) continue;
+      int e = 0;
+      std::frexp(x[i][c], &e);
+      least = std::min(least, e - 53);
+    }
+  }
+  if (least == INT_MAX) return false;  // every coordinate 0: flat
+  mpz_class X[4][3];
+  for (int i = 0; i <= k; ++i) {
+    for (int c = 0; c < d; ++c) {
+      if (x[i][c] == 0) continue;
+      int e = 0;
+      const double f = std::frexp(x[i][c], &e);
+      X[i][c] = mpz_class(std::ldexp(f, 53));  // exact: 53 bits
+      X[i][c] <<= static_cast<mp_bitcnt_t>(e - 53 - least);
+    }
+  }
+  // V y = b / 2 with rows v_i = X_i - X_0 and b_i = |v_i|^2 (units 2^E and 2^2E):
+  // y_j = det(V with column j replaced by b) / (2 det V), in units of 2^E.
+  mpz_class v[3][3], b[3];
+  for (int i = 0; i < k; ++i) {
+    b[i] = 0;
+    for (int c = 0; c < d; ++c) {
+      v[i][c] = X[i + 1][c] - X[0][c];
+      b[i] += v[i][c] * v[i][c];
+    }
+  }
+  const auto det2 = [](const mpz_class& a, const mpz_class& b1, const mpz_class& c, const mpz_class& e) {
+    return mpz_class(a * e - b1 * c);
+  };
+  const auto det3 = [&](const mpz_class m[3][3]) {
+    return mpz_class(m[0][0] * det2(m[1][1], m[1][2], m[2][1], m[2][2]) -
+                     m[0][1] * det2(m[1][0], m[1][2], m[2][0], m[2][2]) +
+                     m[0][2] * det2(m[1][0], m[1][1], m[2][0], m[2][1]));
+  };
+  const mpz_class det = d == 2 ? det2(v[0][0], v[0][1], v[1][0], v[1][1]) : det3(v);
+  if (sgn(det) == 0) return false;  // flat: the rational path says what it says
+  for (int j = 0; j < d; ++j) {
+    mpz_class m[3][3];
+    for (int i = 0; i < d; ++i) {
+      for (int c = 0; c < d; ++c) m[i][c] = c == j ? b[i] : v[i][c];
+    }
+    const mpz_class num = d == 2 ? det2(m[0][0], m[0][1], m[1][0], m[1][1]) : det3(m);
+    // x_0 + y_j = (2 det X_0 + num) / (2 det), times 2^E.
+    mpq_class centre(mpz_class(2 * det * X[0][j] + num), mpz_class(2 * det));
+    centre.canonicalize();
+    if (least >= 0) {
+      mpq_mul_2exp(centre.get_mpq_t(), centre.get_mpq_t(), static_cast<mp_bitcnt_t>(least));
+    } else {
+      mpq_div_2exp(centre.get_mpq_t(), centre.get_mpq_t(), static_cast<mp_bitcnt_t>(-least));
+    }
+    out[j] = centre.get_d();
+  }
+  return true;
+}
+
+}  // namespace detail
 
 double face_size2(const PointSet& points, const std::uint32_t* ids, int count) {
   const int d = points.dimension();
