@@ -218,20 +218,20 @@ class HttpServer::Session final : public HttpServer::SessionBase {
     } catch (const std::exception& e) {  // as handle(): one failed request
       at_once = failure(e);
     }
-    if (at_once && at_once->relay) {
-      if (relay_at_once(at_once->relay)) return;
-    } else if (at_once) {
-      ++requests_;
-      request_ = parser_->release();
-      return write_at_once(std::move(*at_once));
-    }
+    ++requests_;
+    request_ = parser_->release();
+    if (at_once && at_once->relay) return relay_at_once(at_once->relay);
+    if (at_once) return write_at_once(std::move(*at_once));
+    to_thread();
+  }
+
+  // The request (request_) on a thread of its own, unless too many are in flight.
+  void to_thread() {
     if (!server_.begin_request()) {
       return write_one_off(one_off_response(http::status::service_unavailable,
                                             Status{Code::kUnavailable, "too many requests in flight; retry later"},
                                             true));
     }
-    ++requests_;
-    request_ = parser_->release();
     if (!server_.workers_.run([self = shared()] { self->handle(); })) {  // no thread to be had
       server_.end_request();
       write_one_off(one_off_response(http::status::service_unavailable,
@@ -240,10 +240,11 @@ class HttpServer::Session final : public HttpServer::SessionBase {
   }
 
   // Another shard's seed, relayed on this loop without a thread (counted in flight as
-  // any request). False when that cannot be done without a thread (nothing happened):
-  // the request then takes the thread path, which relays it from there.
-  bool relay_at_once(const std::shared_ptr<PendingRelay>& pending) {
-    if (!server_.begin_request()) return false;  // the thread path answers the 503
+  // any request); a thread relays it when that cannot be done without one (see
+  // ShardPeers::forward_http_async). The answer may come before forward_http_async
+  // returns (a deadline already past), so request_ is set before it is called.
+  void relay_at_once(const std::shared_ptr<PendingRelay>& pending) {
+    if (!server_.begin_request()) return to_thread();  // which answers the 503
     ShardPeers::ForwardDone done = [self = shared(), pending](Result<ShardPeers::HttpResponse> relayed) {
       HttpResponse response;
       try {
@@ -254,14 +255,12 @@ class HttpServer::Session final : public HttpServer::SessionBase {
       self->server_.end_request();
       self->write_at_once(std::move(response));
     };
-    if (!pending->peers->forward_http_async(relays_, pending->shard, pending->request, pending->deadline, done)) {
-      server_.end_request();
-      return false;
+    if (pending->peers->forward_http_async(relays_, pending->shard, pending->request, pending->deadline, done)) {
+      ++server_.relayed_at_once_;
+      return;
     }
-    ++server_.relayed_at_once_;
-    ++requests_;
-    request_ = parser_->release();
-    return true;
+    server_.end_request();
+    to_thread();
   }
 
   HttpResponse failure(const std::exception& e) {

@@ -1571,6 +1571,21 @@ TEST(ShardedServers, RelaysOnTheLoopAreTheOwnersAnswers) {
   }
   // The first relay resolves shard 0's address from a thread; the rest go at once.
   EXPECT_GE(servers[1]->relayed_at_once(), shard0_seeds.size() * 4 - 2);
+  {
+    // A deadline already past: answered (504) before the relay starts, and the
+    // connection goes on.
+    http::request<http::string_body> req{http::verb::get, base + "/seeds/" + std::to_string(shard0_seeds[1]) + "/star",
+                                         11};
+    req.set(http::field::host, "127.0.0.1");
+    req.set("X-Timeout-Ms", "0");
+    req.keep_alive(true);
+    http::write(stream, req);
+    http::response<http::string_body> res;
+    http::read(stream, buffer, res);
+    EXPECT_EQ(res.result_int(), 504u) << res.body();
+    EXPECT_NE(res.body().find("DEADLINE_EXCEEDED"), std::string::npos) << res.body();
+    EXPECT_EQ(get(base + "/seeds/" + std::to_string(shard0_seeds[1]) + "/star").result_int(), 200u);
+  }
 
   servers[0]->stop(std::chrono::milliseconds(0));
   const std::size_t before = servers[1]->relayed_at_once();
