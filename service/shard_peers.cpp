@@ -36,6 +36,11 @@ constexpr unsigned kUnacknowledgedMs = 500;
 constexpr auto kResolvedFor = std::chrono::seconds(2);
 // The most a forwarded answer may hold (a cell of a high-dimensional seed is the largest).
 constexpr std::uint64_t kMaxForwardedBody = std::uint64_t{256} << 20;
+// A relay connection's read buffer from the start: a star's or cell's answer arrives in
+// one read, not in the growing reads of an empty buffer (each one more system call).
+constexpr std::size_t kRelayReadBytes = 16384;
+// Idle kept-alive connections kept per replica address (per pool).
+constexpr std::size_t kIdlePerAddress = 64;
 
 // A template with {shard} replaced; or, from a list "A1,A2;B1;C1,C2" (one entry per
 // shard, each a comma-separated list of replicas), the shard's entry.
@@ -85,7 +90,7 @@ std::pair<std::string, std::string> host_port(const std::string& address) {
 // One kept-alive connection to one replica, with its own io_context so that a request
 // runs its operations (with their deadline) on the calling thread alone.
 struct ShardPeers::Connection {
-  Connection() { buffer.reserve(16384); }  // as RelayPool::Connection's
+  Connection() { buffer.reserve(kRelayReadBytes); }
   asio::io_context io;
   beast::tcp_stream stream{io};
   beast::flat_buffer buffer;
@@ -125,7 +130,7 @@ std::unique_ptr<ShardPeers::Connection> ShardPeers::take_idle(std::uint32_t shar
 void ShardPeers::give_back(std::uint32_t shard, std::unique_ptr<Connection> c) {
   std::lock_guard lock(mutex_);
   auto& pool = idle_[{shard, c->endpoint}];
-  if (pool.size() < 64) pool.push_back(std::move(c));
+  if (pool.size() < kIdlePerAddress) pool.push_back(std::move(c));
 }
 
 bool ShardPeers::recently_refused(const std::string& endpoint) {
@@ -139,7 +144,7 @@ void ShardPeers::note_refused(const std::string& endpoint) {
   refused_until_[endpoint] = SteadyClock::now() + kRefusedFor;
 }
 
-void ShardPeers::prepare(std::uint32_t, HttpRequest& request, const std::string& first_replica) const {
+void ShardPeers::prepare(HttpRequest& request, const std::string& first_replica) const {
   request.set(kForwardedHeader, std::to_string(shards_.index));
   request.set(http::field::host, first_replica);
   request.keep_alive(true);
@@ -201,73 +206,103 @@ std::string endpoint_name(const tcp::endpoint& e) { return e.address().to_string
 
 }  // namespace
 
+// The order a relay tries a shard's addresses in, for forward_http and its asynchronous
+// twin alike: from a rotating start, those that did not refuse a connection lately;
+// then, once each, those that did (one may be back). Whether an address refused lately
+// is asked as it is reached.
+class ShardPeers::AddressOrder {
+ public:
+  AddressOrder(ShardPeers& peers, std::vector<tcp::endpoint> endpoints)
+      : peers_(peers),
+        endpoints_(std::move(endpoints)),
+        start_(peers.next_turn(endpoints_.size())),
+        skipped_(endpoints_.size(), false) {}
+
+  // The next address to try (its name in `name`), or null once every one was tried.
+  const tcp::endpoint* next(std::string& name) {
+    for (; pass_ < 2; ++pass_, k_ = 0) {
+      while (k_ < endpoints_.size()) {
+        const std::size_t k = k_++;
+        const tcp::endpoint& e = endpoints_[(start_ + k) % endpoints_.size()];
+        if (pass_ == 1 && !skipped_[k]) continue;
+        name = endpoint_name(e);
+        if (pass_ == 0 && peers_.recently_refused(name)) {
+          skipped_[k] = true;
+          continue;
+        }
+        return &e;
+      }
+    }
+    return nullptr;
+  }
+
+ private:
+  ShardPeers& peers_;
+  std::vector<tcp::endpoint> endpoints_;
+  std::size_t start_;
+  std::vector<bool> skipped_;
+  int pass_ = 0;
+  std::size_t k_ = 0;
+};
+
 Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, HttpRequest request,
                                                           SteadyClock::time_point deadline) {
   const std::string address = http_address(shard);
   const std::vector<std::string> replicas = split_commas(address);
   if (replicas.empty()) return unavailable(shard, address, "--shard-http names no address for it");
-  prepare(shard, request, replicas.front());
+  prepare(request, replicas.front());
   std::string why;
-  const std::vector<tcp::endpoint> endpoints = addresses(shard, true, why);
+  std::vector<tcp::endpoint> endpoints = addresses(shard, true, why);
   if (endpoints.empty()) return unavailable(shard, address, why);
-  const std::size_t start = next_turn(endpoints.size());
   std::string last_error = "no address tried";
-  // Each address in turn: a kept-alive connection first (it may have been closed by
-  // the peer: then once more on a new one), skipping addresses that just refused.
-  // The addresses that refused lately are tried last (one may be back), once each.
-  std::vector<bool> skipped(endpoints.size(), false);
-  for (int pass = 0; pass < 2; ++pass) {
-    for (std::size_t k = 0; k < endpoints.size(); ++k) {
-      const tcp::endpoint& e = endpoints[(start + k) % endpoints.size()];
-      std::string name = endpoint_name(e);
-      if (pass == 0 && recently_refused(name)) {
-        skipped[k] = true;
-        continue;
-      }
-      if (pass == 1 && !skipped[k]) continue;
-      for (int attempt = 0; attempt < 2; ++attempt) {
-        if (SteadyClock::now() >= deadline)
-          return Status{Code::kDeadlineExceeded, "deadline exceeded forwarding to shard " + std::to_string(shard)};
-        std::unique_ptr<Connection> c = attempt == 0 ? take_idle(shard, name) : nullptr;
-        const bool fresh = c == nullptr;
-        if (fresh) {
-          c = std::make_unique<Connection>();
-          c->endpoint = name;
-          beast::error_code ec;
-          c->stream.async_connect(e, [&](beast::error_code e2) { ec = e2; });
-          c->run(std::min(deadline, SteadyClock::now() + kConnectTimeout));
-          if (!ec) tune_relay_socket(c->stream.socket());
-          if (ec) {
-            last_error = name + ": " + ec.message();
-            note_refused(name);
-            break;  // the next address
-          }
-        }
+  // Each address in turn (AddressOrder): a kept-alive connection first (it may have
+  // been closed by the peer: then once more on a new one).
+  AddressOrder order(*this, std::move(endpoints));
+  std::string name;
+  while (const tcp::endpoint* next = order.next(name)) {
+    const tcp::endpoint& e = *next;
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      if (SteadyClock::now() >= deadline)
+        return Status{Code::kDeadlineExceeded, "deadline exceeded forwarding to shard " + std::to_string(shard)};
+      std::unique_ptr<Connection> c = attempt == 0 ? take_idle(shard, name) : nullptr;
+      const bool fresh = c == nullptr;
+      if (fresh) {
+        c = std::make_unique<Connection>();
+        c->endpoint = name;
         beast::error_code ec;
-        http::async_write(c->stream, request, [&](beast::error_code e2, std::size_t) { ec = e2; });
-        c->run(deadline);
-        http::response_parser<http::string_body> parser;
-        parser.body_limit(kMaxForwardedBody);
-        if (!ec) {
-          http::async_read(c->stream, c->buffer, parser, [&](beast::error_code e2, std::size_t) { ec = e2; });
-          c->run(deadline);
-        }
+        c->stream.async_connect(e, [&](beast::error_code e2) { ec = e2; });
+        c->run(std::min(deadline, SteadyClock::now() + kConnectTimeout));
+        if (!ec) tune_relay_socket(c->stream.socket());
         if (ec) {
           last_error = name + ": " + ec.message();
-          if (ec == beast::error::timeout) {
-            return Status{Code::kDeadlineExceeded,
-                          "deadline exceeded waiting for shard " + std::to_string(shard) + " (" + name + ")"};
-          }
-          if (fresh) {
-            note_refused(name);
-            break;
-          }
-          continue;  // a stale kept-alive connection: once more on a new one
+          note_refused(name);
+          break;  // the next address
         }
-        HttpResponse response = parser.release();
-        if (response.keep_alive()) give_back(shard, std::move(c));
-        return response;
       }
+      beast::error_code ec;
+      http::async_write(c->stream, request, [&](beast::error_code e2, std::size_t) { ec = e2; });
+      c->run(deadline);
+      http::response_parser<http::string_body> parser;
+      parser.body_limit(kMaxForwardedBody);
+      if (!ec) {
+        http::async_read(c->stream, c->buffer, parser, [&](beast::error_code e2, std::size_t) { ec = e2; });
+        c->run(deadline);
+      }
+      if (ec) {
+        last_error = name + ": " + ec.message();
+        if (ec == beast::error::timeout) {
+          return Status{Code::kDeadlineExceeded,
+                        "deadline exceeded waiting for shard " + std::to_string(shard) + " (" + name + ")"};
+        }
+        if (fresh) {
+          note_refused(name);
+          break;
+        }
+        continue;  // a stale kept-alive connection: once more on a new one
+      }
+      HttpResponse response = parser.release();
+      if (response.keep_alive()) give_back(shard, std::move(c));
+      return response;
     }
   }
   forget_addresses(shard);
@@ -277,12 +312,9 @@ Result<ShardPeers::HttpResponse> ShardPeers::forward_http(std::uint32_t shard, H
 // ---- relays without a thread ----------------------------------------------------------
 
 struct ShardPeers::RelayPool::Connection {
-  // 16 KiB read at once: a star's or cell's answer arrives in one read, not in the
-  // growing reads of an empty buffer (each one more system call and loop turn).
-  explicit Connection(asio::io_context& io) : stream(io) { buffer.reserve(16384); }
+  explicit Connection(asio::io_context& io) : stream(io) { buffer.reserve(kRelayReadBytes); }
   beast::tcp_stream stream;
   beast::flat_buffer buffer;
-  std::string endpoint;
 };
 
 ShardPeers::RelayPool::RelayPool(asio::io_context& io) : io_(io) {}
@@ -302,29 +334,16 @@ class ShardPeers::AsyncForward : public std::enable_shared_from_this<AsyncForwar
         done_(std::move(done)) {}
 
   void start(std::vector<tcp::endpoint> endpoints, std::string address) {
-    endpoints_ = std::move(endpoints);
+    order_.emplace(peers_, std::move(endpoints));
     address_ = std::move(address);
-    start_ = peers_.next_turn(endpoints_.size());
-    skipped_.assign(endpoints_.size(), false);
     next_address();
   }
 
  private:
-  // The next address to try (pass 0: those that did not refuse lately; pass 1: those).
   void next_address() {
-    for (; pass_ < 2; ++pass_, k_ = 0) {
-      while (k_ < endpoints_.size()) {
-        const std::size_t k = k_++;
-        const tcp::endpoint& e = endpoints_[(start_ + k) % endpoints_.size()];
-        name_ = endpoint_name(e);
-        if (pass_ == 0 && peers_.recently_refused(name_)) {
-          skipped_[k] = true;
-          continue;
-        }
-        if (pass_ == 1 && !skipped_[k]) continue;
-        endpoint_ = e;
-        return attempt(0);
-      }
+    if (const tcp::endpoint* next = order_->next(name_)) {
+      endpoint_ = *next;
+      return attempt(0);
     }
     peers_.forget_addresses(shard_);
     finish(peers_.unavailable(shard_, address_, last_error_));
@@ -338,7 +357,6 @@ class ShardPeers::AsyncForward : public std::enable_shared_from_this<AsyncForwar
     fresh_ = connection_ == nullptr;
     if (!fresh_) return send();
     connection_ = std::make_unique<RelayPool::Connection>(pool_.io_);
-    connection_->endpoint = name_;
     connection_->stream.expires_at(std::min(deadline_, SteadyClock::now() + kConnectTimeout));
     connection_->stream.async_connect(endpoint_, [self = shared_from_this()](beast::error_code ec) {
       if (ec) {
@@ -391,7 +409,7 @@ class ShardPeers::AsyncForward : public std::enable_shared_from_this<AsyncForwar
 
   void give_back() {
     auto& idle = pool_.idle_[{shard_, name_}];
-    if (idle.size() < 64) idle.push_back(std::move(connection_));
+    if (idle.size() < kIdlePerAddress) idle.push_back(std::move(connection_));
   }
 
   void finish(Result<HttpResponse> result) {
@@ -405,11 +423,8 @@ class ShardPeers::AsyncForward : public std::enable_shared_from_this<AsyncForwar
   HttpRequest request_;
   SteadyClock::time_point deadline_;
   ForwardDone done_;
-  std::vector<tcp::endpoint> endpoints_;
+  std::optional<AddressOrder> order_;
   std::string address_;
-  std::vector<bool> skipped_;
-  std::size_t start_ = 0, k_ = 0;
-  int pass_ = 0;
   tcp::endpoint endpoint_;
   std::string name_, last_error_ = "no address tried";
   std::unique_ptr<RelayPool::Connection> connection_;
@@ -425,7 +440,7 @@ bool ShardPeers::forward_http_async(RelayPool& pool, std::uint32_t shard, HttpRe
   std::string why;
   std::vector<tcp::endpoint> endpoints = addresses(shard, false, why);
   if (endpoints.empty()) return false;
-  prepare(shard, request, replicas.front());
+  prepare(request, replicas.front());
   auto forward = std::make_shared<AsyncForward>(*this, pool, shard, std::move(request), deadline, std::move(done));
   forward->start(std::move(endpoints), std::move(address));
   return true;

@@ -96,9 +96,10 @@ class ShardPeers {
 
  private:
   struct Connection;
+  class AddressOrder;
   class AsyncForward;
   // The request as every relay sends it (forwarded mark, host, keep-alive).
-  void prepare(std::uint32_t shard, HttpRequest& request, const std::string& first_replica) const;
+  void prepare(HttpRequest& request, const std::string& first_replica) const;
   // The shard's resolved addresses (resolving them if `may_resolve`), or empty with `why`.
   std::vector<boost::asio::ip::tcp::endpoint> addresses(std::uint32_t shard, bool may_resolve, std::string& why);
   std::size_t next_turn(std::size_t count);

@@ -661,13 +661,14 @@ PieceLayout::~PieceLayout() {
 
 Result<std::uint32_t> PieceLayout::piece_of(std::uint64_t seed) const {
   std::uint32_t piece = 0;
-  ssize_t got = 4;
-  if (owners_ != nullptr && seed < manifest_.count) {
-    piece = owners_[seed];
+  bool read = false;
+  if (owners_ != nullptr) {
+    read = seed < manifest_.count;
+    if (read) piece = owners_[seed];
   } else {
-    got = ::pread(owners_fd_, &piece, 4, static_cast<off_t>(seed * 4));
+    read = ::pread(owners_fd_, &piece, 4, static_cast<off_t>(seed * 4)) == 4;
   }
-  if (got != 4 || piece >= pieces()) {
+  if (!read || piece >= pieces()) {
     return internal_error("point set " + manifest_.set_id + ": its owner map has no valid entry for point " +
                           std::to_string(seed));
   }
@@ -676,12 +677,16 @@ Result<std::uint32_t> PieceLayout::piece_of(std::uint64_t seed) const {
 
 Result<std::vector<std::uint32_t>> PieceLayout::owners() const {
   std::vector<std::uint32_t> out(manifest_.count);
-  char* bytes = reinterpret_cast<char*>(out.data());
-  for (std::size_t done = 0, size = out.size() * 4; done < size;) {
-    const ssize_t r = ::pread(owners_fd_, bytes + done, size - done, static_cast<off_t>(done));
-    if (r < 0 && errno == EINTR) continue;
-    if (r <= 0) return internal_error("point set " + manifest_.set_id + ": its owner map cannot be read");
-    done += static_cast<std::size_t>(r);
+  if (owners_ != nullptr) {
+    std::copy(owners_, owners_ + out.size(), out.begin());
+  } else {
+    char* bytes = reinterpret_cast<char*>(out.data());
+    for (std::size_t done = 0, size = out.size() * 4; done < size;) {
+      const ssize_t r = ::pread(owners_fd_, bytes + done, size - done, static_cast<off_t>(done));
+      if (r < 0 && errno == EINTR) continue;
+      if (r <= 0) return internal_error("point set " + manifest_.set_id + ": its owner map cannot be read");
+      done += static_cast<std::size_t>(r);
+    }
   }
   for (std::size_t i = 0; i < out.size(); ++i) {
     if (out[i] >= pieces()) {

@@ -120,7 +120,7 @@ class PieceLayout {
   PieceLayout& operator=(const PieceLayout&) = delete;
   const PieceManifest& manifest() const { return manifest_; }
   std::uint32_t pieces() const { return static_cast<std::uint32_t>(manifest_.pieces.size()); }
-  // The piece holding point `seed` (< manifest().count): one 4-byte read of the owner map.
+  // The piece holding point `seed` (< manifest().count): one entry of the owner map.
   Result<std::uint32_t> piece_of(std::uint64_t seed) const;
   // The piece of every point (the whole owner map, manifest().count entries, each checked).
   Result<std::vector<std::uint32_t>> owners() const;

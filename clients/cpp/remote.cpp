@@ -480,7 +480,9 @@ std::optional<pb::BatchSeedsResponse> routed_batch(const RemoteOptions& o, pb::M
     return static_cast<std::uint32_t>(static_cast<unsigned char>(seed_shards[2 * seed])) |
            static_cast<std::uint32_t>(static_cast<unsigned char>(seed_shards[2 * seed + 1])) << 8;
   };
-  std::vector<pb::BatchSeedsRequest> parts(head.shard_count());
+  pb::BatchSeedsRequest seedless = r;  // each part: the request with its shard's seeds
+  seedless.clear_seeds();
+  std::vector<pb::BatchSeedsRequest> parts(head.shard_count(), seedless);
   for (const std::uint64_t seed : r.seeds()) {
     const std::uint32_t shard = shard_of(seed);
     if (shard >= head.shard_count()) return std::nullopt;
@@ -491,10 +493,6 @@ std::optional<pb::BatchSeedsResponse> routed_batch(const RemoteOptions& o, pb::M
   std::vector<std::thread> calls;
   for (std::size_t k = 0; k < parts.size(); ++k) {
     if (parts[k].seeds_size() == 0) continue;
-    pb::BatchSeedsRequest& part = parts[k];
-    const google::protobuf::RepeatedField<std::uint64_t> seeds = part.seeds();
-    part.CopyFrom(r);
-    *part.mutable_seeds() = seeds;
     calls.emplace_back([&, k] {
       auto shard_stub = pb::Mesher::NewStub(channel(o, head.grpc_addresses(static_cast<int>(k))));
       answers[k] = batch_answers(o, *shard_stub, parts[k]);

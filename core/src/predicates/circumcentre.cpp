@@ -92,26 +92,24 @@ bool circumcentre_integer(const PointSet& points, const std::uint32_t* ids, int 
   if (k != d || (d != 2 && d != 3)) return false;
   // Every coordinate is m 2^e with an integer m (|m| < 2^53): with E the least such e,
   // each is the integer m 2^(e - E) in units of 2^E, exactly.
-  double x[4][3];
+  double m[4][3];  // the integers m (0 for a coordinate 0)
+  int e[4][3] = {};
   int least = INT_MAX;
   for (int i = 0; i <= k; ++i) {
     for (int c = 0; c < d; ++c) {
-      x[i][c] = points.point(ids[i])[c];
-      if (x[i][c] == 0) continue;
-      int e = 0;
-      std::frexp(x[i][c], &e);
-      least = std::min(least, e - 53);
+      const double x = points.point(ids[i])[c];
+      m[i][c] = std::ldexp(std::frexp(x, &e[i][c]), 53);  // exact: 53 bits
+      e[i][c] -= 53;
+      if (x != 0) least = std::min(least, e[i][c]);
     }
   }
   if (least == INT_MAX) return false;  // every coordinate 0: flat
   mpz_class X[4][3];
   for (int i = 0; i <= k; ++i) {
     for (int c = 0; c < d; ++c) {
-      if (x[i][c] == 0) continue;
-      int e = 0;
-      const double f = std::frexp(x[i][c], &e);
-      X[i][c] = mpz_class(std::ldexp(f, 53));  // exact: 53 bits
-      X[i][c] <<= static_cast<mp_bitcnt_t>(e - 53 - least);
+      if (m[i][c] == 0) continue;
+      X[i][c] = mpz_class(m[i][c]);
+      X[i][c] <<= static_cast<mp_bitcnt_t>(e[i][c] - least);
     }
   }
   // V y = b / 2 with rows v_i = X_i - X_0 and b_i = |v_i|^2 (units 2^E and 2^2E):
