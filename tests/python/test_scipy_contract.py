@@ -47,7 +47,7 @@ _spec = importlib.util.spec_from_file_location("scipy_test_qhull", SCIPY_TESTS)
 scipy_tests = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(scipy_tests)
 scipy_tests.qhull = types.SimpleNamespace(**{**vars(scipy_qhull), "Delaunay": spokemesh.Delaunay,
-                                             "Voronoi": spokemesh.Voronoi})
+                                             "Voronoi": spokemesh.Voronoi, "ConvexHull": spokemesh.ConvexHull})
 scipy_tests.Voronoi = spokemesh.Voronoi
 
 # Qhull's own row order on tiny inputs (unspecified by scipy's documentation).
@@ -97,6 +97,10 @@ def _exact_where_qhull_merges(test):
 
 VORONOI_NOT_YET = {}
 
+# scipy's ConvexHull tests that assert which rows Qhull lists first (its facet order):
+# each is run below on the same data with the rows matched by their vertex sets.
+HULL_ORDER = {"test_good2d", "test_good3d", "test_good2d_incremental_changes"}
+
 
 def _wrap(cls, order=ROW_ORDER, not_yet=NOT_YET):
     """scipy's test class with its order tests left out and the others marked."""
@@ -113,6 +117,7 @@ TestDelaunay = _wrap(scipy_tests.TestDelaunay)
 TestUtilities = _wrap(scipy_tests.TestUtilities)
 TestVertexNeighborVertices = _wrap(scipy_tests.TestVertexNeighborVertices)
 TestVoronoi = _wrap(scipy_tests.TestVoronoi, REGION_ORDER, VORONOI_NOT_YET)
+TestConvexHull = _wrap(scipy_tests.TestConvexHull, HULL_ORDER, {})
 TestVoronoi.test_ridges = _exact_where_qhull_merges(scipy_tests.TestVoronoi.test_ridges)
 TestVoronoi.test_incremental = _exact_where_qhull_merges(scipy_tests.TestVoronoi.test_incremental)
 
@@ -325,3 +330,40 @@ def test_furthest_site_refuses_a_degenerate_hull_with_many_corners():
     points = np.concatenate([np.column_stack([ring, np.full(40, z)]) for z in (0.0, 1.0, 2.0)])
     with pytest.raises(ValueError, match="lie on one facet of the convex hull.*too many corners"):
         spokemesh.Delaunay(points, furthest_site=True)
+
+
+# --- spokemesh.ConvexHull's `good` against scipy's, rows matched by vertex sets -----
+# What the left-out HULL_ORDER tests check (which facets a viewpoint sees), on their data
+# and on random sets, without Qhull's row order.
+
+_SQUARE_AND_VIEWPOINT = np.array([[0.2, 0.2], [0.2, 0.4], [0.4, 0.4], [0.4, 0.2], [0.3, 0.6]])
+_GOOD3D = np.array([[0.0, 0.0, 0.0], [0.90029516, -0.39187448, 0.18948093], [0.48676420, -0.72627633, 0.48536925],
+                    [0.57651530, -0.81179274, -0.09285832], [0.67846893, -0.71119562, 0.18406710]])
+GOOD_CASES = {
+    "good2d": (_SQUARE_AND_VIEWPOINT, None, "QG4"),
+    "good2d-hidden": (_SQUARE_AND_VIEWPOINT, None, "QG-4"),
+    "good2d-inside": (np.array([[0.2, 0.2], [0.2, 0.4], [0.4, 0.4], [0.4, 0.2], [0.3, 0.3]]), None, "QG4"),
+    "good3d": (_GOOD3D, None, "QG0"),
+    "good2d-added-on-the-viewpoint's-line": (_SQUARE_AND_VIEWPOINT, np.array([[0.5, 0.6], [0.6, 0.6]]), "QG4"),
+    "good2d-added-above": (_SQUARE_AND_VIEWPOINT, np.array([[0.3, 0.7]]), "QG4"),
+    "random-3d-seed-5": (np.random.default_rng(5).random((40, 3)), None, "QG7"),
+    "random-4d-seed-6": (np.random.default_rng(6).random((40, 4)), np.random.default_rng(7).random((5, 4)), "QG-3"),
+}
+
+
+def _good_by_facet(hull):
+    return {tuple(sorted(row)): bool(g) for row, g in zip(hull.simplices.tolist(), hull.good)}
+
+
+@pytest.mark.parametrize("name", sorted(GOOD_CASES))
+@pytest.mark.parametrize("incremental", [False, True])
+def test_hull_good_is_scipys(name, incremental):
+    points, more, options = GOOD_CASES[name]
+    if more is not None and not incremental:
+        points, more = np.concatenate([points, more]), None
+    ours = spokemesh.ConvexHull(points, incremental=incremental, qhull_options=options)
+    theirs = scipy_spatial.ConvexHull(points, incremental=incremental, qhull_options=options)
+    if more is not None:
+        ours.add_points(more)
+        theirs.add_points(more)
+    assert _good_by_facet(ours) == _good_by_facet(theirs), name

@@ -7,6 +7,7 @@ In-process (the compiled module spokemesh._core; no server, no gRPC):
     tri = spokemesh.Delaunay(np.random.default_rng(1).random((10_000, 3)))
     tri.simplices, tri.neighbors, tri.find_simplex(q), tri.cell(0, box=[0, 0, 0, 1, 1, 1])
     vor = spokemesh.Voronoi(points)   # scipy.spatial.Voronoi's attributes
+    hull = spokemesh.ConvexHull(points)  # scipy.spatial.ConvexHull's attributes, exact
     g = spokemesh.approximate_graph(points_in_20d, misses=100)
 
 Remote (spokemesh.remote.Client, also spokemesh.Client; needs python3-grpcio):
@@ -25,7 +26,7 @@ from typing import Any
 
 from .types import Cell, Facet
 
-__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
            "Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"]
 
 _REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"}
@@ -37,10 +38,12 @@ def __getattr__(name: str) -> Any:
     # have the compiled module.
     if name == "Voronoi":
         return getattr(importlib.import_module(".voronoi", __name__), name)
+    if name in ("ConvexHull", "QhullError"):
+        return getattr(importlib.import_module(".hull", __name__), name)
     if name in _LOCAL:
         return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
         return getattr(importlib.import_module(".remote", __name__), name)
-    if name in ("remote", "delaunay", "voronoi"):
+    if name in ("remote", "delaunay", "voronoi", "hull"):
         return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

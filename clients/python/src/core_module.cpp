@@ -26,6 +26,7 @@
 #include "geojson_domain.hpp"
 #include "spokemesh/approx.hpp"
 #include "spokemesh/cells.hpp"
+#include "spokemesh/convex_hull.hpp"
 #include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
@@ -848,6 +849,92 @@ py::list split_lists(const py::array_t<std::int32_t, py::array::c_style | py::ar
   return out;
 }
 
+// The exact convex hull (spokemesh.ConvexHull's engine): built from an (n, d) array,
+// extended with the same array plus rows after it. Arrays are read during each call
+// only (the Python object keeps the points).
+class Hull {
+ public:
+  Hull(const Points& points, std::int64_t exclude, std::optional<unsigned> threads) {
+    const auto [c, d] = rows_of(points);
+    HullOptions options;
+    options.exclude = exclude;
+    options.threads = threads.value_or(0);
+    threads_ = options.threads;
+    Result<ConvexHull> built = invalid_argument("");
+    {
+      py::gil_scoped_release release;
+      built = ConvexHull::build(c, d, options);
+    }
+    if (!built.is_ok()) raise(built.status());
+    hull_ = std::move(built).value();
+    exclude_ = exclude;
+  }
+  void extend(const Points& points) {
+    const auto [c, d] = rows_of(points);
+    if (d != hull_.dimension()) throw py::value_error("points: dimension " + std::to_string(d) + " is not the hull's");
+    HullOptions options;
+    options.exclude = exclude_;
+    options.threads = threads_;
+    Status s;
+    {
+      py::gil_scoped_release release;
+      s = hull_.extend(c, options);
+    }
+    if (!s.is_ok()) raise(s);
+  }
+  py::array_t<std::int32_t> simplices() const {
+    const std::vector<std::uint32_t> v = hull_.facet_vertices();
+    return owned(std::vector<std::int32_t>(v.begin(), v.end()), shape(hull_.dimension()));
+  }
+  py::array_t<std::int32_t> neighbors() const { return owned(hull_.facet_neighbors(), shape(hull_.dimension())); }
+  py::array_t<double> equations(const Points& points) const {
+    const auto [c, d] = rows_of(points);
+    return owned(hull_.facet_equations(c), shape(d + 1));
+  }
+  py::array_t<std::int32_t> coplanar(const Points& points) const {
+    const auto [c, d] = rows_of(points);
+    std::vector<std::array<std::uint32_t, 3>> rows;
+    {
+      py::gil_scoped_release release;
+      rows = hull_.coplanar(c, exclude_);
+    }
+    std::vector<std::int32_t> flat;
+    for (const auto& r : rows) flat.insert(flat.end(), r.begin(), r.end());
+    return owned(std::move(flat), {static_cast<py::ssize_t>(rows.size()), 3});
+  }
+  py::array_t<std::int32_t> vertices() const {
+    const std::vector<std::uint32_t> v = hull_.vertices();
+    return owned(std::vector<std::int32_t>(v.begin(), v.end()), {static_cast<py::ssize_t>(v.size())});
+  }
+  // Each facet's exact side of point x: +1 visible (x strictly beyond), 0 on its
+  // hyperplane, -1 beneath.
+  py::array_t<std::int8_t> sides(const Points& points, std::int64_t x) const {
+    const auto [c, d] = rows_of(points);
+    if (x < 0 || static_cast<std::size_t>(x) * static_cast<std::size_t>(d) >= c.size())
+      throw py::value_error("point " + std::to_string(x) + " is out of range");
+    std::vector<std::int8_t> out(hull_.facet_count());
+    for (std::size_t f = 0; f < out.size(); ++f)
+      out[f] = static_cast<std::int8_t>(hull_.side(c, f, static_cast<std::size_t>(x)));
+    return owned(std::move(out), {static_cast<py::ssize_t>(hull_.facet_count())});
+  }
+
+ private:
+  static std::pair<std::span<const double>, int> rows_of(const Points& points) {
+    if (points.ndim() != 2) throw py::value_error("points: expected a 2-d array of shape (n, d)");
+    const auto n = static_cast<std::size_t>(points.shape(0));
+    if (n >= (std::size_t{1} << 31))
+      throw py::value_error("points: " + std::to_string(n) + " points; at most 2^31 - 1 in-process");
+    const int d = static_cast<int>(points.shape(1));
+    return {std::span<const double>(points.data(), n * static_cast<std::size_t>(d)), d};
+  }
+  std::vector<py::ssize_t> shape(int cols) const {
+    return {static_cast<py::ssize_t>(hull_.facet_count()), static_cast<py::ssize_t>(cols)};
+  }
+  ConvexHull hull_;
+  std::int64_t exclude_ = -1;
+  unsigned threads_ = 0;
+};
+
 }  // namespace
 
 PYBIND11_MODULE(_core, m) {
@@ -905,6 +992,16 @@ PYBIND11_MODULE(_core, m) {
            py::arg("domain_data") = py::none())
       .def("cells", &Triangulation::cells, py::arg("box") = py::none(), py::arg("halfspaces") = py::none(),
            py::arg("bounding_box") = true, py::arg("domain_format") = py::none(), py::arg("domain_data") = py::none());
+  py::class_<Hull>(m, "Hull")
+      .def(py::init<const Points&, std::int64_t, std::optional<unsigned>>(), py::arg("points"), py::arg("exclude") = -1,
+           py::arg("threads") = py::none())
+      .def("extend", &Hull::extend, py::arg("points"))
+      .def("simplices", &Hull::simplices)
+      .def("neighbors", &Hull::neighbors)
+      .def("equations", &Hull::equations, py::arg("points"))
+      .def("vertices", &Hull::vertices)
+      .def("coplanar", &Hull::coplanar, py::arg("points"))
+      .def("sides", &Hull::sides, py::arg("points"), py::arg("x"));
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")
       .def(py::init<const Points&, const std::vector<double>&, const std::vector<double>&, std::optional<unsigned>,
                     const std::optional<Points>&>(),
