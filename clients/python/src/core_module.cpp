@@ -17,6 +17,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -902,6 +903,22 @@ class Hull {
     for (const auto& r : rows) flat.insert(flat.end(), r.begin(), r.end());
     return owned(std::move(flat), {static_cast<py::ssize_t>(rows.size()), 3});
   }
+  // The points' box (scipy's min_bound, max_bound), in one pass.
+  static py::tuple bounds(const Points& points) {
+    const auto [c, d] = rows_of(points);
+    std::vector<double> lo(static_cast<std::size_t>(d), std::numeric_limits<double>::infinity());
+    std::vector<double> hi(static_cast<std::size_t>(d), -std::numeric_limits<double>::infinity());
+    {
+      py::gil_scoped_release release;
+      for (std::size_t i = 0; i < c.size(); i += static_cast<std::size_t>(d)) {
+        for (int k = 0; k < d; ++k) {
+          lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], c[i + k]);
+          hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], c[i + k]);
+        }
+      }
+    }
+    return py::make_tuple(owned(std::move(lo), {d}), owned(std::move(hi), {d}));
+  }
   py::array_t<std::int32_t> vertices() const {
     const std::vector<std::uint32_t> v = hull_.vertices();
     return owned(std::vector<std::int32_t>(v.begin(), v.end()), {static_cast<py::ssize_t>(v.size())});
@@ -1000,6 +1017,7 @@ PYBIND11_MODULE(_core, m) {
       .def("neighbors", &Hull::neighbors)
       .def("equations", &Hull::equations, py::arg("points"))
       .def("vertices", &Hull::vertices)
+      .def_static("bounds", &Hull::bounds, py::arg("points"))
       .def("coplanar", &Hull::coplanar, py::arg("points"))
       .def("sides", &Hull::sides, py::arg("points"), py::arg("x"));
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")

@@ -109,8 +109,23 @@ class ConvexHull::Builder {
   std::vector<Facet> facets;
 
   Status initial_simplex();
-  // Assigns points [first, n) (but the excluded one and `skip`) to the facets.
-  void assign_new_points(std::size_t first, const std::vector<std::uint32_t>& skip);
+  // An axis-aligned box strictly inside the hull (lo < x < hi in every coordinate).
+  struct Box {
+    std::array<double, kMaxDimension> lo, hi;
+  };
+  // Assigns points [first, n) (but the excluded one, `skip`, and those in `box`) to
+  // the facets.
+  void assign_new_points(std::size_t first, const std::vector<std::uint32_t>& skip, const Box* box = nullptr);
+  // Akl and Toussaint's throw-away, with a box so that its test is 2d comparisons: the
+  // hull of the points extreme in the 2^d diagonal and 2d axis directions (of at most
+  // kBoxSample evenly spaced points), and the
+  // largest of a few boxes shrunk about its vertices' centroid whose corners are all
+  // certified strictly beneath its facets. False where there is none (d > 4, few
+  // points, flat extremes).
+  bool inner_box(Box& box) const;
+  static constexpr int kMaxBoxDimension = 4;
+  static constexpr std::size_t kBoxAtLeast = 1024;
+  static constexpr std::size_t kBoxSample = 1 << 16;
   Status run();
   // The live facets, renumbered in creation order.
   std::vector<Facet> compacted() const;
@@ -145,6 +160,10 @@ class ConvexHull::Builder {
   }
   bool stopped() const { return options_.cancel != nullptr && options_.cancel->load(std::memory_order_relaxed); }
   void add_point(std::uint32_t f);
+  // Drops the dead facets, keeping the live ones' order; returns facet `keep`'s new id.
+  std::size_t compact(std::size_t keep);
+  static constexpr std::size_t kCompactAtLeast = 4096;
+  std::size_t dead_ = 0;
   // Assigns each of xs to the first facet of [first, end) it lies strictly beyond, on
   // threads when there are many.
   void distribute(const std::vector<std::uint32_t>& xs, std::size_t first, std::size_t end);
@@ -298,15 +317,104 @@ Status ConvexHull::Builder::initial_simplex() {
     }
   }
   add_planes_up_to_date();
-  assign_new_points(0, chosen);
+  Box box;
+  const bool boxed = inner_box(box);
+  assign_new_points(0, chosen, boxed ? &box : nullptr);
   return Status::ok();
 }
 
-void ConvexHull::Builder::assign_new_points(std::size_t first, const std::vector<std::uint32_t>& skip) {
+bool ConvexHull::Builder::inner_box(Box& box) const {
+  const int d = d_;
+  if (d > kMaxBoxDimension || n_ < kBoxAtLeast) return false;
+  // The points extreme in the 2^d diagonal and 2d axis directions (at a tie the
+  // lexicographically larger), and their hull.
+  const int diagonals = 1 << d, count = diagonals + 2 * d;
+  std::vector<double> best(static_cast<std::size_t>(count), -std::numeric_limits<double>::infinity());
+  std::vector<std::uint32_t> at(static_cast<std::size_t>(count), kNone);
+  // On a sample of the points (any points' hull lies inside the hull): every point of
+  // small sets, evenly spaced ones of large sets.
+  const std::size_t stride = std::max<std::size_t>(1, n_ / kBoxSample);
+  for (std::size_t i = 0; i < n_; i += stride) {
+    if (static_cast<std::int64_t>(i) == options_.exclude) continue;
+    const double* x = point(i);
+    for (int j = 0; j < count; ++j) {
+      double dot = 0;
+      if (j < diagonals) {
+        for (int k = 0; k < d; ++k) dot += (j >> k & 1) ? x[k] : -x[k];
+      } else {
+        const int k = (j - diagonals) / 2;
+        dot = (j - diagonals) % 2 == 0 ? x[k] : -x[k];
+      }
+      const std::uint32_t b = at[static_cast<std::size_t>(j)];
+      if (dot > best[static_cast<std::size_t>(j)] ||
+          (dot == best[static_cast<std::size_t>(j)] && lex_greater(x, point(b), d))) {
+        best[static_cast<std::size_t>(j)] = dot;
+        at[static_cast<std::size_t>(j)] = static_cast<std::uint32_t>(i);
+      }
+    }
+  }
+  std::sort(at.begin(), at.end());
+  at.erase(std::unique(at.begin(), at.end()), at.end());
+  std::vector<double> small;
+  for (const std::uint32_t i : at) small.insert(small.end(), point(i), point(i) + d);
+  HullOptions one;
+  one.threads = 1;
+  auto hull = ConvexHull::build(small, d, one);
+  if (!hull.is_ok()) return false;
+  std::vector<Plane> planes;
+  std::array<double, kMaxDimension> centre{}, lo, hi;
+  lo.fill(std::numeric_limits<double>::infinity());
+  hi.fill(-std::numeric_limits<double>::infinity());
+  const std::vector<std::uint32_t> vertices = hull.value().vertices();
+  for (const std::uint32_t v : vertices) {
+    for (int k = 0; k < d; ++k) {
+      const double x = small[static_cast<std::size_t>(v) * d + k];
+      centre[static_cast<std::size_t>(k)] += x / static_cast<double>(vertices.size());
+      lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], x);
+      hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], x);
+    }
+  }
+  for (const Facet& f : hull.value().facets_) planes.push_back(plane_of(small.data(), d, f.v.data()));
+  // The largest of the boxes shrunk about the centre whose corners are all certified
+  // strictly beneath every facet: the box is then strictly inside the hull.
+  for (const double scale : {0.97, 0.93, 0.85, 0.75, 0.6, 0.45, 0.3}) {
+    for (int k = 0; k < d; ++k) {
+      const std::size_t j = static_cast<std::size_t>(k);
+      box.lo[j] = centre[j] + scale * (lo[j] - centre[j]);
+      box.hi[j] = centre[j] + scale * (hi[j] - centre[j]);
+    }
+    bool inside = true;
+    std::array<double, kMaxDimension> corner{};
+    for (int m = 0; m < diagonals && inside; ++m) {
+      for (int k = 0; k < d; ++k)
+        corner[static_cast<std::size_t>(k)] =
+            (m >> k & 1) ? box.hi[static_cast<std::size_t>(k)] : box.lo[static_cast<std::size_t>(k)];
+      for (const Plane& pl : planes) {
+        double value;
+        if (filtered_side(pl, corner.data(), d, value) != -1) {
+          inside = false;
+          break;
+        }
+      }
+    }
+    if (inside) return true;
+  }
+  return false;
+}
+
+void ConvexHull::Builder::assign_new_points(std::size_t first, const std::vector<std::uint32_t>& skip, const Box* box) {
   std::vector<std::uint32_t> xs;
   xs.reserve(n_ - first);
+  const int d = d_;
+  auto in_box = [&](const double* x) {
+    for (int k = 0; k < d; ++k) {
+      if (!(x[k] > box->lo[static_cast<std::size_t>(k)] && x[k] < box->hi[static_cast<std::size_t>(k)])) return false;
+    }
+    return true;
+  };
   for (std::size_t x = first; x < n_; ++x) {
     if (static_cast<std::int64_t>(x) == options_.exclude) continue;
+    if (box != nullptr && in_box(point(x))) continue;  // strictly inside the hull
     if (std::find(skip.begin(), skip.end(), static_cast<std::uint32_t>(x)) != skip.end()) continue;
     xs.push_back(static_cast<std::uint32_t>(x));
   }
@@ -448,6 +556,7 @@ void ConvexHull::Builder::add_point(std::uint32_t start) {
   if (waiting < 2 * kPointsPerThread) {
     for (const std::uint32_t f : queue_) {
       facets[f].live = false;
+      ++dead_;
       for (const std::uint32_t x : outside_[f]) {
         if (x != p) assign(x, first_new, facets.size());
       }
@@ -459,6 +568,7 @@ void ConvexHull::Builder::add_point(std::uint32_t start) {
   xs.reserve(waiting);
   for (const std::uint32_t f : queue_) {
     facets[f].live = false;
+    ++dead_;
     for (const std::uint32_t x : outside_[f]) {
       if (x != p) xs.push_back(x);
     }
@@ -471,9 +581,42 @@ Status ConvexHull::Builder::run() {
   for (std::size_t f = 0; f < facets.size(); ++f) {
     if (!facets[f].live || outside_[f].empty()) continue;
     if (stopped()) return cancelled("convex hull cancelled");
+    // Dead facets dropped once they outnumber the live ones (a surface's points are
+    // nearly all vertices, and each buries a few facets): memory follows the hull.
+    if (dead_ > kCompactAtLeast && dead_ > facets.size() - dead_) f = compact(f);
     add_point(static_cast<std::uint32_t>(f));
   }
   return Status::ok();
+}
+
+std::size_t ConvexHull::Builder::compact(std::size_t keep) {
+  std::vector<std::uint32_t> renumber(facets.size(), kNone);
+  std::size_t live = 0;
+  for (std::size_t f = 0; f < facets.size(); ++f) {
+    if (facets[f].live) renumber[f] = static_cast<std::uint32_t>(live++);
+  }
+  for (std::size_t f = 0; f < facets.size(); ++f) {
+    const std::uint32_t to = renumber[f];
+    if (to == kNone) continue;
+    Facet& facet = facets[f];
+    for (int k = 0; k < d_; ++k)
+      facet.nb[static_cast<std::size_t>(k)] = renumber[facet.nb[static_cast<std::size_t>(k)]];
+    facets[to] = facet;
+    planes_[to] = planes_[f];
+    if (to != f) outside_[to] = std::move(outside_[f]);
+    furthest_[to] = furthest_[f];
+    furthest_value_[to] = furthest_value_[f];
+  }
+  facets.resize(live);
+  planes_.resize(live);
+  outside_.resize(live);
+  furthest_.resize(live);
+  furthest_value_.resize(live);
+  visit_.assign(live, 0);
+  visible_.assign(live, 0);
+  stamp_ = 0;
+  dead_ = 0;
+  return renumber[keep];  // `keep` is live: the facet about to be processed
 }
 
 std::vector<ConvexHull::Facet> ConvexHull::Builder::compacted() const {
