@@ -30,59 +30,92 @@ int exact_side(const double* c, int d, const std::uint32_t* v, std::size_t x) {
   return sgn(exact_determinant(std::move(m), d));
 }
 
-// A facet's hyperplane for the filter: the cofactors n of the rows v_i - v0, so that
-// n . (x - v0) = det[v_i - v0; x - v0], computed in BoundedDouble (predicates.hpp) and
-// kept as values, magnitudes and the deepest rounding depth. filtered_side() then
-// evaluates n . (x - v0) with the same bound as BoundedDouble's operators give (each
-// difference depth 1, each product one more, d - 1 sums) in plain doubles.
-// Invariant: filtered_side returns the exact sign of the determinant or kUnknownSign,
-// never a wrong sign; a plane whose cofactors had no bound (underflow) is never
-// certified.
-struct Plane {
-  std::array<double, kMaxDimension> n, magnitude;
-  const double* p0;
-  int depth;  // of n . (x - v0): the cofactors' deepest + 2 + (d - 1)
-  bool safe;
-};
+// A facet's hyperplane for the filter, stored flat in 3d + 1 doubles: the cofactors n
+// of the rows v_i - v0 (so that n . (x - v0) = det[v_i - v0; x - v0]), computed in
+// BoundedDouble (predicates.hpp), their magnitudes, v0's coordinates, and the rounding
+// depth of n . (x - v0) (the cofactors' deepest + 2 + (d - 1); -1 when a cofactor had
+// no bound). filtered_side() evaluates n . (x - v0) in plain doubles with the bound
+// BoundedDouble's operators would give. Invariant: it returns the exact sign of the
+// determinant or kUnknownSign, never a wrong sign.
+std::size_t plane_doubles(int d) { return static_cast<std::size_t>(3 * d + 1); }
 
-Plane plane_of(const double* c, int d, const std::uint32_t* v) {
-  Plane pl{};
-  pl.p0 = c + static_cast<std::size_t>(v[0]) * d;
-  std::array<BoundedDouble, kMaxDimension * kMaxDimension> m{};
-  std::array<BoundedDouble, 1u << kMaxDimension> table;
-  for (int r = 0; r + 1 < d; ++r) {
-    const double* p = c + static_cast<std::size_t>(v[r + 1]) * d;
-    for (int k = 0; k < d; ++k) m[static_cast<std::size_t>(r * d + k)] = BoundedDouble::difference(p[k], pl.p0[k]);
+void plane_of(const double* c, int d, const std::uint32_t* v, double* out) {
+  const double* p0 = c + static_cast<std::size_t>(v[0]) * d;
+  std::array<BoundedDouble, kMaxDimension> n;
+  if (d == 3) {
+    // The cross product of a = v1 - v0 and b = v2 - v0: the cofactors for d = 3.
+    const double* p1 = c + static_cast<std::size_t>(v[1]) * 3;
+    const double* p2 = c + static_cast<std::size_t>(v[2]) * 3;
+    BoundedDouble a[3], b[3];
+    for (int k = 0; k < 3; ++k) {
+      a[k] = BoundedDouble::difference(p1[k], p0[k]);
+      b[k] = BoundedDouble::difference(p2[k], p0[k]);
+    }
+    n[0] = a[1] * b[2] - a[2] * b[1];
+    n[1] = a[2] * b[0] - a[0] * b[2];
+    n[2] = a[0] * b[1] - a[1] * b[0];
+  } else {
+    std::array<BoundedDouble, kMaxDimension * kMaxDimension> m{};
+    std::array<BoundedDouble, 1u << kMaxDimension> table;
+    for (int r = 0; r + 1 < d; ++r) {
+      const double* p = c + static_cast<std::size_t>(v[r + 1]) * d;
+      for (int k = 0; k < d; ++k) m[static_cast<std::size_t>(r * d + k)] = BoundedDouble::difference(p[k], p0[k]);
+    }
+    minors_table(m.data(), d - 1, d, table.data());
+    const unsigned all = (1u << d) - 1u;
+    for (int k = 0; k < d; ++k) {
+      const BoundedDouble& minor = table[all ^ (1u << k)];
+      n[static_cast<std::size_t>(k)] = (d - 1 + k) % 2 == 0 ? minor : -minor;
+    }
   }
-  minors_table(m.data(), d - 1, d, table.data());
-  const unsigned all = (1u << d) - 1u;
   int deepest = 0;
-  pl.safe = true;
+  bool safe = true;
   for (int k = 0; k < d; ++k) {
-    const BoundedDouble& minor = table[all ^ (1u << k)];
-    pl.n[static_cast<std::size_t>(k)] = (d - 1 + k) % 2 == 0 ? minor.value : -minor.value;
-    pl.magnitude[static_cast<std::size_t>(k)] = minor.magnitude;
-    deepest = std::max(deepest, minor.depth);
-    pl.safe = pl.safe && minor.depth < BoundedDouble::kUnsafe && minor.magnitude <= DBL_MAX;
+    const BoundedDouble& nk = n[static_cast<std::size_t>(k)];
+    out[k] = nk.value;
+    out[d + k] = nk.magnitude;
+    out[2 * d + k] = p0[k];
+    deepest = std::max(deepest, nk.depth);
+    safe = safe && nk.depth < BoundedDouble::kUnsafe && nk.magnitude <= DBL_MAX;
   }
-  pl.depth = deepest + 2 + (d - 1);
-  return pl;
+  out[3 * d] = safe ? deepest + 2 + (d - 1) : -1.0;
 }
 
 // The filtered sign of x against a plane, and n . (x - v0) in double (the furthest
 // point's measure). The magnitude's guard (filter::is_certifiable) also covers the
 // products' underflow (predicates.hpp: fewer than 2^13 operations).
-int filtered_side(const Plane& pl, const double* x, int d, double& value) {
+int filtered_side(const double* pl, const double* x, int d, double& value) {
   double v = 0, a = 0;
   for (int k = 0; k < d; ++k) {
-    const double dx = x[k] - pl.p0[k];
-    v += pl.n[static_cast<std::size_t>(k)] * dx;
-    a += pl.magnitude[static_cast<std::size_t>(k)] * std::fabs(dx);
+    const double dx = x[k] - pl[2 * d + k];
+    v += pl[k] * dx;
+    a += pl[d + k] * std::fabs(dx);
   }
   value = v;
-  if (!pl.safe) return BoundedDouble::kUnknownSign;
-  return filter::certified_sign(v, a, pl.depth);
+  if (pl[3 * d] < 0) return BoundedDouble::kUnknownSign;
+  return filter::certified_sign(v, a, static_cast<int>(pl[3 * d]));
 }
+
+// Facets' planes, flat (plane_of's layout), indexed like the facets.
+class PlaneStore {
+ public:
+  explicit PlaneStore(int d) : d_(d), stride_(plane_doubles(d)) {}
+  std::size_t size() const { return data_.size() / stride_; }
+  const double* operator[](std::size_t f) const { return data_.data() + f * stride_; }
+  void push(const double* c, const std::uint32_t* v) {
+    data_.resize(data_.size() + stride_);
+    plane_of(c, d_, v, data_.data() + data_.size() - stride_);
+  }
+  void move(std::size_t to, std::size_t from) {
+    std::copy_n(data_.data() + from * stride_, stride_, data_.data() + to * stride_);
+  }
+  void resize(std::size_t n) { data_.resize(n * stride_); }
+
+ private:
+  int d_;
+  std::size_t stride_;
+  std::vector<double> data_;
+};
 
 bool lex_greater(const double* a, const double* b, int d) {
   for (int k = 0; k < d; ++k) {
@@ -104,7 +137,8 @@ class ConvexHull::Builder {
         d_(d),
         n_(n),
         options_(options),
-        threads_(options.threads != 0 ? options.threads : std::max(1u, std::thread::hardware_concurrency())) {}
+        threads_(options.threads != 0 ? options.threads : std::max(1u, std::thread::hardware_concurrency())),
+        planes_(d) {}
 
   std::vector<Facet> facets;
 
@@ -136,8 +170,7 @@ class ConvexHull::Builder {
     return s != BoundedDouble::kUnknownSign ? s : exact_side(c_, d_, facets[f].v.data(), x);
   }
   void add_planes_up_to_date() {
-    for (std::size_t f = planes_.size(); f < facets.size(); ++f)
-      planes_.push_back(plane_of(c_, d_, facets[f].v.data()));
+    for (std::size_t f = planes_.size(); f < facets.size(); ++f) planes_.push(c_, facets[f].v.data());
     outside_.resize(facets.size());
     furthest_.resize(facets.size(), kNone);
     furthest_value_.resize(facets.size(), 0.0);
@@ -174,7 +207,7 @@ class ConvexHull::Builder {
   std::size_t n_;
   HullOptions options_;
   unsigned threads_;
-  std::vector<Plane> planes_;
+  PlaneStore planes_;
   std::vector<std::vector<std::uint32_t>> outside_;
   std::vector<std::uint32_t> furthest_;
   std::vector<double> furthest_value_;
@@ -361,7 +394,7 @@ bool ConvexHull::Builder::inner_box(Box& box) const {
   one.threads = 1;
   auto hull = ConvexHull::build(small, d, one);
   if (!hull.is_ok()) return false;
-  std::vector<Plane> planes;
+  PlaneStore planes(d);
   std::array<double, kMaxDimension> centre{}, lo, hi;
   lo.fill(std::numeric_limits<double>::infinity());
   hi.fill(-std::numeric_limits<double>::infinity());
@@ -374,7 +407,7 @@ bool ConvexHull::Builder::inner_box(Box& box) const {
       hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], x);
     }
   }
-  for (const Facet& f : hull.value().facets_) planes.push_back(plane_of(small.data(), d, f.v.data()));
+  for (const Facet& f : hull.value().facets_) planes.push(small.data(), f.v.data());
   // The largest of the boxes shrunk about the centre whose corners are all certified
   // strictly beneath every facet: the box is then strictly inside the hull.
   for (const double scale : {0.97, 0.93, 0.85, 0.75, 0.6, 0.45, 0.3}) {
@@ -389,9 +422,9 @@ bool ConvexHull::Builder::inner_box(Box& box) const {
       for (int k = 0; k < d; ++k)
         corner[static_cast<std::size_t>(k)] =
             (m >> k & 1) ? box.hi[static_cast<std::size_t>(k)] : box.lo[static_cast<std::size_t>(k)];
-      for (const Plane& pl : planes) {
+      for (std::size_t f = 0; f < planes.size(); ++f) {
         double value;
-        if (filtered_side(pl, corner.data(), d, value) != -1) {
+        if (filtered_side(planes[f], corner.data(), d, value) != -1) {
           inside = false;
           break;
         }
@@ -448,11 +481,11 @@ void ConvexHull::Builder::distribute(const std::vector<std::uint32_t>& xs, std::
         int s = filtered_side(planes_[f], point(x), d_, value);
         if (s == BoundedDouble::kUnknownSign) s = exact_side(c_, d_, facets[f].v.data(), x);
         if (s <= 0) continue;
-        const std::size_t j = f - first;
-        part.outside[j].push_back(x);
-        if (part.furthest[j] == kNone || better(x, value, part.furthest[j], part.value[j])) {
-          part.furthest[j] = x;
-          part.value[j] = value;
+        const std::size_t at = f - first;
+        part.outside[at].push_back(x);
+        if (part.furthest[at] == kNone || better(x, value, part.furthest[at], part.value[at])) {
+          part.furthest[at] = x;
+          part.value[at] = value;
         }
         break;
       }
@@ -602,7 +635,7 @@ std::size_t ConvexHull::Builder::compact(std::size_t keep) {
     for (int k = 0; k < d_; ++k)
       facet.nb[static_cast<std::size_t>(k)] = renumber[facet.nb[static_cast<std::size_t>(k)]];
     facets[to] = facet;
-    planes_[to] = planes_[f];
+    planes_.move(to, f);
     if (to != f) outside_[to] = std::move(outside_[f]);
     furthest_[to] = furthest_[f];
     furthest_value_[to] = furthest_value_[f];
@@ -709,15 +742,16 @@ std::vector<double> ConvexHull::facet_equations(std::span<const double> coordina
   std::vector<double> out;
   out.reserve(facets_.size() * static_cast<std::size_t>(d_ + 1));
   for (const Facet& f : facets_) {
-    const Plane pl = plane_of(coordinates.data(), d_, f.v.data());
+    std::array<double, 3 * kMaxDimension + 1> pl;
+    plane_of(coordinates.data(), d_, f.v.data(), pl.data());
     double norm = 0;
-    for (int k = 0; k < d_; ++k) norm += pl.n[static_cast<std::size_t>(k)] * pl.n[static_cast<std::size_t>(k)];
+    for (int k = 0; k < d_; ++k) norm += pl[static_cast<std::size_t>(k)] * pl[static_cast<std::size_t>(k)];
     norm = std::sqrt(norm);
     double offset = 0;
     for (int k = 0; k < d_; ++k) {
-      const double u = norm > 0 ? pl.n[static_cast<std::size_t>(k)] / norm : 0.0;
+      const double u = norm > 0 ? pl[static_cast<std::size_t>(k)] / norm : 0.0;
       out.push_back(u);
-      offset -= u * pl.p0[k];
+      offset -= u * pl[static_cast<std::size_t>(2 * d_ + k)];
     }
     out.push_back(offset);
   }
@@ -725,9 +759,10 @@ std::vector<double> ConvexHull::facet_equations(std::span<const double> coordina
 }
 
 int ConvexHull::side(std::span<const double> coordinates, std::size_t f, std::size_t x) const {
-  const Plane pl = plane_of(coordinates.data(), d_, facets_[f].v.data());
+  std::array<double, 3 * kMaxDimension + 1> pl;
+  plane_of(coordinates.data(), d_, facets_[f].v.data(), pl.data());
   double value;
-  const int s = filtered_side(pl, coordinates.data() + x * static_cast<std::size_t>(d_), d_, value);
+  const int s = filtered_side(pl.data(), coordinates.data() + x * static_cast<std::size_t>(d_), d_, value);
   return s != BoundedDouble::kUnknownSign ? s : exact_side(coordinates.data(), d_, facets_[f].v.data(), x);
 }
 
@@ -745,9 +780,8 @@ std::vector<std::array<std::uint32_t, 3>> ConvexHull::coplanar(std::span<const d
   for (const Facet& f : facets_) {
     for (std::size_t k = 0; k < d; ++k) is_vertex[f.v[k]] = 1;
   }
-  std::vector<Plane> planes;
-  planes.reserve(facets_.size());
-  for (const Facet& f : facets_) planes.push_back(plane_of(coordinates.data(), d_, f.v.data()));
+  PlaneStore planes(d_);
+  for (const Facet& f : facets_) planes.push(coordinates.data(), f.v.data());
   std::vector<std::array<std::uint32_t, 3>> out;
   for (std::size_t x = 0; x < n_; ++x) {
     if (is_vertex[x] || static_cast<std::int64_t>(x) == exclude) continue;
