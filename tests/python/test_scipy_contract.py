@@ -367,3 +367,36 @@ def test_hull_good_is_scipys(name, incremental):
         ours.add_points(more)
         theirs.add_points(more)
     assert _good_by_facet(ours) == _good_by_facet(theirs), name
+
+
+# --- scipy's own SphericalVoronoi tests on spokemesh.SphericalVoronoi ----------------
+# test_spherical_voronoi.py, loaded as test_qhull.py is, with its SphericalVoronoi name
+# replaced. Left out: the test that lists Qhull's facet numbers (its expected regions
+# name vertices by Qhull's facet order); what it checks is run below with vertices
+# matched by coordinates.
+SCIPY_SV_TESTS = os.path.join(os.path.dirname(scipy_spatial.__file__), "tests", "test_spherical_voronoi.py")
+_sv_spec = importlib.util.spec_from_file_location("scipy_test_spherical_voronoi", SCIPY_SV_TESTS)
+scipy_sv_tests = importlib.util.module_from_spec(_sv_spec)
+_sv_spec.loader.exec_module(scipy_sv_tests)
+scipy_sv_tests.SphericalVoronoi = spokemesh.SphericalVoronoi
+SV_ORDER = {"test_sort_vertices_of_regions_flattened"}
+TestSphericalVoronoi = _wrap(scipy_sv_tests.TestSphericalVoronoi, SV_ORDER, {})
+
+
+def _regions_by_coordinates(sv):
+    """Each generator's region as the cycle of its vertices' rounded coordinates."""
+    out = []
+    for region in sv.regions:
+        cycle = [tuple(np.round(sv.vertices[v], 9)) for v in region]
+        out.append(_cycle(cycle))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sorted_spherical_regions_are_scipys_cycles(seed):
+    points = scipy_sv_tests._sample_sphere(50, 3, seed=seed)
+    ours, theirs = spokemesh.SphericalVoronoi(points), scipy_spatial.SphericalVoronoi(points)
+    ours.sort_vertices_of_regions()
+    theirs.sort_vertices_of_regions()
+    assert _regions_by_coordinates(ours) == _regions_by_coordinates(theirs)
+    np.testing.assert_allclose(ours.calculate_areas(), theirs.calculate_areas(), rtol=1e-10)

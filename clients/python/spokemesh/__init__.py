@@ -8,6 +8,7 @@ In-process (the compiled module spokemesh._core; no server, no gRPC):
     tri.simplices, tri.neighbors, tri.find_simplex(q), tri.cell(0, box=[0, 0, 0, 1, 1, 1])
     vor = spokemesh.Voronoi(points)   # scipy.spatial.Voronoi's attributes
     hull = spokemesh.ConvexHull(points)  # scipy.spatial.ConvexHull's attributes, exact
+    sv = spokemesh.SphericalVoronoi(points_on_a_sphere)  # scipy's, from the exact hull
     g = spokemesh.approximate_graph(points_in_20d, misses=100)
 
 Remote (spokemesh.remote.Client, also spokemesh.Client; needs python3-grpcio):
@@ -26,7 +27,7 @@ from typing import Any
 
 from .types import Cell, Facet
 
-__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "SphericalVoronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
            "Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"]
 
 _REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"}
@@ -40,10 +41,12 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(".voronoi", __name__), name)
     if name in ("ConvexHull", "QhullError"):
         return getattr(importlib.import_module(".hull", __name__), name)
+    if name == "SphericalVoronoi":
+        return getattr(importlib.import_module(".spherical", __name__), name)
     if name in _LOCAL:
         return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
         return getattr(importlib.import_module(".remote", __name__), name)
-    if name in ("remote", "delaunay", "voronoi", "hull"):
+    if name in ("remote", "delaunay", "voronoi", "hull", "spherical"):
         return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

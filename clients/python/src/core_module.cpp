@@ -903,6 +903,43 @@ class Hull {
     for (const auto& r : rows) flat.insert(flat.end(), r.begin(), r.end());
     return owned(std::move(flat), {static_cast<py::ssize_t>(rows.size()), 3});
   }
+  // Each point's facets (SphericalVoronoi's regions: a facet is a Voronoi vertex), as
+  // (flat, ptr): point i's are flat[ptr[i] .. ptr[i + 1]), ascending; with `sorted`
+  // (d = 3), in cyclic order instead, counter-clockwise seen from outside, from the
+  // smallest: around vertex v of facet (a, b, c) (counter-clockwise from outside), the
+  // next facet is the one across the edge from v to the vertex before it.
+  py::tuple regions(std::int64_t npoints, bool sorted) const {
+    const int d = hull_.dimension();
+    const std::vector<std::uint32_t> rows = hull_.facet_vertices();
+    const std::vector<std::int32_t> nb = hull_.facet_neighbors();
+    const std::size_t m = hull_.facet_count();
+    std::vector<std::int64_t> ptr(static_cast<std::size_t>(npoints) + 1, 0);
+    std::vector<std::int32_t> flat(rows.size());
+    {
+      py::gil_scoped_release release;
+      for (const std::uint32_t v : rows) ++ptr[v + 1];
+      for (std::size_t i = 0; i < static_cast<std::size_t>(npoints); ++i) ptr[i + 1] += ptr[i];
+      std::vector<std::int64_t> next(ptr.begin(), ptr.end() - 1);
+      for (std::size_t f = 0; f < m; ++f) {
+        for (int k = 0; k < d; ++k) flat[static_cast<std::size_t>(next[rows[f * d + k]]++)] = static_cast<std::int32_t>(f);
+      }
+      if (sorted && d == 3) {
+        for (std::size_t v = 0; v < static_cast<std::size_t>(npoints); ++v) {
+          const std::int64_t a = ptr[v], b = ptr[v + 1];
+          if (b - a < 3) continue;
+          std::int32_t f = flat[static_cast<std::size_t>(a)];
+          for (std::int64_t j = a; j < b; ++j) {
+            flat[static_cast<std::size_t>(j)] = f;
+            int at = 0;
+            while (at < 3 && rows[static_cast<std::size_t>(f) * 3 + at] != v) ++at;
+            f = nb[static_cast<std::size_t>(f) * 3 + (at + 1) % 3];
+          }
+        }
+      }
+    }
+    return py::make_tuple(owned(std::move(flat), {static_cast<py::ssize_t>(rows.size())}),
+                          owned(std::move(ptr), {static_cast<py::ssize_t>(npoints + 1)}));
+  }
   // The points' box (scipy's min_bound, max_bound), in one pass.
   static py::tuple bounds(const Points& points) {
     const auto [c, d] = rows_of(points);
@@ -952,6 +989,27 @@ class Hull {
   unsigned threads_ = 0;
 };
 
+// Writes flat[ptr[i] .. ptr[i + 1]) into the existing list i of `lists` (same
+// lengths): SphericalVoronoi sorts its regions in place, as scipy's does, so that
+// references to them see the order.
+void refill_lists(py::list lists, const py::array_t<std::int32_t, py::array::c_style | py::array::forcecast>& flat,
+                  const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& ptr) {
+  const std::int32_t* v = flat.data();
+  const std::int64_t* p = ptr.data();
+  const auto count = static_cast<std::size_t>(std::max<py::ssize_t>(0, ptr.size() - 1));
+  if (count != lists.size()) throw py::value_error("refill_lists: one range per list");
+  for (std::size_t i = 0; i < count; ++i) {
+    PyObject* list = PyList_GET_ITEM(lists.ptr(), static_cast<Py_ssize_t>(i));
+    if (!PyList_Check(list) || PyList_GET_SIZE(list) != p[i + 1] - p[i])
+      throw py::value_error("refill_lists: list " + std::to_string(i) + " changed length");
+    for (std::int64_t j = p[i]; j < p[i + 1]; ++j) {
+      PyObject* item = PyLong_FromLong(v[j]);
+      if (item == nullptr) throw py::error_already_set();
+      PyList_SetItem(list, static_cast<Py_ssize_t>(j - p[i]), item);  // steals item, drops the old one
+    }
+  }
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_core, m) {
@@ -985,6 +1043,7 @@ PYBIND11_MODULE(_core, m) {
       },
       py::arg("points"));
   m.def("split_lists", &split_lists, py::arg("flat"), py::arg("ptr"));
+  m.def("refill_lists", &refill_lists, py::arg("lists"), py::arg("flat"), py::arg("ptr"));
   py::class_<Triangulation>(m, "Triangulation")
       .def(py::init<const Points&, std::optional<unsigned>, const std::optional<Points>&>(), py::arg("points"),
            py::arg("threads") = py::none(), py::arg("weights") = py::none())
@@ -1018,6 +1077,7 @@ PYBIND11_MODULE(_core, m) {
       .def("equations", &Hull::equations, py::arg("points"))
       .def("vertices", &Hull::vertices)
       .def_static("bounds", &Hull::bounds, py::arg("points"))
+      .def("regions", &Hull::regions, py::arg("npoints"), py::arg("sorted"))
       .def("coplanar", &Hull::coplanar, py::arg("points"))
       .def("sides", &Hull::sides, py::arg("points"), py::arg("x"));
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")
