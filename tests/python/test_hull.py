@@ -149,3 +149,135 @@ def test_core_hull_sides_are_exact_on_a_sliver():
     assert sorted(hull.vertices().tolist()) == [0, 1, 2, 3]  # point 4 lies on the base's edge plane
     sides = hull.sides(points, 4)
     assert set(sides.tolist()) <= {-1, 0} and 0 in sides.tolist()
+
+
+# --- SphericalVoronoi -------------------------------------------------------------
+
+def _on_sphere(n, d, seed, radius=1.0, center=None):
+    x = np.random.default_rng(seed).standard_normal((n, d))
+    x = radius * x / np.linalg.norm(x, axis=1)[:, None]
+    return x if center is None else x + center
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_spherical_areas_fill_the_sphere(d):
+    center = np.arange(1.0, d + 1)
+    points = _on_sphere(2000, d, 21, 2.5, center)
+    sv = spokemesh.SphericalVoronoi(points, radius=2.5, center=center)
+    whole = 2 * np.pi * 2.5 if d == 2 else 4 * np.pi * 2.5 ** 2
+    assert sv.calculate_areas().sum() == pytest.approx(whole, rel=1e-12)
+    assert (sv.calculate_areas() > 0).all()
+
+
+def test_circle_arcs_are_each_points_own():
+    # Point i's arc runs from the midpoint before it to the midpoint after it.
+    angles = np.array([0.0, 1.0, 2.5, 4.0])
+    sv = spokemesh.SphericalVoronoi(np.c_[np.cos(angles), np.sin(angles)])
+    gaps = np.diff(np.r_[angles, 2 * np.pi])  # 1, 1.5, 1.5, 2pi - 4
+    expected = (gaps + np.roll(gaps, 1)) / 2
+    np.testing.assert_allclose(sv.calculate_areas(), expected, rtol=1e-12)
+
+
+def test_cospherical_corners_and_sorted_regions_in_place():
+    cube = np.array([[i & 1, i >> 1 & 1, i >> 2 & 1] for i in range(8)], float) * 2 - 1
+    sv = spokemesh.SphericalVoronoi(cube / np.sqrt(3))
+    np.testing.assert_allclose(sv.calculate_areas(), 4 * np.pi / 8, rtol=1e-12)
+    held = sv.regions
+    sv.sort_vertices_of_regions()
+    assert held is sv.regions and all(len(r) >= 3 for r in held)
+    # Counter-clockwise seen from outside: each consecutive pair turns left about the point.
+    for i, region in enumerate(sv.regions):
+        v = sv.vertices[region]
+        turns = [np.dot(sv.points[i], np.cross(v[j] - sv.points[i], v[(j + 1) % len(v)] - sv.points[i]))
+                 for j in range(len(v))]
+        assert all(t >= -1e-12 for t in turns), (i, turns)
+
+
+def test_spherical_regions_do_not_depend_on_input_order():
+    points = _on_sphere(300, 3, 22)
+    perm = np.random.default_rng(23).permutation(300)
+    a, b = spokemesh.SphericalVoronoi(points), spokemesh.SphericalVoronoi(points[perm])
+    a.sort_vertices_of_regions()
+    b.sort_vertices_of_regions()
+
+    def cycles(sv, order):
+        out = {}
+        for i, region in enumerate(sv.regions):
+            coords = [tuple(np.round(sv.vertices[v], 12)) for v in region]
+            k = coords.index(min(coords))
+            out[int(order[i])] = coords[k:] + coords[:k]
+        return out
+    assert cycles(a, np.arange(300)) == cycles(b, perm)
+
+
+def test_spherical_errors_are_scipys():
+    points = _on_sphere(50, 3, 24)
+    with pytest.raises(ValueError, match="Duplicate generators present"):
+        spokemesh.SphericalVoronoi(np.concatenate([points, points[:1]]))  # an equal point: not a hull vertex
+    near = points.copy()
+    near[1] = points[0] + 1e-8 * np.array([0.0, 0.0, 1.0])
+    near[1] /= np.linalg.norm(near[1])
+    with pytest.raises(ValueError, match="Duplicate generators present"):
+        spokemesh.SphericalVoronoi(near)
+    with pytest.raises(ValueError, match="Radius inconsistent"):
+        spokemesh.SphericalVoronoi(points * 1.01)
+    circle = np.c_[_on_sphere(200_000, 2, 25), np.zeros(200_000)]  # the Gram path (above 100,000 points)
+    with pytest.raises(ValueError, match="Rank of input points must be at least 3"):
+        spokemesh.SphericalVoronoi(circle)
+    with pytest.raises(TypeError, match="three-dimensional"):
+        spokemesh.SphericalVoronoi(_on_sphere(20, 4, 26)).sort_vertices_of_regions()
+
+
+# --- HalfspaceIntersection ---------------------------------------------------------
+
+def _tangent_halfspaces(n, d, seed):
+    # The halfspaces u . x <= 1 for random unit u: a polytope around the origin.
+    u = np.random.default_rng(seed).standard_normal((n, d))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    return np.c_[u, -np.ones(n)]
+
+
+@pytest.mark.parametrize("d,n,seed", [(2, 40, 31), (3, 200, 32), (4, 80, 33)])
+def test_halfspace_vertices_are_scipys_and_feasible(d, n, seed):
+    hs = _tangent_halfspaces(n, d, seed)
+    ours = spokemesh.HalfspaceIntersection(hs, np.zeros(d))
+    theirs = scipy_spatial.HalfspaceIntersection(hs, np.zeros(d))
+    assert sorted(map(tuple, np.round(ours.intersections, 9).tolist())) == \
+        sorted(map(tuple, np.round(theirs.intersections, 9).tolist()))
+    assert (hs[:, :-1] @ ours.intersections.T + hs[:, -1:] <= 1e-12).all()
+    assert sorted(map(sorted, ours.dual_facets)) == sorted(map(sorted, theirs.dual_facets))
+    assert ours.dual_vertices.tolist() == sorted(theirs.dual_vertices.tolist())
+    assert ours.dual_volume == pytest.approx(theirs.dual_volume, rel=1e-12)
+
+
+def test_halfspace_redundant_merged_and_incremental():
+    # The unit square's four sides, a redundant x <= 5, and a pyramid's apex where four
+    # planes meet (merged into one vertex with four halfspaces).
+    square = np.array([[-1, 0, 0], [1, 0, -1], [0, -1, 0], [0, 1, -1], [1, 0, -5.0]])
+    hs = spokemesh.HalfspaceIntersection(square, np.array([0.5, 0.5]), incremental=True)
+    assert 4 not in hs.dual_vertices.tolist() and len(hs.intersections) == 4
+    pyramid = np.array([[0, 0, -1, 0], [1, 0, 1, -1], [-1, 0, 1, -1], [0, 1, 1, -1], [0, -1, 1, -1.0]])
+    p = spokemesh.HalfspaceIntersection(pyramid, np.array([0.0, 0.0, 0.2]))
+    apex = [f for f in p.dual_facets if len(f) == 4]
+    assert len(p.intersections) == 5 and apex and sorted(apex[0]) == [1, 2, 3, 4]
+    hs.add_halfspaces(np.array([[1, 1, -1.5]]))
+    again = spokemesh.HalfspaceIntersection(np.concatenate([square, [[1, 1, -1.5]]]), np.array([0.5, 0.5]))
+    assert sorted(map(tuple, np.round(hs.intersections, 12).tolist())) == \
+        sorted(map(tuple, np.round(again.intersections, 12).tolist()))
+    hs.close()
+    with pytest.raises(RuntimeError, match="incremental"):
+        hs.add_halfspaces(np.array([[1, 1, -1.5]]))
+
+
+def test_halfspace_errors_are_named():
+    square = np.array([[-1, 0, 0], [1, 0, -1], [0, -1, 0], [0, 1, -1.0]])
+    with pytest.raises(spokemesh.QhullError, match="not strictly inside halfspace 1"):
+        spokemesh.HalfspaceIntersection(square, np.array([1.0, 0.5]))  # on x <= 1
+    with pytest.raises(spokemesh.QhullError, match="unbounded"):
+        spokemesh.HalfspaceIntersection(np.array([[1, 0, -1], [0, 1, -1], [1, 1, -1.0]]), np.array([0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"interior_point: expected shape \(2,\)"):
+        spokemesh.HalfspaceIntersection(square, np.array([0.5, 0.5, 0.5]))
+    with pytest.raises(ValueError, match=r"halfspaces\[2\]\[1\]: not a finite number"):
+        bad = square.copy()
+        bad[2, 1] = np.nan
+        spokemesh.HalfspaceIntersection(bad, np.array([0.5, 0.5]))

@@ -47,7 +47,8 @@ _spec = importlib.util.spec_from_file_location("scipy_test_qhull", SCIPY_TESTS)
 scipy_tests = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(scipy_tests)
 scipy_tests.qhull = types.SimpleNamespace(**{**vars(scipy_qhull), "Delaunay": spokemesh.Delaunay,
-                                             "Voronoi": spokemesh.Voronoi, "ConvexHull": spokemesh.ConvexHull})
+                                             "Voronoi": spokemesh.Voronoi, "ConvexHull": spokemesh.ConvexHull,
+                                             "HalfspaceIntersection": spokemesh.HalfspaceIntersection})
 scipy_tests.Voronoi = spokemesh.Voronoi
 
 # Qhull's own row order on tiny inputs (unspecified by scipy's documentation).
@@ -118,6 +119,11 @@ TestUtilities = _wrap(scipy_tests.TestUtilities)
 TestVertexNeighborVertices = _wrap(scipy_tests.TestVertexNeighborVertices)
 TestVoronoi = _wrap(scipy_tests.TestVoronoi, REGION_ORDER, VORONOI_NOT_YET)
 TestConvexHull = _wrap(scipy_tests.TestConvexHull, HULL_ORDER, {})
+# test_cube zips Qhull's dual facets with ours in Qhull's order, and
+# test_cube_halfspace_intersection compares the vertices in Qhull's row order; both are
+# run below with rows compared as sets.
+Test_HalfspaceIntersection = _wrap(scipy_tests.Test_HalfspaceIntersection,
+                                   {"test_cube", "test_cube_halfspace_intersection"}, {})
 TestVoronoi.test_ridges = _exact_where_qhull_merges(scipy_tests.TestVoronoi.test_ridges)
 TestVoronoi.test_incremental = _exact_where_qhull_merges(scipy_tests.TestVoronoi.test_incremental)
 
@@ -400,3 +406,23 @@ def test_sorted_spherical_regions_are_scipys_cycles(seed):
     theirs.sort_vertices_of_regions()
     assert _regions_by_coordinates(ours) == _regions_by_coordinates(theirs)
     np.testing.assert_allclose(ours.calculate_areas(), theirs.calculate_areas(), rtol=1e-10)
+
+
+def test_halfspace_cube_facets_are_qhalfs_as_a_set():
+    # scipy's test_cube's data and Qhull's answer (qhalf H0.5,0.5,0.5), in any order.
+    halfspaces = np.array([[-1., 0., 0., 0.], [1., 0., 0., -1.], [0., -1., 0., 0.], [0., 1., 0., -1.],
+                           [0., 0., -1., 0.], [0., 0., 1., -1.]])
+    hs = spokemesh.HalfspaceIntersection(halfspaces, np.array([0.5, 0.5, 0.5]))
+    qhalf_facets = [[2, 4, 0], [4, 2, 1], [5, 2, 0], [2, 5, 1], [3, 4, 1], [4, 3, 0], [5, 3, 1], [3, 5, 0]]
+    assert sorted(map(sorted, hs.dual_facets)) == sorted(map(sorted, qhalf_facets))
+    np.testing.assert_allclose(hs.dual_points, [[-2, 0, 0], [2, 0, 0], [0, -2, 0], [0, 2, 0], [0, 0, -2], [0, 0, 2]])
+    corners = {tuple(np.round(x, 12)) for x in hs.intersections}
+    assert corners == {(float(i & 1), float(i >> 1 & 1), float(i >> 2 & 1)) for i in range(8)}
+
+
+@pytest.mark.parametrize("dt", [np.float64, int])
+def test_halfspace_square_vertices_are_scipys_as_a_set(dt):
+    # scipy's test_cube_halfspace_intersection's data, rows in any order.
+    halfspaces = np.array([[-1, 0, 0], [0, -1, 0], [1, 0, -2], [0, 1, -2]], dtype=dt)
+    hs = spokemesh.HalfspaceIntersection(halfspaces, np.array([1, 1], dtype=dt))
+    assert sorted(map(tuple, hs.intersections.tolist())) == [(0.0, 0.0), (0.0, 2.0), (2.0, 0.0), (2.0, 2.0)]

@@ -27,7 +27,8 @@ from typing import Any
 
 from .types import Cell, Facet
 
-__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "SphericalVoronoi", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
+__all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "SphericalVoronoi",
+           "HalfspaceIntersection", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
            "Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"]
 
 _REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"}
@@ -41,12 +42,14 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(".voronoi", __name__), name)
     if name in ("ConvexHull", "QhullError"):
         return getattr(importlib.import_module(".hull", __name__), name)
+    if name == "HalfspaceIntersection":
+        return getattr(importlib.import_module(".halfspace", __name__), name)
     if name == "SphericalVoronoi":
         return getattr(importlib.import_module(".spherical", __name__), name)
     if name in _LOCAL:
         return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
         return getattr(importlib.import_module(".remote", __name__), name)
-    if name in ("remote", "delaunay", "voronoi", "hull", "spherical"):
+    if name in ("remote", "delaunay", "voronoi", "hull", "spherical", "halfspace"):
         return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

@@ -75,13 +75,14 @@ class SphericalVoronoi:
             if "the hull is flat" in str(e) or "needs at least" in str(e):
                 raise ValueError(f"Rank of input points must be at least {self._dim} ({e})") from None
             raise
+        self._simplices = self._hull.simplices()
+        self._flat, self._ptr = self._hull.regions(len(self.points), False)
         self._check_duplicates(tol)
         if np.abs(radii - self.radius).max() >= tol:
             raise ValueError("Radius inconsistent with generators.")
-        self._simplices = self._hull.simplices()
         self.vertices = self.radius * self._hull.equations(self.points)[:, :-1] + self.center
         self._sorted = False
-        self.regions = self._regions(sort=False)
+        self.regions = _core.split_lists(self._flat, self._ptr)
 
     def _rank(self, tol: float) -> int:
         a = self.points - self.points[0]
@@ -94,16 +95,17 @@ class SphericalVoronoi:
         # Two points closer than tol: either both are hull vertices, and then (nearest
         # neighbours on a sphere being Delaunay neighbours) a hull edge is that short,
         # or one is not a vertex, and its nearest vertex is looked up.
-        simplices = self._hull.simplices()
+        simplices = self._simplices
         d = self._dim
         for i in range(d):
             for j in range(i + 1, d):
                 diff = self.points[simplices[:, i]] - self.points[simplices[:, j]]
                 if (np.einsum("ij,ij->i", diff, diff) <= tol * tol).any():
                     raise ValueError("Duplicate generators present.")
-        vertices = self._hull.vertices()
-        if len(vertices) == len(self.points):
+        counts = np.diff(self._ptr)
+        if counts.all():  # every point a vertex
             return
+        vertices = np.flatnonzero(counts)
         others = np.setdiff1d(np.arange(len(self.points)), vertices)
         hull_points = self.points[vertices]
         for start in range(0, len(others), 256):
@@ -112,10 +114,6 @@ class SphericalVoronoi:
             if (dist2.min(axis=1) <= tol * tol).any():
                 raise ValueError("Duplicate generators present.")
 
-    def _regions(self, sort: bool) -> list:
-        flat, ptr = self._hull.regions(len(self.points), sort)
-        return _core.split_lists(flat, ptr)
-
     def sort_vertices_of_regions(self) -> None:
         """Orders each region's vertices counter-clockwise seen from outside the sphere,
         from its smallest index (d = 3 only: TypeError otherwise, as scipy's)."""
@@ -123,8 +121,8 @@ class SphericalVoronoi:
             raise TypeError("Only supported for three-dimensional point sets")
         if not self._sorted:
             # In place, as scipy's: references to the region lists see the order.
-            flat, ptr = self._hull.regions(len(self.points), True)
-            _core.refill_lists(self.regions, flat, ptr)
+            self._flat, self._ptr = self._hull.regions(len(self.points), True)
+            _core.refill_lists(self.regions, self._flat, self._ptr)
             self._sorted = True
 
     def calculate_areas(self) -> np.ndarray:
@@ -142,33 +140,21 @@ class SphericalVoronoi:
     def _arc_lengths(self) -> np.ndarray:
         # Point i's region runs between the vertices of its two edges, through i: the
         # angles from the point to each (at most pi each).
-        flat, ptr = self._hull.regions(len(self.points), False)
-        counts = np.diff(ptr)
-        p = self._unit(self.points)
-        v = self._unit(self.vertices)
+        counts = np.diff(self._ptr)
         owner = np.repeat(np.arange(len(self.points)), counts)
-        a, b = p[owner], v[flat]
+        a, b = self._unit(self.points)[owner], self._unit(self.vertices)[self._flat]
         cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
         angles = np.arctan2(np.abs(cross), np.einsum("ij,ij->i", a, b))
         return self.radius * np.bincount(owner, weights=angles, minlength=len(self.points))
 
     def _polygon_areas(self) -> np.ndarray:
-        # Each region as a fan of triangles (generator, vertex j, vertex j + 1) around it,
-        # in cyclic order; a triangle's solid angle by Van Oosterom and Strackee's
-        # formula, tan(omega / 2) = |g . (a x b)| / (1 + g . a + a . b + b . g).
-        flat, ptr = self._hull.regions(len(self.points), True)
-        counts = np.diff(ptr)
-        owner = np.repeat(np.arange(len(self.points)), counts)
-        following = np.arange(len(flat)) + 1
-        ends = ptr[1:][counts > 0] - 1
-        following[ends] = ptr[:-1][counts > 0]
-        g = self._unit(self.points)[owner]
-        a = self._unit(self.vertices)[flat]
-        b = a[following]
-        triple = np.einsum("ij,ij->i", g, np.cross(a, b))
-        denominator = 1 + np.einsum("ij,ij->i", g, a) + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, g)
-        solid = np.abs(2 * np.arctan2(triple, denominator))
-        return self.radius ** 2 * np.bincount(owner, weights=solid, minlength=len(self.points))
+        # Each region as a fan of triangles (generator, vertex j, vertex j + 1) in cyclic
+        # order, their solid angles summed (Van Oosterom and Strackee's formula).
+        # Cyclic, whether or not `regions` were sorted.
+        flat, ptr = (self._flat, self._ptr) if self._sorted else self._hull.regions(len(self.points), True)
+        solid = _core.fan_solid_angles(np.ascontiguousarray(self._unit(self.points)),
+                                       np.ascontiguousarray(self._unit(self.vertices)), flat, ptr)
+        return self.radius ** 2 * solid
 
     def __repr__(self) -> str:
         return (f"spokemesh.SphericalVoronoi({len(self.points)} points in {self._dim}-d, "

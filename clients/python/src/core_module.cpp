@@ -921,7 +921,8 @@ class Hull {
       for (std::size_t i = 0; i < static_cast<std::size_t>(npoints); ++i) ptr[i + 1] += ptr[i];
       std::vector<std::int64_t> next(ptr.begin(), ptr.end() - 1);
       for (std::size_t f = 0; f < m; ++f) {
-        for (int k = 0; k < d; ++k) flat[static_cast<std::size_t>(next[rows[f * d + k]]++)] = static_cast<std::int32_t>(f);
+        for (int k = 0; k < d; ++k)
+          flat[static_cast<std::size_t>(next[rows[f * d + k]]++)] = static_cast<std::int32_t>(f);
       }
       if (sorted && d == 3) {
         for (std::size_t v = 0; v < static_cast<std::size_t>(npoints); ++v) {
@@ -939,6 +940,16 @@ class Hull {
     }
     return py::make_tuple(owned(std::move(flat), {static_cast<py::ssize_t>(rows.size())}),
                           owned(std::move(ptr), {static_cast<py::ssize_t>(npoints + 1)}));
+  }
+  // Each facet's group (ConvexHull::facet_groups): the polytope's facets.
+  py::array_t<std::int32_t> groups(const Points& points) const {
+    const auto [c, d] = rows_of(points);
+    std::vector<std::uint32_t> g;
+    {
+      py::gil_scoped_release release;
+      g = hull_.facet_groups(c);
+    }
+    return owned(std::vector<std::int32_t>(g.begin(), g.end()), {static_cast<py::ssize_t>(g.size())});
   }
   // The points' box (scipy's min_bound, max_bound), in one pass.
   static py::tuple bounds(const Points& points) {
@@ -988,6 +999,47 @@ class Hull {
   std::int64_t exclude_ = -1;
   unsigned threads_ = 0;
 };
+
+// The areas of spherical polygons on the unit sphere: polygon i has the vertices
+// vertices[flat[ptr[i] .. ptr[i + 1])] in cyclic order around centres[i], summed as a fan
+// of triangles (centre, a, b) whose solid angles come from Van Oosterom and Strackee's
+// tan(omega / 2) = |c . (a x b)| / (1 + c . a + a . b + b . c).
+py::array_t<double> fan_solid_angles(const Points& centres, const Points& vertices,
+                                     const py::array_t<std::int32_t, py::array::c_style | py::array::forcecast>& flat,
+                                     const py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>& ptr) {
+  if (centres.ndim() != 2 || centres.shape(1) != 3 || vertices.ndim() != 2 || vertices.shape(1) != 3)
+    throw py::value_error("fan_solid_angles: 3-d points and vertices");
+  const auto n = static_cast<std::size_t>(ptr.size() - 1);
+  if (n != static_cast<std::size_t>(centres.shape(0))) throw py::value_error("fan_solid_angles: one range per centre");
+  const double* c = centres.data();
+  const double* v = vertices.data();
+  const std::int32_t* f = flat.data();
+  const std::int64_t* p = ptr.data();
+  const auto nv = static_cast<std::int64_t>(vertices.shape(0));
+  for (py::ssize_t i = 0; i < flat.size(); ++i) {
+    if (f[i] < 0 || f[i] >= nv) throw py::value_error("fan_solid_angles: vertex index out of range");
+  }
+  std::vector<double> out(n, 0.0);
+  {
+    py::gil_scoped_release release;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double* g = c + 3 * i;
+      double sum = 0;
+      for (std::int64_t j = p[i]; j < p[i + 1]; ++j) {
+        const double* a = v + 3 * static_cast<std::size_t>(f[j]);
+        const double* b = v + 3 * static_cast<std::size_t>(f[j + 1 < p[i + 1] ? j + 1 : p[i]]);
+        const double cross[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+        const double triple = g[0] * cross[0] + g[1] * cross[1] + g[2] * cross[2];
+        const double dot_ga = g[0] * a[0] + g[1] * a[1] + g[2] * a[2];
+        const double dot_ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        const double dot_bg = b[0] * g[0] + b[1] * g[1] + b[2] * g[2];
+        sum += std::fabs(2 * std::atan2(triple, 1 + dot_ga + dot_ab + dot_bg));
+      }
+      out[i] = sum;
+    }
+  }
+  return owned(std::move(out), {static_cast<py::ssize_t>(n)});
+}
 
 // Writes flat[ptr[i] .. ptr[i + 1]) into the existing list i of `lists` (same
 // lengths): SphericalVoronoi sorts its regions in place, as scipy's does, so that
@@ -1044,6 +1096,8 @@ PYBIND11_MODULE(_core, m) {
       py::arg("points"));
   m.def("split_lists", &split_lists, py::arg("flat"), py::arg("ptr"));
   m.def("refill_lists", &refill_lists, py::arg("lists"), py::arg("flat"), py::arg("ptr"));
+  m.def("fan_solid_angles", &fan_solid_angles, py::arg("centres"), py::arg("vertices"), py::arg("flat"),
+        py::arg("ptr"));
   py::class_<Triangulation>(m, "Triangulation")
       .def(py::init<const Points&, std::optional<unsigned>, const std::optional<Points>&>(), py::arg("points"),
            py::arg("threads") = py::none(), py::arg("weights") = py::none())
@@ -1078,6 +1132,7 @@ PYBIND11_MODULE(_core, m) {
       .def("vertices", &Hull::vertices)
       .def_static("bounds", &Hull::bounds, py::arg("points"))
       .def("regions", &Hull::regions, py::arg("npoints"), py::arg("sorted"))
+      .def("groups", &Hull::groups, py::arg("points"))
       .def("coplanar", &Hull::coplanar, py::arg("points"))
       .def("sides", &Hull::sides, py::arg("points"), py::arg("x"));
   py::class_<PeriodicTriangulation>(m, "PeriodicTriangulation")

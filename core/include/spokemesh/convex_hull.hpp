@@ -73,6 +73,10 @@ class ConvexHull {
   // The exact sign of facet f's orientation with point x of `coordinates`: +1 x
   // strictly beyond (visible), 0 on the hyperplane, -1 beneath.
   int side(std::span<const double> coordinates, std::size_t f, std::size_t x) const;
+  // The polytope's facets as groups of these simplicial facets: facets f and g across a
+  // ridge are in one group when g's other vertex lies exactly on f's hyperplane (and so
+  // on, transitively). Group ids count from 0 in order of each group's first facet.
+  std::vector<std::uint32_t> facet_groups(std::span<const double> coordinates) const;
   // The vertices, ascending point ids.
   std::vector<std::uint32_t> vertices() const;
   // The points of `coordinates` (the hull's) that are not vertices but lie on the

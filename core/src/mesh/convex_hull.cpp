@@ -811,4 +811,37 @@ std::vector<std::array<std::uint32_t, 3>> ConvexHull::coplanar(std::span<const d
   return out;
 }
 
+std::vector<std::uint32_t> ConvexHull::facet_groups(std::span<const double> coordinates) const {
+  const std::size_t m = facets_.size(), d = static_cast<std::size_t>(d_);
+  std::vector<std::uint32_t> parent(m);
+  for (std::size_t f = 0; f < m; ++f) parent[f] = static_cast<std::uint32_t>(f);
+  auto root = [&](std::uint32_t f) {
+    while (parent[f] != f) f = parent[f] = parent[parent[f]];
+    return f;
+  };
+  for (std::size_t f = 0; f < m; ++f) {
+    for (std::size_t k = 0; k < d; ++k) {
+      const std::uint32_t g = facets_[f].nb[k];
+      if (g < f) continue;  // each ridge once
+      // g's vertex that is not f's.
+      std::uint32_t other = kNone;
+      for (std::size_t j = 0; j < d && other == kNone; ++j) {
+        const std::uint32_t v = facets_[g].v[j];
+        if (std::find(facets_[f].v.begin(), facets_[f].v.begin() + d_, v) == facets_[f].v.begin() + d_) other = v;
+      }
+      if (other == kNone || side(coordinates, f, other) != 0) continue;
+      const std::uint32_t a = root(static_cast<std::uint32_t>(f)), b = root(g);
+      if (a != b) parent[std::max(a, b)] = std::min(a, b);  // the smaller facet id roots
+    }
+  }
+  std::vector<std::uint32_t> group(m), number(m, kNone);
+  std::uint32_t next = 0;
+  for (std::size_t f = 0; f < m; ++f) {
+    const std::uint32_t r = root(static_cast<std::uint32_t>(f));
+    if (number[r] == kNone) number[r] = next++;
+    group[f] = number[r];
+  }
+  return group;
+}
+
 }  // namespace spokemesh
