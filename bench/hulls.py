@@ -4,7 +4,7 @@ seconds (best of --repeat runs in one process, the points made once) and peak me
 above the points (each tool in its own process), facet counts checked equal where the
 hull is unique (no four points on one plane).
 
-Usage: PYTHONPATH=build/python bench/hulls.py [--only NAME] [--repeat 3]
+Usage: PYTHONPATH=build/python bench/hulls.py [--only NAME] [--repeat 3] [--others-only]
 Prints a markdown table (bench/README.md, "Convex hulls").
 """
 from __future__ import annotations
@@ -57,7 +57,48 @@ CASES = {
 }
 
 
+def _tangent_halfspaces(n, d, seed):
+    u = np.random.default_rng(seed).standard_normal((n, d))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    return np.c_[u, -np.ones(n)]
+
+
+# SphericalVoronoi (with sorted regions and areas) and HalfspaceIntersection cases.
+OTHER = {
+    "spherical-voronoi-100k": lambda: _sphere(100_000, 11),
+    "spherical-voronoi-1M": lambda: _sphere(1_000_000, 12),
+    "halfspaces-3d-100k": lambda: _tangent_halfspaces(100_000, 3, 13),
+    "halfspaces-3d-1M-random-offsets": lambda: np.c_[_tangent_halfspaces(1_000_000, 3, 14)[:, :3],
+                                                      -1 - np.random.default_rng(15).random(1_000_000)],
+}
+
+
+def run_other(tool: str, name: str, repeat: int) -> dict:
+    data = OTHER[name]()
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    import spokemesh
+    import scipy.spatial
+    mod = spokemesh if tool == "spokemesh" else scipy.spatial
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        if name.startswith("spherical"):
+            sv = mod.SphericalVoronoi(data)
+            sv.sort_vertices_of_regions()
+            total = float(sv.calculate_areas().sum())
+            count = len(sv.vertices)
+        else:
+            hs = mod.HalfspaceIntersection(data, np.zeros(3))
+            total = float(hs.dual_volume)
+            count = len(hs.intersections)
+        best = min(best, time.perf_counter() - t)
+    peak = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024
+    return {"seconds": best, "count": count, "peak_mb": peak, "total": total}
+
+
 def run_one(tool: str, name: str, repeat: int) -> dict:
+    if name in OTHER:
+        return run_other(tool, name, repeat)
     points = CASES[name][0]()
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     if tool == "spokemesh":
@@ -81,6 +122,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--only", default="")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--others-only", action="store_true", help="only the SphericalVoronoi and halfspace rows")
     ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -89,7 +131,7 @@ def main() -> None:
     print("| points | spokemesh s | scipy (Qhull) s | speed-up | spokemesh MB | scipy MB | facets | vertices |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, (_, unique) in CASES.items():
-        if args.only and args.only not in name:
+        if args.only and args.only not in name or args.others_only:
             continue
         out = {}
         for tool in ("spokemesh", "scipy"):
@@ -103,6 +145,22 @@ def main() -> None:
         facets = f"{ours['facets']:,}" if ours["facets"] == theirs["facets"] else f"{ours['facets']:,} ({theirs['facets']:,})"
         print(f"| {name} | {ours['seconds']:.3f} | {theirs['seconds']:.3f} | {theirs['seconds'] / ours['seconds']:.1f}x "
               f"| {ours['peak_mb']:.0f} | {theirs['peak_mb']:.0f} | {facets} | {ours['vertices']:,} |", flush=True)
+    print("\n| SphericalVoronoi (sorted regions, areas) / HalfspaceIntersection | spokemesh s | scipy s | speed-up "
+          "| spokemesh MB | scipy MB | vertices |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name in OTHER:
+        if args.only and args.only not in name:
+            continue
+        out = {}
+        for tool in ("spokemesh", "scipy"):
+            proc = subprocess.run([sys.executable, __file__, "--repeat", str(args.repeat), "--child", tool, name],
+                                  capture_output=True, text=True, check=True)
+            out[tool] = json.loads(proc.stdout.strip().splitlines()[-1])
+        ours, theirs = out["spokemesh"], out["scipy"]
+        assert abs(ours["total"] - theirs["total"]) <= 1e-9 * abs(theirs["total"]), (name, ours, theirs)
+        count = f"{ours['count']:,}" if ours["count"] == theirs["count"] else f"{ours['count']:,} ({theirs['count']:,})"
+        print(f"| {name} | {ours['seconds']:.3f} | {theirs['seconds']:.3f} | {theirs['seconds'] / ours['seconds']:.1f}x "
+              f"| {ours['peak_mb']:.0f} | {theirs['peak_mb']:.0f} | {count} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -176,6 +176,14 @@ TEST(ConvexHull, EqualPointsAndPointsOnFacesAreNotVertices) {
   expect_valid(hull.value(), c, "cube");
   EXPECT_EQ(hull.value().vertices(), (std::vector<std::uint32_t>{0, 1, 2, 3, 4, 5, 6, 7}));
   EXPECT_EQ(hull.value().facet_count(), 12u);
+  // The cube's six faces, two triangles each, found exactly.
+  const std::vector<std::uint32_t> groups = hull.value().facet_groups(c);
+  std::vector<int> per_group(6, 0);
+  for (const std::uint32_t g : groups) {
+    ASSERT_LT(g, 6u);
+    ++per_group[g];
+  }
+  EXPECT_EQ(per_group, std::vector<int>(6, 2));
   // Qc's coplanar points: the four face centres and the eight second corners, not the centre.
   const auto coplanar = hull.value().coplanar(c);
   std::vector<std::uint32_t> points;
