@@ -426,3 +426,20 @@ def test_halfspace_square_vertices_are_scipys_as_a_set(dt):
     halfspaces = np.array([[-1, 0, 0], [0, -1, 0], [1, 0, -2], [0, 1, -2]], dtype=dt)
     hs = spokemesh.HalfspaceIntersection(halfspaces, np.array([1, 1], dtype=dt))
     assert sorted(map(tuple, hs.intersections.tolist())) == [(0.0, 0.0), (0.0, 2.0), (2.0, 0.0), (2.0, 2.0)]
+
+
+# --- scipy's own LinearNDInterpolator tests on spokemesh.interpolate ------------------
+# test_interpnd.py, loaded as above, with LinearNDInterpolator and Delaunay spokemesh's.
+# Only its TestLinearNDInterpolation class is collected (the rest tests scipy's
+# Clough-Tocher interpolator and gradient estimation, which spokemesh does not offer).
+import scipy.interpolate as scipy_interpolate  # noqa: E402
+
+import spokemesh.interpolate as spokemesh_interpolate  # noqa: E402
+
+SCIPY_INTERPND_TESTS = os.path.join(os.path.dirname(scipy_interpolate.__file__), "tests", "test_interpnd.py")
+_interpnd_spec = importlib.util.spec_from_file_location("scipy_test_interpnd", SCIPY_INTERPND_TESTS)
+scipy_interpnd_tests = importlib.util.module_from_spec(_interpnd_spec)
+_interpnd_spec.loader.exec_module(scipy_interpnd_tests)
+scipy_interpnd_tests.interpnd = types.SimpleNamespace(LinearNDInterpolator=spokemesh_interpolate.LinearNDInterpolator)
+scipy_interpnd_tests.qhull = types.SimpleNamespace(Delaunay=spokemesh.Delaunay)
+TestLinearNDInterpolation = _wrap(scipy_interpnd_tests.TestLinearNDInterpolation, set(), {})

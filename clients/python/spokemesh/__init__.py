@@ -9,6 +9,7 @@ In-process (the compiled module spokemesh._core; no server, no gRPC):
     vor = spokemesh.Voronoi(points)   # scipy.spatial.Voronoi's attributes
     hull = spokemesh.ConvexHull(points)  # scipy.spatial.ConvexHull's attributes, exact
     sv = spokemesh.SphericalVoronoi(points_on_a_sphere)  # scipy's, from the exact hull
+    f = spokemesh.interpolate.LinearNDInterpolator(points, values)  # and griddata
     g = spokemesh.approximate_graph(points_in_20d, misses=100)
 
 Remote (spokemesh.remote.Client, also spokemesh.Client; needs python3-grpcio):
@@ -50,6 +51,6 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(".delaunay", __name__), name)
     if name in _REMOTE:
         return getattr(importlib.import_module(".remote", __name__), name)
-    if name in ("remote", "delaunay", "voronoi", "hull", "spherical", "halfspace"):
+    if name in ("remote", "delaunay", "voronoi", "hull", "spherical", "halfspace", "interpolate"):
         return importlib.import_module("." + name, __name__)
     raise AttributeError(f"module 'spokemesh' has no attribute {name!r}")

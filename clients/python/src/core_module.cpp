@@ -1041,6 +1041,49 @@ py::array_t<double> fan_solid_angles(const Points& centres, const Points& vertic
   return owned(std::move(out), {static_cast<py::ssize_t>(n)});
 }
 
+// Nearest neighbours for spokemesh.interpolate: a k-d tree of `points` (kept, with
+// a copy of them) answering the nearest point of each query (floating-point
+// distances; of two equally near points, either).
+class NearestTree {
+ public:
+  explicit NearestTree(const Points& points) {
+    if (points.ndim() != 2 || points.shape(0) < 1 || points.shape(1) < 1)
+      throw py::value_error("points: expected a non-empty (n, d) array");
+    const auto n = static_cast<std::size_t>(points.shape(0));
+    d_ = static_cast<int>(points.shape(1));
+    std::vector<double> coords(points.data(), points.data() + n * static_cast<std::size_t>(d_));
+    for (std::size_t i = 0; i < coords.size(); ++i) {
+      if (!std::isfinite(coords[i]))
+        throw py::value_error("points[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
+                              "]: not a finite number");
+    }
+    py::gil_scoped_release release;
+    points_ = PointSet(d_, std::move(coords));
+    tree_ = std::make_unique<KdTree>(points_);
+  }
+  py::array_t<std::int64_t> query(const Points& queries) const {
+    if (queries.ndim() != 2 || queries.shape(1) != d_)
+      throw py::value_error("xi: expected shape (m, " + std::to_string(d_) + ")");
+    const auto m = static_cast<std::size_t>(queries.shape(0));
+    std::vector<std::int64_t> out(m, -1);
+    const double* q = queries.data();
+    {
+      py::gil_scoped_release release;
+      for (std::size_t i = 0; i < m; ++i) {
+        std::uint32_t id;
+        double dist2;
+        if (tree_->knn(q + i * static_cast<std::size_t>(d_), 1, &id, &dist2) == 1) out[i] = id;
+      }
+    }
+    return owned(std::move(out), {static_cast<py::ssize_t>(m)});
+  }
+
+ private:
+  int d_ = 0;
+  PointSet points_;
+  std::unique_ptr<KdTree> tree_;
+};
+
 // Writes flat[ptr[i] .. ptr[i + 1]) into the existing list i of `lists` (same
 // lengths): SphericalVoronoi sorts its regions in place, as scipy's does, so that
 // references to them see the order.
@@ -1096,6 +1139,9 @@ PYBIND11_MODULE(_core, m) {
       py::arg("points"));
   m.def("split_lists", &split_lists, py::arg("flat"), py::arg("ptr"));
   m.def("refill_lists", &refill_lists, py::arg("lists"), py::arg("flat"), py::arg("ptr"));
+  py::class_<NearestTree>(m, "NearestTree")
+      .def(py::init<const Points&>(), py::arg("points"))
+      .def("query", &NearestTree::query, py::arg("xi"));
   m.def("fan_solid_angles", &fan_solid_angles, py::arg("centres"), py::arg("vertices"), py::arg("flat"),
         py::arg("ptr"));
   py::class_<Triangulation>(m, "Triangulation")
