@@ -350,8 +350,11 @@ GOOD_CASES = {
     "good2d-hidden": (_SQUARE_AND_VIEWPOINT, None, "QG-4"),
     "good2d-inside": (np.array([[0.2, 0.2], [0.2, 0.4], [0.4, 0.4], [0.4, 0.2], [0.3, 0.3]]), None, "QG4"),
     "good3d": (_GOOD3D, None, "QG0"),
-    "good2d-added-on-the-viewpoint's-line": (_SQUARE_AND_VIEWPOINT, np.array([[0.5, 0.6], [0.6, 0.6]]), "QG4"),
-    "good2d-added-above": (_SQUARE_AND_VIEWPOINT, np.array([[0.3, 0.7]]), "QG4"),
+    # test_good2d_incremental_changes's five additions, seen (QG4) and not (QG-4).
+    **{f"good2d-added-{k}{view}": (_SQUARE_AND_VIEWPOINT, added, view)
+       for k, added in enumerate([np.array([[0.3, 0.7]]), np.array([[0.3, -0.7]]), np.array([[0.3, 0.41]]),
+                                  np.array([[0.5, 0.6], [0.6, 0.6]]), np.array([[0.3, 0.6 + 1e-16]])])
+       for view in ("QG4", "QG-4")},
     "random-3d-seed-5": (np.random.default_rng(5).random((40, 3)), None, "QG7"),
     "random-4d-seed-6": (np.random.default_rng(6).random((40, 4)), np.random.default_rng(7).random((5, 4)), "QG-3"),
 }

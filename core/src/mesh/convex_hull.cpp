@@ -151,15 +151,15 @@ class ConvexHull::Builder {
   // the facets.
   void assign_new_points(std::size_t first, const std::vector<std::uint32_t>& skip, const Box* box = nullptr);
   // Akl and Toussaint's throw-away, with a box so that its test is 2d comparisons: the
-  // hull of the points extreme in the 2^d diagonal and 2d axis directions (of at most
-  // kBoxSample evenly spaced points), and the
+  // hull of the points extreme in the 3^d - 1 directions of -1, 0, 1 coordinates (of at
+  // most kBoxSample evenly spaced points), and the
   // largest of a few boxes shrunk about its vertices' centroid whose corners are all
   // certified strictly beneath its facets. False where there is none (d > 4, few
   // points, flat extremes).
   bool inner_box(Box& box) const;
   static constexpr int kMaxBoxDimension = 4;
   static constexpr std::size_t kBoxAtLeast = 1024;
-  static constexpr std::size_t kBoxSample = 1 << 16;
+  static constexpr std::size_t kBoxSample = 1 << 18;  // at least; an eighth of large sets
   Status run();
   // The live facets, renumbered in creation order.
   std::vector<Facet> compacted() const;
@@ -361,23 +361,33 @@ bool ConvexHull::Builder::inner_box(Box& box) const {
   if (d > kMaxBoxDimension || n_ < kBoxAtLeast) return false;
   // The points extreme in the 2^d diagonal and 2d axis directions (at a tie the
   // lexicographically larger), and their hull.
-  const int diagonals = 1 << d, count = diagonals + 2 * d;
+  // Directions: every vector of -1, 0, 1 but 0 (3^d - 1 of them: axes, diagonals of
+  // faces and of the cube).
+  int count = 1;
+  for (int k = 0; k < d; ++k) count *= 3;
+  std::vector<std::array<signed char, kMaxDimension>> directions;
+  for (int j = 0; j < count; ++j) {
+    std::array<signed char, kMaxDimension> u{};
+    bool zero = true;
+    for (int k = 0, r = j; k < d; ++k, r /= 3) {
+      u[static_cast<std::size_t>(k)] = static_cast<signed char>(r % 3 - 1);
+      zero = zero && r % 3 == 1;
+    }
+    if (!zero) directions.push_back(u);
+  }
+  count = static_cast<int>(directions.size());
+  const int diagonals = 1 << d;  // the box's corners, below
   std::vector<double> best(static_cast<std::size_t>(count), -std::numeric_limits<double>::infinity());
   std::vector<std::uint32_t> at(static_cast<std::size_t>(count), kNone);
   // On a sample of the points (any points' hull lies inside the hull): every point of
   // small sets, evenly spaced ones of large sets.
-  const std::size_t stride = std::max<std::size_t>(1, n_ / kBoxSample);
+  const std::size_t stride = std::max<std::size_t>(1, n_ / std::max(kBoxSample, n_ / 8));
   for (std::size_t i = 0; i < n_; i += stride) {
     if (static_cast<std::int64_t>(i) == options_.exclude) continue;
     const double* x = point(i);
     for (int j = 0; j < count; ++j) {
       double dot = 0;
-      if (j < diagonals) {
-        for (int k = 0; k < d; ++k) dot += (j >> k & 1) ? x[k] : -x[k];
-      } else {
-        const int k = (j - diagonals) / 2;
-        dot = (j - diagonals) % 2 == 0 ? x[k] : -x[k];
-      }
+      for (int k = 0; k < d; ++k) dot += directions[static_cast<std::size_t>(j)][static_cast<std::size_t>(k)] * x[k];
       const std::uint32_t b = at[static_cast<std::size_t>(j)];
       if (dot > best[static_cast<std::size_t>(j)] ||
           (dot == best[static_cast<std::size_t>(j)] && lex_greater(x, point(b), d))) {
@@ -410,7 +420,8 @@ bool ConvexHull::Builder::inner_box(Box& box) const {
   for (const Facet& f : hull.value().facets_) planes.push(small.data(), f.v.data());
   // The largest of the boxes shrunk about the centre whose corners are all certified
   // strictly beneath every facet: the box is then strictly inside the hull.
-  for (const double scale : {0.97, 0.93, 0.85, 0.75, 0.6, 0.45, 0.3}) {
+  for (const double scale :
+       {0.99, 0.985, 0.98, 0.975, 0.97, 0.96, 0.95, 0.93, 0.9, 0.85, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3}) {
     for (int k = 0; k < d; ++k) {
       const std::size_t j = static_cast<std::size_t>(k);
       box.lo[j] = centre[j] + scale * (lo[j] - centre[j]);
