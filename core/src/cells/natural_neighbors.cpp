@@ -1,0 +1,431 @@
+#include "spokemesh/natural_neighbors.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include <gmpxx.h>
+
+#include "spokemesh/predicates.hpp"
+
+namespace spokemesh {
+namespace {
+
+using Vec = std::array<double, 3>;
+
+// The exact sign of det[f_1 - f_0, ..., f_(d-1) - f_0, q - f_0] for the d points f
+// (ids) of a facet and an arbitrary point q: the filter (BoundedDouble rows and
+// minors, predicates.hpp), then rationals.
+int facet_side(const PointSet& points, const std::uint32_t* f, const double* q) {
+  const int d = points.dimension();
+  std::array<BoundedDouble, kMaxDimension * kMaxDimension> m{};
+  std::array<BoundedDouble, 1u << kMaxDimension> table;
+  const double* f0 = points.point(f[0]);
+  for (int r = 0; r < d; ++r) {
+    const double* p = r + 1 < d ? points.point(f[r + 1]) : q;
+    for (int k = 0; k < d; ++k) m[static_cast<std::size_t>(r * d + k)] = BoundedDouble::difference(p[k], f0[k]);
+  }
+  minors_table(m.data(), d, d, table.data());
+  const int s = table[(1u << d) - 1u].certified_sign();
+  if (s != BoundedDouble::kUnknownSign) return s;
+  std::vector<mpq_class> e(static_cast<std::size_t>(d * d));
+  for (int r = 0; r < d; ++r) {
+    const double* p = r + 1 < d ? points.point(f[r + 1]) : q;
+    for (int k = 0; k < d; ++k) e[static_cast<std::size_t>(r * d + k)] = mpq_class(p[k]) - mpq_class(f0[k]);
+  }
+  return sgn(exact_determinant(std::move(e), d));
+}
+
+// A convex polygon (2-d) or polyhedron (3-d, as its faces' vertex loops) clipped by
+// halfspaces a . x <= a . m, in double; its measure. The clipped pieces are a query's
+// stolen cell parts: no decision of the mesh depends on them.
+struct Halfspace {
+  Vec a{}, m{};  // normal, a point on the plane
+};
+
+double height(const Halfspace& h, const Vec& x, int d) {
+  double s = 0;
+  for (int k = 0; k < d; ++k)
+    s += h.a[static_cast<std::size_t>(k)] * (x[static_cast<std::size_t>(k)] - h.m[static_cast<std::size_t>(k)]);
+  return s;
+}
+
+Vec crossing(const Vec& x, const Vec& y, double hx, double hy) {
+  const double t = hx / (hx - hy);
+  return {x[0] + t * (y[0] - x[0]), x[1] + t * (y[1] - x[1]), x[2] + t * (y[2] - x[2])};
+}
+
+// Sutherland-Hodgman: the part of a polygon loop with height <= 0; the new points
+// (on the plane) are also appended to `cut`.
+std::vector<Vec> clip_loop(const std::vector<Vec>& loop, const Halfspace& h, int d, std::vector<Vec>* cut) {
+  std::vector<Vec> out;
+  const std::size_t n = loop.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const Vec& x = loop[i];
+    const Vec& y = loop[(i + 1) % n];
+    const double hx = height(h, x, d), hy = height(h, y, d);
+    if (hx <= 0) out.push_back(x);
+    if ((hx < 0 && hy > 0) || (hx > 0 && hy < 0)) {
+      const Vec c = crossing(x, y, hx, hy);
+      out.push_back(c);
+      if (cut != nullptr) cut->push_back(c);
+    } else if (hx == 0 && cut != nullptr) {
+      cut->push_back(x);
+    }
+  }
+  return out;
+}
+
+double polygon_area(const std::vector<Vec>& p) {
+  double twice = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const Vec& a = p[i];
+    const Vec& b = p[(i + 1) % p.size()];
+    twice += a[0] * b[1] - a[1] * b[0];
+  }
+  return std::fabs(twice) / 2;
+}
+
+using Polyhedron = std::vector<std::vector<Vec>>;
+
+Polyhedron box_polyhedron(const Vec& lo, const Vec& hi) {
+  auto corner = [&](int i) { return Vec{(i & 1) ? hi[0] : lo[0], (i & 2) ? hi[1] : lo[1], (i & 4) ? hi[2] : lo[2]}; };
+  const int faces[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
+  Polyhedron out;
+  for (const auto& f : faces) out.push_back({corner(f[0]), corner(f[1]), corner(f[2]), corner(f[3])});
+  return out;
+}
+
+Polyhedron clip_polyhedron(const Polyhedron& faces, const Halfspace& h) {
+  Polyhedron out;
+  std::vector<Vec> cut;
+  for (const auto& f : faces) {
+    std::vector<Vec> g = clip_loop(f, h, 3, &cut);
+    if (g.size() >= 3) out.push_back(std::move(g));
+  }
+  if (cut.size() < 3) return out;
+  // The cap: the cut points around their centroid, in the plane's own basis.
+  Vec c{0, 0, 0};
+  for (const Vec& x : cut) {
+    for (int k = 0; k < 3; ++k)
+      c[static_cast<std::size_t>(k)] += x[static_cast<std::size_t>(k)] / static_cast<double>(cut.size());
+  }
+  const Vec& a = h.a;
+  Vec u = std::fabs(a[0]) < std::fabs(a[1]) ? Vec{0, a[2], -a[1]} : Vec{a[2], 0, -a[0]};
+  if (std::fabs(a[2]) > std::max(std::fabs(a[0]), std::fabs(a[1]))) u = {a[1], -a[0], 0};
+  const Vec v{a[1] * u[2] - a[2] * u[1], a[2] * u[0] - a[0] * u[2], a[0] * u[1] - a[1] * u[0]};
+  std::vector<std::pair<double, Vec>> around;
+  for (const Vec& x : cut) {
+    const Vec r{x[0] - c[0], x[1] - c[1], x[2] - c[2]};
+    around.emplace_back(std::atan2(r[0] * v[0] + r[1] * v[1] + r[2] * v[2], r[0] * u[0] + r[1] * u[1] + r[2] * u[2]),
+                        x);
+  }
+  std::sort(around.begin(), around.end(), [](const auto& p, const auto& q) { return p.first < q.first; });
+  std::vector<Vec> cap;
+  for (const auto& [angle, x] : around) {
+    if (!cap.empty() && cap.back() == x) continue;
+    cap.push_back(x);
+  }
+  if (cap.size() >= 3) out.push_back(std::move(cap));
+  return out;
+}
+
+double polyhedron_volume(const Polyhedron& faces) {
+  Vec c{0, 0, 0};
+  std::size_t count = 0;
+  for (const auto& f : faces) {
+    for (const Vec& x : f) {
+      for (int k = 0; k < 3; ++k) c[static_cast<std::size_t>(k)] += x[static_cast<std::size_t>(k)];
+      ++count;
+    }
+  }
+  if (count == 0) return 0;
+  for (double& x : c) x /= static_cast<double>(count);
+  double six = 0;
+  for (const auto& f : faces) {
+    for (std::size_t i = 1; i + 1 < f.size(); ++i) {
+      Vec a, b, e;
+      for (std::size_t k = 0; k < 3; ++k) {
+        a[k] = f[0][k] - c[k];
+        b[k] = f[i][k] - c[k];
+        e[k] = f[i + 1][k] - c[k];
+      }
+      six += std::fabs(a[0] * (b[1] * e[2] - b[2] * e[1]) - a[1] * (b[0] * e[2] - b[2] * e[0]) +
+                       a[2] * (b[0] * e[1] - b[1] * e[0]));
+    }
+  }
+  return six / 6;
+}
+
+// The circumcentre of q and a facet's d points, in double (Cramer's rule on
+// differences from q); false when the simplex is flat in double.
+bool circumcentre_with(const PointSet& points, const std::uint32_t* f, const double* q, Vec& out) {
+  const int d = points.dimension();
+  double a[3][3] = {}, b[3] = {};
+  for (int r = 0; r < d; ++r) {
+    const double* p = points.point(f[r]);
+    for (int k = 0; k < d; ++k) {
+      a[r][k] = p[k] - q[k];
+      b[r] += 0.5 * a[r][k] * a[r][k];
+    }
+  }
+  double det, y[3] = {};
+  if (d == 2) {
+    det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+    if (!(std::fabs(det) > 0)) return false;
+    y[0] = (b[0] * a[1][1] - a[0][1] * b[1]) / det;
+    y[1] = (a[0][0] * b[1] - b[0] * a[1][0]) / det;
+  } else {
+    auto det3 = [](const double m[3][3]) {
+      return m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+             m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    };
+    det = det3(a);
+    if (!(std::fabs(det) > 0)) return false;
+    for (int j = 0; j < 3; ++j) {
+      double m[3][3];
+      for (int r = 0; r < 3; ++r) {
+        for (int k = 0; k < 3; ++k) m[r][k] = k == j ? b[r] : a[r][k];
+      }
+      y[j] = det3(m) / det;
+    }
+  }
+  for (int k = 0; k < 3; ++k) out[static_cast<std::size_t>(k)] = k < d ? q[k] + y[k] : 0.0;
+  return std::isfinite(out[0]) && std::isfinite(out[1]) && std::isfinite(out[2]);
+}
+
+// Barycentric coordinates of q in a simplex (d + 1 ids), in double.
+std::vector<double> barycentric(const PointSet& points, const std::uint32_t* s, const double* q) {
+  const int d = points.dimension();
+  const double* p0 = points.point(s[0]);
+  double a[3][3] = {}, r[3] = {};
+  for (int k = 0; k < d; ++k) {
+    for (int j = 0; j < d; ++j) a[k][j] = points.point(s[j + 1])[k] - p0[k];
+    r[k] = q[k] - p0[k];
+  }
+  // Gaussian elimination with partial pivoting (d <= 3).
+  int perm[3] = {0, 1, 2};
+  double x[3] = {};
+  for (int c = 0; c < d; ++c) {
+    int piv = c;
+    for (int i = c + 1; i < d; ++i) {
+      if (std::fabs(a[i][c]) > std::fabs(a[piv][c])) piv = i;
+    }
+    std::swap(a[c], a[piv]);
+    std::swap(r[c], r[piv]);
+    std::swap(perm[c], perm[piv]);
+    for (int i = c + 1; i < d; ++i) {
+      const double f = a[c][c] != 0 ? a[i][c] / a[c][c] : 0.0;
+      for (int j = c; j < d; ++j) a[i][j] -= f * a[c][j];
+      r[i] -= f * r[c];
+    }
+  }
+  for (int c = d - 1; c >= 0; --c) {
+    double s2 = r[c];
+    for (int j = c + 1; j < d; ++j) s2 -= a[c][j] * x[j];
+    x[c] = a[c][c] != 0 ? s2 / a[c][c] : 0.0;
+  }
+  std::vector<double> w(static_cast<std::size_t>(d + 1));
+  double rest = 1;
+  for (int j = 0; j < d; ++j) {
+    w[static_cast<std::size_t>(j + 1)] = x[j];
+    rest -= x[j];
+  }
+  w[0] = rest;
+  return w;
+}
+
+}  // namespace
+
+int in_circumsphere(const PointSet& points, const std::uint32_t* s, const double* q) {
+  // L = det[(p_i - q, |p_i - q|^2)], i = 0..d: for a positively oriented simplex, q
+  // lies strictly inside its circumsphere exactly when (-1)^d L > 0.
+  const int d = points.dimension();
+  const int w = d + 1;
+  std::array<BoundedDouble, (kMaxDimension + 1) * (kMaxDimension + 1)> m{};
+  std::array<BoundedDouble, 1u << (kMaxDimension + 1)> table;
+  for (int r = 0; r < w; ++r) {
+    const double* p = points.point(s[r]);
+    BoundedDouble lift = BoundedDouble::exact(0);
+    for (int k = 0; k < d; ++k) {
+      const BoundedDouble diff = BoundedDouble::difference(p[k], q[k]);
+      m[static_cast<std::size_t>(r * w + k)] = diff;
+      lift = k == 0 ? diff * diff : lift + diff * diff;
+    }
+    m[static_cast<std::size_t>(r * w + d)] = lift;
+  }
+  minors_table(m.data(), w, w, table.data());
+  int sign = table[(1u << w) - 1u].certified_sign();
+  if (sign == BoundedDouble::kUnknownSign) {
+    std::vector<mpq_class> e(static_cast<std::size_t>(w * w));
+    for (int r = 0; r < w; ++r) {
+      const double* p = points.point(s[r]);
+      mpq_class lift = 0;
+      for (int k = 0; k < d; ++k) {
+        const mpq_class diff = mpq_class(p[k]) - mpq_class(q[k]);
+        e[static_cast<std::size_t>(r * w + k)] = diff;
+        lift += diff * diff;
+      }
+      e[static_cast<std::size_t>(r * w + d)] = lift;
+    }
+    sign = sgn(exact_determinant(std::move(e), w));
+  }
+  return d % 2 == 0 ? sign : -sign;
+}
+
+Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q) {
+  const PointSet& points = *tri.points;
+  const int d = points.dimension();
+  if (d != 2 && d != 3) {
+    return invalid_argument("natural neighbours: dimension " + std::to_string(d) +
+                            " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
+  }
+  NaturalCoordinates out;
+  if (simplex < 0) return out;  // outside the hull
+  const int w = d + 1;
+  const std::uint32_t* start = &tri.simplices[static_cast<std::size_t>(simplex) * w];
+  // q on a point of the set: that point alone.
+  for (int k = 0; k < w; ++k) {
+    const double* p = points.point(start[k]);
+    if (std::equal(p, p + d, q)) {
+      out.where = NaturalCoordinates::Where::kInside;
+      out.neighbors = {start[k]};
+      out.weights = {1.0};
+      return out;
+    }
+  }
+  // q on the hull's boundary: on a hull facet of its simplex (exactly).
+  for (int k = 0; k < w; ++k) {
+    if (tri.adjacency[static_cast<std::size_t>(simplex) * w + k] >= 0) continue;
+    std::array<std::uint32_t, kMaxDimension> facet{};
+    for (int j = 0, at = 0; j < w; ++j) {
+      if (j != k) facet[static_cast<std::size_t>(at++)] = start[j];
+    }
+    if (facet_side(points, facet.data(), q) == 0) {
+      out.where = NaturalCoordinates::Where::kOnHull;
+      const std::vector<double> bary = barycentric(points, start, q);
+      for (int j = 0; j < w; ++j) {
+        if (bary[static_cast<std::size_t>(j)] != 0) {
+          out.neighbors.push_back(start[j]);
+          out.weights.push_back(bary[static_cast<std::size_t>(j)]);
+        }
+      }
+      return out;
+    }
+  }
+  // The cavity: the simplices whose circumspheres hold q strictly, from q's simplex
+  // across facets; its boundary facets (to a simplex not in it, or the hull) make q's
+  // new simplices.
+  std::vector<std::int32_t> cavity{simplex}, tested{simplex};
+  std::vector<std::pair<std::int32_t, int>> boundary;
+  for (std::size_t i = 0; i < cavity.size(); ++i) {
+    const std::int32_t s = cavity[i];
+    for (int k = 0; k < w; ++k) {
+      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
+      if (t >= 0 && std::find(cavity.begin(), cavity.end(), t) != cavity.end()) continue;
+      bool inside = false;
+      if (t >= 0) {
+        if (std::find(tested.begin(), tested.end(), t) == tested.end()) {
+          tested.push_back(t);
+          if (in_circumsphere(points, &tri.simplices[static_cast<std::size_t>(t) * w], q) > 0) {
+            cavity.push_back(t);
+            inside = true;
+          }
+        } else {
+          inside = std::find(cavity.begin(), cavity.end(), t) != cavity.end();
+        }
+      }
+      if (!inside) boundary.emplace_back(s, k);
+    }
+  }
+  // Boundary facets whose other side joined the cavity later are not boundary.
+  boundary.erase(std::remove_if(boundary.begin(), boundary.end(),
+                                [&](const auto& b) {
+                                  const std::int32_t t =
+                                      tri.adjacency[static_cast<std::size_t>(b.first) * w + b.second];
+                                  return t >= 0 && std::find(cavity.begin(), cavity.end(), t) != cavity.end();
+                                }),
+                 boundary.end());
+  for (const std::int32_t s : cavity) {
+    for (int k = 0; k < w; ++k) out.neighbors.push_back(tri.simplices[static_cast<std::size_t>(s) * w + k]);
+  }
+  std::sort(out.neighbors.begin(), out.neighbors.end());
+  out.neighbors.erase(std::unique(out.neighbors.begin(), out.neighbors.end()), out.neighbors.end());
+  // q's cell lies in the box of its vertices, the circumcentres of its new simplices.
+  Vec lo{0, 0, 0}, hi{0, 0, 0};
+  bool first = true;
+  for (const auto& [s, k] : boundary) {
+    std::array<std::uint32_t, kMaxDimension> facet{};
+    for (int j = 0, at = 0; j < w; ++j) {
+      if (j != k) facet[static_cast<std::size_t>(at++)] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    }
+    Vec c;
+    if (!circumcentre_with(points, facet.data(), q, c)) continue;
+    for (int j = 0; j < d; ++j) {
+      lo[static_cast<std::size_t>(j)] = first
+                                            ? c[static_cast<std::size_t>(j)]
+                                            : std::min(lo[static_cast<std::size_t>(j)], c[static_cast<std::size_t>(j)]);
+      hi[static_cast<std::size_t>(j)] = first
+                                            ? c[static_cast<std::size_t>(j)]
+                                            : std::max(hi[static_cast<std::size_t>(j)], c[static_cast<std::size_t>(j)]);
+    }
+    first = false;
+  }
+  double span = 0;
+  for (int j = 0; j < d; ++j) span = std::max(span, hi[static_cast<std::size_t>(j)] - lo[static_cast<std::size_t>(j)]);
+  for (int j = 0; j < d; ++j) {
+    lo[static_cast<std::size_t>(j)] -= 1e-3 * span + 1e-300;
+    hi[static_cast<std::size_t>(j)] += 1e-3 * span + 1e-300;
+  }
+  // Each neighbour's stolen part: the box, closer to q than to it, and closer to it
+  // than to the other natural neighbours.
+  // Everything relative to q (the origin below): the stolen parts are small near q,
+  // and their coordinates keep their low bits.
+  const Vec qv{0, 0, 0};
+  auto at = [&](std::uint32_t id) {
+    const double* p = points.point(id);
+    return Vec{p[0] - q[0], p[1] - q[1], d == 3 ? p[2] - q[2] : 0.0};
+  };
+  for (int j = 0; j < d; ++j) {
+    lo[static_cast<std::size_t>(j)] -= q[j];
+    hi[static_cast<std::size_t>(j)] -= q[j];
+  }
+  auto bisector = [](const Vec& from, const Vec& to) {  // closer to `from` than to `to`
+    Halfspace h;
+    for (std::size_t k = 0; k < 3; ++k) {
+      h.a[k] = to[k] - from[k];
+      h.m[k] = 0.5 * (from[k] + to[k]);
+    }
+    return h;
+  };
+  double total = 0;
+  out.weights.assign(out.neighbors.size(), 0.0);
+  for (std::size_t i = 0; i < out.neighbors.size(); ++i) {
+    const Vec pi = at(out.neighbors[i]);
+    double measure;
+    if (d == 2) {
+      std::vector<Vec> poly{{lo[0], lo[1], 0}, {hi[0], lo[1], 0}, {hi[0], hi[1], 0}, {lo[0], hi[1], 0}};
+      poly = clip_loop(poly, bisector(qv, pi), 2, nullptr);
+      for (std::size_t j = 0; j < out.neighbors.size() && poly.size() >= 3; ++j) {
+        if (j != i) poly = clip_loop(poly, bisector(pi, at(out.neighbors[j])), 2, nullptr);
+      }
+      measure = poly.size() >= 3 ? polygon_area(poly) : 0.0;
+    } else {
+      Polyhedron poly = clip_polyhedron(box_polyhedron(lo, hi), bisector(qv, pi));
+      for (std::size_t j = 0; j < out.neighbors.size() && poly.size() >= 4; ++j) {
+        if (j != i) poly = clip_polyhedron(poly, bisector(pi, at(out.neighbors[j])));
+      }
+      measure = poly.size() >= 4 ? polyhedron_volume(poly) : 0.0;
+    }
+    out.weights[i] = measure;
+    total += measure;
+  }
+  if (!(total > 0)) return internal_error("natural neighbours: the query's cell has no volume");
+  for (double& x : out.weights) x /= total;
+  out.where = NaturalCoordinates::Where::kInside;
+  return out;
+}
+
+}  // namespace spokemesh
