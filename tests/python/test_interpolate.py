@@ -81,8 +81,8 @@ def test_bad_input_is_named():
     points = np.random.default_rng(8).random((20, 2))
     with pytest.raises(ValueError, match="values: 19 rows for 20 points"):
         si.LinearNDInterpolator(points, np.zeros(19))
-    with pytest.raises(ValueError, match="'natural' is not available"):
-        si.griddata(points, np.zeros(20), points, method="natural")
+    with pytest.raises(ValueError, match="'cubic' is not available"):
+        si.griddata(points, np.zeros(20), points, method="cubic")
     with pytest.raises(ValueError, match="xi: the last axis has 3 coordinates; the points have 2"):
         si.LinearNDInterpolator(points, np.zeros(20))(np.zeros((4, 3)))
     with pytest.raises(ValueError, match="Rescaling is not supported"):
@@ -91,3 +91,42 @@ def test_bad_input_is_named():
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match=r"points\[3\]\[1\]: not a finite number"):
         si.NearestNDInterpolator(bad, np.zeros(20))
+
+
+# --- natural neighbours (Sibson) ----------------------------------------------------
+
+@pytest.mark.parametrize("d,seed", [(2, 11), (3, 12)])
+def test_natural_neighbours_are_the_star_of_the_query_and_reproduce_linear_functions(d, seed):
+    rng = np.random.default_rng(seed)
+    points = rng.random((500, d))
+    a = rng.standard_normal(d)
+    f = si.NaturalNeighborInterpolator(points, points @ a - 0.5)
+    w = rng.random((300, 3))
+    q = np.einsum("mk,mkd->md", w / w.sum(axis=1, keepdims=True), points[rng.integers(0, 500, (300, 3))])
+    np.testing.assert_allclose(f(q), q @ a - 0.5, atol=1e-12)
+    for x in q[:20]:
+        ids, weights = si.natural_neighbor_coordinates(points, x)
+        assert (weights >= 0).all() and abs(weights.sum() - 1) < 1e-12
+        np.testing.assert_allclose(weights @ points[ids], x, atol=1e-12)
+        # The neighbours of x in the set with x added (ids with a positive weight).
+        star = spokemesh.Delaunay(np.concatenate([points, x[None, :]])).neighbors_of(500)
+        assert sorted(ids[weights > 0].tolist()) == sorted(int(s) for s in star)
+
+
+def test_natural_outside_on_points_duplicates_and_grids():
+    rng = np.random.default_rng(13)
+    points = rng.random((200, 2))
+    values = np.sin(points[:, 0])
+    f = si.NaturalNeighborInterpolator(points, values, fill_value=-1.0)
+    assert f(5.0, 5.0) == -1.0
+    np.testing.assert_allclose(f(points[:10]), values[:10], atol=1e-14)  # at data points: their values
+    twice = np.concatenate([points, points[:5]])  # equal points: merged into the first
+    ids, weights = si.natural_neighbor_coordinates(twice, points[3] + 1e-3)
+    assert ids.max() < 200
+    # A grid and queries on its lines: exact ties in the in-circle tests.
+    g = np.stack(np.meshgrid(np.arange(6.0), np.arange(6.0), indexing="ij"), -1).reshape(-1, 2)
+    q = np.c_[rng.random(200) * 5, np.round(rng.random(200) * 10) / 2]
+    z = si.griddata(g, 2 * g[:, 0] - g[:, 1], q, method="natural")
+    np.testing.assert_allclose(z, 2 * q[:, 0] - q[:, 1], atol=1e-12)
+    with pytest.raises(ValueError, match="dimension 4 is not supported"):
+        si.NaturalNeighborInterpolator(rng.random((50, 4)), np.zeros(50))

@@ -32,6 +32,7 @@
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/mesh.hpp"
+#include "spokemesh/natural_neighbors.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/point_set.hpp"
@@ -547,6 +548,60 @@ class Triangulation {
       parallel_for(q, [&](std::size_t i) { out[i] = locate(data + i * d_); });
     }
     return owned(std::move(out), {static_cast<py::ssize_t>(q)});
+  }
+
+  // Each query's natural neighbours and Sibson coordinates (natural_neighbors.hpp),
+  // as (ptr, neighbors, weights, where): query i's are [ptr[i], ptr[i + 1]); where[i]
+  // is 0 inside, 1 on the hull's boundary, 2 outside.
+  py::tuple natural_neighbors(const Points& queries) const {
+    if (queries.ndim() != 2 || queries.shape(1) != d_) {
+      throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
+    }
+    if (d_ != 2 && d_ != 3) {
+      throw py::value_error("natural neighbours: dimension " + std::to_string(d_) +
+                            " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
+    }
+    if (!weights_.empty()) throw py::value_error("natural neighbours: not available for weighted points");
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    const auto q = static_cast<std::size_t>(queries.shape(0));
+    for (std::size_t i = 0; i < q * static_cast<std::size_t>(d_); ++i) {
+      if (!std::isfinite(queries.data()[i]))
+        throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
+                              "]: not a finite number");
+    }
+    std::vector<NaturalCoordinates> found(q);
+    std::vector<std::string> errors(q);
+    const double* data = queries.data();
+    const DelaunayArrays arrays{&points_, simplices_, adjacency_};
+    {
+      py::gil_scoped_release release;
+      parallel_for(q, [&](std::size_t i) {
+        auto r = spokemesh::natural_neighbors(arrays, locate(data + i * d_), data + i * d_);
+        if (r.is_ok()) {
+          found[i] = std::move(r).value();
+        } else {
+          errors[i] = r.status().message();
+        }
+      });
+    }
+    for (std::size_t i = 0; i < q; ++i) {
+      if (!errors[i].empty()) throw std::runtime_error("xi[" + std::to_string(i) + "]: " + errors[i]);
+    }
+    std::vector<std::int64_t> ptr(q + 1, 0);
+    std::vector<std::int8_t> where(q);
+    for (std::size_t i = 0; i < q; ++i) {
+      ptr[i + 1] = ptr[i] + static_cast<std::int64_t>(found[i].neighbors.size());
+      where[i] = static_cast<std::int8_t>(found[i].where);
+    }
+    std::vector<std::int32_t> ids(static_cast<std::size_t>(ptr[q]));
+    std::vector<double> weights(static_cast<std::size_t>(ptr[q]));
+    for (std::size_t i = 0; i < q; ++i) {
+      std::copy(found[i].neighbors.begin(), found[i].neighbors.end(), ids.begin() + ptr[i]);
+      std::copy(found[i].weights.begin(), found[i].weights.end(), weights.begin() + ptr[i]);
+    }
+    const auto total = static_cast<py::ssize_t>(ptr[q]);
+    return py::make_tuple(owned(std::move(ptr), {static_cast<py::ssize_t>(q + 1)}), owned(std::move(ids), {total}),
+                          owned(std::move(weights), {total}), owned(std::move(where), {static_cast<py::ssize_t>(q)}));
   }
 
   py::array_t<std::uint32_t> star(std::uint32_t seed) const {
@@ -1161,6 +1216,7 @@ PYBIND11_MODULE(_core, m) {
       .def("voronoi", &Triangulation::voronoi)
       .def("furthest_site", &Triangulation::furthest_site)
       .def("find_simplex", &Triangulation::find_simplex, py::arg("xi"))
+      .def("natural_neighbors", &Triangulation::natural_neighbors, py::arg("xi"))
       .def("star", &Triangulation::star, py::arg("seed"))
       .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))
       .def("cell", &Triangulation::cell, py::arg("seed"), py::arg("box") = py::none(),
