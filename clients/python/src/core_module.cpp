@@ -569,35 +569,64 @@ class Triangulation {
         throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
                               "]: not a finite number");
     }
-    std::vector<NaturalCoordinates> found(q);
-    std::vector<std::string> errors(q);
+    // Runs of 256 queries, each located from the one before (a raster's next point is
+    // next door) or, when that walk is long, from its nearest input point; each run
+    // writes its own flat buffers, joined in order below.
+    const std::size_t run = 256, runs = (q + run - 1) / run;
+    struct RunOut {
+      std::vector<std::int32_t> ids;
+      std::vector<double> weights;
+      std::string error;
+    };
+    std::vector<RunOut> outs(runs);
+    std::vector<std::int64_t> ptr(q + 1, 0);
+    std::vector<std::int8_t> where(q);
     const double* data = queries.data();
     const DelaunayArrays arrays{&points_, simplices_, adjacency_};
     {
       py::gil_scoped_release release;
-      parallel_for(q, [&](std::size_t i) {
-        auto r = spokemesh::natural_neighbors(arrays, locate(data + i * d_), data + i * d_);
-        if (r.is_ok()) {
-          found[i] = std::move(r).value();
-        } else {
-          errors[i] = r.status().message();
+      parallel_for(runs, [&](std::size_t r) {
+        NaturalCoordinates nn;
+        std::int32_t hint = -1;
+        std::size_t misses = 0;  // hinted walks that were too long in a row
+        RunOut& o = outs[r];
+        for (std::size_t i = r * run; i < std::min(q, (r + 1) * run); ++i) {
+          const double* x = data + i * d_;
+          // Scattered queries miss the hint: after two misses it is tried every 16th.
+          const bool try_hint = hint >= 0 && (misses < 2 || i % 16 == 0);
+          std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
+          if (s == kWalkTooLong) {
+            ++misses;
+            s = locate(x);
+          } else if (try_hint) {
+            misses = 0;
+          }
+          const Status st = spokemesh::natural_neighbors(arrays, s, x, nn);
+          if (!st.is_ok()) {
+            if (o.error.empty()) o.error = "xi[" + std::to_string(i) + "]: " + st.message();
+            continue;
+          }
+          o.ids.insert(o.ids.end(), nn.neighbors.begin(), nn.neighbors.end());
+          o.weights.insert(o.weights.end(), nn.weights.begin(), nn.weights.end());
+          ptr[i + 1] = static_cast<std::int64_t>(nn.neighbors.size());
+          where[i] = static_cast<std::int8_t>(nn.where);
+          if (s >= 0) hint = s;
         }
       });
     }
-    for (std::size_t i = 0; i < q; ++i) {
-      if (!errors[i].empty()) throw std::runtime_error("xi[" + std::to_string(i) + "]: " + errors[i]);
+    for (const RunOut& o : outs) {
+      if (!o.error.empty()) throw std::runtime_error(o.error);
     }
-    std::vector<std::int64_t> ptr(q + 1, 0);
-    std::vector<std::int8_t> where(q);
-    for (std::size_t i = 0; i < q; ++i) {
-      ptr[i + 1] = ptr[i] + static_cast<std::int64_t>(found[i].neighbors.size());
-      where[i] = static_cast<std::int8_t>(found[i].where);
-    }
-    std::vector<std::int32_t> ids(static_cast<std::size_t>(ptr[q]));
-    std::vector<double> weights(static_cast<std::size_t>(ptr[q]));
-    for (std::size_t i = 0; i < q; ++i) {
-      std::copy(found[i].neighbors.begin(), found[i].neighbors.end(), ids.begin() + ptr[i]);
-      std::copy(found[i].weights.begin(), found[i].weights.end(), weights.begin() + ptr[i]);
+    for (std::size_t i = 0; i < q; ++i) ptr[i + 1] += ptr[i];
+    std::vector<std::int32_t> ids;
+    std::vector<double> weights;
+    ids.reserve(static_cast<std::size_t>(ptr[q]));
+    weights.reserve(static_cast<std::size_t>(ptr[q]));
+    for (RunOut& o : outs) {
+      ids.insert(ids.end(), o.ids.begin(), o.ids.end());
+      weights.insert(weights.end(), o.weights.begin(), o.weights.end());
+      std::vector<std::int32_t>().swap(o.ids);
+      std::vector<double>().swap(o.weights);
     }
     const auto total = static_cast<py::ssize_t>(ptr[q]);
     return py::make_tuple(owned(std::move(ptr), {static_cast<py::ssize_t>(q + 1)}), owned(std::move(ids), {total}),
@@ -767,12 +796,20 @@ class Triangulation {
     std::uint32_t nearest = 0;
     double dist2 = 0;
     tree_->knn(q, 1, &nearest, &dist2);
-    std::int32_t s = first_simplex_[nearest];
+    const std::int32_t s = locate_from(q, first_simplex_[nearest], 4 * nsimplices() + 16);
+    return s == kWalkTooLong ? -1 : s;
+  }
+
+  // The walk of locate() from simplex s, at most `steps` simplices: kWalkTooLong when
+  // it takes more.
+  static constexpr std::int32_t kWalkTooLong = -2;
+  std::int32_t locate_from(const double* q, std::int32_t s, std::size_t max_steps) const {
     const int w = d_ + 1;
     std::array<const double*, kMaxDimension + 1> corners{};
     // A visibility walk terminates in a Delaunay triangulation (Edelsbrunner); the
     // bound only guards against the impossible.
-    for (std::size_t steps = 0; s >= 0 && steps <= 4 * nsimplices() + 16; ++steps) {
+    for (std::size_t steps = 0; s >= 0; ++steps) {
+      if (steps > max_steps) return kWalkTooLong;
       const std::uint32_t* v = &simplices_[static_cast<std::size_t>(s) * w];
       int across = -1;
       for (int k = 0; k < w && across < 0; ++k) {

@@ -47,6 +47,8 @@ struct NaturalCoordinates {
 // simplex containing q (`simplex`, -1 when q is outside the hull). d is 2 or 3
 // (INVALID_ARGUMENT otherwise: the clipping of the query's cell is written for those).
 Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q);
+// The same into `out`, reusing its buffers (a loop over many queries allocates little).
+Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q, NaturalCoordinates& out);
 
 // The exact sign of q against the circumsphere of the positively oriented simplex
 // `s` (d + 1 point ids): +1 strictly inside, 0 on it, -1 outside.

@@ -239,25 +239,57 @@ std::vector<double> barycentric(const PointSet& points, const std::uint32_t* s, 
 
 }  // namespace
 
+namespace {
+
+// The filtered lifted determinant for W = d + 1 rows (sizes known at compile time, so
+// no scratch is zeroed beyond them): kUnknownSign when the filter cannot tell.
+template <int W>
+int lifted_sign_filtered(const PointSet& points, const std::uint32_t* s, const double* q) {
+  constexpr int d = W - 1;
+  std::array<BoundedDouble, W * W> m;
+  std::array<BoundedDouble, 1u << W> table;
+  for (int r = 0; r < W; ++r) {
+    const double* p = points.point(s[r]);
+    BoundedDouble lift = BoundedDouble::exact(0);
+    for (int k = 0; k < d; ++k) {
+      const BoundedDouble diff = BoundedDouble::difference(p[k], q[k]);
+      m[static_cast<std::size_t>(r * W + k)] = diff;
+      lift = k == 0 ? diff * diff : lift + diff * diff;
+    }
+    m[static_cast<std::size_t>(r * W + d)] = lift;
+  }
+  minors_table_fixed<W, W>(m.data(), table.data());
+  return table[(1u << W) - 1u].certified_sign();
+}
+
+// The 2-d lifted determinant written out: the same value, magnitude and rounding depth
+// as BoundedDouble's operators give it (differences depth 1, lifts 3, the 2 x 2 minors
+// 4, their products with the lifts 8, the sum of three 10), without its tables.
+int incircle_filtered(const PointSet& points, const std::uint32_t* s, const double* q) {
+  const double* a = points.point(s[0]);
+  const double* b = points.point(s[1]);
+  const double* c = points.point(s[2]);
+  const double adx = a[0] - q[0], ady = a[1] - q[1], bdx = b[0] - q[0], bdy = b[1] - q[1];
+  const double cdx = c[0] - q[0], cdy = c[1] - q[1];
+  const double alift = adx * adx + ady * ady, blift = bdx * bdx + bdy * bdy, clift = cdx * cdx + cdy * cdy;
+  const double bc = bdx * cdy - cdx * bdy, ca = cdx * ady - adx * cdy, ab = adx * bdy - bdx * ady;
+  const double value = alift * bc + blift * ca + clift * ab;
+  const double magnitude = alift * (std::fabs(bdx * cdy) + std::fabs(cdx * bdy)) +
+                           blift * (std::fabs(cdx * ady) + std::fabs(adx * cdy)) +
+                           clift * (std::fabs(adx * bdy) + std::fabs(bdx * ady));
+  return filter::certified_sign(value, magnitude, 10);
+}
+
+}  // namespace
+
 int in_circumsphere(const PointSet& points, const std::uint32_t* s, const double* q) {
   // L = det[(p_i - q, |p_i - q|^2)], i = 0..d: for a positively oriented simplex, q
   // lies strictly inside its circumsphere exactly when (-1)^d L > 0.
   const int d = points.dimension();
   const int w = d + 1;
-  std::array<BoundedDouble, (kMaxDimension + 1) * (kMaxDimension + 1)> m{};
-  std::array<BoundedDouble, 1u << (kMaxDimension + 1)> table;
-  for (int r = 0; r < w; ++r) {
-    const double* p = points.point(s[r]);
-    BoundedDouble lift = BoundedDouble::exact(0);
-    for (int k = 0; k < d; ++k) {
-      const BoundedDouble diff = BoundedDouble::difference(p[k], q[k]);
-      m[static_cast<std::size_t>(r * w + k)] = diff;
-      lift = k == 0 ? diff * diff : lift + diff * diff;
-    }
-    m[static_cast<std::size_t>(r * w + d)] = lift;
-  }
-  minors_table(m.data(), w, w, table.data());
-  int sign = table[(1u << w) - 1u].certified_sign();
+  int sign = d == 2   ? incircle_filtered(points, s, q)
+             : d == 3 ? lifted_sign_filtered<4>(points, s, q)
+                      : BoundedDouble::kUnknownSign;
   if (sign == BoundedDouble::kUnknownSign) {
     std::vector<mpq_class> e(static_cast<std::size_t>(w * w));
     for (int r = 0; r < w; ++r) {
@@ -275,15 +307,133 @@ int in_circumsphere(const PointSet& points, const std::uint32_t* s, const double
   return d % 2 == 0 ? sign : -sign;
 }
 
-Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q) {
+namespace {
+
+// The circumcentre of the triangle (0, a, b) (coordinates relative to the query), in
+// double; false when flat.
+bool centre_with_origin(double ax, double ay, double bx, double by, double& cx, double& cy) {
+  const double det = 2 * (ax * by - ay * bx);
+  if (!(std::fabs(det) > 0)) return false;
+  const double a2 = ax * ax + ay * ay, b2 = bx * bx + by * by;
+  cx = (by * a2 - ay * b2) / det;
+  cy = (ax * b2 - bx * a2) / det;
+  return std::isfinite(cx) && std::isfinite(cy);
+}
+
+// 2-d Sibson coordinates from the cavity by Watson's construction, in O(cavity): the
+// boundary runs counter-clockwise around q through the natural neighbours; neighbour
+// p's stolen part is the polygon of the two new Voronoi vertices on its sides (the
+// centres of (q, previous, p) and (q, p, next)) and, between them, the old ones of
+// the cavity triangles around p (their circumcentres), in order around p. Coordinates
+// relative to q. False where a centre is flat (the caller clips instead).
+bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavity, const double* q,
+               NaturalCoordinates& out) {
+  const PointSet& points = *tri.points;
+  auto in_cavity = [&](std::int32_t t) { return t >= 0 && std::find(cavity.begin(), cavity.end(), t) != cavity.end(); };
+  auto vertex = [&](std::int32_t t, int k) {
+    return tri.simplices[static_cast<std::size_t>(t) * 3 + static_cast<std::size_t>(k % 3)];
+  };
+  auto rel = [&](std::uint32_t id, double& x, double& y) {
+    x = points.point(id)[0] - q[0];
+    y = points.point(id)[1] - q[1];
+  };
+  // Boundary edges a -> b (counter-clockwise), each with its cavity triangle.
+  struct Edge {
+    std::uint32_t a, b;
+    std::int32_t t;
+  };
+  thread_local std::vector<Edge> edges;
+  edges.clear();
+  for (const std::int32_t t : cavity) {
+    for (int k = 0; k < 3; ++k) {
+      if (!in_cavity(tri.adjacency[static_cast<std::size_t>(t) * 3 + static_cast<std::size_t>(k)])) {
+        edges.push_back({vertex(t, k + 1), vertex(t, k + 2), t});
+      }
+    }
+  }
+  auto edge_from = [&](std::uint32_t a) -> const Edge* {
+    for (const Edge& e : edges) {
+      if (e.a == a) return &e;
+    }
+    return nullptr;
+  };
+  double total = 0;
+  out.neighbors.clear();
+  out.weights.clear();
+  for (const Edge& in : edges) {
+    const std::uint32_t p = in.b;  // the neighbour between edge `in` and the one after it
+    const Edge* next = edge_from(p);
+    if (next == nullptr) return false;
+    double px, py, ax, ay, bx, by;
+    rel(p, px, py);
+    rel(in.a, ax, ay);
+    rel(next->b, bx, by);
+    double x0, y0, x1, y1;
+    if (!centre_with_origin(ax, ay, px, py, x0, y0) || !centre_with_origin(px, py, bx, by, x1, y1)) return false;
+    // Shoelace over c(q, a, p), the old centres around p from in.t to next->t, c(q, p, b).
+    double twice = 0, lx = x0, ly = y0;
+    auto add = [&](double x, double y) {
+      twice += lx * y - ly * x;
+      lx = x;
+      ly = y;
+    };
+    std::int32_t t = in.t;
+    std::int32_t came = -1;
+    for (std::size_t steps = 0; steps <= cavity.size(); ++steps) {
+      double ux, uy, vx, vy, wx, wy;
+      rel(vertex(t, 0), ux, uy);
+      rel(vertex(t, 1), vx, vy);
+      rel(vertex(t, 2), wx, wy);
+      // The old centre, relative to q: u + the centre of (0, v - u, w - u).
+      double cx, cy;
+      if (!centre_with_origin(vx - ux, vy - uy, wx - ux, wy - uy, cx, cy)) return false;
+      add(ux + cx, uy + cy);
+      if (t == next->t) break;
+      // Across the other edge at p (the edges at p are opposite its two other vertices).
+      int j = 0;
+      while (vertex(t, j) != p) ++j;
+      std::int32_t forward = -1;
+      for (int k : {j + 1, j + 2}) {
+        const std::int32_t u = tri.adjacency[static_cast<std::size_t>(t) * 3 + static_cast<std::size_t>(k % 3)];
+        if (u != came && in_cavity(u)) forward = u;
+      }
+      if (forward < 0) return false;
+      came = t;
+      t = forward;
+    }
+    add(x1, y1);
+    add(x0, y0);
+    const double area = std::fabs(twice) / 2;
+    out.neighbors.push_back(p);
+    out.weights.push_back(area);
+    total += area;
+  }
+  if (!(total > 0)) return false;
+  // Ascending ids, as the clipping path gives them (an insertion sort: a handful).
+  for (std::size_t i = 1; i < out.neighbors.size(); ++i) {
+    for (std::size_t j = i; j > 0 && out.neighbors[j - 1] > out.neighbors[j]; --j) {
+      std::swap(out.neighbors[j - 1], out.neighbors[j]);
+      std::swap(out.weights[j - 1], out.weights[j]);
+    }
+  }
+  for (double& x : out.weights) x /= total;
+  out.where = NaturalCoordinates::Where::kInside;
+  return true;
+}
+
+}  // namespace
+
+Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q, NaturalCoordinates& out) {
   const PointSet& points = *tri.points;
   const int d = points.dimension();
   if (d != 2 && d != 3) {
     return invalid_argument("natural neighbours: dimension " + std::to_string(d) +
                             " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
   }
-  NaturalCoordinates out;
-  if (simplex < 0) return out;  // outside the hull
+  out.where = NaturalCoordinates::Where::kOutside;
+  out.neighbors.clear();
+  out.weights.clear();
+  if (simplex < 0) return Status::ok();  // outside the hull
   const int w = d + 1;
   const std::uint32_t* start = &tri.simplices[static_cast<std::size_t>(simplex) * w];
   // q on a point of the set: that point alone.
@@ -293,7 +443,7 @@ Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int
       out.where = NaturalCoordinates::Where::kInside;
       out.neighbors = {start[k]};
       out.weights = {1.0};
-      return out;
+      return Status::ok();
     }
   }
   // q on the hull's boundary: on a hull facet of its simplex (exactly).
@@ -312,14 +462,18 @@ Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int
           out.weights.push_back(bary[static_cast<std::size_t>(j)]);
         }
       }
-      return out;
+      return Status::ok();
     }
   }
   // The cavity: the simplices whose circumspheres hold q strictly, from q's simplex
   // across facets; its boundary facets (to a simplex not in it, or the hull) make q's
   // new simplices.
-  std::vector<std::int32_t> cavity{simplex}, tested{simplex};
-  std::vector<std::pair<std::int32_t, int>> boundary;
+  // Scratch kept per thread: a query allocates nothing once the buffers have grown.
+  thread_local std::vector<std::int32_t> cavity, tested;
+  thread_local std::vector<std::pair<std::int32_t, int>> boundary;
+  cavity.assign(1, simplex);
+  tested.assign(1, simplex);
+  boundary.clear();
   for (std::size_t i = 0; i < cavity.size(); ++i) {
     const std::int32_t s = cavity[i];
     for (int k = 0; k < w; ++k) {
@@ -348,6 +502,7 @@ Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int
                                   return t >= 0 && std::find(cavity.begin(), cavity.end(), t) != cavity.end();
                                 }),
                  boundary.end());
+  if (d == 2 && watson_2d(tri, cavity, q, out)) return Status::ok();
   for (const std::int32_t s : cavity) {
     for (int k = 0; k < w; ++k) out.neighbors.push_back(tri.simplices[static_cast<std::size_t>(s) * w + k]);
   }
@@ -425,6 +580,12 @@ Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int
   if (!(total > 0)) return internal_error("natural neighbours: the query's cell has no volume");
   for (double& x : out.weights) x /= total;
   out.where = NaturalCoordinates::Where::kInside;
+  return Status::ok();
+}
+
+Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q) {
+  NaturalCoordinates out;
+  if (Status s = natural_neighbors(tri, simplex, q, out); !s.is_ok()) return s;
   return out;
 }
 
