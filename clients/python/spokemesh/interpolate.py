@@ -135,11 +135,25 @@ class LinearNDInterpolator(_Interpolant):
         return self._shaped(out, shape)
 
     def _barycentric(self, q: np.ndarray, s: np.ndarray) -> np.ndarray:
-        t = self.tri.transform[s]
-        c = np.einsum("mij,mj->mi", t[:, :self.ndim, :], q - t[:, self.ndim, :])
-        bary = np.concatenate([c, 1 - c.sum(axis=1, keepdims=True)], axis=1)
-        # A simplex too flat for scipy's transform (NaN rows): its coordinates by a
-        # least-squares solve of the point's affine combination instead.
+        # scipy's transform when the triangulation already has it; else only the hit
+        # simplices' systems are solved (the transform of every simplex costs more than
+        # the queries of a raster).
+        if "transform" in self.tri.__dict__:
+            t = self.tri.transform[s]
+            c = np.einsum("mij,mj->mi", t[:, :self.ndim, :], q - t[:, self.ndim, :])
+            bary = np.concatenate([c, 1 - c.sum(axis=1, keepdims=True)], axis=1)
+        else:
+            v = self.tri.points[self.tri.simplices[s]]  # (m, ndim + 1, ndim)
+            r = v[:, -1, :]
+            a = np.transpose(v[:, :-1, :] - r[:, None, :], (0, 2, 1))
+            with np.errstate(all="ignore"):
+                singular = ~(np.abs(np.linalg.det(a)) > 0)
+                a[singular] = np.eye(self.ndim)
+                c = np.linalg.solve(a, (q - r)[:, :, None])[:, :, 0]
+            c[singular] = np.nan
+            bary = np.concatenate([c, 1 - c.sum(axis=1, keepdims=True)], axis=1)
+        # A simplex too flat for that (NaN): its coordinates by a least-squares solve of
+        # the point's affine combination instead.
         for m in np.flatnonzero(~np.isfinite(bary).all(axis=1)):
             v = self.tri.points[self.tri.simplices[s[m]]]
             a = np.vstack([v.T, np.ones(self.ndim + 1)])

@@ -545,7 +545,26 @@ class Triangulation {
     const double* data = queries.data();
     {
       py::gil_scoped_release release;
-      parallel_for(q, [&](std::size_t i) { out[i] = locate(data + i * d_); });
+      // Runs of 256 queries, each walked from the one before when that is short (a
+      // raster's next point is next door), else from its nearest input point.
+      const std::size_t run = 256;
+      parallel_for((q + run - 1) / run, [&](std::size_t r) {
+        std::int32_t hint = -1;
+        std::size_t misses = 0;
+        for (std::size_t i = r * run; i < std::min(q, (r + 1) * run); ++i) {
+          const double* x = data + i * d_;
+          const bool try_hint = hint >= 0 && (misses < 2 || i % 16 == 0);
+          std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
+          if (s == kWalkTooLong) {
+            ++misses;
+            s = locate(x);
+          } else if (try_hint) {
+            misses = 0;
+          }
+          out[i] = s;
+          if (s >= 0) hint = s;
+        }
+      });
     }
     return owned(std::move(out), {static_cast<py::ssize_t>(q)});
   }
