@@ -35,7 +35,7 @@ def terrain(n: int, seed: int = 53):
     dense = rng.random((n // 2, 2))
     centres = rng.random((40, 2))
     patch = centres[rng.integers(0, 40, n - n // 2)] + 0.03 * rng.standard_normal((n - n // 2, 2))
-    xy = np.clip(np.concatenate([dense, patch]), 0, 1)
+    xy = np.mod(np.concatenate([dense, patch]), 1.0)  # wrapped, not clipped: no runs of points on the edges
     xy = np.unique(xy, axis=0)
     z = np.sin(7 * xy[:, 0]) * np.cos(5 * xy[:, 1]) + 0.3 * xy[:, 0]
     return xy, z

@@ -82,6 +82,41 @@ PointSet points_from(const Points& array, bool exact_span = true) {
   return ps;
 }
 
+// The order of q points (d coordinates each) along a Morton curve over their box:
+// points close in it are close in space (so a walk from the previous one is short).
+std::vector<std::uint32_t> morton_order(const double* x, std::size_t q, int d) {
+  std::vector<std::uint32_t> order(q);
+  for (std::size_t i = 0; i < q; ++i) order[i] = static_cast<std::uint32_t>(i);
+  if (q < 2) return order;
+  std::vector<double> lo(static_cast<std::size_t>(d), std::numeric_limits<double>::infinity());
+  std::vector<double> hi(static_cast<std::size_t>(d), -std::numeric_limits<double>::infinity());
+  for (std::size_t i = 0; i < q; ++i) {
+    for (int k = 0; k < d; ++k) {
+      lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], x[i * d + k]);
+      hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], x[i * d + k]);
+    }
+  }
+  const int bits = std::max(1, 63 / d);
+  const double cells = std::ldexp(1.0, bits) - 1;
+  std::vector<std::uint64_t> key(q, 0);
+  for (std::size_t i = 0; i < q; ++i) {
+    std::uint64_t kv = 0;
+    std::array<std::uint64_t, kMaxDimension> cell{};
+    for (int k = 0; k < d; ++k) {
+      const double span = hi[static_cast<std::size_t>(k)] - lo[static_cast<std::size_t>(k)];
+      const double t = span > 0 ? (x[i * d + k] - lo[static_cast<std::size_t>(k)]) / span : 0.0;
+      cell[static_cast<std::size_t>(k)] = static_cast<std::uint64_t>(std::clamp(t, 0.0, 1.0) * cells);
+    }
+    for (int b = bits - 1; b >= 0; --b) {
+      for (int k = 0; k < d; ++k) kv = (kv << 1) | ((cell[static_cast<std::size_t>(k)] >> b) & 1u);
+    }
+    key[i] = kv;
+  }
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b] || (key[a] == key[b] && a < b); });
+  return order;
+}
+
 unsigned thread_count(std::optional<unsigned> threads) {
   if (threads && *threads > 0) return *threads;
   return std::max(1u, std::thread::hardware_concurrency());
@@ -545,15 +580,17 @@ class Triangulation {
     const double* data = queries.data();
     {
       py::gil_scoped_release release;
-      // Runs of 256 queries, each walked from the one before when that is short (a
-      // raster's next point is next door), else from its nearest input point.
+      // The queries in Morton order, in runs of 256, each walked from the one before
+      // when that is short, else from its nearest input point.
+      const std::vector<std::uint32_t> order = morton_order(data, q, d_);
       const std::size_t run = 256;
       parallel_for((q + run - 1) / run, [&](std::size_t r) {
         std::int32_t hint = -1;
         std::size_t misses = 0;
-        for (std::size_t i = r * run; i < std::min(q, (r + 1) * run); ++i) {
+        for (std::size_t at = r * run; at < std::min(q, (r + 1) * run); ++at) {
+          const std::size_t i = order[at];
           const double* x = data + i * d_;
-          const bool try_hint = hint >= 0 && (misses < 2 || i % 16 == 0);
+          const bool try_hint = hint >= 0 && (misses < 2 || at % 16 == 0);
           std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
           if (s == kWalkTooLong) {
             ++misses;
@@ -588,19 +625,22 @@ class Triangulation {
         throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
                               "]: not a finite number");
     }
-    // Runs of 256 queries, each located from the one before (a raster's next point is
-    // next door) or, when that walk is long, from its nearest input point; each run
-    // writes its own flat buffers, joined in order below.
+    // The queries in Morton order (scattered queries then come one beside the next), in
+    // runs of 256, each located from the one before or, when that walk is long, from
+    // its nearest input point; each run writes its own flat buffers, joined in the
+    // queries' order below.
+    const double* data = queries.data();
+    const std::vector<std::uint32_t> order = morton_order(data, q, d_);
     const std::size_t run = 256, runs = (q + run - 1) / run;
     struct RunOut {
       std::vector<std::int32_t> ids;
       std::vector<double> weights;
+      std::vector<std::int64_t> start;  // per query of the run, into ids
       std::string error;
     };
     std::vector<RunOut> outs(runs);
     std::vector<std::int64_t> ptr(q + 1, 0);
     std::vector<std::int8_t> where(q);
-    const double* data = queries.data();
     const DelaunayArrays arrays{&points_, simplices_, adjacency_};
     {
       py::gil_scoped_release release;
@@ -609,10 +649,11 @@ class Triangulation {
         std::int32_t hint = -1;
         std::size_t misses = 0;  // hinted walks that were too long in a row
         RunOut& o = outs[r];
-        for (std::size_t i = r * run; i < std::min(q, (r + 1) * run); ++i) {
+        for (std::size_t at = r * run; at < std::min(q, (r + 1) * run); ++at) {
+          const std::size_t i = order[at];
           const double* x = data + i * d_;
-          // Scattered queries miss the hint: after two misses it is tried every 16th.
-          const bool try_hint = hint >= 0 && (misses < 2 || i % 16 == 0);
+          // After two long walks the hint is tried every 16th query only.
+          const bool try_hint = hint >= 0 && (misses < 2 || at % 16 == 0);
           std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
           if (s == kWalkTooLong) {
             ++misses;
@@ -620,6 +661,7 @@ class Triangulation {
           } else if (try_hint) {
             misses = 0;
           }
+          o.start.push_back(static_cast<std::int64_t>(o.ids.size()));
           const Status st = spokemesh::natural_neighbors(arrays, s, x, nn);
           if (!st.is_ok()) {
             if (o.error.empty()) o.error = "xi[" + std::to_string(i) + "]: " + st.message();
@@ -637,13 +679,17 @@ class Triangulation {
       if (!o.error.empty()) throw std::runtime_error(o.error);
     }
     for (std::size_t i = 0; i < q; ++i) ptr[i + 1] += ptr[i];
-    std::vector<std::int32_t> ids;
-    std::vector<double> weights;
-    ids.reserve(static_cast<std::size_t>(ptr[q]));
-    weights.reserve(static_cast<std::size_t>(ptr[q]));
-    for (RunOut& o : outs) {
-      ids.insert(ids.end(), o.ids.begin(), o.ids.end());
-      weights.insert(weights.end(), o.weights.begin(), o.weights.end());
+    std::vector<std::int32_t> ids(static_cast<std::size_t>(ptr[q]));
+    std::vector<double> weights(static_cast<std::size_t>(ptr[q]));
+    for (std::size_t r = 0; r < runs; ++r) {
+      RunOut& o = outs[r];
+      for (std::size_t k = 0; k < o.start.size(); ++k) {
+        const std::size_t i = order[r * run + k];
+        const auto from = static_cast<std::size_t>(o.start[k]);
+        const auto count = static_cast<std::size_t>(ptr[i + 1] - ptr[i]);
+        std::copy_n(o.ids.begin() + from, count, ids.begin() + ptr[i]);
+        std::copy_n(o.weights.begin() + from, count, weights.begin() + ptr[i]);
+      }
       std::vector<std::int32_t>().swap(o.ids);
       std::vector<double>().swap(o.weights);
     }
