@@ -31,6 +31,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/io.hpp"
 #include "spokemesh/kd_tree.hpp"
+#include "spokemesh/locate.hpp"
 #include "spokemesh/mesh.hpp"
 #include "spokemesh/natural_neighbors.hpp"
 #include "spokemesh/periodic.hpp"
@@ -82,101 +83,9 @@ PointSet points_from(const Points& array, bool exact_span = true) {
   return ps;
 }
 
-// The order of q points (d coordinates each) along a Morton curve over their box:
-// points close in it are close in space (so a walk from the previous one is short).
-std::vector<std::uint32_t> morton_order(const double* x, std::size_t q, int d) {
-  std::vector<std::uint32_t> order(q);
-  for (std::size_t i = 0; i < q; ++i) order[i] = static_cast<std::uint32_t>(i);
-  if (q < 2) return order;
-  std::vector<double> lo(static_cast<std::size_t>(d), std::numeric_limits<double>::infinity());
-  std::vector<double> hi(static_cast<std::size_t>(d), -std::numeric_limits<double>::infinity());
-  for (std::size_t i = 0; i < q; ++i) {
-    for (int k = 0; k < d; ++k) {
-      lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], x[i * d + k]);
-      hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], x[i * d + k]);
-    }
-  }
-  const int bits = std::max(1, 63 / d);
-  const double cells = std::ldexp(1.0, bits) - 1;
-  std::vector<std::uint64_t> key(q, 0);
-  for (std::size_t i = 0; i < q; ++i) {
-    std::uint64_t kv = 0;
-    std::array<std::uint64_t, kMaxDimension> cell{};
-    for (int k = 0; k < d; ++k) {
-      const double span = hi[static_cast<std::size_t>(k)] - lo[static_cast<std::size_t>(k)];
-      const double t = span > 0 ? (x[i * d + k] - lo[static_cast<std::size_t>(k)]) / span : 0.0;
-      cell[static_cast<std::size_t>(k)] = static_cast<std::uint64_t>(std::clamp(t, 0.0, 1.0) * cells);
-    }
-    for (int b = bits - 1; b >= 0; --b) {
-      for (int k = 0; k < d; ++k) kv = (kv << 1) | ((cell[static_cast<std::size_t>(k)] >> b) & 1u);
-    }
-    key[i] = kv;
-  }
-  std::sort(order.begin(), order.end(),
-            [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b] || (key[a] == key[b] && a < b); });
-  return order;
-}
-
 unsigned thread_count(std::optional<unsigned> threads) {
   if (threads && *threads > 0) return *threads;
   return std::max(1u, std::thread::hardware_concurrency());
-}
-
-// The exact sign of det[p_1 - p_0, ..., p_d - p_0] for d + 1 points given by pointers.
-// Filter: Gaussian elimination with partial pivoting in double; its error stays below
-// d^3 2^(d-1) u times the product of the rows' norms (Hadamard; the growth factor of
-// partial pivoting is at most 2^(d-1)), which is < 1e-10 of that product for d <= 8,
-// so a larger determinant has the computed sign. Otherwise rationals decide.
-int orientation_sign(const std::array<const double*, kMaxDimension + 1>& p, int d) {
-  std::array<double, kMaxDimension * kMaxDimension> m{};
-  double hadamard = 1;
-  for (int r = 0; r < d; ++r) {
-    double n2 = 0;
-    for (int c = 0; c < d; ++c) {
-      m[r * d + c] = p[r + 1][c] - p[0][c];
-      n2 += m[r * d + c] * m[r * d + c];
-    }
-    hadamard *= std::sqrt(n2);
-  }
-  double det = 1;
-  for (int c = 0; c < d; ++c) {
-    int pivot = c;
-    for (int r = c + 1; r < d; ++r) {
-      if (std::abs(m[r * d + c]) > std::abs(m[pivot * d + c])) pivot = r;
-    }
-    if (pivot != c) {
-      for (int k = 0; k < d; ++k) std::swap(m[c * d + k], m[pivot * d + k]);
-      det = -det;
-    }
-    det *= m[c * d + c];
-    if (m[c * d + c] == 0) break;
-    for (int r = c + 1; r < d; ++r) {
-      const double f = m[r * d + c] / m[c * d + c];
-      for (int k = c; k < d; ++k) m[r * d + k] -= f * m[c * d + k];
-    }
-  }
-  if (std::abs(det) > 1e-10 * hadamard) return det > 0 ? 1 : -1;
-  std::vector<mpq_class> a(static_cast<std::size_t>(d * d));
-  for (int r = 0; r < d; ++r) {
-    for (int c = 0; c < d; ++c) a[r * d + c] = mpq_class(p[r + 1][c]) - mpq_class(p[0][c]);
-  }
-  int sign = 1;
-  for (int c = 0; c < d; ++c) {
-    int pivot = c;
-    while (pivot < d && sgn(a[pivot * d + c]) == 0) ++pivot;
-    if (pivot == d) return 0;
-    if (pivot != c) {
-      for (int k = 0; k < d; ++k) std::swap(a[c * d + k], a[pivot * d + k]);
-      sign = -sign;
-    }
-    if (sgn(a[c * d + c]) < 0) sign = -sign;
-    for (int r = c + 1; r < d; ++r) {
-      if (sgn(a[r * d + c]) == 0) continue;
-      const mpq_class f = a[r * d + c] / a[c * d + c];
-      for (int k = c; k < d; ++k) a[r * d + k] -= f * a[c * d + k];
-    }
-  }
-  return sign;
 }
 
 std::optional<Domain> domain_from(int d, const std::optional<std::vector<double>>& box,
@@ -580,28 +489,8 @@ class Triangulation {
     const double* data = queries.data();
     {
       py::gil_scoped_release release;
-      // The queries in Morton order, in runs of 256, each walked from the one before
-      // when that is short, else from its nearest input point.
-      const std::vector<std::uint32_t> order = morton_order(data, q, d_);
-      const std::size_t run = 256;
-      parallel_for((q + run - 1) / run, [&](std::size_t r) {
-        std::int32_t hint = -1;
-        std::size_t misses = 0;
-        for (std::size_t at = r * run; at < std::min(q, (r + 1) * run); ++at) {
-          const std::size_t i = order[at];
-          const double* x = data + i * d_;
-          const bool try_hint = hint >= 0 && (misses < 2 || at % 16 == 0);
-          std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
-          if (s == kWalkTooLong) {
-            ++misses;
-            s = locate(x);
-          } else if (try_hint) {
-            misses = 0;
-          }
-          out[i] = s;
-          if (s >= 0) hint = s;
-        }
-      });
+      // In Morton order, each walked from the one before (locate.hpp).
+      locator_->locate_many(data, q, threads_, [&](std::size_t, std::size_t i, std::int32_t s) { out[i] = s; });
     }
     return owned(std::move(out), {static_cast<py::ssize_t>(q)});
   }
@@ -625,17 +514,15 @@ class Triangulation {
         throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
                               "]: not a finite number");
     }
-    // The queries in Morton order (scattered queries then come one beside the next), in
-    // runs of 256, each located from the one before or, when that walk is long, from
-    // its nearest input point; each run writes its own flat buffers, joined in the
-    // queries' order below.
+    // The queries in Morton order, each located from the one before (locate.hpp); each
+    // run of them writes its own flat buffers, joined in the queries' order below.
     const double* data = queries.data();
-    const std::vector<std::uint32_t> order = morton_order(data, q, d_);
-    const std::size_t run = 256, runs = (q + run - 1) / run;
+    const std::size_t runs = (q + 255) / 256;
     struct RunOut {
       std::vector<std::int32_t> ids;
       std::vector<double> weights;
-      std::vector<std::int64_t> start;  // per query of the run, into ids
+      std::vector<std::pair<std::size_t, std::int64_t>> start;  // (query, into ids)
+      NaturalCoordinates nn;
       std::string error;
     };
     std::vector<RunOut> outs(runs);
@@ -644,35 +531,18 @@ class Triangulation {
     const DelaunayArrays arrays{&points_, simplices_, adjacency_};
     {
       py::gil_scoped_release release;
-      parallel_for(runs, [&](std::size_t r) {
-        NaturalCoordinates nn;
-        std::int32_t hint = -1;
-        std::size_t misses = 0;  // hinted walks that were too long in a row
+      locator_->locate_many(data, q, threads_, [&](std::size_t r, std::size_t i, std::int32_t s) {
         RunOut& o = outs[r];
-        for (std::size_t at = r * run; at < std::min(q, (r + 1) * run); ++at) {
-          const std::size_t i = order[at];
-          const double* x = data + i * d_;
-          // After two long walks the hint is tried every 16th query only.
-          const bool try_hint = hint >= 0 && (misses < 2 || at % 16 == 0);
-          std::int32_t s = try_hint ? locate_from(x, hint, 24) : locate(x);
-          if (s == kWalkTooLong) {
-            ++misses;
-            s = locate(x);
-          } else if (try_hint) {
-            misses = 0;
-          }
-          o.start.push_back(static_cast<std::int64_t>(o.ids.size()));
-          const Status st = spokemesh::natural_neighbors(arrays, s, x, nn);
-          if (!st.is_ok()) {
-            if (o.error.empty()) o.error = "xi[" + std::to_string(i) + "]: " + st.message();
-            continue;
-          }
-          o.ids.insert(o.ids.end(), nn.neighbors.begin(), nn.neighbors.end());
-          o.weights.insert(o.weights.end(), nn.weights.begin(), nn.weights.end());
-          ptr[i + 1] = static_cast<std::int64_t>(nn.neighbors.size());
-          where[i] = static_cast<std::int8_t>(nn.where);
-          if (s >= 0) hint = s;
+        o.start.emplace_back(i, static_cast<std::int64_t>(o.ids.size()));
+        const Status st = spokemesh::natural_neighbors(arrays, s, data + i * d_, o.nn);
+        if (!st.is_ok()) {
+          if (o.error.empty()) o.error = "xi[" + std::to_string(i) + "]: " + st.message();
+          return;
         }
+        o.ids.insert(o.ids.end(), o.nn.neighbors.begin(), o.nn.neighbors.end());
+        o.weights.insert(o.weights.end(), o.nn.weights.begin(), o.nn.weights.end());
+        ptr[i + 1] = static_cast<std::int64_t>(o.nn.neighbors.size());
+        where[i] = static_cast<std::int8_t>(o.nn.where);
       });
     }
     for (const RunOut& o : outs) {
@@ -683,9 +553,8 @@ class Triangulation {
     std::vector<double> weights(static_cast<std::size_t>(ptr[q]));
     for (std::size_t r = 0; r < runs; ++r) {
       RunOut& o = outs[r];
-      for (std::size_t k = 0; k < o.start.size(); ++k) {
-        const std::size_t i = order[r * run + k];
-        const auto from = static_cast<std::size_t>(o.start[k]);
+      for (const auto& [i, start] : o.start) {
+        const auto from = static_cast<std::size_t>(start);
         const auto count = static_cast<std::size_t>(ptr[i + 1] - ptr[i]);
         std::copy_n(o.ids.begin() + from, count, ids.begin() + ptr[i]);
         std::copy_n(o.weights.begin() + from, count, weights.begin() + ptr[i]);
@@ -845,47 +714,8 @@ class Triangulation {
   }
 
   void build_adjacency() const {
-    const std::size_t m = nsimplices();
-    const int w = d_ + 1;
     adjacency_ = simplex_adjacency(simplices_, d_, threads_);
-    first_simplex_.assign(points_.size(), -1);
-    for (std::size_t s = 0; s < m; ++s) {
-      for (int k = 0; k < w; ++k) {
-        std::int32_t& f = first_simplex_[simplices_[s * w + k]];
-        if (f < 0) f = static_cast<std::int32_t>(s);
-      }
-    }
-  }
-
-  std::int32_t locate(const double* q) const {
-    std::uint32_t nearest = 0;
-    double dist2 = 0;
-    tree_->knn(q, 1, &nearest, &dist2);
-    const std::int32_t s = locate_from(q, first_simplex_[nearest], 4 * nsimplices() + 16);
-    return s == kWalkTooLong ? -1 : s;
-  }
-
-  // The walk of locate() from simplex s, at most `steps` simplices: kWalkTooLong when
-  // it takes more.
-  static constexpr std::int32_t kWalkTooLong = -2;
-  std::int32_t locate_from(const double* q, std::int32_t s, std::size_t max_steps) const {
-    const int w = d_ + 1;
-    std::array<const double*, kMaxDimension + 1> corners{};
-    // A visibility walk terminates in a Delaunay triangulation (Edelsbrunner); the
-    // bound only guards against the impossible.
-    for (std::size_t steps = 0; s >= 0; ++steps) {
-      if (steps > max_steps) return kWalkTooLong;
-      const std::uint32_t* v = &simplices_[static_cast<std::size_t>(s) * w];
-      int across = -1;
-      for (int k = 0; k < w && across < 0; ++k) {
-        for (int j = 0; j < w; ++j) corners[j] = j == k ? q : points_.point(v[j]);
-        // Simplices are positively oriented: q beyond facet k makes this negative.
-        if (orientation_sign(corners, d_) < 0) across = k;
-      }
-      if (across < 0) return s;
-      s = adjacency_[static_cast<std::size_t>(s) * w + across];
-    }
-    return -1;
+    locator_ = std::make_unique<SimplexLocator>(points_, simplices_, adjacency_, *tree_);
   }
 
   PointSet points_;
@@ -902,7 +732,7 @@ class Triangulation {
   std::uint64_t stars_computed_ = 0;  // by the insertion that made it (0 when built at once)
   mutable std::once_flag adjacency_once_;
   mutable std::vector<std::int32_t> adjacency_;
-  mutable std::vector<std::int32_t> first_simplex_;
+  mutable std::unique_ptr<SimplexLocator> locator_;  // built with adjacency_
 };
 
 // Certified approximate Delaunay graph, any dimension: CSR (indptr, indices) and each

@@ -1,0 +1,171 @@
+#include "spokemesh/locate.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+#include <gmpxx.h>
+
+namespace spokemesh {
+
+int orientation_of(const std::array<const double*, kMaxDimension + 1>& p, int d) {
+  std::array<double, kMaxDimension * kMaxDimension> m{};
+  double hadamard = 1;
+  for (int r = 0; r < d; ++r) {
+    double n2 = 0;
+    for (int c = 0; c < d; ++c) {
+      m[r * d + c] = p[r + 1][c] - p[0][c];
+      n2 += m[r * d + c] * m[r * d + c];
+    }
+    hadamard *= std::sqrt(n2);
+  }
+  double det = 1;
+  for (int c = 0; c < d; ++c) {
+    int pivot = c;
+    for (int r = c + 1; r < d; ++r) {
+      if (std::abs(m[r * d + c]) > std::abs(m[pivot * d + c])) pivot = r;
+    }
+    if (pivot != c) {
+      for (int k = 0; k < d; ++k) std::swap(m[c * d + k], m[pivot * d + k]);
+      det = -det;
+    }
+    det *= m[c * d + c];
+    if (m[c * d + c] == 0) break;
+    for (int r = c + 1; r < d; ++r) {
+      const double f = m[r * d + c] / m[c * d + c];
+      for (int k = c; k < d; ++k) m[r * d + k] -= f * m[c * d + k];
+    }
+  }
+  if (std::abs(det) > 1e-10 * hadamard) return det > 0 ? 1 : -1;
+  std::vector<mpq_class> a(static_cast<std::size_t>(d * d));
+  for (int r = 0; r < d; ++r) {
+    for (int c = 0; c < d; ++c) a[r * d + c] = mpq_class(p[r + 1][c]) - mpq_class(p[0][c]);
+  }
+  int sign = 1;
+  for (int c = 0; c < d; ++c) {
+    int pivot = c;
+    while (pivot < d && sgn(a[pivot * d + c]) == 0) ++pivot;
+    if (pivot == d) return 0;
+    if (pivot != c) {
+      for (int k = 0; k < d; ++k) std::swap(a[c * d + k], a[pivot * d + k]);
+      sign = -sign;
+    }
+    if (sgn(a[c * d + c]) < 0) sign = -sign;
+    for (int r = c + 1; r < d; ++r) {
+      if (sgn(a[r * d + c]) == 0) continue;
+      const mpq_class f = a[r * d + c] / a[c * d + c];
+      for (int k = c; k < d; ++k) a[r * d + k] -= f * a[c * d + k];
+    }
+  }
+  return sign;
+}
+
+std::vector<std::uint32_t> morton_order(const double* x, std::size_t count, int d) {
+  std::vector<std::uint32_t> order(count);
+  for (std::size_t i = 0; i < count; ++i) order[i] = static_cast<std::uint32_t>(i);
+  if (count < 2) return order;
+  std::vector<double> lo(static_cast<std::size_t>(d), std::numeric_limits<double>::infinity());
+  std::vector<double> hi(static_cast<std::size_t>(d), -std::numeric_limits<double>::infinity());
+  for (std::size_t i = 0; i < count; ++i) {
+    for (int k = 0; k < d; ++k) {
+      lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], x[i * d + k]);
+      hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], x[i * d + k]);
+    }
+  }
+  const int bits = std::max(1, 63 / d);
+  const double cells = std::ldexp(1.0, bits) - 1;
+  std::vector<std::uint64_t> key(count, 0);
+  for (std::size_t i = 0; i < count; ++i) {
+    std::array<std::uint64_t, kMaxDimension> cell{};
+    for (int k = 0; k < d; ++k) {
+      const double span = hi[static_cast<std::size_t>(k)] - lo[static_cast<std::size_t>(k)];
+      const double t = span > 0 ? (x[i * d + k] - lo[static_cast<std::size_t>(k)]) / span : 0.0;
+      cell[static_cast<std::size_t>(k)] = static_cast<std::uint64_t>(std::clamp(t, 0.0, 1.0) * cells);
+    }
+    std::uint64_t kv = 0;
+    for (int b = bits - 1; b >= 0; --b) {
+      for (int k = 0; k < d; ++k) kv = (kv << 1) | ((cell[static_cast<std::size_t>(k)] >> b) & 1u);
+    }
+    key[i] = kv;
+  }
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return key[a] < key[b] || (key[a] == key[b] && a < b); });
+  return order;
+}
+
+SimplexLocator::SimplexLocator(const PointSet& points, std::span<const std::uint32_t> simplices,
+                               std::span<const std::int32_t> adjacency, const KdTree& tree)
+    : points_(points), simplices_(simplices), adjacency_(adjacency), tree_(tree), d_(points.dimension()) {
+  const std::size_t w = static_cast<std::size_t>(d_ + 1);
+  first_simplex_.assign(points.size(), -1);
+  for (std::size_t s = 0; s * w < simplices.size(); ++s) {
+    for (std::size_t k = 0; k < w; ++k) {
+      std::int32_t& f = first_simplex_[simplices[s * w + k]];
+      if (f < 0) f = static_cast<std::int32_t>(s);
+    }
+  }
+}
+
+std::int32_t SimplexLocator::locate(const double* q) const {
+  std::uint32_t nearest = 0;
+  double dist2 = 0;
+  tree_.knn(q, 1, &nearest, &dist2);
+  const std::int32_t s = locate_from(q, first_simplex_[nearest], 4 * simplices_.size() + 16);
+  return s == kWalkTooLong ? -1 : s;
+}
+
+std::int32_t SimplexLocator::locate_from(const double* q, std::int32_t s, std::size_t max_steps) const {
+  const int w = d_ + 1;
+  std::array<const double*, kMaxDimension + 1> corners{};
+  // The bound only guards against the impossible: the walk terminates.
+  for (std::size_t steps = 0; s >= 0; ++steps) {
+    if (steps > max_steps) return kWalkTooLong;
+    const std::uint32_t* v = &simplices_[static_cast<std::size_t>(s) * w];
+    int across = -1;
+    for (int k = 0; k < w && across < 0; ++k) {
+      for (int j = 0; j < w; ++j) corners[j] = j == k ? q : points_.point(v[j]);
+      // Simplices are positively oriented: q beyond facet k makes this negative.
+      if (orientation_of(corners, d_) < 0) across = k;
+    }
+    if (across < 0) return s;
+    s = adjacency_[static_cast<std::size_t>(s) * w + across];
+  }
+  return -1;
+}
+
+void locate_runs(const SimplexLocator& locator, const double* queries, std::size_t count, int d, unsigned threads,
+                 const std::vector<std::uint32_t>& order,
+                 void (*visit)(void* context, std::size_t run, std::size_t i, std::int32_t simplex), void* context) {
+  constexpr std::size_t kRun = 256;
+  const std::size_t runs = (count + kRun - 1) / kRun;
+  std::atomic<std::size_t> next{0};
+  auto work = [&] {
+    for (std::size_t r; (r = next.fetch_add(1)) < runs;) {
+      std::int32_t hint = -1;
+      std::size_t misses = 0;  // hinted walks that were too long in a row
+      for (std::size_t at = r * kRun; at < std::min(count, (r + 1) * kRun); ++at) {
+        const std::size_t i = order[at];
+        const double* x = queries + i * static_cast<std::size_t>(d);
+        const bool try_hint = hint >= 0 && (misses < 2 || at % 16 == 0);
+        std::int32_t s = try_hint ? locator.locate_from(x, hint, 24) : locator.locate(x);
+        if (s == SimplexLocator::kWalkTooLong) {
+          ++misses;
+          s = locator.locate(x);
+        } else if (try_hint) {
+          misses = 0;
+        }
+        visit(context, r, i, s);
+        if (s >= 0) hint = s;
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  const unsigned extra = runs > 4 ? std::max(1u, threads) - 1 : 0;
+  for (unsigned t = 0; t < extra; ++t) pool.emplace_back(work);
+  work();
+  for (std::thread& t : pool) t.join();
+}
+
+}  // namespace spokemesh
