@@ -1,6 +1,8 @@
 // The spokemesh command line as users run it: a real process on real files.
 #include <sys/wait.h>
 
+#include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -455,3 +457,71 @@ TEST_F(Cli, HighDimensionsNeedApproxAndSaySo) {
 }
 
 }  // namespace
+
+namespace {
+
+// Reads a text file of one number a line.
+std::vector<double> numbers(const std::string& text) {
+  std::vector<double> out;
+  std::istringstream s(text);
+  for (std::string word; s >> word;) out.push_back(word == "nan" ? std::nan("") : std::stod(word));
+  return out;
+}
+
+}  // namespace
+
+TEST_F(Cli, InterpolateReproducesLinearFunctionsAndGrids) {
+  // Values of 1 + 2x - 3y at 2,000 points; every method at query points inside the hull,
+  // and a raster whose corners lie outside it (the fill value).
+  const auto c = spokemesh::testing::uniform_points(2, 2000, 53);
+  std::ostringstream values, queries;
+  values.precision(17);
+  queries.precision(17);
+  for (std::size_t i = 0; i < 2000; ++i) values << 1 + 2 * c[2 * i] - 3 * c[2 * i + 1] << "\n";
+  std::vector<std::pair<double, double>> q;
+  for (int i = 0; i < 50; ++i) q.emplace_back(0.2 + 0.6 * i / 49.0, 0.3 + 0.4 * ((i * 7) % 50) / 49.0);
+  for (const auto& [x, y] : q) queries << x << " " << y << "\n";
+  const std::string pts = points(2, 2000, 53);
+  const std::string vals = write("values.txt", values.str()), qs = write("queries.txt", queries.str());
+  for (const char* method : {"natural", "linear"}) {
+    const Outcome r = run("interpolate " + pts + " " + vals + " " + qs + " -o " + path(std::string(method) + ".txt") +
+                          " --method " + method + " --threads 2");
+    ASSERT_EQ(r.code, 0) << r.err;
+    const std::vector<double> got = numbers(slurp(path(std::string(method) + ".txt")));
+    ASSERT_EQ(got.size(), q.size()) << method;
+    for (std::size_t i = 0; i < q.size(); ++i) {
+      EXPECT_NEAR(got[i], 1 + 2 * q[i].first - 3 * q[i].second, 1e-12) << method << " query " << i;
+    }
+  }
+  const Outcome nearest =
+      run("interpolate " + pts + " " + vals + " " + qs + " -o " + path("nearest.txt") + " --method nearest -q");
+  ASSERT_EQ(nearest.code, 0) << nearest.err;
+  EXPECT_EQ(nearest.err, "");
+  EXPECT_EQ(numbers(slurp(path("nearest.txt"))).size(), q.size());
+  // A 7 x 5 raster over [-0.5, 1.5]^2 as .npy: shape (5, 7), corners outside (NaN).
+  const Outcome grid =
+      run("interpolate " + pts + " " + vals + " --grid -0.5,-0.5,1.5,1.5,7,5 -o " + path("grid.npy") + " -q");
+  ASSERT_EQ(grid.code, 0) << grid.err;
+  const std::string npy = slurp(path("grid.npy"));
+  EXPECT_NE(npy.find("'shape': (5, 7)"), std::string::npos);
+  const std::size_t header = npy.size() - 35 * sizeof(double);
+  double corner, centre;
+  std::memcpy(&corner, npy.data() + header, sizeof corner);
+  std::memcpy(&centre, npy.data() + header + (2 * 7 + 3) * sizeof(double),
+              sizeof centre);  // row 2, column 3: (0.5, 0.5)
+  EXPECT_TRUE(std::isnan(corner));
+  EXPECT_NEAR(centre, 1 + 2 * 0.5 - 3 * 0.5, 1e-12);
+  // Bad input: named, exit 2, nothing written.
+  const std::string short_values = write("short.txt", "1\n2\n3\n");
+  const Outcome bad = run("interpolate " + pts + " " + short_values + " " + qs + " -o " + path("bad.txt"));
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_NE(bad.err.find("3 values for 2000 points"), std::string::npos) << bad.err;
+  const Outcome both = run("interpolate " + pts + " " + vals + " " + qs + " --grid 0,0,1,1,2,2 -o " + path("b.txt"));
+  EXPECT_EQ(both.code, 2);
+  EXPECT_NE(both.err.find("not both"), std::string::npos) << both.err;
+  const Outcome high = run("interpolate " + points(4, 100, 3) + " " + vals + " " + qs + " -o " + path("h.txt"));
+  EXPECT_EQ(high.code, 2);
+  EXPECT_NE(high.err.find("--method natural (2-d and 3-d)"), std::string::npos) << high.err;
+  for (const std::string& name : listing()) EXPECT_EQ(name.find(".partial"), std::string::npos) << name;
+  EXPECT_FALSE(fs::exists(path("bad.txt")));
+}

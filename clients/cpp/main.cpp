@@ -20,6 +20,7 @@
 
 #include "cell_print.hpp"
 #include "commands.hpp"
+#include "interpolate.hpp"
 #include "spokemesh/approx.hpp"
 #include "spokemesh/cell_io.hpp"
 #include "spokemesh/cells.hpp"
@@ -691,6 +692,34 @@ int main(int argc, char** argv) {
   batch->add_flag("--no-route", batch_no_route,
                   "Ask --server for every seed, even on a sharded deployment (by default a batch large enough "
                   "to be worth the shard map, 2 bytes a point, goes to each seed's shard directly)");
+  InterpolateFlags interp_flags;
+  auto* interp = app.add_subcommand(
+      "interpolate", "Values at any point from a value per point: natural neighbours (Sibson), linear or nearest");
+  interp->add_option("POINTS", interp_flags.points, "Point file (2-d or 3-d for natural; up to 8-d for linear)")
+      ->required();
+  interp->add_option("VALUES", interp_flags.values, "One value per point, in the points' order (text or .npy)")
+      ->required();
+  interp->add_option("QUERIES", interp_flags.queries, "Point file of the query points (or --grid)");
+  interp
+      ->add_option("-o,--output", interp_flags.output,
+                   "Values file: .npy (float64; with --grid shape (NY, NX)) or text (one value a line)")
+      ->required();
+  interp
+      ->add_option("--method", interp_flags.method,
+                   "natural (Sibson's natural-neighbour coordinates, 2-d and 3-d), linear (barycentric in the "
+                   "Delaunay simplex holding the point) or nearest")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"natural", "linear", "nearest"}));
+  interp->add_option("--grid", interp_flags.grid,
+                     "A raster of 2-d query points instead of QUERIES: X0,Y0,X1,Y1,NX,NY (corners included; row j "
+                     "at Y0 + j (Y1 - Y0) / (NY - 1))");
+  interp->add_option("--fill", interp_flags.fill, "The value outside the points' hull (natural, linear; default NaN)");
+  interp->add_option("--threads", interp_flags.threads, "Worker threads (default: all cores)")
+      ->check(CLI::Range(1u, 1024u));
+  interp->add_flag("-q,--quiet", interp_flags.quiet, "No progress or summary on stderr");
+  interp->footer(
+      "Which simplex holds a query, and which points are its natural neighbours, are decided by exact predicates;\n"
+      "the values are computed in double. Points are validated as for `mesh` (distinct, full dimension).");
   auto* health = app.add_subcommand("health", "Remote mode: ask the server's gRPC health service (exit 0 if SERVING)");
   auto* list = app.add_subcommand("list", "Remote mode: list the stored point sets");
   auto* del = app.add_subcommand("delete", "Remote mode: delete a stored point set");
@@ -709,6 +738,13 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
 
+  if (*interp) {
+    if (!server.empty()) {
+      return report(invalid_argument("interpolate: local only for now (the service's interpolation is not built yet)"));
+    }
+    if (interp_flags.threads == 0) interp_flags.threads = std::max(1u, std::thread::hardware_concurrency());
+    return run_interpolate(interp_flags);
+  }
   const bool remote_only = *upload || *append || *health || *list || *del || *batch;
   if (!server.empty() && !*upload && (!common.periodic.empty() || common.weighted())) {
     // A stored set carries its own weights and box (given at upload): its answers use them.

@@ -68,8 +68,9 @@ std::string npy_header_of_shape(const std::string& descr, const std::string& sha
 // r >= 0 (|r| <= kMaxCoordinate), returned as the weight r * r rounded to double.
 // Errors (INVALID_ARGUMENT) name the file and the line or index: a non-number, more
 // than one number on a line, a non-finite or out-of-range value, a negative radius, or
-// a count other than `count` (the number of points).
-enum class WeightKind { kPowerWeight, kRadius };
+// a count other than `count` (the number of points). kValue: a value at each point
+// (spokemesh interpolate), read and checked as a power weight, named "value".
+enum class WeightKind { kPowerWeight, kRadius, kValue };
 inline constexpr double kMaxWeight = 1e200;  // keeps |p - q|^2 - w finite in double (d <= 1024)
 Result<std::vector<double>> read_weights(const std::string& path, std::size_t count, WeightKind kind);
 Result<std::vector<double>> parse_text_weights(const std::string& text, const std::string& source, std::size_t count,

@@ -358,14 +358,14 @@ namespace {
 
 // One weight, checked: `where` names its line or index.
 Status take_weight(double v, WeightKind kind, const std::string& where, std::vector<double>& out) {
-  const char* what = kind == WeightKind::kRadius ? "radius" : "weight";
+  const char* what = kind == WeightKind::kRadius ? "radius" : kind == WeightKind::kValue ? "value" : "weight";
   if (!std::isfinite(v)) return invalid_argument(where + what + " is not finite");
   if (kind == WeightKind::kRadius) {
     if (v < 0) return invalid_argument(where + "radius " + std::to_string(v) + " is negative");
     if (v > kMaxCoordinate) return invalid_argument(where + "radius has magnitude above 1e100");
     out.push_back(v * v);
   } else {
-    if (std::fabs(v) > kMaxWeight) return invalid_argument(where + "weight has magnitude above 1e200");
+    if (std::fabs(v) > kMaxWeight) return invalid_argument(where + what + " has magnitude above 1e200");
     out.push_back(v);
   }
   return Status::ok();
@@ -373,7 +373,10 @@ Status take_weight(double v, WeightKind kind, const std::string& where, std::vec
 
 Status check_weight_count(std::size_t got, std::size_t count, WeightKind kind, const std::string& source) {
   if (got == count) return Status::ok();
-  return invalid_argument(source + ": " + std::to_string(got) + (kind == WeightKind::kRadius ? " radii" : " weights") +
+  return invalid_argument(source + ": " + std::to_string(got) +
+                          (kind == WeightKind::kRadius  ? " radii"
+                           : kind == WeightKind::kValue ? " values"
+                                                        : " weights") +
                           " for " + std::to_string(count) + " points (one a point, in the points' order)");
 }
 
@@ -398,7 +401,10 @@ Result<std::vector<double>> parse_text_weights(const std::string& text, const st
       for_each_number_row(text, source, [&](const std::vector<double>& row, const std::string& where) -> Status {
         if (row.size() != 1) {
           return invalid_argument(where + "has " + std::to_string(row.size()) + " numbers; expected one " +
-                                  (kind == WeightKind::kRadius ? "radius" : "weight") + " a line");
+                                  (kind == WeightKind::kRadius  ? "radius"
+                                   : kind == WeightKind::kValue ? "value"
+                                                                : "weight") +
+                                  " a line");
         }
         return take_weight(row[0], kind, where, out);
       });
@@ -420,8 +426,8 @@ Result<std::vector<double>> parse_npy_weights(const std::string& bytes, const st
   if (h.fortran && h.shape.size() == 2)
     return invalid_argument(source + ": .npy array is in Fortran order (need C order)");
   if (!(h.shape.size() == 1 || (h.shape.size() == 2 && h.shape[1] == 1))) {
-    return invalid_argument(source + ": .npy weights must have shape (n,) or (n, 1), found " +
-                            std::to_string(h.shape.size()) + " axes");
+    return invalid_argument(source + ": .npy " + (kind == WeightKind::kValue ? "values" : "weights") +
+                            " must have shape (n,) or (n, 1), found " + std::to_string(h.shape.size()) + " axes");
   }
   const std::uint64_t n = h.shape[0];
   const auto item = static_cast<std::size_t>(item_bytes);
