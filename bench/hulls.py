@@ -118,6 +118,16 @@ def run_one(tool: str, name: str, repeat: int) -> dict:
             "volume": float(hull.volume)}
 
 
+def both(name: str, repeat: int) -> tuple[dict, dict]:
+    """spokemesh's and scipy's run of one case, each in its own process."""
+    out = {}
+    for tool in ("spokemesh", "scipy"):
+        proc = subprocess.run([sys.executable, __file__, "--repeat", str(repeat), "--child", tool, name],
+                              capture_output=True, text=True, check=True)
+        out[tool] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return out["spokemesh"], out["scipy"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--only", default="")
@@ -133,12 +143,7 @@ def main() -> None:
     for name, (_, unique) in CASES.items():
         if args.only and args.only not in name or args.others_only:
             continue
-        out = {}
-        for tool in ("spokemesh", "scipy"):
-            proc = subprocess.run([sys.executable, __file__, "--repeat", str(args.repeat), "--child", tool, name],
-                                  capture_output=True, text=True, check=True)
-            out[tool] = json.loads(proc.stdout.strip().splitlines()[-1])
-        ours, theirs = out["spokemesh"], out["scipy"]
+        ours, theirs = both(name, args.repeat)
         if unique:
             assert ours["facets"] == theirs["facets"], (name, ours, theirs)
         assert abs(ours["volume"] - theirs["volume"]) <= 1e-9 * abs(theirs["volume"]), (name, ours, theirs)
@@ -151,12 +156,7 @@ def main() -> None:
     for name in OTHER:
         if args.only and args.only not in name:
             continue
-        out = {}
-        for tool in ("spokemesh", "scipy"):
-            proc = subprocess.run([sys.executable, __file__, "--repeat", str(args.repeat), "--child", tool, name],
-                                  capture_output=True, text=True, check=True)
-            out[tool] = json.loads(proc.stdout.strip().splitlines()[-1])
-        ours, theirs = out["spokemesh"], out["scipy"]
+        ours, theirs = both(name, args.repeat)
         assert abs(ours["total"] - theirs["total"]) <= 1e-9 * abs(theirs["total"]), (name, ours, theirs)
         count = f"{ours['count']:,}" if ours["count"] == theirs["count"] else f"{ours['count']:,} ({theirs['count']:,})"
         print(f"| {name} | {ours['seconds']:.3f} | {theirs['seconds']:.3f} | {theirs['seconds'] / ours['seconds']:.1f}x "

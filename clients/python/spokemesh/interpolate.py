@@ -63,6 +63,22 @@ class _Interpolant:
         dtype = np.complex128 if np.iscomplexobj(v) else np.float64
         self.values = np.ascontiguousarray(v.reshape(npoints, -1), dtype=dtype)
 
+    def _triangulate(self, points, rescale: bool, threads: Optional[int]) -> None:
+        """self.points, self.tri (the given Delaunay, or one of the points, rescaled to
+        the unit cube when asked), self.ndim and self.scale."""
+        self.scale = None
+        if isinstance(points, Delaunay):
+            if rescale:
+                raise ValueError("Rescaling is not supported when passing a Delaunay triangulation as ``points``.")
+            self.tri, self.points = points, points.points
+        else:
+            pts = _coords((points,)) if isinstance(points, tuple) else np.asarray(points, dtype=np.float64)
+            if pts.ndim != 2:
+                raise ValueError(f"points: expected an (n, ndim) array, got shape {pts.shape}")
+            self.points = pts
+            self.tri = Delaunay(self._rescale_from(pts) if rescale else pts, threads=threads)
+        self.ndim = self.points.shape[1]
+
     def _rescale_from(self, points: np.ndarray) -> np.ndarray:
         self.offset = points.mean(axis=0)
         scale = np.ptp(points, axis=0)
@@ -102,19 +118,7 @@ class LinearNDInterpolator(_Interpolant):
     """
 
     def __init__(self, points, values, fill_value=np.nan, rescale: bool = False, threads: Optional[int] = None):
-        self.scale = None
-        if isinstance(points, Delaunay):
-            if rescale:
-                raise ValueError("Rescaling is not supported when passing a Delaunay triangulation as ``points``.")
-            self.tri = points
-            self.points = points.points
-        else:
-            pts = _coords((points,)) if isinstance(points, tuple) else np.asarray(points, dtype=np.float64)
-            if pts.ndim != 2:
-                raise ValueError(f"points: expected an (n, ndim) array, got shape {pts.shape}")
-            self.points = pts
-            self.tri = Delaunay(self._rescale_from(pts) if rescale else pts, threads=threads)
-        self.ndim = self.points.shape[1]
+        self._triangulate(points, rescale, threads)
         self._set_values(values, self.points.shape[0])
         self.fill_value = fill_value
         self._rescale = bool(rescale)
@@ -243,18 +247,7 @@ class NaturalNeighborInterpolator(_Interpolant):
     """
 
     def __init__(self, points, values, fill_value=np.nan, rescale: bool = False, threads: Optional[int] = None):
-        self.scale = None
-        if isinstance(points, Delaunay):
-            if rescale:
-                raise ValueError("Rescaling is not supported when passing a Delaunay triangulation as ``points``.")
-            self.tri, self.points = points, points.points
-        else:
-            pts = _coords((points,)) if isinstance(points, tuple) else np.asarray(points, dtype=np.float64)
-            if pts.ndim != 2:
-                raise ValueError(f"points: expected an (n, ndim) array, got shape {pts.shape}")
-            self.points = pts
-            self.tri = Delaunay(self._rescale_from(pts) if rescale else pts, threads=threads)
-        self.ndim = self.points.shape[1]
+        self._triangulate(points, rescale, threads)
         if self.ndim not in (2, 3):
             raise ValueError(f"points: dimension {self.ndim} is not supported (natural neighbours in 2-d and 3-d)")
         self._set_values(values, self.points.shape[0])
