@@ -21,9 +21,11 @@
 namespace spokemesh {
 
 // The exact sign of det[p_1 - p_0, ..., p_d - p_0] for d + 1 points of R^d given by
-// pointers (any coordinates, not only a set's): a filter in double (Gaussian
-// elimination with partial pivoting; its error is below d^3 2^(d-1) u times the product
-// of the rows' norms by Hadamard, under 1e-10 of it for d <= 8), then rationals.
+// pointers (any coordinates, not only a set's): in 2-d and 3-d the determinant written
+// out with BoundedDouble's error bound; otherwise, or where that cannot tell, a filter
+// in double (Gaussian elimination with partial pivoting; its error is below
+// d^3 2^(d-1) u times the product of the rows' norms by Hadamard, under 1e-10 of it for
+// d <= 8), then rationals.
 int orientation_of(const std::array<const double*, kMaxDimension + 1>& p, int d);
 
 // The order of `count` points (d coordinates each, row-major) along a Morton curve over

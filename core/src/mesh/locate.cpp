@@ -8,9 +8,40 @@
 
 #include <gmpxx.h>
 
+#include "spokemesh/predicates.hpp"
+
 namespace spokemesh {
 
+namespace {
+
+// 2-d and 3-d: the determinant written out, with the value, magnitude and rounding
+// depth BoundedDouble's operators would give it (predicates.hpp): differences depth 1,
+// 2 x 2 minors 4, the 3 x 3 sum of products 8; kUnknownSign when it cannot tell.
+int orientation_filtered(const std::array<const double*, kMaxDimension + 1>& p, int d) {
+  const double* a = p[0];
+  if (d == 2) {
+    const double bx = p[1][0] - a[0], by = p[1][1] - a[1], cx = p[2][0] - a[0], cy = p[2][1] - a[1];
+    const double l = bx * cy, r = by * cx;
+    return filter::certified_sign(l - r, std::fabs(l) + std::fabs(r), 4);
+  }
+  const double bx = p[1][0] - a[0], by = p[1][1] - a[1], bz = p[1][2] - a[2];
+  const double cx = p[2][0] - a[0], cy = p[2][1] - a[1], cz = p[2][2] - a[2];
+  const double dx = p[3][0] - a[0], dy = p[3][1] - a[1], dz = p[3][2] - a[2];
+  const double m1 = cy * dz - cz * dy, m2 = cx * dz - cz * dx, m3 = cx * dy - cy * dx;
+  const double value = bx * m1 - by * m2 + bz * m3;
+  const double magnitude = std::fabs(bx) * (std::fabs(cy * dz) + std::fabs(cz * dy)) +
+                           std::fabs(by) * (std::fabs(cx * dz) + std::fabs(cz * dx)) +
+                           std::fabs(bz) * (std::fabs(cx * dy) + std::fabs(cy * dx));
+  return filter::certified_sign(value, magnitude, 8);
+}
+
+}  // namespace
+
 int orientation_of(const std::array<const double*, kMaxDimension + 1>& p, int d) {
+  if (d == 2 || d == 3) {
+    const int s = orientation_filtered(p, d);
+    if (s != filter::kUnknownSign) return s;
+  }
   std::array<double, kMaxDimension * kMaxDimension> m{};
   double hadamard = 1;
   for (int r = 0; r < d; ++r) {
