@@ -281,3 +281,27 @@ def test_halfspace_errors_are_named():
         bad = square.copy()
         bad[2, 1] = np.nan
         spokemesh.HalfspaceIntersection(bad, np.array([0.5, 0.5]))
+
+
+@pytest.mark.parametrize("d,seed", [(2, 41), (3, 42), (4, 43)])
+def test_halfspace_duality_round_trip(d, seed):
+    # A polytope's facets as halfspaces give back its vertices. In 2-d each vertex is the
+    # meeting of exactly two lines: each comes back once. Above, the rounded planes of
+    # the facets around a vertex or an edge do not meet exactly where the facets did: the
+    # exact intersection has more vertices there (Qhull merges them within its
+    # precision). Every one is feasible, and every vertex of the polytope has one within
+    # 1e-9. (Sliver dual facets need their equations from rational cofactors: in 4-d the
+    # double ones put vertices 0.77 outside a halfspace.)
+    points = np.random.default_rng(seed).standard_normal((60, d))
+    hull = spokemesh.ConvexHull(points)
+    centre = points[hull.vertices].mean(axis=0)
+    first = np.unique(hull._hull.groups(points), return_index=True)[1]  # one row per polytope facet
+    halfspaces = hull.equations[first]
+    hs = spokemesh.HalfspaceIntersection(halfspaces, centre)
+    assert (halfspaces[:, :-1] @ hs.intersections.T + halfspaces[:, -1:]).max() < 1e-12
+    vertices = points[hull.vertices]
+    dist = np.linalg.norm(hs.intersections[:, None, :] - vertices[None, :, :], axis=2)
+    assert dist.min(axis=0).max() < 1e-9
+    if d == 2:
+        assert len(hs.intersections) == len(vertices)
+    assert len(hs.dual_vertices) == len(first)  # no facet's halfspace is redundant

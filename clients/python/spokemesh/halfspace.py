@@ -12,7 +12,11 @@ h_i = -(A_i c + b_i) > 0 the interior point c's slack; the polytope's vertices a
 facets of the dual points' hull, and its non-redundant halfspaces that hull's
 vertices. Which dual points form which facet is decided exactly (on the dual points as
 computed in double); facets of the hull that lie in one hyperplane are merged into one
-polytope vertex, as Qhull's non-triangulated output gives them.
+polytope vertex, as Qhull's non-triangulated output gives them. Planes that meet near,
+but not exactly at, one point or line (the rounded facet equations of a polytope whose
+vertices or edges have more facets than the dimension needs) define more vertices
+there, each feasible, and each is returned: Qhull merges them within its precision; an
+exact intersection does not.
 """
 
 from __future__ import annotations

@@ -752,17 +752,45 @@ std::vector<std::int32_t> ConvexHull::facet_neighbors() const {
 std::vector<double> ConvexHull::facet_equations(std::span<const double> coordinates) const {
   std::vector<double> out;
   out.reserve(facets_.size() * static_cast<std::size_t>(d_ + 1));
+  const int d = d_;
   for (const Facet& f : facets_) {
     std::array<double, 3 * kMaxDimension + 1> pl;
-    plane_of(coordinates.data(), d_, f.v.data(), pl.data());
+    plane_of(coordinates.data(), d, f.v.data(), pl.data());
+    // The cofactors to 1e-12 of their norm: the filter's bound says when the double ones
+    // are (a sliver facet's cancel); else they are computed in rationals and rounded.
+    double norm2 = 0, worst = pl[static_cast<std::size_t>(3 * d)] < 0 ? INFINITY : 0.0;
+    for (int k = 0; k < d; ++k) {
+      const double nk = pl[static_cast<std::size_t>(k)];
+      norm2 += nk * nk;
+      const int depth = static_cast<int>(pl[static_cast<std::size_t>(3 * d)]) - 2 - (d - 1);
+      worst = std::max(worst, filter::error_bound(pl[static_cast<std::size_t>(d + k)], std::max(depth, 0)));
+    }
+    if (!(worst <= 1e-12 * std::sqrt(norm2))) {
+      std::vector<mpq_class> rows(static_cast<std::size_t>((d - 1) * d));
+      const double* p0 = coordinates.data() + static_cast<std::size_t>(f.v[0]) * d;
+      for (int r = 0; r + 1 < d; ++r) {
+        const double* p = coordinates.data() + static_cast<std::size_t>(f.v[static_cast<std::size_t>(r + 1)]) * d;
+        for (int c = 0; c < d; ++c) rows[static_cast<std::size_t>(r * d + c)] = mpq_class(p[c]) - mpq_class(p0[c]);
+      }
+      for (int k = 0; k < d; ++k) {
+        std::vector<mpq_class> minor;
+        for (int r = 0; r + 1 < d; ++r) {
+          for (int c = 0; c < d; ++c) {
+            if (c != k) minor.push_back(rows[static_cast<std::size_t>(r * d + c)]);
+          }
+        }
+        const mpq_class det = d == 1 ? mpq_class(1) : exact_determinant(std::move(minor), d - 1);
+        pl[static_cast<std::size_t>(k)] = ((d - 1 + k) % 2 == 0 ? det : mpq_class(-det)).get_d();
+      }
+    }
     double norm = 0;
-    for (int k = 0; k < d_; ++k) norm += pl[static_cast<std::size_t>(k)] * pl[static_cast<std::size_t>(k)];
+    for (int k = 0; k < d; ++k) norm += pl[static_cast<std::size_t>(k)] * pl[static_cast<std::size_t>(k)];
     norm = std::sqrt(norm);
     double offset = 0;
-    for (int k = 0; k < d_; ++k) {
+    for (int k = 0; k < d; ++k) {
       const double u = norm > 0 ? pl[static_cast<std::size_t>(k)] / norm : 0.0;
       out.push_back(u);
-      offset -= u * pl[static_cast<std::size_t>(2 * d_ + k)];
+      offset -= u * pl[static_cast<std::size_t>(2 * d + k)];
     }
     out.push_back(offset);
   }
