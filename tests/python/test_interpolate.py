@@ -130,3 +130,18 @@ def test_natural_outside_on_points_duplicates_and_grids():
     np.testing.assert_allclose(z, 2 * q[:, 0] - q[:, 1], atol=1e-12)
     with pytest.raises(ValueError, match="dimension 4 is not supported"):
         si.NaturalNeighborInterpolator(rng.random((50, 4)), np.zeros(50))
+
+
+def test_natural_vector_complex_values_and_equal_points():
+    rng = np.random.default_rng(14)
+    points = rng.random((300, 2))
+    twice = np.concatenate([points, points[:7]])  # equal points: the first occurrence's value counts
+    values = np.stack([points[:, 0] + 2j * points[:, 1], 3 * points[:, 1]], axis=1)
+    values = np.concatenate([values, values[:7] + 100])  # the duplicates' values are not used
+    f = si.NaturalNeighborInterpolator(twice, values)
+    q = 0.2 + 0.6 * rng.random((50, 2))
+    out = f(q)
+    assert out.shape == (50, 2) and out.dtype == np.complex128
+    np.testing.assert_allclose(out[:, 0], q[:, 0] + 2j * q[:, 1], atol=1e-12)
+    np.testing.assert_allclose(out[:, 1], 3 * q[:, 1], atol=1e-12)
+    assert np.isnan(f(np.array([[3.0, 3.0]]))[0, 1])

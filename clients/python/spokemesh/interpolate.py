@@ -255,15 +255,19 @@ class NaturalNeighborInterpolator(_Interpolant):
 
     def __call__(self, *args) -> np.ndarray:
         flat, shape = self._queries(args)
-        ptr, ids, weights, where = _natural(self.tri, flat)
-        out = np.empty((len(flat), self.values.shape[1]), dtype=self.values.dtype)
-        out[...] = self.fill_value
-        counts = np.diff(ptr)
-        owner = np.repeat(np.arange(len(flat)), counts)
-        sums = np.zeros_like(out)
-        np.add.at(sums, owner, weights[:, None] * self.values[ids])
-        inside = where != 2
-        out[inside] = sums[inside]
+        tri = self.tri
+        if tri.furthest_site or tri.weights is not None:
+            raise ValueError("natural neighbours need the Delaunay triangulation (not furthest-site, not weighted)")
+        # The core applies the coordinates as it finds them (rows of the triangulated
+        # points: equal points were merged into their first occurrence).
+        rows = self.values if tri._first is None else self.values[tri._kept]
+        parts = [rows.real, rows.imag] if np.iscomplexobj(rows) else [rows]
+        fill = complex(self.fill_value) if np.iscomplexobj(rows) else self.fill_value
+        outs = []
+        for part, f in zip(parts, [np.real(fill), np.imag(fill)] if np.iscomplexobj(rows) else [fill]):
+            outs.append(tri._tri.natural_interpolate(np.ascontiguousarray(flat, dtype=np.float64),
+                                                     np.ascontiguousarray(part, dtype=np.float64), float(f)))
+        out = outs[0] + 1j * outs[1] if len(outs) == 2 else outs[0]
         return self._shaped(out, shape)
 
 

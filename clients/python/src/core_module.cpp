@@ -498,6 +498,61 @@ class Triangulation {
   // Each query's natural neighbours and Sibson coordinates (natural_neighbors.hpp),
   // as (ptr, neighbors, weights, where): query i's are [ptr[i], ptr[i + 1]); where[i]
   // is 0 inside, 1 on the hull's boundary, 2 outside.
+  // Sibson interpolation of `values` ((n, k) float64, one row per point) at each query:
+  // (q, k) values, `fill` outside the hull. The same coordinates as natural_neighbors(),
+  // applied as they are found, with no per-query arrays.
+  py::array_t<double> natural_interpolate(const Points& queries, const Points& values, double fill) const {
+    if (queries.ndim() != 2 || queries.shape(1) != d_) {
+      throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
+    }
+    if (d_ != 2 && d_ != 3) {
+      throw py::value_error("natural neighbours: dimension " + std::to_string(d_) +
+                            " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
+    }
+    if (values.ndim() != 2 || static_cast<std::size_t>(values.shape(0)) != points_.size()) {
+      throw py::value_error("values: expected shape (" + std::to_string(points_.size()) + ", k)");
+    }
+    if (!weights_.empty()) throw py::value_error("natural neighbours: not available for weighted points");
+    std::call_once(adjacency_once_, [&] { build_adjacency(); });
+    const auto q = static_cast<std::size_t>(queries.shape(0));
+    const auto k = static_cast<std::size_t>(values.shape(1));
+    for (std::size_t i = 0; i < q * static_cast<std::size_t>(d_); ++i) {
+      if (!std::isfinite(queries.data()[i]))
+        throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
+                              "]: not a finite number");
+    }
+    py::array_t<double> out({static_cast<py::ssize_t>(q), static_cast<py::ssize_t>(k)});
+    double* o = out.mutable_data();
+    const double* data = queries.data();
+    const double* v = values.data();
+    const DelaunayArrays arrays{&points_, simplices_, adjacency_};
+    std::vector<NaturalCoordinates> scratch((q + 255) / 256);
+    std::vector<std::string> errors(scratch.size());
+    {
+      py::gil_scoped_release release;
+      locator_->locate_many(data, q, threads_, [&](std::size_t r, std::size_t i, std::int32_t s) {
+        double* row = o + i * k;
+        std::fill(row, row + k, fill);
+        NaturalCoordinates& nn = scratch[r];
+        const Status st = spokemesh::natural_neighbors(arrays, s, data + i * d_, nn);
+        if (!st.is_ok()) {
+          if (errors[r].empty()) errors[r] = "xi[" + std::to_string(i) + "]: " + st.message();
+          return;
+        }
+        if (nn.where == NaturalCoordinates::Where::kOutside) return;
+        std::fill(row, row + k, 0.0);
+        for (std::size_t j = 0; j < nn.neighbors.size(); ++j) {
+          const double* vj = v + static_cast<std::size_t>(nn.neighbors[j]) * k;
+          for (std::size_t c = 0; c < k; ++c) row[c] += nn.weights[j] * vj[c];
+        }
+      });
+    }
+    for (const std::string& e : errors) {
+      if (!e.empty()) throw std::runtime_error(e);
+    }
+    return out;
+  }
+
   py::tuple natural_neighbors(const Points& queries) const {
     if (queries.ndim() != 2 || queries.shape(1) != d_) {
       throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
@@ -549,22 +604,28 @@ class Triangulation {
       if (!o.error.empty()) throw std::runtime_error(o.error);
     }
     for (std::size_t i = 0; i < q; ++i) ptr[i + 1] += ptr[i];
-    std::vector<std::int32_t> ids(static_cast<std::size_t>(ptr[q]));
-    std::vector<double> weights(static_cast<std::size_t>(ptr[q]));
-    for (std::size_t r = 0; r < runs; ++r) {
-      RunOut& o = outs[r];
-      for (const auto& [i, start] : o.start) {
-        const auto from = static_cast<std::size_t>(start);
-        const auto count = static_cast<std::size_t>(ptr[i + 1] - ptr[i]);
-        std::copy_n(o.ids.begin() + from, count, ids.begin() + ptr[i]);
-        std::copy_n(o.weights.begin() + from, count, weights.begin() + ptr[i]);
-      }
-      std::vector<std::int32_t>().swap(o.ids);
-      std::vector<double>().swap(o.weights);
-    }
+    // The answers in the queries' order, into numpy's own (uninitialized) arrays.
     const auto total = static_cast<py::ssize_t>(ptr[q]);
-    return py::make_tuple(owned(std::move(ptr), {static_cast<py::ssize_t>(q + 1)}), owned(std::move(ids), {total}),
-                          owned(std::move(weights), {total}), owned(std::move(where), {static_cast<py::ssize_t>(q)}));
+    py::array_t<std::int32_t> ids(total);
+    py::array_t<double> weights(total);
+    std::int32_t* ids_out = ids.mutable_data();
+    double* weights_out = weights.mutable_data();
+    {
+      py::gil_scoped_release release;
+      for (std::size_t r = 0; r < runs; ++r) {
+        RunOut& o = outs[r];
+        for (const auto& [i, start] : o.start) {
+          const auto from = static_cast<std::size_t>(start);
+          const auto count = static_cast<std::size_t>(ptr[i + 1] - ptr[i]);
+          std::copy_n(o.ids.begin() + from, count, ids_out + ptr[i]);
+          std::copy_n(o.weights.begin() + from, count, weights_out + ptr[i]);
+        }
+        std::vector<std::int32_t>().swap(o.ids);
+        std::vector<double>().swap(o.weights);
+      }
+    }
+    return py::make_tuple(owned(std::move(ptr), {static_cast<py::ssize_t>(q + 1)}), ids, weights,
+                          owned(std::move(where), {static_cast<py::ssize_t>(q)}));
   }
 
   py::array_t<std::uint32_t> star(std::uint32_t seed) const {
@@ -1149,6 +1210,8 @@ PYBIND11_MODULE(_core, m) {
       .def("furthest_site", &Triangulation::furthest_site)
       .def("find_simplex", &Triangulation::find_simplex, py::arg("xi"))
       .def("natural_neighbors", &Triangulation::natural_neighbors, py::arg("xi"))
+      .def("natural_interpolate", &Triangulation::natural_interpolate, py::arg("xi"), py::arg("values"),
+           py::arg("fill"))
       .def("star", &Triangulation::star, py::arg("seed"))
       .def("neighbors_of", &Triangulation::neighbors_of, py::arg("seed"))
       .def("cell", &Triangulation::cell, py::arg("seed"), py::arg("box") = py::none(),
