@@ -3,8 +3,10 @@
 // inserted, and those volumes' shares (Sibson 1980). Nothing is inserted: the
 // Delaunay simplices whose circumspheres hold the query strictly (the Bowyer-Watson
 // cavity, decided by an exact in-sphere test: a filter with its error bound, then
-// rationals) name the natural neighbours, and the query's Voronoi cell is clipped into
-// the stolen parts in double.
+// rationals) name the natural neighbours, and the query's Voronoi cell is split into
+// the stolen parts in double, relative to the query: in 2-d by Watson's construction
+// (each neighbour's part from the Voronoi vertices before and after, in O(cavity)), in
+// 3-d by clipping the cell by bisectors.
 //
 // Sibson's coordinates are non-negative, sum to 1, and reproduce linear functions:
 // sum w_i p_i = q (to rounding). A point on the circumsphere of a simplex (exactly) is
@@ -44,8 +46,9 @@ struct NaturalCoordinates {
 };
 
 // The natural neighbours of q (d coordinates) and their Sibson coordinates, given the
-// simplex containing q (`simplex`, -1 when q is outside the hull). d is 2 or 3
-// (INVALID_ARGUMENT otherwise: the clipping of the query's cell is written for those).
+// simplex containing q (`simplex`, -1 when q is outside the hull; SimplexLocator finds
+// it). d is 2 or 3 (INVALID_ARGUMENT otherwise: the split of the query's cell is
+// written for those).
 Result<NaturalCoordinates> natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q);
 // The same into `out`, reusing its buffers (a loop over many queries allocates little).
 Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q, NaturalCoordinates& out);
