@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -178,31 +179,8 @@ int run_interpolate(const InterpolateFlags& flags) {
       } else {
         // Barycentric coordinates in the located simplex (double; exact location).
         const std::uint32_t* v = &simplices[static_cast<std::size_t>(s) * (d + 1)];
-        double a[kMaxDimension][kMaxDimension + 1];
-        for (int r = 0; r < d; ++r) {
-          for (int c = 0; c < d; ++c) a[r][c] = points.point(v[c + 1])[r] - points.point(v[0])[r];
-          a[r][d] = x[r] - points.point(v[0])[r];
-        }
-        for (int c = 0; c < d; ++c) {  // Gaussian elimination with partial pivoting
-          int piv = c;
-          for (int r = c + 1; r < d; ++r) {
-            if (std::fabs(a[r][c]) > std::fabs(a[piv][c])) piv = r;
-          }
-          for (int k = 0; k <= d; ++k) std::swap(a[c][k], a[piv][k]);
-          for (int r = c + 1; r < d; ++r) {
-            const double f = a[c][c] != 0 ? a[r][c] / a[c][c] : 0.0;
-            for (int k = c; k <= d; ++k) a[r][k] -= f * a[c][k];
-          }
-        }
-        double lambda[kMaxDimension + 1];
-        double rest = 1;
-        for (int c = d - 1; c >= 0; --c) {
-          double t = a[c][d];
-          for (int k = c + 1; k < d; ++k) t -= a[c][k] * lambda[k + 1];
-          lambda[c + 1] = a[c][c] != 0 ? t / a[c][c] : 0.0;
-          rest -= lambda[c + 1];
-        }
-        lambda[0] = rest;
+        std::array<double, kMaxDimension + 1> lambda;
+        barycentric_coordinates(points, v, x, lambda.data());
         double value = 0;
         for (int k = 0; k <= d; ++k) value += lambda[k] * values[v[k]];
         out[i] = value;

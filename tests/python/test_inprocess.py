@@ -395,7 +395,8 @@ def test_every_public_callable_of_the_package_has_a_docstring():
     included: PeriodicDelaunay's unavailable scipy members say why."""
     import importlib
     missing_doc = []
-    modules = ["spokemesh", "spokemesh.delaunay", "spokemesh.voronoi", "spokemesh.remote", "spokemesh.types"]
+    modules = ["spokemesh", "spokemesh.delaunay", "spokemesh.voronoi", "spokemesh.remote", "spokemesh.types",
+               "spokemesh.hull", "spokemesh.spherical", "spokemesh.halfspace", "spokemesh.interpolate"]
     seen = set()
     for name in modules:
         module = importlib.import_module(name)

@@ -26,7 +26,7 @@ from typing import Optional
 import numpy as np
 
 from . import _core
-from .hull import ConvexHull, QhullError
+from .hull import _IGNORED, ConvexHull, QhullError
 
 __all__ = ["HalfspaceIntersection"]
 
@@ -38,8 +38,7 @@ def _check_options(options) -> None:
     for word in text.split():
         # H (the interior point, given as an argument here) and the options ConvexHull
         # accepts and ignores.
-        if not (word.startswith("H") or word in {"Qt", "QJ", "Qbb", "QbB", "Qz", "Qx", "Q12", "Pp", "Qi", "Qc"}
-                or word.startswith("QJ")):
+        if not (word.startswith("H") or word in _IGNORED or word == "Qc" or word.startswith("QJ")):
             raise ValueError(f"qhull_options: '{word}' is not an option spokemesh's HalfspaceIntersection accepts")
 
 

@@ -49,6 +49,14 @@ def _coords(args, ndim: Optional[int] = None) -> np.ndarray:
     return out
 
 
+def _points_array(points, what: str = "points") -> np.ndarray:
+    """An (n, ndim) float64 array from an array or a tuple of coordinate arrays."""
+    pts = _coords((points,)) if isinstance(points, tuple) else np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2:
+        raise ValueError(f"{what}: expected an (n, ndim) array, got shape {pts.shape}")
+    return pts
+
+
 class _Interpolant:
     """What the interpolators share: the points (rescaled if asked), the values as an
     (n, k) array of their trailing shape, and the query conventions."""
@@ -72,10 +80,7 @@ class _Interpolant:
                 raise ValueError("Rescaling is not supported when passing a Delaunay triangulation as ``points``.")
             self.tri, self.points = points, points.points
         else:
-            pts = _coords((points,)) if isinstance(points, tuple) else np.asarray(points, dtype=np.float64)
-            if pts.ndim != 2:
-                raise ValueError(f"points: expected an (n, ndim) array, got shape {pts.shape}")
-            self.points = pts
+            pts = self.points = _points_array(points)
             self.tri = Delaunay(self._rescale_from(pts) if rescale else pts, threads=threads)
         self.ndim = self.points.shape[1]
 
@@ -181,10 +186,7 @@ class NearestNDInterpolator(_Interpolant):
 
     def __init__(self, x, y, rescale: bool = False, tree_options=None):
         self.scale = None
-        pts = _coords((x,)) if isinstance(x, tuple) else np.asarray(x, dtype=np.float64)
-        if pts.ndim != 2:
-            raise ValueError(f"x: expected an (n, ndim) array, got shape {pts.shape}")
-        self.points = pts
+        pts = self.points = _points_array(x, "x")
         self.ndim = pts.shape[1]
         self._tree = _core.NearestTree(np.ascontiguousarray(self._rescale_from(pts) if rescale else pts))
         self._set_values(y, len(pts))
@@ -197,19 +199,19 @@ class NearestNDInterpolator(_Interpolant):
 def _triangulation(points_or_triangulation, threads=None) -> Delaunay:
     if isinstance(points_or_triangulation, Delaunay):
         return points_or_triangulation
-    pts = (_coords((points_or_triangulation,)) if isinstance(points_or_triangulation, tuple)
-           else np.asarray(points_or_triangulation, dtype=np.float64))
-    if pts.ndim != 2:
-        raise ValueError(f"points: expected an (n, ndim) array, got shape {pts.shape}")
-    return Delaunay(pts, threads=threads)
+    return Delaunay(_points_array(points_or_triangulation), threads=threads)
 
 
-def _natural(tri: Delaunay, flat: np.ndarray):
-    """(ptr, neighbours as input indices, weights, where) for the rows of flat."""
+def _check_natural(tri: Delaunay) -> None:
     if tri.furthest_site or tri.weights is not None:
         raise ValueError("natural neighbours need the Delaunay triangulation (not furthest-site, not weighted)")
     if tri.ndim not in (2, 3):
         raise ValueError(f"natural neighbours: dimension {tri.ndim} is not supported (2-d and 3-d)")
+
+
+def _natural(tri: Delaunay, flat: np.ndarray):
+    """(ptr, neighbours as input indices, weights, where) for the rows of flat."""
+    _check_natural(tri)
     ptr, ids, weights, where = tri._tri.natural_neighbors(np.ascontiguousarray(flat, dtype=np.float64))
     if tri._first is not None:
         ids = tri._kept[ids]
@@ -240,7 +242,7 @@ class NaturalNeighborInterpolator(_Interpolant):
     for linear functions): points ((n, ndim), ndim 2 or 3, a tuple of coordinate arrays,
     or a spokemesh.Delaunay), values ((n, ...), real or complex), fill_value outside the
     hull (default NaN), rescale as LinearNDInterpolator's. Called like
-    LinearNDInterpolator. Beyond 3-d: ValueError (the clipping of a query's cell is
+    LinearNDInterpolator. Beyond 3-d: ValueError (the split of a query's cell is
     written for 2-d and 3-d; use LinearNDInterpolator).
 
     Thread safety: immutable after construction; calls may run concurrently.
@@ -256,18 +258,19 @@ class NaturalNeighborInterpolator(_Interpolant):
     def __call__(self, *args) -> np.ndarray:
         flat, shape = self._queries(args)
         tri = self.tri
-        if tri.furthest_site or tri.weights is not None:
-            raise ValueError("natural neighbours need the Delaunay triangulation (not furthest-site, not weighted)")
+        _check_natural(tri)
         # The core applies the coordinates as it finds them (rows of the triangulated
         # points: equal points were merged into their first occurrence).
         rows = self.values if tri._first is None else self.values[tri._kept]
-        parts = [rows.real, rows.imag] if np.iscomplexobj(rows) else [rows]
-        fill = complex(self.fill_value) if np.iscomplexobj(rows) else self.fill_value
-        outs = []
-        for part, f in zip(parts, [np.real(fill), np.imag(fill)] if np.iscomplexobj(rows) else [fill]):
-            outs.append(tri._tri.natural_interpolate(np.ascontiguousarray(flat, dtype=np.float64),
-                                                     np.ascontiguousarray(part, dtype=np.float64), float(f)))
-        out = outs[0] + 1j * outs[1] if len(outs) == 2 else outs[0]
+        if np.iscomplexobj(rows):  # the real and imaginary parts in turn
+            fill = complex(self.fill_value)
+            parts = [(rows.real, fill.real), (rows.imag, fill.imag)]
+        else:
+            parts = [(rows, self.fill_value)]
+        q = np.ascontiguousarray(flat, dtype=np.float64)
+        outs = [tri._tri.natural_interpolate(q, np.ascontiguousarray(part, dtype=np.float64), float(f))
+                for part, f in parts]
+        out = outs[0] if len(outs) == 1 else outs[0] + 1j * outs[1]
         return self._shaped(out, shape)
 
 

@@ -498,10 +498,10 @@ class Triangulation {
   // Each query's natural neighbours and Sibson coordinates (natural_neighbors.hpp),
   // as (ptr, neighbors, weights, where): query i's are [ptr[i], ptr[i + 1]); where[i]
   // is 0 inside, 1 on the hull's boundary, 2 outside.
-  // Sibson interpolation of `values` ((n, k) float64, one row per point) at each query:
-  // (q, k) values, `fill` outside the hull. The same coordinates as natural_neighbors(),
-  // applied as they are found, with no per-query arrays.
-  py::array_t<double> natural_interpolate(const Points& queries, const Points& values, double fill) const {
+  // The checks natural_neighbors() and natural_interpolate() share (the queries' shape
+  // and values, the set's dimension and weights), and the adjacency they walk; returns
+  // the number of queries.
+  std::size_t natural_queries(const Points& queries) const {
     if (queries.ndim() != 2 || queries.shape(1) != d_) {
       throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
     }
@@ -509,18 +509,26 @@ class Triangulation {
       throw py::value_error("natural neighbours: dimension " + std::to_string(d_) +
                             " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
     }
-    if (values.ndim() != 2 || static_cast<std::size_t>(values.shape(0)) != points_.size()) {
-      throw py::value_error("values: expected shape (" + std::to_string(points_.size()) + ", k)");
-    }
     if (!weights_.empty()) throw py::value_error("natural neighbours: not available for weighted points");
     std::call_once(adjacency_once_, [&] { build_adjacency(); });
     const auto q = static_cast<std::size_t>(queries.shape(0));
-    const auto k = static_cast<std::size_t>(values.shape(1));
     for (std::size_t i = 0; i < q * static_cast<std::size_t>(d_); ++i) {
       if (!std::isfinite(queries.data()[i]))
         throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
                               "]: not a finite number");
     }
+    return q;
+  }
+
+  // Sibson interpolation of `values` ((n, k) float64, one row per point) at each query:
+  // (q, k) values, `fill` outside the hull. The same coordinates as natural_neighbors(),
+  // applied as they are found, with no per-query arrays.
+  py::array_t<double> natural_interpolate(const Points& queries, const Points& values, double fill) const {
+    if (values.ndim() != 2 || static_cast<std::size_t>(values.shape(0)) != points_.size()) {
+      throw py::value_error("values: expected shape (" + std::to_string(points_.size()) + ", k)");
+    }
+    const std::size_t q = natural_queries(queries);
+    const auto k = static_cast<std::size_t>(values.shape(1));
     py::array_t<double> out({static_cast<py::ssize_t>(q), static_cast<py::ssize_t>(k)});
     double* o = out.mutable_data();
     const double* data = queries.data();
@@ -554,21 +562,7 @@ class Triangulation {
   }
 
   py::tuple natural_neighbors(const Points& queries) const {
-    if (queries.ndim() != 2 || queries.shape(1) != d_) {
-      throw py::value_error("xi: expected shape (q, " + std::to_string(d_) + ")");
-    }
-    if (d_ != 2 && d_ != 3) {
-      throw py::value_error("natural neighbours: dimension " + std::to_string(d_) +
-                            " is not supported (Sibson's coordinates are computed in 2-d and 3-d)");
-    }
-    if (!weights_.empty()) throw py::value_error("natural neighbours: not available for weighted points");
-    std::call_once(adjacency_once_, [&] { build_adjacency(); });
-    const auto q = static_cast<std::size_t>(queries.shape(0));
-    for (std::size_t i = 0; i < q * static_cast<std::size_t>(d_); ++i) {
-      if (!std::isfinite(queries.data()[i]))
-        throw py::value_error("xi[" + std::to_string(i / d_) + "][" + std::to_string(i % d_) +
-                              "]: not a finite number");
-    }
+    const std::size_t q = natural_queries(queries);
     // The queries in Morton order, each located from the one before (locate.hpp); each
     // run of them writes its own flat buffers, joined in the queries' order below.
     const double* data = queries.data();

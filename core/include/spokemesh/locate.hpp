@@ -28,6 +28,11 @@ namespace spokemesh {
 // d <= 8), then rationals.
 int orientation_of(const std::array<const double*, kMaxDimension + 1>& p, int d);
 
+// The barycentric coordinates of q (d coordinates) in the simplex s (d + 1 point ids of
+// `points`), in double: out[0..d], summing to 1 (Gaussian elimination with partial
+// pivoting on the differences from s[0]; a zero pivot gives a zero coordinate).
+void barycentric_coordinates(const PointSet& points, const std::uint32_t* s, const double* q, double* out);
+
 // The order of `count` points (d coordinates each, row-major) along a Morton curve over
 // their box: points close in it are close in space.
 std::vector<std::uint32_t> morton_order(const double* x, std::size_t count, int d);

@@ -8,35 +8,13 @@
 
 #include <gmpxx.h>
 
+#include "spokemesh/locate.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
 namespace {
 
 using Vec = std::array<double, 3>;
-
-// The exact sign of det[f_1 - f_0, ..., f_(d-1) - f_0, q - f_0] for the d points f
-// (ids) of a facet and an arbitrary point q: the filter (BoundedDouble rows and
-// minors, predicates.hpp), then rationals.
-int facet_side(const PointSet& points, const std::uint32_t* f, const double* q) {
-  const int d = points.dimension();
-  std::array<BoundedDouble, kMaxDimension * kMaxDimension> m{};
-  std::array<BoundedDouble, 1u << kMaxDimension> table;
-  const double* f0 = points.point(f[0]);
-  for (int r = 0; r < d; ++r) {
-    const double* p = r + 1 < d ? points.point(f[r + 1]) : q;
-    for (int k = 0; k < d; ++k) m[static_cast<std::size_t>(r * d + k)] = BoundedDouble::difference(p[k], f0[k]);
-  }
-  minors_table(m.data(), d, d, table.data());
-  const int s = table[(1u << d) - 1u].certified_sign();
-  if (s != BoundedDouble::kUnknownSign) return s;
-  std::vector<mpq_class> e(static_cast<std::size_t>(d * d));
-  for (int r = 0; r < d; ++r) {
-    const double* p = r + 1 < d ? points.point(f[r + 1]) : q;
-    for (int k = 0; k < d; ++k) e[static_cast<std::size_t>(r * d + k)] = mpq_class(p[k]) - mpq_class(f0[k]);
-  }
-  return sgn(exact_determinant(std::move(e), d));
-}
 
 // A convex polygon (2-d) or polyhedron (3-d, as its faces' vertex loops) clipped by
 // halfspaces a . x <= a . m, in double; its measure. The clipped pieces are a query's
@@ -195,51 +173,6 @@ bool circumcentre_with(const PointSet& points, const std::uint32_t* f, const dou
   for (int k = 0; k < 3; ++k) out[static_cast<std::size_t>(k)] = k < d ? q[k] + y[k] : 0.0;
   return std::isfinite(out[0]) && std::isfinite(out[1]) && std::isfinite(out[2]);
 }
-
-// Barycentric coordinates of q in a simplex (d + 1 ids), in double.
-std::vector<double> barycentric(const PointSet& points, const std::uint32_t* s, const double* q) {
-  const int d = points.dimension();
-  const double* p0 = points.point(s[0]);
-  double a[3][3] = {}, r[3] = {};
-  for (int k = 0; k < d; ++k) {
-    for (int j = 0; j < d; ++j) a[k][j] = points.point(s[j + 1])[k] - p0[k];
-    r[k] = q[k] - p0[k];
-  }
-  // Gaussian elimination with partial pivoting (d <= 3).
-  int perm[3] = {0, 1, 2};
-  double x[3] = {};
-  for (int c = 0; c < d; ++c) {
-    int piv = c;
-    for (int i = c + 1; i < d; ++i) {
-      if (std::fabs(a[i][c]) > std::fabs(a[piv][c])) piv = i;
-    }
-    std::swap(a[c], a[piv]);
-    std::swap(r[c], r[piv]);
-    std::swap(perm[c], perm[piv]);
-    for (int i = c + 1; i < d; ++i) {
-      const double f = a[c][c] != 0 ? a[i][c] / a[c][c] : 0.0;
-      for (int j = c; j < d; ++j) a[i][j] -= f * a[c][j];
-      r[i] -= f * r[c];
-    }
-  }
-  for (int c = d - 1; c >= 0; --c) {
-    double s2 = r[c];
-    for (int j = c + 1; j < d; ++j) s2 -= a[c][j] * x[j];
-    x[c] = a[c][c] != 0 ? s2 / a[c][c] : 0.0;
-  }
-  std::vector<double> w(static_cast<std::size_t>(d + 1));
-  double rest = 1;
-  for (int j = 0; j < d; ++j) {
-    w[static_cast<std::size_t>(j + 1)] = x[j];
-    rest -= x[j];
-  }
-  w[0] = rest;
-  return w;
-}
-
-}  // namespace
-
-namespace {
 
 // The filtered lifted determinant for W = d + 1 rows (sizes known at compile time, so
 // no scratch is zeroed beyond them): kUnknownSign when the filter cannot tell.
@@ -453,9 +386,13 @@ Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const 
     for (int j = 0, at = 0; j < w; ++j) {
       if (j != k) facet[static_cast<std::size_t>(at++)] = start[j];
     }
-    if (facet_side(points, facet.data(), q) == 0) {
+    std::array<const double*, kMaxDimension + 1> corners{};
+    for (int j = 0; j < d; ++j) corners[static_cast<std::size_t>(j)] = points.point(facet[static_cast<std::size_t>(j)]);
+    corners[static_cast<std::size_t>(d)] = q;
+    if (orientation_of(corners, d) == 0) {
       out.where = NaturalCoordinates::Where::kOnHull;
-      const std::vector<double> bary = barycentric(points, start, q);
+      std::array<double, kMaxDimension + 1> bary;
+      barycentric_coordinates(points, start, q, bary.data());
       for (int j = 0; j < w; ++j) {
         if (bary[static_cast<std::size_t>(j)] != 0) {
           out.neighbors.push_back(start[j]);

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
-#include <deque>
 #include <limits>
 #include <string>
 #include <thread>
@@ -11,6 +10,7 @@
 
 #include <gmpxx.h>
 
+#include "spokemesh/locate.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
@@ -18,16 +18,13 @@ namespace {
 
 constexpr std::uint32_t kNone = 0xFFFFFFFFu;
 
-// The sign of det[v1 - v0, ..., v(d-1) - v0, x - v0] in rationals (the filter's
-// fallback): exact, 0 when x lies on the hyperplane.
+// The exact sign of det[v1 - v0, ..., v(d-1) - v0, x - v0] (the filter's fallback),
+// 0 when x lies on the hyperplane: orientation_of (locate.hpp) of v and x.
 int exact_side(const double* c, int d, const std::uint32_t* v, std::size_t x) {
-  std::vector<mpq_class> m(static_cast<std::size_t>(d * d));
-  const double* p0 = c + static_cast<std::size_t>(v[0]) * d;
-  for (int r = 0; r < d; ++r) {
-    const double* p = c + (r + 1 < d ? static_cast<std::size_t>(v[r + 1]) : x) * d;
-    for (int k = 0; k < d; ++k) m[static_cast<std::size_t>(r * d + k)] = mpq_class(p[k]) - mpq_class(p0[k]);
-  }
-  return sgn(exact_determinant(std::move(m), d));
+  std::array<const double*, kMaxDimension + 1> p{};
+  for (int r = 0; r < d; ++r) p[static_cast<std::size_t>(r)] = c + static_cast<std::size_t>(v[r]) * d;
+  p[static_cast<std::size_t>(d)] = c + x * static_cast<std::size_t>(d);
+  return orientation_of(p, d);
 }
 
 // A facet's hyperplane for the filter, stored flat in 3d + 1 doubles: the cofactors n
@@ -96,6 +93,13 @@ int filtered_side(const double* pl, const double* x, int d, double& value) {
   return filter::certified_sign(v, a, static_cast<int>(pl[3 * d]));
 }
 
+// The exact side of point x of c against the facet v with plane pl: the filter, then
+// exact_side where it cannot tell; `value` is the filter's n . (x - v0).
+int side_of(const double* pl, const double* c, int d, const std::uint32_t* v, std::size_t x, double& value) {
+  const int s = filtered_side(pl, c + x * static_cast<std::size_t>(d), d, value);
+  return s != BoundedDouble::kUnknownSign ? s : exact_side(c, d, v, x);
+}
+
 // Facets' planes, flat (plane_of's layout), indexed like the facets.
 class PlaneStore {
  public:
@@ -117,14 +121,8 @@ class PlaneStore {
   std::vector<double> data_;
 };
 
-bool lex_greater(const double* a, const double* b, int d) {
-  for (int k = 0; k < d; ++k) {
-    if (a[k] != b[k]) return a[k] > b[k];
-  }
-  return false;
-}
-
-std::string count_text(std::size_t n) { return std::to_string(n); }
+// a after b in lexicographic order (point_set.hpp's lex_less, turned round).
+bool lex_greater(const double* a, const double* b, int d) { return lex_less(b, a, d); }
 
 }  // namespace
 
@@ -164,10 +162,13 @@ class ConvexHull::Builder {
   // The live facets, renumbered in creation order.
   std::vector<Facet> compacted() const;
 
-  int side(std::uint32_t f, std::size_t x) {
+  // The exact side of x against facet f, and its measure n . (x - v0) in double.
+  int side(std::uint32_t f, std::size_t x, double& value) const {
+    return side_of(planes_[f], c_, d_, facets[f].v.data(), x, value);
+  }
+  int side(std::uint32_t f, std::size_t x) const {
     double value;
-    const int s = filtered_side(planes_[f], point(x), d_, value);
-    return s != BoundedDouble::kUnknownSign ? s : exact_side(c_, d_, facets[f].v.data(), x);
+    return side(f, x, value);
   }
   void add_planes_up_to_date() {
     for (std::size_t f = planes_.size(); f < facets.size(); ++f) planes_.push(c_, facets[f].v.data());
@@ -229,9 +230,7 @@ class ConvexHull::Builder {
 bool ConvexHull::Builder::assign(std::size_t x, std::size_t first, std::size_t end) {
   for (std::size_t f = first; f < end; ++f) {
     double value;
-    int s = filtered_side(planes_[f], point(x), d_, value);
-    if (s == BoundedDouble::kUnknownSign) s = exact_side(c_, d_, facets[f].v.data(), x);
-    if (s <= 0) continue;
+    if (side(static_cast<std::uint32_t>(f), x, value) <= 0) continue;
     outside_[f].push_back(static_cast<std::uint32_t>(x));
     if (further(x, value, static_cast<std::uint32_t>(f))) {
       furthest_[f] = static_cast<std::uint32_t>(x);
@@ -328,9 +327,10 @@ Status ConvexHull::Builder::initial_simplex() {
       chosen.push_back(static_cast<std::uint32_t>(i));
     }
     if (static_cast<int>(chosen.size()) < d + 1) {
-      return invalid_argument("points: all " + count_text(n_ - (options_.exclude >= 0 ? 1 : 0)) + " points lie in a " +
-                              std::to_string(chosen.size() - 1) + "-dimensional affine subspace of R^" +
-                              std::to_string(d) + ": the hull is flat (Qhull's QH6154 initial simplex is flat)");
+      return invalid_argument("points: all " + std::to_string(n_ - (options_.exclude >= 0 ? 1 : 0)) +
+                              " points lie in a " + std::to_string(chosen.size() - 1) +
+                              "-dimensional affine subspace of R^" + std::to_string(d) +
+                              ": the hull is flat (Qhull's QH6154 initial simplex is flat)");
     }
   }
   // Facet i: the simplex without chosen[i], ordered so that chosen[i] is beneath it.
@@ -359,10 +359,9 @@ Status ConvexHull::Builder::initial_simplex() {
 bool ConvexHull::Builder::inner_box(Box& box) const {
   const int d = d_;
   if (d > kMaxBoxDimension || n_ < kBoxAtLeast) return false;
-  // The points extreme in the 2^d diagonal and 2d axis directions (at a tie the
-  // lexicographically larger), and their hull.
-  // Directions: every vector of -1, 0, 1 but 0 (3^d - 1 of them: axes, diagonals of
-  // faces and of the cube).
+  // The points extreme (at a tie the lexicographically larger) in every direction of
+  // -1, 0, 1 coordinates but 0 (3^d - 1 of them: axes, diagonals of faces and of the
+  // cube), and their hull.
   int count = 1;
   for (int k = 0; k < d; ++k) count *= 3;
   std::vector<std::array<signed char, kMaxDimension>> directions;
@@ -489,9 +488,7 @@ void ConvexHull::Builder::distribute(const std::vector<std::uint32_t>& xs, std::
       const std::uint32_t x = xs[i];
       for (std::size_t f = first; f < end; ++f) {
         double value;
-        int s = filtered_side(planes_[f], point(x), d_, value);
-        if (s == BoundedDouble::kUnknownSign) s = exact_side(c_, d_, facets[f].v.data(), x);
-        if (s <= 0) continue;
+        if (side(static_cast<std::uint32_t>(f), x, value) <= 0) continue;
         const std::size_t at = f - first;
         part.outside[at].push_back(x);
         if (part.furthest[at] == kNone || better(x, value, part.furthest[at], part.value[at])) {
@@ -759,11 +756,11 @@ std::vector<double> ConvexHull::facet_equations(std::span<const double> coordina
     // The cofactors to 1e-12 of their norm: the filter's bound says when the double ones
     // are (a sliver facet's cancel); else they are computed in rationals and rounded.
     double norm2 = 0, worst = pl[static_cast<std::size_t>(3 * d)] < 0 ? INFINITY : 0.0;
+    const int depth = std::max(0, static_cast<int>(pl[static_cast<std::size_t>(3 * d)]) - 2 - (d - 1));  // a cofactor's
     for (int k = 0; k < d; ++k) {
       const double nk = pl[static_cast<std::size_t>(k)];
       norm2 += nk * nk;
-      const int depth = static_cast<int>(pl[static_cast<std::size_t>(3 * d)]) - 2 - (d - 1);
-      worst = std::max(worst, filter::error_bound(pl[static_cast<std::size_t>(d + k)], std::max(depth, 0)));
+      worst = std::max(worst, filter::error_bound(pl[static_cast<std::size_t>(d + k)], depth));
     }
     if (!(worst <= 1e-12 * std::sqrt(norm2))) {
       std::vector<mpq_class> rows(static_cast<std::size_t>((d - 1) * d));
@@ -801,8 +798,7 @@ int ConvexHull::side(std::span<const double> coordinates, std::size_t f, std::si
   std::array<double, 3 * kMaxDimension + 1> pl;
   plane_of(coordinates.data(), d_, facets_[f].v.data(), pl.data());
   double value;
-  const int s = filtered_side(pl.data(), coordinates.data() + x * static_cast<std::size_t>(d_), d_, value);
-  return s != BoundedDouble::kUnknownSign ? s : exact_side(coordinates.data(), d_, facets_[f].v.data(), x);
+  return side_of(pl.data(), coordinates.data(), d_, facets_[f].v.data(), x, value);
 }
 
 std::vector<std::uint32_t> ConvexHull::vertices() const {
@@ -831,9 +827,7 @@ std::vector<std::array<std::uint32_t, 3>> ConvexHull::coplanar(std::span<const d
     double best = std::numeric_limits<double>::infinity();
     for (std::size_t f = 0; f < facets_.size(); ++f) {
       double value;
-      int s = filtered_side(planes[f], px, d_, value);
-      if (s == BoundedDouble::kUnknownSign) s = exact_side(coordinates.data(), d_, facets_[f].v.data(), x);
-      if (s != 0) continue;
+      if (side_of(planes[f], coordinates.data(), d_, facets_[f].v.data(), x, value) != 0) continue;
       for (std::size_t k = 0; k < d; ++k) {
         const double* pv = coordinates.data() + static_cast<std::size_t>(facets_[f].v[k]) * d;
         double dist = 0;

@@ -93,6 +93,35 @@ int orientation_of(const std::array<const double*, kMaxDimension + 1>& p, int d)
   return sign;
 }
 
+void barycentric_coordinates(const PointSet& points, const std::uint32_t* s, const double* q, double* out) {
+  const int d = points.dimension();
+  const double* p0 = points.point(s[0]);
+  std::array<std::array<double, kMaxDimension + 1>, kMaxDimension> a{};  // [A | q - p0]
+  for (int r = 0; r < d; ++r) {
+    for (int c = 0; c < d; ++c) a[r][c] = points.point(s[c + 1])[r] - p0[r];
+    a[r][d] = q[r] - p0[r];
+  }
+  for (int c = 0; c < d; ++c) {
+    int pivot = c;
+    for (int r = c + 1; r < d; ++r) {
+      if (std::fabs(a[r][c]) > std::fabs(a[pivot][c])) pivot = r;
+    }
+    std::swap(a[c], a[pivot]);
+    for (int r = c + 1; r < d; ++r) {
+      const double f = a[c][c] != 0 ? a[r][c] / a[c][c] : 0.0;
+      for (int k = c; k <= d; ++k) a[r][k] -= f * a[c][k];
+    }
+  }
+  double rest = 1;
+  for (int c = d - 1; c >= 0; --c) {
+    double t = a[c][d];
+    for (int k = c + 1; k < d; ++k) t -= a[c][k] * out[k + 1];
+    out[c + 1] = a[c][c] != 0 ? t / a[c][c] : 0.0;
+    rest -= out[c + 1];
+  }
+  out[0] = rest;
+}
+
 std::vector<std::uint32_t> morton_order(const double* x, std::size_t count, int d) {
   std::vector<std::uint32_t> order(count);
   for (std::size_t i = 0; i < count; ++i) order[i] = static_cast<std::uint32_t>(i);
