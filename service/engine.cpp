@@ -1392,6 +1392,161 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
                                 encoded(answer, encode), emit);
 }
 
+Result<std::shared_ptr<const DelaunayIndex>> Engine::located_index(const StoredSet& set, const CallControl& control) {
+  std::lock_guard lock(set.located_mu);
+  if (set.located) return set.located;
+  MeshOptions options;
+  options.threads = std::max(1u, limits_.stream_threads);
+  options.split = set.split.get();
+  options.star.cancel = control.stop_flag();
+  // The kept triangulation's rows when there is one; a run that builds the
+  // triangulation of every point (balls across the set) hands it over to be kept.
+  share_whole_triangulation(set, options);
+  MemoryBudget::Charge regions = store_->budget().empty_charge();
+  options.reserve_bytes = [&regions, cap = limits_.stream_cache_bytes](std::size_t bytes) {
+    return regions.bytes() + bytes <= cap && regions.grow(bytes);
+  };
+  MemoryBudget::Charge charge = store_->budget().empty_charge();
+  std::size_t asked = 0;
+  auto built = DelaunayIndex::build(*set.tree, options, [&](std::size_t bytes) {
+    asked += bytes;
+    return charge.grow(bytes);
+  });
+  if (!built.is_ok()) {
+    if (built.status().code() == Code::kCancelled) return control.stopped_status("the point set's triangulation");
+    if (built.status().code() == Code::kResourceExhausted) {
+      return store_->budget().over_budget("the triangulation of point set " + set.info.id + " as arrays", asked);
+    }
+    return built.status();
+  }
+  set.located = std::move(built).value();
+  set.located_charge = std::move(charge);
+  return set.located;
+}
+
+namespace {
+
+const char* point_method_name(PointMethod m) {
+  switch (m) {
+    case PointMethod::kLocate:
+      return "locate";
+    case PointMethod::kLinear:
+      return "linear";
+    case PointMethod::kNatural:
+      return "natural";
+    case PointMethod::kNearest:
+      return "nearest";
+  }
+  return "?";
+}
+
+}  // namespace
+
+Status Engine::points(const std::string& id, std::span<const double> queries, const PointQuery& query,
+                      const CallControl& control, const PointSink& emit, const PointEncoder& encode) {
+  if (queries.empty()) return invalid_argument("queries: none given");
+  auto set_or = store_->get(id);
+  if (!set_or.is_ok()) return set_or.status();
+  const std::shared_ptr<const StoredSet> held = set_or.value();
+  const StoredSet& set = *held;
+  const int d = set.info.dimension;
+  const auto dd = static_cast<std::size_t>(d);
+  if (queries.size() % dd != 0) {
+    return invalid_argument("queries: " + std::to_string(queries.size()) + " numbers are not whole " +
+                            std::to_string(d) + "-d points");
+  }
+  const std::size_t m = queries.size() / dd;
+  if (m > defaults::kMaxBatchSeeds) {
+    return invalid_argument("queries: " + std::to_string(m) + " points exceed the limit of " +
+                            std::to_string(defaults::kMaxBatchSeeds) + " per call");
+  }
+  for (std::size_t i = 0; i < queries.size(); ++i) {
+    if (!std::isfinite(queries[i])) {
+      return invalid_argument("queries[" + std::to_string(i / dd) + "][" + std::to_string(i % dd) +
+                              "]: not a finite number");
+    }
+  }
+  if (set.box) {
+    return failed_precondition("point set " + id + " is periodic: answers at other points are not computed on a "
+                                                   "torus yet");
+  }
+  if (!set.weights.empty()) {
+    return failed_precondition("point set " + id + " is weighted: answers at other points are computed from the "
+                                                   "Delaunay triangulation of unweighted sets only");
+  }
+  if (Status s = exact_allowed(set, "answers at other points"); !s.is_ok()) return s;
+  if (query.method == PointMethod::kNatural && d != 2 && d != 3) {
+    return invalid_argument("method: natural-neighbour interpolation is computed in 2-d and 3-d, and point set " +
+                            id + " is " + std::to_string(d) + "-d (linear and nearest work in any dimension)");
+  }
+  const bool interpolating = query.method != PointMethod::kLocate;
+  if (interpolating) {
+    const std::uint64_t n = set.info.count;
+    if (query.width == 0 || query.values.size() != n * query.width) {
+      return invalid_argument("values: expected " + std::to_string(n) + " rows (one per point of the set) of " +
+                              (query.width == 0 ? std::string("at least one value")
+                                                : std::to_string(query.width) + " values") +
+                              ", got " + std::to_string(query.values.size()) + " numbers");
+    }
+    for (std::size_t i = 0; i < query.values.size(); ++i) {
+      if (!std::isfinite(query.values[i])) {
+        return invalid_argument("values[" + std::to_string(i / query.width) + "][" +
+                                std::to_string(i % query.width) + "]: not a finite number");
+      }
+    }
+  }
+  const bool natural = query.method == PointMethod::kNatural ||
+                       (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("point queries", kStreamWindowBytes);
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  // The simplex of every query first (Morton order, each walked from the one before),
+  // then the answers in rounds, in request order.
+  std::shared_ptr<const DelaunayIndex> index;
+  std::vector<std::int32_t> located;
+  if (query.method != PointMethod::kNearest) {
+    auto made = located_index(set, control);
+    if (!made.is_ok()) return made.status();
+    index = std::move(made).value();
+    located.assign(m, -1);
+    index->locator().locate_many(queries.data(), m, threads,
+                                 [&](std::size_t, std::size_t i, std::int32_t s) { located[i] = s; });
+  }
+  const std::string what = std::string("point queries (") + point_method_name(query.method) + ")";
+  auto answer = [&](unsigned, std::size_t i, PointResult& r) -> Status {
+    if (control.stopped()) return cancelled(what);
+    r.index = i;
+    const double* q = queries.data() + i * dd;
+    const std::size_t width = query.width;
+    if (query.method == PointMethod::kNearest) {
+      const std::uint32_t p = nearest_point(*set.tree, q);
+      r.nearest = p;
+      r.has_values = true;
+      r.values.assign(query.values.begin() + static_cast<std::ptrdiff_t>(p * width),
+                      query.values.begin() + static_cast<std::ptrdiff_t>((p + 1) * width));
+    } else {
+      const DelaunayArrays arrays = index->arrays();
+      if (Status s = answer_point(arrays, located[i], q, natural, r.answer); !s.is_ok()) {
+        return Status{s.code(), "queries[" + std::to_string(i) + "]: " + s.message()};
+      }
+      if (interpolating) {
+        r.values.resize(width);
+        r.has_values = query.method == PointMethod::kLinear
+                           ? interpolate_linear(r.answer, query.values, width, r.values.data())
+                           : interpolate_natural(r.answer, query.values, width, r.values.data());
+        if (!r.has_values && query.fill) {
+          std::fill(r.values.begin(), r.values.end(), *query.fill);
+          r.has_values = true;
+        }
+        if (!r.has_values) r.values.clear();
+      }
+    }
+    if (encode) encode(r);
+    return Status::ok();
+  };
+  return in_rounds<PointResult>(m, threads, 512 * threads, control, what, answer, emit);
+}
+
 Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                                  BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,
                                  const CallControl& control, const AnswerSink& emit, const AnswerEncoder& encode) {

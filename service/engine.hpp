@@ -29,6 +29,7 @@
 #include "spokemesh/domain.hpp"
 #include "spokemesh/periodic.hpp"
 #include "spokemesh/periodic_cells.hpp"
+#include "spokemesh/point_queries.hpp"
 #include "spokemesh/shape_domain.hpp"
 #include "spokemesh/star.hpp"
 #include "spokemesh/voronoi.hpp"
@@ -193,6 +194,35 @@ struct BatchAnswer {
   std::string encoded;
 };
 
+// Point queries (:locate, :interpolate): answers at points that need not be in the set.
+enum class PointMethod {
+  kLocate,   // the canonical simplex holding the point, barycentric coordinates, natural neighbours
+  kLinear,   // values interpolated by the barycentric coordinates
+  kNatural,  // values interpolated by Sibson's coordinates (2-d and 3-d)
+  kNearest,  // the nearest point's values
+};
+
+struct PointQuery {
+  PointMethod method = PointMethod::kLocate;
+  // kLocate: natural neighbours too (2-d and 3-d sets; ignored above).
+  bool natural = true;
+  // Interpolation: `width` values per point of the set, row-major (count * width), and
+  // what a point outside the hull gets (none: no values).
+  std::span<const double> values;
+  std::size_t width = 0;
+  std::optional<double> fill;
+};
+
+// One query point's answer, in the request's order.
+struct PointResult {
+  std::uint64_t index = 0;  // the query's position in the request
+  PointAnswer answer;       // kLocate; kLinear and kNatural read theirs from it
+  bool has_values = false;  // interpolation: false outside the hull without a fill
+  std::vector<double> values;
+  std::int64_t nearest = -1;  // kNearest: the point whose values these are
+  std::string encoded;        // the transport's encoding (Engine::points' encoder)
+};
+
 // Two meanings, two words (docs/service.md, "Words"): a *shard* is a deployment's
 // (replicas serving some of the pieces of every set kept as pieces: ShardSettings); a
 // *part* is one of the n pieces of work a whole-mesh or cell stream is cut into by the
@@ -351,6 +381,18 @@ class Engine {
   Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                const NeighborQuery& query, const DomainSpec& domain, const CallControl& control, const AnswerSink& emit,
                const AnswerEncoder& encode = {});
+  // Answers at query points (`queries`: d coordinates each, row-major), handed to `emit`
+  // in request order a bounded round at a time (encode as batch()'s). The set's
+  // triangulation as arrays is made on the first call and kept (StoredSet::located).
+  // Errors, each naming the field: INVALID_ARGUMENT for no queries, more than
+  // defaults::kMaxBatchSeeds, coordinates that are not whole points or not finite
+  // ("queries[i][c]"), values of another shape or not finite ("values[i]"), natural
+  // neighbours outside 2-d and 3-d; FAILED_PRECONDITION for a periodic or weighted set;
+  // NOT_FOUND; RESOURCE_EXHAUSTED when the arrays do not fit the budget.
+  using PointSink = std::function<Status(std::span<const PointResult> answers, std::uint64_t done)>;
+  using PointEncoder = std::function<void(PointResult& answer)>;
+  Status points(const std::string& id, std::span<const double> queries, const PointQuery& query,
+                const CallControl& control, const PointSink& emit, const PointEncoder& encode = {});
   Status stream_cells(const std::string& id, std::uint32_t shard_index, std::uint32_t shard_count,
                       std::uint32_t batch_size, const DomainSpec& domain, bool measures_only,
                       const CallControl& control, const CellBatchSink& emit, StreamPart* range = nullptr);
@@ -365,6 +407,8 @@ class Engine {
   Status stream_cells_from_pieces(const std::string& id, StreamPart range, std::uint32_t batch_size,
                                   const DomainSpec& spec, bool measures_only, const CallControl& control,
                                   const CellBatchSink& emit);
+  // The set's triangulation as arrays for point queries: kept, or made now and kept.
+  Result<std::shared_ptr<const DelaunayIndex>> located_index(const StoredSet& set, const CallControl& control);
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
   Status batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,
                            BatchKind kind, const NeighborQuery& query, const DomainSpec& spec,

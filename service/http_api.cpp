@@ -521,6 +521,18 @@ HttpResponse HttpApi::route(Context& c) {
     c.record.point_set = parent.substr(0, 64);
     return upload(c, &parent);
   }
+  for (const auto& [suffix, interpolate] : {std::pair<std::string_view, bool>{":locate", false}, {":interpolate", true}}) {
+    if (p.size() != 3 || p[2].size() <= suffix.size() ||
+        p[2].compare(p[2].size() - suffix.size(), suffix.size(), suffix) != 0) {
+      continue;
+    }
+    if (method != http::verb::post) return wrong_method();
+    c.record.method = interpolate ? "Interpolate" : "Locate";
+    const std::string set = p[2].substr(0, p[2].size() - suffix.size());
+    c.record.point_set = set.substr(0, 64);
+    if (Status s = engine_.authorize(set, c.principal); !s.is_ok()) return c.fail(s);
+    return point_queries(c, set, interpolate);
+  }
   const std::string& id = p[2];
   if (p.size() <= 6) c.record.point_set = id.substr(0, 64);
   // Other tenants' sets are answered as absent, on every route below.
@@ -1177,6 +1189,169 @@ HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string
     // Encoded by the workers that computed the answers (the encoding is most of a
     // JSON batch's time: it runs in parallel, beside the next round's answers).
     Status s = engine_.batch(id, seeds, kind, query, spec, control, emit, encode_with(item_of));
+    return finish_stream(record, timer, std::move(s));
+  };
+  return r;
+}
+
+namespace {
+
+// One query's line of :locate: where it lies and, asked, its natural neighbours.
+std::string locate_text(const PointResult& r, bool natural) {
+  std::string out;
+  JsonText j(out);
+  j.open_object();
+  const auto w = static_cast<std::size_t>(r.answer.vertex_count);
+  j.key("barycentric");
+  if (w == 0) {
+    j.raw("null");
+  } else {
+    j.array(std::span<const double>(r.answer.barycentric.data(), w));
+  }
+  j.key("index").integer(r.index);
+  if (natural) {
+    j.key("natural_neighbors").array(std::span<const std::uint32_t>(r.answer.natural.neighbors));
+  }
+  j.key("simplex");
+  if (w == 0) {
+    j.raw("null");
+  } else {
+    j.array(std::span<const std::uint32_t>(r.answer.simplex.data(), w));
+  }
+  if (natural) j.key("weights").array(std::span<const double>(r.answer.natural.weights));
+  j.close_object();
+  return out;
+}
+
+// One query's line of :interpolate: its values (null outside the hull without a fill).
+std::string values_text(const PointResult& r) {
+  std::string out;
+  JsonText j(out);
+  j.open_object();
+  j.key("index").integer(r.index);
+  if (r.nearest >= 0) j.key("nearest").integer(r.nearest);
+  j.key("values");
+  if (r.has_values) {
+    j.array(std::span<const double>(r.values));
+  } else {
+    j.raw("null");
+  }
+  j.close_object();
+  return out;
+}
+
+// Numbers of `field` in a JSON body: a flat array, or an array of rows of equal length
+// (*width set to it). Names the first bad entry.
+Status json_numbers(const json& body, const char* field, std::vector<double>& out, std::size_t* width) {
+  if (!body.contains(field)) return invalid_argument(std::string(field) + ": required");
+  const json& list = body[field];
+  if (!list.is_array()) return invalid_argument(std::string(field) + ": expected an array of numbers or of rows");
+  out.reserve(list.size());
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const json& item = list[i];
+    if (item.is_number() && *width == 0) {
+      out.push_back(item.get<double>());
+      continue;
+    }
+    if (!item.is_array() || (i > 0 && *width == 0)) {
+      return invalid_argument(std::string(field) + "[" + std::to_string(i) + "]: " + item.dump().substr(0, 40) +
+                              " is not a number or a row of numbers");
+    }
+    if (i == 0) *width = item.size();
+    if (item.size() != *width || item.empty()) {
+      return invalid_argument(std::string(field) + "[" + std::to_string(i) + "]: " + std::to_string(item.size()) +
+                              " numbers, expected " + std::to_string(*width) + " (the rows before)");
+    }
+    for (std::size_t k = 0; k < item.size(); ++k) {
+      if (!item[k].is_number()) {
+        return invalid_argument(std::string(field) + "[" + std::to_string(i) + "][" + std::to_string(k) +
+                                "]: " + item[k].dump().substr(0, 40) + " is not a number");
+      }
+      out.push_back(item[k].get<double>());
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
+HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool interpolate) {
+  json body;
+  try {
+    body = json::parse(c.request.body());
+  } catch (const json::exception& e) {
+    return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
+  }
+  if (!body.is_object()) return c.fail(invalid_argument("body: expected a JSON object with \"queries\""));
+  auto info = engine_.get_point_set(id, c.principal);
+  if (!info.is_ok()) return c.fail(info.status());
+  const int d = info->dimension;
+  std::vector<double> queries;
+  std::size_t query_width = 0;
+  if (Status s = json_numbers(body, "queries", queries, &query_width); !s.is_ok()) return c.fail(s);
+  if (query_width != 0 && query_width != static_cast<std::size_t>(d)) {
+    return c.fail(invalid_argument("queries[0]: " + std::to_string(query_width) + " coordinates, but point set " + id +
+                                   " is " + std::to_string(d) + "-d"));
+  }
+  PointQuery query;
+  std::vector<double> values;
+  if (interpolate) {
+    const std::string method = body.contains("method") && body["method"].is_string()
+                                   ? body["method"].get<std::string>()
+                                   : (d == 2 || d == 3 ? "natural" : "linear");
+    if (method == "natural") {
+      query.method = PointMethod::kNatural;
+    } else if (method == "linear") {
+      query.method = PointMethod::kLinear;
+    } else if (method == "nearest") {
+      query.method = PointMethod::kNearest;
+    } else {
+      return c.fail(invalid_argument("method: \"" + method.substr(0, 40) + "\" is not natural, linear or nearest"));
+    }
+    if (Status s = json_numbers(body, "values", values, &query.width); !s.is_ok()) return c.fail(s);
+    if (query.width == 0) {
+      query.width = 1;
+      if (body.contains("width")) {
+        if (!body["width"].is_number_unsigned() || body["width"].get<std::uint64_t>() == 0) {
+          return c.fail(invalid_argument("width: not a positive integer"));
+        }
+        query.width = body["width"].get<std::size_t>();
+      }
+    }
+    query.values = values;
+    if (body.contains("fill_value")) {
+      if (!body["fill_value"].is_number()) return c.fail(invalid_argument("fill_value: not a number"));
+      query.fill = body["fill_value"].get<double>();
+    }
+  } else if (body.contains("natural")) {
+    if (!body["natural"].is_boolean()) return c.fail(invalid_argument("natural: not true or false"));
+    query.natural = body["natural"].get<bool>();
+  }
+  const bool natural = !interpolate && query.natural && (d == 2 || d == 3);
+  HttpResponse r;
+  r.content_type = "application/x-ndjson";
+  r.stream = [this, id, queries = std::move(queries), values = std::move(values), query, interpolate, natural,
+              deadline = c.deadline, gone = c.client_gone, record = c.record,
+              timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
+    CallControl control(deadline, gone);
+    query.values = values;  // the vector moved into this closure
+    std::string text;
+    auto emit = [&](std::span<const PointResult> answers, std::uint64_t) -> Status {
+      text.clear();
+      for (const PointResult& a : answers) {
+        text += a.encoded;
+        text += '\n';
+      }
+      if (!write_chunk(text)) return cancelled("streaming stopped: the client went away");
+      return Status::ok();
+    };
+    auto encode = [interpolate, natural](PointResult& a) {
+      a.encoded = interpolate ? values_text(a) : locate_text(a, natural);
+      a.answer.natural.neighbors = {};
+      a.answer.natural.weights = {};
+      a.values = {};
+    };
+    Status s = engine_.points(id, queries, query, control, emit, encode);
     return finish_stream(record, timer, std::move(s));
   };
   return r;

@@ -142,6 +142,8 @@ class HttpApi {
   HttpResponse cells(Context& c, const std::string& id);
   HttpResponse check_domain(Context& c);
   HttpResponse batch(Context& c, const std::string& id, const std::string& what);
+  // POST .../{id}:locate and :interpolate: NDJSON, one line per query point in order.
+  HttpResponse point_queries(Context& c, const std::string& id, bool interpolate);
   static Result<DomainSpec> domain_from_query(Context& c);
   static Result<bool> bool_param(Context& c, const char* name);
   static Result<std::array<std::uint64_t, 3>> shard_params(Context& c);  // shard, shards, batch_size

@@ -40,6 +40,7 @@
 #include "spokemesh/periodic_box.hpp"
 #include "spokemesh/periodic_cells.hpp"
 #include "spokemesh/pieces.hpp"
+#include "spokemesh/point_queries.hpp"
 #include "spokemesh/point_set.hpp"
 #include "spokemesh/space_split.hpp"
 #include "spokemesh/status.hpp"
@@ -100,6 +101,13 @@ struct StoredSet {
     std::lock_guard lock(whole_mu);
     return whole;
   }
+  // The triangulation as arrays with a point locator, which point queries read
+  // (:locate, :interpolate; point_queries.hpp): made by the first (from the kept
+  // triangulation when there is one), charged to the budget (located_charge) while the
+  // set lives. Guarded by located_mu, which the first holds while it is made.
+  mutable std::mutex located_mu;
+  mutable std::shared_ptr<const DelaunayIndex> located;
+  mutable MemoryBudget::Charge located_charge;
   // Set when this holds one piece of the set (info.count is then the piece's held points).
   std::optional<PieceOf> piece;
   // The key it is cached under: the id, or for a piece "<id>/<piece>".

@@ -9,6 +9,7 @@
 #include <gmpxx.h>
 
 #include "spokemesh/locate.hpp"
+#include "spokemesh/point_queries.hpp"
 #include "spokemesh/predicates.hpp"
 
 namespace spokemesh {
@@ -290,7 +291,6 @@ bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavit
     }
     return nullptr;
   };
-  double total = 0;
   out.neighbors.clear();
   out.weights.clear();
   for (const Edge& in : edges) {
@@ -339,16 +339,18 @@ bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavit
     const double area = std::fabs(twice) / 2;
     out.neighbors.push_back(p);
     out.weights.push_back(area);
-    total += area;
   }
-  if (!(total > 0)) return false;
-  // Ascending ids, as the clipping path gives them (an insertion sort: a handful).
+  // Ascending ids, as the clipping path gives them (an insertion sort: a handful), and
+  // the total summed in that order: the same bits whichever simplex the walk began in.
   for (std::size_t i = 1; i < out.neighbors.size(); ++i) {
     for (std::size_t j = i; j > 0 && out.neighbors[j - 1] > out.neighbors[j]; --j) {
       std::swap(out.neighbors[j - 1], out.neighbors[j]);
       std::swap(out.weights[j - 1], out.weights[j]);
     }
   }
+  double total = 0;
+  for (const double x : out.weights) total += x;
+  if (!(total > 0)) return false;
   for (double& x : out.weights) x /= total;
   out.where = NaturalCoordinates::Where::kInside;
   return true;
@@ -390,12 +392,18 @@ Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const 
     for (int j = 0; j < d; ++j) corners[static_cast<std::size_t>(j)] = points.point(facet[static_cast<std::size_t>(j)]);
     corners[static_cast<std::size_t>(d)] = q;
     if (orientation_of(corners, d) == 0) {
+      // In the canonical simplex (on a hull edge in 3-d, q lies in several), its
+      // vertices ascending: the same bits whichever simplex the walk found.
       out.where = NaturalCoordinates::Where::kOnHull;
+      const std::int32_t canonical = canonical_simplex(tri, simplex, q);
+      std::array<std::uint32_t, kMaxDimension + 1> v{};
+      std::copy_n(&tri.simplices[static_cast<std::size_t>(canonical) * w], w, v.begin());
+      sort_vertices(v.data(), w);
       std::array<double, kMaxDimension + 1> bary;
-      barycentric_coordinates(points, start, q, bary.data());
+      barycentric_coordinates(points, v.data(), q, bary.data());
       for (int j = 0; j < w; ++j) {
         if (bary[static_cast<std::size_t>(j)] != 0) {
-          out.neighbors.push_back(start[j]);
+          out.neighbors.push_back(v[static_cast<std::size_t>(j)]);
           out.weights.push_back(bary[static_cast<std::size_t>(j)]);
         }
       }
