@@ -8,7 +8,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <mutex>
 #include <unordered_map>
 
@@ -547,8 +549,112 @@ Result<std::vector<PointSetInfo>> Engine::list_point_sets(std::uint32_t page_siz
 }
 
 Status Engine::delete_point_set(const std::string& id, const Principal& who) {
-  if (who.admin) return store_->remove(id);
-  return store_->release(id, who.tenant);
+  Status s = who.admin ? store_->remove(id) : store_->release(id, who.tenant);
+  if (s.is_ok() && !store_->info(id).is_ok()) {
+    // Gone with its last owner: its kept values go too.
+    std::error_code ignored;
+    std::filesystem::remove_all(std::filesystem::path(store_->directory()) / "values" / id, ignored);
+    std::lock_guard lock(values_mutex_);
+    std::erase_if(values_, [&](const LoadedValues& v) { return v.key.compare(0, id.size() + 1, id + "/") == 0; });
+  }
+  return s;
+}
+
+namespace {
+
+// A kept values file: "SMVALUE1", width (u32 LE), count (u64 LE), the values (f64 LE).
+std::string values_file_bytes(std::span<const double> values, std::uint32_t width, std::uint64_t count) {
+  std::string bytes = "SMVALUE1";
+  for (int k = 0; k < 4; ++k) bytes += static_cast<char>((width >> (8 * k)) & 0xff);
+  for (int k = 0; k < 8; ++k) bytes += static_cast<char>((count >> (8 * k)) & 0xff);
+  bytes.append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
+  return bytes;
+}
+
+std::string values_id_of(const std::string& set_id, const std::string& file_bytes) {
+  Sha256 sha;
+  sha.update(set_id.data(), set_id.size());
+  sha.update(file_bytes.data(), file_bytes.size());
+  return sha.hex_digest();
+}
+
+std::filesystem::path values_path(const std::string& dir, const std::string& set_id, const std::string& values_id) {
+  return std::filesystem::path(dir) / "values" / set_id / (values_id + ".values");
+}
+
+}  // namespace
+
+Result<ValuesInfo> Engine::put_values(const std::string& id, std::span<const double> values, std::uint32_t width) {
+  auto info = store_->info(id);
+  if (!info.is_ok()) return info.status();
+  if (width == 0) width = 1;
+  const std::uint64_t n = info->count;
+  if (values.size() != n * width) {
+    return invalid_argument("values: expected " + std::to_string(n) + " rows (one per point of the set) of " +
+                            std::to_string(width) + " values, got " + std::to_string(values.size()) + " numbers");
+  }
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (!std::isfinite(values[i])) {
+      return invalid_argument("values[" + std::to_string(i / width) + "][" + std::to_string(i % width) +
+                              "]: not a finite number");
+    }
+  }
+  const std::string bytes = values_file_bytes(values, width, n);
+  ValuesInfo out{values_id_of(id, bytes), id, width, n, false};
+  const std::filesystem::path path = values_path(store_->directory(), id, out.values_id);
+  std::error_code ec;
+  if (std::filesystem::exists(path, ec)) {
+    out.already_existed = true;
+    return out;
+  }
+  std::filesystem::create_directories(path.parent_path(), ec);
+  if (ec) return Status{Code::kInternal, "values: cannot make " + path.parent_path().string() + ": " + ec.message()};
+  if (Status s = write_file_durably(path.string(), bytes); !s.is_ok()) return s;
+  return out;
+}
+
+Result<std::shared_ptr<const KeptValues>> Engine::kept_values(const std::string& id, const std::string& values_id) {
+  const std::string key = id + "/" + values_id;
+  {
+    std::lock_guard lock(values_mutex_);
+    const auto it = std::find_if(values_.begin(), values_.end(), [&](const LoadedValues& v) { return v.key == key; });
+    if (it != values_.end()) {
+      std::rotate(it, it + 1, values_.end());
+      return values_.back().values;
+    }
+  }
+  auto missing = [&] {
+    return Status{Code::kNotFound, "values_id: point set " + id + " has no values " + values_id.substr(0, 64)};
+  };
+  if (!is_valid_id(values_id)) return missing();
+  const std::filesystem::path path = values_path(store_->directory(), id, values_id);
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  if (ec || size < 20 || (size - 20) % 8 != 0) return missing();
+  MemoryBudget::Charge charge = store_->budget().empty_charge();
+  if (!charge.grow(size)) return store_->budget().over_budget("values " + values_id, size);
+  std::string bytes(size, '\0');
+  {
+    FILE* f = std::fopen(path.c_str(), "rb");
+    if (f == nullptr) return missing();
+    const std::size_t got = std::fread(bytes.data(), 1, size, f);
+    std::fclose(f);
+    if (got != size) return missing();
+  }
+  if (bytes.compare(0, 8, "SMVALUE1") != 0 || values_id_of(id, bytes) != values_id) {
+    return Status{Code::kUnavailable,
+                  "values_id: the file of values " + values_id + " of point set " + id + " does not match its id"};
+  }
+  auto kept = std::make_shared<KeptValues>();
+  for (int k = 0; k < 4; ++k)
+    kept->width |= static_cast<std::uint32_t>(static_cast<unsigned char>(bytes[8 + k])) << (8 * k);
+  kept->values.resize((size - 20) / 8);
+  std::memcpy(kept->values.data(), bytes.data() + 20, kept->values.size() * sizeof(double));
+  bytes = {};
+  std::lock_guard lock(values_mutex_);
+  if (values_.size() >= kValuesKept) values_.erase(values_.begin());
+  values_.push_back({key, kept, std::move(charge)});
+  return std::shared_ptr<const KeptValues>(kept);
 }
 
 Result<Holding> Engine::hold(const std::string& id, std::uint64_t seed, bool pieces) {
@@ -1467,31 +1573,33 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
     }
   }
   if (set.box) {
-    return failed_precondition("point set " + id + " is periodic: answers at other points are not computed on a "
-                                                   "torus yet");
+    return failed_precondition("point set " + id +
+                               " is periodic: answers at other points are not computed on a "
+                               "torus yet");
   }
   if (!set.weights.empty()) {
-    return failed_precondition("point set " + id + " is weighted: answers at other points are computed from the "
-                                                   "Delaunay triangulation of unweighted sets only");
+    return failed_precondition("point set " + id +
+                               " is weighted: answers at other points are computed from the "
+                               "Delaunay triangulation of unweighted sets only");
   }
   if (Status s = exact_allowed(set, "answers at other points"); !s.is_ok()) return s;
   if (query.method == PointMethod::kNatural && d != 2 && d != 3) {
-    return invalid_argument("method: natural-neighbour interpolation is computed in 2-d and 3-d, and point set " +
-                            id + " is " + std::to_string(d) + "-d (linear and nearest work in any dimension)");
+    return invalid_argument("method: natural-neighbour interpolation is computed in 2-d and 3-d, and point set " + id +
+                            " is " + std::to_string(d) + "-d (linear and nearest work in any dimension)");
   }
   const bool interpolating = query.method != PointMethod::kLocate;
   if (interpolating) {
     const std::uint64_t n = set.info.count;
     if (query.width == 0 || query.values.size() != n * query.width) {
-      return invalid_argument("values: expected " + std::to_string(n) + " rows (one per point of the set) of " +
-                              (query.width == 0 ? std::string("at least one value")
-                                                : std::to_string(query.width) + " values") +
-                              ", got " + std::to_string(query.values.size()) + " numbers");
+      return invalid_argument(
+          "values: expected " + std::to_string(n) + " rows (one per point of the set) of " +
+          (query.width == 0 ? std::string("at least one value") : std::to_string(query.width) + " values") + ", got " +
+          std::to_string(query.values.size()) + " numbers");
     }
     for (std::size_t i = 0; i < query.values.size(); ++i) {
       if (!std::isfinite(query.values[i])) {
-        return invalid_argument("values[" + std::to_string(i / query.width) + "][" +
-                                std::to_string(i % query.width) + "]: not a finite number");
+        return invalid_argument("values[" + std::to_string(i / query.width) + "][" + std::to_string(i % query.width) +
+                                "]: not a finite number");
       }
     }
   }

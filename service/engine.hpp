@@ -223,6 +223,21 @@ struct PointResult {
   std::string encoded;        // the transport's encoding (Engine::points' encoder)
 };
 
+// Values kept for a set's points (Engine::put_values), named by a content hash.
+struct ValuesInfo {
+  std::string values_id;
+  std::string point_set_id;
+  std::uint32_t width = 0;
+  std::uint64_t count = 0;
+  bool already_existed = false;
+};
+
+// A kept values array as loaded: shared by the requests reading it.
+struct KeptValues {
+  std::uint32_t width = 0;
+  std::vector<double> values;
+};
+
 // Two meanings, two words (docs/service.md, "Words"): a *shard* is a deployment's
 // (replicas serving some of the pieces of every set kept as pieces: ShardSettings); a
 // *part* is one of the n pieces of work a whole-mesh or cell stream is cut into by the
@@ -389,6 +404,16 @@ class Engine {
   // ("queries[i][c]"), values of another shape or not finite ("values[i]"), natural
   // neighbours outside 2-d and 3-d; FAILED_PRECONDITION for a periodic or weighted set;
   // NOT_FOUND; RESOURCE_EXHAUSTED when the arrays do not fit the budget.
+  // Values for the points of set `id` (count * width, row-major; each finite), kept
+  // durably in the data directory (values/<id>/<values_id>) until the set is deleted.
+  // values_id: the SHA-256 of the set's id, the width and the values, so putting the
+  // same values again does no work (already_existed). INVALID_ARGUMENT naming the
+  // field; NOT_FOUND for an unknown set.
+  Result<ValuesInfo> put_values(const std::string& id, std::span<const double> values, std::uint32_t width);
+  // Values kept for set `id`, from memory (the last few read are kept, charged to the
+  // budget) or read and verified from their file: NOT_FOUND naming values_id when the
+  // set has none by that id.
+  Result<std::shared_ptr<const KeptValues>> kept_values(const std::string& id, const std::string& values_id);
   using PointSink = std::function<Status(std::span<const PointResult> answers, std::uint64_t done)>;
   using PointEncoder = std::function<void(PointResult& answer)>;
   Status points(const std::string& id, std::span<const double> queries, const PointQuery& query,
@@ -483,6 +508,14 @@ class Engine {
     std::shared_ptr<const ShapeDomain> shape;
     MemoryBudget::Charge charge;
   };
+  struct LoadedValues {
+    std::string key;  // set id / values id
+    std::shared_ptr<const KeptValues> values;
+    MemoryBudget::Charge charge;
+  };
+  std::mutex values_mutex_;
+  std::vector<LoadedValues> values_;  // most recently used last, at most kValuesKept
+  static constexpr std::size_t kValuesKept = 4;
   std::mutex shapes_mutex_;
   std::vector<KeptShape> shapes_;  // most recently used last
   // Builds the sets' triangulations of every point, one at a time, on its own thread

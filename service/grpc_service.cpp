@@ -1,6 +1,7 @@
 #include "grpc_service.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <future>
 #include <limits>
 #include <map>
@@ -464,6 +465,149 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
   };
   return call.finish(engine_.batch(request->point_set_id(), seeds, kind, query.value(), domain_spec(request->domain()),
                                    call.control(), emit));
+}
+
+grpc::Status MesherService::Locate(grpc::ServerContext* ctx, const pb::LocateRequest* request,
+                                   grpc::ServerWriter<pb::LocateResponse>* writer) {
+  Call call(*this, ctx, "Locate", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  PointQuery query;
+  query.natural = !request->skip_natural();
+  pb::LocateResponse response;
+  std::size_t bytes = 0;
+  auto emit = [&](std::span<const PointResult> answers, std::uint64_t done) -> Status {
+    for (std::size_t i = 0; i < answers.size(); ++i) {
+      const PointAnswer& a = answers[i].answer;
+      pb::PointLocation* out = response.add_locations();
+      const auto w = static_cast<std::size_t>(a.vertex_count);
+      out->mutable_simplex()->Add(a.simplex.begin(), a.simplex.begin() + static_cast<std::ptrdiff_t>(w));
+      out->mutable_barycentric()->Add(a.barycentric.begin(), a.barycentric.begin() + static_cast<std::ptrdiff_t>(w));
+      out->mutable_natural_neighbors()->Add(a.natural.neighbors.begin(), a.natural.neighbors.end());
+      out->mutable_weights()->Add(a.natural.weights.begin(), a.natural.weights.end());
+      bytes += 12 * (w + a.natural.neighbors.size()) + 8;
+      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
+        response.set_done(done - (answers.size() - 1 - i));
+        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+        response.Clear();
+        bytes = 0;
+      }
+    }
+    return Status::ok();
+  };
+  return call.finish(engine_.points(request->point_set_id(),
+                                    std::span<const double>(request->queries().data(), request->queries().size()),
+                                    query, call.control(), emit));
+}
+
+grpc::Status MesherService::Interpolate(grpc::ServerContext* ctx, const pb::InterpolateRequest* request,
+                                        grpc::ServerWriter<pb::InterpolateResponse>* writer) {
+  Call call(*this, ctx, "Interpolate", request->point_set_id());
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  const std::string& id = request->point_set_id();
+  auto info = engine_.get_point_set(id, call.principal());
+  if (!info.is_ok()) return call.finish(info.status());
+  const int d = info->dimension;
+  PointQuery query;
+  switch (request->method()) {
+    case pb::INTERPOLATION_METHOD_UNSPECIFIED:
+      query.method = d == 2 || d == 3 ? PointMethod::kNatural : PointMethod::kLinear;
+      break;
+    case pb::INTERPOLATION_METHOD_NATURAL:
+      query.method = PointMethod::kNatural;
+      break;
+    case pb::INTERPOLATION_METHOD_LINEAR:
+      query.method = PointMethod::kLinear;
+      break;
+    case pb::INTERPOLATION_METHOD_NEAREST:
+      query.method = PointMethod::kNearest;
+      break;
+    default:
+      return call.finish(
+          invalid_argument("method: " + std::to_string(request->method()) + " is not an InterpolationMethod"));
+  }
+  std::shared_ptr<const KeptValues> kept;
+  if (!request->values_id().empty()) {
+    if (!request->values().empty()) return call.finish(invalid_argument("values: give values or values_id, not both"));
+    auto got = engine_.kept_values(id, request->values_id());
+    if (!got.is_ok()) return call.finish(got.status());
+    kept = std::move(got).value();
+    query.values = kept->values;
+    query.width = kept->width;
+  } else {
+    query.values = std::span<const double>(request->values().data(), request->values().size());
+    query.width = request->width() == 0 ? 1 : request->width();
+  }
+  query.fill = request->has_fill_value() ? std::optional<double>(request->fill_value())
+                                         : std::optional<double>(std::numeric_limits<double>::quiet_NaN());
+  pb::InterpolateResponse response;
+  std::size_t bytes = 0;
+  auto emit = [&](std::span<const PointResult> answers, std::uint64_t done) -> Status {
+    for (std::size_t i = 0; i < answers.size(); ++i) {
+      const PointResult& r = answers[i];
+      response.mutable_values()->Add(r.values.begin(), r.values.end());
+      if (r.nearest >= 0) response.add_nearest(static_cast<std::uint32_t>(r.nearest));
+      bytes += 8 * r.values.size() + 4;
+      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
+        response.set_width(static_cast<std::uint32_t>(query.width));
+        response.set_done(done - (answers.size() - 1 - i));
+        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+        response.Clear();
+        bytes = 0;
+      }
+    }
+    return Status::ok();
+  };
+  return call.finish(engine_.points(id, std::span<const double>(request->queries().data(), request->queries().size()),
+                                    query, call.control(), emit));
+}
+
+grpc::Status MesherService::PutValues(grpc::ServerContext* ctx, grpc::ServerReader<pb::PutValuesRequest>* reader,
+                                      pb::ValuesInfo* response) {
+  Call call(*this, ctx, "PutValues");
+  if (!call.auth().is_ok()) return call.finish(call.auth());
+  pb::PutValuesRequest message;
+  if (!reader->Read(&message) || !message.has_header()) {
+    return call.finish(invalid_argument("header: the first message must carry the header"));
+  }
+  const std::string id = message.header().point_set_id();
+  if (Status s = engine_.authorize(id, call.principal()); !s.is_ok()) return call.finish(s);
+  auto info = engine_.get_point_set(id, call.principal());
+  if (!info.is_ok()) return call.finish(info.status());
+  const std::uint32_t width = message.header().width() == 0 ? 1 : message.header().width();
+  if (width > 1u << 20) return call.finish(invalid_argument("header.width: not between 1 and 1048576"));
+  // Every byte held is charged as it arrives, up to what the header says.
+  const std::uint64_t expected = info->count * width * sizeof(double);
+  MemoryBudget::Charge charge = engine_.store().budget().empty_charge();
+  std::string bytes = message.values();
+  auto take = [&](const std::string& chunk) -> Status {
+    if (bytes.size() + chunk.size() > expected) {
+      return invalid_argument("values: more than the " + std::to_string(expected) + " bytes of " +
+                              std::to_string(info->count) + " rows of " + std::to_string(width));
+    }
+    if (!charge.grow(chunk.size())) return engine_.store().budget().over_budget("values", chunk.size());
+    bytes += chunk;
+    return Status::ok();
+  };
+  if (!charge.grow(bytes.size())) return call.finish(engine_.store().budget().over_budget("values", bytes.size()));
+  while (reader->Read(&message)) {
+    if (call.control().stopped()) return call.finish(call.control().stopped_status("PutValues"));
+    if (Status s = take(message.values()); !s.is_ok()) return call.finish(s);
+  }
+  if (bytes.size() % sizeof(double) != 0) {
+    return call.finish(
+        invalid_argument("values: " + std::to_string(bytes.size()) + " bytes are not whole float64 values"));
+  }
+  std::vector<double> values(bytes.size() / sizeof(double));
+  std::memcpy(values.data(), bytes.data(), bytes.size());
+  bytes = {};
+  auto put = engine_.put_values(id, values, width);
+  if (!put.is_ok()) return call.finish(put.status());
+  response->set_values_id(put->values_id);
+  response->set_point_set_id(put->point_set_id);
+  response->set_width(put->width);
+  response->set_count(put->count);
+  response->set_already_existed(put->already_existed);
+  return call.finish(Status::ok());
 }
 
 const google::protobuf::MessageLite& add_batch_answer(const BatchAnswer& a, BatchKind kind, pb::NeighborMode mode,

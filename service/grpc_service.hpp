@@ -55,6 +55,12 @@ class MesherService final : public pb::Mesher::Service {
                           grpc::ServerWriter<pb::BatchSeedsResponse>* writer) override;
   grpc::Status GetShardMap(grpc::ServerContext* ctx, const pb::GetPointSetRequest* request,
                            grpc::ServerWriter<pb::ShardMapChunk>* writer) override;
+  grpc::Status Locate(grpc::ServerContext* ctx, const pb::LocateRequest* request,
+                      grpc::ServerWriter<pb::LocateResponse>* writer) override;
+  grpc::Status Interpolate(grpc::ServerContext* ctx, const pb::InterpolateRequest* request,
+                           grpc::ServerWriter<pb::InterpolateResponse>* writer) override;
+  grpc::Status PutValues(grpc::ServerContext* ctx, grpc::ServerReader<pb::PutValuesRequest>* reader,
+                         pb::ValuesInfo* response) override;
 
  private:
   class Call;

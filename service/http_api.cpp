@@ -521,7 +521,8 @@ HttpResponse HttpApi::route(Context& c) {
     c.record.point_set = parent.substr(0, 64);
     return upload(c, &parent);
   }
-  for (const auto& [suffix, interpolate] : {std::pair<std::string_view, bool>{":locate", false}, {":interpolate", true}}) {
+  for (const auto& [suffix, interpolate] :
+       {std::pair<std::string_view, bool>{":locate", false}, {":interpolate", true}}) {
     if (p.size() != 3 || p[2].size() <= suffix.size() ||
         p[2].compare(p[2].size() - suffix.size(), suffix.size(), suffix) != 0) {
       continue;
@@ -561,6 +562,11 @@ HttpResponse HttpApi::route(Context& c) {
     if (method != http::verb::get && method != http::verb::post) return wrong_method();
     c.record.method = "StreamCells";
     return cells(c, id);
+  }
+  if (p.size() == 4 && p[3] == "values") {
+    if (method != http::verb::post) return wrong_method();
+    c.record.method = "PutValues";
+    return put_values(c, id);
   }
   if (p.size() == 4 && p[3] == "points") {
     if (method != http::verb::get) return wrong_method();
@@ -1295,6 +1301,7 @@ HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool inte
   }
   PointQuery query;
   std::vector<double> values;
+  std::shared_ptr<const KeptValues> kept;  // values_id's
   if (interpolate) {
     const std::string method = body.contains("method") && body["method"].is_string()
                                    ? body["method"].get<std::string>()
@@ -1308,7 +1315,16 @@ HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool inte
     } else {
       return c.fail(invalid_argument("method: \"" + method.substr(0, 40) + "\" is not natural, linear or nearest"));
     }
-    if (Status s = json_numbers(body, "values", values, &query.width); !s.is_ok()) return c.fail(s);
+    if (body.contains("values_id")) {
+      if (!body["values_id"].is_string()) return c.fail(invalid_argument("values_id: not a string"));
+      if (body.contains("values")) return c.fail(invalid_argument("values: give values or values_id, not both"));
+      auto got = engine_.kept_values(id, body["values_id"].get<std::string>());
+      if (!got.is_ok()) return c.fail(got.status());
+      kept = std::move(got).value();
+      query.width = kept->width;
+    } else if (Status s = json_numbers(body, "values", values, &query.width); !s.is_ok()) {
+      return c.fail(s);
+    }
     if (query.width == 0) {
       query.width = 1;
       if (body.contains("width")) {
@@ -1330,11 +1346,11 @@ HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool inte
   const bool natural = !interpolate && query.natural && (d == 2 || d == 3);
   HttpResponse r;
   r.content_type = "application/x-ndjson";
-  r.stream = [this, id, queries = std::move(queries), values = std::move(values), query, interpolate, natural,
+  r.stream = [this, id, queries = std::move(queries), values = std::move(values), kept, query, interpolate, natural,
               deadline = c.deadline, gone = c.client_gone, record = c.record,
               timer = c.timer](const std::function<bool(std::string_view)>& write_chunk) mutable -> Status {
     CallControl control(deadline, gone);
-    query.values = values;  // the vector moved into this closure
+    query.values = kept ? std::span<const double>(kept->values) : std::span<const double>(values);
     std::string text;
     auto emit = [&](std::span<const PointResult> answers, std::uint64_t) -> Status {
       text.clear();
@@ -1355,6 +1371,54 @@ HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool inte
     return finish_stream(record, timer, std::move(s));
   };
   return r;
+}
+
+// POST .../{id}/values: JSON {"values": [...] or [[...], ...], "width": k}, or raw
+// little-endian float64 (Content-Type application/octet-stream, ?width=k).
+HttpResponse HttpApi::put_values(Context& c, const std::string& id) {
+  const auto ctype = c.request.find(http::field::content_type);
+  const std::string media_type = media_type_of(ctype == c.request.end() ? "" : std::string(ctype->value()));
+  std::vector<double> values;
+  std::size_t width = 0;
+  if (media_type == "application/octet-stream") {
+    const std::string& body = c.request.body();
+    if (body.size() % sizeof(double) != 0) {
+      return c.fail(invalid_argument("body: " + std::to_string(body.size()) + " bytes are not whole float64 values"));
+    }
+    values.resize(body.size() / sizeof(double));
+    std::memcpy(values.data(), body.data(), body.size());
+    width = 1;
+    if (auto w = c.param("width")) {
+      auto v = parse_uint(*w, "width");
+      if (!v.is_ok()) return c.fail(v.status());
+      width = v.value();
+    }
+  } else {
+    json body;
+    try {
+      body = json::parse(c.request.body());
+    } catch (const json::exception& e) {
+      return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
+    }
+    if (!body.is_object()) return c.fail(invalid_argument("body: expected a JSON object with \"values\""));
+    if (Status s = json_numbers(body, "values", values, &width); !s.is_ok()) return c.fail(s);
+    if (width == 0) {
+      width = 1;
+      if (body.contains("width")) {
+        if (!body["width"].is_number_unsigned()) return c.fail(invalid_argument("width: not a positive integer"));
+        width = body["width"].get<std::size_t>();
+      }
+    }
+  }
+  if (width == 0 || width > 1u << 20) return c.fail(invalid_argument("width: not between 1 and 1048576"));
+  auto put = engine_.put_values(id, values, static_cast<std::uint32_t>(width));
+  if (!put.is_ok()) return c.fail(put.status());
+  return c.ok({{"values_id", put->values_id},
+               {"point_set_id", put->point_set_id},
+               {"width", put->width},
+               {"count", put->count},
+               {"already_existed", put->already_existed}},
+              put->already_existed ? 200 : 201);
 }
 
 Status HttpApi::relay_batch(const http::request<http::string_body>& request, const json& body, const std::string& id,

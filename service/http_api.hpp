@@ -144,6 +144,8 @@ class HttpApi {
   HttpResponse batch(Context& c, const std::string& id, const std::string& what);
   // POST .../{id}:locate and :interpolate: NDJSON, one line per query point in order.
   HttpResponse point_queries(Context& c, const std::string& id, bool interpolate);
+  // POST .../{id}/values: values kept for Interpolate's values_id (Engine::put_values).
+  HttpResponse put_values(Context& c, const std::string& id);
   static Result<DomainSpec> domain_from_query(Context& c);
   static Result<bool> bool_param(Context& c, const char* name);
   static Result<std::array<std::uint64_t, 3>> shard_params(Context& c);  // shard, shards, batch_size

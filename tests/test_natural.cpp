@@ -18,6 +18,7 @@
 
 #include "spokemesh/kd_tree.hpp"
 #include "spokemesh/natural_neighbors.hpp"
+#include "spokemesh/point_queries.hpp"
 #include "spokemesh/voronoi_diagram.hpp"
 #include "support.hpp"
 
@@ -183,6 +184,44 @@ TEST(NaturalNeighbors, GridsDataPointsHullAndOutside) {
     nn = natural_neighbors(m.arrays(), containing(m, q), q);
     ASSERT_TRUE(nn.is_ok());
     expect_sibson_properties(m, nn.value(), q, "grid query " + std::to_string(t));
+  }
+}
+
+TEST(NaturalNeighbors, Grids3dEveryStartSameBits) {
+  // A 4 x 4 x 4 grid: every cube's corners are cospherical, and many bisectors meet in
+  // one old Voronoi vertex. Sibson's coordinates keep their properties there, and the
+  // answer is the same bits from every simplex holding q (point_queries' promise).
+  std::vector<double> c;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 4; ++j) {
+      for (int k = 0; k < 4; ++k) c.insert(c.end(), {double(i), double(j), double(k)});
+    }
+  }
+  const Mesh m = mesh_of(3, c);
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(0.05, 2.95);
+  for (int t = 0; t < 200; ++t) {
+    // Half of them on grid planes (shared faces and edges).
+    double q[3] = {u(rng), u(rng), t % 2 == 0 ? std::round(u(rng) * 2) / 2 : u(rng)};
+    const std::string what = "grid query " + std::to_string(t) + " (seed 11)";
+    std::vector<std::int32_t> holding;
+    for (std::size_t s = 0; s * 4 < m.simplices.size(); ++s) {
+      std::array<double, kMaxDimension + 1> b{};
+      barycentric_coordinates(m.points, &m.simplices[s * 4], q, b.data());
+      if (*std::min_element(b.begin(), b.begin() + 4) >= -1e-12) holding.push_back(static_cast<std::int32_t>(s));
+    }
+    ASSERT_FALSE(holding.empty()) << what;
+    auto first = natural_neighbors(m.arrays(), holding[0], q);
+    ASSERT_TRUE(first.is_ok()) << what;
+    expect_sibson_properties(m, first.value(), q, what);
+    const std::int32_t canonical = canonical_simplex(m.arrays(), holding[0], q);
+    for (const std::int32_t s : holding) {
+      EXPECT_EQ(canonical_simplex(m.arrays(), s, q), canonical) << what;
+      auto other = natural_neighbors(m.arrays(), s, q);
+      ASSERT_TRUE(other.is_ok()) << what;
+      EXPECT_EQ(other->neighbors, first->neighbors) << what;
+      EXPECT_EQ(other->weights, first->weights) << what;  // bit for bit
+    }
   }
 }
 

@@ -30,9 +30,9 @@ from .types import Cell, Facet
 
 __all__ = ["Delaunay", "PeriodicDelaunay", "Voronoi", "ConvexHull", "QhullError", "SphericalVoronoi",
            "HalfspaceIntersection", "ApproximateGraph", "approximate_graph", "Cell", "Facet",
-           "Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"]
+           "Client", "Error", "PointSet", "Star", "Neighbors", "Locations", "read_compact_batches"]
 
-_REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "read_compact_batches"}
+_REMOTE = {"Client", "Error", "PointSet", "Star", "Neighbors", "Locations", "read_compact_batches"}
 _LOCAL = {"Delaunay", "PeriodicDelaunay", "ApproximateGraph", "approximate_graph"}
 
 

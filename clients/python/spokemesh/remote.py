@@ -72,6 +72,14 @@ class Neighbors:
     offsets: Optional[np.ndarray] = None  # periodic sets: (k, d) int32, each neighbour's image
 
 
+@dataclasses.dataclass(frozen=True)
+class Locations:
+    """Where query points lie (Client.locate), one row per point, in order."""
+    simplices: np.ndarray    # (m, d + 1) int64: the simplex holding each, ascending; -1 outside the hull
+    barycentric: np.ndarray  # (m, d + 1) float64, in the simplex's order; NaN outside
+    natural: Optional[List[Any]] = None  # 2-d and 3-d: (indices, Sibson weights) per point
+
+
 def _domain(box: Optional[Sequence[float]], halfspaces: Optional[np.ndarray],
             bounding_box: bool, domain=None) -> Optional[pb.Domain]:
     """The proto Domain: box = (lo_1..lo_d, hi_1..hi_d) or [[lo...], [hi...]];
@@ -487,6 +495,114 @@ class Client:
         if domain is not None:
             request.domain.CopyFrom(domain)
         return [_cell(r) for r in self._batch(request, "cells", timeout)]
+
+    # ---- answers at any point ----------------------------------------------------
+
+    def _query_parts(self, xi: np.ndarray, d: int) -> Iterator[np.ndarray]:
+        """The query points in calls of at most 100,000 points and about 3 MiB."""
+        per_call = max(1, min(100_000, (3 << 20) // (8 * d)))
+        for at in range(0, len(xi), per_call):
+            yield xi[at:at + per_call]
+
+    def _queries(self, point_set_id: str, xi: Any) -> np.ndarray:
+        d = self.get(point_set_id).dimension
+        q = np.ascontiguousarray(xi, dtype=np.float64)
+        if q.ndim == 1 and q.shape[0] == d:
+            q = q.reshape(1, d)
+        if q.ndim != 2 or q.shape[1] != d:
+            raise ValueError(f"xi: expected shape (m, {d}) for a {d}-d point set, got {np.shape(xi)}")
+        return q
+
+    def locate(self, point_set_id: str, xi: Any, *, natural: bool = True,
+               timeout: Optional[float] = None) -> Locations:
+        """Where the points xi ((m, d), or one point (d,)) lie in the set's Delaunay
+        triangulation: the simplex holding each (on a face shared by several, the one
+        whose ascending vertex list is least), its barycentric coordinates, and in 2-d
+        and 3-d (unless natural=False) its natural neighbours with Sibson's coordinates,
+        the pairs spokemesh.interpolate.natural_neighbor_coordinates gives in-process.
+        Points outside the hull get -1 rows, NaN coordinates and empty pairs."""
+        q = self._queries(point_set_id, xi)
+        d = q.shape[1]
+        simplices = np.full((len(q), d + 1), -1, dtype=np.int64)
+        barycentric = np.full((len(q), d + 1), np.nan)
+        pairs: List[Any] = []
+        at = 0
+        for part in self._query_parts(q, d):
+            request = pb.LocateRequest(point_set_id=point_set_id, queries=part.ravel().tolist(),
+                                       skip_natural=not natural)
+            try:
+                for r in self._stub.Locate(request, timeout=timeout or self._timeout, metadata=self._metadata):
+                    for loc in r.locations:
+                        if len(loc.simplex):
+                            simplices[at] = loc.simplex
+                            barycentric[at] = loc.barycentric
+                        pairs.append((np.asarray(loc.natural_neighbors, dtype=np.int64),
+                                      np.asarray(loc.weights, dtype=np.float64)))
+                        at += 1
+            except grpc.RpcError as e:
+                raise Error(e.code(), e.details()) from None
+        natural_pairs = pairs if natural and d in (2, 3) else None
+        return Locations(simplices, barycentric, natural_pairs)
+
+    def put_values(self, point_set_id: str, values: Any, timeout: Optional[float] = None) -> str:
+        """Keeps values for the set's points ((n,) or (n, k)) on the server, durably, and
+        returns their id for interpolate(values_id=...): large value arrays travel once.
+        The id is a content hash (putting the same values again does no work); they are
+        deleted with the set."""
+        v = np.ascontiguousarray(values, dtype="<f8")
+        if v.ndim not in (1, 2):
+            raise ValueError(f"values: expected shape (n,) or (n, k), got {v.shape}")
+        width = 1 if v.ndim == 1 else v.shape[1]
+        data = v.tobytes()
+
+        def messages() -> Iterator[pb.PutValuesRequest]:
+            yield pb.PutValuesRequest(header=pb.PutValuesRequest.Header(point_set_id=point_set_id, width=width))
+            for at in range(0, len(data), _CHUNK):
+                yield pb.PutValuesRequest(values=data[at:at + _CHUNK])
+
+        return self._call(self._stub.PutValues, messages, timeout).values_id
+
+    def interpolate(self, point_set_id: str, xi: Any, values: Any = None, *, values_id: str = "",
+                    method: Optional[str] = None, fill_value: float = np.nan,
+                    timeout: Optional[float] = None) -> np.ndarray:
+        """Values at the points xi ((m, d), or one point (d,)) from the values of the
+        set's points: `values` ((n,) or (n, k), sent with the call; small sets) or
+        `values_id` (put_values'). method: "natural" (Sibson; 2-d and 3-d; the default
+        there), "linear" (barycentric; the default above 3-d) or "nearest". Points
+        outside the hull get fill_value. Returns (m,) or (m, k), as the values are; the
+        same numbers as spokemesh.interpolate's interpolators in-process."""
+        q = self._queries(point_set_id, xi)
+        methods = {None: pb.INTERPOLATION_METHOD_UNSPECIFIED, "natural": pb.INTERPOLATION_METHOD_NATURAL,
+                   "linear": pb.INTERPOLATION_METHOD_LINEAR, "nearest": pb.INTERPOLATION_METHOD_NEAREST}
+        if method not in methods:
+            raise ValueError(f"method: {method!r} is not 'natural', 'linear' or 'nearest'")
+        if (values is None) == (not values_id):
+            raise ValueError("give values or values_id (one of them)")
+        flat: List[float] = []
+        width = 0
+        vector = False
+        if values is not None:
+            v = np.ascontiguousarray(values, dtype=np.float64)
+            if v.ndim not in (1, 2):
+                raise ValueError(f"values: expected shape (n,) or (n, k), got {v.shape}")
+            vector = v.ndim == 2
+            width = 1 if v.ndim == 1 else v.shape[1]
+            flat = v.ravel().tolist()
+        out: List[np.ndarray] = []
+        for part in self._query_parts(q, q.shape[1]):
+            request = pb.InterpolateRequest(point_set_id=point_set_id, queries=part.ravel().tolist(),
+                                            method=methods[method], values=flat, width=width,
+                                            values_id=values_id, fill_value=float(fill_value))
+            try:
+                for r in self._stub.Interpolate(request, timeout=timeout or self._timeout, metadata=self._metadata):
+                    width = r.width
+                    out.append(np.asarray(r.values, dtype=np.float64).reshape(-1, r.width))
+            except grpc.RpcError as e:
+                raise Error(e.code(), e.details()) from None
+        result = np.concatenate(out) if out else np.empty((0, max(width, 1)))
+        if values_id:
+            vector = width != 1
+        return result if vector else result[:, 0]
 
     def neighbors(self, point_set_id: str, seed: int, timeout: Optional[float] = None, *, mode: str = "exact",
                   max_consecutive_misses: int = 0, max_vertices: int = 0) -> np.ndarray:

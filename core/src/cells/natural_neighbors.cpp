@@ -8,6 +8,7 @@
 
 #include <gmpxx.h>
 
+#include "spokemesh/convex_hull.hpp"
 #include "spokemesh/locate.hpp"
 #include "spokemesh/point_queries.hpp"
 #include "spokemesh/predicates.hpp"
@@ -356,6 +357,97 @@ bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavit
   return true;
 }
 
+// Whether Sibson's coordinates reproduce q (sum w_i (p_i - q) = 0) to 1e-9 of the
+// neighbours' reach: the clipping in double keeps it to about 1e-15 on points in general
+// position; on cospherical ones (a grid's), bisectors through one old Voronoi vertex
+// meet in copies of it that differ in their last bits, and a clipped part can be wrong.
+bool reproduces_query(const PointSet& points, const NaturalCoordinates& nn, const double* q) {
+  const int d = points.dimension();
+  double reach = 0;
+  std::array<double, 3> sum{};
+  for (std::size_t i = 0; i < nn.neighbors.size(); ++i) {
+    const double* p = points.point(nn.neighbors[i]);
+    for (int k = 0; k < d; ++k) {
+      sum[static_cast<std::size_t>(k)] += nn.weights[i] * (p[k] - q[k]);
+      reach = std::max(reach, std::fabs(p[k] - q[k]));
+    }
+  }
+  for (int k = 0; k < d; ++k) {
+    if (!(std::fabs(sum[static_cast<std::size_t>(k)]) <= 1e-9 * reach)) return false;
+  }
+  return true;
+}
+
+// 3-d Sibson coordinates where clipping cannot be trusted: neighbour p's stolen part is
+// the convex hull of its vertices, the centres of q's new simplices at p (q and a
+// boundary facet holding p) and the old centres of the cavity's simplices at p; its
+// volume from an exact hull of those points (ConvexHull), so copies of one vertex that
+// differ in their last bits change it by as little. Relative to q.
+Status stolen_hulls_3d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavity,
+                       const std::vector<std::pair<std::int32_t, int>>& boundary, const double* q,
+                       NaturalCoordinates& out) {
+  const PointSet& points = *tri.points;
+  constexpr std::size_t w = 4;
+  struct Centre {
+    std::array<std::uint32_t, 4> ids;  // the point ids whose centre it is (q's new simplices: 3, then kNone)
+    Vec x;
+  };
+  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  std::vector<Centre> centres;
+  for (const auto& [s, k] : boundary) {
+    Centre c{{kNone, kNone, kNone, kNone}, {}};
+    for (std::size_t j = 0, at = 0; j < w; ++j) {
+      if (static_cast<int>(j) != k) c.ids[at++] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    }
+    if (!circumcentre_with(points, c.ids.data(), q, c.x)) continue;
+    centres.push_back(c);
+  }
+  for (const std::int32_t s : cavity) {
+    Centre c{{}, {}};
+    for (std::size_t j = 0; j < w; ++j) c.ids[j] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    if (!circumcentre_with(points, c.ids.data() + 1, points.point(c.ids[0]), c.x)) continue;
+    centres.push_back(c);
+  }
+  // In the order of their point ids: the same hulls, the same bits, whichever simplex
+  // the cavity's search began in.
+  std::sort(centres.begin(), centres.end(), [](const Centre& a, const Centre& b) { return a.ids < b.ids; });
+  double total = 0;
+  std::vector<double> coords;
+  for (std::size_t i = 0; i < out.neighbors.size(); ++i) {
+    coords.clear();
+    for (const Centre& c : centres) {
+      if (std::find(c.ids.begin(), c.ids.end(), out.neighbors[i]) == c.ids.end()) continue;
+      for (std::size_t k = 0; k < 3; ++k) coords.push_back(c.x[k] - q[k]);
+    }
+    double volume = 0;
+    auto hull = coords.size() >= 12 ? ConvexHull::build(coords, 3) : Result<ConvexHull>(invalid_argument("flat"));
+    if (hull.is_ok()) {
+      const std::vector<std::uint32_t> facets = hull->facet_vertices();
+      const std::vector<std::uint32_t> vertices = hull->vertices();
+      Vec mid{0, 0, 0};
+      for (const std::uint32_t v : vertices) {
+        for (std::size_t k = 0; k < 3; ++k) mid[k] += coords[v * 3 + k] / static_cast<double>(vertices.size());
+      }
+      for (std::size_t f = 0; f + 3 <= facets.size(); f += 3) {
+        Vec a, b, e;
+        for (std::size_t k = 0; k < 3; ++k) {
+          a[k] = coords[facets[f] * 3 + k] - mid[k];
+          b[k] = coords[facets[f + 1] * 3 + k] - mid[k];
+          e[k] = coords[facets[f + 2] * 3 + k] - mid[k];
+        }
+        volume += std::fabs(a[0] * (b[1] * e[2] - b[2] * e[1]) - a[1] * (b[0] * e[2] - b[2] * e[0]) +
+                            a[2] * (b[0] * e[1] - b[1] * e[0])) /
+                  6;
+      }
+    }  // else flat: no volume stolen
+    out.weights[i] = volume;
+    total += volume;
+  }
+  if (!(total > 0)) return internal_error("natural neighbours: the query's cell has no volume");
+  for (double& x : out.weights) x /= total;
+  return Status::ok();
+}
+
 }  // namespace
 
 Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const double* q, NaturalCoordinates& out) {
@@ -525,6 +617,7 @@ Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const 
   if (!(total > 0)) return internal_error("natural neighbours: the query's cell has no volume");
   for (double& x : out.weights) x /= total;
   out.where = NaturalCoordinates::Where::kInside;
+  if (d == 3 && !reproduces_query(points, out, q)) return stolen_hulls_3d(tri, cavity, boundary, q, out);
   return Status::ok();
 }
 
