@@ -81,8 +81,7 @@ struct PointAnswer {
 
 // The answer at q from `located` (SimplexLocator's simplex for q, or -1 outside).
 // natural: also its natural neighbours (INVALID_ARGUMENT outside 2-d and 3-d).
-Status answer_point(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural,
-                    PointAnswer& out);
+Status answer_point(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural, PointAnswer& out);
 
 // Values at a query point from its answer: `values` holds `width` values per point of
 // the set (row-major); out[0..width). Linear: the barycentric coordinates applied;

@@ -73,8 +73,8 @@ Result<std::unique_ptr<DelaunayIndex>> DelaunayIndex::build(const KdTree& tree, 
   if (!run.is_ok()) return run.status();
   const std::size_t bytes = index->simplices_.size() * 8 + 4 * n;
   if (reserve_bytes && bytes > expected && !reserve_bytes(bytes - expected)) {
-    return Status{Code::kResourceExhausted, "the triangulation's arrays (" + std::to_string(bytes >> 20) +
-                                                " MiB) do not fit the memory budget"};
+    return Status{Code::kResourceExhausted,
+                  "the triangulation's arrays (" + std::to_string(bytes >> 20) + " MiB) do not fit the memory budget"};
   }
   index->simplices_.shrink_to_fit();
   index->adjacency_ = simplex_adjacency(index->simplices_, d, std::max(1u, options.threads));
@@ -87,8 +87,7 @@ std::size_t DelaunayIndex::bytes() const {
          tree_.points().size() * sizeof(std::int32_t);
 }
 
-Status answer_point(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural,
-                    PointAnswer& out) {
+Status answer_point(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural, PointAnswer& out) {
   const int d = tri.points->dimension();
   const std::int32_t s = canonical_simplex(tri, located, q);
   out.vertex_count = 0;
