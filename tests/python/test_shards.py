@@ -315,6 +315,27 @@ def test_the_python_client_and_the_cli_work_unchanged(stored, start_server, tmp_
     assert got == want
 
 
+def test_answers_at_any_point_from_every_shard(stored, start_server):
+    """:locate and :interpolate through any replica of a sharded deployment: the bytes
+    of the whole-set replica (each replica answers them from the set's own file, which
+    the shared data directory keeps beside its pieces)."""
+    data, whole, ids = stored
+    cluster = start_shards(start_server, data, 2, 1)
+    rng = np.random.default_rng(5)
+    for name, (set_id, points) in ids.items():
+        if points.shape[1] not in (2, 3):
+            continue
+        lo, hi = points.min(0), points.max(0)
+        xi = (lo + rng.random((200, points.shape[1])) * (hi - lo)).tolist()
+        values = (points[:, 0] - 2 * points[:, 1]).tolist()
+        for route, body in ((":locate", {"queries": xi}), (":interpolate", {"queries": xi, "values": values})):
+            want = http_request("POST", f"{whole.http}/v1/pointsets/{set_id}{route}", body)
+            assert want[0] == 200, (name, want[2][:300])
+            for row in cluster:
+                got = http_request("POST", f"{row[0].http}/v1/pointsets/{set_id}{route}", body)
+                assert got[0] == 200 and got[2] == want[2], f"{name}: {route} differs through a shard replica"
+
+
 def test_clients_route_themselves(stored, start_server):
     """The shard map (GetShardMap, REST .../shards and .../shards/seeds) says which shard
     answers each seed and where its replicas are; the Python Client sends each seed
