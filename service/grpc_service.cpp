@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <type_traits>
 
 namespace spokemesh::service {
 
@@ -420,6 +421,31 @@ grpc::Status MesherService::StreamCells(grpc::ServerContext* ctx, const pb::Stre
                                           request->measures_only(), call.control(), emit, &range));
 }
 
+namespace {
+
+// Answers written as messages of at most about 2 MiB (gRPC's default limit is 4 MiB):
+// add(answer, response) puts one into the message and returns its size; each message's
+// `done` counts the request's items answered with it. prepare(response), when given,
+// runs before each write.
+template <class Answer, class Response, class Add, class Prepare = std::nullptr_t>
+Status write_in_messages(std::span<const Answer> answers, std::uint64_t done, Response& response,
+                         grpc::ServerWriter<Response>* writer, Add&& add, Prepare&& prepare = nullptr) {
+  std::size_t bytes = 0;
+  for (std::size_t i = 0; i < answers.size(); ++i) {
+    bytes += add(answers[i], response);
+    if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
+      if constexpr (!std::is_same_v<std::decay_t<Prepare>, std::nullptr_t>) prepare(response);
+      response.set_done(done - (answers.size() - 1 - i));
+      if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
+      response.Clear();
+      bytes = 0;
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
 grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::BatchSeedsRequest* request,
                                        grpc::ServerWriter<pb::BatchSeedsResponse>* writer) {
   Call call(*this, ctx, "BatchSeeds", request->point_set_id());
@@ -450,18 +476,9 @@ grpc::Status MesherService::BatchSeeds(grpc::ServerContext* ctx, const pb::Batch
   }
   pb::BatchSeedsResponse response;
   auto emit = [&](std::span<const BatchAnswer> answers, std::uint64_t done) -> Status {
-    // Messages of at most about 2 MiB (gRPC's default limit is 4 MiB).
-    std::size_t bytes = 0;
-    for (std::size_t i = 0; i < answers.size(); ++i) {
-      bytes += add_answer(answers[i], kind, request->mode(), response);
-      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
-        response.set_done(done - (answers.size() - 1 - i));
-        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
-        response.Clear();
-        bytes = 0;
-      }
-    }
-    return Status::ok();
+    return write_in_messages(answers, done, response, writer, [&](const BatchAnswer& a, pb::BatchSeedsResponse& r) {
+      return add_answer(a, kind, request->mode(), r);
+    });
   };
   return call.finish(engine_.batch(request->point_set_id(), seeds, kind, query.value(), domain_spec(request->domain()),
                                    call.control(), emit));
@@ -474,25 +491,17 @@ grpc::Status MesherService::Locate(grpc::ServerContext* ctx, const pb::LocateReq
   PointQuery query;
   query.natural = !request->skip_natural();
   pb::LocateResponse response;
-  std::size_t bytes = 0;
   auto emit = [&](std::span<const PointResult> answers, std::uint64_t done) -> Status {
-    for (std::size_t i = 0; i < answers.size(); ++i) {
-      const PointAnswer& a = answers[i].answer;
-      pb::PointLocation* out = response.add_locations();
-      const auto w = static_cast<std::size_t>(a.vertex_count);
-      out->mutable_simplex()->Add(a.simplex.begin(), a.simplex.begin() + static_cast<std::ptrdiff_t>(w));
-      out->mutable_barycentric()->Add(a.barycentric.begin(), a.barycentric.begin() + static_cast<std::ptrdiff_t>(w));
+    return write_in_messages(answers, done, response, writer, [](const PointResult& r, pb::LocateResponse& m) {
+      const PointAnswer& a = r.answer;
+      pb::PointLocation* out = m.add_locations();
+      const auto w = static_cast<std::ptrdiff_t>(a.vertex_count);
+      out->mutable_simplex()->Add(a.simplex.begin(), a.simplex.begin() + w);
+      out->mutable_barycentric()->Add(a.barycentric.begin(), a.barycentric.begin() + w);
       out->mutable_natural_neighbors()->Add(a.natural.neighbors.begin(), a.natural.neighbors.end());
       out->mutable_weights()->Add(a.natural.weights.begin(), a.natural.weights.end());
-      bytes += 12 * (w + a.natural.neighbors.size()) + 8;
-      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
-        response.set_done(done - (answers.size() - 1 - i));
-        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
-        response.Clear();
-        bytes = 0;
-      }
-    }
-    return Status::ok();
+      return 12 * (static_cast<std::size_t>(w) + a.natural.neighbors.size()) + 8;
+    });
   };
   return call.finish(engine_.points(request->point_set_id(),
                                     std::span<const double>(request->queries().data(), request->queries().size()),
@@ -540,22 +549,15 @@ grpc::Status MesherService::Interpolate(grpc::ServerContext* ctx, const pb::Inte
   query.fill = request->has_fill_value() ? std::optional<double>(request->fill_value())
                                          : std::optional<double>(std::numeric_limits<double>::quiet_NaN());
   pb::InterpolateResponse response;
-  std::size_t bytes = 0;
   auto emit = [&](std::span<const PointResult> answers, std::uint64_t done) -> Status {
-    for (std::size_t i = 0; i < answers.size(); ++i) {
-      const PointResult& r = answers[i];
-      response.mutable_values()->Add(r.values.begin(), r.values.end());
-      if (r.nearest >= 0) response.add_nearest(static_cast<std::uint32_t>(r.nearest));
-      bytes += 8 * r.values.size() + 4;
-      if (bytes > defaults::kMessagePayloadBytes || i + 1 == answers.size()) {
-        response.set_width(static_cast<std::uint32_t>(query.width));
-        response.set_done(done - (answers.size() - 1 - i));
-        if (!writer->Write(response)) return cancelled("streaming stopped: the client went away");
-        response.Clear();
-        bytes = 0;
-      }
-    }
-    return Status::ok();
+    return write_in_messages(
+        answers, done, response, writer,
+        [](const PointResult& r, pb::InterpolateResponse& m) {
+          m.mutable_values()->Add(r.values.begin(), r.values.end());
+          if (r.nearest >= 0) m.add_nearest(static_cast<std::uint32_t>(r.nearest));
+          return 8 * r.values.size() + 4;
+        },
+        [&](pb::InterpolateResponse& m) { m.set_width(static_cast<std::uint32_t>(query.width)); });
   };
   return call.finish(engine_.points(id, std::span<const double>(request->queries().data(), request->queries().size()),
                                     query, call.control(), emit));

@@ -6,7 +6,9 @@
 // rationals) name the natural neighbours, and the query's Voronoi cell is split into
 // the stolen parts in double, relative to the query: in 2-d by Watson's construction
 // (each neighbour's part from the Voronoi vertices before and after, in O(cavity)), in
-// 3-d by clipping the cell by bisectors.
+// 3-d from each part's faces, which the cavity names (their areas as fans of the new
+// and old Voronoi vertices, their planes the bisectors: the divergence theorem's sum),
+// with exact hulls of each part's vertices where that fails to reproduce the query.
 //
 // Sibson's coordinates are non-negative, sum to 1, and reproduce linear functions:
 // sum w_i p_i = q (to rounding). A point on the circumsphere of a simplex (exactly) is

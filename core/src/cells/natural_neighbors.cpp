@@ -18,9 +18,9 @@ namespace {
 
 using Vec = std::array<double, 3>;
 
-// A convex polygon (2-d) or polyhedron (3-d, as its faces' vertex loops) clipped by
-// halfspaces a . x <= a . m, in double; its measure. The clipped pieces are a query's
-// stolen cell parts: no decision of the mesh depends on them.
+// A convex polygon clipped by halfspaces a . x <= a . m, in double, and its area: the
+// 2-d fallback where Watson's construction meets a flat centre. The clipped pieces are
+// a query's stolen cell parts: no decision of the mesh depends on them.
 struct Halfspace {
   Vec a{}, m{};  // normal, a point on the plane
 };
@@ -66,77 +66,6 @@ double polygon_area(const std::vector<Vec>& p) {
     twice += a[0] * b[1] - a[1] * b[0];
   }
   return std::fabs(twice) / 2;
-}
-
-using Polyhedron = std::vector<std::vector<Vec>>;
-
-Polyhedron box_polyhedron(const Vec& lo, const Vec& hi) {
-  auto corner = [&](int i) { return Vec{(i & 1) ? hi[0] : lo[0], (i & 2) ? hi[1] : lo[1], (i & 4) ? hi[2] : lo[2]}; };
-  const int faces[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
-  Polyhedron out;
-  for (const auto& f : faces) out.push_back({corner(f[0]), corner(f[1]), corner(f[2]), corner(f[3])});
-  return out;
-}
-
-Polyhedron clip_polyhedron(const Polyhedron& faces, const Halfspace& h) {
-  Polyhedron out;
-  std::vector<Vec> cut;
-  for (const auto& f : faces) {
-    std::vector<Vec> g = clip_loop(f, h, 3, &cut);
-    if (g.size() >= 3) out.push_back(std::move(g));
-  }
-  if (cut.size() < 3) return out;
-  // The cap: the cut points around their centroid, in the plane's own basis.
-  Vec c{0, 0, 0};
-  for (const Vec& x : cut) {
-    for (int k = 0; k < 3; ++k)
-      c[static_cast<std::size_t>(k)] += x[static_cast<std::size_t>(k)] / static_cast<double>(cut.size());
-  }
-  const Vec& a = h.a;
-  Vec u = std::fabs(a[0]) < std::fabs(a[1]) ? Vec{0, a[2], -a[1]} : Vec{a[2], 0, -a[0]};
-  if (std::fabs(a[2]) > std::max(std::fabs(a[0]), std::fabs(a[1]))) u = {a[1], -a[0], 0};
-  const Vec v{a[1] * u[2] - a[2] * u[1], a[2] * u[0] - a[0] * u[2], a[0] * u[1] - a[1] * u[0]};
-  std::vector<std::pair<double, Vec>> around;
-  for (const Vec& x : cut) {
-    const Vec r{x[0] - c[0], x[1] - c[1], x[2] - c[2]};
-    around.emplace_back(std::atan2(r[0] * v[0] + r[1] * v[1] + r[2] * v[2], r[0] * u[0] + r[1] * u[1] + r[2] * u[2]),
-                        x);
-  }
-  std::sort(around.begin(), around.end(), [](const auto& p, const auto& q) { return p.first < q.first; });
-  std::vector<Vec> cap;
-  for (const auto& [angle, x] : around) {
-    if (!cap.empty() && cap.back() == x) continue;
-    cap.push_back(x);
-  }
-  if (cap.size() >= 3) out.push_back(std::move(cap));
-  return out;
-}
-
-double polyhedron_volume(const Polyhedron& faces) {
-  Vec c{0, 0, 0};
-  std::size_t count = 0;
-  for (const auto& f : faces) {
-    for (const Vec& x : f) {
-      for (int k = 0; k < 3; ++k) c[static_cast<std::size_t>(k)] += x[static_cast<std::size_t>(k)];
-      ++count;
-    }
-  }
-  if (count == 0) return 0;
-  for (double& x : c) x /= static_cast<double>(count);
-  double six = 0;
-  for (const auto& f : faces) {
-    for (std::size_t i = 1; i + 1 < f.size(); ++i) {
-      Vec a, b, e;
-      for (std::size_t k = 0; k < 3; ++k) {
-        a[k] = f[0][k] - c[k];
-        b[k] = f[i][k] - c[k];
-        e[k] = f[i + 1][k] - c[k];
-      }
-      six += std::fabs(a[0] * (b[1] * e[2] - b[2] * e[1]) - a[1] * (b[0] * e[2] - b[2] * e[0]) +
-                       a[2] * (b[0] * e[1] - b[1] * e[0]));
-    }
-  }
-  return six / 6;
 }
 
 // The circumcentre of q and a facet's d points, in double (Cramer's rule on
@@ -357,6 +286,160 @@ bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavit
   return true;
 }
 
+// 3-d Sibson coordinates from the cavity's combinatorics, in O(neighbours x cavity):
+// neighbour p's stolen part is a convex polytope whose faces are known without
+// clipping. One face lies on the bisector of q and p: its vertices are the centres of
+// q's new simplices at p (q and a boundary facet holding p), consecutive when their
+// facets share an edge at p. One face lies on the bisector of p and each neighbour r
+// it shares a cavity simplex or a boundary facet with: its vertices are the old centres
+// of the cavity's simplices holding edge pr and the new centres of the (0 or 2)
+// boundary facets holding it, consecutive across a facet holding pr. Each face's area
+// is a fan around its vertices' mean (faces are convex), its plane is the bisector
+// (known exactly), and the volume is the divergence theorem's sum of area times signed
+// height over 3, taken from q: V = sum_F A_F n_F . (m_F - q) / 3. Relative to q.
+// Everything is visited in the order of point ids, so the bits do not depend on the
+// simplex the cavity's search began in. False where a new centre is flat in double
+// (the caller falls back).
+bool stolen_faces_3d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavity,
+                     const std::vector<std::pair<std::int32_t, int>>& boundary, const double* q,
+                     NaturalCoordinates& out) {
+  const PointSet& points = *tri.points;
+  constexpr std::size_t w = 4;
+  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  struct Node {
+    std::array<std::uint32_t, 4> ids;  // sorted point ids; a new centre's facet: 3, then kNone
+    std::int32_t simplex;              // the cavity simplex (a new centre's: the one its facet bounds)
+    Vec x;                             // the centre, relative to q
+    bool fresh() const { return ids[3] == kNone; }
+  };
+  thread_local std::vector<Node> nodes_tl;
+  auto& nodes = nodes_tl;
+  nodes.clear();
+  for (const std::int32_t s : cavity) {
+    Node n{{}, s, {}};
+    for (std::size_t j = 0; j < w; ++j) n.ids[j] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    Vec c;
+    if (!circumcentre_with(points, n.ids.data() + 1, points.point(n.ids[0]), c)) return false;
+    for (std::size_t k = 0; k < 3; ++k) n.x[k] = c[k] - q[k];
+    std::sort(n.ids.begin(), n.ids.end());
+    nodes.push_back(n);
+  }
+  for (const auto& [s, k] : boundary) {
+    Node n{{kNone, kNone, kNone, kNone}, s, {}};
+    for (std::size_t j = 0, at = 0; j < w; ++j) {
+      if (static_cast<int>(j) != k) n.ids[at++] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    }
+    Vec c;
+    if (!circumcentre_with(points, n.ids.data(), q, c)) return false;
+    for (std::size_t k2 = 0; k2 < 3; ++k2) n.x[k2] = c[k2] - q[k2];
+    std::sort(n.ids.begin(), n.ids.begin() + 3);
+    nodes.push_back(n);
+  }
+  // In the order of their point ids (kNone last: a simplex's centre before its facets'
+  // of the same ids): the same sums whichever simplex the cavity's search began in.
+  std::sort(nodes.begin(), nodes.end(), [](const Node& a, const Node& b) { return a.ids < b.ids; });
+  // Each neighbour's nodes (the centres its stolen part has for vertices): runs of
+  // (p, node), sorted. Then, within p's run, (r, node) for every other point r of a node
+  // (kNone for a new centre's own face on the bisector of q and p), sorted: each run of
+  // one r is a face of p's part, its vertices the run's nodes.
+  thread_local std::vector<std::pair<std::uint32_t, std::uint32_t>> by_point_tl, by_other_tl;
+  auto& by_point = by_point_tl;
+  auto& by_other = by_other_tl;
+  by_point.clear();
+  for (std::uint32_t k = 0; k < nodes.size(); ++k) {
+    for (const std::uint32_t v : nodes[k].ids) {
+      if (v != kNone) by_point.emplace_back(v, k);
+    }
+  }
+  std::sort(by_point.begin(), by_point.end());
+  auto rel = [&](std::uint32_t id) {
+    const double* p = points.point(id);
+    return Vec{p[0] - q[0], p[1] - q[1], p[2] - q[2]};
+  };
+  // Whether the face's vertices a and b (nodes) are consecutive around it: on the
+  // bisector of q and p, new centres whose facets share an edge at p (a second point);
+  // on the bisector of p and r, old centres across a facet holding pr (three points
+  // shared), an old centre and the new one of its own facet, or the two new ones.
+  auto consecutive = [&](const Node& a, const Node& b, bool q_face) {
+    int common = 0;
+    for (const std::uint32_t v : a.ids) {
+      if (v != kNone && std::find(b.ids.begin(), b.ids.end(), v) != b.ids.end()) ++common;
+    }
+    if (q_face) return common == 2;
+    if (!a.fresh() && !b.fresh()) return common == 3;
+    if (a.fresh() != b.fresh()) return a.simplex == b.simplex;
+    return true;
+  };
+  out.weights.assign(out.neighbors.size(), 0.0);
+  double total = 0;
+  std::size_t i = 0;  // out.neighbors[i] is the run's point (both ascending)
+  for (std::size_t at = 0; at < by_point.size();) {
+    const std::uint32_t p = by_point[at].first;
+    std::size_t end = at;
+    while (end < by_point.size() && by_point[end].first == p) ++end;
+    while (i < out.neighbors.size() && out.neighbors[i] < p) ++i;
+    if (i == out.neighbors.size() || out.neighbors[i] != p) return false;
+    by_other.clear();
+    for (std::size_t e = at; e < end; ++e) {
+      const Node& n = nodes[by_point[e].second];
+      for (const std::uint32_t v : n.ids) {
+        if (v != p) by_other.emplace_back(v, by_point[e].second);  // kNone: the face on q's bisector
+      }
+    }
+    std::sort(by_other.begin(), by_other.end());
+    const Vec pp = rel(p);
+    const double p2 = pp[0] * pp[0] + pp[1] * pp[1] + pp[2] * pp[2];
+    double volume = 0;
+    for (std::size_t f = 0; f < by_other.size();) {
+      const std::uint32_t r = by_other[f].first;
+      std::size_t g = f;
+      while (g < by_other.size() && by_other[g].first == r) ++g;
+      if (g - f >= 3) {
+        // The face's area: a fan from its vertices' mean (it is convex).
+        Vec c{0, 0, 0};
+        for (std::size_t e = f; e < g; ++e) {
+          for (std::size_t k = 0; k < 3; ++k) c[k] += nodes[by_other[e].second].x[k];
+        }
+        for (double& x : c) x /= static_cast<double>(g - f);
+        double area = 0;
+        for (std::size_t e = f; e < g; ++e) {
+          const Node& na = nodes[by_other[e].second];
+          for (std::size_t h = e + 1; h < g; ++h) {
+            const Node& nb = nodes[by_other[h].second];
+            if (!consecutive(na, nb, r == kNone)) continue;
+            const double ux = na.x[0] - c[0], uy = na.x[1] - c[1], uz = na.x[2] - c[2];
+            const double vx = nb.x[0] - c[0], vy = nb.x[1] - c[1], vz = nb.x[2] - c[2];
+            const double cx = uy * vz - uz * vy, cy = uz * vx - ux * vz, cz = ux * vy - uy * vx;
+            area += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+          }
+        }
+        // Its plane's signed height from q (outward from p's part): the bisector of q
+        // and p at |p - q| / 2; of p and r at (|r - q|^2 - |p - q|^2) / (2 |r - p|).
+        double height;
+        if (r == kNone) {
+          height = std::sqrt(p2) / 2;
+        } else {
+          const Vec rr = rel(r);
+          const double r2 = rr[0] * rr[0] + rr[1] * rr[1] + rr[2] * rr[2];
+          const double dx = rr[0] - pp[0], dy = rr[1] - pp[1], dz = rr[2] - pp[2];
+          height = (r2 - p2) / (2 * std::sqrt(dx * dx + dy * dy + dz * dz));
+        }
+        volume += area * height / 3;
+      }
+      f = g;
+    }
+    out.weights[i] = volume;
+    at = end;
+  }
+  for (const double v : out.weights) {
+    if (!(v >= 0)) return false;
+    total += v;
+  }
+  if (!(total > 0)) return false;
+  for (double& x : out.weights) x /= total;
+  return true;
+}
+
 // Whether Sibson's coordinates reproduce q (sum w_i (p_i - q) = 0) to 1e-9 of the
 // neighbours' reach: the clipping in double keeps it to about 1e-15 on points in general
 // position; on cospherical ones (a grid's), bisectors through one old Voronoi vertex
@@ -545,6 +628,14 @@ Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const 
   }
   std::sort(out.neighbors.begin(), out.neighbors.end());
   out.neighbors.erase(std::unique(out.neighbors.begin(), out.neighbors.end()), out.neighbors.end());
+  if (d == 3) {
+    // The faces' volumes; where a centre is flat in double or the answer does not
+    // reproduce q (not seen on uniform, grid or clustered sets), exact hulls.
+    out.where = NaturalCoordinates::Where::kInside;
+    if (stolen_faces_3d(tri, cavity, boundary, q, out) && reproduces_query(points, out, q)) return Status::ok();
+    return stolen_hulls_3d(tri, cavity, boundary, q, out);
+  }
+  // 2-d where Watson's construction met a flat centre: the query's cell clipped.
   // q's cell lies in the box of its vertices, the circumcentres of its new simplices.
   Vec lo{0, 0, 0}, hi{0, 0, 0};
   bool first = true;
@@ -596,28 +687,18 @@ Status natural_neighbors(const DelaunayArrays& tri, std::int32_t simplex, const 
   out.weights.assign(out.neighbors.size(), 0.0);
   for (std::size_t i = 0; i < out.neighbors.size(); ++i) {
     const Vec pi = at(out.neighbors[i]);
-    double measure;
-    if (d == 2) {
-      std::vector<Vec> poly{{lo[0], lo[1], 0}, {hi[0], lo[1], 0}, {hi[0], hi[1], 0}, {lo[0], hi[1], 0}};
-      poly = clip_loop(poly, bisector(qv, pi), 2, nullptr);
-      for (std::size_t j = 0; j < out.neighbors.size() && poly.size() >= 3; ++j) {
-        if (j != i) poly = clip_loop(poly, bisector(pi, at(out.neighbors[j])), 2, nullptr);
-      }
-      measure = poly.size() >= 3 ? polygon_area(poly) : 0.0;
-    } else {
-      Polyhedron poly = clip_polyhedron(box_polyhedron(lo, hi), bisector(qv, pi));
-      for (std::size_t j = 0; j < out.neighbors.size() && poly.size() >= 4; ++j) {
-        if (j != i) poly = clip_polyhedron(poly, bisector(pi, at(out.neighbors[j])));
-      }
-      measure = poly.size() >= 4 ? polyhedron_volume(poly) : 0.0;
+    std::vector<Vec> poly{{lo[0], lo[1], 0}, {hi[0], lo[1], 0}, {hi[0], hi[1], 0}, {lo[0], hi[1], 0}};
+    poly = clip_loop(poly, bisector(qv, pi), 2, nullptr);
+    for (std::size_t j = 0; j < out.neighbors.size() && poly.size() >= 3; ++j) {
+      if (j != i) poly = clip_loop(poly, bisector(pi, at(out.neighbors[j])), 2, nullptr);
     }
+    const double measure = poly.size() >= 3 ? polygon_area(poly) : 0.0;
     out.weights[i] = measure;
     total += measure;
   }
   if (!(total > 0)) return internal_error("natural neighbours: the query's cell has no volume");
   for (double& x : out.weights) x /= total;
   out.where = NaturalCoordinates::Where::kInside;
-  if (d == 3 && !reproduces_query(points, out, q)) return stolen_hulls_3d(tri, cavity, boundary, q, out);
   return Status::ok();
 }
 
