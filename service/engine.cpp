@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <mutex>
+#include <numeric>
 #include <unordered_map>
 
 #include "spokemesh/facet_cache.hpp"
@@ -1548,14 +1549,13 @@ const char* point_method_name(PointMethod m) {
 
 }  // namespace
 
-Status Engine::points(const std::string& id, std::span<const double> queries, const PointQuery& query,
-                      const CallControl& control, const PointSink& emit, const PointEncoder& encode) {
-  if (queries.empty()) return invalid_argument("queries: none given");
-  auto set_or = store_->get(id);
-  if (!set_or.is_ok()) return set_or.status();
-  const std::shared_ptr<const StoredSet> held = set_or.value();
-  const StoredSet& set = *held;
-  const int d = set.info.dimension;
+namespace {
+
+// The checks of a point query that need only the set's description: each error names
+// its field (Engine::points).
+Status check_point_query(const PointSetInfo& info, std::span<const double> queries, const PointQuery& query) {
+  const std::string& id = info.id;
+  const int d = info.dimension;
   const auto dd = static_cast<std::size_t>(d);
   if (queries.size() % dd != 0) {
     return invalid_argument("queries: " + std::to_string(queries.size()) + " numbers are not whole " +
@@ -1572,24 +1572,26 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
                               "]: not a finite number");
     }
   }
-  if (set.box) {
+  if (!info.periodic_box.empty()) {
     return failed_precondition("point set " + id +
                                " is periodic: answers at other points are not computed on a "
                                "torus yet");
   }
-  if (!set.weights.empty()) {
+  if (info.weighted) {
     return failed_precondition("point set " + id +
                                " is weighted: answers at other points are computed from the "
                                "Delaunay triangulation of unweighted sets only");
   }
-  if (Status s = exact_allowed(set, "answers at other points"); !s.is_ok()) return s;
+  if (d > kMaxDimension) {
+    return resource_exhausted("answers at other points are exact and limited to d <= " + std::to_string(kMaxDimension) +
+                              " (point set " + id + " is " + std::to_string(d) + "-d)");
+  }
   if (query.method == PointMethod::kNatural && d != 2 && d != 3) {
     return invalid_argument("method: natural-neighbour interpolation is computed in 2-d and 3-d, and point set " + id +
                             " is " + std::to_string(d) + "-d (linear and nearest work in any dimension)");
   }
-  const bool interpolating = query.method != PointMethod::kLocate;
-  if (interpolating) {
-    const std::uint64_t n = set.info.count;
+  if (query.method != PointMethod::kLocate) {
+    const std::uint64_t n = info.count;
     if (query.width == 0 || query.values.size() != n * query.width) {
       return invalid_argument(
           "values: expected " + std::to_string(n) + " rows (one per point of the set) of " +
@@ -1603,6 +1605,66 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
       }
     }
   }
+  return Status::ok();
+}
+
+// One query's answer from a triangulation (`ids`, when given, maps its point ids to the
+// set's: a piece's), the located simplex given; values by the set's ids.
+Status answer_query(const DelaunayArrays& tri, const std::vector<std::uint64_t>* ids, std::int32_t located,
+                    const double* q, const PointQuery& query, bool natural, PointResult& r) {
+  if (Status s = answer_point(tri, located, q, natural, r.answer); !s.is_ok()) return s;
+  if (ids != nullptr) {
+    for (int j = 0; j < r.answer.vertex_count; ++j) {
+      r.answer.simplex[static_cast<std::size_t>(j)] =
+          static_cast<std::uint32_t>((*ids)[r.answer.simplex[static_cast<std::size_t>(j)]]);
+    }
+    for (std::uint32_t& v : r.answer.natural.neighbors) v = static_cast<std::uint32_t>((*ids)[v]);
+  }
+  if (query.method == PointMethod::kLocate) return Status::ok();
+  const std::size_t width = query.width;
+  r.values.resize(width);
+  r.has_values = query.method == PointMethod::kLinear
+                     ? interpolate_linear(r.answer, query.values, width, r.values.data())
+                     : interpolate_natural(r.answer, query.values, width, r.values.data());
+  if (!r.has_values && query.fill) {
+    std::fill(r.values.begin(), r.values.end(), *query.fill);
+    r.has_values = true;
+  }
+  if (!r.has_values) r.values.clear();
+  return Status::ok();
+}
+
+// The nearest point's values.
+void answer_nearest(std::uint32_t p, const PointQuery& query, PointResult& r) {
+  r.nearest = p;
+  r.has_values = true;
+  r.values.assign(query.values.begin() + static_cast<std::ptrdiff_t>(p * query.width),
+                  query.values.begin() + static_cast<std::ptrdiff_t>((p + 1) * query.width));
+}
+
+}  // namespace
+
+Status Engine::points(const std::string& id, std::span<const double> queries, const PointQuery& query,
+                      const CallControl& control, const PointSink& emit, const PointEncoder& encode) {
+  if (queries.empty()) return invalid_argument("queries: none given");
+  if (shards_.sharded()) {
+    auto layout = store_->layout(id);
+    if (!layout.is_ok()) return layout.status();
+    if (layout.value()) {
+      auto info = store_->info(id);
+      if (!info.is_ok()) return info.status();
+      if (Status s = check_point_query(info.value(), queries, query); !s.is_ok()) return s;
+      return points_from_pieces(id, *layout.value(), queries, query, control, emit, encode);
+    }
+  }
+  auto set_or = store_->get(id);
+  if (!set_or.is_ok()) return set_or.status();
+  const std::shared_ptr<const StoredSet> held = set_or.value();
+  const StoredSet& set = *held;
+  if (Status s = check_point_query(set.info, queries, query); !s.is_ok()) return s;
+  const int d = set.info.dimension;
+  const auto dd = static_cast<std::size_t>(d);
+  const std::size_t m = queries.size() / dd;
   const bool natural = query.method == PointMethod::kNatural ||
                        (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
   auto window = store_->budget().try_charge(kStreamWindowBytes);
@@ -1625,34 +1687,247 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
     if (control.stopped()) return cancelled(what);
     r.index = i;
     const double* q = queries.data() + i * dd;
-    const std::size_t width = query.width;
     if (query.method == PointMethod::kNearest) {
-      const std::uint32_t p = nearest_point(*set.tree, q);
-      r.nearest = p;
-      r.has_values = true;
-      r.values.assign(query.values.begin() + static_cast<std::ptrdiff_t>(p * width),
-                      query.values.begin() + static_cast<std::ptrdiff_t>((p + 1) * width));
-    } else {
-      const DelaunayArrays arrays = index->arrays();
-      if (Status s = answer_point(arrays, located[i], q, natural, r.answer); !s.is_ok()) {
-        return Status{s.code(), "queries[" + std::to_string(i) + "]: " + s.message()};
-      }
-      if (interpolating) {
-        r.values.resize(width);
-        r.has_values = query.method == PointMethod::kLinear
-                           ? interpolate_linear(r.answer, query.values, width, r.values.data())
-                           : interpolate_natural(r.answer, query.values, width, r.values.data());
-        if (!r.has_values && query.fill) {
-          std::fill(r.values.begin(), r.values.end(), *query.fill);
-          r.has_values = true;
-        }
-        if (!r.has_values) r.values.clear();
-      }
+      answer_nearest(nearest_point(*set.tree, q), query, r);
+    } else if (Status s = answer_query(index->arrays(), nullptr, located[i], q, query, natural, r); !s.is_ok()) {
+      return Status{s.code(), "queries[" + std::to_string(i) + "]: " + s.message()};
     }
     if (encode) encode(r);
     return Status::ok();
   };
   return in_rounds<PointResult>(m, threads, 512 * threads, control, what, answer, emit);
+}
+
+namespace {
+
+// Boxes covering every point of the set outside a piece's held box (inside it every
+// point is held): slabs of the set's box beyond each of the held box's sides.
+std::vector<double> unheld_slabs(std::span<const double> global, std::span<const double> held) {
+  const std::size_t d = global.size() / 2;
+  std::vector<double> out;
+  for (std::size_t k = 0; k < d; ++k) {
+    if (held[k] > global[k]) {
+      out.insert(out.end(), global.begin(), global.end());
+      out[out.size() - d + k] = held[k];
+    }
+    if (held[d + k] < global[d + k]) {
+      out.insert(out.end(), global.begin(), global.end());
+      out[out.size() - 2 * d + k] = held[d + k];
+    }
+  }
+  return out;
+}
+
+// Whether a piece holds everything an answer rests on (point_queries.hpp,
+// answer_support): each simplex's ball is certified against the unheld slabs, and
+// nothing unheld may lie beyond a hull facet.
+bool support_held(const DelaunayArrays& tri, const AnswerSupport& support, const StarCertifier& certifier,
+                  std::span<const double> held, std::span<const double> unheld) {
+  if (unheld.empty()) return true;
+  const int d = tri.points->dimension();
+  const auto w = static_cast<std::size_t>(d + 1);
+  Star star;
+  star.dimension = d;
+  for (const std::int32_t s : support.simplices) {
+    const std::uint32_t* row = &tri.simplices[static_cast<std::size_t>(s) * w];
+    star.seed = row[0];
+    star.simplices.assign(row, row + w);
+    if (!certifier.certify(star, held, {}, unheld, [](std::span<const std::uint32_t>) { return false; }).certified) {
+      return false;
+    }
+  }
+  for (const auto& [s, k] : support.hull_facets) {
+    const std::uint32_t* row = &tri.simplices[static_cast<std::size_t>(s) * w];
+    std::array<const double*, kMaxDimension> facet{};
+    for (std::size_t j = 0, at = 0; j < w; ++j) {
+      if (static_cast<int>(j) != k) facet[at++] = tri.points->point(row[j]);
+    }
+    const double* inner = tri.points->point(row[static_cast<std::size_t>(k)]);
+    for (std::size_t b = 0; b + 2 * static_cast<std::size_t>(d) <= unheld.size();
+         b += 2 * static_cast<std::size_t>(d)) {
+      if (StarCertifier::may_be_beyond(d, facet.data(), inner, unheld.data() + b)) return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+Status Engine::points_from_pieces(const std::string& id, const PieceLayout& layout, std::span<const double> queries,
+                                  const PointQuery& query, const CallControl& control, const PointSink& emit,
+                                  const PointEncoder& encode) {
+  const PieceManifest& m = layout.manifest();
+  const int d = m.dimension;
+  const auto dd = static_cast<std::size_t>(d);
+  const std::size_t count = queries.size() / dd;
+  const bool natural = query.method == PointMethod::kNatural ||
+                       (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
+  auto window = store_->budget().try_charge(kStreamWindowBytes);
+  if (!window) return store_->budget().over_budget("point queries", kStreamWindowBytes);
+  const unsigned threads = std::max(1u, limits_.stream_threads);
+  const std::string what = std::string("point queries (") + point_method_name(query.method) + ")";
+  const std::vector<double>& g = m.global_box;
+  // Each query's piece: the one whose own box is nearest (0 inside), the first of equals.
+  std::vector<std::uint32_t> piece_of(count, 0);
+  for (std::size_t i = 0; i < count; ++i) {
+    const double* q = queries.data() + i * dd;
+    double best = std::numeric_limits<double>::infinity();
+    for (std::uint32_t p = 0; p < m.pieces.size(); ++p) {
+      const std::vector<double>& b = m.pieces[p].box;
+      double d2 = 0;
+      for (std::size_t k = 0; k < dd; ++k) {
+        const double gap = std::max({b[k] - q[k], q[k] - b[dd + k], 0.0});
+        d2 += gap * gap;
+      }
+      if (d2 < best) {
+        best = d2;
+        piece_of[i] = p;
+      }
+    }
+  }
+  std::vector<std::uint32_t> order(count);
+  std::iota(order.begin(), order.end(), 0u);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::uint32_t a, std::uint32_t b) { return piece_of[a] < piece_of[b]; });
+  std::vector<PointResult> results(count);
+  std::vector<std::uint8_t> settled(count, 0);
+  auto outside_set_box = [&](const double* q) {
+    for (std::size_t k = 0; k < dd; ++k) {
+      if (q[k] < g[k] || q[k] > g[dd + k]) return true;
+    }
+    return false;
+  };
+  // Runs `fn(j)` for j in [0, n) on the stream threads; the lowest failure is returned.
+  auto parallel = [&](std::size_t n, const std::function<Status(std::size_t)>& fn) {
+    std::atomic<std::size_t> next{0};
+    std::mutex mu;
+    std::size_t failed_at = n;
+    Status failure;
+    auto work = [&] {
+      for (std::size_t j; (j = next.fetch_add(1)) < n;) {
+        Status s = control.stopped() ? cancelled(what) : fn(j);
+        if (s.is_ok()) continue;
+        std::lock_guard lock(mu);
+        if (j < failed_at) {
+          failed_at = j;
+          failure = std::move(s);
+        }
+        next = n;
+      }
+    };
+    std::vector<std::thread> pool;
+    for (unsigned t = 1; t < threads && n > 64; ++t) pool.emplace_back(work);
+    work();
+    for (std::thread& th : pool) th.join();
+    if (failure.code() == Code::kCancelled) return control.stopped_status(what);
+    return failure;
+  };
+  for (std::size_t at = 0; at < count;) {
+    const std::uint32_t p = piece_of[order[at]];
+    std::size_t end = at;
+    while (end < count && piece_of[order[end]] == p) ++end;
+    auto piece_or = store_->get_piece(id, p);
+    if (!piece_or.is_ok()) return piece_or.status();
+    const std::shared_ptr<const StoredSet> piece = piece_or.value();
+    const PieceOf& of = *piece->piece;
+    const std::vector<double> unheld = unheld_slabs(g, of.held_box);
+    const StarCertifier certifier(piece->points, g);
+    const std::size_t n = end - at;
+    std::vector<double> group(n * dd);
+    for (std::size_t j = 0; j < n; ++j) {
+      std::copy_n(queries.data() + order[at + j] * dd, dd, group.data() + j * dd);
+    }
+    std::shared_ptr<const DelaunayIndex> index;
+    std::vector<std::int32_t> located(n, -1);
+    if (query.method != PointMethod::kNearest) {
+      auto made = located_index(*piece, control);
+      if (!made.is_ok()) return made.status();
+      index = std::move(made).value();
+      index->locator().locate_many(group.data(), n, threads,
+                                   [&](std::size_t, std::size_t j, std::int32_t s) { located[j] = s; });
+    }
+    Status s = parallel(n, [&](std::size_t j) -> Status {
+      const std::uint32_t i = order[at + j];
+      const double* q = group.data() + j * dd;
+      PointResult& r = results[i];
+      if (query.method == PointMethod::kNearest) {
+        const std::uint32_t local = nearest_point(*piece->tree, q);
+        const double* x = piece->points.point(local);
+        double d2 = 0;
+        for (std::size_t k = 0; k < dd; ++k) d2 += (x[k] - q[k]) * (x[k] - q[k]);
+        // Held when the ball around q through it, within the set's box, lies in the held box.
+        const double reach = std::sqrt(d2) * (1 + 1e-9) + 1e-300;
+        bool held = true;
+        for (std::size_t k = 0; k < dd && held; ++k) {
+          held = std::max(q[k] - reach, g[k]) >= of.held_box[k] &&
+                 std::min(q[k] + reach, g[dd + k]) <= of.held_box[dd + k];
+        }
+        if (!held) return Status::ok();
+        answer_nearest(static_cast<std::uint32_t>(of.ids[local]), query, r);
+        settled[i] = 1;
+        return Status::ok();
+      }
+      const DelaunayArrays arrays = index->arrays();
+      thread_local AnswerSupport support;
+      answer_support(arrays, located[j], q, natural, support);
+      const bool held =
+          support.outside ? outside_set_box(q) : support_held(arrays, support, certifier, of.held_box, unheld);
+      if (!held) return Status::ok();
+      if (Status st = answer_query(arrays, &of.ids, located[j], q, query, natural, r); !st.is_ok()) {
+        return Status{st.code(), "queries[" + std::to_string(i) + "]: " + st.message()};
+      }
+      settled[i] = 1;
+      return Status::ok();
+    });
+    if (!s.is_ok()) return s;
+    at = end;
+  }
+  // What no piece held: from the set's own file, as a replica holding it whole answers.
+  std::vector<std::uint32_t> rest;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (settled[i] == 0) rest.push_back(i);
+  }
+  if (!rest.empty()) {
+    auto whole_or = store_->get(id);
+    if (!whole_or.is_ok()) return whole_or.status();
+    const std::shared_ptr<const StoredSet> whole = whole_or.value();
+    std::vector<double> group(rest.size() * dd);
+    for (std::size_t j = 0; j < rest.size(); ++j) std::copy_n(queries.data() + rest[j] * dd, dd, group.data() + j * dd);
+    std::shared_ptr<const DelaunayIndex> index;
+    std::vector<std::int32_t> located(rest.size(), -1);
+    if (query.method != PointMethod::kNearest) {
+      auto made = located_index(*whole, control);
+      if (!made.is_ok()) return made.status();
+      index = std::move(made).value();
+      index->locator().locate_many(group.data(), rest.size(), threads,
+                                   [&](std::size_t, std::size_t j, std::int32_t s) { located[j] = s; });
+    }
+    Status s = parallel(rest.size(), [&](std::size_t j) -> Status {
+      const std::uint32_t i = rest[j];
+      const double* q = group.data() + j * dd;
+      if (query.method == PointMethod::kNearest) {
+        answer_nearest(nearest_point(*whole->tree, q), query, results[i]);
+        return Status::ok();
+      }
+      if (Status st = answer_query(index->arrays(), nullptr, located[j], q, query, natural, results[i]); !st.is_ok()) {
+        return Status{st.code(), "queries[" + std::to_string(i) + "]: " + st.message()};
+      }
+      return Status::ok();
+    });
+    if (!s.is_ok()) return s;
+  }
+  completed_from_whole_.fetch_add(rest.size(), std::memory_order_relaxed);
+  // In request order, encoded, a round at a time.
+  constexpr std::size_t kRound = 1024;
+  for (std::size_t at = 0; at < count; at += kRound) {
+    const std::size_t end = std::min(count, at + kRound);
+    for (std::size_t i = at; i < end; ++i) {
+      results[i].index = i;
+      if (encode) encode(results[i]);
+    }
+    if (Status s = emit(std::span<const PointResult>(results.data() + at, end - at), end); !s.is_ok()) return s;
+  }
+  return Status::ok();
 }
 
 Status Engine::batch_from_pieces(const std::string& id, std::uint64_t count, const std::vector<std::uint64_t>& seeds,

@@ -291,6 +291,8 @@ class Engine {
   Engine(std::unique_ptr<PointSetStore> store, Limits limits, ShardSettings shards = {});
 
   const ShardSettings& shards() const { return shards_; }
+  // Point queries on sets kept as pieces answered from the set's own file so far.
+  std::uint64_t point_queries_from_whole() const { return completed_from_whole_.load(); }
   // A batch's seeds' shards on a sharded replica, in the request's order; empty when
   // the batch is answered here whole (a set held whole, a replica that is not sharded).
   // The errors batch() gives for the seeds (none, too many, one out of range).
@@ -432,6 +434,13 @@ class Engine {
   Status stream_cells_from_pieces(const std::string& id, StreamPart range, std::uint32_t batch_size,
                                   const DomainSpec& spec, bool measures_only, const CallControl& control,
                                   const CellBatchSink& emit);
+  // Point queries on a set kept as pieces: each answered from the piece whose box is
+  // nearest it (loaded here if need be) where the piece holds everything the answer
+  // rests on (answer_support: every ball within the set's box inside the held box, every
+  // hull facet with nothing unheld beyond), the rest from the set's own file.
+  Status points_from_pieces(const std::string& id, const PieceLayout& layout, std::span<const double> queries,
+                            const PointQuery& query, const CallControl& control, const PointSink& emit,
+                            const PointEncoder& encode);
   // The set's triangulation as arrays for point queries: kept, or made now and kept.
   Result<std::shared_ptr<const DelaunayIndex>> located_index(const StoredSet& set, const CallControl& control);
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
@@ -516,6 +525,9 @@ class Engine {
   std::mutex values_mutex_;
   std::vector<LoadedValues> values_;  // most recently used last, at most kValuesKept
   static constexpr std::size_t kValuesKept = 4;
+  // Point queries on a set kept as pieces answered from its own file (no piece held
+  // what they rest on), for /metrics and tests.
+  std::atomic<std::uint64_t> completed_from_whole_{0};
   std::mutex shapes_mutex_;
   std::vector<KeptShape> shapes_;  // most recently used last
   // Builds the sets' triangulations of every point, one at a time, on its own thread

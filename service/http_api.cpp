@@ -473,7 +473,7 @@ HttpResponse HttpApi::route(Context& c) {
     auto& store = engine_.store();
     telemetry_.set_memory(store.memory_in_use(), store.loaded_count(), store.budget().used(), store.budget().limit());
     const auto [pieces, piece_bytes] = store.pieces_in_memory();
-    telemetry_.set_pieces(pieces, piece_bytes);
+    telemetry_.set_pieces(pieces, piece_bytes, engine_.point_queries_from_whole());
     HttpResponse r;
     r.content_type = "text/plain; version=0.0.4";
     r.body = telemetry_.render_metrics();

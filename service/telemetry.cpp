@@ -132,6 +132,10 @@ Telemetry::Telemetry() : registry_(std::make_shared<prometheus::Registry>()) {
       gauge("spokemesh_heap_held_bytes", "Bytes malloc holds from the system, in use or free (glibc mallinfo2)");
   pieces_ = gauge("spokemesh_pieces_loaded", "Pieces of sharded point sets held in memory (with their trees)");
   piece_bytes_ = gauge("spokemesh_pieces_memory_bytes", "Estimated bytes of the pieces held in memory");
+  points_from_whole_ =
+      gauge("spokemesh_point_queries_from_whole_set",
+            "Point queries (:locate, :interpolate) on sets kept as pieces that no piece held what they "
+            "rest on, answered from the set's own file, since start");
   forwarded_ = &prometheus::BuildCounter()
                     .Name("spokemesh_forwarded_requests_total")
                     .Help("Requests handed to a replica of another shard, by shard and outcome")

@@ -65,9 +65,10 @@ class Telemetry {
   // Sharded serving: which shard this replica serves, the pieces it holds, and the
   // requests it handed to other shards (by shard and outcome: ok, or the error's code).
   void set_shard(std::uint32_t index, std::uint32_t count);
-  void set_pieces(std::size_t pieces, std::uint64_t bytes) {
+  void set_pieces(std::size_t pieces, std::uint64_t bytes, std::uint64_t points_from_whole) {
     pieces_->Set(static_cast<double>(pieces));
     piece_bytes_->Set(static_cast<double>(bytes));
+    points_from_whole_->Set(static_cast<double>(points_from_whole));
   }
   void add_forwarded(std::uint32_t shard, Code code);
 
@@ -88,6 +89,7 @@ class Telemetry {
   prometheus::Gauge* heap_held_;
   prometheus::Gauge* pieces_;
   prometheus::Gauge* piece_bytes_;
+  prometheus::Gauge* points_from_whole_;
   prometheus::Family<prometheus::Counter>* forwarded_;
   prometheus::Family<prometheus::Gauge>* shard_;
   // One request series' metrics, found once per (transport, method, status).

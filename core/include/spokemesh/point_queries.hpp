@@ -83,6 +83,21 @@ struct PointAnswer {
 // natural: also its natural neighbours (INVALID_ARGUMENT outside 2-d and 3-d).
 Status answer_point(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural, PointAnswer& out);
 
+// What an answer at q rests on, for a caller holding part of a set (a piece: pieces.hpp)
+// that must know whether the answer it computed is the whole set's: the simplices
+// holding q (canonical_simplex's search) and, with natural, the cavity and the
+// simplices across its boundary; and the hull facets (simplex, opposite vertex) q lies
+// on or the cavity ends at. The answer from a subset's triangulation is the whole
+// set's when each of these simplices is one of the whole set's (an empty circumsphere
+// in the whole set) and each hull facet lies on the whole set's hull. outside: q lies
+// outside the triangulation's hull (located < 0): nothing else is said.
+struct AnswerSupport {
+  bool outside = false;
+  std::vector<std::int32_t> simplices;
+  std::vector<std::pair<std::int32_t, int>> hull_facets;
+};
+void answer_support(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural, AnswerSupport& out);
+
 // Values at a query point from its answer: `values` holds `width` values per point of
 // the set (row-major); out[0..width). Linear: the barycentric coordinates applied;
 // natural: Sibson's. False outside the hull (out untouched).

@@ -103,6 +103,72 @@ Status answer_point(const DelaunayArrays& tri, std::int32_t located, const doubl
   return natural_neighbors(tri, s, q, out.natural);
 }
 
+void answer_support(const DelaunayArrays& tri, std::int32_t located, const double* q, bool natural,
+                    AnswerSupport& out) {
+  out.outside = located < 0;
+  out.simplices.clear();
+  out.hull_facets.clear();
+  if (located < 0) return;
+  const PointSet& points = *tri.points;
+  const int d = points.dimension();
+  const auto w = static_cast<std::size_t>(d + 1);
+  auto on_facet = [&](std::int32_t s, std::size_t k) {
+    const std::uint32_t* v = &tri.simplices[static_cast<std::size_t>(s) * w];
+    std::array<const double*, kMaxDimension + 1> corners{};
+    for (std::size_t j = 0; j < w; ++j) corners[j] = j == k ? q : points.point(v[j]);
+    return orientation_of(corners, d) == 0;
+  };
+  auto listed = [](const std::vector<std::int32_t>& list, std::int32_t t) {
+    return std::find(list.begin(), list.end(), t) != list.end();
+  };
+  // The simplices holding q, and the hull facets q lies on.
+  std::vector<std::int32_t>& holding = out.simplices;
+  holding.push_back(located);
+  for (std::size_t i = 0; i < holding.size(); ++i) {
+    const std::int32_t s = holding[i];
+    for (std::size_t k = 0; k < w; ++k) {
+      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
+      if (t >= 0 && listed(holding, t)) continue;
+      if (!on_facet(s, k)) continue;
+      if (t < 0) {
+        out.hull_facets.emplace_back(s, static_cast<int>(k));
+      } else {
+        holding.push_back(t);
+      }
+    }
+  }
+  if (!natural) return;
+  // The cavity (circumspheres holding q strictly) from the holders, and what lies
+  // across its boundary.
+  std::vector<std::int32_t> cavity;
+  std::vector<std::int32_t> across;
+  for (const std::int32_t s : holding) {
+    if (in_circumsphere(points, &tri.simplices[static_cast<std::size_t>(s) * w], q) > 0) cavity.push_back(s);
+  }
+  for (std::size_t i = 0; i < cavity.size(); ++i) {
+    const std::int32_t s = cavity[i];
+    for (std::size_t k = 0; k < w; ++k) {
+      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
+      if (t < 0) {
+        out.hull_facets.emplace_back(s, static_cast<int>(k));
+        continue;
+      }
+      if (listed(cavity, t) || listed(across, t)) continue;
+      if (in_circumsphere(points, &tri.simplices[static_cast<std::size_t>(t) * w], q) > 0) {
+        cavity.push_back(t);
+      } else {
+        across.push_back(t);
+      }
+    }
+  }
+  for (const std::int32_t s : cavity) {
+    if (!listed(holding, s)) out.simplices.push_back(s);
+  }
+  for (const std::int32_t t : across) {
+    if (!listed(out.simplices, t)) out.simplices.push_back(t);
+  }
+}
+
 bool interpolate_linear(const PointAnswer& answer, std::span<const double> values, std::size_t width, double* out) {
   if (answer.vertex_count == 0) return false;
   std::fill(out, out + width, 0.0);
