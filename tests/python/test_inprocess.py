@@ -200,10 +200,21 @@ def test_incremental_insertion_equals_the_whole_set_and_computes_only_what_chang
     whole = spokemesh.Delaunay(pts, threads=2)
     assert np.array_equal(inc.simplices, whole.simplices)
     assert np.array_equal(inc.coplanar, whole.coplanar) and len(whole.coplanar) == 50
-    # 100 points into 15,000: their stars and their neighbours' only.
-    small = spokemesh.Delaunay(pts[:15_000], incremental=True)
-    small.add_points(pts[15_000:15_100])
-    assert small._tri.stars_computed < 2_000
+    # 100 points into 15,000: their stars and their neighbours' only. The engine probes a
+    # few new stars against a deadline and sweeps the whole set instead when walking
+    # looks dear (insert_points, mesh.hpp): on a machine busy with other tests the probe
+    # can miss its deadline and the whole set is swept (the same simplices; this test
+    # failed so about once in ten joint runs). So: the same simplices every time, and
+    # only what changes in at least one of three tries.
+    computed = []
+    for _ in range(3):
+        small = spokemesh.Delaunay(pts[:15_000], incremental=True)
+        small.add_points(pts[15_000:15_100])
+        assert np.array_equal(small.simplices, spokemesh.Delaunay(pts[:15_100]).simplices)
+        computed.append(small._tri.stars_computed)
+        if computed[-1] < 2_000:
+            break
+    assert min(computed) < 2_000, computed
     inc.close()
     with pytest.raises(RuntimeError, match="incremental"):
         inc.add_points(pts[:1])

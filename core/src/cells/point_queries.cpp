@@ -20,6 +20,34 @@ bool sorted_less(const std::uint32_t* s, const std::uint32_t* t, int w) {
   return std::lexicographical_compare(a.begin(), a.begin() + w, b.begin(), b.begin() + w);
 }
 
+// The simplices holding q: `located` and those reached across facets q lies on
+// (orientation 0 with q in place of the opposite vertex), a face's star, a handful;
+// with `hull`, the hull facets q lies on (simplex, opposite vertex).
+void simplices_holding(const DelaunayArrays& tri, std::int32_t located, const double* q,
+                       std::vector<std::int32_t>& holding, std::vector<std::pair<std::int32_t, int>>* hull) {
+  const PointSet& points = *tri.points;
+  const int d = points.dimension();
+  const auto w = static_cast<std::size_t>(d + 1);
+  holding.assign(1, located);
+  for (std::size_t i = 0; i < holding.size(); ++i) {
+    const std::int32_t s = holding[i];
+    const std::uint32_t* v = &tri.simplices[static_cast<std::size_t>(s) * w];
+    for (std::size_t k = 0; k < w; ++k) {
+      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
+      if (t >= 0 && std::find(holding.begin(), holding.end(), t) != holding.end()) continue;
+      if (t < 0 && hull == nullptr) continue;
+      std::array<const double*, kMaxDimension + 1> corners{};
+      for (std::size_t j = 0; j < w; ++j) corners[j] = j == k ? q : points.point(v[j]);
+      if (orientation_of(corners, d) != 0) continue;
+      if (t < 0) {
+        hull->emplace_back(s, static_cast<int>(k));
+      } else {
+        holding.push_back(t);
+      }
+    }
+  }
+}
+
 }  // namespace
 
 void sort_vertices(std::uint32_t* v, int w) {
@@ -30,24 +58,14 @@ void sort_vertices(std::uint32_t* v, int w) {
 
 std::int32_t canonical_simplex(const DelaunayArrays& tri, std::int32_t located, const double* q) {
   if (located < 0) return located;
-  const PointSet& points = *tri.points;
-  const int d = points.dimension();
-  const auto w = static_cast<std::size_t>(d + 1);
-  // The simplices holding q, found across the facets q lies on (orientation 0 with q in
-  // place of the opposite vertex): a face's star, a handful.
+  const auto w = static_cast<std::size_t>(tri.points->dimension() + 1);
   thread_local std::vector<std::int32_t> holding;
-  holding.assign(1, located);
+  simplices_holding(tri, located, q, holding, nullptr);
   std::int32_t best = located;
-  for (std::size_t i = 0; i < holding.size(); ++i) {
-    const std::int32_t s = holding[i];
-    const std::uint32_t* v = &tri.simplices[static_cast<std::size_t>(s) * w];
-    if (sorted_less(v, &tri.simplices[static_cast<std::size_t>(best) * w], d + 1)) best = s;
-    for (std::size_t k = 0; k < w; ++k) {
-      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
-      if (t < 0 || std::find(holding.begin(), holding.end(), t) != holding.end()) continue;
-      std::array<const double*, kMaxDimension + 1> corners{};
-      for (std::size_t j = 0; j < w; ++j) corners[j] = j == k ? q : points.point(v[j]);
-      if (orientation_of(corners, d) == 0) holding.push_back(t);
+  for (const std::int32_t s : holding) {
+    if (sorted_less(&tri.simplices[static_cast<std::size_t>(s) * w], &tri.simplices[static_cast<std::size_t>(best) * w],
+                    static_cast<int>(w))) {
+      best = s;
     }
   }
   return best;
@@ -112,32 +130,13 @@ void answer_support(const DelaunayArrays& tri, std::int32_t located, const doubl
   const PointSet& points = *tri.points;
   const int d = points.dimension();
   const auto w = static_cast<std::size_t>(d + 1);
-  auto on_facet = [&](std::int32_t s, std::size_t k) {
-    const std::uint32_t* v = &tri.simplices[static_cast<std::size_t>(s) * w];
-    std::array<const double*, kMaxDimension + 1> corners{};
-    for (std::size_t j = 0; j < w; ++j) corners[j] = j == k ? q : points.point(v[j]);
-    return orientation_of(corners, d) == 0;
-  };
   auto listed = [](const std::vector<std::int32_t>& list, std::int32_t t) {
     return std::find(list.begin(), list.end(), t) != list.end();
   };
   // The simplices holding q, and the hull facets q lies on.
-  std::vector<std::int32_t>& holding = out.simplices;
-  holding.push_back(located);
-  for (std::size_t i = 0; i < holding.size(); ++i) {
-    const std::int32_t s = holding[i];
-    for (std::size_t k = 0; k < w; ++k) {
-      const std::int32_t t = tri.adjacency[static_cast<std::size_t>(s) * w + k];
-      if (t >= 0 && listed(holding, t)) continue;
-      if (!on_facet(s, k)) continue;
-      if (t < 0) {
-        out.hull_facets.emplace_back(s, static_cast<int>(k));
-      } else {
-        holding.push_back(t);
-      }
-    }
-  }
+  simplices_holding(tri, located, q, out.simplices, &out.hull_facets);
   if (!natural) return;
+  const std::vector<std::int32_t> holding = out.simplices;
   // The cavity (circumspheres holding q strictly) from the holders, and what lies
   // across its boundary.
   std::vector<std::int32_t> cavity;
