@@ -1499,6 +1499,17 @@ Status Engine::batch(const std::string& id, const std::vector<std::uint64_t>& se
                                 encoded(answer, encode), emit);
 }
 
+Status Engine::locate_points(const StoredSet& set, const double* queries, std::size_t count, const CallControl& control,
+                             std::shared_ptr<const DelaunayIndex>& index, std::vector<std::int32_t>& located) {
+  auto made = located_index(set, control);
+  if (!made.is_ok()) return made.status();
+  index = std::move(made).value();
+  located.assign(count, -1);
+  index->locator().locate_many(queries, count, std::max(1u, limits_.stream_threads),
+                               [&](std::size_t, std::size_t i, std::int32_t s) { located[i] = s; });
+  return Status::ok();
+}
+
 Result<std::shared_ptr<const DelaunayIndex>> Engine::located_index(const StoredSet& set, const CallControl& control) {
   std::lock_guard lock(set.located_mu);
   if (set.located) return set.located;
@@ -1634,6 +1645,12 @@ Status answer_query(const DelaunayArrays& tri, const std::vector<std::uint64_t>*
   return Status::ok();
 }
 
+// Whether the answers need Sibson's coordinates.
+bool wants_natural(const PointQuery& query, int d) {
+  return query.method == PointMethod::kNatural ||
+         (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
+}
+
 // The nearest point's values.
 void answer_nearest(std::uint32_t p, const PointQuery& query, PointResult& r) {
   r.nearest = p;
@@ -1665,8 +1682,7 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
   const int d = set.info.dimension;
   const auto dd = static_cast<std::size_t>(d);
   const std::size_t m = queries.size() / dd;
-  const bool natural = query.method == PointMethod::kNatural ||
-                       (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
+  const bool natural = wants_natural(query, d);
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("point queries", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
@@ -1675,12 +1691,7 @@ Status Engine::points(const std::string& id, std::span<const double> queries, co
   std::shared_ptr<const DelaunayIndex> index;
   std::vector<std::int32_t> located;
   if (query.method != PointMethod::kNearest) {
-    auto made = located_index(set, control);
-    if (!made.is_ok()) return made.status();
-    index = std::move(made).value();
-    located.assign(m, -1);
-    index->locator().locate_many(queries.data(), m, threads,
-                                 [&](std::size_t, std::size_t i, std::int32_t s) { located[i] = s; });
+    if (Status s = locate_points(set, queries.data(), m, control, index, located); !s.is_ok()) return s;
   }
   const std::string what = std::string("point queries (") + point_method_name(query.method) + ")";
   auto answer = [&](unsigned, std::size_t i, PointResult& r) -> Status {
@@ -1760,8 +1771,7 @@ Status Engine::points_from_pieces(const std::string& id, const PieceLayout& layo
   const int d = m.dimension;
   const auto dd = static_cast<std::size_t>(d);
   const std::size_t count = queries.size() / dd;
-  const bool natural = query.method == PointMethod::kNatural ||
-                       (query.method == PointMethod::kLocate && query.natural && (d == 2 || d == 3));
+  const bool natural = wants_natural(query, d);
   auto window = store_->budget().try_charge(kStreamWindowBytes);
   if (!window) return store_->budget().over_budget("point queries", kStreamWindowBytes);
   const unsigned threads = std::max(1u, limits_.stream_threads);
@@ -1838,13 +1848,9 @@ Status Engine::points_from_pieces(const std::string& id, const PieceLayout& layo
       std::copy_n(queries.data() + order[at + j] * dd, dd, group.data() + j * dd);
     }
     std::shared_ptr<const DelaunayIndex> index;
-    std::vector<std::int32_t> located(n, -1);
+    std::vector<std::int32_t> located;
     if (query.method != PointMethod::kNearest) {
-      auto made = located_index(*piece, control);
-      if (!made.is_ok()) return made.status();
-      index = std::move(made).value();
-      index->locator().locate_many(group.data(), n, threads,
-                                   [&](std::size_t, std::size_t j, std::int32_t s) { located[j] = s; });
+      if (Status s = locate_points(*piece, group.data(), n, control, index, located); !s.is_ok()) return s;
     }
     Status s = parallel(n, [&](std::size_t j) -> Status {
       const std::uint32_t i = order[at + j];
@@ -1894,13 +1900,9 @@ Status Engine::points_from_pieces(const std::string& id, const PieceLayout& layo
     std::vector<double> group(rest.size() * dd);
     for (std::size_t j = 0; j < rest.size(); ++j) std::copy_n(queries.data() + rest[j] * dd, dd, group.data() + j * dd);
     std::shared_ptr<const DelaunayIndex> index;
-    std::vector<std::int32_t> located(rest.size(), -1);
+    std::vector<std::int32_t> located;
     if (query.method != PointMethod::kNearest) {
-      auto made = located_index(*whole, control);
-      if (!made.is_ok()) return made.status();
-      index = std::move(made).value();
-      index->locator().locate_many(group.data(), rest.size(), threads,
-                                   [&](std::size_t, std::size_t j, std::int32_t s) { located[j] = s; });
+      if (Status s = locate_points(*whole, group.data(), rest.size(), control, index, located); !s.is_ok()) return s;
     }
     Status s = parallel(rest.size(), [&](std::size_t j) -> Status {
       const std::uint32_t i = rest[j];

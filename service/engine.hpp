@@ -441,6 +441,10 @@ class Engine {
   Status points_from_pieces(const std::string& id, const PieceLayout& layout, std::span<const double> queries,
                             const PointQuery& query, const CallControl& control, const PointSink& emit,
                             const PointEncoder& encode);
+  // The simplex of each of `count` query points (row-major) in the set's arrays
+  // (located_index), -1 outside: in Morton order, each walked from the one before.
+  Status locate_points(const StoredSet& set, const double* queries, std::size_t count, const CallControl& control,
+                       std::shared_ptr<const DelaunayIndex>& index, std::vector<std::int32_t>& located);
   // The set's triangulation as arrays for point queries: kept, or made now and kept.
   Result<std::shared_ptr<const DelaunayIndex>> located_index(const StoredSet& set, const CallControl& control);
   // A batch on a set kept as pieces: seed by seed, each from the piece holding it.
