@@ -67,6 +67,7 @@ def _tangent_halfspaces(n, d, seed):
 OTHER = {
     "spherical-voronoi-100k": lambda: _sphere(100_000, 11),
     "spherical-voronoi-1M": lambda: _sphere(1_000_000, 12),
+    "spherical-voronoi-10M": lambda: _sphere(10_000_000, 16),
     "halfspaces-3d-100k": lambda: _tangent_halfspaces(100_000, 3, 13),
     "halfspaces-3d-1M-random-offsets": lambda: np.c_[_tangent_halfspaces(1_000_000, 3, 14)[:, :3],
                                                       -1 - np.random.default_rng(15).random(1_000_000)],
@@ -83,7 +84,9 @@ def run_other(tool: str, name: str, repeat: int) -> dict:
     for _ in range(repeat):
         t = time.perf_counter()
         if name.startswith("spherical"):
-            sv = mod.SphericalVoronoi(data)
+            # 10M random points on the unit sphere have pairs nearer than scipy's default
+            # duplicate threshold (1e-6): both tools are given a smaller one.
+            sv = mod.SphericalVoronoi(data, threshold=1e-6 if len(data) < 5_000_000 else 1e-9)
             sv.sort_vertices_of_regions()
             total = float(sv.calculate_areas().sum())
             count = len(sv.vertices)

@@ -1259,12 +1259,17 @@ Status json_numbers(const json& body, const char* field, std::vector<double>& ou
       out.push_back(item.get<double>());
       continue;
     }
-    if (!item.is_array() || (i > 0 && *width == 0)) {
+    if (!item.is_number() && !item.is_array()) {
       return invalid_argument(std::string(field) + "[" + std::to_string(i) + "]: " + item.dump().substr(0, 40) +
                               " is not a number or a row of numbers");
     }
+    if (i > 0 && item.is_array() != (*width > 0)) {
+      return invalid_argument(std::string(field) + "[" + std::to_string(i) +
+                              "]: numbers and rows mixed (give every entry as a number, or every one as a row)");
+    }
     if (i == 0) *width = item.size();
-    if (item.size() != *width || item.empty()) {
+    if (item.empty()) return invalid_argument(std::string(field) + "[" + std::to_string(i) + "]: an empty row");
+    if (item.size() != *width) {
       return invalid_argument(std::string(field) + "[" + std::to_string(i) + "]: " + std::to_string(item.size()) +
                               " numbers, expected " + std::to_string(*width) + " (the rows before)");
     }

@@ -208,6 +208,8 @@ def test_bad_input_is_named(server):
         (":interpolate", {"queries": [[0.5, 0.5]], "values": [1.0] * 500, "method": "cubic"}, "method"),
         (":interpolate", {"queries": [[0.5, 0.5]], "values_id": "0" * 64}, "values_id"),
         (":interpolate", {"queries": [[0.5, 0.5]], "values": [[1.0, 2.0]] * 499 + [[1.0]]}, "values[499]"),
+        (":interpolate", {"queries": [[0.5, 0.5]], "values": [[1.0, 2.0]] * 499 + [1.0]}, "numbers and rows mixed"),
+        (":locate", {"queries": [[]]}, "queries[0]: an empty row"),
         ("/values", {"values": [1.0] * 3}, "values: expected 500 rows"),
     ]
     for route, body, named in cases:
