@@ -398,14 +398,6 @@ class Engine {
   Status batch(const std::string& id, const std::vector<std::uint64_t>& seeds, BatchKind kind,
                const NeighborQuery& query, const DomainSpec& domain, const CallControl& control, const AnswerSink& emit,
                const AnswerEncoder& encode = {});
-  // Answers at query points (`queries`: d coordinates each, row-major), handed to `emit`
-  // in request order a bounded round at a time (encode as batch()'s). The set's
-  // triangulation as arrays is made on the first call and kept (StoredSet::located).
-  // Errors, each naming the field: INVALID_ARGUMENT for no queries, more than
-  // defaults::kMaxBatchSeeds, coordinates that are not whole points or not finite
-  // ("queries[i][c]"), values of another shape or not finite ("values[i]"), natural
-  // neighbours outside 2-d and 3-d; FAILED_PRECONDITION for a periodic or weighted set;
-  // NOT_FOUND; RESOURCE_EXHAUSTED when the arrays do not fit the budget.
   // Values for the points of set `id` (count * width, row-major; each finite), kept
   // durably in the data directory (values/<id>/<values_id>) until the set is deleted.
   // values_id: the SHA-256 of the set's id, the width and the values, so putting the
@@ -416,6 +408,15 @@ class Engine {
   // budget) or read and verified from their file: NOT_FOUND naming values_id when the
   // set has none by that id.
   Result<std::shared_ptr<const KeptValues>> kept_values(const std::string& id, const std::string& values_id);
+  // Answers at query points (`queries`: d coordinates each, row-major), handed to `emit`
+  // in request order a bounded round at a time (encode as batch()'s). The set's
+  // triangulation as arrays is made on the first call and kept (StoredSet::located).
+  // Errors, each naming the field: INVALID_ARGUMENT for no queries, more than
+  // defaults::kMaxBatchSeeds, coordinates that are not whole points or not finite
+  // ("queries[i][c]"), values of another shape or not finite ("values[i]"), natural
+  // neighbours outside 2-d and 3-d; FAILED_PRECONDITION for a periodic or weighted set;
+  // NOT_FOUND; RESOURCE_EXHAUSTED when the arrays do not fit the budget. A set kept as
+  // pieces on a sharded replica: points_from_pieces (the same answers).
   using PointSink = std::function<Status(std::span<const PointResult> answers, std::uint64_t done)>;
   using PointEncoder = std::function<void(PointResult& answer)>;
   Status points(const std::string& id, std::span<const double> queries, const PointQuery& query,
