@@ -286,6 +286,57 @@ bool watson_2d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavit
   return true;
 }
 
+// A 3-d cavity's Voronoi vertices around q, relative to q: the old centres of its
+// simplices and the new centres of q with each boundary facet, each with its point ids
+// sorted (a new centre's 3, then kNoPoint) and the cavity simplex it belongs to (a new
+// centre's: the one its facet bounds), in the order of their ids (kNoPoint last: a
+// simplex's centre before its facets'), so that whatever reads them in order gets the
+// same bits whichever simplex the cavity's search began in. A centre flat in double is
+// left out; returns how many were.
+constexpr std::uint32_t kNoPoint = 0xFFFFFFFFu;
+struct CavityCentre {
+  std::array<std::uint32_t, 4> ids;
+  std::int32_t simplex;
+  Vec x;
+  bool fresh() const { return ids[3] == kNoPoint; }
+};
+std::size_t cavity_centres_3d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavity,
+                              const std::vector<std::pair<std::int32_t, int>>& boundary, const double* q,
+                              std::vector<CavityCentre>& out) {
+  const PointSet& points = *tri.points;
+  constexpr std::size_t w = 4;
+  std::size_t flat = 0;
+  out.clear();
+  for (const std::int32_t s : cavity) {
+    CavityCentre n{{}, s, {}};
+    for (std::size_t j = 0; j < w; ++j) n.ids[j] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    Vec c;
+    if (!circumcentre_with(points, n.ids.data() + 1, points.point(n.ids[0]), c)) {
+      ++flat;
+      continue;
+    }
+    for (std::size_t k = 0; k < 3; ++k) n.x[k] = c[k] - q[k];
+    std::sort(n.ids.begin(), n.ids.end());
+    out.push_back(n);
+  }
+  for (const auto& [s, k] : boundary) {
+    CavityCentre n{{kNoPoint, kNoPoint, kNoPoint, kNoPoint}, s, {}};
+    for (std::size_t j = 0, at = 0; j < w; ++j) {
+      if (static_cast<int>(j) != k) n.ids[at++] = tri.simplices[static_cast<std::size_t>(s) * w + j];
+    }
+    Vec c;
+    if (!circumcentre_with(points, n.ids.data(), q, c)) {
+      ++flat;
+      continue;
+    }
+    for (std::size_t k2 = 0; k2 < 3; ++k2) n.x[k2] = c[k2] - q[k2];
+    std::sort(n.ids.begin(), n.ids.begin() + 3);
+    out.push_back(n);
+  }
+  std::sort(out.begin(), out.end(), [](const CavityCentre& a, const CavityCentre& b) { return a.ids < b.ids; });
+  return flat;
+}
+
 // 3-d Sibson coordinates from the cavity's combinatorics, in O(neighbours x cavity):
 // neighbour p's stolen part is a convex polytope whose faces are known without
 // clipping. One face lies on the bisector of q and p: its vertices are the centres of
@@ -304,40 +355,11 @@ bool stolen_faces_3d(const DelaunayArrays& tri, const std::vector<std::int32_t>&
                      const std::vector<std::pair<std::int32_t, int>>& boundary, const double* q,
                      NaturalCoordinates& out) {
   const PointSet& points = *tri.points;
-  constexpr std::size_t w = 4;
-  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
-  struct Node {
-    std::array<std::uint32_t, 4> ids;  // sorted point ids; a new centre's facet: 3, then kNone
-    std::int32_t simplex;              // the cavity simplex (a new centre's: the one its facet bounds)
-    Vec x;                             // the centre, relative to q
-    bool fresh() const { return ids[3] == kNone; }
-  };
+  constexpr std::uint32_t kNone = kNoPoint;
+  using Node = CavityCentre;
   thread_local std::vector<Node> nodes_tl;
   auto& nodes = nodes_tl;
-  nodes.clear();
-  for (const std::int32_t s : cavity) {
-    Node n{{}, s, {}};
-    for (std::size_t j = 0; j < w; ++j) n.ids[j] = tri.simplices[static_cast<std::size_t>(s) * w + j];
-    Vec c;
-    if (!circumcentre_with(points, n.ids.data() + 1, points.point(n.ids[0]), c)) return false;
-    for (std::size_t k = 0; k < 3; ++k) n.x[k] = c[k] - q[k];
-    std::sort(n.ids.begin(), n.ids.end());
-    nodes.push_back(n);
-  }
-  for (const auto& [s, k] : boundary) {
-    Node n{{kNone, kNone, kNone, kNone}, s, {}};
-    for (std::size_t j = 0, at = 0; j < w; ++j) {
-      if (static_cast<int>(j) != k) n.ids[at++] = tri.simplices[static_cast<std::size_t>(s) * w + j];
-    }
-    Vec c;
-    if (!circumcentre_with(points, n.ids.data(), q, c)) return false;
-    for (std::size_t k2 = 0; k2 < 3; ++k2) n.x[k2] = c[k2] - q[k2];
-    std::sort(n.ids.begin(), n.ids.begin() + 3);
-    nodes.push_back(n);
-  }
-  // In the order of their point ids (kNone last: a simplex's centre before its facets'
-  // of the same ids): the same sums whichever simplex the cavity's search began in.
-  std::sort(nodes.begin(), nodes.end(), [](const Node& a, const Node& b) { return a.ids < b.ids; });
+  if (cavity_centres_3d(tri, cavity, boundary, q, nodes) != 0) return false;
   // Each neighbour's nodes (the centres its stolen part has for vertices): runs of
   // (p, node), sorted. Then, within p's run, (r, node) for every other point r of a node
   // (kNone for a new centre's own face on the bisector of q and p), sorted: each run of
@@ -461,7 +483,8 @@ bool reproduces_query(const PointSet& points, const NaturalCoordinates& nn, cons
   return true;
 }
 
-// 3-d Sibson coordinates where clipping cannot be trusted: neighbour p's stolen part is
+// 3-d Sibson coordinates where the faces' sum cannot be used (a flat centre) or fails
+// to reproduce q (not seen on uniform, grid or clustered sets): neighbour p's stolen part is
 // the convex hull of its vertices, the centres of q's new simplices at p (q and a
 // boundary facet holding p) and the old centres of the cavity's simplices at p; its
 // volume from an exact hull of those points (ConvexHull), so copies of one vertex that
@@ -469,38 +492,17 @@ bool reproduces_query(const PointSet& points, const NaturalCoordinates& nn, cons
 Status stolen_hulls_3d(const DelaunayArrays& tri, const std::vector<std::int32_t>& cavity,
                        const std::vector<std::pair<std::int32_t, int>>& boundary, const double* q,
                        NaturalCoordinates& out) {
-  const PointSet& points = *tri.points;
-  constexpr std::size_t w = 4;
-  struct Centre {
-    std::array<std::uint32_t, 4> ids;  // the point ids whose centre it is (q's new simplices: 3, then kNone)
-    Vec x;
-  };
-  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
-  std::vector<Centre> centres;
-  for (const auto& [s, k] : boundary) {
-    Centre c{{kNone, kNone, kNone, kNone}, {}};
-    for (std::size_t j = 0, at = 0; j < w; ++j) {
-      if (static_cast<int>(j) != k) c.ids[at++] = tri.simplices[static_cast<std::size_t>(s) * w + j];
-    }
-    if (!circumcentre_with(points, c.ids.data(), q, c.x)) continue;
-    centres.push_back(c);
-  }
-  for (const std::int32_t s : cavity) {
-    Centre c{{}, {}};
-    for (std::size_t j = 0; j < w; ++j) c.ids[j] = tri.simplices[static_cast<std::size_t>(s) * w + j];
-    if (!circumcentre_with(points, c.ids.data() + 1, points.point(c.ids[0]), c.x)) continue;
-    centres.push_back(c);
-  }
-  // In the order of their point ids: the same hulls, the same bits, whichever simplex
-  // the cavity's search began in.
-  std::sort(centres.begin(), centres.end(), [](const Centre& a, const Centre& b) { return a.ids < b.ids; });
+  std::vector<CavityCentre> centres;
+  cavity_centres_3d(tri, cavity, boundary, q, centres);  // a flat centre: left out of its hulls
+  // (Sized here: the faces' sum may have given up before sizing them.)
+  out.weights.assign(out.neighbors.size(), 0.0);
   double total = 0;
   std::vector<double> coords;
   for (std::size_t i = 0; i < out.neighbors.size(); ++i) {
     coords.clear();
-    for (const Centre& c : centres) {
+    for (const CavityCentre& c : centres) {
       if (std::find(c.ids.begin(), c.ids.end(), out.neighbors[i]) == c.ids.end()) continue;
-      for (std::size_t k = 0; k < 3; ++k) coords.push_back(c.x[k] - q[k]);
+      coords.insert(coords.end(), c.x.begin(), c.x.end());
     }
     double volume = 0;
     auto hull = coords.size() >= 12 ? ConvexHull::build(coords, 3) : Result<ConvexHull>(invalid_argument("flat"));
