@@ -1065,15 +1065,25 @@ HttpResponse HttpApi::shard_map(Context& c, const std::string& id, bool seeds) {
   return r;
 }
 
+namespace {
+
+// A request's JSON body, or INVALID_ARGUMENT saying why it is not JSON.
+Result<json> json_body(const std::string& text) {
+  try {
+    return json::parse(text);
+  } catch (const json::exception& e) {
+    return invalid_argument(std::string("body: not JSON (") + e.what() + ")");
+  }
+}
+
+}  // namespace
+
 // POST .../{stars,neighbors,cells}:batch with {"seeds": [...], ...}: NDJSON, one line
 // per seed in request order, each the single route's body.
 HttpResponse HttpApi::batch(Context& c, const std::string& id, const std::string& what) {
-  json body;
-  try {
-    body = json::parse(c.request.body());
-  } catch (const json::exception& e) {
-    return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
-  }
+  auto parsed = json_body(c.request.body());
+  if (!parsed.is_ok()) return c.fail(parsed.status());
+  json body = std::move(parsed).value();
   if (!body.is_object() || !body.contains("seeds") || !body["seeds"].is_array()) {
     return c.fail(invalid_argument("seeds: the body needs {\"seeds\": [i, j, ...]}"));
   }
@@ -1284,15 +1294,27 @@ Status json_numbers(const json& body, const char* field, std::vector<double>& ou
   return Status::ok();
 }
 
+// A body's "values": one number or one row per point; `width` the rows' length, or for
+// a flat array the body's "width" (a positive integer, default 1).
+Status json_values(const json& body, std::vector<double>& out, std::size_t* width) {
+  if (Status s = json_numbers(body, "values", out, width); !s.is_ok()) return s;
+  if (*width != 0) return Status::ok();
+  *width = 1;
+  if (body.contains("width")) {
+    if (!body["width"].is_number_unsigned() || body["width"].get<std::uint64_t>() == 0) {
+      return invalid_argument("width: not a positive integer");
+    }
+    *width = body["width"].get<std::size_t>();
+  }
+  return Status::ok();
+}
+
 }  // namespace
 
 HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool interpolate) {
-  json body;
-  try {
-    body = json::parse(c.request.body());
-  } catch (const json::exception& e) {
-    return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
-  }
+  auto parsed = json_body(c.request.body());
+  if (!parsed.is_ok()) return c.fail(parsed.status());
+  json body = std::move(parsed).value();
   if (!body.is_object()) return c.fail(invalid_argument("body: expected a JSON object with \"queries\""));
   auto info = engine_.get_point_set(id, c.principal);
   if (!info.is_ok()) return c.fail(info.status());
@@ -1327,17 +1349,8 @@ HttpResponse HttpApi::point_queries(Context& c, const std::string& id, bool inte
       if (!got.is_ok()) return c.fail(got.status());
       kept = std::move(got).value();
       query.width = kept->width;
-    } else if (Status s = json_numbers(body, "values", values, &query.width); !s.is_ok()) {
+    } else if (Status s = json_values(body, values, &query.width); !s.is_ok()) {
       return c.fail(s);
-    }
-    if (query.width == 0) {
-      query.width = 1;
-      if (body.contains("width")) {
-        if (!body["width"].is_number_unsigned() || body["width"].get<std::uint64_t>() == 0) {
-          return c.fail(invalid_argument("width: not a positive integer"));
-        }
-        query.width = body["width"].get<std::size_t>();
-      }
     }
     query.values = values;
     if (body.contains("fill_value")) {
@@ -1399,21 +1412,11 @@ HttpResponse HttpApi::put_values(Context& c, const std::string& id) {
       width = v.value();
     }
   } else {
-    json body;
-    try {
-      body = json::parse(c.request.body());
-    } catch (const json::exception& e) {
-      return c.fail(invalid_argument(std::string("body: not JSON (") + e.what() + ")"));
-    }
+    auto parsed = json_body(c.request.body());
+    if (!parsed.is_ok()) return c.fail(parsed.status());
+    const json body = std::move(parsed).value();
     if (!body.is_object()) return c.fail(invalid_argument("body: expected a JSON object with \"values\""));
-    if (Status s = json_numbers(body, "values", values, &width); !s.is_ok()) return c.fail(s);
-    if (width == 0) {
-      width = 1;
-      if (body.contains("width")) {
-        if (!body["width"].is_number_unsigned()) return c.fail(invalid_argument("width: not a positive integer"));
-        width = body["width"].get<std::size_t>();
-      }
-    }
+    if (Status s = json_values(body, values, &width); !s.is_ok()) return c.fail(s);
   }
   if (width == 0 || width > 1u << 20) return c.fail(invalid_argument("width: not between 1 and 1048576"));
   auto put = engine_.put_values(id, values, static_cast<std::uint32_t>(width));
